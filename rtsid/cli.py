@@ -1,0 +1,63 @@
+"""The ``rtsid`` command line: one subcommand per module, imported only when used.
+
+Each command module defines ``add_arguments(parser)`` and ``run(args) -> int``. Errors that
+rtsid raises on purpose (:class:`rtsid.errors.RtsidError`) print as one line naming the
+problem and the fix, and exit with status 2; nothing partial is left behind by the command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from rtsid import __version__
+from rtsid.errors import RtsidError
+
+# name -> (module, one-line help). Add a command by adding a line here.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "identify": ("rtsid.commands.identify", "estimate I, B, K and VAF window by window from a file"),
+    "demo": ("rtsid.commands.demo", "identify a simulated ankle and print estimates against truth"),
+    "bench": ("rtsid.commands.bench", "run a benchmark and print its table"),
+}
+
+
+def build_parser(commands: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """Parser with every registered subcommand (or only ``commands``)."""
+    parser = argparse.ArgumentParser(
+        prog="rtsid", description="Real-time system identification of joint impedance."
+    )
+    parser.add_argument("--version", action="version", version=f"rtsid {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (module_name, help_text) in COMMANDS.items():
+        if commands is not None and name not in commands:
+            continue
+        module = importlib.import_module(module_name)
+        cmd = sub.add_parser(name, help=help_text, description=help_text)
+        module.add_arguments(cmd)
+        cmd.set_defaults(_module=module)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``rtsid`` console script."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    wanted = [a for a in argv[:1] if a in COMMANDS] or None
+    parser = build_parser(wanted)
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 0
+    try:
+        return int(args._module.run(args) or 0)
+    except RtsidError as exc:
+        print(f"rtsid {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"rtsid {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

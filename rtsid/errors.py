@@ -1,0 +1,80 @@
+"""One exception tree for rtsid; every message says what went wrong and how to fix it.
+
+::
+
+    RtsidError
+    ├── ConfigError(ValueError)          a config key or value is not accepted
+    ├── InputDataError(ValueError)       samples or files that cannot be used as they are
+    │   └── WindowError                  a window that must not be estimated (gap, NaN, too short…)
+    ├── NumericalError(ArithmeticError)  the numerics cannot give a trustworthy answer
+    │   └── NotPositiveDefiniteError     Toeplitz matrix not positive definite
+    ├── LinkError(OSError)               the hardware link (CAN bus, socketcand, protocol)
+    ├── RecordingError(OSError)          reading or writing recordings (MCAP, CSV, npz)
+    └── ServiceError(RuntimeError)       the daemon's threads, zenoh, deadlines
+
+Each class also subclasses the built-in it resembles, so callers that catch ``ValueError``
+or ``OSError`` keep working.
+"""
+
+from __future__ import annotations
+
+
+class RtsidError(Exception):
+    """Base class of every error rtsid raises on purpose."""
+
+
+class ConfigError(RtsidError, ValueError):
+    """A configuration key or value is not accepted; the message names key, value and choices."""
+
+
+class InputDataError(RtsidError, ValueError):
+    """Input samples or files cannot be used as they are."""
+
+
+class WindowError(InputDataError):
+    """A window must not be estimated; ``reason`` is a short machine-readable flag.
+
+    Parameters
+    ----------
+    message : str
+        Human-readable explanation, with the fix where there is one.
+    reason : str
+        Short flag such as ``"gap"``, ``"nan"``, ``"too_short"``, ``"saturated"``,
+        ``"no_excitation"`` or ``"stale"``.
+    """
+
+    def __init__(self, message: str, reason: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+class NumericalError(RtsidError, ArithmeticError):
+    """The numerics cannot give a trustworthy answer for this input."""
+
+
+class NotPositiveDefiniteError(NumericalError):
+    """A Toeplitz matrix is not positive definite (prediction-error variance <= 0).
+
+    Parameters
+    ----------
+    message : str
+        Explanation with the fix.
+    step : int
+        Recursion step at which the prediction-error variance stopped being positive.
+    """
+
+    def __init__(self, message: str, step: int) -> None:
+        super().__init__(message)
+        self.step = step
+
+
+class LinkError(RtsidError, OSError):
+    """The hardware link failed: bus, socketcand connection or protocol."""
+
+
+class RecordingError(RtsidError, OSError):
+    """A recording could not be read or written."""
+
+
+class ServiceError(RtsidError, RuntimeError):
+    """The daemon's threads, zenoh session or scheduling failed."""
