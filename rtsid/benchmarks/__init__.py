@@ -1,0 +1,13 @@
+"""Benchmarks behind ``rtsid bench NAME``: each prints tables (median, p99, ratios against a
+baseline measured in the same run). Tests never time anything; figures come from here.
+
+Each module defines ``add_arguments(parser)`` and ``run(args) -> int``.
+"""
+
+# name -> (module, one-line help). Add a benchmark by adding a line here.
+BENCHMARKS: dict[str, tuple[str, str]] = {
+    "toeplitz": ("rtsid.benchmarks.toeplitz", "EUREKA vs dense inversion vs scipy, n = 100…12800"),
+    "window": ("rtsid.benchmarks.window", "IRF + fit + VAF per 300 ms window at 2500 Hz, by stage"),
+    "accuracy": ("rtsid.benchmarks.accuracy", "I/B/K error and VAF on the simulated joint"),
+    "real": ("rtsid.benchmarks.real", "windowed estimates over the real ankle recording"),
+}
