@@ -1,0 +1,150 @@
+"""Configuration: frozen dataclasses loaded from TOML and validated on load.
+
+Every part of rtsid owns the dataclass of its own section (``[link]``, ``[plant]``,
+``[worker]``, ``[zenoh]``, ``[mcap]``, …) and builds it with :func:`section_from_mapping`,
+which rejects unknown keys and wrong types with a :class:`~rtsid.errors.ConfigError` that
+names the key, the value and what is accepted. Range checks live in each dataclass's
+``__post_init__`` and raise through :func:`invalid`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+import types
+import typing
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any, TypeVar
+
+from rtsid.errors import ConfigError
+
+__all__ = ["invalid", "load_toml", "section_from_mapping", "require_choice", "require_range"]
+
+T = TypeVar("T")
+
+
+def invalid(key: str, value: object, accepted: str) -> ConfigError:
+    """Error for ``key = value`` naming what is accepted instead."""
+    return ConfigError(f"config key {key!r} = {value!r} is not accepted; expected {accepted}")
+
+
+def require_choice(key: str, value: object, choices: Iterable[object]) -> None:
+    """Raise unless ``value`` is one of ``choices``."""
+    options = tuple(choices)
+    if value not in options:
+        raise invalid(key, value, "one of " + ", ".join(repr(c) for c in options))
+
+
+def require_range(
+    key: str,
+    value: float,
+    low: float | None = None,
+    high: float | None = None,
+    *,
+    low_inclusive: bool = True,
+) -> None:
+    """Raise unless ``low <= value <= high`` (``low < value`` when not ``low_inclusive``)."""
+    too_low = low is not None and (value < low if low_inclusive else value <= low)
+    too_high = high is not None and value > high
+    if too_low or too_high:
+        lo = "" if low is None else f"{'>=' if low_inclusive else '>'} {low}"
+        hi = "" if high is None else f"<= {high}"
+        raise invalid(key, value, "a number " + " and ".join(p for p in (lo, hi) if p))
+
+
+def load_toml(path: str | Path) -> dict[str, Any]:
+    """Read a TOML file; a missing or malformed file is a ConfigError naming the file."""
+    p = Path(path)
+    try:
+        with p.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"config file {str(p)!r} does not exist; check the path") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"config file {str(p)!r} is not valid TOML: {exc}") from None
+
+
+def _type_matches(value: object, annotation: Any) -> bool:
+    origin = typing.get_origin(annotation)
+    if annotation is Any:
+        return True
+    if origin in (typing.Union, types.UnionType):
+        return any(_type_matches(value, arg) for arg in typing.get_args(annotation))
+    if annotation is type(None):
+        return value is None
+    if annotation is float:
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    if annotation is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if origin in (tuple, list):
+        args = typing.get_args(annotation)
+        if not isinstance(value, list | tuple):
+            return False
+        if origin is tuple and len(args) == 2 and args[1] is Ellipsis:
+            return all(_type_matches(v, args[0]) for v in value)
+        if origin is tuple and args:
+            return len(value) == len(args) and all(map(_type_matches, value, args))
+        return not args or all(_type_matches(v, args[0]) for v in value)
+    if origin is dict or annotation is dict:
+        return isinstance(value, dict)
+    if isinstance(annotation, type):
+        return isinstance(value, annotation)
+    return True
+
+
+def _type_name(annotation: Any) -> str:
+    return getattr(annotation, "__name__", None) or str(annotation).replace("typing.", "")
+
+
+def section_from_mapping(cls: type[T], mapping: Mapping[str, Any] | None, section: str) -> T:
+    """Build the frozen dataclass ``cls`` from one TOML section, validating keys and types.
+
+    Parameters
+    ----------
+    cls : type
+        A dataclass whose fields are the section's keys (defaults for absent keys).
+    mapping : Mapping or None
+        The section's table (``None`` or empty: all defaults).
+    section : str
+        Section name used in messages, e.g. ``"worker"`` gives ``worker.hop_s``.
+
+    Returns
+    -------
+    cls
+        The validated instance.
+
+    Raises
+    ------
+    ConfigError
+        An unknown key (with the accepted keys), a value of the wrong type, or a value the
+        dataclass's own ``__post_init__`` rejects.
+    """
+    if not dataclasses.is_dataclass(cls):
+        raise TypeError(f"{cls!r} is not a dataclass")
+    mapping = dict(mapping or {})
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(mapping) - set(fields))
+    if unknown:
+        raise ConfigError(
+            f"unknown config key {section}.{unknown[0]}; accepted keys in [{section}]: "
+            + ", ".join(sorted(fields))
+        )
+    values: dict[str, Any] = {}
+    for name, value in mapping.items():
+        annotation = hints[name]
+        if not _type_matches(value, annotation):
+            raise invalid(f"{section}.{name}", value, f"a value of type {_type_name(annotation)}")
+        if isinstance(value, list) and typing.get_origin(annotation) is tuple:
+            value = tuple(value)
+        if annotation is float and isinstance(value, int):
+            value = float(value)
+        values[name] = value
+    try:
+        return cls(**values)
+    except ConfigError as exc:
+        msg = str(exc)
+        if f"'{section}." not in msg and msg.startswith("config key '"):
+            msg = msg.replace("config key '", f"config key '{section}.", 1)
+        raise ConfigError(msg) from None

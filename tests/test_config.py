@@ -1,0 +1,52 @@
+from dataclasses import dataclass
+
+import pytest
+
+from rtsid.config import load_toml, require_choice, require_range, section_from_mapping
+from rtsid.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Section:
+    hop_s: float = 0.02
+    mode: str = "fast"
+    channels: tuple[int, ...] = (1, 2)
+    label: str | None = None
+
+    def __post_init__(self) -> None:
+        require_range("hop_s", self.hop_s, 0.0, 1.0, low_inclusive=False)
+        require_choice("mode", self.mode, ("fast", "slow"))
+
+
+def test_defaults_and_coercion():
+    s = section_from_mapping(Section, {"hop_s": 1, "channels": [3, 4]}, "worker")
+    assert s == Section(hop_s=1.0, channels=(3, 4))
+    assert section_from_mapping(Section, None, "worker") == Section()
+
+
+def test_unknown_key_names_section_key_and_accepted_keys():
+    with pytest.raises(ConfigError, match=r"worker\.hopp_s.*accepted keys.*hop_s"):
+        section_from_mapping(Section, {"hopp_s": 0.1}, "worker")
+
+
+def test_wrong_type_names_key_value_and_type():
+    with pytest.raises(ConfigError, match=r"'worker\.hop_s' = 'fast'.*float"):
+        section_from_mapping(Section, {"hop_s": "fast"}, "worker")
+    with pytest.raises(ConfigError, match=r"worker\.channels"):
+        section_from_mapping(Section, {"channels": ["a"]}, "worker")
+
+
+def test_range_and_choice_errors_carry_the_section():
+    with pytest.raises(ConfigError, match=r"'worker\.hop_s' = 0\.0.*> 0\.0"):
+        section_from_mapping(Section, {"hop_s": 0.0}, "worker")
+    with pytest.raises(ConfigError, match=r"'worker\.mode' = 'medium'.*'fast', 'slow'"):
+        section_from_mapping(Section, {"mode": "medium"}, "worker")
+
+
+def test_load_toml_errors_name_the_file(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[worker\nhop_s = 1")
+    with pytest.raises(ConfigError, match="bad.toml.*not valid TOML"):
+        load_toml(bad)
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_toml(tmp_path / "missing.toml")
