@@ -20,6 +20,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "identify": ("rtsid.commands.identify", "estimate I, B, K and VAF window by window from a file"),
     "demo": ("rtsid.commands.demo", "identify a simulated ankle and print estimates against truth"),
     "bench": ("rtsid.commands.bench", "run a benchmark and print its table"),
+    "recover": ("rtsid.commands.recover", "rewrite an MCAP recording that lost its footer"),
 }
 
 

@@ -1,0 +1,584 @@
+"""MCAP logging on its own thread behind a bounded queue; the caller never blocks.
+
+::
+
+    caller threads ──log_samples / log_estimate / log_status / log_can_frames──►
+        bounded queue (put_nowait; full → dropped, counted) ──► "rtsid-mcap" thread
+        ──► mcap.Writer (zstd chunks) ──► recordings/rtsid-<robot>-<joint>-<UTC>[-NNN].mcap
+
+- Chunks are small (``chunk_size``) and the writer flushes every ``flush_interval_s``, so a
+  process killed with SIGKILL loses at most about the flush interval plus one chunk; the file
+  then lacks its footer and :func:`rtsid.io.mcap_read.recover` rewrites it as a valid one.
+- Each file is self-contained (schemas, channels, ``rtsid`` and ``config`` metadata) and files
+  rotate by size and by age.
+- A write error (full disk, read-only or vanished directory) never reaches the caller: the file
+  is closed, the error is counted and kept as ``last_error`` in :meth:`McapLogger.stats`,
+  messages are counted as ``lost`` while there is no file, and a new file is tried every
+  ``retry_interval_s``.
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+import os
+import queue
+import re
+import threading
+import time
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from rtsid import __version__
+from rtsid.config import invalid, require_range, section_from_mapping
+from rtsid.errors import InputDataError
+from rtsid.io.schemas import (
+    SCHEMAS,
+    encode_can_frames,
+    encode_estimate,
+    encode_json,
+    encode_samples,
+    encode_status,
+)
+
+__all__ = ["McapConfig", "McapLogger", "recording_name"]
+
+log = logging.getLogger("rtsid.io.mcap")
+
+_KINDS = ("samples", "estimate", "status", "can_frames")
+_STOP_POLL_S = 0.1
+
+
+@dataclass(frozen=True)
+class McapConfig:
+    """The ``[mcap]`` config section.
+
+    Attributes
+    ----------
+    directory : str
+        Where recordings go (created if missing).
+    enabled : bool
+        False: nothing is written (the logger's methods still accept messages).
+    chunk_size : int
+        Uncompressed bytes after which a chunk is closed, compressed (zstd) and written.
+    flush_interval_s : float
+        The open chunk is written and the file flushed at least this often, s. Bounds what a
+        SIGKILL loses.
+    rotate_size_mb : float
+        Start a new file once the current one reaches this size, MiB (0: never).
+    rotate_interval_s : float
+        Start a new file after this long, s (0: never).
+    queue_size : int
+        Messages waiting for the writer thread; beyond it messages are dropped and counted.
+    log_can_frames : bool
+        Also record raw CAN frames (channel ``/can_frames``).
+    retry_interval_s : float
+        After a write error, try a new file this often, s.
+    """
+
+    directory: str = "./recordings"
+    enabled: bool = True
+    chunk_size: int = 64 * 1024
+    flush_interval_s: float = 0.5
+    rotate_size_mb: float = 1024.0
+    rotate_interval_s: float = 3600.0
+    queue_size: int = 4096
+    log_can_frames: bool = False
+    retry_interval_s: float = 5.0
+
+    def __post_init__(self) -> None:
+        require_range("chunk_size", self.chunk_size, 1024, 64 * 1024 * 1024)
+        require_range("flush_interval_s", self.flush_interval_s, 0.0, 10.0, low_inclusive=False)
+        require_range("rotate_size_mb", self.rotate_size_mb, 0.0)
+        require_range("rotate_interval_s", self.rotate_interval_s, 0.0)
+        require_range("queue_size", self.queue_size, 16, 1_000_000)
+        require_range("retry_interval_s", self.retry_interval_s, 0.0, 3600.0, low_inclusive=False)
+        if not self.directory:
+            raise invalid("directory", self.directory, "a directory path")
+
+    @classmethod
+    def from_mapping(cls, mapping: Mapping[str, Any] | None) -> McapConfig:
+        """Build from the ``[mcap]`` TOML table (unknown keys and bad values rejected)."""
+        return section_from_mapping(cls, mapping, "mcap")
+
+
+_SAFE = re.compile(r"[^A-Za-z0-9_.]+")
+
+
+def recording_name(robot: str, joint: str, start: datetime, part: int) -> str:
+    """File name ``rtsid-<robot>-<joint>-<YYYYmmddTHHMMSSZ>[-NNN].mcap`` (part 0: no suffix).
+
+    Characters other than letters, digits, ``_`` and ``.`` in robot/joint become ``_``.
+    """
+    stamp = start.astimezone(UTC).strftime("%Y%m%dT%H%M%SZ")
+    suffix = f"-{part:03d}" if part else ""
+    return f"rtsid-{_SAFE.sub('_', robot)}-{_SAFE.sub('_', joint)}-{stamp}{suffix}.mcap"
+
+
+def _open_exclusive(path: Path) -> IO[bytes]:
+    return open(path, "xb")
+
+
+class _Counters:
+    """Counters shared by caller threads and the writer thread (one lock, cheap)."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.dropped = dict.fromkeys(_KINDS, 0)
+        self.written = 0
+        self.lost = 0
+        self.errors = 0
+        self.last_error: str | None = None
+        self.files: list[str] = []
+        self.file: str | None = None
+        self.file_bytes = 0
+        self.closed_bytes = 0
+        self.state = "starting"
+
+
+class McapLogger:
+    """Write rtsid messages to MCAP from a dedicated thread (a context manager).
+
+    Parameters
+    ----------
+    config : McapConfig
+        The ``[mcap]`` section.
+    robot, joint : str
+        Names for the file name and the ``rtsid`` metadata.
+    fs_hz : float
+        Sample rate of the logged samples, Hz.
+    run_config : Mapping, optional
+        The daemon's whole configuration, stored as JSON in the ``config`` metadata record.
+    metadata : Mapping[str, str], optional
+        Extra key/values for the ``rtsid`` metadata record.
+    open_file : callable, optional
+        ``open_file(path) -> binary file``; tests inject failing files. Default: exclusive create.
+
+    Examples
+    --------
+    >>> with McapLogger(McapConfig(directory="rec"), robot="r1", joint="ankle", fs_hz=2500.0) as m:
+    ...     m.log_samples(0, pos, tq)        # doctest: +SKIP
+    ...     m.log_estimate(estimate_dict)    # doctest: +SKIP
+    """
+
+    def __init__(
+        self,
+        config: McapConfig,
+        *,
+        robot: str,
+        joint: str,
+        fs_hz: float,
+        run_config: Mapping[str, Any] | None = None,
+        metadata: Mapping[str, str] | None = None,
+        open_file: Callable[[Path], IO[bytes]] = _open_exclusive,
+    ) -> None:
+        if not fs_hz > 0:
+            raise InputDataError(f"McapLogger fs_hz = {fs_hz!r}; expected the sample rate > 0 Hz")
+        self.config = config
+        self.robot = robot
+        self.joint = joint
+        self.fs_hz = float(fs_hz)
+        self._run_config_json = encode_json(run_config or {}).decode()
+        self._extra_metadata = {str(k): str(v) for k, v in (metadata or {}).items()}
+        self._open_file = open_file
+        self._queue: queue.Queue[tuple[str, int, Any]] = queue.Queue(maxsize=config.queue_size)
+        self._stop = threading.Event()
+        self._accepting = False
+        self._thread: threading.Thread | None = None
+        self._c = _Counters()
+        self._session_start = datetime.now(UTC)
+        self._part = 0
+        # Writer-thread state (touched only by the writer thread after start()).
+        self._writer: Any = None
+        self._stream: IO[bytes] | None = None
+        self._channels: dict[str, int] = {}
+        self._file_opened_at = 0.0
+        self._retry_at = 0.0
+        if not config.enabled:
+            self._c.state = "disabled"
+
+    # ------------------------------------------------------------------ life cycle
+    def start(self) -> McapLogger:
+        """Start the writer thread (idempotent). The first file is opened by that thread."""
+        if not self.config.enabled or self._thread is not None:
+            return self
+        self._accepting = True
+        self._thread = threading.Thread(target=self._run, name="rtsid-mcap", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self, timeout_s: float = 5.0) -> bool:
+        """Stop accepting, write what is queued, finish the file (footer), join the thread.
+
+        Parameters
+        ----------
+        timeout_s : float
+            Upper bound on the wait, s.
+
+        Returns
+        -------
+        bool
+            True when the thread finished in time (the file is then complete).
+        """
+        self._accepting = False
+        self._stop.set()
+        thread, self._thread = self._thread, None
+        if thread is None:
+            return True
+        thread.join(timeout_s)
+        if thread.is_alive():
+            log.error(
+                "MCAP writer did not finish within %.1f s; the file may lack its footer "
+                "(rtsid recover FILE rewrites it)",
+                timeout_s,
+            )
+            return False
+        return True
+
+    def __enter__(self) -> McapLogger:
+        return self.start()
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------------ caller side
+    def log_samples(
+        self,
+        first_index: int,
+        position_rad: Any,
+        torque_nm: Any,
+        valid: Any = None,
+        status: Any = None,
+        *,
+        log_time_ns: int | None = None,
+    ) -> bool:
+        """Queue a batch of consecutive samples (copied; encoded on the writer thread).
+
+        Parameters
+        ----------
+        first_index : int
+            Sample index of row 0.
+        position_rad, torque_nm : array_like, shape (n,)
+            Values (rad, N·m); rows of lost samples may be NaN.
+        valid : array_like of bool, shape (n,), optional
+            False for lost/invalid rows (default: all valid).
+        status : array_like of int, shape (n,), optional
+            Per-sample status bits (default: zeros).
+        log_time_ns : int, optional
+            Host UNIX time for the MCAP log time (default: now).
+
+        Returns
+        -------
+        bool
+            True if queued; False if dropped (queue full, counted) or not recording.
+        """
+        pos = np.array(position_rad, dtype=np.float64)
+        tq = np.array(torque_nm, dtype=np.float64)
+        n = pos.shape[0] if pos.ndim == 1 else -1
+        ok = np.ones(n, dtype=bool) if valid is None else np.array(valid, dtype=bool)
+        st = np.zeros(n, dtype=np.int64) if status is None else np.array(status, dtype=np.int64)
+        if pos.ndim != 1 or tq.shape != pos.shape or ok.shape != pos.shape or st.shape != pos.shape:
+            raise InputDataError(
+                f"log_samples needs 1-D arrays of one length; got position {pos.shape}, "
+                f"torque {tq.shape}, valid {ok.shape}, status {st.shape}"
+            )
+        return self._put("samples", log_time_ns, (int(first_index), pos, tq, ok, st))
+
+    def log_estimate(
+        self, message: Mapping[str, Any] | bytes, *, log_time_ns: int | None = None
+    ) -> bool:
+        """Queue one estimate (a dict with :data:`~rtsid.io.schemas.ESTIMATE_FIELDS`, or the
+        bytes of :func:`~rtsid.io.schemas.encode_estimate`). Log time defaults to its
+        ``host_time_ns``."""
+        if isinstance(message, bytes | bytearray):
+            payload = bytes(message)
+        else:
+            payload = encode_estimate(message)
+            if log_time_ns is None:
+                log_time_ns = int(message["host_time_ns"])
+        return self._put("estimate", log_time_ns, payload)
+
+    def log_status(
+        self, message: Mapping[str, Any] | bytes, *, log_time_ns: int | None = None
+    ) -> bool:
+        """Queue one status message (dict following STATUS_SCHEMA, or its encoded bytes)."""
+        payload = message if isinstance(message, bytes) else encode_status(message)
+        return self._put("status", log_time_ns, payload)
+
+    def log_can_frames(self, frames: Iterable[Any], *, log_time_ns: int | None = None) -> bool:
+        """Queue a batch of raw CAN frames (``can.Message``-like); ignored unless
+        ``log_can_frames`` is on."""
+        if not self.config.log_can_frames:
+            return False
+        return self._put("can_frames", log_time_ns, encode_can_frames(frames))
+
+    def _put(self, kind: str, log_time_ns: int | None, payload: Any) -> bool:
+        if not self._accepting:
+            return False
+        t = time.time_ns() if log_time_ns is None else int(log_time_ns)
+        try:
+            self._queue.put_nowait((kind, t, payload))
+        except queue.Full:
+            with self._c.lock:
+                self._c.dropped[kind] += 1
+            return False
+        return True
+
+    def stats(self) -> dict[str, Any]:
+        """Counters for the status message (the ``mcap`` object of STATUS_SCHEMA).
+
+        Returns
+        -------
+        dict
+            ``state`` (disabled, starting, recording, error, stopped), ``file``, ``bytes`` (of
+            the current file), ``total_bytes``, ``files``, ``written`` messages, ``dropped``
+            (queue full, total) and ``dropped_by_kind``, ``lost`` (no file to write to),
+            ``errors``, ``last_error``, ``queue_depth``.
+        """
+        c = self._c
+        with c.lock:
+            return {
+                "state": c.state,
+                "file": c.file,
+                "bytes": c.file_bytes,
+                "total_bytes": c.closed_bytes + c.file_bytes,
+                "files": list(c.files),
+                "written": c.written,
+                "dropped": sum(c.dropped.values()),
+                "dropped_by_kind": dict(c.dropped),
+                "lost": c.lost,
+                "errors": c.errors,
+                "last_error": c.last_error,
+                "queue_depth": self._queue.qsize(),
+            }
+
+    @property
+    def files(self) -> list[Path]:
+        """Every file this logger has opened, oldest first."""
+        with self._c.lock:
+            return [Path(f) for f in self._c.files]
+
+    # ------------------------------------------------------------------ writer thread
+    def _run(self) -> None:
+        cfg = self.config
+        self._try_open()
+        next_flush = time.monotonic() + cfg.flush_interval_s
+        while not self._stop.is_set():
+            timeout = min(_STOP_POLL_S, max(0.0, next_flush - time.monotonic()))
+            try:
+                item = self._queue.get(timeout=timeout)
+            except queue.Empty:
+                item = None
+            if item is not None:
+                self._write(item)
+            now = time.monotonic()
+            if now >= next_flush:
+                self._flush()
+                next_flush += cfg.flush_interval_s
+                if next_flush <= now:  # fell behind: next deadline from now, never a burst
+                    next_flush = now + cfg.flush_interval_s
+                self._maybe_rotate(now)
+            if self._writer is None and now >= self._retry_at:
+                self._try_open()
+        self._drain()
+        self._close_file(finish=True)
+        with self._c.lock:
+            self._c.state = "stopped" if self._c.state != "error" else "error"
+
+    def _drain(self) -> None:
+        for _ in range(self.config.queue_size + 1):
+            try:
+                item = self._queue.get_nowait()
+            except queue.Empty:
+                return
+            self._write(item)
+
+    def _write(self, item: tuple[str, int, Any]) -> None:
+        kind, t_ns, payload = item
+        if self._writer is None:
+            with self._c.lock:
+                self._c.lost += 1
+            return
+        try:
+            if kind == "samples":
+                first, pos, tq, ok, st = payload
+                payload = encode_samples(first, self.fs_hz, pos, tq, ok, st)
+            self._writer.add_message(
+                channel_id=self._channels[kind], log_time=t_ns, data=payload, publish_time=t_ns
+            )
+        except OSError as exc:
+            with self._c.lock:
+                self._c.lost += 1
+            self._fail(exc, "writing")
+            return
+        with self._c.lock:
+            self._c.written += 1
+
+    def _flush(self) -> None:
+        if self._writer is None or self._stream is None:
+            return
+        try:
+            self._writer.flush()
+            size = self._stream.tell()
+        except OSError as exc:
+            self._fail(exc, "flushing")
+            return
+        with self._c.lock:
+            self._c.file_bytes = size
+
+    def _maybe_rotate(self, now: float) -> None:
+        cfg = self.config
+        if self._writer is None:
+            return
+        too_big = cfg.rotate_size_mb > 0 and self._c.file_bytes >= cfg.rotate_size_mb * 2**20
+        too_old = cfg.rotate_interval_s > 0 and now - self._file_opened_at >= cfg.rotate_interval_s
+        if too_big or too_old:
+            self._close_file(finish=True)
+            self._part += 1
+            self._try_open()
+
+    def _next_path(self) -> Path:
+        directory = Path(self.config.directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        return directory / recording_name(self.robot, self.joint, self._session_start, self._part)
+
+    def _try_open(self) -> None:
+        """Open the next file; on error count it and retry after ``retry_interval_s``."""
+        from mcap.writer import CompressionType, Writer
+
+        path: Path | None = None
+        stream: IO[bytes] | None = None
+        try:
+            for _ in range(1000):
+                path = self._next_path()
+                try:
+                    stream = self._open_file(path)
+                    break
+                except FileExistsError:
+                    self._part += 1
+            if stream is None or path is None:
+                raise FileExistsError(errno.EEXIST, "too many recordings with this name", path)
+            writer = Writer(
+                stream, chunk_size=self.config.chunk_size, compression=CompressionType.ZSTD
+            )
+            writer.start(profile="", library=f"rtsid {__version__}")
+            self._channels = self._register(writer)
+            writer.add_metadata("rtsid", self._rtsid_metadata())
+            writer.add_metadata("config", {"json": self._run_config_json})
+            writer.flush()
+            size = stream.tell()
+        except OSError as exc:
+            self._stream = stream
+            self._fail(exc, "creating", path)
+            return
+        self._writer, self._stream = writer, stream
+        self._file_opened_at = time.monotonic()
+        with self._c.lock:
+            self._c.file = str(path)
+            self._c.files.append(str(path))
+            self._c.file_bytes = size
+            self._c.state = "recording"
+        log.info("recording to %s", path)
+
+    def _register(self, writer: Any) -> dict[str, int]:
+        channels = {}
+        for kind in _KINDS:
+            if kind == "can_frames" and not self.config.log_can_frames:
+                continue
+            schema, topic = SCHEMAS[kind]
+            schema_id = writer.register_schema(
+                name=schema["title"], encoding="jsonschema", data=encode_json(schema)
+            )
+            channels[kind] = writer.register_channel(
+                topic=topic, message_encoding="json", schema_id=schema_id
+            )
+        return channels
+
+    def _rtsid_metadata(self) -> dict[str, str]:
+        import mcap
+
+        return {
+            "software": "rtsid",
+            "version": __version__,
+            "mcap_library": getattr(mcap, "__version__", "unknown"),
+            "robot": self.robot,
+            "joint": self.joint,
+            "fs_hz": repr(self.fs_hz),
+            "session_start_utc": self._session_start.isoformat(),
+            "file_start_utc": datetime.now(UTC).isoformat(),
+            "part": str(self._part),
+            "schemas": "see docs/io.md",
+            **self._extra_metadata,
+        }
+
+    def _close_file(self, *, finish: bool) -> None:
+        writer, stream = self._writer, self._stream
+        self._writer, self._stream = None, None
+        size = 0
+        try:
+            if writer is not None and finish:
+                writer.finish()
+            if stream is not None:
+                stream.flush()
+                size = stream.tell()
+        except OSError as exc:
+            self._fail(exc, "finishing")
+        finally:
+            if stream is not None:
+                try:
+                    stream.close()
+                except OSError:
+                    pass
+        with self._c.lock:
+            if writer is not None:
+                self._c.closed_bytes += size or self._c.file_bytes
+                self._c.file_bytes = 0
+
+    def _fail(self, exc: OSError, action: str, path: Path | None = None) -> None:
+        target = path or (self._c.file and Path(self._c.file)) or Path(self.config.directory)
+        message = _describe_os_error(exc, action, target)
+        first = self._c.state != "error"
+        # Abandon the file without writing more into it (its footer is missing: recoverable).
+        writer_had_file = self._writer is not None
+        if writer_had_file:
+            self._part += 1  # the next try is a new file beside the damaged one
+        stream = self._stream
+        self._writer, self._stream = None, None
+        if stream is not None:
+            try:
+                stream.close()
+            except OSError:
+                pass
+        self._retry_at = time.monotonic() + self.config.retry_interval_s
+        with self._c.lock:
+            self._c.errors += 1
+            self._c.last_error = message
+            self._c.state = "error"
+            if writer_had_file:
+                self._c.closed_bytes += self._c.file_bytes
+                self._c.file_bytes = 0
+            self._c.file = None
+        if first:
+            log.error("%s", message)
+
+
+def _describe_os_error(exc: OSError, action: str, path: Path) -> str:
+    code = errno.errorcode.get(exc.errno or 0, "") if exc.errno else ""
+    reason = exc.strerror or str(exc)
+    if exc.errno == errno.ENOSPC:
+        fix = "free disk space or set mcap.directory to another disk"
+    elif exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        fix = "make the directory writable or set mcap.directory to a writable one"
+    elif exc.errno == errno.ENOENT:
+        fix = "the directory vanished; recreate it or set mcap.directory"
+    else:
+        fix = "check the disk and mcap.directory"
+    return (
+        f"MCAP {action} {os.fspath(path)} failed: {reason}{f' ({code})' if code else ''}; {fix}. "
+        "Estimates are still published; messages are counted as lost until a new file opens"
+    )

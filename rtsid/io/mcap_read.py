@@ -1,0 +1,353 @@
+"""Read rtsid MCAP recordings — complete ones and ones that lost their footer.
+
+A recorder killed with SIGKILL (or a full disk) leaves a file without summary and footer,
+possibly ending in the middle of a record. ``mcap.reader.make_reader(...).iter_messages()``
+refuses such a file; everything here reads records in order with the stream reader and stops
+cleanly at the first incomplete or damaged record, so every message written before it is
+returned. :func:`recover` rewrites such a file as a valid one.
+
+Replay (issue 5) feeds :func:`iter_sample_batches` into the same window worker as the daemon.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from rtsid import __version__
+from rtsid.errors import RecordingError
+from rtsid.io.schemas import SCHEMAS, SampleBatch, decode_samples
+
+__all__ = [
+    "ReadReport",
+    "iter_can_frames",
+    "iter_estimates",
+    "iter_messages",
+    "iter_sample_batches",
+    "iter_status",
+    "read_metadata",
+    "read_run_config",
+    "recover",
+    "sample_count",
+    "summarize",
+]
+
+TOPICS = {name: topic for name, (_schema, topic) in SCHEMAS.items()}
+
+
+@dataclass
+class ReadReport:
+    """What a pass over a recording found.
+
+    Attributes
+    ----------
+    path : Path
+    messages : int
+        Complete messages read.
+    by_topic : dict[str, int]
+        Messages per topic.
+    complete : bool
+        The footer was reached (the file was finished properly).
+    error : str or None
+        Why reading stopped early (truncated record, bad CRC, …); None when complete.
+    """
+
+    path: Path
+    messages: int = 0
+    by_topic: dict[str, int] = field(default_factory=dict)
+    complete: bool = False
+    error: str | None = None
+
+
+def _damage_errors() -> tuple[type[BaseException], ...]:
+    from mcap.exceptions import McapError
+
+    errors: list[type[BaseException]] = [McapError, struct.error, ValueError, EOFError]
+    try:
+        import zstandard
+
+        errors.append(zstandard.ZstdError)
+    except ImportError:  # pragma: no cover - zstandard is a dependency
+        pass
+    return tuple(errors)
+
+
+def _open(path: str | Path) -> IO[bytes]:
+    p = Path(path)
+    try:
+        return p.open("rb")
+    except FileNotFoundError:
+        raise RecordingError(f"recording {str(p)!r} does not exist; check the path") from None
+    except OSError as exc:
+        raise RecordingError(f"cannot open recording {str(p)!r}: {exc.strerror}") from exc
+
+
+def _iter_records(path: str | Path, report: ReadReport) -> Iterator[Any]:
+    """Every complete record in file order (chunks opened); stops at the first damaged one."""
+    from mcap.exceptions import EndOfFile, InvalidMagic
+    from mcap.records import Chunk, Footer
+    from mcap.stream_reader import StreamReader, breakup_chunk
+
+    damage = _damage_errors()
+    with _open(path) as fh:
+        reader = StreamReader(fh, emit_chunks=True, record_size_limit=1 << 30)
+        records = reader.records
+        first = True
+        while True:
+            try:
+                record = next(records)
+            except StopIteration:
+                return
+            except InvalidMagic:
+                raise RecordingError(
+                    f"{str(path)!r} is not an MCAP file (bad magic bytes); pass an .mcap recording"
+                ) from None
+            except EndOfFile:
+                if first:
+                    raise RecordingError(
+                        f"{str(path)!r} is empty or shorter than an MCAP header; nothing to read"
+                    ) from None
+                report.error = "file ends inside a record (writer stopped without a footer)"
+                return
+            except damage as exc:
+                report.error = f"damaged record after {report.messages} messages: {exc}"
+                return
+            first = False
+            if isinstance(record, Chunk):
+                try:
+                    inner = breakup_chunk(record, validate_crc=True)
+                except damage as exc:
+                    report.error = f"damaged chunk after {report.messages} messages: {exc}"
+                    return
+                yield from inner
+            else:
+                if isinstance(record, Footer):
+                    report.complete = True
+                yield record
+
+
+def iter_messages(
+    path: str | Path, report: ReadReport | None = None
+) -> Iterator[tuple[str, Any, Any]]:
+    """Yield ``(topic, channel, message)`` for every complete message, in file order.
+
+    Parameters
+    ----------
+    path : str or Path
+        An MCAP file, complete or not.
+    report : ReadReport, optional
+        Filled in as reading proceeds (counts, whether the footer was reached, why it stopped).
+
+    Raises
+    ------
+    RecordingError
+        The file is missing, empty or not MCAP. Damage after the header is not an error: reading
+        stops there and ``report.error`` says why.
+    """
+    from mcap.records import Channel, Message
+
+    report = report if report is not None else ReadReport(Path(path))
+    channels: dict[int, Any] = {}
+    for record in _iter_records(path, report):
+        if isinstance(record, Channel):
+            channels[record.id] = record
+        elif isinstance(record, Message):
+            channel = channels.get(record.channel_id)
+            if channel is None:
+                continue  # its channel record was lost with a damaged chunk
+            report.messages += 1
+            report.by_topic[channel.topic] = report.by_topic.get(channel.topic, 0) + 1
+            yield channel.topic, channel, record
+
+
+def _iter_topic(path: str | Path, name: str) -> Iterator[Any]:
+    topic = TOPICS[name]
+    for t, _channel, message in iter_messages(path):
+        if t == topic:
+            yield message
+
+
+def iter_sample_batches(path: str | Path) -> Iterator[SampleBatch]:
+    """Raw sample batches in recording order, as numpy arrays.
+
+    Yields
+    ------
+    SampleBatch
+        ``first_index``, ``fs_hz``, ``position_rad``/``torque_nm`` (float64, NaN for lost
+        rows), ``valid`` (bool), ``status`` (int64), ``log_time_ns``. Consecutive batches are
+        contiguous unless samples were dropped by the logger (then ``first_index`` jumps: a
+        gap, never bridged).
+    """
+    for message in _iter_topic(path, "samples"):
+        yield decode_samples(message.data, message.log_time)
+
+
+def iter_estimates(path: str | Path) -> Iterator[dict[str, Any]]:
+    """Estimate messages (dicts following ESTIMATE_SCHEMA; null numbers → NaN-free None)."""
+    for message in _iter_topic(path, "estimate"):
+        yield json.loads(message.data)
+
+
+def iter_status(path: str | Path) -> Iterator[dict[str, Any]]:
+    """Status messages (dicts following STATUS_SCHEMA)."""
+    for message in _iter_topic(path, "status"):
+        yield json.loads(message.data)
+
+
+def iter_can_frames(path: str | Path) -> Iterator[Any]:
+    """Raw CAN frames (``can.Message``) from the optional ``/can_frames`` channel."""
+    import can
+
+    for message in _iter_topic(path, "can_frames"):
+        for f in json.loads(message.data)["frames"]:
+            yield can.Message(
+                timestamp=f["timestamp_s"],
+                arbitration_id=f["arbitration_id"],
+                is_extended_id=f["is_extended_id"],
+                is_error_frame=f["is_error_frame"],
+                data=bytes.fromhex(f["data_hex"]),
+            )
+
+
+def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
+    """Metadata records by name (``rtsid``: software version, robot, joint, fs_hz, …;
+    ``config``: the run configuration as JSON under key ``json``)."""
+    from mcap.records import Metadata
+
+    out: dict[str, dict[str, str]] = {}
+    for record in _iter_records(path, ReadReport(Path(path))):
+        if isinstance(record, Metadata):
+            out[record.name] = dict(record.metadata)
+    return out
+
+
+def read_run_config(path: str | Path) -> dict[str, Any]:
+    """The daemon configuration stored in the recording (``{}`` when none was stored)."""
+    meta = read_metadata(path).get("config", {})
+    return dict(json.loads(meta["json"])) if "json" in meta else {}
+
+
+def sample_count(path: str | Path) -> int:
+    """Rows of samples in a recording (valid or not)."""
+    return int(sum(len(b) for b in iter_sample_batches(path)))
+
+
+def recover(
+    src: str | Path, dst: str | Path, *, overwrite: bool = False, chunk_size: int = 1 << 20
+) -> ReadReport:
+    """Rewrite a recording (typically one that lost its footer) as a valid, indexed MCAP file.
+
+    Parameters
+    ----------
+    src : str or Path
+        The damaged (or complete) recording; never modified.
+    dst : str or Path
+        Output path (must differ from ``src``).
+    overwrite : bool
+        Replace ``dst`` if it exists.
+    chunk_size : int
+        Chunk size of the output, bytes.
+
+    Returns
+    -------
+    ReadReport
+        Messages saved (total and by topic), whether ``src`` was complete, and why it ended.
+
+    Raises
+    ------
+    RecordingError
+        ``src`` unreadable or not MCAP, ``dst`` equal to ``src`` or existing (without
+        ``overwrite``), or ``dst`` not writable.
+    """
+    from mcap.records import Channel, Message, Metadata, Schema
+    from mcap.writer import CompressionType, Writer
+
+    src_p, dst_p = Path(src), Path(dst)
+    if src_p.resolve() == dst_p.resolve():
+        raise RecordingError(f"recover would overwrite its input {str(src_p)!r}; pick another -o")
+    if dst_p.exists() and not overwrite:
+        raise RecordingError(f"{str(dst_p)!r} exists; remove it or pass --overwrite")
+    report = ReadReport(src_p)
+    tmp = dst_p.with_name(dst_p.name + ".part")
+    try:
+        with tmp.open("wb") as out:
+            writer = Writer(out, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+            writer.start(profile="", library=f"rtsid {__version__} (recover)")
+            schema_ids: dict[int, int] = {}
+            channel_ids: dict[int, int] = {}
+            topic_of: dict[int, str] = {}
+            for record in _iter_records(src_p, report):
+                if isinstance(record, Schema):
+                    schema_ids[record.id] = writer.register_schema(
+                        record.name, record.encoding, record.data
+                    )
+                elif isinstance(record, Channel):
+                    channel_ids[record.id] = writer.register_channel(
+                        record.topic,
+                        record.message_encoding,
+                        schema_ids.get(record.schema_id, 0),
+                        dict(record.metadata),
+                    )
+                    report.by_topic.setdefault(record.topic, 0)
+                    topic_of[channel_ids[record.id]] = record.topic
+                elif isinstance(record, Message) and record.channel_id in channel_ids:
+                    new_id = channel_ids[record.channel_id]
+                    writer.add_message(
+                        new_id, record.log_time, record.data, record.publish_time, record.sequence
+                    )
+                    report.messages += 1
+                    topic = topic_of[new_id]
+                    report.by_topic[topic] = report.by_topic.get(topic, 0) + 1
+                elif isinstance(record, Metadata):
+                    writer.add_metadata(record.name, dict(record.metadata))
+            writer.add_metadata(
+                "recovery",
+                {
+                    "source": str(src_p),
+                    "source_complete": str(report.complete).lower(),
+                    "messages": str(report.messages),
+                    "stopped_because": report.error or "",
+                },
+            )
+            writer.finish()
+        tmp.replace(dst_p)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise RecordingError(f"cannot write {str(dst_p)!r}: {exc.strerror or exc}") from exc
+    return report
+
+
+def summarize(path: str | Path) -> ReadReport:
+    """Count messages per topic (reading the whole file); says whether it was complete."""
+    report = ReadReport(Path(path))
+    for _ in iter_messages(path, report):
+        pass
+    return report
+
+
+def concat_samples(batches: list[SampleBatch]) -> SampleBatch:
+    """Join contiguous batches into one (offline helper; raises if they are not contiguous)."""
+    if not batches:
+        raise RecordingError("no sample batches to join; the recording has no /samples messages")
+    for a, b in itertools.pairwise(batches):
+        if b.first_index != a.end_index:
+            raise RecordingError(
+                f"sample batches are not contiguous ({a.end_index} then {b.first_index}); "
+                "a gap must not be bridged — process the parts separately"
+            )
+    return SampleBatch(
+        first_index=batches[0].first_index,
+        fs_hz=batches[0].fs_hz,
+        position_rad=np.concatenate([b.position_rad for b in batches]),
+        torque_nm=np.concatenate([b.torque_nm for b in batches]),
+        valid=np.concatenate([b.valid for b in batches]),
+        status=np.concatenate([b.status for b in batches]),
+        log_time_ns=batches[0].log_time_ns,
+    )

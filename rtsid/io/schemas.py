@@ -1,0 +1,524 @@
+"""The JSON payloads rtsid publishes over zenoh and logs to MCAP, with their JSON schemas.
+
+One place for every message layout (documented with examples in ``docs/io.md``):
+
+========== ====================================== ========================================
+payload    zenoh key / MCAP topic                 rate
+========== ====================================== ========================================
+estimate   ``rtsid/<robot>/<joint>/estimate``     one per window (every hop, 50 Hz default)
+           ``/estimate``
+samples    ``rtsid/<robot>/<joint>/samples``      batches of raw samples (≈ 10 Hz)
+           ``/samples``
+status     ``rtsid/<robot>/<joint>/status``       1–2 Hz
+           ``/status``
+can_frames ``/can_frames`` (MCAP only, optional)  batches of raw CAN frames
+========== ====================================== ========================================
+
+All values are SI (rad, N·m, s, kg·m², N·m·s/rad, N·m/rad); JSON has no NaN, so a missing or
+non-finite number is ``null``. Foxglove reads the MCAP channels with schema encoding
+``jsonschema`` and message encoding ``json`` (one estimate per message, so its Plot panel can
+plot ``/estimate.K`` against time).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from rtsid.errors import InputDataError
+
+__all__ = [
+    "CAN_FRAMES_SCHEMA",
+    "ESTIMATE_FIELDS",
+    "ESTIMATE_SCHEMA",
+    "SAMPLES_SCHEMA",
+    "SCHEMAS",
+    "STATUS_SCHEMA",
+    "WITHHELD_REASONS",
+    "SampleBatch",
+    "decode_samples",
+    "encode_can_frames",
+    "encode_estimate",
+    "encode_json",
+    "encode_samples",
+    "encode_status",
+    "json_safe",
+]
+
+DRAFT = "https://json-schema.org/draft/2020-12/schema"
+
+#: Short machine-readable reasons for a withheld (``ok: false``) estimate.
+WITHHELD_REASONS: tuple[str, ...] = (
+    "gap",
+    "nan",
+    "saturated",
+    "stale",
+    "overrun",
+    "no_excitation",
+    "numerical",
+    "too_short",
+)
+
+_NUMBER_OR_NULL = {"type": ["number", "null"]}
+
+
+def _num(description: str) -> dict[str, Any]:
+    return {**_NUMBER_OR_NULL, "description": description}
+
+
+ESTIMATE_SCHEMA: dict[str, Any] = {
+    "$schema": DRAFT,
+    "$id": "rtsid.Estimate",
+    "title": "rtsid.Estimate",
+    "description": "One identification window: I, B, K of tau = I*ddq + B*dq + K*q, or why not.",
+    "type": "object",
+    "properties": {
+        "robot": {"type": "string", "description": "robot name from the config"},
+        "joint": {"type": "string", "description": "joint name from the config"},
+        "seq": {"type": "integer", "minimum": 0, "description": "estimate counter (0, 1, …)"},
+        "window_start_index": {"type": "integer", "description": "first sample index"},
+        "window_end_index": {"type": "integer", "description": "last sample index (inclusive)"},
+        "t_start_s": _num("sample time of the first sample, s (index / fs)"),
+        "t_end_s": _num("sample time of the last sample, s"),
+        "I": _num("inertia, kg·m² (N·m·s²/rad)"),
+        "B": _num("damping, N·m·s/rad"),
+        "K": _num("stiffness, N·m/rad"),
+        "I_se": _num("standard error of I, kg·m²"),
+        "B_se": _num("standard error of B, N·m·s/rad"),
+        "K_se": _num("standard error of K, N·m/rad"),
+        "vaf": _num("variance accounted for by the I, B, K model's torque, %"),
+        "vaf_irf": _num("variance accounted for by the IRF's torque, %"),
+        "compute_ms": _num("time spent identifying the window, ms"),
+        "latency_ms": _num("time from the window's last sample to publication, ms"),
+        "ok": {"type": "boolean", "description": "true: I, B, K are usable"},
+        "reason": {
+            "type": ["string", "null"],
+            "description": "why the estimate is withheld (null when ok): "
+            + ", ".join(WITHHELD_REASONS),
+        },
+        "flags": {
+            "type": "array",
+            "items": {"type": "string"},
+            "description": "warnings on an estimate (e.g. low_vaf)",
+        },
+        "host_time_ns": {"type": "integer", "description": "host UNIX time at publication, ns"},
+    },
+    "additionalProperties": False,
+}
+ESTIMATE_SCHEMA["required"] = list(ESTIMATE_SCHEMA["properties"])
+
+#: Keys of an estimate message, in schema order.
+ESTIMATE_FIELDS: tuple[str, ...] = tuple(ESTIMATE_SCHEMA["properties"])
+
+SAMPLES_SCHEMA: dict[str, Any] = {
+    "$schema": DRAFT,
+    "$id": "rtsid.Samples",
+    "title": "rtsid.Samples",
+    "description": "Consecutive raw samples; index i of each array is sample first_index + i. "
+    "Rows of lost samples are kept with valid = false and null values.",
+    "type": "object",
+    "properties": {
+        "first_index": {"type": "integer", "description": "sample index of the first row"},
+        "fs_hz": {"type": "number", "exclusiveMinimum": 0, "description": "sample rate, Hz"},
+        "t_first_s": {"type": "number", "description": "sample time of the first row, s"},
+        "position_rad": {"type": "array", "items": _NUMBER_OR_NULL, "description": "rad"},
+        "torque_nm": {"type": "array", "items": _NUMBER_OR_NULL, "description": "N·m"},
+        "valid": {"type": "array", "items": {"type": "boolean"}},
+        "status": {
+            "type": "array",
+            "items": {"type": "integer"},
+            "description": "per-sample status bits from the link (0 = nominal)",
+        },
+    },
+    "additionalProperties": False,
+}
+SAMPLES_SCHEMA["required"] = list(SAMPLES_SCHEMA["properties"])
+
+
+def _counters(description: str, names: Sequence[str]) -> dict[str, Any]:
+    return {
+        "type": "object",
+        "description": description,
+        "properties": {n: {"type": ["integer", "number", "null"]} for n in names},
+        "additionalProperties": True,
+    }
+
+
+ACQUISITION_COUNTERS = (
+    "frames",
+    "samples",
+    "gaps",
+    "lost_samples",
+    "malformed",
+    "unknown_id",
+    "bus_errors",
+    "reconnects",
+    "ring_overwrites",
+    "stale",
+)
+WORKER_COUNTERS = ("estimates", "withheld", "overruns", "deadline_misses")
+
+STATUS_SCHEMA: dict[str, Any] = {
+    "$schema": DRAFT,
+    "$id": "rtsid.Status",
+    "title": "rtsid.Status",
+    "description": "Health of the daemon, 1–2 Hz. Counters are totals since start.",
+    "type": "object",
+    "properties": {
+        "robot": {"type": "string"},
+        "joint": {"type": "string"},
+        "host_time_ns": {"type": "integer", "description": "host UNIX time, ns"},
+        "uptime_s": {"type": "number", "description": "s since the daemon started"},
+        "cpu_percent": _num("daemon CPU over the last status period, % of one core"),
+        "rss_mb": _num("resident memory, MiB"),
+        "acquisition": _counters("link / acquisition counters", ACQUISITION_COUNTERS),
+        "worker": {
+            **_counters("window worker counters", WORKER_COUNTERS),
+            "properties": {
+                **{n: {"type": "integer"} for n in ("estimates", "overruns", "deadline_misses")},
+                "withheld": {
+                    "type": "object",
+                    "description": "withheld windows by reason",
+                    "additionalProperties": {"type": "integer"},
+                },
+            },
+        },
+        "mcap": {
+            "type": "object",
+            "description": "MCAP logger: McapLogger.stats()",
+            "properties": {
+                "state": {"type": "string"},
+                "file": {"type": ["string", "null"]},
+                "bytes": {"type": "integer"},
+                "written": {"type": "integer"},
+                "dropped": {"type": "integer"},
+                "lost": {"type": "integer"},
+                "errors": {"type": "integer"},
+                "last_error": {"type": ["string", "null"]},
+            },
+            "additionalProperties": True,
+        },
+        "zenoh": {
+            "type": "object",
+            "description": "zenoh publisher: ZenohPublisher.stats()",
+            "properties": {
+                "state": {"type": "string"},
+                "published": {"type": "integer"},
+                "errors": {"type": "integer"},
+                "last_error": {"type": ["string", "null"]},
+            },
+            "additionalProperties": True,
+        },
+    },
+    "required": ["robot", "joint", "host_time_ns", "uptime_s"],
+    "additionalProperties": True,
+}
+
+CAN_FRAMES_SCHEMA: dict[str, Any] = {
+    "$schema": DRAFT,
+    "$id": "rtsid.CanFrames",
+    "title": "rtsid.CanFrames",
+    "description": "A batch of raw CAN frames as received (before decoding).",
+    "type": "object",
+    "properties": {
+        "frames": {
+            "type": "array",
+            "items": {
+                "type": "object",
+                "properties": {
+                    "timestamp_s": {"type": "number", "description": "receive time, s"},
+                    "arbitration_id": {"type": "integer"},
+                    "is_extended_id": {"type": "boolean"},
+                    "is_error_frame": {"type": "boolean"},
+                    "data_hex": {"type": "string", "description": "payload bytes as hex"},
+                },
+                "required": [
+                    "timestamp_s",
+                    "arbitration_id",
+                    "is_extended_id",
+                    "is_error_frame",
+                    "data_hex",
+                ],
+            },
+        }
+    },
+    "required": ["frames"],
+    "additionalProperties": False,
+}
+
+#: name -> (schema, MCAP topic); the zenoh key is ``<prefix>/<robot>/<joint>/<name>``.
+SCHEMAS: dict[str, tuple[dict[str, Any], str]] = {
+    "samples": (SAMPLES_SCHEMA, "/samples"),
+    "estimate": (ESTIMATE_SCHEMA, "/estimate"),
+    "status": (STATUS_SCHEMA, "/status"),
+    "can_frames": (CAN_FRAMES_SCHEMA, "/can_frames"),
+}
+
+
+def json_safe(value: Any) -> Any:
+    """Recursively convert ``value`` to plain JSON types: NaN/±inf → None, numpy → Python.
+
+    Parameters
+    ----------
+    value : Any
+        Scalars, numpy scalars/arrays, mappings, sequences.
+
+    Returns
+    -------
+    Any
+        Something :func:`json.dumps` accepts with ``allow_nan=False``.
+    """
+    if isinstance(value, bool) or value is None or isinstance(value, str | int):
+        return value
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, np.bool_):
+        return bool(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.floating):
+        v = float(value)
+        return v if math.isfinite(v) else None
+    if isinstance(value, np.ndarray):
+        return _array_to_list(value)
+    if isinstance(value, Mapping):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, Iterable):
+        return [json_safe(v) for v in value]
+    raise InputDataError(
+        f"cannot encode {type(value).__name__} {value!r} as JSON; pass numbers, strings, "
+        "lists or dicts"
+    )
+
+
+def _array_to_list(array: np.ndarray) -> list[Any]:
+    """1-D float array → list with None where the value is not finite (no per-element Python
+    checks unless there is something to replace)."""
+    if array.dtype.kind == "f":
+        out = array.tolist()
+        bad = np.flatnonzero(~np.isfinite(array.reshape(-1)))
+        if bad.size and array.ndim == 1:
+            for i in bad.tolist():
+                out[i] = None
+        elif bad.size:
+            return json_safe(out)  # nested lists: slow path, rare
+        return out
+    return array.tolist()
+
+
+def encode_json(message: Any) -> bytes:
+    """Compact UTF-8 JSON of ``message`` after :func:`json_safe` (no NaN ever reaches JSON)."""
+    return json.dumps(json_safe(message), separators=(",", ":"), allow_nan=False).encode()
+
+
+def encode_estimate(message: Mapping[str, Any]) -> bytes:
+    """Encode one estimate message (keys exactly :data:`ESTIMATE_FIELDS`).
+
+    Parameters
+    ----------
+    message : Mapping
+        The estimate; numbers may be numpy scalars and may be NaN (encoded as null).
+
+    Returns
+    -------
+    bytes
+        UTF-8 JSON in schema order.
+
+    Raises
+    ------
+    InputDataError
+        A missing or unknown key (names it), or a value that cannot be JSON.
+    """
+    keys = set(message)
+    if keys != set(ESTIMATE_FIELDS):
+        missing = sorted(set(ESTIMATE_FIELDS) - keys)
+        unknown = sorted(keys - set(ESTIMATE_FIELDS))
+        raise InputDataError(
+            f"estimate message has missing keys {missing} and unknown keys {unknown}; "
+            f"it must have exactly {list(ESTIMATE_FIELDS)} (see docs/io.md)"
+        )
+    reason = message["reason"]
+    if reason is not None and not isinstance(reason, str):
+        raise InputDataError(f"estimate 'reason' = {reason!r}; expected null or a short string")
+    return encode_json({k: message[k] for k in ESTIMATE_FIELDS})
+
+
+def encode_status(message: Mapping[str, Any]) -> bytes:
+    """Encode one status message (must have the schema's required keys).
+
+    Raises
+    ------
+    InputDataError
+        A required key is missing (named) or a value cannot be JSON.
+    """
+    missing = [k for k in STATUS_SCHEMA["required"] if k not in message]
+    if missing:
+        raise InputDataError(
+            f"status message lacks required keys {missing}; see STATUS_SCHEMA (docs/io.md)"
+        )
+    return encode_json(message)
+
+
+@dataclass(frozen=True)
+class SampleBatch:
+    """Consecutive raw samples as logged (rows of lost samples kept, invalid, NaN).
+
+    Attributes
+    ----------
+    first_index : int
+        Sample index of row 0 (sample time = index / fs_hz).
+    fs_hz : float
+        Sample rate, Hz.
+    position_rad, torque_nm : numpy.ndarray, shape (n,), float64
+        NaN where a sample was lost or not finite.
+    valid : numpy.ndarray, shape (n,), bool
+    status : numpy.ndarray, shape (n,), int64
+        Per-sample status bits from the link.
+    log_time_ns : int
+        Host UNIX time the batch was logged, ns (0 when unknown).
+    """
+
+    first_index: int
+    fs_hz: float
+    position_rad: np.ndarray
+    torque_nm: np.ndarray
+    valid: np.ndarray
+    status: np.ndarray
+    log_time_ns: int = 0
+
+    def __len__(self) -> int:
+        return int(self.position_rad.shape[0])
+
+    @property
+    def end_index(self) -> int:
+        """Index one past the last row."""
+        return self.first_index + len(self)
+
+
+def _as_1d(name: str, values: Any, dtype: Any) -> np.ndarray:
+    array = np.asarray(values, dtype=dtype)
+    if array.ndim != 1:
+        raise InputDataError(f"samples '{name}' must be 1-D, got shape {array.shape}")
+    return array
+
+
+def encode_samples(
+    first_index: int,
+    fs_hz: float,
+    position_rad: Any,
+    torque_nm: Any,
+    valid: Any,
+    status: Any,
+) -> bytes:
+    """Encode a batch of consecutive samples.
+
+    Parameters
+    ----------
+    first_index : int
+        Sample index of row 0.
+    fs_hz : float
+        Sample rate, Hz (> 0).
+    position_rad, torque_nm : array_like, shape (n,)
+        Values; non-finite become null.
+    valid : array_like of bool, shape (n,)
+        False for lost/invalid rows; their values are written as null.
+    status : array_like of int, shape (n,)
+        Per-sample status bits.
+
+    Returns
+    -------
+    bytes
+        UTF-8 JSON following :data:`SAMPLES_SCHEMA`.
+
+    Raises
+    ------
+    InputDataError
+        Arrays of different lengths or not 1-D, or ``fs_hz <= 0``.
+    """
+    pos = _as_1d("position_rad", position_rad, np.float64)
+    tq = _as_1d("torque_nm", torque_nm, np.float64)
+    ok = _as_1d("valid", valid, bool)
+    st = _as_1d("status", status, np.int64)
+    n = pos.shape[0]
+    if not (tq.shape[0] == ok.shape[0] == st.shape[0] == n):
+        raise InputDataError(
+            f"samples arrays differ in length (position {n}, torque {tq.shape[0]}, "
+            f"valid {ok.shape[0]}, status {st.shape[0]}); pass one row per sample"
+        )
+    if not fs_hz > 0:
+        raise InputDataError(f"samples fs_hz = {fs_hz!r}; expected a rate > 0 Hz")
+    pos_list = _array_to_list(pos)
+    tq_list = _array_to_list(tq)
+    if not ok.all():
+        for i in np.flatnonzero(~ok).tolist():
+            pos_list[i] = None
+            tq_list[i] = None
+    message = {
+        "first_index": int(first_index),
+        "fs_hz": float(fs_hz),
+        "t_first_s": int(first_index) / float(fs_hz),
+        "position_rad": pos_list,
+        "torque_nm": tq_list,
+        "valid": ok.tolist(),
+        "status": st.tolist(),
+    }
+    return json.dumps(message, separators=(",", ":"), allow_nan=False).encode()
+
+
+def decode_samples(data: bytes | str, log_time_ns: int = 0) -> SampleBatch:
+    """Decode a samples payload into numpy arrays (null → NaN).
+
+    Raises
+    ------
+    InputDataError
+        Not JSON or not a samples message.
+    """
+    try:
+        msg = json.loads(data)
+        n = len(msg["position_rad"])
+        batch = SampleBatch(
+            first_index=int(msg["first_index"]),
+            fs_hz=float(msg["fs_hz"]),
+            position_rad=np.array(msg["position_rad"], dtype=np.float64),
+            torque_nm=np.array(msg["torque_nm"], dtype=np.float64),
+            valid=np.array(msg["valid"], dtype=bool),
+            status=np.array(msg["status"], dtype=np.int64),
+            log_time_ns=int(log_time_ns),
+        )
+    except (ValueError, KeyError, TypeError) as exc:
+        raise InputDataError(f"not an rtsid samples message ({exc}); see SAMPLES_SCHEMA") from exc
+    if not (batch.torque_nm.shape[0] == batch.valid.shape[0] == batch.status.shape[0] == n):
+        raise InputDataError("samples message arrays differ in length; the payload is corrupt")
+    return batch
+
+
+_CAN_ATTRS = ("timestamp", "arbitration_id", "is_extended_id", "is_error_frame", "data")
+
+
+def encode_can_frames(frames: Iterable[Any]) -> bytes:
+    """Encode CAN frames (objects with python-can ``Message`` attributes, or dicts).
+
+    Parameters
+    ----------
+    frames : iterable
+        Each has ``timestamp``, ``arbitration_id``, ``is_extended_id``, ``is_error_frame`` and
+        ``data`` (bytes-like), as :class:`can.Message` does.
+    """
+    out = []
+    for f in frames:
+        fields = f if isinstance(f, Mapping) else {k: getattr(f, k) for k in _CAN_ATTRS}
+        out.append(
+            {
+                "timestamp_s": float(fields["timestamp"]),
+                "arbitration_id": int(fields["arbitration_id"]),
+                "is_extended_id": bool(fields["is_extended_id"]),
+                "is_error_frame": bool(fields["is_error_frame"]),
+                "data_hex": bytes(fields["data"]).hex(),
+            }
+        )
+    return json.dumps({"frames": out}, separators=(",", ":")).encode()

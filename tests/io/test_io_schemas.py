@@ -1,0 +1,158 @@
+"""The JSON payloads: valid against their own schemas, no NaN in JSON, clear errors."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from rtsid.errors import InputDataError
+from rtsid.io.schemas import (
+    CAN_FRAMES_SCHEMA,
+    ESTIMATE_FIELDS,
+    ESTIMATE_SCHEMA,
+    SAMPLES_SCHEMA,
+    STATUS_SCHEMA,
+    decode_samples,
+    encode_can_frames,
+    encode_estimate,
+    encode_samples,
+    encode_status,
+)
+
+jsonschema = pytest.importorskip("jsonschema")
+
+
+def make_estimate(**overrides: object) -> dict[str, object]:
+    est: dict[str, object] = {
+        "robot": "r1",
+        "joint": "ankle",
+        "seq": 7,
+        "window_start_index": 1000,
+        "window_end_index": 1749,
+        "t_start_s": 0.4,
+        "t_end_s": 0.6996,
+        "I": np.float64(0.012),
+        "B": 0.9,
+        "K": 120.0,
+        "I_se": 0.001,
+        "B_se": 0.05,
+        "K_se": 2.0,
+        "vaf": 95.5,
+        "vaf_irf": 97.0,
+        "compute_ms": 3.2,
+        "latency_ms": 4.1,
+        "ok": True,
+        "reason": None,
+        "flags": [],
+        "host_time_ns": 1_700_000_000_000_000_000,
+    }
+    est.update(overrides)
+    return est
+
+
+@pytest.mark.parametrize(
+    "schema", [ESTIMATE_SCHEMA, SAMPLES_SCHEMA, STATUS_SCHEMA, CAN_FRAMES_SCHEMA]
+)
+def test_schemas_are_valid_draft_2020_12(schema: dict) -> None:
+    jsonschema.Draft202012Validator.check_schema(schema)
+
+
+def test_estimate_encodes_nan_as_null_and_validates() -> None:
+    est = make_estimate(K=float("nan"), K_se=np.float64("inf"), ok=False, reason="numerical")
+    data = encode_estimate(est)
+    msg = json.loads(data)
+    assert msg["K"] is None and msg["K_se"] is None
+    assert list(msg) == list(ESTIMATE_FIELDS)
+    assert msg["I"] == pytest.approx(0.012)
+    jsonschema.validate(msg, ESTIMATE_SCHEMA)
+
+
+def test_estimate_with_missing_or_unknown_key_names_them() -> None:
+    est = make_estimate()
+    del est["vaf"]
+    est["stiffness"] = 1.0
+    with pytest.raises(
+        InputDataError, match=r"missing keys \['vaf'\].*unknown keys \['stiffness'\]"
+    ):
+        encode_estimate(est)
+
+
+def test_estimate_schema_rejects_extra_keys() -> None:
+    msg = json.loads(encode_estimate(make_estimate()))
+    msg["extra"] = 1
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate(msg, ESTIMATE_SCHEMA)
+
+
+def test_samples_keep_lost_rows_as_null_and_round_trip() -> None:
+    pos = np.array([0.1, 0.2, np.nan, 0.4, 1e-17])
+    tq = np.array([1.0, 2.0, 3.0, np.inf, -5.5])
+    valid = np.array([True, False, True, True, True])
+    status = np.array([0, 4, 0, 1, 0])
+    data = encode_samples(2500, 2500.0, pos, tq, valid, status)
+    msg = json.loads(data)
+    jsonschema.validate(msg, SAMPLES_SCHEMA)
+    assert msg["position_rad"] == [0.1, None, None, 0.4, 1e-17]
+    assert msg["torque_nm"] == [1.0, None, 3.0, None, -5.5]
+    assert msg["t_first_s"] == 1.0
+    batch = decode_samples(data, log_time_ns=5)
+    assert batch.first_index == 2500 and batch.end_index == 2505 and batch.fs_hz == 2500.0
+    assert batch.valid.tolist() == valid.tolist()
+    assert batch.status.tolist() == status.tolist()
+    assert math.isnan(batch.position_rad[1]) and math.isnan(batch.torque_nm[3])
+    # valid finite values come back bit-exact (replay must reproduce the live numbers)
+    assert batch.position_rad[4] == 1e-17 and batch.torque_nm[4] == -5.5
+
+
+def test_samples_float_values_round_trip_exactly(rng: np.random.Generator) -> None:
+    pos = rng.normal(size=1000) * 0.05
+    tq = rng.normal(size=1000) * 20
+    n = pos.size
+    batch = decode_samples(encode_samples(0, 2500.0, pos, tq, np.ones(n, bool), np.zeros(n)))
+    np.testing.assert_array_equal(batch.position_rad, pos)
+    np.testing.assert_array_equal(batch.torque_nm, tq)
+
+
+def test_samples_of_different_lengths_are_rejected() -> None:
+    with pytest.raises(InputDataError, match="differ in length"):
+        encode_samples(0, 2500.0, [1.0, 2.0], [1.0], [True, True], [0, 0])
+    with pytest.raises(InputDataError, match="rate > 0"):
+        encode_samples(0, 0.0, [1.0], [1.0], [True], [0])
+
+
+def test_decode_rejects_garbage() -> None:
+    with pytest.raises(InputDataError, match="not an rtsid samples message"):
+        decode_samples(b'{"K": 1}')
+
+
+def test_status_requires_identity_keys_and_validates() -> None:
+    status = {
+        "robot": "r1",
+        "joint": "ankle",
+        "host_time_ns": 1,
+        "uptime_s": 2.5,
+        "cpu_percent": float("nan"),
+        "rss_mb": 80.0,
+        "acquisition": {"frames": 10, "gaps": 0},
+        "worker": {"estimates": 3, "withheld": {"gap": 1}, "overruns": 0, "deadline_misses": 0},
+        "mcap": {"state": "recording", "file": "x.mcap", "bytes": 10, "dropped": 0},
+        "zenoh": {"state": "up", "published": 3, "errors": 0, "last_error": None},
+    }
+    msg = json.loads(encode_status(status))
+    assert msg["cpu_percent"] is None
+    jsonschema.validate(msg, STATUS_SCHEMA)
+    with pytest.raises(InputDataError, match="uptime_s"):
+        encode_status({"robot": "r", "joint": "j", "host_time_ns": 1})
+
+
+def test_can_frames_encode_python_can_messages() -> None:
+    can = pytest.importorskip("can")
+    frames = [
+        can.Message(timestamp=1.5, arbitration_id=0x123, data=b"\x01\xff", is_extended_id=False)
+    ]
+    msg = json.loads(encode_can_frames(frames))
+    jsonschema.validate(msg, CAN_FRAMES_SCHEMA)
+    assert msg["frames"][0]["data_hex"] == "01ff" and msg["frames"][0]["arbitration_id"] == 0x123

@@ -1,0 +1,133 @@
+"""Reading recordings that lost their footer or end mid-record, and rewriting them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from rtsid.errors import RecordingError
+from rtsid.io import mcap_read
+from rtsid.io.mcap_log import McapConfig, McapLogger
+
+FS_HZ = 2500.0
+
+
+@pytest.fixture
+def recording(tmp_path: Path) -> Path:
+    """A complete recording of 40 batches × 250 samples with several chunks."""
+    cfg = McapConfig(directory=str(tmp_path / "rec"), chunk_size=8192)
+    with McapLogger(cfg, robot="r", joint="j", fs_hz=FS_HZ, run_config={"k": 1}) as logger:
+        for k in range(40):
+            idx = np.arange(k * 250, (k + 1) * 250)
+            valid = (idx % 97) != 0
+            pos = np.where(valid, idx * 1e-4, np.nan)
+            logger.log_samples(k * 250, pos, idx * 1e-2, valid, (~valid).astype(int))
+    (path,) = logger.files
+    return path
+
+
+def test_complete_file_reads_fully(recording: Path) -> None:
+    report = mcap_read.summarize(recording)
+    assert report.complete and report.error is None and report.by_topic == {"/samples": 40}
+    batch = mcap_read.concat_samples(list(mcap_read.iter_sample_batches(recording)))
+    assert batch.first_index == 0 and len(batch) == 10_000
+    assert np.isnan(batch.position_rad[~batch.valid]).all()
+    np.testing.assert_array_equal(
+        batch.position_rad[batch.valid], np.arange(10_000)[batch.valid] * 1e-4
+    )
+    assert (batch.status == (~batch.valid)).all()
+
+
+@pytest.mark.parametrize("keep_fraction", [0.15, 0.4, 0.63, 0.9, 0.999])
+def test_truncated_file_yields_a_contiguous_prefix_and_recovers(
+    recording: Path, tmp_path: Path, keep_fraction: float
+) -> None:
+    data = recording.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * keep_fraction)])
+    report = mcap_read.ReadReport(cut)
+    batches = [m for t, _c, m in mcap_read.iter_messages(cut, report) if t == "/samples"]
+    assert not report.complete and report.error
+    starts = [b.first_index for b in mcap_read.iter_sample_batches(cut)]
+    assert starts == [250 * k for k in range(len(starts))] and len(starts) == len(batches)
+    assert mcap_read.read_run_config(cut) == {"k": 1}
+    out = tmp_path / "fixed.mcap"
+    rec = mcap_read.recover(cut, out)
+    assert rec.messages == len(starts)
+    with out.open("rb") as fh:
+        reader = make_reader(fh)
+        assert sum(1 for _ in reader.iter_messages()) == len(starts)
+        summary = reader.get_summary()
+    assert summary is not None and summary.statistics is not None
+    meta = mcap_read.read_metadata(out)
+    assert meta["recovery"]["source_complete"] == "false" and meta["rtsid"]["robot"] == "r"
+
+
+def test_corrupted_chunk_stops_reading_there(recording: Path, tmp_path: Path) -> None:
+    data = bytearray(recording.read_bytes())
+    middle = len(data) // 2
+    data[middle : middle + 64] = bytes(64)  # zeroes inside a compressed chunk
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    report = mcap_read.summarize(bad)
+    assert not report.complete and report.error
+    assert 0 < report.messages < 40
+
+
+def test_not_mcap_and_empty_files_are_clear_errors(tmp_path: Path) -> None:
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"hello world, not an mcap file")
+    with pytest.raises(RecordingError, match="not an MCAP file"):
+        mcap_read.summarize(junk)
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    with pytest.raises(RecordingError, match="empty"):
+        mcap_read.summarize(empty)
+    with pytest.raises(RecordingError, match="does not exist"):
+        mcap_read.summarize(tmp_path / "missing.mcap")
+
+
+def test_recover_refuses_to_overwrite(recording: Path, tmp_path: Path) -> None:
+    with pytest.raises(RecordingError, match="overwrite its input"):
+        mcap_read.recover(recording, recording)
+    out = tmp_path / "out.mcap"
+    out.write_bytes(b"x")
+    with pytest.raises(RecordingError, match="exists"):
+        mcap_read.recover(recording, out)
+    report = mcap_read.recover(recording, out, overwrite=True)
+    assert report.complete and report.messages == 40
+
+
+def test_can_frames_channel_round_trip(tmp_path: Path) -> None:
+    can = pytest.importorskip("can")
+    cfg = McapConfig(directory=str(tmp_path), log_can_frames=True)
+    frames = [
+        can.Message(timestamp=0.1 * i, arbitration_id=0x100 + i, data=bytes([i, 2]))
+        for i in range(3)
+    ]
+    with McapLogger(cfg, robot="r", joint="j", fs_hz=FS_HZ) as logger:
+        assert logger.log_can_frames(frames)
+    got = list(mcap_read.iter_can_frames(logger.files[0]))
+    assert [f.arbitration_id for f in got] == [0x100, 0x101, 0x102]
+    assert got[2].data == bytes([2, 2]) and got[1].timestamp == pytest.approx(0.1)
+
+
+def test_recover_command(
+    recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from rtsid.cli import main
+
+    data = recording.read_bytes()
+    cut = tmp_path / "killed.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    assert main(["recover", str(cut)]) == 0
+    out = capsys.readouterr().out
+    assert "incomplete" in out and "messages saved" in out
+    fixed = tmp_path / "killed-recovered.mcap"
+    with fixed.open("rb") as fh:
+        assert sum(1 for _ in make_reader(fh).iter_messages()) > 0
+    assert main(["recover", str(cut)]) == 2  # exists: a one-line error, exit 2
+    assert "exists" in capsys.readouterr().err
