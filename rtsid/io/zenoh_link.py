@@ -1,0 +1,438 @@
+"""Publishing over Eclipse Zenoh: estimates, status, samples, liveliness and queryables.
+
+Key expressions (``<prefix>`` defaults to ``rtsid``)::
+
+    <prefix>/<robot>/<joint>/estimate   JSON, one message per window (express, drop when congested)
+    <prefix>/<robot>/<joint>/status     JSON, 1–2 Hz
+    <prefix>/<robot>/<joint>/samples    JSON batches of raw samples (when publish_samples is on)
+    <prefix>/<robot>/<joint>/alive      liveliness token while the daemon runs
+    <prefix>/<robot>/<joint>/config     queryable: the daemon's configuration (JSON)
+    <prefix>/<robot>/<joint>/status     queryable: the latest status (JSON)
+
+The default session is a peer listening on ``tcp/127.0.0.1:7447`` with multicast and gossip
+scouting off, so any zenoh client on this machine connects there; a lab names endpoints or a
+router in ``[zenoh]``, or hands over a whole zenoh json5 file (``config_file``).
+
+:class:`ZenohPublisher` never raises into its caller: when the session cannot open (port
+taken, bad endpoint) the error is logged, counted and kept in :meth:`~ZenohPublisher.stats`,
+publishing is skipped (counted as ``not_published``), and a background thread retries the
+session every ``retry_interval_s``. Queryable callbacks only reply with a prepared bytes
+snapshot; they never call into the session nor block.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+import threading
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from rtsid.config import invalid, require_choice, require_range, section_from_mapping
+from rtsid.errors import ConfigError
+from rtsid.io.schemas import encode_estimate, encode_json, encode_samples, encode_status
+
+__all__ = ["ZenohConfig", "ZenohPublisher", "key_expressions", "subscriber_config", "zenoh_config"]
+
+log = logging.getLogger("rtsid.io.zenoh")
+
+_CHUNK = re.compile(r"^[A-Za-z0-9_.\-]+$")
+_PREFIX = re.compile(r"^[A-Za-z0-9_.\-]+(/[A-Za-z0-9_.\-]+)*$")
+_ENDPOINT = re.compile(r"^[a-z0-9]+/.+$")
+
+
+@dataclass(frozen=True)
+class ZenohConfig:
+    """The ``[zenoh]`` config section.
+
+    Attributes
+    ----------
+    enabled : bool
+        False: no session at all (publishing calls are no-ops, state ``disabled``).
+    mode : str
+        ``"peer"`` (default) or ``"client"`` (connect to a router / peer given in ``connect``).
+    listen : tuple of str
+        Endpoints to listen on, e.g. ``"tcp/127.0.0.1:7447"``.
+    connect : tuple of str
+        Endpoints to connect to (a ``zenohd`` router for a lab).
+    multicast_scouting, gossip_scouting : bool
+        Zenoh discovery; off by default (explicit endpoints only, never multicast here).
+    robot, joint : str
+        Names in every key expression (letters, digits, ``_ . -``).
+    key_prefix : str
+        First key chunk(s), default ``"rtsid"``.
+    publish_samples : bool
+        Also publish batched raw samples (for live plots).
+    config_file : str
+        A zenoh json5 config file that replaces mode/listen/connect/scouting entirely (leave
+        those keys at their defaults when using it). Empty: not used.
+    retry_interval_s : float
+        While the session is down, try to open it again this often, s.
+    """
+
+    enabled: bool = True
+    mode: str = "peer"
+    listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
+    connect: tuple[str, ...] = ()
+    multicast_scouting: bool = False
+    gossip_scouting: bool = False
+    robot: str = "robot"
+    joint: str = "ankle"
+    key_prefix: str = "rtsid"
+    publish_samples: bool = False
+    config_file: str = ""
+    retry_interval_s: float = 5.0
+
+    def __post_init__(self) -> None:
+        require_choice("mode", self.mode, ("peer", "client"))
+        for name in ("robot", "joint"):
+            value = getattr(self, name)
+            if not _CHUNK.match(value):
+                raise invalid(name, value, "a non-empty name of letters, digits, '_', '.', '-'")
+        if not _PREFIX.match(self.key_prefix):
+            raise invalid(
+                "key_prefix",
+                self.key_prefix,
+                "key chunks of letters, digits, '_', '.', '-' separated by '/' (no wildcards)",
+            )
+        for name in ("listen", "connect"):
+            for endpoint in getattr(self, name):
+                if not _ENDPOINT.match(endpoint):
+                    raise invalid(name, endpoint, "endpoints like 'tcp/127.0.0.1:7447'")
+        if self.mode == "client" and not self.connect and not self.config_file:
+            raise invalid("connect", list(self.connect), "at least one endpoint in client mode")
+        require_range("retry_interval_s", self.retry_interval_s, 0.0, 3600.0, low_inclusive=False)
+        if self.config_file:
+            defaults = ZenohConfig()
+            changed = [
+                k
+                for k in ("mode", "listen", "connect", "multicast_scouting", "gossip_scouting")
+                if getattr(self, k) != getattr(defaults, k)
+            ]
+            if changed:
+                raise invalid(
+                    changed[0],
+                    getattr(self, changed[0]),
+                    "its default when config_file is set (the file replaces mode, listen, "
+                    "connect and scouting); put it in the json5 file instead",
+                )
+
+    @classmethod
+    def from_mapping(cls, mapping: Mapping[str, Any] | None) -> ZenohConfig:
+        """Build from the ``[zenoh]`` TOML table (unknown keys and bad values rejected)."""
+        return section_from_mapping(cls, mapping, "zenoh")
+
+
+def key_expressions(cfg: ZenohConfig) -> dict[str, str]:
+    """The key expressions of one daemon: estimate, status, samples, alive, config."""
+    base = f"{cfg.key_prefix}/{cfg.robot}/{cfg.joint}"
+    return {name: f"{base}/{name}" for name in ("estimate", "status", "samples", "alive", "config")}
+
+
+def _base_config(mode: str, listen: tuple[str, ...], connect: tuple[str, ...], scout: bool) -> Any:
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    conf.insert_json5("scouting/multicast/enabled", json.dumps(scout))
+    return conf
+
+
+def zenoh_config(cfg: ZenohConfig) -> Any:
+    """The ``zenoh.Config`` for ``cfg``.
+
+    Raises
+    ------
+    ConfigError
+        ``config_file`` missing or not a valid zenoh json5 config.
+    """
+    import zenoh
+
+    if cfg.config_file:
+        path = Path(cfg.config_file)
+        if not path.is_file():
+            raise ConfigError(
+                f"config key 'zenoh.config_file' = {cfg.config_file!r}: no such file; "
+                "give the path of a zenoh json5 config"
+            )
+        try:
+            return zenoh.Config.from_file(str(path))
+        except zenoh.ZError as exc:
+            raise ConfigError(
+                f"config key 'zenoh.config_file' = {cfg.config_file!r} is not a valid zenoh "
+                f"config: {exc}"
+            ) from None
+    conf = _base_config(cfg.mode, cfg.listen, cfg.connect, cfg.multicast_scouting)
+    conf.insert_json5("scouting/gossip/enabled", json.dumps(cfg.gossip_scouting))
+    return conf
+
+
+def subscriber_config(connect: tuple[str, ...], mode: str = "peer") -> Any:
+    """A listener-less session connecting to ``connect`` with scouting off (``rtsid watch``)."""
+    conf = _base_config(mode, (), connect, False)
+    conf.insert_json5("scouting/gossip/enabled", "false")
+    return conf
+
+
+class _Entities:
+    """An open session and what was declared on it."""
+
+    def __init__(self, session: Any, publishers: dict[str, Any], others: list[Any]) -> None:
+        self.session = session
+        self.publishers = publishers
+        self.others = others
+
+
+class ZenohPublisher:
+    """Publish rtsid messages over zenoh (a context manager; never raises into the caller).
+
+    Parameters
+    ----------
+    cfg : ZenohConfig
+        The ``[zenoh]`` section.
+    run_config : Mapping, optional
+        What the ``config`` queryable answers (the daemon's configuration).
+
+    Examples
+    --------
+    >>> with ZenohPublisher(ZenohConfig(listen=("tcp/127.0.0.1:7447",))) as z:  # doctest: +SKIP
+    ...     z.publish_estimate(estimate_dict)
+    ...     z.publish_status(status_dict)
+    """
+
+    def __init__(self, cfg: ZenohConfig, *, run_config: Mapping[str, Any] | None = None) -> None:
+        self.cfg = cfg
+        self.keys = key_expressions(cfg)
+        self._lock = threading.Lock()  # session swaps
+        self._count_lock = threading.Lock()  # counters touched by callers and zenoh threads
+        self._entities: _Entities | None = None
+        self._stop = threading.Event()
+        self._retry_thread: threading.Thread | None = None
+        self._config_bytes = encode_json(run_config or {})
+        self._status_bytes = b"{}"
+        self._published = 0
+        self._not_published = 0
+        self._errors = 0
+        self._open_attempts = 0
+        self._queries = 0
+        self._last_error: str | None = None
+        self._state = "disabled" if not cfg.enabled else "starting"
+
+    # ------------------------------------------------------------------ life cycle
+    def start(self) -> ZenohPublisher:
+        """Open the session and declare everything; on failure keep running and retry."""
+        if not self.cfg.enabled or self._state != "starting":
+            return self
+        if not self._try_open():
+            self._retry_thread = threading.Thread(
+                target=self._retry_loop, name="rtsid-zenoh-open", daemon=True
+            )
+            self._retry_thread.start()
+        return self
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Stop retrying, undeclare everything and close the session."""
+        self._stop.set()
+        thread, self._retry_thread = self._retry_thread, None
+        if thread is not None:
+            thread.join(timeout_s)
+        with self._lock:
+            entities, self._entities = self._entities, None
+            if self._state != "disabled":
+                self._state = "closed"
+        if entities is not None:
+            self._close(entities)
+
+    def __enter__(self) -> ZenohPublisher:
+        return self.start()
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.stop()
+
+    @property
+    def is_up(self) -> bool:
+        """True while a session is open."""
+        return self._entities is not None
+
+    # ------------------------------------------------------------------ publishing
+    def publish_estimate(self, message: Mapping[str, Any] | bytes) -> bool:
+        """Publish one estimate (dict with ESTIMATE_FIELDS, or encoded bytes).
+
+        Returns
+        -------
+        bool
+            True if handed to zenoh; False when the session is down (counted).
+        """
+        payload = message if isinstance(message, bytes) else encode_estimate(message)
+        return self._put("estimate", payload)
+
+    def publish_status(self, message: Mapping[str, Any] | bytes) -> bool:
+        """Publish a status message; it also becomes the ``status`` queryable's answer."""
+        payload = message if isinstance(message, bytes) else encode_status(message)
+        self._status_bytes = payload
+        return self._put("status", payload)
+
+    def publish_samples(
+        self,
+        first_index: int,
+        fs_hz: float,
+        position_rad: Any,
+        torque_nm: Any,
+        valid: Any,
+        status: Any,
+    ) -> bool:
+        """Publish a batch of raw samples when ``publish_samples`` is on (else returns False)."""
+        if not self.cfg.publish_samples:
+            return False
+        payload = encode_samples(first_index, fs_hz, position_rad, torque_nm, valid, status)
+        return self._put("samples", payload)
+
+    def set_run_config(self, run_config: Mapping[str, Any]) -> None:
+        """Replace what the ``config`` queryable answers."""
+        self._config_bytes = encode_json(run_config)
+
+    def _put(self, name: str, payload: bytes) -> bool:
+        entities = self._entities
+        if entities is None:
+            with self._count_lock:
+                self._not_published += 1
+            return False
+        try:
+            entities.publishers[name].put(payload)
+        except Exception as exc:  # zenoh raises ZError; nothing may reach the caller
+            self._record_error(f"zenoh put on {self.keys[name]} failed: {exc}")
+            return False
+        with self._count_lock:
+            self._published += 1
+        return True
+
+    def stats(self) -> dict[str, Any]:
+        """The ``zenoh`` object of the status message.
+
+        Returns
+        -------
+        dict
+            ``state`` (disabled, starting, up, down, closed), ``mode``, ``listen``,
+            ``connect``, ``published``, ``not_published`` (session down), ``errors``,
+            ``last_error``, ``open_attempts``, ``queries``.
+        """
+        return {
+            "state": self._state,
+            "mode": self.cfg.mode,
+            "listen": list(self.cfg.listen),
+            "connect": list(self.cfg.connect),
+            "published": self._published,
+            "not_published": self._not_published,
+            "errors": self._errors,
+            "last_error": self._last_error,
+            "open_attempts": self._open_attempts,
+            "queries": self._queries,
+        }
+
+    # ------------------------------------------------------------------ session
+    def _try_open(self) -> bool:
+        import zenoh
+
+        self._open_attempts += 1
+        session = None
+        try:
+            session = zenoh.open(zenoh_config(self.cfg))
+            entities = self._declare(session)
+        except Exception as exc:  # ZError (port taken, bad endpoint) or ConfigError
+            if session is not None:
+                try:
+                    session.close()
+                except Exception:
+                    pass
+            where = ", ".join(self.cfg.listen + self.cfg.connect) or self.cfg.config_file
+            self._record_error(
+                f"zenoh session on {where} could not open: {exc}; estimates are still logged, "
+                f"retrying every {self.cfg.retry_interval_s:g} s (is another rtsid on this "
+                "port? set zenoh.listen to a free one)"
+            )
+            with self._lock:
+                if self._state not in ("closed",):
+                    self._state = "down"
+            return False
+        with self._lock:
+            if self._stop.is_set():
+                self._close(entities)
+                return True
+            self._entities = entities
+            self._state = "up"
+        log.info("zenoh %s session up; publishing under %s", self.cfg.mode, self.keys["estimate"])
+        return True
+
+    def _declare(self, session: Any) -> _Entities:
+        import zenoh
+
+        json_enc = zenoh.Encoding.APPLICATION_JSON
+        drop = zenoh.CongestionControl.DROP
+        publishers = {
+            "estimate": session.declare_publisher(
+                self.keys["estimate"],
+                encoding=json_enc,
+                congestion_control=drop,
+                priority=zenoh.Priority.DATA_HIGH,
+                express=True,
+            ),
+            "status": session.declare_publisher(
+                self.keys["status"], encoding=json_enc, congestion_control=drop
+            ),
+            "samples": session.declare_publisher(
+                self.keys["samples"], encoding=json_enc, congestion_control=drop
+            ),
+        }
+        others = [
+            session.liveliness().declare_token(self.keys["alive"]),
+            session.declare_queryable(self.keys["config"], self._answer_config),
+            session.declare_queryable(self.keys["status"], self._answer_status),
+        ]
+        return _Entities(session, publishers, others)
+
+    def _answer_config(self, query: Any) -> None:
+        self._answer(query, "config", self._config_bytes)
+
+    def _answer_status(self, query: Any) -> None:
+        self._answer(query, "status", self._status_bytes)
+
+    def _answer(self, query: Any, name: str, snapshot: bytes) -> None:
+        """Queryable callback: reply with a prepared snapshot and drop the query."""
+        import zenoh
+
+        try:
+            with query:
+                query.reply(self.keys[name], snapshot, encoding=zenoh.Encoding.APPLICATION_JSON)
+            with self._count_lock:
+                self._queries += 1
+        except Exception as exc:  # never let an exception escape into zenoh's thread
+            self._record_error(f"zenoh reply on {self.keys[name]} failed: {exc}")
+
+    def _retry_loop(self) -> None:
+        while not self._stop.wait(self.cfg.retry_interval_s):
+            if self._try_open():
+                return
+
+    def _record_error(self, message: str) -> None:
+        with self._count_lock:
+            first = self._last_error is None
+            self._errors += 1
+            self._last_error = message
+        (log.warning if first else log.debug)("%s", message)
+
+    @staticmethod
+    def _close(entities: _Entities) -> None:
+        for entity in [*entities.others, *entities.publishers.values()]:
+            try:
+                entity.undeclare()
+            except Exception:
+                pass
+        try:
+            entities.session.close()
+        except Exception as exc:
+            log.debug("zenoh session close: %s", exc)
