@@ -21,6 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("rtsid.commands.demo", "identify a simulated ankle and print estimates against truth"),
     "bench": ("rtsid.commands.bench", "run a benchmark and print its table"),
     "recover": ("rtsid.commands.recover", "rewrite an MCAP recording that lost its footer"),
+    "watch": ("rtsid.commands.watch", "show live K, B, I, VAF and status from a daemon (zenoh)"),
 }
 
 

@@ -1,0 +1,293 @@
+"""``rtsid watch``: subscribe to estimates and status over zenoh and show them.
+
+A live table redrawn in place when stdout is a terminal; one plain line per estimate
+otherwise (pipes, logs, tests). Rendering is pure (:func:`format_estimate_line`,
+:func:`render_view`) so it is tested without a terminal.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import queue
+import sys
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, TextIO
+
+__all__ = ["WatchState", "format_estimate_line", "render_view", "watch"]
+
+_CLEAR = "\x1b[H\x1b[J"  # cursor home, clear to the end of the screen
+_REDRAW_S = 0.1
+
+
+def _num(value: Any, fmt: str) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "-"
+    return format(value, fmt)
+
+
+def _pm(message: Mapping[str, Any], name: str, fmt: str) -> str:
+    se = message.get(f"{name}_se")
+    return _num(message.get(name), fmt) + ("" if se is None else "±" + _num(se, fmt))
+
+
+def format_estimate_line(message: Mapping[str, Any], received_ns: int | None = None) -> str:
+    """One line per estimate, e.g.
+    ``rig/ankle seq=12 t=1.234s K=120.3±2.0 B=0.900±0.050 I=0.01200±0.00100 VAF=95.5%
+    lat=4.1ms ok``.
+
+    Parameters
+    ----------
+    message : Mapping
+        An estimate (ESTIMATE_SCHEMA).
+    received_ns : int, optional
+        Host UNIX time it arrived, ns: adds ``age=`` (publication → here, ms).
+    """
+    parts = [
+        f"{message.get('robot')}/{message.get('joint')}",
+        f"seq={message.get('seq')}",
+        f"t={_num(message.get('t_end_s'), '.3f')}s",
+    ]
+    if message.get("ok"):
+        parts += [
+            f"K={_pm(message, 'K', '.1f')}",
+            f"B={_pm(message, 'B', '.3f')}",
+            f"I={_pm(message, 'I', '.5f')}",
+            f"VAF={_num(message.get('vaf'), '.1f')}%",
+        ]
+    parts.append(f"lat={_num(message.get('latency_ms'), '.1f')}ms")
+    if received_ns is not None and isinstance(message.get("host_time_ns"), int):
+        parts.append(f"age={(received_ns - message['host_time_ns']) / 1e6:.1f}ms")
+    state = "ok" if message.get("ok") else f"withheld:{message.get('reason')}"
+    flags = message.get("flags") or []
+    parts.append(state + (f" flags={','.join(flags)}" if flags else ""))
+    return " ".join(parts)
+
+
+@dataclass
+class JointView:
+    """What the watcher knows about one robot/joint."""
+
+    estimate: dict[str, Any] | None = None
+    status: dict[str, Any] | None = None
+    estimates: int = 0
+    withheld: int = 0
+    last_age_ms: float | None = None
+
+
+@dataclass
+class WatchState:
+    """Latest estimate and status per ``robot/joint`` (fed by :meth:`update`)."""
+
+    joints: dict[str, JointView] = field(default_factory=dict)
+    received: int = 0
+    undecodable: int = 0
+    dropped: int = 0
+
+    def update(self, key: str, payload: bytes, received_ns: int) -> dict[str, Any] | None:
+        """Take one sample (key expression, JSON payload). Returns it if it is an estimate."""
+        self.received += 1
+        try:
+            message = json.loads(payload)
+        except ValueError:
+            self.undecodable += 1
+            return None
+        if not isinstance(message, dict):
+            self.undecodable += 1
+            return None
+        name = f"{message.get('robot')}/{message.get('joint')}"
+        view = self.joints.setdefault(name, JointView())
+        if key.endswith("/status"):
+            view.status = message
+            return None
+        view.estimate = message
+        view.estimates += 1
+        view.withheld += 0 if message.get("ok") else 1
+        if isinstance(message.get("host_time_ns"), int):
+            view.last_age_ms = (received_ns - message["host_time_ns"]) / 1e6
+        return message
+
+
+def _status_line(name: str, s: Mapping[str, Any]) -> str:
+    acq = s.get("acquisition") or {}
+    wk = s.get("worker") or {}
+    mc = s.get("mcap") or {}
+    zn = s.get("zenoh") or {}
+    withheld = wk.get("withheld") or {}
+    withheld_txt = ",".join(f"{k}:{v}" for k, v in sorted(withheld.items())) or "0"
+    mcap_file = str(mc.get("file") or "-").rsplit("/", 1)[-1]
+    return "\n".join(
+        [
+            f"  {name}: up {_num(s.get('uptime_s'), '.0f')} s"
+            f"  cpu {_num(s.get('cpu_percent'), '.0f')}%  rss {_num(s.get('rss_mb'), '.0f')} MiB",
+            f"    link: samples {acq.get('samples', '-')}  gaps {acq.get('gaps', '-')}"
+            f"  lost {acq.get('lost_samples', '-')}  bus errors {acq.get('bus_errors', '-')}",
+            f"    worker: estimates {wk.get('estimates', '-')}  withheld {withheld_txt}"
+            f"  overruns {wk.get('overruns', '-')}  misses {wk.get('deadline_misses', '-')}",
+            f"    mcap {mc.get('state', '-')} {mcap_file}  dropped {mc.get('dropped', '-')}"
+            f"  |  zenoh {zn.get('state', '-')}",
+        ]
+    )
+
+
+def render_view(state: WatchState, *, title: str, now_s: float | None = None) -> str:
+    """The live table (no terminal control codes; the caller adds them).
+
+    Parameters
+    ----------
+    state : WatchState
+    title : str
+        First line (key expression, endpoint).
+    now_s : float, optional
+        UNIX time for the clock in the title (default: now).
+    """
+    now = time.time() if now_s is None else now_s
+    lines = [f"{title}   {time.strftime('%H:%M:%S', time.localtime(now))}", ""]
+    header = (
+        f"{'robot/joint':<18}{'seq':>8}  {'K N·m/rad':>16}  {'B N·m·s/rad':>16}  "
+        f"{'I kg·m²':>18}  {'VAF %':>6}  {'lat ms':>7}  {'age ms':>7}  state"
+    )
+    lines.append(header)
+    if not state.joints:
+        lines.append("  (waiting for estimates…)")
+    for name, view in sorted(state.joints.items()):
+        e = view.estimate
+        if e is None:
+            lines.append(f"{name:<18}{'-':>8}")
+            continue
+        ok = bool(e.get("ok"))
+        state_txt = "ok" if ok else f"withheld: {e.get('reason')}"
+        if e.get("flags"):
+            state_txt += " [" + ",".join(e["flags"]) + "]"
+        lines.append(
+            f"{name:<18}{e.get('seq', '-')!s:>8}  "
+            f"{_pm(e, 'K', '.1f') if ok else '-':>16}  "
+            f"{_pm(e, 'B', '.3f') if ok else '-':>16}  "
+            f"{_pm(e, 'I', '.5f') if ok else '-':>18}  "
+            f"{_num(e.get('vaf'), '.1f') if ok else '-':>6}  "
+            f"{_num(e.get('latency_ms'), '.1f'):>7}  {_num(view.last_age_ms, '.1f'):>7}  "
+            f"{state_txt}"
+        )
+    lines += ["", "status:"]
+    shown = False
+    for name, view in sorted(state.joints.items()):
+        if view.status is not None:
+            lines.append(_status_line(name, view.status))
+            shown = True
+    if not shown:
+        lines.append("  (no status yet)")
+    lines.append("")
+    lines.append(
+        f"received {state.received}  estimates "
+        f"{sum(v.estimates for v in state.joints.values())}  withheld "
+        f"{sum(v.withheld for v in state.joints.values())}  dropped {state.dropped}  "
+        "(Ctrl-C to quit)"
+    )
+    return "\n".join(lines)
+
+
+def watch(
+    key: str,
+    connect: tuple[str, ...],
+    *,
+    mode: str = "peer",
+    count: int | None = None,
+    timeout_s: float | None = None,
+    out: TextIO | None = None,
+    live: bool | None = None,
+) -> int:
+    """Subscribe to ``<key>/estimate`` and ``<key>/status`` and show what arrives.
+
+    Parameters
+    ----------
+    key : str
+        Key expression of the daemon(s), e.g. ``rtsid/*/*`` or ``rtsid/rig/ankle``.
+    connect : tuple of str
+        Endpoints to connect to (the daemon's listen endpoint).
+    mode : str
+        ``"peer"`` (tolerates a daemon that starts later) or ``"client"``.
+    count : int, optional
+        Exit after this many estimates.
+    timeout_s : float, optional
+        Exit after this long, s.
+    out : TextIO, optional
+        Output stream (default ``sys.stdout``).
+    live : bool, optional
+        Redraw in place (default: when ``out`` is a terminal).
+
+    Returns
+    -------
+    int
+        0 on Ctrl-C, after ``count`` estimates, or at the timeout with at least one estimate
+        (and ``count`` reached if given); 1 otherwise (a message says what was missing).
+    """
+    import zenoh
+
+    from rtsid.io.zenoh_link import subscriber_config
+
+    out = sys.stdout if out is None else out
+    live = out.isatty() if live is None else live
+    key = key.rstrip("/")
+    inbox: queue.Queue[tuple[str, bytes, int]] = queue.Queue(maxsize=10_000)
+    state = WatchState()
+
+    def on_sample(sample: Any) -> None:  # zenoh thread: copy out and return, never block
+        try:
+            inbox.put_nowait((str(sample.key_expr), sample.payload.to_bytes(), time.time_ns()))
+        except queue.Full:
+            state.dropped += 1
+
+    title = f"rtsid watch {key} via {', '.join(connect)} ({mode})"
+    start = time.monotonic()
+    deadline = None if timeout_s is None else start + timeout_s
+    seen = 0
+    next_draw = start
+    try:
+        with zenoh.open(subscriber_config(connect, mode)) as session:
+            session.declare_subscriber(f"{key}/estimate", on_sample)
+            session.declare_subscriber(f"{key}/status", on_sample)
+            print(
+                f"rtsid watch: waiting for estimates on {key}/estimate via {', '.join(connect)}",
+                file=sys.stderr,
+                flush=True,
+            )
+            while count is None or seen < count:
+                now = time.monotonic()
+                if deadline is not None and now >= deadline:
+                    break
+                wait = _REDRAW_S if deadline is None else min(_REDRAW_S, deadline - now)
+                try:
+                    k, payload, rx_ns = inbox.get(timeout=max(wait, 0.0))
+                except queue.Empty:
+                    k = ""
+                if k:
+                    est = state.update(k, payload, rx_ns)
+                    if est is not None:
+                        seen += 1
+                        if not live:
+                            print(format_estimate_line(est, rx_ns), file=out, flush=True)
+                if live and time.monotonic() >= next_draw:
+                    out.write(_CLEAR + render_view(state, title=title) + "\n")
+                    out.flush()
+                    next_draw = time.monotonic() + _REDRAW_S
+    except KeyboardInterrupt:
+        return 0
+    finally:
+        if live:
+            out.write(_CLEAR + render_view(state, title=title) + "\n")
+            out.flush()
+    if seen == 0:
+        print(
+            f"rtsid watch: no estimates on {key}/estimate within {timeout_s:g} s; is the daemon "
+            f"running and listening on {', '.join(connect)}?",
+            file=sys.stderr,
+        )
+        return 1
+    if count is not None and seen < count:
+        print(
+            f"rtsid watch: received {seen} of {count} estimates before the timeout", file=sys.stderr
+        )
+        return 1
+    return 0

@@ -1,0 +1,200 @@
+"""rtsid watch: rendering (no terminal needed) and a real subscriber process against a
+publisher in another process."""
+
+from __future__ import annotations
+
+import io
+import multiprocessing as mp
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from typing import Any
+
+from rtsid.io.schemas import ESTIMATE_FIELDS, encode_estimate
+from rtsid.io.watch import WatchState, format_estimate_line, render_view, watch
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def estimate(seq: int, ok: bool = True, **kw: Any) -> dict[str, Any]:
+    est: dict[str, Any] = dict.fromkeys(ESTIMATE_FIELDS, 0.0)
+    est.update(
+        robot="rig",
+        joint="ankle",
+        seq=seq,
+        window_start_index=seq * 50,
+        window_end_index=seq * 50 + 749,
+        t_end_s=1.2345,
+        K=123.45,
+        K_se=2.5,
+        B=0.9,
+        B_se=0.05,
+        I=0.012,
+        I_se=0.001,
+        vaf=95.25,
+        latency_ms=4.1,
+        ok=ok,
+        reason=None if ok else "gap",
+        flags=[],
+        host_time_ns=1_000_000_000,
+    )
+    est.update(kw)
+    return est
+
+
+STATUS = {
+    "robot": "rig",
+    "joint": "ankle",
+    "host_time_ns": 1,
+    "uptime_s": 12.0,
+    "cpu_percent": 9.5,
+    "rss_mb": 81.0,
+    "acquisition": {"samples": 30000, "gaps": 2, "lost_samples": 5},
+    "worker": {"estimates": 600, "withheld": {"gap": 2}, "overruns": 0, "deadline_misses": 0},
+    "mcap": {
+        "state": "recording",
+        "file": "/x/rtsid-rig-ankle-20260101T000000Z.mcap",
+        "dropped": 0,
+    },
+    "zenoh": {"state": "up"},
+}
+
+
+def test_plain_line_shows_values_and_reasons() -> None:
+    line = format_estimate_line(estimate(7), received_ns=1_002_500_000)
+    assert line == (
+        "rig/ankle seq=7 t=1.234s K=123.5±2.5 B=0.900±0.050 I=0.01200±0.00100 VAF=95.2% "
+        "lat=4.1ms age=2.5ms ok"
+    )
+    withheld = format_estimate_line(estimate(8, ok=False, K=None, flags=["low_vaf"]))
+    assert "K=" not in withheld and withheld.endswith("withheld:gap flags=low_vaf")
+
+
+def test_live_view_renders_estimates_and_status_without_a_terminal() -> None:
+    state = WatchState()
+    import json
+
+    state.update("rtsid/rig/ankle/estimate", encode_estimate(estimate(3)), 1_001_000_000)
+    state.update("rtsid/rig/ankle/status", json.dumps(STATUS).encode(), 0)
+    state.update("rtsid/rig/knee/estimate", encode_estimate(estimate(4, ok=False, joint="knee")), 0)
+    assert state.update("rtsid/x/y/estimate", b"not json", 0) is None and state.undecodable == 1
+    text = render_view(state, title="rtsid watch rtsid/*/*", now_s=0.0)
+    lines = text.splitlines()
+    ankle = next(line for line in lines if line.startswith("rig/ankle"))
+    assert "123.5±2.5" in ankle and "0.900±0.050" in ankle and "95.2" in ankle and "ok" in ankle
+    knee = next(line for line in lines if line.startswith("rig/knee"))
+    assert "withheld: gap" in knee and "123.5" not in knee
+    status = text[text.index("  rig/ankle: up 12 s") :]
+    assert "gaps 2" in status and "withheld gap:2" in status and "cpu 10%" in status
+    assert "rtsid-rig-ankle-20260101T000000Z.mcap" in status and "zenoh up" in status
+    assert "\x1b" not in text
+
+
+def test_watch_live_mode_writes_redraws(monkeypatch: Any) -> None:
+    # no daemon: live mode still draws the empty view and times out with exit 1
+    out = io.StringIO()
+    code = watch(
+        "rtsid/*/*", (f"tcp/127.0.0.1:{free_port()}",), count=1, timeout_s=0.3, out=out, live=True
+    )
+    assert code == 1
+    assert out.getvalue().startswith("\x1b[H\x1b[J") and "waiting for estimates" in out.getvalue()
+
+
+def _publish_until_stopped(port: int, stop: Any) -> None:
+    """Child: a ZenohPublisher publishing estimates and status at 50 Hz (bounded: 60 s)."""
+    from rtsid.io.zenoh_link import ZenohConfig, ZenohPublisher
+
+    cfg = ZenohConfig(listen=(f"tcp/127.0.0.1:{port}",), robot="rig", joint="ankle")
+    with ZenohPublisher(cfg) as pub:
+        deadline = time.monotonic()
+        for seq in range(3000):
+            if stop.is_set():
+                break
+            pub.publish_estimate(estimate(seq, host_time_ns=time.time_ns()))
+            if seq % 25 == 0:
+                pub.publish_status({**STATUS, "host_time_ns": time.time_ns()})
+            deadline += 0.02
+            time.sleep(max(0.0, deadline - time.monotonic()))
+
+
+def test_watch_command_against_a_publisher_in_another_process() -> None:
+    port = free_port()
+    ctx = mp.get_context("spawn")
+    stop = ctx.Event()
+    publisher = ctx.Process(target=_publish_until_stopped, args=(port, stop))
+    publisher.start()
+    try:
+        result = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "rtsid.cli",
+                "watch",
+                "rtsid/rig/ankle",
+                "--connect",
+                f"tcp/127.0.0.1:{port}",
+                "--count",
+                "5",
+                "--timeout",
+                "30",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+    finally:
+        stop.set()
+        publisher.join(timeout=20)
+        if publisher.is_alive():
+            publisher.kill()
+            publisher.join(timeout=10)
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert len(lines) == 5
+    seqs = [int(line.split()[1].removeprefix("seq=")) for line in lines]
+    assert seqs == sorted(seqs)
+    assert all(line.startswith("rig/ankle seq=") and "K=123.5±2.5" in line for line in lines)
+    assert "\x1b" not in result.stdout
+
+
+def test_watch_exits_cleanly_on_ctrl_c() -> None:
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "rtsid.cli",
+            "watch",
+            "--connect",
+            f"tcp/127.0.0.1:{free_port()}",
+            "--timeout",
+            "60",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stderr is not None
+        assert "waiting for estimates" in proc.stderr.readline()  # it is subscribed
+        os.kill(proc.pid, signal.SIGINT)
+        out, _err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=10)
+    assert proc.returncode == 0
+    assert out == ""
+
+
+def test_watch_rejects_bad_arguments(capsys: Any) -> None:
+    from rtsid.cli import main
+
+    assert main(["watch", "--count", "0"]) == 2
+    assert "--count 0" in capsys.readouterr().err
