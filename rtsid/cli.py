@@ -17,9 +17,13 @@ from rtsid.errors import RtsidError
 
 # name -> (module, one-line help). Add a command by adding a line here.
 COMMANDS: dict[str, tuple[str, str]] = {
-    "identify": ("rtsid.commands.identify", "estimate I, B, K and VAF window by window from a file"),
+    "identify": (
+        "rtsid.commands.identify",
+        "estimate I, B, K and VAF window by window from a file",
+    ),
     "demo": ("rtsid.commands.demo", "identify a simulated ankle and print estimates against truth"),
     "bench": ("rtsid.commands.bench", "run a benchmark and print its table"),
+    "plant": ("rtsid.commands.plant", "run the virtual ankle robot behind a socketcand server"),
     "recover": ("rtsid.commands.recover", "rewrite an MCAP recording that lost its footer"),
     "watch": ("rtsid.commands.watch", "show live K, B, I, VAF and status from a daemon (zenoh)"),
 }

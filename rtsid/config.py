@@ -19,7 +19,7 @@ from typing import Any, TypeVar
 
 from rtsid.errors import ConfigError
 
-__all__ = ["invalid", "load_toml", "section_from_mapping", "require_choice", "require_range"]
+__all__ = ["invalid", "load_toml", "require_choice", "require_range", "section_from_mapping"]
 
 T = TypeVar("T")
 

@@ -39,7 +39,7 @@ def test_wrong_type_names_key_value_and_type():
 def test_range_and_choice_errors_carry_the_section():
     with pytest.raises(ConfigError, match=r"'worker\.hop_s' = 0\.0.*> 0\.0"):
         section_from_mapping(Section, {"hop_s": 0.0}, "worker")
-    with pytest.raises(ConfigError, match=r"'worker\.mode' = 'medium'.*'fast', 'slow'"):
+    with pytest.raises(ConfigError, match=r"'worker\.mode' = 'medium'"):
         section_from_mapping(Section, {"mode": "medium"}, "worker")
 
 

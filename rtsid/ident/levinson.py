@@ -31,7 +31,7 @@ try:  # the compiled kernel is optional: see setup.py
 except ImportError:  # pragma: no cover - exercised on machines without a compiler
     _eureka = None
 
-__all__ = ["HAVE_COMPILED_KERNEL", "eureka", "eureka_numpy"]
+__all__ = ["HAVE_COMPILED_KERNEL", "eureka", "eureka_numpy", "eureka_unchecked"]
 
 FloatArray = NDArray[np.float64]
 HAVE_COMPILED_KERNEL = _eureka is not None
@@ -140,12 +140,21 @@ def eureka(r: ArrayLike, b: ArrayLike) -> FloatArray:
     >>> np.allclose(toeplitz(r) @ eureka(r, b), b)
     True
     """
+    r_arr, b_arr = _validated(r, b)
+    return eureka_unchecked(r_arr, b_arr)
+
+
+def eureka_unchecked(r: FloatArray, b: FloatArray) -> FloatArray:
+    """:func:`eureka` for inputs already known to be finite, contiguous float64 of equal size.
+
+    The hot path of :func:`rtsid.ident.irf.estimate_irf` calls this several times per
+    window on arrays it built itself; skipping the checks saves most of the call's cost.
+    Positive definiteness is still checked by the recursion.
+    """
     if _eureka is None:
         return eureka_numpy(r, b)
-    r_arr, b_arr = _validated(r, b)
-    x = np.empty_like(r_arr)
-    work = np.empty(2 * r_arr.size)
-    status, alpha = _eureka.solve(r_arr, b_arr, x, work)
+    x = np.empty_like(r)
+    status, alpha = _eureka.solve(r, b, x, np.empty(2 * r.size))
     if status >= 0:
         raise _not_positive_definite(status, alpha)
     return x

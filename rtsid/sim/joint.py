@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from scipy import integrate, signal
 
 from rtsid.errors import InputDataError
+from rtsid.ident.filters import derivatives
 
 __all__ = [
     "JointParameters",
@@ -31,10 +32,6 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
-
-# Central-difference stencils of order 8 (accurate for signals well below Nyquist).
-_D1 = np.array([1 / 280, -4 / 105, 1 / 5, -4 / 5, 0.0, 4 / 5, -1 / 5, 4 / 105, -1 / 280])
-_D2 = np.array([-1 / 560, 8 / 315, -1 / 5, 8 / 5, -205 / 72, 8 / 5, -1 / 5, 8 / 315, -1 / 560])
 
 
 @dataclass(frozen=True)
@@ -93,7 +90,9 @@ class StiffnessProfile:
         cls, bias: float, amplitude: float, freq_hz: float, phase_rad: float = 0.0
     ) -> StiffnessProfile:
         """``bias + amplitude·sin(2π·freq_hz·t + phase_rad)``."""
-        return cls("sinusoidal", bias=bias, amplitude=amplitude, freq_hz=freq_hz, phase_rad=phase_rad)
+        return cls(
+            "sinusoidal", bias=bias, amplitude=amplitude, freq_hz=freq_hz, phase_rad=phase_rad
+        )
 
     def at(self, t_s: FloatArray | float) -> FloatArray:
         """Stiffness at times ``t_s`` (seconds), N·m/rad."""
@@ -101,42 +100,15 @@ class StiffnessProfile:
         if self.kind == "constant":
             return np.full_like(t, self.k0)
         if self.kind == "sinusoidal":
-            return self.bias + self.amplitude * np.sin(2 * np.pi * self.freq_hz * t + self.phase_rad)
+            return self.bias + self.amplitude * np.sin(
+                2 * np.pi * self.freq_hz * t + self.phase_rad
+            )
         s = np.clip((t - self.t0) / (self.t1 - self.t0), 0.0, 1.0)
         if self.kind == "linear":
             return self.k0 + (self.k1 - self.k0) * s
         if self.kind == "hyperbolic":
             return 1.0 / (1.0 / self.k0 + (1.0 / self.k1 - 1.0 / self.k0) * s)
         return self.k0 + (self.k1 - self.k0) * 0.5 * (1 - np.cos(2 * np.pi * s))
-
-
-def derivatives(x: FloatArray, fs_hz: float) -> tuple[FloatArray, FloatArray]:
-    """First and second time derivatives by 8th-order central differences.
-
-    Accurate for signals band-limited well below the Nyquist rate; the four samples at
-    each end use lower-order one-sided estimates from ``numpy.gradient``.
-
-    Parameters
-    ----------
-    x : numpy.ndarray, shape (n,)
-        Signal sampled at ``fs_hz``; n >= 9.
-    fs_hz : float
-        Sampling rate, Hz.
-
-    Returns
-    -------
-    (numpy.ndarray, numpy.ndarray)
-        ``ẋ`` and ``ẍ``, each shape (n,).
-    """
-    x = np.asarray(x, dtype=float)
-    if x.size < 9:
-        raise InputDataError(f"derivatives need at least 9 samples, got {x.size}")
-    dt = 1.0 / fs_hz
-    d1 = np.gradient(x, dt, edge_order=2)
-    d2 = np.gradient(d1, dt, edge_order=2)
-    d1[4:-4] = np.correlate(x, _D1, mode="valid") / dt
-    d2[4:-4] = np.correlate(x, _D2, mode="valid") / dt**2
-    return d1, d2
 
 
 def robot_servo(command: FloatArray, fs_hz: float, bandwidth_hz: float = 60.0) -> FloatArray:
@@ -273,8 +245,13 @@ def simulate_admittance(
         return [omega, (torque(t) - damping * omega - k * phi) / inertia]
 
     sol = integrate.solve_ivp(
-        rhs, (t_eval[0], t_eval[-1]), [0.0, 0.0], method="DOP853", t_eval=t_eval,
-        rtol=rtol, atol=atol,
+        rhs,
+        (t_eval[0], t_eval[-1]),
+        [0.0, 0.0],
+        method="DOP853",
+        t_eval=t_eval,
+        rtol=rtol,
+        atol=atol,
     )
     if not sol.success:
         raise InputDataError(f"admittance simulation failed: {sol.message}")

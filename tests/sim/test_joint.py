@@ -32,8 +32,9 @@ def test_impedance_torque_of_a_sine_matches_the_analytic_response():
     theta = 0.01 * np.sin(2 * np.pi * f * t)
     tau = simulate_impedance(theta, fs, joint)
     w = 2 * np.pi * f
-    expected = 0.01 * ((joint.stiffness - joint.inertia * w**2) * np.sin(w * t)
-                       + joint.damping * w * np.cos(w * t))
+    expected = 0.01 * (
+        (joint.stiffness - joint.inertia * w**2) * np.sin(w * t) + joint.damping * w * np.cos(w * t)
+    )
     np.testing.assert_allclose(tau[10:-10], expected[10:-10], atol=1e-8)
 
 
@@ -73,7 +74,7 @@ def test_admittance_static_gain_and_resonance():
     # Steady state (second half): compare each excited line with the analytic admittance.
     seg = phi[2000:]
     spec = np.fft.rfft(seg) / (seg.size / 2)
-    for kb, amp, ph in zip(ms.excited_bins, ms.amplitudes, ms.phases_rad):
+    for kb, amp, ph in zip(ms.excited_bins, ms.amplitudes, ms.phases_rad, strict=True):
         w = 2 * np.pi * kb * fs / 2000
         g = 1 / (2.0 - 0.02 * w**2 + 1j * 0.05 * w)
         assert spec[kb] == pytest.approx(amp * np.exp(1j * ph) * g, rel=1e-4, abs=1e-9)

@@ -1,0 +1,134 @@
+"""Auto- and cross-correlation over lags for Wiener–Hopf deconvolution, and detrending.
+
+Biased estimates (divided by the window length ``N``), so the autocorrelation sequence is
+positive semi-definite and its Toeplitz matrix can be solved by EUREKA. Direct sums are
+used for short lag spans and FFTs for long ones, whichever does less work.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from rtsid.errors import InputDataError
+
+__all__ = ["auto_correlation", "cross_correlation", "detrend"]
+
+FloatArray = NDArray[np.float64]
+
+# Above this many lags per sample an FFT beats np.correlate's direct sum (measured).
+_FFT_LAG_FRACTION = 0.05
+
+
+def detrend(x: ArrayLike, kind: str = "linear") -> FloatArray:
+    """Remove the mean (``"mean"``), a straight line (``"linear"``) or nothing (``"none"``).
+
+    Parameters
+    ----------
+    x : array_like, shape (n,)
+        Signal.
+    kind : {"linear", "mean", "none"}
+        What to remove.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n,)
+        The detrended copy.
+    """
+    arr = np.array(x, dtype=np.float64)
+    if kind == "none":
+        return arr
+    if kind == "mean":
+        return arr - arr.mean()
+    if kind == "linear":
+        n = arr.size
+        t = np.arange(n, dtype=np.float64) - (n - 1) / 2.0
+        slope = (t @ arr) / max(t @ t, 1e-300)
+        return arr - arr.mean() - slope * t
+    raise InputDataError(f"detrend kind {kind!r} is not one of 'linear', 'mean', 'none'")
+
+
+def _check_lags(n: int, max_lag: int) -> None:
+    if max_lag < 0:
+        raise InputDataError(f"max_lag must be >= 0, got {max_lag}")
+    if max_lag >= n:
+        raise InputDataError(
+            f"max_lag={max_lag} needs more than {max_lag} samples, the window has {n}; "
+            "lengthen the window or shorten the lag span"
+        )
+
+
+def _use_fft(n: int, max_lag: int) -> bool:
+    return max_lag > _FFT_LAG_FRACTION * n and n > 256
+
+
+def _fft_cross(u: FloatArray, y: FloatArray) -> FloatArray:
+    """Full linear cross-correlation c[m] = sum_t u[t]·y[t+m], m = -(n-1)..n-1."""
+    n = u.size
+    nfft = 1 << (2 * n - 1).bit_length()
+    spec = np.conj(np.fft.rfft(u, nfft)) * np.fft.rfft(y, nfft)
+    full = np.fft.irfft(spec, nfft)
+    return np.concatenate((full[nfft - (n - 1) :], full[:n]))
+
+
+def _direct_lags(u: FloatArray, y: FloatArray, first: int, last: int) -> FloatArray:
+    """``Σ_t u(t)·y(t+k)`` for ``k = first..last`` by one direct correlation."""
+    n = u.size
+    full = np.correlate(y, u, mode="full")  # index n-1+k holds lag k
+    return np.asarray(full[n - 1 + first : n + last], dtype=np.float64)
+
+
+def auto_correlation(u: ArrayLike, max_lag: int) -> FloatArray:
+    """Biased autocorrelation ``φ_uu(k) = (1/N)·Σ_t u(t)·u(t+k)`` for ``k = 0..max_lag``.
+
+    Parameters
+    ----------
+    u : array_like, shape (N,)
+        Input signal (detrend it first).
+    max_lag : int
+        Largest lag, samples (< N).
+
+    Returns
+    -------
+    numpy.ndarray, shape (max_lag + 1,)
+        ``φ_uu(0..max_lag)``, the first column of the Toeplitz matrix ``R_uu``.
+    """
+    arr = np.asarray(u, dtype=np.float64)
+    n = arr.size
+    _check_lags(n, max_lag)
+    if _use_fft(n, max_lag):
+        full = _fft_cross(arr, arr)
+        return full[n - 1 : n + max_lag] / n
+    return _direct_lags(arr, arr, 0, max_lag) / n
+
+
+def cross_correlation(u: ArrayLike, y: ArrayLike, max_lag: int) -> FloatArray:
+    """Biased cross-correlation ``φ_uy(k) = (1/N)·Σ_t u(t−k)·y(t)`` for ``k = −max_lag..max_lag``.
+
+    With this convention the Wiener–Hopf equations of a two-sided IRF ``h`` read
+    ``Σ_j h(j)·φ_uu(k−j) = φ_uy(k)``.
+
+    Parameters
+    ----------
+    u, y : array_like, shape (N,)
+        Input and output (detrended).
+    max_lag : int
+        Largest absolute lag, samples (< N).
+
+    Returns
+    -------
+    numpy.ndarray, shape (2·max_lag + 1,)
+        ``φ_uy(−max_lag..max_lag)``.
+    """
+    u_arr = np.asarray(u, dtype=np.float64)
+    y_arr = np.asarray(y, dtype=np.float64)
+    if u_arr.shape != y_arr.shape or u_arr.ndim != 1:
+        raise InputDataError(
+            f"input and output must be 1-D and equally long, got {u_arr.shape} and {y_arr.shape}"
+        )
+    n = u_arr.size
+    _check_lags(n, max_lag)
+    if _use_fft(n, max_lag):
+        full = _fft_cross(u_arr, y_arr)
+        return full[n - 1 - max_lag : n + max_lag] / n
+    return _direct_lags(u_arr, y_arr, -max_lag, max_lag) / n

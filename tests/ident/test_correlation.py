@@ -1,0 +1,50 @@
+import numpy as np
+import pytest
+
+from rtsid.errors import InputDataError
+from rtsid.ident.correlation import auto_correlation, cross_correlation, detrend
+
+
+def brute_cross(u, y, max_lag):
+    n = u.size
+    return (
+        np.array(
+            [
+                sum(u[t - k] * y[t] for t in range(n) if 0 <= t - k < n)
+                for k in range(-max_lag, max_lag + 1)
+            ]
+        )
+        / n
+    )
+
+
+@pytest.mark.parametrize("n,max_lag", [(50, 5), (400, 60), (600, 200)])  # direct and FFT paths
+def test_cross_and_auto_correlation_match_the_definition(rng, n, max_lag):
+    u, y = rng.standard_normal(n), rng.standard_normal(n)
+    np.testing.assert_allclose(
+        cross_correlation(u, y, max_lag), brute_cross(u, y, max_lag), atol=1e-12
+    )
+    np.testing.assert_allclose(
+        auto_correlation(u, max_lag), brute_cross(u, u, max_lag)[max_lag:], atol=1e-12
+    )
+
+
+def test_cross_correlation_peaks_at_the_delay(rng):
+    u = rng.standard_normal(1000)
+    y = np.r_[np.zeros(7), u[:-7]]  # y(t) = u(t-7)
+    phi = cross_correlation(u, y, 10)
+    assert np.argmax(phi) - 10 == 7
+
+
+def test_detrend_kinds():
+    t = np.arange(100.0)
+    np.testing.assert_allclose(detrend(3 + 0.5 * t), 0, atol=1e-12)
+    assert detrend(3 + 0.5 * t, "mean").mean() == pytest.approx(0)
+    np.testing.assert_array_equal(detrend(t, "none"), t)
+    with pytest.raises(InputDataError, match="detrend kind"):
+        detrend(t, "quadratic")
+
+
+def test_lag_span_longer_than_window_is_refused(rng):
+    with pytest.raises(InputDataError, match="lengthen the window"):
+        cross_correlation(rng.standard_normal(10), rng.standard_normal(10), 10)
