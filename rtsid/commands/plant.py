@@ -1,0 +1,40 @@
+"""``rtsid plant``: run the virtual ankle robot behind a socketcand server on loopback.
+
+A daemon (or ``cantools monitor``/python-can) then connects with python-can's
+``socketcand`` interface to ``127.0.0.1:PORT``, channel ``can0``, exactly as to a real
+socketcand host. Runs until SIGINT/SIGTERM (or ``--duration-s``); prints one line with the
+address when ready and one line of counters (JSON) at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from rtsid.link.serve import PlantServerOptions, serve_plant
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", metavar="FILE", help="TOML file with [plant] (and [link])")
+    parser.add_argument("--host", default="127.0.0.1", help="loopback address (default 127.0.0.1)")
+    parser.add_argument("--port", type=int, default=29536, help="TCP port, 0 = a free one")
+    parser.add_argument("--channel", default="can0", help="bus name clients open (default can0)")
+    parser.add_argument("--mode", choices=("sim", "player"), help="override [plant] mode")
+    parser.add_argument("--file", metavar="NPZ", help="recording for player mode")
+    parser.add_argument("--fs-hz", type=float, help="override [plant] fs_hz (frame rate)")
+    parser.add_argument("--fast", action="store_true", help="as fast as the client reads")
+    parser.add_argument("--duration-s", type=float, default=0.0, help="stop after this long")
+
+
+def run(args: argparse.Namespace) -> int:
+    options = PlantServerOptions(
+        config=args.config,
+        host=args.host,
+        port=args.port,
+        channel=args.channel,
+        mode=args.mode,
+        player_file=args.file,
+        fs_hz=args.fs_hz,
+        fast=args.fast,
+        duration_s=args.duration_s,
+    )
+    return serve_plant(options)

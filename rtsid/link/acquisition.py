@@ -1,0 +1,484 @@
+"""The acquisition thread: CAN frames in, one ring-buffer row per sample out.
+
+:class:`Acquisition` owns a thread named "rtsid-acquisition" that loops
+``bus.recv(receive_timeout_s)`` (so :meth:`Acquisition.stop` returns within about that
+time), decodes AnkleState frames with the precompiled decoder and writes the ring buffer.
+
+Sample bookkeeping, in one place:
+
+* the 12-bit counter is unwrapped into a monotonic ``sample_index``; after a silence longer
+  than half a wrap (0.82 s at 2500 Hz) the number of whole wraps comes from the frames' bus
+  timestamps (host clock when the interface gives none);
+* a forward jump of ``d`` writes ``d - 1`` invalid rows (a *gap*; ``lost_samples`` += d - 1);
+* a frame whose counter is at most ``reorder_window`` behind the newest is late: a
+  *duplicate* if its row is valid already, otherwise *out of order*; both are dropped (rows
+  already published are never rewritten);
+* a state frame of the wrong length, a failing checksum, a remote frame → *malformed*,
+  never decoded; other identifiers → *unknown_id*; error frames → *error_frames* (bus-off
+  also reopens the bus);
+* ``bus.recv`` raising → *bus_errors*, the bus is closed and reopened from the factory with
+  exponential back-off (*reconnects* counts successes);
+* no state frame for ``stale_after_s`` → ``stale`` (and optionally reopen the bus after
+  ``reconnect_after_stale_s``).
+
+Sample time is ``anchor_host_time_s + (sample_index - anchor_index) / fs_hz``, anchored to
+``time.monotonic()`` at the first sample (:meth:`Acquisition.sample_time_s`).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import can
+
+from rtsid.errors import LinkError
+from rtsid.link.protocol import (
+    COMMAND_ID,
+    COUNTER_MODULO,
+    DIAGNOSTICS_ID,
+    POSITION_SCALE_RAD,
+    STATE_ID,
+    TORQUE_SCALE_NM,
+    Command,
+    decode_diagnostics,
+    decode_state,
+    encode_command,
+)
+from rtsid.link.ring import RingBuffer
+
+__all__ = ["Acquisition", "LinkCounters"]
+
+BusFactory = Callable[[], can.BusABC]
+CAN_ERR_BUSOFF = 0x40
+_CPU_EVERY = 512  # frames between thread CPU readings
+
+
+@dataclass(frozen=True)
+class LinkCounters:
+    """A snapshot of the acquisition's counters (all cumulative since start).
+
+    Attributes
+    ----------
+    frames : int
+        Frames received (any identifier, error frames included).
+    samples : int
+        Valid samples written to the ring.
+    gaps, lost_samples : int
+        Counter jumps and the samples they skipped (written as invalid rows).
+    duplicates, out_of_order : int
+        Late state frames dropped (row already valid / row already written as lost).
+    malformed : int
+        State frames of the wrong length, failing checksum or RTR: counted, never decoded.
+    unknown_id : int
+        Frames with an identifier the protocol does not define.
+    error_frames, bus_off : int
+        Error frames reported by the interface; of those, bus-off.
+    bus_errors : int
+        Exceptions from the bus (receive or reopen).
+    reconnects : int
+        Successful reopenings of the bus.
+    ring_overwrites : int
+        Rows readers lost because the writer lapped them.
+    diagnostics, commands_seen : int
+        Diagnostics and PerturbationCommand frames seen.
+    stale : bool
+        No state frame for longer than ``stale_after_s``.
+    stale_events : int
+        Times the link became stale.
+    last_frame_age_s : float
+        Seconds since the last state frame (since start if none).
+    connected : bool
+        A bus is open.
+    thread_cpu_s : float
+        CPU time of the acquisition thread, s.
+    newest_index : int
+        Newest sample index in the ring (-1 if none).
+    """
+
+    frames: int
+    samples: int
+    gaps: int
+    lost_samples: int
+    duplicates: int
+    out_of_order: int
+    malformed: int
+    unknown_id: int
+    error_frames: int
+    bus_off: int
+    bus_errors: int
+    reconnects: int
+    ring_overwrites: int
+    diagnostics: int
+    commands_seen: int
+    stale: bool
+    stale_events: int
+    last_frame_age_s: float
+    connected: bool
+    thread_cpu_s: float
+    newest_index: int
+
+
+class Acquisition:
+    """Receive state frames on a thread and write one ring row per sample.
+
+    Parameters
+    ----------
+    bus : can.BusABC or callable
+        A bus factory (called to open and to reopen; the buses it returns are owned and
+        shut down here), or an open bus (not owned, never reopened).
+    ring : RingBuffer
+        Where samples go; this thread is its only writer.
+    fs_hz : float
+        The robot's sample rate, Hz.
+    stale_after_s : float
+        No state frame for this long: ``stale``.
+    receive_timeout_s : float
+        Longest single ``recv`` wait, s (bounds ``stop``).
+    reconnect_after_stale_s : float
+        Reopen the bus after this long without state frames (0: never).
+    backoff_min_s, backoff_max_s : float
+        Reconnection back-off, doubling from the minimum to the maximum.
+    reorder_window : int
+        Counter distance behind the newest sample treated as late rather than as a wrap.
+    name : str
+        Thread name.
+
+    Examples
+    --------
+    >>> ring = RingBuffer(25_000)  # doctest: +SKIP
+    >>> with Acquisition(lambda: can.Bus(interface="virtual", channel="x"), ring) as acq:
+    ...     snap = ring.latest(750)
+    """
+
+    def __init__(
+        self,
+        bus: can.BusABC | BusFactory,
+        ring: RingBuffer,
+        *,
+        fs_hz: float = 2500.0,
+        stale_after_s: float = 0.1,
+        receive_timeout_s: float = 0.05,
+        reconnect_after_stale_s: float = 0.0,
+        backoff_min_s: float = 0.1,
+        backoff_max_s: float = 5.0,
+        reorder_window: int = 64,
+        name: str = "rtsid-acquisition",
+    ) -> None:
+        if isinstance(bus, can.BusABC):
+            self._factory: BusFactory | None = None
+            self._bus: can.BusABC | None = bus
+        else:
+            self._factory = bus
+            self._bus = None
+        self.ring = ring
+        self.fs_hz = float(fs_hz)
+        self.stale_after_s = stale_after_s
+        self.receive_timeout_s = receive_timeout_s
+        self.reconnect_after_stale_s = reconnect_after_stale_s
+        self.backoff_min_s = backoff_min_s
+        self.backoff_max_s = backoff_max_s
+        self.reorder_window = reorder_window
+        self.name = name
+        self._stop = threading.Event()
+        self._send_lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+        self._c = dict.fromkeys(
+            (
+                "frames",
+                "samples",
+                "gaps",
+                "lost_samples",
+                "duplicates",
+                "out_of_order",
+                "malformed",
+                "unknown_id",
+                "error_frames",
+                "bus_off",
+                "bus_errors",
+                "reconnects",
+                "diagnostics",
+                "commands_seen",
+                "stale_events",
+            ),
+            0,
+        )
+        self._stale = False
+        self._cpu_s = 0.0
+        self._started = time.monotonic()
+        self._last_frame_host = self._started
+        self._last_bus_time = 0.0
+        self._last_index = -1
+        self._backoff = backoff_min_s
+        self._last_reopen = self._started
+        self._command_counter = 0
+        self.anchor_index = -1
+        self.anchor_host_time_s = float("nan")
+        self.last_diagnostics: dict[str, Any] = {}
+        self.last_error: str = ""
+
+    # ------------------------------------------------------------------ life cycle
+    def __enter__(self) -> Acquisition:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def start(self, *, require_bus: bool = True) -> None:
+        """Open the bus (when given a factory) and start the thread.
+
+        Parameters
+        ----------
+        require_bus : bool
+            Raise :class:`~rtsid.errors.LinkError` if the first opening fails (False:
+            keep retrying with back-off in the thread).
+        """
+        if self._thread is not None:
+            return
+        if self._bus is None and self._factory is not None:
+            try:
+                self._bus = self._factory()
+            except Exception as exc:
+                if require_bus:
+                    raise LinkError(
+                        f"cannot open the CAN bus: {exc}; check [link] interface, channel, "
+                        "host and port, and that the adapter or server is up"
+                    ) from exc
+                self._note_error(exc)
+        self._started = self._last_frame_host = self._last_reopen = time.monotonic()
+        self._thread = threading.Thread(target=self._run, name=self.name, daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout: float = 2.0) -> bool:
+        """Stop the thread (within about ``receive_timeout_s``) and close an owned bus.
+
+        Returns
+        -------
+        bool
+            Whether the thread ended within ``timeout`` seconds.
+        """
+        self._stop.set()
+        ended = True
+        if self._thread is not None:
+            self._thread.join(timeout)
+            ended = not self._thread.is_alive()
+        if ended:
+            self._close_bus()
+        return ended
+
+    @property
+    def running(self) -> bool:
+        """Whether the thread is alive."""
+        return self._thread is not None and self._thread.is_alive()
+
+    # ------------------------------------------------------------------ public API
+    def counters(self) -> LinkCounters:
+        """A consistent-enough snapshot of the counters (each value is read once)."""
+        c = dict(self._c)
+        age = time.monotonic() - self._last_frame_host
+        return LinkCounters(
+            **c,
+            ring_overwrites=self.ring.reader_overruns,
+            stale=age > self.stale_after_s,
+            last_frame_age_s=age,
+            connected=self._bus is not None,
+            thread_cpu_s=self._cpu_s,
+            newest_index=self.ring.newest_index,
+        )
+
+    def sample_time_s(self, index: int) -> float:
+        """Host-clock (``time.monotonic``) time of sample ``index``, from the counter."""
+        return self.anchor_host_time_s + (index - self.anchor_index) / self.fs_hz
+
+    def send(self, msg: can.Message, timeout: float = 0.1) -> None:
+        """Send a frame on the acquisition's bus (thread-safe with the receiving thread).
+
+        Raises
+        ------
+        LinkError
+            No bus is open, or the interface refused the frame.
+        """
+        with self._send_lock:
+            bus = self._bus
+            if bus is None:
+                raise LinkError("the CAN bus is not open (reconnecting); send again later")
+            try:
+                bus.send(msg, timeout=timeout)
+            except (can.CanError, OSError) as exc:
+                raise LinkError(f"could not send frame 0x{msg.arbitration_id:X}: {exc}") from exc
+
+    def send_command(self, command: Command) -> None:
+        """Send a PerturbationCommand (enable, kind, amplitude, bandwidth) to the robot."""
+        self._command_counter = (self._command_counter + 1) & 0xFF
+        data = encode_command(Command(**{**command.__dict__, "counter": self._command_counter}))
+        self.send(can.Message(arbitration_id=COMMAND_ID, data=data, is_extended_id=False))
+
+    # ------------------------------------------------------------------ the thread
+    def _run(self) -> None:
+        stop = self._stop
+        timeout = self.receive_timeout_s
+        handle = self._handle
+        frames_since_cpu = 0
+        while not stop.is_set():
+            bus = self._bus
+            if bus is None:
+                self._reopen()
+                continue
+            try:
+                msg = bus.recv(timeout)
+            except Exception as exc:  # any interface error: count, close, reopen
+                self._on_bus_error(exc)
+                continue
+            now = time.monotonic()
+            if msg is None:
+                self._idle(now)
+                continue
+            handle(msg, now)
+            frames_since_cpu += 1
+            if frames_since_cpu >= _CPU_EVERY:
+                frames_since_cpu = 0
+                self._cpu_s = time.thread_time()
+        self._cpu_s = time.thread_time()
+
+    def _handle(self, msg: can.Message, now: float) -> None:
+        c = self._c
+        c["frames"] += 1
+        if msg.is_error_frame:
+            c["error_frames"] += 1
+            if msg.arbitration_id & CAN_ERR_BUSOFF:
+                c["bus_off"] += 1
+                self._on_bus_error(LinkError("bus-off reported by the interface"))
+            return
+        if msg.is_extended_id:
+            c["unknown_id"] += 1
+            return
+        frame_id = msg.arbitration_id
+        if frame_id == STATE_ID:
+            data = msg.data
+            if msg.is_remote_frame or msg.dlc != 8 or len(data) != 8:
+                c["malformed"] += 1
+                return
+            self._on_state(data, msg.timestamp, now)
+        elif frame_id == DIAGNOSTICS_ID:
+            c["diagnostics"] += 1
+            decoded = decode_diagnostics(msg.data)
+            if decoded is None:
+                c["malformed"] += 1
+            else:
+                self.last_diagnostics.update(decoded)
+        elif frame_id == COMMAND_ID:
+            c["commands_seen"] += 1
+        else:
+            c["unknown_id"] += 1
+
+    def _on_state(self, data: bytearray, bus_time: float, now: float) -> None:
+        decoded = decode_state(data)
+        c = self._c
+        if decoded is None:
+            c["malformed"] += 1
+            return
+        position, torque, counter, status = decoded
+        last = self._last_index
+        ring = self.ring
+        if last < 0:
+            ring.start_at(counter)
+            self.anchor_index, self.anchor_host_time_s = counter, now
+        else:
+            index = self._unwrap(counter, last, bus_time, now)
+            if index <= last:
+                self._late(index)
+                return
+            if index > last + 1:
+                c["gaps"] += 1
+                c["lost_samples"] += index - last - 1
+                ring.append_gap(index - last - 1, now)
+        self._last_index = ring.append(
+            position * POSITION_SCALE_RAD, torque * TORQUE_SCALE_NM, status, now, bus_time
+        )
+        c["samples"] += 1
+        self._last_frame_host = now
+        self._last_bus_time = bus_time
+        self._stale = False
+        self._backoff = self.backoff_min_s
+
+    def _unwrap(self, counter: int, last: int, bus_time: float, now: float) -> int:
+        """Unwrapped index of ``counter`` given the newest index ``last``."""
+        delta = (counter - last) % COUNTER_MODULO
+        if bus_time > 0 and self._last_bus_time > 0 and bus_time >= self._last_bus_time:
+            elapsed = bus_time - self._last_bus_time
+        else:
+            elapsed = now - self._last_frame_host
+        advance = elapsed * self.fs_hz
+        if advance > COUNTER_MODULO / 2:  # long silence: count whole wraps from the clock
+            wraps = max(0, round((advance - delta) / COUNTER_MODULO))
+            return last + delta + wraps * COUNTER_MODULO
+        if delta == 0:
+            return last  # the newest sample again
+        if delta > COUNTER_MODULO - self.reorder_window:
+            return last + delta - COUNTER_MODULO  # behind the newest: late
+        return last + delta
+
+    def _late(self, index: int) -> None:
+        valid = self.ring.is_valid(index)
+        if valid:
+            self._c["duplicates"] += 1
+        else:
+            self._c["out_of_order"] += 1
+
+    def _idle(self, now: float) -> None:
+        self._cpu_s = time.thread_time()
+        age = now - self._last_frame_host
+        if age > self.stale_after_s and not self._stale:
+            self._stale = True
+            self._c["stale_events"] += 1
+        if (
+            self.reconnect_after_stale_s > 0
+            and self._factory is not None
+            and age > self.reconnect_after_stale_s
+            and now - self._last_reopen > self.reconnect_after_stale_s
+        ):
+            self._close_bus()
+            self._last_reopen = now
+
+    def _on_bus_error(self, exc: BaseException) -> None:
+        self._c["bus_errors"] += 1
+        self._note_error(exc)
+        if self._factory is not None:
+            self._close_bus()
+        else:
+            self._stop.wait(self._next_backoff())
+
+    def _reopen(self) -> None:
+        if self._factory is None or self._stop.wait(self._next_backoff()):
+            return
+        try:
+            bus = self._factory()
+        except Exception as exc:
+            self._c["bus_errors"] += 1
+            self._note_error(exc)
+            return
+        with self._send_lock:
+            self._bus = bus
+        self._c["reconnects"] += 1
+        self._last_reopen = time.monotonic()
+
+    def _next_backoff(self) -> float:
+        delay = self._backoff
+        self._backoff = min(self._backoff * 2, self.backoff_max_s)
+        return delay
+
+    def _close_bus(self) -> None:
+        with self._send_lock:
+            bus, self._bus = self._bus, None
+        if bus is not None and self._factory is not None:
+            try:
+                bus.shutdown()
+            except Exception as exc:
+                self._note_error(exc)
+
+    def _note_error(self, exc: BaseException) -> None:
+        self.last_error = f"{type(exc).__name__}: {exc}"

@@ -1,0 +1,387 @@
+"""Configuration of the hardware link (``[link]``) and of the virtual plant (``[plant]``).
+
+``[plant]`` has two sub-tables, ``[plant.faults]`` (:class:`FaultConfig`) and
+``[plant.stiffness]`` (:class:`StiffnessConfig`). Build them from a parsed TOML document with
+:func:`link_configs_from_mapping` (or from a file with :func:`load_link_configs`); every
+unknown key, wrong type or out-of-range value is a one-line :class:`~rtsid.errors.ConfigError`
+naming ``section.key``.
+"""
+
+from __future__ import annotations
+
+import types
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from rtsid.config import invalid, load_toml, require_choice, require_range, section_from_mapping
+from rtsid.errors import ConfigError
+from rtsid.link.protocol import PERTURBATION_KINDS
+
+__all__ = [
+    "FaultConfig",
+    "LinkConfig",
+    "PlantConfig",
+    "StiffnessConfig",
+    "link_configs_from_mapping",
+    "load_link_configs",
+    "plant_config_from_mapping",
+]
+
+#: python-can interfaces rtsid accepts, plus ``embedded`` (the in-process virtual plant).
+#: ``udp_multicast`` is left out on purpose: rtsid never uses multicast.
+INTERFACES = (
+    "embedded",
+    "virtual",
+    "socketcand",
+    "socketcan",
+    "pcan",
+    "kvaser",
+    "vector",
+    "ixxat",
+    "slcan",
+    "gs_usb",
+    "nican",
+    "neovi",
+    "cantact",
+    "canalystii",
+    "systec",
+    "seeedstudio",
+    "usb2can",
+    "serial",
+    "robotell",
+    "etas",
+)
+_LOOPBACK = ("127.0.0.1", "::1", "localhost")
+
+
+@dataclass(frozen=True)
+class LinkConfig:
+    """The ``[link]`` section: which bus to open and how to acquire from it.
+
+    Attributes
+    ----------
+    interface : str
+        ``"embedded"`` (default: an in-process virtual plant on a private ``virtual``
+        channel), ``"virtual"`` (python-can's in-process bus, channel shared by name),
+        ``"socketcand"`` (TCP to a socketcand server, e.g. ``rtsid plant``) or a python-can
+        hardware interface (``"socketcan"``, ``"pcan"``, ``"kvaser"``, …).
+    channel : str or int
+        Interface channel: ``"can0"`` (socketcan, socketcand), ``"PCAN_USBBUS1"`` (pcan),
+        ``0`` (kvaser), any name (virtual).
+    bitrate : int
+        Bit rate, bit/s, passed to adapters that set it (pcan, kvaser, …). SocketCAN takes
+        it from ``ip link``; socketcand from its host.
+    host, port : str, int
+        socketcand server (loopback only in rtsid's defaults; 29536 is socketcand's port).
+    fs_hz : float
+        The robot's state-frame rate, Hz (sample time = counter / fs_hz).
+    ring_capacity_s : float
+        Seconds of samples the ring buffer holds.
+    receive_timeout_s : float
+        Longest ``bus.recv`` wait; bounds how long ``stop()`` takes.
+    stale_after_s : float
+        No state frame for this long: the link reports ``stale`` (robot stopped).
+    reconnect_after_stale_s : float
+        Reopen the bus after this long without frames (0: never). Needed for socketcand,
+        whose python-can client does not report a closed connection.
+    backoff_min_s, backoff_max_s : float
+        Reconnection back-off: first wait, doubling up to the maximum.
+    rx_queue_frames : int
+        Receive queue bound for ``virtual``/``embedded`` buses, frames.
+    tcp_tune : bool
+        socketcand: TCP_NODELAY/QUICKACK for lower latency.
+    options : dict
+        Extra keyword arguments for ``can.Bus`` (e.g. ``{fd = true}``).
+    """
+
+    interface: str = "embedded"
+    channel: str | int = "rtsid"
+    bitrate: int = 1_000_000
+    host: str = "127.0.0.1"
+    port: int = 29536
+    fs_hz: float = 2500.0
+    ring_capacity_s: float = 10.0
+    receive_timeout_s: float = 0.05
+    stale_after_s: float = 0.1
+    reconnect_after_stale_s: float = 2.0
+    backoff_min_s: float = 0.1
+    backoff_max_s: float = 5.0
+    rx_queue_frames: int = 20000
+    tcp_tune: bool = True
+    options: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        require_choice("interface", self.interface, INTERFACES)
+        require_range("bitrate", self.bitrate, 10_000, 8_000_000)
+        require_range("port", self.port, 0, 65535)
+        require_range("fs_hz", self.fs_hz, 1.0, 100_000.0)
+        require_range("ring_capacity_s", self.ring_capacity_s, 0.0, 3600.0, low_inclusive=False)
+        require_range("receive_timeout_s", self.receive_timeout_s, 0.001, 1.0)
+        require_range("stale_after_s", self.stale_after_s, 0.0, 60.0, low_inclusive=False)
+        require_range("reconnect_after_stale_s", self.reconnect_after_stale_s, 0.0, 3600.0)
+        require_range("backoff_min_s", self.backoff_min_s, 0.001, 60.0)
+        require_range("backoff_max_s", self.backoff_max_s, self.backoff_min_s, 600.0)
+        require_range("rx_queue_frames", self.rx_queue_frames, 100, 10_000_000)
+        if self.interface in ("socketcand",) and self.host in ("0.0.0.0", "::", ""):
+            raise invalid("host", self.host, "a host address such as '127.0.0.1'")
+        if self.capacity_rows < 2 * self.fs_hz * self.receive_timeout_s + 16:
+            raise invalid("ring_capacity_s", self.ring_capacity_s, "a longer ring (>= 0.1 s)")
+        object.__setattr__(self, "options", types.MappingProxyType(dict(self.options)))
+
+    @property
+    def capacity_rows(self) -> int:
+        """Ring buffer capacity in rows."""
+        return round(self.ring_capacity_s * self.fs_hz)
+
+
+@dataclass(frozen=True)
+class FaultConfig:
+    """``[plant.faults]``: faults the virtual plant injects (probabilities per frame).
+
+    Attributes
+    ----------
+    drop_rate : float
+        Frame not sent (the sample is lost; the counter moves on).
+    duplicate_rate : float
+        Frame sent twice.
+    reorder_rate : float
+        Frame swapped with the next one.
+    corrupt_rate : float
+        One bit of the payload flipped (the checksum rejects it).
+    short_rate : float
+        Frame truncated to fewer than 8 bytes.
+    error_frame_rate : float
+        An error frame inserted after the frame.
+    unknown_id_rate : float
+        A frame with an identifier the robot does not use inserted after the frame.
+    silence_every_s, silence_s : float
+        Every ``silence_every_s`` seconds (0: never) the plant sends nothing for
+        ``silence_s`` seconds; those samples are lost.
+    saturate_torque_nm : float
+        Torque sensor range (0: only the encoding's range): larger torques are clipped
+        and flagged ``TorqueSaturated``.
+    seed : int
+        Seed of the fault generator.
+    """
+
+    drop_rate: float = 0.0
+    duplicate_rate: float = 0.0
+    reorder_rate: float = 0.0
+    corrupt_rate: float = 0.0
+    short_rate: float = 0.0
+    error_frame_rate: float = 0.0
+    unknown_id_rate: float = 0.0
+    silence_every_s: float = 0.0
+    silence_s: float = 0.0
+    saturate_torque_nm: float = 0.0
+    seed: int = 7
+
+    def __post_init__(self) -> None:
+        for name in (
+            "drop_rate",
+            "duplicate_rate",
+            "reorder_rate",
+            "corrupt_rate",
+            "short_rate",
+            "error_frame_rate",
+            "unknown_id_rate",
+        ):
+            require_range(name, getattr(self, name), 0.0, 0.5)
+        require_range("silence_every_s", self.silence_every_s, 0.0)
+        require_range("silence_s", self.silence_s, 0.0)
+        if self.silence_every_s and self.silence_s >= self.silence_every_s:
+            raise invalid("silence_s", self.silence_s, "a value below silence_every_s")
+        require_range("saturate_torque_nm", self.saturate_torque_nm, 0.0)
+
+    @property
+    def any(self) -> bool:
+        """Whether any fault is enabled."""
+        rates = (
+            self.drop_rate,
+            self.duplicate_rate,
+            self.reorder_rate,
+            self.corrupt_rate,
+            self.short_rate,
+            self.error_frame_rate,
+            self.unknown_id_rate,
+        )
+        return any(r > 0 for r in rates) or self.silence_every_s > 0
+
+
+@dataclass(frozen=True)
+class StiffnessConfig:
+    """``[plant.stiffness]``: the joint's stiffness over time, N·m/rad.
+
+    ``kind`` as in :class:`rtsid.sim.StiffnessProfile`: ``"constant"`` uses
+    ``[plant] stiffness``; ``"linear"``/``"hyperbolic"`` go from ``k0`` at ``t0_s`` to
+    ``k1`` at ``t1_s``; ``"raised_cosine"`` one cycle ``k0 → k1 → k0`` over ``t0_s..t1_s``;
+    ``"sinusoidal"`` is ``k0 + amplitude·sin(2π·freq_hz·t)``. With ``period_s > 0`` the
+    profile repeats every ``period_s`` seconds.
+    """
+
+    kind: str = "constant"
+    k0: float = 150.0
+    k1: float = 150.0
+    t0_s: float = 0.0
+    t1_s: float = 1.0
+    amplitude: float = 0.0
+    freq_hz: float = 1.0
+    period_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        require_choice(
+            "kind", self.kind, ("constant", "linear", "hyperbolic", "sinusoidal", "raised_cosine")
+        )
+        if self.kind in ("linear", "hyperbolic", "raised_cosine") and self.t1_s <= self.t0_s:
+            raise invalid("t1_s", self.t1_s, f"a time after t0_s = {self.t0_s}")
+        if self.kind == "hyperbolic" and min(self.k0, self.k1) <= 0:
+            raise invalid("k0", self.k0, "k0 > 0 and k1 > 0 for a hyperbolic profile")
+        require_range("period_s", self.period_s, 0.0)
+
+
+@dataclass(frozen=True)
+class PlantConfig:
+    """The ``[plant]`` section: the simulated (or replayed) ankle robot.
+
+    Attributes
+    ----------
+    mode : str
+        ``"sim"`` (simulated joint) or ``"player"`` (stream ``player_file``).
+    fs_hz : float
+        State frames per second (the robot's sample rate).
+    realtime : bool
+        Pace frames against absolute monotonic deadlines (False: as fast as possible).
+    frames_per_tick : int
+        Frames sent per pacing tick (4 at 2500 Hz: a tick every 1.6 ms).
+    block_s : float
+        Length of each generated block of samples, s.
+    perturbation : str
+        ``"prbs"``, ``"filtered_noise"``, ``"multisine"`` or ``"off"``.
+    amplitude_rad : float
+        Peak perturbation command, rad.
+    bandwidth_hz : float
+        PRBS switching rate / 2, noise cut-off, multisine top frequency, Hz.
+    multisine_period_s : float
+        Multisine period, s (a whole number of samples).
+    servo_bandwidth_hz : float
+        Position servo bandwidth (critically damped), Hz: smooths the command.
+    inertia, damping, stiffness : float
+        The ankle's I (kg·m²), B (N·m·s/rad) and constant K (N·m/rad).
+    robot_inertia : float
+        Footplate/motor inertia between the torque sensor and the foot, kg·m² (its
+        ``I_robot·θ̈`` adds to the measured torque; 0: none).
+    noise_percent : float
+        Torque noise std as % of the clean torque's std.
+    position_noise_rad : float
+        Encoder noise std, rad.
+    seed : int
+        Seed of the perturbation and noise.
+    player_file : str
+        ``.npz`` with ``position_rad``, ``torque_nm``, ``fs_hz`` (player mode).
+    player_torque_sign : float
+        Multiply the file's torque by this (-1 for a recording with inverted torque).
+    player_loop : bool
+        Start again at the end of the file (the first sample is flagged Discontinuity).
+    diagnostics_hz : float
+        Rate of the Diagnostics frame (0: none).
+    max_samples : int
+        Stop producing after this many samples (0: run until stopped).
+    faults : FaultConfig
+    stiffness_profile : StiffnessConfig
+    """
+
+    mode: str = "sim"
+    fs_hz: float = 2500.0
+    realtime: bool = True
+    frames_per_tick: int = 4
+    block_s: float = 0.2
+    perturbation: str = "prbs"
+    amplitude_rad: float = 0.03
+    bandwidth_hz: float = 40.0
+    multisine_period_s: float = 1.0
+    servo_bandwidth_hz: float = 60.0
+    inertia: float = 0.015
+    damping: float = 0.8
+    stiffness: float = 150.0
+    robot_inertia: float = 0.0
+    noise_percent: float = 3.0
+    position_noise_rad: float = 0.0
+    seed: int = 1
+    player_file: str = ""
+    player_torque_sign: float = 1.0
+    player_loop: bool = True
+    diagnostics_hz: float = 10.0
+    max_samples: int = 0
+    faults: FaultConfig = field(default_factory=FaultConfig)
+    stiffness_profile: StiffnessConfig = field(default_factory=StiffnessConfig)
+
+    def __post_init__(self) -> None:
+        require_choice("mode", self.mode, ("sim", "player"))
+        require_range("fs_hz", self.fs_hz, 1.0, 200_000.0)
+        require_range("frames_per_tick", self.frames_per_tick, 1, 10_000)
+        require_range("block_s", self.block_s, 0.01, 10.0)
+        if self.block_samples < 16:
+            raise invalid("block_s", self.block_s, "a block of at least 16 samples")
+        require_choice("perturbation", self.perturbation, PERTURBATION_KINDS)
+        require_range("amplitude_rad", self.amplitude_rad, 0.0, 0.65)
+        require_range("bandwidth_hz", self.bandwidth_hz, 0.0, self.fs_hz / 2, low_inclusive=False)
+        require_range(
+            "servo_bandwidth_hz", self.servo_bandwidth_hz, 0.0, self.fs_hz / 2, low_inclusive=False
+        )
+        require_range(
+            "multisine_period_s", self.multisine_period_s, 0.0, 600.0, low_inclusive=False
+        )
+        for name in (
+            "inertia",
+            "damping",
+            "robot_inertia",
+            "noise_percent",
+            "position_noise_rad",
+            "diagnostics_hz",
+        ):
+            require_range(name, getattr(self, name), 0.0)
+        require_range("max_samples", self.max_samples, 0)
+        require_choice("player_torque_sign", self.player_torque_sign, (1.0, -1.0))
+        if self.mode == "player" and not self.player_file:
+            raise invalid(
+                "player_file", self.player_file, "the path of an .npz file in player mode"
+            )
+
+    @property
+    def block_samples(self) -> int:
+        """Samples per generated block."""
+        return round(self.block_s * self.fs_hz)
+
+
+def plant_config_from_mapping(mapping: Mapping[str, Any] | None) -> PlantConfig:
+    """Build :class:`PlantConfig` from a ``[plant]`` table (with its sub-tables)."""
+    values = dict(mapping or {})
+    subs: dict[str, Any] = {}
+    for key, cls, attr in (
+        ("faults", FaultConfig, "faults"),
+        ("stiffness_profile", StiffnessConfig, "stiffness_profile"),
+    ):
+        table = values.pop(key, None)
+        if table is not None and not isinstance(table, Mapping):
+            raise invalid(f"plant.{key}", table, f"a table [plant.{key}]")
+        subs[attr] = section_from_mapping(cls, table, f"plant.{key}")
+    return section_from_mapping(PlantConfig, {**values, **subs}, "plant")
+
+
+def link_configs_from_mapping(document: Mapping[str, Any]) -> tuple[LinkConfig, PlantConfig]:
+    """``[link]`` and ``[plant]`` of a parsed TOML document (other sections are ignored)."""
+    link_table = document.get("link")
+    if link_table is not None and not isinstance(link_table, Mapping):
+        raise ConfigError("config key 'link' must be a table [link]")
+    link = section_from_mapping(LinkConfig, link_table, "link")
+    plant = plant_config_from_mapping(document.get("plant"))
+    if link.interface == "embedded" and link.fs_hz != plant.fs_hz:
+        raise invalid("plant.fs_hz", plant.fs_hz, f"link.fs_hz = {link.fs_hz} (the same rate)")
+    return link, plant
+
+
+def load_link_configs(path: str | Path) -> tuple[LinkConfig, PlantConfig]:
+    """Read ``[link]`` and ``[plant]`` from a TOML file."""
+    return link_configs_from_mapping(load_toml(path))

@@ -1,0 +1,270 @@
+"""Preallocated single-writer ring buffer of samples; readers never block the writer.
+
+Every row stands for one sample index: indices are contiguous, and a sample that never
+arrived is a row with ``valid = False`` (never interpolated). Slot of index ``i`` is
+``i % capacity``.
+
+Consistency without locks (a seqlock on the indices): the writer first *claims* the indices
+it is about to write, fills their slots, then publishes the new ``newest``; a reader reads
+``newest``, copies the rows it wants, then reads the claim. A row of index ``j`` can have
+been (partly) overwritten during the copy only if ``j <= claimed_after - capacity``; the reader then
+retries (or, in :meth:`RingBuffer.read_since`, skips those rows and counts them as
+overwritten). The writer never waits for anybody. Readers serialise among themselves with a
+lock only to update the shared overrun counter.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["RingBuffer", "Snapshot"]
+
+_MAX_READ_ATTEMPTS = 8
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """A consistent copy of consecutive rows of the ring (oldest first).
+
+    Attributes
+    ----------
+    sample_index : numpy.ndarray of int64, shape (n,)
+        Unwrapped sample indices, contiguous (``sample_index[k] = first + k``).
+    position_rad : numpy.ndarray of float64, shape (n,)
+        Joint angle, rad (0.0 where not valid).
+    torque_nm : numpy.ndarray of float64, shape (n,)
+        Torque, N·m (0.0 where not valid).
+    valid : numpy.ndarray of bool, shape (n,)
+        False for rows standing for lost samples.
+    status : numpy.ndarray of uint8, shape (n,)
+        Status bits of the frame (``rtsid.link.protocol.STATUS_*``).
+    host_time_s : numpy.ndarray of float64, shape (n,)
+        ``time.monotonic()`` when the frame was received (for lost rows: when the gap was
+        detected).
+    bus_time_s : numpy.ndarray of float64, shape (n,)
+        The interface's timestamp of the frame, s (its own clock; NaN for lost rows).
+    overwritten : int
+        Rows between the requested cursor and ``sample_index[0]`` that the writer had
+        already overwritten (only :meth:`RingBuffer.read_since` sets it).
+    """
+
+    sample_index: NDArray[np.int64]
+    position_rad: NDArray[np.float64]
+    torque_nm: NDArray[np.float64]
+    valid: NDArray[np.bool_]
+    status: NDArray[np.uint8]
+    host_time_s: NDArray[np.float64]
+    bus_time_s: NDArray[np.float64]
+    overwritten: int = 0
+
+    def __len__(self) -> int:
+        return int(self.sample_index.size)
+
+    @property
+    def next_index(self) -> int:
+        """Cursor to pass to the next :meth:`RingBuffer.read_since` call."""
+        return int(self.sample_index[-1]) + 1 if self.sample_index.size else -1
+
+
+class RingBuffer:
+    """Fixed-capacity ring of samples with one writer and any number of readers.
+
+    Parameters
+    ----------
+    capacity : int
+        Rows kept (e.g. ``10 s × 2500 Hz``); allocated once.
+    """
+
+    def __init__(self, capacity: int) -> None:
+        if capacity < 2:
+            raise ValueError(f"ring capacity must be >= 2 rows, got {capacity}")
+        self.capacity = int(capacity)
+        self._index = np.full(capacity, -1, dtype=np.int64)
+        self._position = np.zeros(capacity)
+        self._torque = np.zeros(capacity)
+        self._valid = np.zeros(capacity, dtype=bool)
+        self._status = np.zeros(capacity, dtype=np.uint8)
+        self._host_time = np.zeros(capacity)
+        self._bus_time = np.full(capacity, np.nan)
+        self._first = -1  # index of the first row ever written
+        self._newest = -1  # index of the newest published row
+        self._claimed = -1  # highest index whose slot the writer is writing or has written
+        self._reader_lock = threading.Lock()
+        self.reader_overruns = 0
+
+    # ------------------------------------------------------------------ writer side
+    @property
+    def newest_index(self) -> int:
+        """Index of the newest published row (-1 before the first write)."""
+        return self._newest
+
+    @property
+    def oldest_index(self) -> int:
+        """Index of the oldest row still held (-1 before the first write)."""
+        if self._newest < 0:
+            return -1
+        return max(self._first, self._newest - self.capacity + 1)
+
+    def start_at(self, index: int) -> None:
+        """Set the index of the first row (writer only; before the first write)."""
+        if self._newest >= 0:
+            raise RuntimeError("start_at() after rows were written")
+        self._first = index
+        self._newest = index - 1
+        self._claimed = index - 1
+
+    def append(
+        self,
+        position_rad: float,
+        torque_nm: float,
+        status: int,
+        host_time_s: float,
+        bus_time_s: float,
+    ) -> int:
+        """Write one valid sample as index ``newest + 1`` and publish it; returns its index."""
+        index = self._newest + 1
+        if self._first < 0:
+            self._first = index
+        self._claimed = index
+        slot = index % self.capacity
+        self._index[slot] = index
+        self._position[slot] = position_rad
+        self._torque[slot] = torque_nm
+        self._valid[slot] = True
+        self._status[slot] = status
+        self._host_time[slot] = host_time_s
+        self._bus_time[slot] = bus_time_s
+        self._newest = index
+        return index
+
+    def append_gap(self, count: int, host_time_s: float) -> None:
+        """Write ``count`` invalid rows (lost samples) after ``newest`` and publish them.
+
+        Only the last ``capacity`` rows of a long gap are written (the others would be
+        overwritten at once); indices still advance by ``count``.
+        """
+        if count <= 0:
+            return
+        start = self._newest + 1
+        if self._first < 0:
+            self._first = start
+        stop = start + count
+        self._claimed = stop - 1
+        self._write_invalid(max(start, stop - self.capacity), stop, host_time_s)
+        self._newest = stop - 1
+
+    def _write_invalid(self, lo: int, hi: int, host_time_s: float) -> None:
+        slots_a = lo % self.capacity
+        n = hi - lo
+        first = min(n, self.capacity - slots_a)
+        for begin, length, base in ((slots_a, first, lo), (0, n - first, lo + first)):
+            if length <= 0:
+                continue
+            sl = slice(begin, begin + length)
+            self._index[sl] = np.arange(base, base + length)
+            self._position[sl] = 0.0
+            self._torque[sl] = 0.0
+            self._valid[sl] = False
+            self._status[sl] = 0
+            self._host_time[sl] = host_time_s
+            self._bus_time[sl] = np.nan
+
+    # ------------------------------------------------------------------ reader side
+    def is_valid(self, index: int) -> bool | None:
+        """Whether row ``index`` holds a received sample (None if it is not in the ring)."""
+        if index > self._newest or index < self.oldest_index:
+            return None
+        slot = index % self.capacity
+        valid = bool(self._valid[slot])
+        return valid if self._index[slot] == index else None
+
+    def latest(self, n: int) -> Snapshot | None:
+        """A consistent copy of the newest ``n`` rows, or None if fewer have been written.
+
+        Parameters
+        ----------
+        n : int
+            Rows wanted, ``1 <= n < capacity``.
+        """
+        if not 1 <= n < self.capacity:
+            raise ValueError(f"latest(n) needs 1 <= n < capacity={self.capacity}, got {n}")
+        for _ in range(_MAX_READ_ATTEMPTS):
+            newest = self._newest
+            if newest < 0 or newest - self._first + 1 < n:
+                return None
+            snap = self._copy(newest - n + 1, newest + 1)
+            if newest - n + 1 > self._claimed - self.capacity:
+                return snap
+        return None  # the writer lapped us repeatedly: the caller is far too slow
+
+    def read_since(self, next_index: int, max_n: int) -> Snapshot:
+        """Every row from cursor ``next_index`` on (at most ``max_n``), for loggers.
+
+        Rows the writer overwrote before they were read are skipped and counted in
+        ``Snapshot.overwritten`` (and in :attr:`reader_overruns`). A cursor below the first
+        row ever written starts at that row without counting anything.
+
+        Returns
+        -------
+        Snapshot
+            Possibly empty; continue from ``snapshot.next_index`` (or the same cursor when
+            it is empty).
+        """
+        if max_n < 1:
+            raise ValueError(f"max_n must be >= 1, got {max_n}")
+        max_n = min(max_n, self.capacity - 1)
+        overwritten = 0
+        cursor = max(next_index, self._first) if self._first >= 0 else next_index
+        for _ in range(_MAX_READ_ATTEMPTS):
+            newest = self._newest
+            if newest < 0 or cursor > newest:
+                return self._empty(overwritten)
+            oldest_safe = max(newest, self._claimed) + 1 - self.capacity
+            if cursor < oldest_safe:
+                overwritten += oldest_safe - cursor
+                cursor = oldest_safe
+            stop = min(newest + 1, cursor + max_n)
+            snap = self._copy(cursor, stop)
+            lapped = self._claimed + 1 - self.capacity
+            if cursor >= lapped:
+                self._count_overruns(overwritten)
+                return Snapshot(**{**snap.__dict__, "overwritten": overwritten})
+        self._count_overruns(overwritten)
+        return self._empty(overwritten)
+
+    def _count_overruns(self, n: int) -> None:
+        if n:
+            with self._reader_lock:
+                self.reader_overruns += n
+
+    def _copy(self, lo: int, hi: int) -> Snapshot:
+        """Copy rows ``lo .. hi - 1`` (``hi - lo < capacity``) in index order."""
+        if hi <= lo:
+            return self._empty(0)
+        rows = np.arange(lo, hi) % self.capacity
+        return Snapshot(
+            self._index[rows],
+            self._position[rows],
+            self._torque[rows],
+            self._valid[rows],
+            self._status[rows],
+            self._host_time[rows],
+            self._bus_time[rows],
+        )
+
+    @staticmethod
+    def _empty(overwritten: int) -> Snapshot:
+        return Snapshot(
+            np.empty(0, np.int64),
+            np.empty(0),
+            np.empty(0),
+            np.empty(0, bool),
+            np.empty(0, np.uint8),
+            np.empty(0),
+            np.empty(0),
+            overwritten,
+        )

@@ -1,0 +1,88 @@
+"""Run the virtual plant behind a socketcand server until a signal (``rtsid plant``)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import signal
+import sys
+import threading
+import time
+from dataclasses import dataclass
+
+from rtsid.config import load_toml
+from rtsid.link.config import PlantConfig, plant_config_from_mapping
+from rtsid.link.plant import VirtualPlant
+from rtsid.link.socketcand import SocketcandServer
+
+__all__ = ["PlantServerOptions", "plant_config_for", "serve_plant"]
+
+_STOP_TIMEOUT_S = 2.0
+
+
+@dataclass(frozen=True)
+class PlantServerOptions:
+    """Command-line choices of ``rtsid plant`` (None: keep the config file's value)."""
+
+    config: str | None = None
+    host: str = "127.0.0.1"
+    port: int = 29536
+    channel: str = "can0"
+    mode: str | None = None
+    player_file: str | None = None
+    fs_hz: float | None = None
+    fast: bool = False
+    duration_s: float = 0.0
+
+
+def plant_config_for(options: PlantServerOptions) -> PlantConfig:
+    """The ``[plant]`` section of ``options.config`` with the command-line overrides."""
+    document = load_toml(options.config) if options.config else {}
+    table = dict(document.get("plant") or {})
+    overrides = {
+        "mode": options.mode,
+        "player_file": options.player_file,
+        "fs_hz": options.fs_hz,
+        "realtime": False if options.fast else None,
+    }
+    table.update({k: v for k, v in overrides.items() if v is not None})
+    if options.player_file and "mode" not in table:
+        table["mode"] = "player"
+    return plant_config_from_mapping(table)
+
+
+def serve_plant(options: PlantServerOptions) -> int:
+    """Serve until SIGINT/SIGTERM or ``duration_s``; bounded shutdown. Returns an exit code."""
+    cfg = plant_config_for(options)
+    stop = threading.Event()
+    previous = {
+        sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)
+    }
+    try:
+        with SocketcandServer(options.host, options.port, options.channel) as server:
+            plant = VirtualPlant(cfg, server)
+            print(
+                f"rtsid plant: socketcand server on {server.host}:{server.port} channel "
+                f"{options.channel} ({cfg.mode}, {cfg.fs_hz:g} Hz)",
+                flush=True,
+            )
+            with plant:
+                deadline = time.monotonic() + options.duration_s if options.duration_s else None
+                while not stop.is_set() and not plant.done.is_set():
+                    remaining = None if deadline is None else deadline - time.monotonic()
+                    if remaining is not None and remaining <= 0:
+                        break
+                    stop.wait(0.2 if remaining is None else min(0.2, remaining))
+                plant.stop(_STOP_TIMEOUT_S)
+            report = {
+                "plant": dataclasses.asdict(plant.counters()),
+                "server": dataclasses.asdict(server.counters()),
+            }
+            print(json.dumps(report), flush=True)
+            if plant.error is not None:
+                print(f"rtsid plant: error: {plant.error}", file=sys.stderr)
+                return 1
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return 0

@@ -1,0 +1,107 @@
+import threading
+
+import numpy as np
+import pytest
+
+from rtsid.link.ring import RingBuffer
+
+
+def fill(ring: RingBuffer, n: int) -> None:
+    for _ in range(n):
+        k = ring.newest_index + 1
+        ring.append(float(k), -float(k), k % 16, 1.0, 2.0)
+
+
+def test_latest_and_wraparound():
+    ring = RingBuffer(10)
+    assert ring.latest(3) is None
+    ring.start_at(100)
+    fill(ring, 2)
+    assert ring.latest(3) is None
+    fill(ring, 25)
+    snap = ring.latest(9)
+    assert snap.sample_index.tolist() == list(range(118, 127))
+    assert np.array_equal(snap.position_rad, snap.sample_index.astype(float))
+    assert snap.valid.all() and ring.oldest_index == 117
+    with pytest.raises(ValueError, match="capacity"):
+        ring.latest(10)
+
+
+def test_gaps_are_invalid_rows_and_indices_stay_contiguous():
+    ring = RingBuffer(16)
+    fill(ring, 3)
+    ring.append_gap(4, host_time_s=5.0)
+    fill(ring, 2)
+    snap = ring.latest(9)
+    assert snap.sample_index.tolist() == list(range(9))
+    assert snap.valid.tolist() == [True] * 3 + [False] * 4 + [True] * 2
+    assert np.all(snap.position_rad[3:7] == 0) and np.all(np.isnan(snap.bus_time_s[3:7]))
+    assert ring.is_valid(4) is False and ring.is_valid(2) is True and ring.is_valid(99) is None
+
+
+def test_gap_longer_than_the_ring():
+    ring = RingBuffer(8)
+    fill(ring, 2)
+    ring.append_gap(100, host_time_s=1.0)
+    fill(ring, 1)
+    snap = ring.latest(7)
+    assert snap.sample_index.tolist() == list(range(96, 103))
+    assert snap.valid.tolist() == [False] * 6 + [True]
+
+
+def test_read_since_reports_overwritten_rows_and_continues():
+    ring = RingBuffer(10)
+    fill(ring, 5)
+    first = ring.read_since(0, 100)
+    assert first.sample_index.tolist() == list(range(5)) and first.overwritten == 0
+    fill(ring, 20)  # rows 5..24; the ring holds 15..24
+    second = ring.read_since(first.next_index, 100)
+    assert second.sample_index[0] == 15  # rows 5..14 were overwritten
+    assert second.overwritten == 10 and ring.reader_overruns == 10
+    assert second.sample_index[-1] == 23  # at most capacity - 1 rows per read
+    third = ring.read_since(second.next_index, 100)
+    assert third.sample_index.tolist() == [24] and third.overwritten == 0
+    empty = ring.read_since(third.next_index, 100)
+    assert len(empty) == 0 and empty.overwritten == 0
+    limited = ring.read_since(20, 3)
+    assert limited.sample_index.tolist() == [20, 21, 22]
+
+
+def test_readers_always_see_consistent_rows_while_the_writer_runs():
+    ring = RingBuffer(64)
+    stop = threading.Event()
+    written = 200_000
+
+    def writer() -> None:
+        for _ in range(written):
+            k = ring.newest_index + 1
+            ring.append(float(k), 2.0 * k, 0, float(k), float(k))
+            if k % 997 == 0:
+                ring.append_gap(3, host_time_s=0.0)
+        stop.set()
+
+    thread = threading.Thread(target=writer, name="ring-writer")
+    thread.start()
+    checked = 0
+    try:
+        cursor = 0
+        while not stop.is_set() or cursor <= ring.newest_index:
+            snap = ring.latest(40)
+            if snap is not None:
+                idx = snap.sample_index
+                assert np.array_equal(idx, np.arange(idx[0], idx[0] + 40))
+                ok = snap.valid
+                assert np.array_equal(snap.position_rad[ok], idx[ok].astype(float))
+                assert np.array_equal(snap.torque_nm[ok], 2.0 * idx[ok])
+                checked += 1
+            batch = ring.read_since(cursor, 50)
+            if len(batch):
+                assert batch.sample_index[0] == cursor + batch.overwritten
+                ok = batch.valid
+                assert np.array_equal(batch.position_rad[ok], batch.sample_index[ok].astype(float))
+                cursor = batch.next_index
+            else:
+                cursor += batch.overwritten
+    finally:
+        thread.join(timeout=30)
+    assert checked > 0 and cursor == ring.newest_index + 1
