@@ -1,0 +1,836 @@
+"""Time-varying identification by skirt decomposition of a multisine response.
+
+Lataire, Pintelon & Louarroudi (Automatica 48(4), 2012) estimate the system function
+``G(jω, t)`` of a linear time-varying (LTV) system from one record excited by a multisine:
+
+.. math::
+
+    G(jω, t) = \\sum_{p=0}^{N_p-1} G_p(jω)\\, b_p(t), \\qquad
+    y(t) = \\sum_p b_p(t)\\,(g_p * u)(t),
+
+with ``b_p`` the Legendre polynomials shifted and scaled to the record. Multiplying by
+``b_p(t)`` spreads each excited line of the (periodic) response over a *skirt* ``B_p`` (the DFT
+of ``b_p``), so the output DFT over the whole record of ``N`` samples is
+
+.. math::
+
+    Y(k) = \\frac{1}{N} \\sum_{k_e} \\sum_p U(k_e)\\, G_p(k_e)\\, B_p\\big((k - k_e) \\bmod N\\big)
+           + T(k) + V(k).
+
+The ``1/N`` comes from numpy's unnormalised DFT (a cosine of amplitude ``A`` gives
+``U(k_e) = N·A/2·e^{jφ}``), and skirt offsets wrap modulo ``N`` (negative offsets index the
+top of the DFT). Around each excited line the bins half-way to its neighbours hold the
+line's own skirts, the skirts of its two neighbours (only ``p ≥ 1``: the constant ``b_0``
+has a one-bin skirt, so a neighbour's ``p = 0`` column is pure round-off inside the window
+and is dropped) and a low-order polynomial ``T(k)`` in ``k`` for transients and the leakage
+of lines further away. One linear least-squares problem per line gives ``G_p(k_e)``.
+
+Legendre skirts widen roughly as ``p²/π`` bins, so a large ``N_p`` with closely spaced
+lines makes the local problems ill-conditioned. :func:`skirt_conditioning` measures it (the
+variance inflation of the line's own ``G_p`` against orthogonal skirts) from the design
+alone; :func:`identify_ltv` warns (:class:`SkirtConditioningWarning`) above
+:data:`WARN_VARIANCE_INFLATION` and refuses (:class:`~rtsid.errors.NumericalError`) when
+the problem is under-determined or above :data:`MAX_VARIANCE_INFLATION`.
+
+Beyond the paper, :meth:`LtvEstimate.fit_second_order` fits the frozen admittance
+``1/(K − Iω² + jBω)`` to ``G(jω, t)`` at each time, which tracks ``K(t)`` and the natural
+frequency ``f_n(t)`` with sub-line resolution (the paper's peak-picking resonance,
+:meth:`LtvEstimate.resonance_from_peak`, is quantised to the line grid).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from rtsid.errors import InputDataError, NumericalError
+
+__all__ = [
+    "MAX_VARIANCE_INFLATION",
+    "WARN_VARIANCE_INFLATION",
+    "LtvEstimate",
+    "SecondOrderTrack",
+    "SkirtConditioning",
+    "SkirtConditioningWarning",
+    "identify_ltv",
+    "legendre_basis",
+    "max_stable_basis",
+    "skirt_conditioning",
+]
+
+FloatArray = NDArray[np.float64]
+ComplexArray = NDArray[np.complex128]
+
+#: Variance inflation of a line's own ``G_p`` above which :func:`identify_ltv` warns.
+WARN_VARIANCE_INFLATION = 10.0
+#: Variance inflation above which :func:`identify_ltv` refuses to estimate.
+MAX_VARIANCE_INFLATION = 1e6
+#: Largest fraction of the input's power allowed outside the declared excited bins.
+DEFAULT_INPUT_TOLERANCE = 1e-3
+
+
+class SkirtConditioningWarning(RuntimeWarning):
+    """``N_p`` is large for the line spacing: the estimate's variance is inflated."""
+
+
+# --------------------------------------------------------------------------------------
+# basis and skirts
+# --------------------------------------------------------------------------------------
+
+
+def _record_coordinate(t_s: FloatArray, fs_hz: float, n_samples: int) -> FloatArray:
+    """Map times to ``[-1, 1]``: sample 0 to −1, sample ``N−1`` to +1."""
+    return 2.0 * np.asarray(t_s, dtype=float) * fs_hz / (n_samples - 1) - 1.0
+
+
+def _legendre(x: FloatArray, n_basis: int) -> FloatArray:
+    out = np.empty((n_basis, x.size))
+    out[0] = 1.0
+    if n_basis > 1:
+        out[1] = x
+    for p in range(1, n_basis - 1):
+        out[p + 1] = ((2 * p + 1) * x * out[p] - p * out[p - 1]) / (p + 1)
+    return out
+
+
+def legendre_basis(n_samples: int, n_basis: int) -> FloatArray:
+    """Legendre polynomials ``P_0 … P_{n_basis−1}`` over a record of ``n_samples``.
+
+    Sample ``n`` maps to ``x = 2n/(N−1) − 1``, so ``b_p`` runs over ``[-1, 1]`` across the
+    record.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n_basis, n_samples)
+    """
+    if n_samples < 2 or n_basis < 1:
+        raise InputDataError(f"need n_samples >= 2 and n_basis >= 1, got {n_samples}, {n_basis}")
+    x = 2.0 * np.arange(n_samples) / (n_samples - 1) - 1.0
+    return _legendre(x, n_basis)
+
+
+# --------------------------------------------------------------------------------------
+# local design
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """Columns of one local problem, identical for every line with the same neighbourhood.
+
+    ``left``/``right`` are the bins below/above the line in its window; ``neighbours`` the
+    signed distances (bins) to the other lines whose skirts are modelled in it.
+    """
+
+    left: int
+    right: int
+    neighbours: tuple[int, ...]
+
+    @property
+    def offsets(self) -> NDArray[np.int64]:
+        return np.arange(-self.left, self.right + 1)
+
+
+def _design(
+    layout: _Layout, skirts: ComplexArray, n_samples: int, n_transient: int | None
+) -> tuple[ComplexArray, int]:
+    """Columns ``B_p(k − k_e')/N`` of the line, its neighbours and the polynomial.
+
+    A neighbour's ``p = 0`` skirt is a single bin at the neighbour's line, so it enters
+    only when that line lies inside the window (otherwise the column is round-off).
+    Returns the design (rows = window bins) and the number of the line's own columns
+    (the first ``n_basis``).
+    """
+    n_basis = skirts.shape[0]
+    m = layout.offsets
+    cols = [skirts[:, m % n_samples].T]
+    for d in layout.neighbours:
+        first = 0 if -layout.left <= d <= layout.right else 1
+        cols.append(skirts[first:, (m - d) % n_samples].T)
+    design = np.concatenate(cols, axis=1) / n_samples
+    if n_transient is not None:
+        scale = max(layout.left, layout.right, 1)
+        powers = (m[:, None] / scale) ** np.arange(n_transient + 1)
+        design = np.concatenate([design, powers.astype(complex)], axis=1)
+    return design, n_basis
+
+
+@dataclass(frozen=True)
+class _Solver:
+    """Solution map of one local design for the line's own columns.
+
+    The neighbours' skirts and the transient polynomial are nuisance: only their span
+    matters, and it is nearly degenerate (a neighbour's high-order skirts are all smooth
+    inside the window), so it is represented by an orthonormal basis of its numerical range
+    (singular values above :data:`_NUISANCE_RCOND`). The line's own columns, with the
+    nuisance span projected out, are then solved by SVD; their variance inflation is the
+    diagonal of ``(A_⊥^H A_⊥)^{-1}`` for unit-norm columns (1 when the own skirts are
+    orthogonal to each other and to the nuisance).
+    """
+
+    own_pinv: ComplexArray  # (n_own, rows), maps the window spectrum to normalised unknowns
+    residual_projector: ComplexArray  # (rows, rows)
+    column_norms: FloatArray  # (n_own,)
+    variance_inflation: FloatArray  # (n_own,)
+    dof: int
+
+    @classmethod
+    def build(cls, design: ComplexArray, n_own: int) -> _Solver:
+        rows = design.shape[0]
+        own, nuisance = design[:, :n_own], design[:, n_own:]
+        norms = np.linalg.norm(own, axis=0)
+        norms[norms == 0] = 1.0
+        own = own / norms
+        q = _range_basis(nuisance)
+        own_perp = own - q @ (q.conj().T @ own)
+        u, s, vh = np.linalg.svd(own_perp, full_matrices=False)
+        if s.size < n_own or s[-1] <= 1e-12 * max(s[0], 1.0):
+            inflation = np.full(n_own, np.inf)
+            pinv = np.full((n_own, rows), np.nan, dtype=complex)
+        else:
+            pinv = (vh.conj().T / s) @ u.conj().T
+            inflation = (np.abs(vh.T) ** 2) @ (1.0 / s**2)
+        basis = np.concatenate([q, u], axis=1)
+        projector = np.eye(rows) - basis @ basis.conj().T
+        return cls(pinv, projector, norms, np.asarray(inflation, float), rows - basis.shape[1])
+
+
+#: Relative singular value below which directions of the nuisance span are dropped.
+_NUISANCE_RCOND = 1e-10
+
+
+def _range_basis(columns: ComplexArray) -> ComplexArray:
+    """Orthonormal basis (rows, rank) of the numerical range of ``columns``."""
+    if columns.shape[1] == 0:
+        return np.zeros((columns.shape[0], 0), dtype=complex)
+    norms = np.linalg.norm(columns, axis=0)
+    norms[norms == 0] = 1.0
+    u, s, _ = np.linalg.svd(columns / norms, full_matrices=False)
+    rank = int(np.sum(s > s[0] * _NUISANCE_RCOND))
+    return u[:, :rank]
+
+
+def _layouts(
+    bins: NDArray[np.int64], n_samples: int, window_lines: float, neighbours: int
+) -> list[_Layout]:
+    """Window and modelled neighbours of each excited line.
+
+    The window reaches ``window_lines`` × the distance to the next line on each side (0.5:
+    half-way, so windows tile the band), inside ``1 … N/2``; the skirts of the
+    ``neighbours`` nearest lines on each side, and of any line inside the window, are
+    modelled.
+    """
+    layouts = []
+    for i, k in enumerate(bins):
+        gap_left = int(k - bins[i - 1]) if i > 0 else 0
+        gap_right = int(bins[i + 1] - k) if i + 1 < bins.size else 0
+        gap_left, gap_right = gap_left or gap_right, gap_right or gap_left
+        if gap_left:
+            left, right = int(window_lines * gap_left), int(window_lines * gap_right)
+        else:  # a single line: use what room there is
+            left = right = n_samples
+        left = int(min(left, k - 1))
+        right = int(min(right, n_samples // 2 - k))
+        near = set(range(max(0, i - neighbours), min(bins.size, i + neighbours + 1)))
+        near |= {j for j, kj in enumerate(bins) if k - left <= kj <= k + right}
+        near.discard(i)
+        layouts.append(_Layout(left, right, tuple(sorted(int(bins[j] - k) for j in near))))
+    return layouts
+
+
+# --------------------------------------------------------------------------------------
+# conditioning
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SkirtConditioning:
+    """How well the local problems determine ``G_p`` for a line spacing and ``N_p``.
+
+    Attributes
+    ----------
+    n_basis : int
+        ``N_p``.
+    spacing_bins : int
+        Distance between excited lines in bins of the whole record.
+    rows, unknowns : int
+        Bins and complex unknowns (own ``G_p``, neighbours' ``G_p``, polynomial) of an
+        interior line's local problem.
+    variance_inflation : numpy.ndarray, shape (n_basis,)
+        Variance of each own ``G_p`` relative to what orthogonal skirts would give (1 is
+        ideal; ``inf`` when the problem is singular).
+    """
+
+    n_basis: int
+    spacing_bins: int
+    rows: int
+    unknowns: int
+    variance_inflation: FloatArray = field(repr=False)
+
+    @property
+    def max_variance_inflation(self) -> float:
+        """Largest inflation over ``p`` (``inf`` when singular or under-determined)."""
+        return float(np.max(self.variance_inflation))
+
+
+def _interior_layout(spacing_bins: int, window_lines: float, neighbours: int) -> _Layout:
+    bins = spacing_bins * np.arange(1, 4 * (neighbours + int(window_lines) + 1) + 2)
+    middle = bins.size // 2
+    return _layouts(bins, 1 << 40, window_lines, neighbours)[middle]
+
+
+def skirt_conditioning(
+    n_samples: int,
+    spacing_bins: int,
+    n_basis: int,
+    n_transient: int | None = 2,
+    *,
+    window_lines: float = 1.0,
+    neighbours: int = 1,
+) -> SkirtConditioning:
+    """Conditioning of an interior line's local problem (depends on the design only).
+
+    Parameters
+    ----------
+    n_samples : int
+        Samples in the record ``N``.
+    spacing_bins : int
+        Distance between excited lines, in DFT bins of the whole record
+        (``every × n_periods`` for a multisine exciting every ``every``-th bin of a period).
+    n_basis : int
+        ``N_p``.
+    n_transient : int or None
+        Degree of the transient polynomial (None: no polynomial).
+    window_lines, neighbours : float, int
+        Local window and modelled neighbours, as in :func:`identify_ltv`.
+
+    Returns
+    -------
+    SkirtConditioning
+    """
+    skirts = np.fft.fft(legendre_basis(n_samples, n_basis), axis=1)
+    return _conditioning(skirts, spacing_bins, n_transient, window_lines, neighbours)
+
+
+def _conditioning(
+    skirts: ComplexArray,
+    spacing_bins: int,
+    n_transient: int | None,
+    window_lines: float,
+    neighbours: int,
+) -> SkirtConditioning:
+    if spacing_bins < 2:
+        raise InputDataError(
+            f"excited lines {spacing_bins} bin(s) apart leave no bins for the skirts; "
+            "excite every P-th bin with P >= 2 or record more periods"
+        )
+    n_basis, n_samples = skirts.shape
+    layout = _interior_layout(spacing_bins, window_lines, neighbours)
+    design, n_own = _design(layout, skirts, n_samples, n_transient)
+    rows, unknowns = design.shape
+    inflation = _Solver.build(design, n_own).variance_inflation
+    return SkirtConditioning(n_basis, spacing_bins, rows, unknowns, inflation)
+
+
+def max_stable_basis(
+    n_samples: int,
+    spacing_bins: int,
+    n_transient: int | None = 2,
+    limit: float = WARN_VARIANCE_INFLATION,
+    n_max: int = 40,
+    *,
+    window_lines: float = 1.0,
+    neighbours: int = 1,
+) -> int:
+    """Largest ``N_p`` (≤ ``n_max``) whose variance inflation stays ≤ ``limit`` (0: none)."""
+    skirts = np.fft.fft(legendre_basis(n_samples, n_max), axis=1)
+    best = 0
+    for n_basis in range(1, n_max + 1):
+        cond = _conditioning(skirts[:n_basis], spacing_bins, n_transient, window_lines, neighbours)
+        if cond.max_variance_inflation > limit:
+            break
+        best = n_basis
+    return best
+
+
+# --------------------------------------------------------------------------------------
+# estimate
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SecondOrderTrack:
+    """Frozen second-order admittance ``1/(K − Iω² + jBω)`` fitted at each time.
+
+    Attributes
+    ----------
+    t_s : numpy.ndarray, shape (n_times,)
+        Times, s from the record's first sample.
+    stiffness, damping, inertia : numpy.ndarray, shape (n_times,)
+        ``K`` (N·m/rad), ``B`` (N·m·s/rad), ``I`` (N·m·s²/rad).
+    natural_frequency_hz : numpy.ndarray, shape (n_times,)
+        ``√(K/I)/2π``, Hz (NaN where ``K/I <= 0``).
+    fit_error : numpy.ndarray, shape (n_times,)
+        Relative misfit ``‖G − Ĝ‖/‖G‖`` over the excited lines.
+    """
+
+    t_s: FloatArray
+    stiffness: FloatArray
+    damping: FloatArray
+    inertia: FloatArray
+    natural_frequency_hz: FloatArray
+    fit_error: FloatArray
+
+
+@dataclass(frozen=True)
+class LtvEstimate:
+    """``G(jω, t) = Σ_p G_p(jω)·b_p(t)`` at the excited lines of a multisine.
+
+    Attributes
+    ----------
+    G_p : numpy.ndarray of complex, shape (n_basis, n_lines)
+        Coefficient of Legendre polynomial ``p`` at each excited line (output unit per
+        input unit, e.g. rad/(N·m)).
+    G_p_se : numpy.ndarray, shape (n_basis, n_lines)
+        Standard error of ``G_p`` from each local problem's residual.
+    frequencies_hz : numpy.ndarray, shape (n_lines,)
+        Excited frequencies, Hz.
+    excited_bins : numpy.ndarray of int, shape (n_lines,)
+        Excited bins of one multisine period.
+    fs_hz : float
+        Sampling rate, Hz.
+    period_samples, n_periods : int
+        Samples per period and periods in the record.
+    n_transient : int or None
+        Degree of the transient polynomial used.
+    variance_inflation : float
+        Worst variance inflation of the line's own ``G_p`` over all local problems.
+    """
+
+    G_p: ComplexArray
+    G_p_se: FloatArray
+    frequencies_hz: FloatArray
+    excited_bins: NDArray[np.int64]
+    fs_hz: float
+    period_samples: int
+    n_periods: int
+    n_transient: int | None
+    variance_inflation: float
+
+    @property
+    def n_basis(self) -> int:
+        """``N_p``."""
+        return int(self.G_p.shape[0])
+
+    @property
+    def n_samples(self) -> int:
+        """Samples in the estimation record."""
+        return self.period_samples * self.n_periods
+
+    @property
+    def duration_s(self) -> float:
+        """Length of the record, s (first to last sample)."""
+        return (self.n_samples - 1) / self.fs_hz
+
+    def default_times(self, n_times: int = 500) -> FloatArray:
+        """``n_times`` evenly spaced times over the record, s."""
+        return np.linspace(0.0, self.duration_s, n_times)
+
+    def basis(self, t_s: ArrayLike) -> FloatArray:
+        """``b_p(t)`` at times ``t_s`` (s), shape (n_basis, n_times)."""
+        t = np.atleast_1d(np.asarray(t_s, dtype=float))
+        return _legendre(_record_coordinate(t, self.fs_hz, self.n_samples), self.n_basis)
+
+    def G(self, t_s: ArrayLike | None = None) -> ComplexArray:
+        """``G(jω_e, t)`` at the excited lines, shape (n_times, n_lines).
+
+        Parameters
+        ----------
+        t_s : array_like, optional
+            Times in s from the first sample (default :meth:`default_times`).
+        """
+        t = self.default_times() if t_s is None else t_s
+        return self.basis(t).T @ self.G_p
+
+    def simulate(self, u: ArrayLike) -> FloatArray:
+        """Output of the estimated LTV model for another realisation of the multisine.
+
+        Parameters
+        ----------
+        u : array_like, shape (n_samples,)
+            Input with the same excited bins, period and length as the estimation record.
+
+        Returns
+        -------
+        numpy.ndarray, shape (n_samples,)
+            ``ŷ(t) = Σ_p b_p(t)·(g_p * u)(t)`` (steady state; transients are not modelled).
+        """
+        u = _as_signal("u", u)
+        if u.size != self.n_samples:
+            raise InputDataError(
+                f"the validation input has {u.size} samples but the model spans {self.n_samples}; "
+                "pass a record of the same length (the basis b_p(t) is tied to the record)"
+            )
+        record_bins = self.excited_bins * self.n_periods
+        spectrum = _check_multisine(u, record_bins, DEFAULT_INPUT_TOLERANCE, self.fs_hz)
+        n = self.n_samples
+        x = np.zeros((self.n_basis, n // 2 + 1), dtype=complex)
+        x[:, record_bins] = spectrum[record_bins] * self.G_p
+        responses = np.fft.irfft(x, n, axis=1)
+        return np.asarray(np.sum(legendre_basis(n, self.n_basis) * responses, axis=0))
+
+    def resonance_from_peak(self, t_s: ArrayLike | None = None) -> FloatArray:
+        """Excited frequency of largest ``|G(jω, t)|`` at each time, Hz (the paper's metric).
+
+        Quantised to the line grid: against a continuously moving resonance its RMSE cannot
+        go below about ``Δf_exc/√12``.
+        """
+        return self.frequencies_hz[np.argmax(np.abs(self.G(t_s)), axis=1)]
+
+    def G_se(self, t_s: ArrayLike | None = None) -> FloatArray:
+        """Standard error of :meth:`G` (``G_p`` errors taken as independent), (n_times, n_lines)."""
+        t = self.default_times() if t_s is None else t_s
+        return np.sqrt(self.basis(t).T ** 2 @ self.G_p_se**2)
+
+    def fit_second_order(
+        self, t_s: ArrayLike | None = None, *, iterations: int = 8, weighted: bool = True
+    ) -> SecondOrderTrack:
+        """Fit ``1/(K − Iω² + jBω)`` to ``G(jω_e, t)`` at each time.
+
+        Linear least squares on ``G·Z − 1`` (Levy), then Sanathanan–Koerner iterations that
+        reweight by ``1/|Ẑ|²`` so the fit converges to the output-error criterion
+        ``Σ_e |G − 1/Z|²/σ_e²`` (``σ_e`` from :meth:`G_se` when ``weighted``, else 1).
+        Vectorised over times.
+
+        Parameters
+        ----------
+        t_s : array_like, optional
+            Times in s (default :meth:`default_times`).
+        iterations : int
+            Reweighting iterations after the first linear fit.
+        weighted : bool
+            Weight each line by its inverse variance (lines far above the resonance carry
+            little output and are noisy).
+
+        Returns
+        -------
+        SecondOrderTrack
+        """
+        t = self.default_times() if t_s is None else np.atleast_1d(np.asarray(t_s, float))
+        g = self.G(t)
+        if self.frequencies_hz.size < 2:
+            raise InputDataError(
+                "a second-order fit needs at least 2 excited lines (3 real parameters from "
+                f"{self.frequencies_hz.size} complex value(s)); excite more lines"
+            )
+        line_weights = None
+        if weighted:
+            se = self.G_se(t)
+            if np.all(np.isfinite(se)) and np.all(se > 0):
+                line_weights = 1.0 / se**2
+        theta, fit_error = fit_admittance(
+            g, 2 * np.pi * self.frequencies_hz, iterations, line_weights=line_weights
+        )
+        k, inertia, damping = theta[:, 0], theta[:, 1], theta[:, 2]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ratio = np.where((inertia != 0), k / inertia, np.nan)
+            fn = np.where(ratio > 0, np.sqrt(np.abs(ratio)) / (2 * np.pi), np.nan)
+        return SecondOrderTrack(t, k, damping, inertia, fn, fit_error)
+
+
+def fit_admittance(
+    g: ComplexArray,
+    w_rad_s: FloatArray,
+    iterations: int = 8,
+    *,
+    line_weights: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray]:
+    """Fit ``1/(K − Iω² + jBω)`` to rows of ``g`` (shape (n_times, n_lines)).
+
+    ``line_weights`` (same shape as ``g``, default 1) weight the output error of each line.
+    Returns ``theta`` of shape (n_times, 3) with columns ``K, I, B`` and the relative misfit
+    ``‖G − Ĝ‖/‖G‖`` per row.
+    """
+    a = np.stack([g, -(w_rad_s**2) * g, 1j * w_rad_s * g], axis=-1)  # (T, E, 3)
+    base = np.ones(g.shape) if line_weights is None else np.asarray(line_weights, float)
+    weights = base / np.maximum(np.abs(g) ** 2, 1e-300)  # first pass ≈ output error
+    theta = np.zeros((g.shape[0], 3))
+    for _ in range(iterations + 1):
+        wa = weights[..., None] * a
+        normal = np.einsum("tei,tej->tij", wa.conj(), a).real
+        rhs = np.sum(wa.conj(), axis=1).real
+        theta = _solve_batched(normal, rhs)
+        z = theta[:, :1] - theta[:, 1:2] * w_rad_s**2 + 1j * theta[:, 2:3] * w_rad_s
+        weights = base / np.maximum(np.abs(z) ** 2, 1e-300)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        model = 1.0 / z
+        err = np.linalg.norm(g - model, axis=1) / np.linalg.norm(g, axis=1)
+    return theta, err
+
+
+def _solve_batched(normal: FloatArray, rhs: FloatArray) -> FloatArray:
+    """Solve each 3×3 system after scaling columns (K, I, B differ by orders of magnitude)."""
+    d = np.sqrt(np.abs(np.einsum("tii->ti", normal)))
+    d[d == 0] = 1.0
+    scaled = normal / (d[:, :, None] * d[:, None, :])
+    try:
+        x = np.linalg.solve(scaled, (rhs / d)[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        x = np.stack(
+            [np.linalg.lstsq(s, r, rcond=None)[0] for s, r in zip(scaled, rhs / d, strict=True)]
+        )
+    return x / d
+
+
+# --------------------------------------------------------------------------------------
+# input checks
+# --------------------------------------------------------------------------------------
+
+
+def _as_signal(name: str, x: ArrayLike) -> FloatArray:
+    arr = np.asarray(x, dtype=float)
+    if arr.ndim != 1:
+        raise InputDataError(f"{name} must be one-dimensional, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        bad = int(np.flatnonzero(~np.isfinite(arr))[0])
+        raise InputDataError(f"{name} has a non-finite value at sample {bad}; remove or repair it")
+    return arr
+
+
+def _check_multisine(
+    u: FloatArray, record_bins: NDArray[np.int64], tolerance: float, fs_hz: float
+) -> ComplexArray:
+    """DFT of ``u`` after checking it is a multisine on ``record_bins``; shape (N//2+1,)."""
+    spectrum = np.fft.rfft(u)
+    power = np.abs(spectrum) ** 2
+    power[1:] *= 2.0
+    total = float(np.sum(power))
+    if total == 0.0:
+        raise InputDataError("the input is identically zero; it must be the multisine excitation")
+    outside = power.copy()
+    outside[record_bins] = 0.0
+    fraction = float(np.sum(outside)) / total
+    if fraction > tolerance:
+        worst = int(np.argmax(outside))
+        raise InputDataError(
+            f"the input is not a periodic multisine on the declared excited bins: "
+            f"{100 * fraction:.3g} % of its power lies outside them (largest at "
+            f"{worst * fs_hz / u.size:.4g} Hz, record bin {worst}); pass the excited_bins and "
+            "period_samples the excitation was generated with, and a whole number of periods"
+        )
+    line_power = power[record_bins]
+    silent = line_power < 1e-12 * float(np.max(line_power))
+    if np.any(silent):
+        f = record_bins[silent][0] * fs_hz / u.size
+        raise InputDataError(
+            f"declared excited line at {f:.4g} Hz carries no power; "
+            "remove it from excited_bins or check the excitation"
+        )
+    return spectrum
+
+
+def _check_bins(excited_bins: ArrayLike, period_samples: int) -> NDArray[np.int64]:
+    bins = np.asarray(excited_bins)
+    if bins.ndim != 1 or bins.size == 0:
+        raise InputDataError("excited_bins must be a non-empty 1-D array of DFT bins of one period")
+    if not np.all(bins == np.round(bins)):
+        raise InputDataError(f"excited_bins must be whole DFT bins, got {bins[:5]}…")
+    bins = bins.astype(np.int64)
+    if np.any(np.diff(bins) <= 0):
+        raise InputDataError("excited_bins must be strictly increasing (sort them, drop repeats)")
+    if bins[0] < 1 or 2 * bins[-1] >= period_samples:
+        raise InputDataError(
+            f"excited_bins must lie in 1 … {(period_samples - 1) // 2} (between DC and Nyquist "
+            f"of a {period_samples}-sample period), got {bins[0]} … {bins[-1]}"
+        )
+    return bins
+
+
+def _record_periods(n: int, period_samples: int, n_periods: int | None) -> int:
+    if period_samples < 2:
+        raise InputDataError(f"period_samples must be >= 2, got {period_samples}")
+    if n_periods is None:
+        if n % period_samples:
+            whole = n // period_samples
+            raise InputDataError(
+                f"the record of {n} samples is not a whole number of {period_samples}-sample "
+                f"periods ({n / period_samples:.3f}); trim it to the first "
+                f"{whole * period_samples} samples ({whole} periods)"
+            )
+        n_periods = n // period_samples
+    if n_periods < 1 or n != n_periods * period_samples:
+        raise InputDataError(
+            f"the record has {n} samples but {n_periods} periods of {period_samples} samples "
+            f"make {n_periods * period_samples}; pass the record's whole periods only"
+        )
+    return n_periods
+
+
+# --------------------------------------------------------------------------------------
+# identification
+# --------------------------------------------------------------------------------------
+
+
+def _worst_inflation(skirts: ComplexArray, layouts: set[_Layout], n_transient: int | None) -> float:
+    n_samples = skirts.shape[1]
+    return max(
+        float(
+            np.max(_Solver.build(*_design(lay, skirts, n_samples, n_transient)).variance_inflation)
+        )
+        for lay in layouts
+    )
+
+
+def _check_conditioning(
+    solvers: dict[_Layout, _Solver],
+    skirts: ComplexArray,
+    n_transient: int | None,
+    spacing: int,
+    fs_hz: float,
+) -> float:
+    """Worst variance inflation; warn above the warning level, refuse above the maximum."""
+    worst = max(float(np.max(s.variance_inflation)) for s in solvers.values())
+    if worst <= WARN_VARIANCE_INFLATION:
+        return worst
+    n_basis, n_samples = skirts.shape
+    stable = 0
+    for q in range(n_basis - 1, 0, -1):  # the skirts of a smaller N_p are a prefix
+        if _worst_inflation(skirts[:q], set(solvers), n_transient) <= WARN_VARIANCE_INFLATION:
+            stable = q
+            break
+    df = spacing * fs_hz / n_samples
+    advice = (
+        f"use N_p <= {stable} for lines {df:g} Hz apart, or excite lines further apart"
+        if stable
+        else f"excite lines further apart than {df:g} Hz"
+    )
+    what = (
+        f"N_p = {n_basis} is too large for Δf_exc = {df:g} Hz: the Legendre skirts (width ≈ "
+        f"p²/π ≈ {(n_basis - 1) ** 2 / np.pi:.0f} bins) spill past the {spacing} bins "
+        f"between excited lines"
+    )
+    if not np.isfinite(worst) or worst > MAX_VARIANCE_INFLATION:
+        raise NumericalError(
+            f"{what}, so G_p is not determined (variance inflation {worst:.3g}); {advice}"
+        )
+    warnings.warn(
+        f"{what}; the estimate's variance is inflated ×{worst:.3g}; {advice}",
+        SkirtConditioningWarning,
+        stacklevel=3,
+    )
+    return worst
+
+
+def identify_ltv(
+    u: ArrayLike,
+    y: ArrayLike,
+    fs_hz: float,
+    excited_bins: ArrayLike,
+    period_samples: int,
+    n_periods: int | None = None,
+    n_basis: int = 8,
+    *,
+    n_transient: int | None = 2,
+    window_lines: float = 1.0,
+    neighbours: int = 1,
+    input_tolerance: float = DEFAULT_INPUT_TOLERANCE,
+) -> LtvEstimate:
+    """Estimate ``G(jω, t) = Σ_p G_p(jω)·b_p(t)`` from one multisine-excited record.
+
+    Parameters
+    ----------
+    u : array_like, shape (n,)
+        Input: the periodic multisine (e.g. torque, N·m); ``n = n_periods·period_samples``.
+    y : array_like, shape (n,)
+        Output (e.g. angle, rad).
+    fs_hz : float
+        Sampling rate, Hz.
+    excited_bins : array_like of int
+        Excited DFT bins of one period (as :attr:`Multisine.excited_bins`).
+    period_samples : int
+        Samples per multisine period.
+    n_periods : int, optional
+        Periods in the record (default: inferred; the record must hold whole periods).
+    n_basis : int
+        ``N_p``, the number of Legendre polynomials.
+    n_transient : int or None
+        Degree of the polynomial in ``k`` that absorbs transients and far leakage in each
+        window (None: none).
+    input_tolerance : float
+        Largest fraction of the input's power allowed outside the excited bins.
+
+    Returns
+    -------
+    LtvEstimate
+
+    Raises
+    ------
+    InputDataError
+        Inputs of different lengths, a record that is not a whole number of periods, an
+        input that is not a multisine on ``excited_bins``, non-finite samples.
+    NumericalError
+        ``N_p`` far too large for the line spacing (the local problems are singular).
+
+    Warns
+    -----
+    SkirtConditioningWarning
+        ``N_p`` large for the line spacing: variance inflated above
+        :data:`WARN_VARIANCE_INFLATION`.
+    """
+    u_arr, y_arr = _as_signal("u", u), _as_signal("y", y)
+    if u_arr.size != y_arr.size:
+        raise InputDataError(
+            f"input and output differ in length ({u_arr.size} vs {y_arr.size} samples); "
+            "pass simultaneous samples of both"
+        )
+    if not np.isfinite(fs_hz) or fs_hz <= 0:
+        raise InputDataError(f"fs_hz must be a positive number, got {fs_hz!r}")
+    if int(n_basis) != n_basis or n_basis < 1:
+        raise InputDataError(f"n_basis must be a positive integer, got {n_basis!r}")
+    if n_transient is not None and n_transient < 0:
+        raise InputDataError(f"n_transient must be >= 0 or None, got {n_transient}")
+    n = u_arr.size
+    n_periods = _record_periods(n, int(period_samples), n_periods)
+    bins = _check_bins(excited_bins, int(period_samples))
+    record_bins = bins * n_periods
+    spectrum_u = _check_multisine(u_arr, record_bins, input_tolerance, fs_hz)
+    spectrum_y = np.fft.fft(y_arr)
+
+    skirts = np.fft.fft(legendre_basis(n, n_basis), axis=1)
+    layouts = _layouts(record_bins, n, window_lines, neighbours)
+    solvers = {
+        layout: _Solver.build(*_design(layout, skirts, n, n_transient)) for layout in set(layouts)
+    }
+    spacing = int(np.min(np.diff(record_bins))) if bins.size > 1 else 2 * layouts[0].left
+    worst = _check_conditioning(solvers, skirts, n_transient, spacing, fs_hz)
+
+    g_p = np.empty((n_basis, bins.size), dtype=complex)
+    se = np.empty((n_basis, bins.size))
+    u_lines = spectrum_u[record_bins]
+    for layout, solver in solvers.items():
+        idx = np.array([i for i, lay in enumerate(layouts) if lay == layout])
+        windows = record_bins[idx][None, :] + layout.offsets[:, None]  # (rows, lines)
+        rhs = spectrum_y[windows]
+        theta = solver.own_pinv @ rhs  # unit-norm-column unknowns U·G_p·‖col‖, (n_basis, lines)
+        resid = solver.residual_projector @ rhs
+        if solver.dof > 0:
+            sigma = np.sqrt(np.sum(np.abs(resid) ** 2, axis=0) / solver.dof)
+        else:
+            sigma = np.full(idx.size, np.nan)
+        scale = solver.column_norms[:, None] * u_lines[None, idx]
+        g_p[:, idx] = theta / scale
+        se[:, idx] = sigma[None, :] * np.sqrt(solver.variance_inflation[:, None]) / np.abs(scale)
+    return LtvEstimate(
+        G_p=g_p,
+        G_p_se=se,
+        frequencies_hz=bins * fs_hz / period_samples,
+        excited_bins=bins,
+        fs_hz=float(fs_hz),
+        period_samples=int(period_samples),
+        n_periods=int(n_periods),
+        n_transient=n_transient,
+        variance_inflation=worst,
+    )
