@@ -53,7 +53,14 @@ INTERFACES = (
     "robotell",
     "etas",
 )
-_LOOPBACK = ("127.0.0.1", "::1", "localhost")
+_DEFAULT_CHANNELS: dict[str, str | int] = {
+    "embedded": "rtsid",
+    "virtual": "rtsid",
+    "pcan": "PCAN_USBBUS1",
+    "kvaser": 0,
+    "vector": 0,
+    "ixxat": 0,
+}
 
 
 @dataclass(frozen=True)
@@ -69,7 +76,7 @@ class LinkConfig:
         hardware interface (``"socketcan"``, ``"pcan"``, ``"kvaser"``, …).
     channel : str or int
         Interface channel: ``"can0"`` (socketcan, socketcand), ``"PCAN_USBBUS1"`` (pcan),
-        ``0`` (kvaser), any name (virtual).
+        ``0`` (kvaser), any name (virtual). Empty: that usual default for the interface.
     bitrate : int
         Bit rate, bit/s, passed to adapters that set it (pcan, kvaser, …). SocketCAN takes
         it from ``ip link``; socketcand from its host.
@@ -97,7 +104,7 @@ class LinkConfig:
     """
 
     interface: str = "embedded"
-    channel: str | int = "rtsid"
+    channel: str | int = ""
     bitrate: int = 1_000_000
     host: str = "127.0.0.1"
     port: int = 29536
@@ -129,6 +136,8 @@ class LinkConfig:
         if self.capacity_rows < 2 * self.fs_hz * self.receive_timeout_s + 16:
             raise invalid("ring_capacity_s", self.ring_capacity_s, "a longer ring (>= 0.1 s)")
         object.__setattr__(self, "options", types.MappingProxyType(dict(self.options)))
+        if self.channel == "":
+            object.__setattr__(self, "channel", _DEFAULT_CHANNELS.get(self.interface, "can0"))
 
     @property
     def capacity_rows(self) -> int:
@@ -355,9 +364,18 @@ class PlantConfig:
         return round(self.block_s * self.fs_hz)
 
 
-def plant_config_from_mapping(mapping: Mapping[str, Any] | None) -> PlantConfig:
-    """Build :class:`PlantConfig` from a ``[plant]`` table (with its sub-tables)."""
+def plant_config_from_mapping(
+    mapping: Mapping[str, Any] | None, base_dir: str | Path | None = None
+) -> PlantConfig:
+    """Build :class:`PlantConfig` from a ``[plant]`` table (with its sub-tables).
+
+    A relative ``player_file`` is taken relative to ``base_dir`` (the config file's folder)
+    when given.
+    """
     values = dict(mapping or {})
+    player = values.get("player_file")
+    if base_dir is not None and isinstance(player, str) and player:
+        values["player_file"] = str(Path(base_dir) / Path(player).expanduser())
     subs: dict[str, Any] = {}
     for key, cls, attr in (
         ("faults", FaultConfig, "faults"),
@@ -370,13 +388,18 @@ def plant_config_from_mapping(mapping: Mapping[str, Any] | None) -> PlantConfig:
     return section_from_mapping(PlantConfig, {**values, **subs}, "plant")
 
 
-def link_configs_from_mapping(document: Mapping[str, Any]) -> tuple[LinkConfig, PlantConfig]:
-    """``[link]`` and ``[plant]`` of a parsed TOML document (other sections are ignored)."""
+def link_configs_from_mapping(
+    document: Mapping[str, Any], base_dir: str | Path | None = None
+) -> tuple[LinkConfig, PlantConfig]:
+    """``[link]`` and ``[plant]`` of a parsed TOML document (other sections are ignored).
+
+    ``base_dir``: folder that relative paths (``plant.player_file``) are relative to.
+    """
     link_table = document.get("link")
     if link_table is not None and not isinstance(link_table, Mapping):
         raise ConfigError("config key 'link' must be a table [link]")
     link = section_from_mapping(LinkConfig, link_table, "link")
-    plant = plant_config_from_mapping(document.get("plant"))
+    plant = plant_config_from_mapping(document.get("plant"), base_dir)
     if link.interface == "embedded" and link.fs_hz != plant.fs_hz:
         raise invalid("plant.fs_hz", plant.fs_hz, f"link.fs_hz = {link.fs_hz} (the same rate)")
     return link, plant
@@ -384,4 +407,4 @@ def link_configs_from_mapping(document: Mapping[str, Any]) -> tuple[LinkConfig, 
 
 def load_link_configs(path: str | Path) -> tuple[LinkConfig, PlantConfig]:
     """Read ``[link]`` and ``[plant]`` from a TOML file."""
-    return link_configs_from_mapping(load_toml(path))
+    return link_configs_from_mapping(load_toml(path), Path(path).resolve().parent)

@@ -9,6 +9,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 from rtsid.config import load_toml
 from rtsid.link.config import PlantConfig, plant_config_from_mapping
@@ -38,6 +39,7 @@ class PlantServerOptions:
 def plant_config_for(options: PlantServerOptions) -> PlantConfig:
     """The ``[plant]`` section of ``options.config`` with the command-line overrides."""
     document = load_toml(options.config) if options.config else {}
+    base_dir = Path(options.config).resolve().parent if options.config else None
     table = dict(document.get("plant") or {})
     overrides = {
         "mode": options.mode,
@@ -46,9 +48,11 @@ def plant_config_for(options: PlantServerOptions) -> PlantConfig:
         "realtime": False if options.fast else None,
     }
     table.update({k: v for k, v in overrides.items() if v is not None})
+    if options.player_file:  # a path typed on the command line is relative to the cwd
+        table["player_file"] = str(Path(options.player_file).resolve())
     if options.player_file and "mode" not in table:
         table["mode"] = "player"
-    return plant_config_from_mapping(table)
+    return plant_config_from_mapping(table, base_dir)
 
 
 def serve_plant(options: PlantServerOptions) -> int:

@@ -1,0 +1,93 @@
+"""The plant's sample sources continue seamlessly across blocks, and the player resamples."""
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from rtsid.errors import InputDataError
+from rtsid.link.config import PlantConfig, StiffnessConfig
+from rtsid.link.signals import PlayerSource, SimSource, load_recording
+from rtsid.sim.joint import JointParameters, robot_servo, simulate_impedance
+
+
+@pytest.mark.parametrize("kind", ["prbs", "filtered_noise", "multisine"])
+def test_blocks_equal_one_continuous_simulation(kind):
+    cfg = PlantConfig(
+        perturbation=kind,
+        noise_percent=0.0,
+        block_s=0.05,
+        robot_inertia=0.002,
+        stiffness_profile=StiffnessConfig(kind="linear", k0=100.0, k1=300.0, t0_s=0.0, t1_s=0.4),
+    )
+    source = SimSource(cfg)
+    blocks = [source.next_block() for _ in range(8)]
+    position = np.concatenate([b.position_rad for b in blocks])
+    torque = np.concatenate([b.torque_nm for b in blocks])
+    assert [b.first_index for b in blocks] == list(range(0, 8 * 125, 125))
+    # the same stream generated at once: the position is smooth (servo output) and the
+    # torque is the impedance of that whole position signal, block seams included
+    joint = JointParameters(cfg.inertia + cfg.robot_inertia, cfg.damping, 0.0)
+    inertial = simulate_impedance(position, cfg.fs_hz, joint)
+    k = source.truth.stiffness_at(np.arange(position.size) / cfg.fs_hz)
+    interior = slice(4, -4)
+    assert np.allclose(torque[interior], (inertial + k * position)[interior], rtol=0, atol=1e-9)
+    assert np.max(np.abs(position)) <= cfg.amplitude_rad * 1.2
+    assert np.std(position) > 0.2 * cfg.amplitude_rad
+    assert blocks[0].discontinuity[0] and not np.any(blocks[1].discontinuity)
+
+
+def test_streamed_servo_equals_robot_servo():
+    cfg = PlantConfig(noise_percent=0.0, block_s=0.02)
+    source = SimSource(cfg)
+    commands = []
+    original = source._perturbation.next
+
+    def spy(n):
+        out = original(n)
+        commands.append(out)
+        return out
+
+    source._perturbation.next = spy
+    position = np.concatenate([source.next_block().position_rad for _ in range(10)])
+    command = np.concatenate([np.zeros(4), *commands])  # the stream starts 4 samples at rest
+    expected = robot_servo(command, cfg.fs_hz, cfg.servo_bandwidth_hz)[: position.size]
+    assert np.allclose(position, expected, atol=1e-12)
+
+
+def test_player_resamples_to_the_bus_rate_and_flags_each_loop(tmp_path):
+    fs_file = 1000.0
+    t = np.arange(400) / fs_file
+    path = tmp_path / "rec.npz"
+    np.savez(
+        path, position_rad=0.02 * np.sin(2 * np.pi * 5 * t), torque_nm=3 * np.cos(t), fs_hz=fs_file
+    )
+    cfg = PlantConfig(mode="player", player_file=str(path), block_s=0.1, player_torque_sign=-1.0)
+    source = PlayerSource(cfg)
+    assert source.position.size == 1000  # 400 samples at 1 kHz -> 1000 at 2.5 kHz
+    t_bus = np.arange(1000) / cfg.fs_hz
+    inner = slice(50, -50)
+    assert np.allclose(
+        source.position[inner], 0.02 * np.sin(2 * np.pi * 5 * t_bus)[inner], atol=2e-4
+    )
+    blocks = [source.next_block() for _ in range(12)]
+    flags = np.concatenate([b.discontinuity for b in blocks])
+    assert np.flatnonzero(flags).tolist() == [0, 1000, 2000]
+    assert np.allclose(source.torque[inner], -3 * np.cos(t_bus)[inner], atol=5e-3)  # sign -1
+    assert np.array_equal(blocks[0].torque_nm, source.torque[:250])
+
+
+def test_player_errors_name_the_file_and_the_fix(tmp_path):
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, position_rad=np.zeros(100))
+    with pytest.raises(InputDataError, match=r"bad\.npz.*lacks \['fs_hz', 'torque_nm'\]"):
+        load_recording(bad, 2500.0)
+    with pytest.raises(InputDataError, match="cannot be read"):
+        load_recording(tmp_path / "missing.npz", 2500.0)
+
+
+def test_real_recording_streams(reklab_path):
+    position, torque = load_recording(reklab_path, 2500.0)
+    assert position.size == torque.size == 150_000
+    raw = np.load(reklab_path)
+    expected = signal.resample_poly(raw["position_rad"], 5, 2)
+    assert np.array_equal(position, expected)
