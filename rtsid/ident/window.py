@@ -15,6 +15,7 @@ Pipeline (each stage is a pure function of the previous one):
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from typing import Any
@@ -24,7 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import toeplitz
 
 from rtsid.config import invalid, require_choice, require_range
-from rtsid.errors import InputDataError, WindowError
+from rtsid.errors import InputDataError, NumericalError, WindowError
 from rtsid.ident.correlation import auto_correlation, detrend
 from rtsid.ident.filters import decimation_factor, lowpass_decimate, stencil_derivatives
 from rtsid.ident.irf import IRF, estimate_irf
@@ -32,7 +33,13 @@ from rtsid.ident.levinson import eureka_unchecked
 from rtsid.ident.second_order import ParameterFit, fit_linear, fit_logmag
 from rtsid.ident.vaf import vaf
 
-__all__ = ["EstimatorOptions", "WindowEstimate", "estimate_window"]
+__all__ = [
+    "EstimatorOptions",
+    "WindowEstimate",
+    "WindowResult",
+    "estimate_window",
+    "sliding_estimates",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -135,7 +142,11 @@ class WindowEstimate:
     fs_hz : float
         Analysis rate of the IRF, Hz.
     flags : tuple of str
-        Warnings that do not withhold the estimate (e.g. ``"inertia_uncertain"``).
+        Warnings that do not withhold the estimate: ``"negative_stiffness"``,
+        ``"negative_damping"``, ``"negative_inertia"``, ``"inertia_uncertain"`` (SE > 25 %),
+        ``"stiffness_uncertain"`` (SE > 10 %), ``"model_mismatch"`` (the second-order model
+        explains < 50 % of the IRF's prediction: the joint or rig is not second-order in the
+        analysed band — lower ``lowpass_hz`` and ``fit_band_hz``).
     method : str
         Fit method used.
     """
@@ -265,9 +276,11 @@ def _parameter_covariance(
     return np.asarray((cov + cov.T) / 2, dtype=np.float64)
 
 
-def _flags(fit: ParameterFit, se: FloatArray) -> tuple[str, ...]:
+def _flags(fit: ParameterFit, se: FloatArray, vaf_fit: float) -> tuple[str, ...]:
     inertia, damping, stiffness = fit.params
     flags = []
+    if vaf_fit < 50.0:
+        flags.append("model_mismatch")
     if stiffness <= 0:
         flags.append("negative_stiffness")
     if damping <= 0:
@@ -366,6 +379,7 @@ def estimate_window(
     if options.uncertainty:
         cov = _parameter_covariance(irf, u[inner], y_in - y_irf, fit.sensitivity)
         se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    vaf_fit = vaf(y_irf, y_model)
     return WindowEstimate(
         I=inertia,
         B=damping,
@@ -375,10 +389,91 @@ def estimate_window(
         K_se=float(se[2]),
         vaf=vaf(y_in, y_model),
         vaf_irf=vaf(y_in, y_irf),
-        vaf_fit=vaf(y_irf, y_model),
+        vaf_fit=vaf_fit,
         irf=irf.h,
         lags_s=irf.lags_s,
         fs_hz=fs_a,
-        flags=_flags(fit, se),
+        flags=_flags(fit, se, vaf_fit),
         method=fit.method,
     )
+
+
+@dataclass(frozen=True)
+class WindowResult:
+    """One slide of :func:`sliding_estimates`: an estimate, or the reason it was withheld.
+
+    Attributes
+    ----------
+    start : int
+        Index of the window's first sample.
+    stop : int
+        One past the window's last sample.
+    t_end_s : float
+        Time of the window's last sample, s (sample time, first sample at 0).
+    estimate : WindowEstimate or None
+        The estimate; None when withheld.
+    reason : str or None
+        Why it was withheld (``"nan"``, ``"no_excitation"``, ``"numerical"``, …).
+    """
+
+    start: int
+    stop: int
+    t_end_s: float
+    estimate: WindowEstimate | None
+    reason: str | None
+
+
+def sliding_estimates(
+    position: ArrayLike,
+    torque: ArrayLike,
+    fs: float,
+    window_s: float = 0.3,
+    hop_s: float = 0.1,
+    options: EstimatorOptions | None = None,
+) -> Iterator[WindowResult]:
+    """Estimate every window of ``window_s`` seconds, ``hop_s`` apart, oldest first.
+
+    Windows that must not be estimated (NaN, no excitation, numerically unsound) are
+    yielded with their reason instead of an estimate, so the caller sees every window.
+
+    Parameters
+    ----------
+    position, torque : array_like, shape (n,)
+        Joint angle (rad) and torque (N·m).
+    fs : float
+        Sampling rate, Hz.
+    window_s, hop_s : float
+        Window length and hop, s.
+    options : EstimatorOptions, optional
+        Estimator settings.
+
+    Yields
+    ------
+    WindowResult
+        One per window.
+    """
+    pos = np.asarray(position, dtype=np.float64)
+    tor = np.asarray(torque, dtype=np.float64)
+    n_win = round(window_s * fs)
+    n_hop = round(hop_s * fs)
+    if n_win < 2 or n_hop < 1:
+        raise InputDataError(
+            f"window_s={window_s} and hop_s={hop_s} at {fs:g} Hz give {n_win}-sample windows "
+            f"every {n_hop} samples; both must be at least one sample"
+        )
+    if n_win > pos.size:
+        raise InputDataError(
+            f"the record has {pos.size} samples ({pos.size / fs:g} s), shorter than one "
+            f"{window_s} s window; use a shorter --window"
+        )
+    for start in range(0, pos.size - n_win + 1, n_hop):
+        stop = start + n_win
+        t_end = (stop - 1) / fs
+        try:
+            est = estimate_window(pos[start:stop], tor[start:stop], fs, options)
+        except WindowError as exc:
+            yield WindowResult(start, stop, t_end, None, exc.reason)
+        except NumericalError:
+            yield WindowResult(start, stop, t_end, None, "numerical")
+        else:
+            yield WindowResult(start, stop, t_end, est, None)

@@ -1,0 +1,99 @@
+import csv
+
+import numpy as np
+import pytest
+
+from rtsid.cli import main
+from rtsid.ident.excitation import filtered_noise
+from rtsid.sim.joint import JointParameters, StiffnessProfile, simulate_impedance
+
+
+@pytest.fixture
+def ramp_recording(tmp_path):
+    fs = 2500.0
+    theta = filtered_noise(5000, fs, 30.0, peak=0.03, seed=1)
+    stiffness = StiffnessProfile.ramp(100.0, 200.0, 0.0, 2.0)
+    tau = simulate_impedance(
+        theta, fs, JointParameters(0.015, 0.8, 100.0), stiffness, seed=2, noise_percent=5.0
+    )
+    path = tmp_path / "sim.npz"
+    np.savez(path, position_rad=theta, torque_nm=-tau, fs_hz=fs)
+    return path
+
+
+def read_rows(path):
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_identify_tracks_a_stiffness_ramp_with_inverted_torque(ramp_recording, tmp_path, capsys):
+    out = tmp_path / "est.csv"
+    assert (
+        main(
+            [
+                "identify",
+                str(ramp_recording),
+                "--torque-sign",
+                "-1",
+                "--hop",
+                "0.25",
+                "-o",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    rows = read_rows(out)
+    assert len(rows) == 7  # windows ending at 0.2996 … 1.7996 s
+    t_end = np.array([float(r["t_end_s"]) for r in rows])
+    k = np.array([float(r["K"]) for r in rows])
+    truth = 100.0 + 50.0 * (t_end - 0.15)  # stiffness at the window's centre
+    np.testing.assert_allclose(k, truth, rtol=0.08)
+    assert all(r["ok"] == "1" for r in rows)
+    assert "7 windows (0 withheld)" in capsys.readouterr().err
+
+
+def test_identify_refuses_nan_unless_allowed_and_leaves_no_partial_file(tmp_path, capsys):
+    fs = 1000.0
+    theta = filtered_noise(2000, fs, 30.0, peak=0.03, seed=3)
+    tau = simulate_impedance(theta, fs)
+    tau[1500] = np.nan
+    path = tmp_path / "gap.npz"
+    np.savez(path, position_rad=theta, torque_nm=tau, fs_hz=fs)
+    out = tmp_path / "est.csv"
+    assert main(["identify", str(path), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "1 sample(s) are NaN or inf, the first at index 1500" in err and "--allow-nan" in err
+    assert not out.exists() and list(tmp_path.glob("*.part")) == []
+    assert main(["identify", str(path), "-o", str(out), "--allow-nan"]) == 0
+    rows = read_rows(out)
+    withheld = [r for r in rows if r["ok"] == "0"]
+    assert withheld and all(r["reason"] == "nan" and r["K"] == "" for r in withheld)
+
+
+def test_identify_errors_are_one_line(tmp_path, capsys):
+    assert main(["identify", str(tmp_path / "missing.npz")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "no such file" in err
+    short = tmp_path / "short.npz"
+    np.savez(short, position_rad=np.zeros(100), torque_nm=np.zeros(100), fs_hz=1000.0)
+    assert main(["identify", str(short)]) == 2
+    assert "shorter than one 0.3 s window" in capsys.readouterr().err
+    bad_cfg = tmp_path / "bad.toml"
+    bad_cfg.write_text("[estimator]\nfit_methd = 'linear'\n")
+    assert main(["identify", str(short), "--config", str(bad_cfg)]) == 2
+    assert "unknown config key estimator.fit_methd" in capsys.readouterr().err
+
+
+def test_identify_real_recording_with_its_preset(reklab_path, tmp_path):
+    out = tmp_path / "real.csv"
+    preset = __import__("pathlib").Path(__file__).resolve().parents[2] / "replay" / "reklab.toml"
+    assert (
+        main(["identify", str(reklab_path), "--config", str(preset), "--hop", "1", "-o", str(out)])
+        == 0
+    )
+    rows = read_rows(out)
+    assert len(rows) == 60
+    k = np.median([float(r["K"]) for r in rows])
+    vaf = np.median([float(r["vaf"]) for r in rows])
+    assert 80.0 < k < 120.0 and vaf > 65.0
