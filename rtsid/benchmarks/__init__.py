@@ -10,4 +10,5 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "window": ("rtsid.benchmarks.window", "IRF + fit + VAF per 300 ms window at 2500 Hz, by stage"),
     "accuracy": ("rtsid.benchmarks.accuracy", "I/B/K error and VAF on the simulated joint"),
     "real": ("rtsid.benchmarks.real", "windowed estimates over the real ankle recording"),
+    "io": ("rtsid.benchmarks.io", "MCAP logger cost at daemon rates and zenoh one-way latency"),
 }

@@ -156,3 +156,20 @@ def test_can_frames_encode_python_can_messages() -> None:
     msg = json.loads(encode_can_frames(frames))
     jsonschema.validate(msg, CAN_FRAMES_SCHEMA)
     assert msg["frames"][0]["data_hex"] == "01ff" and msg["frames"][0]["arbitration_id"] == 0x123
+
+
+def test_process_meter_reports_busy_cpu_and_memory() -> None:
+    import os
+    import time
+
+    from rtsid.io.procstats import ProcessMeter
+
+    meter = ProcessMeter()
+    cpu0 = sum(os.times()[:2])
+    deadline = time.monotonic() + 5.0
+    x = 0.0
+    while sum(os.times()[:2]) - cpu0 < 0.05 and time.monotonic() < deadline:  # bounded busy work
+        x += sum(range(1000)) * 1e-9
+    stats = meter.sample()
+    assert stats["cpu_percent"] > 0 and stats["rss_mb"] > 10 and stats["uptime_s"] > 0
+    assert x > 0
