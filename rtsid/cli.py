@@ -26,6 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "plant": ("rtsid.commands.plant", "run the virtual ankle robot behind a socketcand server"),
     "recover": ("rtsid.commands.recover", "rewrite an MCAP recording that lost its footer"),
     "watch": ("rtsid.commands.watch", "show live K, B, I, VAF and status from a daemon (zenoh)"),
+    "tv": ("rtsid.commands.tv", "time-varying G(jω,t), K(t), f_n(t) from a multisine record"),
 }
 
 

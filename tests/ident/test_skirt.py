@@ -51,7 +51,8 @@ def test_lti_system_is_recovered_exactly_with_one_basis_function(ms):
     np.testing.assert_allclose(est.simulate(u), y, atol=1e-10 * np.std(y))
 
 
-def test_known_ltv_system_is_recovered_and_reproduced(ms):
+@pytest.mark.parametrize(("n_transient", "tolerance"), [(2, 1e-3), (None, 2e-2)])
+def test_known_ltv_system_is_recovered_and_reproduced(ms, n_transient, tolerance):
     rng = np.random.default_rng(1)
     n_basis = 4
     g_p = rng.standard_normal((n_basis, ms.excited_bins.size)) + 1j * rng.standard_normal(
@@ -60,18 +61,21 @@ def test_known_ltv_system_is_recovered_and_reproduced(ms):
     g_p /= np.arange(1, n_basis + 1)[:, None]
     u = ms.samples(PERIODS)
     y = ltv_output(u, ms.excited_bins, g_p)
-    est = identify_ltv(u, y, FS, ms.excited_bins, ms.period_samples, n_basis=n_basis)
+    est = identify_ltv(
+        u, y, FS, ms.excited_bins, ms.period_samples, n_basis=n_basis, n_transient=n_transient
+    )
     # Far lines (beyond the neighbours) and the mirror lines at negative frequencies leak a
-    # little into each window: not modelled, so recovery is close, not to round-off.
-    assert np.max(np.abs(est.G_p - g_p)) < 1e-3 * np.max(np.abs(g_p))
+    # little into each window: not modelled, so recovery is close, not to round-off; the
+    # transient polynomial absorbs most of that leakage.
+    assert np.max(np.abs(est.G_p - g_p)) < tolerance * np.max(np.abs(g_p))
     # Another realisation of the multisine through the estimated model.
     u_val = multisine(FS, 2.0, 10.0, every=2, rms=0.1, seed=8).samples(PERIODS)
     y_val = ltv_output(u_val, ms.excited_bins, g_p)
-    assert np.std(est.simulate(u_val) - y_val) < 1e-3 * np.std(y_val)
+    assert np.std(est.simulate(u_val) - y_val) < tolerance * np.std(y_val)
     # G(t) is the basis expansion at any time.
     t = np.array([0.0, 3.3, est.duration_s])
     expected = legendre_basis(est.n_samples, n_basis)[:, [0, 330, -1]].T @ g_p
-    np.testing.assert_allclose(est.G(t), expected, rtol=1e-3, atol=1e-4)
+    np.testing.assert_allclose(est.G(t), expected, rtol=0, atol=10 * tolerance)
 
 
 def test_skirt_columns_are_the_dft_of_the_modulated_basis_with_1_over_n_and_wrap():

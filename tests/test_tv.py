@@ -1,0 +1,73 @@
+import numpy as np
+import pytest
+
+from rtsid.cli import main
+from rtsid.errors import RtsidError
+from rtsid.sim.ltv import multisine_experiment
+from rtsid.tv import load_tv_npz, require_matplotlib
+
+
+@pytest.fixture
+def small_experiment(tmp_path):
+    """The study's geometry (200 s, 0.8 Hz lines, CS3) at 25 Hz to keep the test quick."""
+    exp = multisine_experiment("CS3", fs_hz=25.0, f_max_hz=8.0, spacing_hz=0.8, snr_db=22.0, seed=3)
+    path = tmp_path / "exp.npz"
+    np.savez(path, **exp.as_npz_dict())
+    return path, exp
+
+
+def test_tv_command_identifies_a_recording_and_writes_track_and_figure(
+    small_experiment, tmp_path, capsys
+):
+    path, exp = small_experiment
+    csv, png = tmp_path / "track.csv", tmp_path / "tv.png"
+    assert main(["tv", str(path), "-p", "10", "--csv", str(csv), "--plot", str(png)]) == 0
+    out = capsys.readouterr().out
+    assert "10 excited lines 0.8…8 Hz" in out
+    assert "quantisation floor" in out
+    table = np.genfromtxt(csv, delimiter=",", names=True)
+    fn_true = np.sqrt(table["stiffness_true_nm_per_rad"] / exp.inertia) / (2 * np.pi)
+    inner = slice(2, -2)
+    err = table["natural_frequency_hz"][inner] - fn_true[inner]
+    assert np.sqrt(np.mean(err**2)) < 0.1
+    assert png.stat().st_size > 10_000
+
+
+def test_simulate_writes_a_recording_the_command_reads(tmp_path, capsys):
+    out = tmp_path / "cs1.npz"
+    assert main(["tv", "--simulate", "CS1", "-o", str(out), "--spacing", "1.4"]) == 0
+    data = load_tv_npz(out)
+    assert data.torque_nm.size == 40000 and data.period_samples == 2000
+    np.testing.assert_array_equal(data.excited_bins, np.arange(14, 101, 14))
+    assert "rtsid tv" in capsys.readouterr().out
+
+
+def test_missing_arrays_and_partial_periods_are_clear_errors(small_experiment, tmp_path, capsys):
+    _, exp = small_experiment
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, torque_nm=exp.torque_nm, position_rad=exp.position_rad, fs_hz=25.0)
+    assert main(["tv", str(bad)]) == 2
+    assert "lacks excited_bins, period_samples" in capsys.readouterr().err
+    cut = tmp_path / "cut.npz"
+    arrays = exp.as_npz_dict()
+    arrays["torque_nm"] = exp.torque_nm[:-30]
+    arrays["position_rad"] = exp.position_rad[:-30]
+    np.savez(cut, **arrays)
+    assert main(["tv", str(cut)]) == 2
+    assert "not a whole number of 250-sample periods" in capsys.readouterr().err
+    assert main(["tv", str(cut), "--trim", "-p", "4", "--times", "3"]) == 0
+    assert "19 periods of 250" in capsys.readouterr().out
+
+
+def test_too_many_basis_functions_print_a_warning(small_experiment, capsys):
+    path, _ = small_experiment
+    assert main(["tv", str(path), "-p", "24", "--times", "2"]) == 0
+    assert "warning: N_p = 24 is too large" in capsys.readouterr().err
+
+
+def test_missing_matplotlib_is_a_one_line_error(monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    with pytest.raises(RtsidError, match=r"pip install 'rtsid\[plot\]'"):
+        require_matplotlib()
