@@ -1,0 +1,33 @@
+from rtsid.cli import main
+
+
+def test_toeplitz_benchmark_prints_its_table(capsys):
+    assert main(["bench", "toeplitz", "--quick", "--sizes", "50", "120"]) == 0
+    out = capsys.readouterr().out
+    assert "EUREKA C" in out and "scipy/EUREKA" in out
+    rows = [
+        line for line in out.splitlines() if line.startswith("|") and line[2:6].strip().isdigit()
+    ]
+    assert [int(r.split("|")[1]) for r in rows] == [50, 120]
+
+
+def test_window_benchmark_lists_every_stage(capsys):
+    assert main(["bench", "window", "--quick", "--windows", "20"]) == 0
+    out = capsys.readouterr().out
+    for stage in ("prepare", "IRF", "fit I, B, K", "standard errors", "baseline: source method"):
+        assert stage in out
+
+
+def test_unknown_benchmark_option_is_refused(capsys):
+    try:
+        main(["bench", "toeplitz", "--bogus"])
+    except SystemExit as exc:
+        assert exc.code == 2
+    assert "unrecognized arguments: --bogus" in capsys.readouterr().err
+
+
+def test_demo_tracks_the_simulated_stiffness(capsys):
+    assert main(["demo", "--duration", "1.5", "--hop", "0.3"]) == 0
+    out = capsys.readouterr().out
+    note = next(line for line in out.splitlines() if line.startswith("median |K error|"))
+    assert float(note.split("=")[1].split("%")[0]) < 10.0
