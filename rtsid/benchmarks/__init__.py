@@ -11,4 +11,5 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "accuracy": ("rtsid.benchmarks.accuracy", "I/B/K error and VAF on the simulated joint"),
     "real": ("rtsid.benchmarks.real", "windowed estimates over the real ankle recording"),
     "io": ("rtsid.benchmarks.io", "MCAP logger cost at daemon rates and zenoh one-way latency"),
+    "link": ("rtsid.benchmarks.link", "2500 Hz CAN acquisition: loss, latency, CPU, highest rate"),
 }

@@ -6,9 +6,9 @@ time), decodes AnkleState frames with the precompiled decoder and writes the rin
 
 Sample bookkeeping, in one place:
 
-* the 12-bit counter is unwrapped into a monotonic ``sample_index``; after a silence longer
-  than half a wrap (0.82 s at 2500 Hz) the number of whole wraps comes from the frames' bus
-  timestamps (host clock when the interface gives none);
+* the 12-bit counter is unwrapped into a monotonic ``sample_index``; after a silence of one
+  or more whole wraps (1.64 s at 2500 Hz) the number of wraps comes from the frames' bus
+  timestamps (host clock when the interface gives none), rounded towards fewer wraps;
 * a forward jump of ``d`` writes ``d - 1`` invalid rows (a *gap*; ``lost_samples`` += d - 1);
 * a frame whose counter is at most ``reorder_window`` behind the newest is late: a
   *duplicate* if its row is valid already, otherwise *out of order*; both are dropped (rows
@@ -27,6 +27,7 @@ Sample time is ``anchor_host_time_s + (sample_index - anchor_index) / fs_hz``, a
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -55,6 +56,7 @@ __all__ = ["Acquisition", "LinkCounters"]
 BusFactory = Callable[[], can.BusABC]
 CAN_ERR_BUSOFF = 0x40
 _CPU_EVERY = 512  # frames between thread CPU readings
+_WRAP_TOLERANCE = 0.1  # of a wrap period: how much earlier than expected a frame may arrive
 
 
 @dataclass(frozen=True)
@@ -406,15 +408,20 @@ class Acquisition:
         self._backoff = self.backoff_min_s
 
     def _unwrap(self, counter: int, last: int, bus_time: float, now: float) -> int:
-        """Unwrapped index of ``counter`` given the newest index ``last``."""
+        """Unwrapped index of ``counter`` given the newest index ``last``.
+
+        Whole wraps hidden in a silence are counted from the elapsed (bus) time, rounded
+        towards fewer wraps: frames arrive late (a stalled sender catching up) far more
+        often than early, so an elapsed time up to 0.9 of a wrap period longer than the
+        counter says is taken as delay, not as 4096 lost samples.
+        """
         delta = (counter - last) % COUNTER_MODULO
         if bus_time > 0 and self._last_bus_time > 0 and bus_time >= self._last_bus_time:
             elapsed = bus_time - self._last_bus_time
         else:
             elapsed = now - self._last_frame_host
-        advance = elapsed * self.fs_hz
-        if advance > COUNTER_MODULO / 2:  # long silence: count whole wraps from the clock
-            wraps = max(0, round((advance - delta) / COUNTER_MODULO))
+        wraps = math.floor((elapsed * self.fs_hz - delta) / COUNTER_MODULO + _WRAP_TOLERANCE)
+        if wraps >= 1:  # a silence of at least one whole wrap
             return last + delta + wraps * COUNTER_MODULO
         if delta == 0:
             return last  # the newest sample again

@@ -70,6 +70,7 @@ def serve_plant(options: PlantServerOptions) -> int:
                 f"{options.channel} ({cfg.mode}, {cfg.fs_hz:g} Hz)",
                 flush=True,
             )
+            started = time.monotonic()
             with plant:
                 deadline = time.monotonic() + options.duration_s if options.duration_s else None
                 while not stop.is_set() and not plant.done.is_set():
@@ -79,6 +80,7 @@ def serve_plant(options: PlantServerOptions) -> int:
                     stop.wait(0.2 if remaining is None else min(0.2, remaining))
                 plant.stop(_STOP_TIMEOUT_S)
             report = {
+                "elapsed_s": time.monotonic() - started,
                 "plant": dataclasses.asdict(plant.counters()),
                 "server": dataclasses.asdict(server.counters()),
             }

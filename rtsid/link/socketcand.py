@@ -16,7 +16,7 @@ Frames are formatted as socketcand itself prints them (``%03X`` identifier, ``se
 timestamp of the moment they are written, data as contiguous upper-case hex).
 python-can's client reads ``< ok >`` after ``rawmode`` with one ``recv``; a frame arriving in
 the same TCP segment would break its handshake, so a client gets frames only
-``handshake_pause_s`` after that ``< ok >`` (frames produced meanwhile wait in its buffer).
+``handshake_pause_s`` after that ``< ok >`` (frames produced meanwhile are not sent to it).
 
 One thread ("rtsid-socketcand") accepts clients and reads their commands; the plant thread
 writes frames directly to every raw-mode client's socket (non-blocking, one ``send`` per
@@ -232,25 +232,28 @@ class SocketcandServer:
 
     # ------------------------------------------------------------------ FrameSink
     def send_frames(self, frames: Sequence[can.Message]) -> int:
-        """Write frames to every raw-mode client (non-blocking). Returns 0: a slow client's
-        losses are counted per client in ``dropped_slow_client``, not as plant overflows."""
+        """Write frames to every streaming client (non-blocking). Returns 0: a slow client's
+        losses are counted per client in ``dropped_slow_client``, not as plant overflows.
+
+        A client still in its post-``rawmode`` pause gets nothing (like socketcand, which
+        delivers only what arrives after the client is streaming); ``frames_out`` counts
+        frames delivered to at least one client.
+        """
         if not frames:
             return 0
-        now = time.time()
-        data = "".join(format_frame(f, now) for f in frames).encode("ascii")
-        with self._clients_lock:
-            clients = list(self._clients)
         mono = time.monotonic()
+        with self._clients_lock:
+            clients = [c for c in self._clients if c.state == "raw" and mono >= c.stream_after]
+        if not clients:
+            return 0
+        data = "".join(format_frame(f, time.time()) for f in frames).encode("ascii")
         for client in clients:
-            if client.state != "raw":
-                continue
             with client.lock:
                 if len(client.outbuf) + len(data) > self.max_backlog_bytes:
                     self._c["dropped_slow_client"] += len(frames)
                     continue
                 client.outbuf += data
-                if mono >= client.stream_after:
-                    self._flush(client)
+                self._flush(client)
         self._c["frames_out"] += len(frames)
         return 0
 

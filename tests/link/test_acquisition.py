@@ -134,6 +134,18 @@ def test_wraps_during_a_long_silence_are_counted_from_bus_timestamps(channel):
     assert ring.newest_index == 10_019 and acq.sample_time_s(10_019) > acq.sample_time_s(0)
 
 
+def test_a_stalled_sender_catching_up_is_not_taken_for_lost_wraps(channel):
+    ring = RingBuffer(1000)
+    fs = 2500.0
+    with virtual_bus(channel, preserve_timestamps=True) as tx:
+        with Acquisition(lambda: virtual_bus(channel), ring, fs_hz=fs) as acq:
+            # consecutive counters, but the sender stalled 1.3 s (0.8 of a wrap) in between
+            send_states(tx, [0, 1, 2, 3], [10.0, 10.0004, 11.3, 11.3001])
+            assert wait_for(lambda: acq.counters().samples == 4)
+            c = acq.counters()
+    assert c.lost_samples == 0 and ring.newest_index == 3
+
+
 def test_malformed_frames_are_counted_and_never_written(channel):
     ring = RingBuffer(1000)
     with virtual_bus(channel) as tx:

@@ -1,0 +1,427 @@
+"""``rtsid bench link``: the acquisition path at 2500 Hz through both transports.
+
+For each transport (python-can ``virtual`` with the embedded plant in this process, and
+``socketcand`` with ``rtsid plant`` as a separate process on 127.0.0.1) it streams the
+simulated ankle for ``--duration-s`` and reports:
+
+* samples received, lost, and lost *unexplained* (not accounted for by the plant's own
+  counters — the floor is 0);
+* receive latency, frame send (the frame's bus timestamp, wall clock) → ring write (the
+  row's host time), p50/p99/p99.9/max, from a preallocated histogram (5 µs bins);
+* CPU of the acquisition thread (``time.thread_time()`` read inside the thread), % of one
+  core, and the same for a bare ``bus.recv()`` loop on the same transport (baseline, ratio);
+* resident memory of this process over time (start, end, slope);
+* a ramp: the frame rate doubled from 2500 Hz in bounded steps until a step loses a sample,
+  falls behind, or the plant cannot send that fast; the highest passing rate is reported.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import json
+import os
+import selectors
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rtsid.link.acquisition import Acquisition, LinkCounters
+from rtsid.link.config import LinkConfig, PlantConfig
+from rtsid.link.open import bus_factory, open_link
+from rtsid.link.ring import RingBuffer
+
+BIN_S = 5e-6
+MAX_LATENCY_S = 1.0
+RAMP_RATES_HZ = (2500, 5000, 10_000, 20_000, 40_000, 80_000)
+SUSTAINED_P99_S = 0.050  # a step whose p99 latency exceeds this is falling behind
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--duration-s", type=float, default=600.0, help="steady run per transport")
+    parser.add_argument(
+        "--transport",
+        choices=("virtual", "socketcand", "both"),
+        default="both",
+        help="which transport(s) to measure",
+    )
+    parser.add_argument("--ramp-step-s", type=float, default=5.0, help="length of a ramp step")
+    parser.add_argument("--no-ramp", action="store_true", help="skip the highest-rate ramp")
+    parser.add_argument("--baseline-s", type=float, default=20.0, help="bare recv() loop run")
+
+
+# --------------------------------------------------------------------------- measurements
+class LatencyHistogram:
+    """Fixed 5 µs bins up to 1 s (preallocated; the last bin collects the overflow)."""
+
+    def __init__(self) -> None:
+        self.counts = np.zeros(int(MAX_LATENCY_S / BIN_S) + 1, dtype=np.int64)
+        self.max_s = 0.0
+        self.negative = 0
+
+    def add(self, latency_s: np.ndarray) -> None:
+        if latency_s.size == 0:
+            return
+        self.negative += int(np.count_nonzero(latency_s < 0))
+        bins = np.clip((latency_s / BIN_S).astype(np.int64), 0, self.counts.size - 1)
+        self.counts += np.bincount(bins, minlength=self.counts.size)
+        self.max_s = max(self.max_s, float(latency_s.max()))
+
+    def quantile_s(self, q: float) -> float:
+        total = int(self.counts.sum())
+        if total == 0:
+            return float("nan")
+        k = int(np.searchsorted(np.cumsum(self.counts), q * total, side="left"))
+        return (k + 0.5) * BIN_S
+
+
+def rss_mb() -> float:
+    """Resident set size of this process, MB."""
+    with open("/proc/self/status", encoding="ascii") as fh:
+        for line in fh:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+@dataclass
+class RunResult:
+    """One steady run of one transport."""
+
+    transport: str
+    rate_hz: float
+    duration_s: float
+    received: int
+    lost: int
+    lost_explained: int
+    sent: int
+    latency: LatencyHistogram
+    cpu_percent: float
+    rss_mb: list[tuple[float, float]]
+    counters: LinkCounters | None = None
+    plant_rate_hz: float = float("nan")
+
+    @property
+    def unexplained(self) -> int:
+        return self.lost - self.lost_explained
+
+    @property
+    def rss_slope_mb_per_min(self) -> float:
+        if len(self.rss_mb) < 3:
+            return float("nan")
+        t, m = np.array(self.rss_mb).T
+        half = len(t) // 2  # after warm-up: the second half of the run
+        return float(np.polyfit(t[half:] / 60.0, m[half:], 1)[0]) if t[-1] > t[half] else 0.0
+
+
+# --------------------------------------------------------------------------- plants
+@dataclass
+class PlantReport:
+    """What the plant says it did (sent samples, and losses it caused itself)."""
+
+    samples: int
+    lost: int
+    achieved_hz: float
+
+
+PlantControl = tuple[Callable[[], None], Callable[[], PlantReport]]
+
+
+@contextlib.contextmanager
+def embedded_plant(
+    rate_hz: float, frames_per_tick: int
+) -> Iterator[tuple[LinkConfig, PlantControl]]:
+    """The embedded virtual plant; yields the link config and a stop() → PlantReport."""
+    link = LinkConfig(interface="embedded", fs_hz=rate_hz, rx_queue_frames=int(2 * rate_hz) + 100)
+    plant_cfg = PlantConfig(fs_hz=rate_hz, frames_per_tick=frames_per_tick, diagnostics_hz=0.0)
+    with open_link(link, plant_cfg, start_plant=False) as handle:
+        plant = handle.plant
+        assert plant is not None
+        started: dict[str, float] = {}
+
+        def start() -> None:
+            started["t"] = time.monotonic()
+            plant.start()
+
+        def stop() -> PlantReport:
+            plant.stop()
+            c = plant.counters()
+            elapsed = time.monotonic() - started["t"]
+            return PlantReport(c.samples, c.lost_by_plant, c.samples / elapsed)
+
+        yield dataclasses.replace(link, channel=handle.channel), (start, stop)
+
+
+@contextlib.contextmanager
+def subprocess_plant(
+    rate_hz: float, frames_per_tick: int
+) -> Iterator[tuple[LinkConfig, PlantControl]]:
+    """``rtsid plant`` in its own process on a free loopback port."""
+    with tempfile.TemporaryDirectory() as tmp:
+        config = Path(tmp) / "plant.toml"
+        config.write_text(
+            f"[plant]\nfs_hz = {rate_hz}\nframes_per_tick = {frames_per_tick}\n"
+            "diagnostics_hz = 0.0\n"
+        )
+        cmd = [sys.executable, "-m", "rtsid.cli", "plant", "--port", "0", "--config", str(config)]
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            port = _read_port(proc)
+            link = LinkConfig(
+                interface="socketcand",
+                port=port,
+                fs_hz=rate_hz,
+                ring_capacity_s=10.0,
+                reconnect_after_stale_s=0.0,
+            )
+            started: dict[str, float] = {}
+
+            def start() -> None:
+                started["t"] = time.monotonic()
+
+            def stop() -> PlantReport:
+                proc.send_signal(signal.SIGTERM)
+                out, _ = proc.communicate(timeout=30)
+                report = json.loads(out.strip().splitlines()[-1])
+                p, s = report["plant"], report["server"]
+                lost = p["dropped"] + p["corrupted"] + p["shortened"] + p["silenced"]
+                lost += p["skipped"] + p["tx_overflows"] + s["dropped_slow_client"]
+                return PlantReport(s["frames_out"], lost, p["samples"] / report["elapsed_s"])
+
+            yield link, (start, stop)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate(timeout=10)
+
+
+def _read_port(proc: subprocess.Popen[str]) -> int:
+    assert proc.stdout is not None
+    with selectors.DefaultSelector() as sel:
+        sel.register(proc.stdout, selectors.EVENT_READ)
+        if not sel.select(30.0):
+            raise RuntimeError("rtsid plant did not start within 30 s")
+    line = proc.stdout.readline()
+    if "127.0.0.1:" not in line:
+        raise RuntimeError(f"unexpected output of rtsid plant: {line!r}")
+    return int(line.split("127.0.0.1:")[1].split()[0])
+
+
+PLANTS = {"virtual": embedded_plant, "socketcand": subprocess_plant}
+
+
+# --------------------------------------------------------------------------- one run
+def measure(
+    transport: str,
+    rate_hz: float,
+    duration_s: float,
+    *,
+    rss_every_s: float = 10.0,
+    progress: bool = False,
+) -> RunResult:
+    """Stream ``duration_s`` at ``rate_hz`` through ``transport`` and measure."""
+    frames_per_tick = max(4, int(rate_hz // 625))
+    latency = LatencyHistogram()
+    rss: list[tuple[float, float]] = []
+    with PLANTS[transport](rate_hz, frames_per_tick) as (link, (start, stop)):
+        ring = RingBuffer(link.capacity_rows)
+        acq = Acquisition(
+            bus_factory(link),
+            ring,
+            fs_hz=rate_hz,
+            stale_after_s=0.1,
+            receive_timeout_s=link.receive_timeout_s,
+            reconnect_after_stale_s=0.0,
+        )
+        with acq:
+            offset = time.time() - time.monotonic()
+            start()
+            t0 = time.monotonic()
+            cursor, next_rss, cpu0 = -1, t0, acq.counters().thread_cpu_s
+            while (now := time.monotonic()) < t0 + duration_s:
+                cursor = _drain(ring, cursor, latency, offset)
+                if now >= next_rss:
+                    rss.append((now - t0, rss_mb()))
+                    next_rss += rss_every_s
+                    if progress:
+                        _progress(transport, now - t0, acq.counters(), latency)
+                time.sleep(0.2)
+            elapsed = time.monotonic() - t0
+            cpu = acq.counters().thread_cpu_s - cpu0
+            report = stop()
+            _settle(acq)
+            cursor = _drain(ring, cursor, latency, offset)
+            counters = acq.counters()
+    rss.append((elapsed, rss_mb()))
+    return RunResult(
+        transport,
+        rate_hz,
+        elapsed,
+        counters.samples,
+        counters.lost_samples,
+        report.lost,
+        report.samples,
+        latency,
+        100.0 * cpu / elapsed,
+        rss,
+        counters,
+        report.achieved_hz,
+    )
+
+
+def _drain(ring: RingBuffer, cursor: int, latency: LatencyHistogram, offset: float) -> int:
+    while True:
+        snap = ring.read_since(max(cursor, 0), 20_000)
+        if len(snap) == 0:
+            return cursor
+        ok = snap.valid
+        latency.add((snap.host_time_s[ok] + offset) - snap.bus_time_s[ok])
+        cursor = snap.next_index
+
+
+def _settle(acq: Acquisition, quiet_s: float = 0.5, limit_s: float = 30.0) -> None:
+    """Wait until no frame arrived for ``quiet_s`` (the backlog is drained)."""
+    end = time.monotonic() + limit_s
+    while time.monotonic() < end and acq.counters().last_frame_age_s < quiet_s:
+        time.sleep(0.05)
+
+
+def _progress(transport: str, t: float, c: LinkCounters, lat: LatencyHistogram) -> None:
+    print(
+        f"  [{transport}] t={t:6.0f} s samples={c.samples} lost={c.lost_samples} "
+        f"p99={lat.quantile_s(0.99) * 1e3:.2f} ms rss={rss_mb():.1f} MB",
+        flush=True,
+    )
+
+
+def baseline_cpu_percent(transport: str, duration_s: float) -> float:
+    """CPU of a bare ``bus.recv()`` loop (no decoding, no ring) on the same transport."""
+    with PLANTS[transport](2500.0, 4) as (link, (start, stop)):
+        bus = bus_factory(link)()
+        result: dict[str, float] = {}
+        done = threading.Event()
+
+        def loop() -> None:
+            c0, t0 = time.thread_time(), time.monotonic()
+            while not done.is_set():
+                bus.recv(0.05)
+            result["cpu"] = (time.thread_time() - c0) / (time.monotonic() - t0)
+
+        thread = threading.Thread(target=loop, name="rtsid-bench-recv")
+        try:
+            start()
+            thread.start()
+            time.sleep(duration_s)
+            done.set()
+            thread.join(5.0)
+            stop()
+        finally:
+            done.set()
+            if thread.is_alive():
+                thread.join(5.0)
+            bus.shutdown()
+    return 100.0 * result.get("cpu", float("nan"))
+
+
+def ramp(transport: str, step_s: float) -> list[tuple[RunResult, bool, str]]:
+    """Double the rate until a step fails; each step is one bounded :func:`measure`."""
+    steps = []
+    for rate in RAMP_RATES_HZ:
+        res = measure(transport, rate, step_s, rss_every_s=step_s)
+        ok, why = _sustained(res)
+        steps.append((res, ok, why))
+        if not ok:
+            break
+    return steps
+
+
+def _sustained(res: RunResult) -> tuple[bool, str]:
+    if res.lost or res.lost_explained:
+        return False, f"{res.lost} lost ({res.lost_explained} by the sender)"
+    if res.received < res.sent:
+        return False, f"{res.sent - res.received} not received"
+    if res.plant_rate_hz < 0.98 * res.rate_hz:
+        return False, f"sender reached only {res.plant_rate_hz:.0f} Hz"
+    p99 = res.latency.quantile_s(0.99)
+    if p99 > SUSTAINED_P99_S:
+        return False, f"p99 latency {p99 * 1e3:.1f} ms: falling behind"
+    return True, "ok"
+
+
+# --------------------------------------------------------------------------- tables
+def _ms(x: float) -> str:
+    return f"{x * 1e3:.3f}"
+
+
+def print_steady(results: list[RunResult], baselines: dict[str, float]) -> None:
+    print("\nSteady 2500 Hz (latency = frame send -> ring write)\n")
+    print(
+        "| transport | duration s | received | lost | lost unexplained | p50 ms | p99 ms "
+        "| p99.9 ms | max ms | acq CPU % | bare recv CPU % | ratio | RSS start/end MB "
+        "| RSS slope MB/min |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in results:
+        base = baselines.get(r.transport, float("nan"))
+        lat = r.latency
+        print(
+            f"| {r.transport} | {r.duration_s:.0f} | {r.received} | {r.lost} | {r.unexplained} "
+            f"| {_ms(lat.quantile_s(0.5))} | {_ms(lat.quantile_s(0.99))} "
+            f"| {_ms(lat.quantile_s(0.999))} | {_ms(lat.max_s)} | {r.cpu_percent:.2f} "
+            f"| {base:.2f} | {r.cpu_percent / base:.2f} "
+            f"| {r.rss_mb[0][1]:.1f} / {r.rss_mb[-1][1]:.1f} | {r.rss_slope_mb_per_min:+.3f} |"
+        )
+    for r in results:
+        print(
+            f"\nRSS over time, {r.transport} (s: MB): "
+            + ", ".join(f"{t:.0f}: {m:.1f}" for t, m in r.rss_mb[:: max(1, len(r.rss_mb) // 12)])
+        )
+
+
+def print_ramp(transport: str, steps: list[tuple[RunResult, bool, str]]) -> None:
+    print(f"\nRamp, {transport} (each step {steps[0][0].duration_s:.0f} s)\n")
+    print("| rate Hz | sender Hz | received | lost | p50 ms | p99 ms | acq CPU % | result |")
+    print("|---|---|---|---|---|---|---|---|")
+    for res, ok, why in steps:
+        print(
+            f"| {res.rate_hz:.0f} | {res.plant_rate_hz:.0f} | {res.received} | {res.lost} "
+            f"| {_ms(res.latency.quantile_s(0.5))} | {_ms(res.latency.quantile_s(0.99))} "
+            f"| {res.cpu_percent:.1f} | {'pass' if ok else 'FAIL: ' + why} |"
+        )
+    best = max((r.rate_hz for r, ok, _ in steps if ok), default=0.0)
+    print(f"\nHighest rate sustained without loss, {transport}: {best:.0f} frames/s")
+
+
+def run(args: argparse.Namespace) -> int:
+    duration = 5.0 if args.quick else args.duration_s
+    step = 1.0 if args.quick else args.ramp_step_s
+    base_s = 2.0 if args.quick else args.baseline_s
+    transports = ("virtual", "socketcand") if args.transport == "both" else (args.transport,)
+    print(f"rtsid bench link: {duration:.0f} s per transport, pid {os.getpid()}", flush=True)
+    results, baselines = [], {}
+    for transport in transports:
+        baselines[transport] = baseline_cpu_percent(transport, base_s)
+        results.append(
+            measure(
+                transport,
+                2500.0,
+                duration,
+                progress=not args.quick,
+                rss_every_s=1.0 if args.quick else 10.0,
+            )
+        )
+    print_steady(results, baselines)
+    if not args.no_ramp:
+        for transport in transports:
+            print_ramp(transport, ramp(transport, step))
+    bad = [r.transport for r in results if r.unexplained != 0]
+    return 1 if bad else 0
