@@ -1,0 +1,252 @@
+"""``rtsid bench accuracy``: the source's accuracy analyses on the simulated ankle.
+
+(a) error of I, B, K against window length × noise; (b) 1 − VAF against the stiffness change
+within the window × noise; (c) tracking a sinusoidally varying K; (d) perturbation bandwidth,
+which decides what can be identified at all. Noise is white Gaussian on the torque, its
+standard deviation a percentage of the clean torque's; the estimator's own low-pass removes the
+part above 100 Hz, so (e) repeats the floor case with noise confined to the signal band.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+
+import numpy as np
+
+from rtsid.benchmarks.table import print_table
+from rtsid.errors import RtsidError
+from rtsid.ident.excitation import filtered_noise, prbs
+from rtsid.ident.window import EstimatorOptions, estimate_window, sliding_estimates
+from rtsid.sim.joint import JointParameters, StiffnessProfile, robot_servo, simulate_impedance
+
+FS_HZ = 2500.0
+ANKLE = JointParameters(inertia=0.015, damping=0.8, stiffness=150.0)
+PERTURBATION = "filtered Gaussian noise, 30 Hz 4th-order Butterworth, ±0.03 rad peak"
+MARGIN = 1000  # samples simulated before and after each window (no edge effects)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--realisations", type=int, default=30, help="per cell (30)")
+
+
+def _perturbation(n: int, rng: np.random.Generator, kind: str = "noise", bw_hz: float = 30.0):
+    if kind == "prbs":
+        hold = max(1, round(FS_HZ / (2 * bw_hz)))
+        return robot_servo(prbs(n, 0.03, min_hold=hold, seed=rng), FS_HZ, bw_hz)
+    return filtered_noise(n, FS_HZ, bw_hz, peak=0.03, seed=rng)
+
+
+def _window(
+    seed: int,
+    window_s: float,
+    noise: float,
+    *,
+    stiffness: StiffnessProfile | None = None,
+    kind: str = "noise",
+    bw_hz: float = 30.0,
+    noise_band_hz: float | None = None,
+    joint: JointParameters = ANKLE,
+) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    n = round(window_s * FS_HZ)
+    theta = _perturbation(n + 2 * MARGIN, rng, kind, bw_hz)
+    tau = simulate_impedance(
+        theta,
+        FS_HZ,
+        joint,
+        stiffness,
+        noise_percent=noise,
+        seed=rng,
+        noise_band_hz=noise_band_hz,
+        t0_s=-MARGIN / FS_HZ,
+    )
+    return theta[MARGIN : MARGIN + n], tau[MARGIN : MARGIN + n]
+
+
+def _median_errors(
+    make: Callable[[int], tuple[np.ndarray, np.ndarray]],
+    reps: int,
+    joint: JointParameters = ANKLE,
+    options: EstimatorOptions | None = None,
+) -> tuple[np.ndarray, float, int]:
+    """Median |relative error| (%) of I, B, K, median VAF, and windows withheld."""
+    truth = np.array([joint.inertia, joint.damping, joint.stiffness])
+    errors, vafs, withheld = [], [], 0
+    for seed in range(reps):
+        try:
+            est = estimate_window(*make(seed), FS_HZ, options)
+        except RtsidError:
+            withheld += 1
+            continue
+        errors.append(np.abs(np.array([est.I, est.B, est.K]) - truth) / truth * 100)
+        vafs.append(est.vaf)
+    if not errors:
+        return np.full(3, np.nan), float("nan"), withheld
+    return np.median(errors, axis=0), float(np.median(vafs)), withheld
+
+
+def _table_window_noise(reps: int) -> None:
+    rows = []
+    for window_s in (0.1, 0.2, 0.3, 0.5, 1.0):
+        options = EstimatorOptions(lag_s=min(0.02, window_s / 8))
+        for noise in (0.0, 5.0, 10.0, 20.0):
+            med, vaf, withheld = _median_errors(
+                lambda s, w=window_s, nz=noise: _window(s, w, nz), reps, options=options
+            )
+            rows.append(
+                [
+                    f"{window_s * 1e3:.0f}",
+                    options.lag_s * 1e3,
+                    noise,
+                    med[2],
+                    med[1],
+                    med[0],
+                    vaf,
+                    withheld,
+                ]
+            )
+    print_table(
+        f"(a) median |error| % of K, B, I vs window length × noise ({reps} realisations)",
+        ["window ms", "lag ±ms", "noise %", "K", "B", "I", "VAF %", "withheld"],
+        rows,
+        note=(
+            f"Perturbation: {PERTURBATION}. Truth I 0.015, B 0.8, K 150. The IRF lag span "
+            "shrinks to window/8 for windows under 160 ms (the default ±20 ms needs more samples)."
+        ),
+    )
+
+
+def _floor_check(reps: int) -> None:
+    cases = {
+        "filtered noise 30 Hz, white torque noise": lambda s: _window(s, 0.3, 10.0),
+        "filtered noise 30 Hz, in-band torque noise (≤ 30 Hz)": lambda s: _window(
+            s, 0.3, 10.0, noise_band_hz=30.0
+        ),
+        "PRBS through a 40 Hz servo, white torque noise": lambda s: _window(
+            s, 0.3, 10.0, kind="prbs", bw_hz=40.0
+        ),
+    }
+    rows = []
+    for name, make in cases.items():
+        med, vaf, _ = _median_errors(make, reps)
+        ok = med[2] <= 3 and med[1] <= 5 and med[0] <= 10
+        rows.append([name, med[2], med[1], med[0], vaf, "PASS" if ok else "FAIL"])
+    print_table(
+        "(e) floor at 300 ms, 10 % noise: median |error| K ≤ 3 %, B ≤ 5 %, I ≤ 10 %",
+        ["perturbation", "K %", "B %", "I %", "VAF %", "floor"],
+        rows,
+    )
+
+
+def _source_window(
+    seed: int, noise: float, profile: StiffnessProfile
+) -> tuple[np.ndarray, np.ndarray]:
+    """The source's simulation: Gaussian noise low-passed at 200 Hz, ±0.05 rad."""
+    rng = np.random.default_rng(seed)
+    n = round(0.3 * FS_HZ)
+    theta = filtered_noise(n + 2 * MARGIN, FS_HZ, 200.0, peak=0.05, seed=rng)
+    tau = simulate_impedance(
+        theta, FS_HZ, ANKLE, profile, noise_percent=noise, seed=rng, t0_s=-MARGIN / FS_HZ
+    )
+    return theta[MARGIN : MARGIN + n], tau[MARGIN : MARGIN + n]
+
+
+def _table_stiffness_change(reps: int) -> None:
+    rows = []
+    makers = {
+        "30 Hz": lambda seed, noise, prof: _window(seed, 0.3, noise, stiffness=prof),
+        "source 200 Hz": _source_window,
+    }
+    for change in (0.0, 25.0, 50.0, 100.0, 150.0):
+        profile = StiffnessProfile.ramp(150.0, 150.0 * (1 + change / 100), 0.0, 0.3)
+        cells: list[object] = [change]
+        for make in makers.values():
+            for noise in (0.0, 10.0, 20.0):
+                one_minus_vaf = [
+                    100.0 - estimate_window(*make(seed, noise, profile), FS_HZ).vaf
+                    for seed in range(reps)
+                ]
+                cells.append(float(np.median(one_minus_vaf)))
+        rows.append(cells)
+    print_table(
+        f"(b) median 1 − VAF (%) vs stiffness change within a 300 ms window ({reps} realisations)",
+        ["K change %"] + [f"{name}, noise {nz:g} %" for name in makers for nz in (0.0, 10.0, 20.0)],
+        rows,
+        note=(
+            "K ramps linearly from 150 N·m/rad across the window. Perturbations: 30 Hz = "
+            f"{PERTURBATION}; source 200 Hz = Gaussian noise low-passed at 200 Hz, ±0.05 rad "
+            "(the source's simulation). Floor: VAF ≥ 95 % (1 − VAF ≤ 5 %) at +150 %. VAF of an "
+            "LTI fit to a time-varying joint depends on how much of the torque is elastic: with "
+            "the 30 Hz perturbation K·θ carries more of it than with 200 Hz, where inertia "
+            "dominates."
+        ),
+    )
+
+
+def _table_sinusoidal_tracking(reps: int) -> None:
+    rows = []
+    duration = 8.0
+    n = round(duration * FS_HZ)
+    for freq in (0.1, 0.25, 0.5, 1.0, 2.0):
+        profile = StiffnessProfile.sinusoid(150.0, 60.0, freq)
+        rms, lagged = [], []
+        for seed in range(max(1, reps // 10)):
+            rng = np.random.default_rng(seed)
+            theta = _perturbation(n, rng)
+            tau = simulate_impedance(theta, FS_HZ, ANKLE, profile, noise_percent=10.0, seed=rng)
+            est, mean_k = [], []
+            for res in sliding_estimates(theta, tau, FS_HZ, 0.3, 0.02, EstimatorOptions()):
+                if res.estimate is None:
+                    continue
+                est.append(res.estimate.K)
+                mean_k.append(float(np.mean(profile.at(np.arange(res.start, res.stop) / FS_HZ))))
+            err = np.array(est) - np.array(mean_k)
+            rms.append(float(np.sqrt(np.mean(err**2))))
+            lagged.append(float(np.corrcoef(est, mean_k)[0, 1]))
+        rows.append(
+            [
+                freq,
+                60.0,
+                float(np.mean(rms)),
+                float(np.mean(rms)) / 150 * 100,
+                float(np.mean(lagged)),
+            ]
+        )
+    print_table(
+        "(c) tracking K(t) = 150 + 60·sin(2π·f·t) N·m/rad, 300 ms windows every 20 ms, 10 % noise",
+        ["f Hz", "amplitude", "RMS error N·m/rad", "RMS / mean %", "correlation"],
+        rows,
+        note="Truth per window = mean K over the window (what a 300 ms LTI fit can see).",
+    )
+
+
+def _table_bandwidth(reps: int) -> None:
+    rows = []
+    for bw in (5.0, 10.0, 20.0, 30.0, 60.0, 150.0):
+        med, vaf, withheld = _median_errors(lambda s, b=bw: _window(s, 0.3, 10.0, bw_hz=b), reps)
+        rows.append([bw, med[2], med[1], med[0], vaf, withheld])
+    soft = JointParameters(0.03, 2.0, 30.0)
+    med, vaf, withheld = _median_errors(lambda s: _window(s, 0.3, 10.0, joint=soft), reps, soft)
+    rows.append(["30 (soft ankle)", med[2], med[1], med[0], vaf, withheld])
+    print_table(
+        "(d) median |error| % vs perturbation bandwidth, 300 ms, 10 % noise",
+        ["bandwidth Hz", "K", "B", "I", "VAF %", "withheld"],
+        rows,
+        note=(
+            "Identification needs power around the joint's corner frequencies: below ~20 Hz "
+            "inertia is barely excited; at 150 Hz inertial torque (I·ω²) swamps stiffness. "
+            "Soft ankle: I 0.03, B 2, K 30 resonates at 5 Hz, which a 300 ms window barely "
+            "holds — its estimates carry the 'stiffness_uncertain' flag."
+        ),
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    reps = 5 if args.quick else args.realisations
+    _floor_check(reps)
+    _table_window_noise(reps)
+    _table_stiffness_change(reps)
+    _table_sinusoidal_tracking(reps)
+    _table_bandwidth(reps)
+    return 0
