@@ -345,7 +345,16 @@ def encode_estimate(message: Mapping[str, Any]) -> bytes:
     reason = message["reason"]
     if reason is not None and not isinstance(reason, str):
         raise InputDataError(f"estimate 'reason' = {reason!r}; expected null or a short string")
-    return encode_json({k: message[k] for k in ESTIMATE_FIELDS})
+    out: dict[str, Any] = {}
+    for k in ESTIMATE_FIELDS:  # fast path for plain floats; numpy scalars, lists: json_safe
+        v = message[k]
+        if type(v) is float:
+            out[k] = v if math.isfinite(v) else None
+        elif v is None or type(v) in (int, bool, str):
+            out[k] = v
+        else:
+            out[k] = json_safe(v)
+    return json.dumps(out, separators=(",", ":"), allow_nan=False).encode()
 
 
 def encode_status(message: Mapping[str, Any]) -> bytes:

@@ -131,3 +131,35 @@ def test_recover_command(
         assert sum(1 for _ in make_reader(fh).iter_messages()) > 0
     assert main(["recover", str(cut)]) == 2  # exists: a one-line error, exit 2
     assert "exists" in capsys.readouterr().err
+
+
+def test_files_open_in_the_typescript_mcap_reader(recording: Path, tmp_path: Path) -> None:
+    """Independent reader (@mcap/core, what Foxglove builds on). Opt-in: set
+    RTSID_MCAP_JS_NODE_PATH to a node_modules with @mcap/core and @foxglove/wasm-zstd
+    (``npm install @mcap/core @foxglove/wasm-zstd``)."""
+    import json
+    import os
+    import shutil
+    import subprocess
+
+    node_path = os.environ.get("RTSID_MCAP_JS_NODE_PATH")
+    if not node_path or shutil.which("node") is None:
+        pytest.skip("set RTSID_MCAP_JS_NODE_PATH (node_modules with @mcap/core) to run")
+    data = recording.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) * 2 // 3])
+    fixed = tmp_path / "fixed.mcap"
+    saved = mcap_read.recover(cut, fixed).messages
+    script = Path(__file__).with_name("mcap_check.js")
+    for path, expected in ((recording, 40), (fixed, saved)):
+        result = subprocess.run(
+            ["node", str(script), str(path)],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            env={**os.environ, "NODE_PATH": node_path},
+        )
+        assert result.returncode == 0, result.stderr
+        report = json.loads(result.stdout)
+        assert report["counts"] == {"/samples": expected}
+        assert report["encodings"]["/samples"] == ["jsonschema", "json"]
