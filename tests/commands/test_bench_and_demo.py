@@ -31,3 +31,19 @@ def test_demo_tracks_the_simulated_stiffness(capsys):
     out = capsys.readouterr().out
     note = next(line for line in out.splitlines() if line.startswith("median |K error|"))
     assert float(note.split("=")[1].split("%")[0]) < 10.0
+
+
+def test_real_benchmark_tables_and_figures(reklab_path, tmp_path, capsys):
+    figures = tmp_path / "fig"
+    argv = ["bench", "real", "--quick", "--data", str(reklab_path), "--figures", str(figures)]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "whole record" in out and "× real time" in out
+    pngs = sorted(p.name for p in figures.glob("*.png"))
+    assert pngs == [
+        "real_defaults.png",
+        "real_defaults_hist.png",
+        "real_preset.png",
+        "real_preset_hist.png",
+    ]
+    assert all((figures / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for name in pngs)

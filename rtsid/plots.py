@@ -1,0 +1,145 @@
+"""Figures of impedance estimates (matplotlib, an optional extra: ``pip install rtsid[plot]``)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from rtsid.errors import InputDataError
+
+__all__ = ["plot_distributions", "plot_impedance_track", "require_matplotlib"]
+
+PANELS = (
+    ("K", "K_se", "stiffness K\n(N·m/rad)"),
+    ("B", "B_se", "damping B\n(N·m·s/rad)"),
+    ("I", "I_se", "inertia I\n(kg·m²)"),
+    ("vaf", None, "VAF (%)"),
+)
+
+
+def require_matplotlib() -> Any:
+    """``matplotlib.pyplot`` with a file-only backend, or a clear error naming the extra."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise InputDataError(
+            "plots need matplotlib; install the extra with: pip install 'rtsid[plot]'"
+        ) from None
+    return plt
+
+
+def plot_impedance_track(
+    t_s: ArrayLike,
+    series: Mapping[str, ArrayLike],
+    out_png: str | Path,
+    *,
+    title: str,
+    reference: Mapping[str, float] | None = None,
+    truth: Mapping[str, ArrayLike] | None = None,
+    flagged: ArrayLike | None = None,
+) -> Path:
+    """K, B, I with ±1.96·SE bands and VAF over time, one panel each, saved as PNG.
+
+    Axis limits follow the 2nd–98th percentiles so a few wild windows do not flatten the
+    rest; flagged windows are drawn as orange dots.
+
+    Parameters
+    ----------
+    t_s : array_like, shape (n,)
+        Time of each estimate (window end), s.
+    series : mapping
+        Arrays ``K``, ``B``, ``I``, ``vaf`` and optionally ``K_se``, ``B_se``, ``I_se``
+        (NaN where a window was withheld).
+    out_png : str or Path
+        Output file.
+    title : str
+        Figure title.
+    reference : mapping, optional
+        Horizontal reference lines per key (e.g. the whole-record estimate).
+    truth : mapping, optional
+        True values over ``t_s`` per key (simulations).
+    flagged : array_like of bool, shape (n,), optional
+        Windows whose estimate carries a flag.
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    plt = require_matplotlib()
+    t = np.asarray(t_s, dtype=float)
+    fig, axes = plt.subplots(len(PANELS), 1, sharex=True, figsize=(9, 8), constrained_layout=True)
+    for ax, (key, se_key, label) in zip(axes, PANELS, strict=True):
+        y = np.asarray(series[key], dtype=float)
+        ax.plot(t, y, lw=0.8, color="C0", label="windowed estimate")
+        if flagged is not None:
+            mask = np.asarray(flagged, dtype=bool)
+            ax.plot(t[mask], y[mask], ".", ms=3, color="C1", label="flagged window")
+        _robust_limits(ax, y, reference.get(key) if reference else None)
+        if se_key and se_key in series:
+            se = np.asarray(series[se_key], dtype=float)
+            ax.fill_between(
+                t, y - 1.96 * se, y + 1.96 * se, color="C0", alpha=0.2, lw=0, label="95 % interval"
+            )
+        if reference and key in reference:
+            ax.axhline(reference[key], color="C3", ls="--", lw=1.0, label="whole record")
+        if truth and key in truth:
+            ax.plot(t, np.asarray(truth[key], dtype=float), color="k", lw=1.0, label="truth")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("time (s)")
+    axes[-1].set_ylim(0, 100)
+    fig.suptitle(title)
+    return _save(plt, fig, out_png)
+
+
+def _robust_limits(ax: Any, y: np.ndarray, reference: float | None) -> None:
+    finite = y[np.isfinite(y)]
+    if finite.size < 5:
+        return
+    low, high = np.percentile(finite, [2, 98])
+    if reference is not None:
+        low, high = min(low, reference), max(high, reference)
+    pad = 0.25 * (high - low or abs(high) or 1.0)
+    ax.set_ylim(low - pad, high + pad)
+
+
+def _save(plt: Any, fig: Any, out_png: str | Path) -> Path:
+    out = Path(out_png)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def plot_distributions(
+    series: Mapping[str, ArrayLike],
+    out_png: str | Path,
+    *,
+    title: str,
+    reference: Mapping[str, float] | None = None,
+) -> Path:
+    """Histograms of K, B, I and VAF over windows (2nd–98th percentile range), as PNG."""
+    plt = require_matplotlib()
+    fig, axes = plt.subplots(1, len(PANELS), figsize=(12, 3.2), constrained_layout=True)
+    for ax, (key, _, label) in zip(axes, PANELS, strict=True):
+        y = np.asarray(series[key], dtype=float)
+        y = y[np.isfinite(y)]
+        low, high = np.percentile(y, [2, 98]) if y.size else (0.0, 1.0)
+        ax.hist(y[(y >= low) & (y <= high)], bins=40, color="C0", alpha=0.8)
+        ax.axvline(float(np.median(y)), color="k", lw=1.0, label="median")
+        if reference and key in reference:
+            ax.axvline(reference[key], color="C3", ls="--", lw=1.0, label="whole record")
+        ax.set_xlabel(label.replace("\n", " "))
+    axes[0].set_ylabel("windows")
+    axes[0].legend(fontsize=8)
+    fig.suptitle(title)
+    return _save(plt, fig, out_png)
