@@ -76,7 +76,7 @@ FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
 
 #: Variance inflation of a line's own ``G_p`` above which :func:`identify_ltv` warns.
-WARN_VARIANCE_INFLATION = 10.0
+WARN_VARIANCE_INFLATION = 4.0
 #: Variance inflation above which :func:`identify_ltv` refuses to estimate.
 MAX_VARIANCE_INFLATION = 1e6
 #: Largest fraction of the input's power allowed outside the declared excited bins.
@@ -728,7 +728,8 @@ def _check_conditioning(
             f"{what}, so G_p is not determined (variance inflation {worst:.3g}); {advice}"
         )
     warnings.warn(
-        f"{what}; the estimate's variance is inflated ×{worst:.3g}; {advice}",
+        f"{what}; the estimate's variance is inflated ×{worst:.3g} and time variation beyond "
+        f"N_p leaks in more; {advice}",
         SkirtConditioningWarning,
         stacklevel=3,
     )
