@@ -344,6 +344,19 @@ def estimate_window(
     options = options or EstimatorOptions()
     if overrides:
         options = replace(options, **overrides)
+    u, y, fs_a = prepare_window(position, torque, fs, options)
+    max_lag = max(1, round(options.lag_s * fs_a))
+    irf = estimate_irf(u, y, fs_a, max_lag, ridge=options.ridge, refine=options.refine)
+    fit = fit_parameters(irf, u, options)
+    predictions = predict_torque(irf, u, y, fit)
+    se = standard_errors(irf, u, predictions, fit) if options.uncertainty else np.full(3, np.nan)
+    return _assemble(irf, fit, predictions, se)
+
+
+def prepare_window(
+    position: ArrayLike, torque: ArrayLike, fs: float, options: EstimatorOptions
+) -> tuple[FloatArray, FloatArray, float]:
+    """Stage 1–3: check, sign, detrend, low-pass and decimate; ``(u, y, analysis_fs_hz)``."""
     pos = np.asarray(position, dtype=np.float64)
     tor = np.asarray(torque, dtype=np.float64)
     _check_window(pos, tor, options)
@@ -358,28 +371,60 @@ def estimate_window(
             "lengthen the window or shorten lag_s",
             "too_short",
         )
-    irf = estimate_irf(u, y, fs_a, max_lag, ridge=options.ridge, refine=options.refine)
+    return u, y, fs_a
+
+
+def fit_parameters(irf: IRF, u: FloatArray, options: EstimatorOptions) -> ParameterFit:
+    """Stage 5: ``(I, B, K)`` fitted to the IRF's response, weighted by the excitation."""
+    fs_a = irf.fs_hz
     grid_key = (*options.fit_band_hz, options.fit_points, fs_a / 2)
     f = _fit_grid(options.fit_band_hz, options.fit_points, fs_a / 2)
-    e = _dft(max_lag, fs_a, grid_key)
+    e = _dft(irf.max_lag, fs_a, grid_key)
     weights = _excitation_weights(u, fs_a, grid_key, options.weight_power)
     fit = fit_linear(f, e, irf.h, weights=weights)
     if options.fit_method == "logmag":
         fit = fit_logmag(f, e, irf.h, start=fit.params, weights=weights)
-    inertia, damping, stiffness = (float(v) for v in fit.params)
+    return fit
 
+
+@dataclass(frozen=True)
+class TorquePredictions:
+    """Measured and predicted torque over the fully supported samples (N·m)."""
+
+    measured: FloatArray
+    irf: FloatArray
+    model: FloatArray
+
+
+def predict_torque(irf: IRF, u: FloatArray, y: FloatArray, fit: ParameterFit) -> TorquePredictions:
+    """Stage 6: torque predicted by the IRF and by the parametric model."""
+    max_lag = irf.max_lag
+    inertia, damping, stiffness = fit.params
+    d1, d2 = stencil_derivatives(u, irf.fs_hz)
+    model_torque = inertia * d2 + damping * d1 + stiffness * u[4:-4]  # samples 4 … n−5
     inner = slice(max_lag, u.size - max_lag)
-    y_irf = irf.predict(u)[inner]
-    d1, d2 = stencil_derivatives(u, fs_a)
-    y_model = (inertia * d2 + damping * d1 + stiffness * u[4:-4])[
-        max_lag - 4 : u.size - max_lag - 4
-    ]
-    y_in = y[inner]
-    se = np.full(3, np.nan)
-    if options.uncertainty:
-        cov = _parameter_covariance(irf, u[inner], y_in - y_irf, fit.sensitivity)
-        se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    vaf_fit = vaf(y_irf, y_model)
+    return TorquePredictions(
+        measured=y[inner],
+        irf=irf.predict(u)[inner],
+        model=model_torque[max_lag - 4 : u.size - max_lag - 4],
+    )
+
+
+def standard_errors(
+    irf: IRF, u: FloatArray, predictions: TorquePredictions, fit: ParameterFit
+) -> FloatArray:
+    """Stage 7: standard errors of ``(I, B, K)`` from the IRF's sandwich covariance."""
+    inner_u = u[irf.max_lag : u.size - irf.max_lag]
+    residual = predictions.measured - predictions.irf
+    cov = _parameter_covariance(irf, inner_u, residual, fit.sensitivity)
+    return np.asarray(np.sqrt(np.clip(np.diag(cov), 0.0, None)), dtype=np.float64)
+
+
+def _assemble(
+    irf: IRF, fit: ParameterFit, predictions: TorquePredictions, se: FloatArray
+) -> WindowEstimate:
+    inertia, damping, stiffness = (float(v) for v in fit.params)
+    vaf_fit = vaf(predictions.irf, predictions.model)
     return WindowEstimate(
         I=inertia,
         B=damping,
@@ -387,12 +432,12 @@ def estimate_window(
         I_se=float(se[0]),
         B_se=float(se[1]),
         K_se=float(se[2]),
-        vaf=vaf(y_in, y_model),
-        vaf_irf=vaf(y_in, y_irf),
+        vaf=vaf(predictions.measured, predictions.model),
+        vaf_irf=vaf(predictions.measured, predictions.irf),
         vaf_fit=vaf_fit,
         irf=irf.h,
         lags_s=irf.lags_s,
-        fs_hz=fs_a,
+        fs_hz=irf.fs_hz,
         flags=_flags(fit, se, vaf_fit),
         method=fit.method,
     )
