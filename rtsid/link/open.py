@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import can
 
+from rtsid.config import invalid
 from rtsid.errors import LinkError
 from rtsid.link.acquisition import Acquisition
 from rtsid.link.config import LinkConfig, PlantConfig
@@ -139,9 +140,13 @@ def open_link(
     if link_cfg.interface != "embedded":
         yield LinkHandle(link_cfg, bus_factory(link_cfg), None, link_cfg.channel)
         return
+    plant_cfg = plant_cfg or PlantConfig(fs_hz=link_cfg.fs_hz)
+    if plant_cfg.fs_hz != link_cfg.fs_hz:
+        same = f"link.fs_hz = {link_cfg.fs_hz} (the same rate)"
+        raise invalid("plant.fs_hz", plant_cfg.fs_hz, same)
     channel = f"rtsid-embedded-{os.getpid()}-{uuid.uuid4().hex[:8]}"
     plant_bus = can.Bus(interface="virtual", channel=channel, rx_queue_size=_PLANT_RX_QUEUE)
-    plant = VirtualPlant(plant_cfg or PlantConfig(fs_hz=link_cfg.fs_hz), plant_bus)
+    plant = VirtualPlant(plant_cfg, plant_bus)
     try:
         if start_plant:
             plant.start()

@@ -265,3 +265,20 @@ def test_send_command_reaches_the_plant_and_changes_the_perturbation(channel):
         plant_bus.shutdown()
     assert not np.any(snap.status & STATUS_PERTURBATION_ON)
     assert np.max(np.abs(snap.position_rad)) < 1e-5  # the servo came to rest at zero
+
+
+def test_windows_from_the_ring_identify_the_plants_true_joint(channel, fast_plant_cfg):
+    import rtsid
+
+    _, plant, ring = run_plant_into_acquisition(channel, fast_plant_cfg)
+    truth = plant.truth
+    estimates = []
+    for end in (4000, 8000, 11_999):
+        snap = ring.read_since(end - 749, 750)
+        assert snap.valid.all() and len(snap) == 750
+        est = rtsid.estimate_window(snap.position_rad, snap.torque_nm, 2500.0)
+        estimates.append((est.I, est.B, est.K))
+    inertia, damping, stiffness = np.median(np.array(estimates), axis=0)
+    assert stiffness == pytest.approx(float(truth.stiffness_at(0.0)), rel=0.15)
+    assert damping == pytest.approx(truth.damping, rel=0.15)
+    assert inertia == pytest.approx(truth.inertia + truth.robot_inertia, rel=0.25)
