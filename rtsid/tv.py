@@ -173,9 +173,18 @@ class TvResult:
 
 
 def identify_recording(
-    data: TvData, *, n_basis: int = 8, n_transient: int | None = None, n_times: int = 401
+    data: TvData,
+    *,
+    n_basis: int = 8,
+    n_transient: int | None = None,
+    n_times: int = 401,
+    common: tuple[str, ...] = (),
 ) -> TvResult:
-    """Skirt decomposition of ``data`` and the second-order track at ``n_times`` times."""
+    """Skirt decomposition of ``data`` and the second-order track at ``n_times`` times.
+
+    ``common`` names parameters held constant over time in the second-order fit
+    (``"inertia"``, ``"damping"``; see :meth:`LtvEstimate.fit_second_order`).
+    """
     est = identify_ltv(
         data.torque_nm,
         data.position_rad,
@@ -186,7 +195,7 @@ def identify_recording(
         n_transient=n_transient,
     )
     t = est.default_times(n_times)
-    track = est.fit_second_order(t)
+    track = est.fit_second_order(t, common=common)
     k_true = fn_true = None
     if data.stiffness_nm_per_rad is not None:
         k_true = np.interp(

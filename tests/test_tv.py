@@ -59,6 +59,15 @@ def test_missing_arrays_and_partial_periods_are_clear_errors(small_experiment, t
     assert "19 periods of 250" in capsys.readouterr().out
 
 
+def test_common_inertia_option_holds_one_inertia(small_experiment, tmp_path):
+    path, exp = small_experiment
+    csv = tmp_path / "held.csv"
+    assert main(["tv", str(path), "-p", "10", "--common-inertia", "--csv", str(csv)]) == 0
+    table = np.genfromtxt(csv, delimiter=",", names=True)
+    assert np.ptp(table["inertia_nms2_per_rad"]) < 1e-9
+    assert table["inertia_nms2_per_rad"][0] == pytest.approx(exp.inertia, rel=0.05)
+
+
 def test_too_many_basis_functions_print_a_warning(small_experiment, capsys):
     path, _ = small_experiment
     assert main(["tv", str(path), "-p", "24", "--times", "2"]) == 0

@@ -31,6 +31,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--times", type=int, default=11, metavar="N", help="rows of the printed track (11)"
     )
+    parser.add_argument(
+        "--common-inertia",
+        action="store_true",
+        help="hold the inertia constant over time in the K/B/I fit (a joint's does not change)",
+    )
+    parser.add_argument(
+        "--common-damping", action="store_true", help="hold the damping constant over time too"
+    )
     parser.add_argument("--plot", metavar="PNG", help="write |G(jω,t)|, K(t), f_n(t) here")
     parser.add_argument("--csv", metavar="PATH", help="write the K/B/I/f_n track as CSV")
     sim = parser.add_argument_group("simulated experiment (the published study)")
@@ -73,7 +81,10 @@ def run(args: argparse.Namespace) -> int:
     data = tv.load_tv_npz(args.recording, trim=args.trim)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", SkirtConditioningWarning)
-        result = tv.identify_recording(data, n_basis=args.basis, n_transient=args.transient)
+        common = ("inertia",) * args.common_inertia + ("damping",) * args.common_damping
+        result = tv.identify_recording(
+            data, n_basis=args.basis, n_transient=args.transient, common=common
+        )
     for w in caught:
         print(f"rtsid tv: warning: {w.message}", file=sys.stderr)
     print(tv.format_report(result, rows=max(2, args.times)))

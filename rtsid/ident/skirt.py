@@ -507,7 +507,12 @@ class LtvEstimate:
         return np.sqrt(self.basis(t).T ** 2 @ self.G_p_se**2)
 
     def fit_second_order(
-        self, t_s: ArrayLike | None = None, *, iterations: int = 8, weighted: bool = True
+        self,
+        t_s: ArrayLike | None = None,
+        *,
+        iterations: int = 8,
+        weighted: bool = True,
+        common: tuple[str, ...] = (),
     ) -> SecondOrderTrack:
         """Fit ``1/(K − Iω² + jBω)`` to ``G(jω_e, t)`` at each time.
 
@@ -525,6 +530,11 @@ class LtvEstimate:
         weighted : bool
             Weight each line by its inverse variance (lines far above the resonance carry
             little output and are noisy).
+        common : tuple of str
+            Parameters held constant over the times, fitted jointly: ``("inertia",)`` when
+            the inertia is known not to change (it does not for a joint, and the high lines
+            that determine it are the noisiest), ``("inertia", "damping")`` for a plant
+            whose damping is constant too. ``K`` is always free per time.
 
         Returns
         -------
@@ -543,7 +553,11 @@ class LtvEstimate:
             if np.all(np.isfinite(se)) and np.all(se > 0):
                 line_weights = 1.0 / se**2
         theta, fit_error = fit_admittance(
-            g, 2 * np.pi * self.frequencies_hz, iterations, line_weights=line_weights
+            g,
+            2 * np.pi * self.frequencies_hz,
+            iterations,
+            line_weights=line_weights,
+            common=common,
         )
         k, inertia, damping = theta[:, 0], theta[:, 1], theta[:, 2]
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -558,13 +572,24 @@ def fit_admittance(
     iterations: int = 8,
     *,
     line_weights: FloatArray | None = None,
+    common: tuple[str, ...] = (),
 ) -> tuple[FloatArray, FloatArray]:
     """Fit ``1/(K − Iω² + jBω)`` to rows of ``g`` (shape (n_times, n_lines)).
 
     ``line_weights`` (same shape as ``g``, default 1) weight the output error of each line.
+    ``common`` names parameters (``"inertia"``, ``"damping"``) held equal at all times: they
+    are fitted jointly over every row while ``K`` (and the others) stay free per row.
     Returns ``theta`` of shape (n_times, 3) with columns ``K, I, B`` and the relative misfit
     ``‖G − Ĝ‖/‖G‖`` per row.
     """
+    names = ("stiffness", "inertia", "damping")
+    unknown = set(common) - set(names[1:])
+    if unknown:
+        raise InputDataError(
+            f"common parameters must be among 'inertia', 'damping', got {sorted(unknown)}"
+        )
+    shared = [names.index(c) for c in names if c in common]
+    free = [i for i in range(3) if i not in shared]
     a = np.stack([g, -(w_rad_s**2) * g, 1j * w_rad_s * g], axis=-1)  # (T, E, 3)
     base = np.ones(g.shape) if line_weights is None else np.asarray(line_weights, float)
     weights = base / np.maximum(np.abs(g) ** 2, 1e-300)  # first pass ≈ output error
@@ -573,13 +598,42 @@ def fit_admittance(
         wa = weights[..., None] * a
         normal = np.einsum("tei,tej->tij", wa.conj(), a).real
         rhs = np.sum(wa.conj(), axis=1).real
-        theta = _solve_batched(normal, rhs)
+        theta = _solve_shared(normal, rhs, free, shared) if shared else _solve_batched(normal, rhs)
         z = theta[:, :1] - theta[:, 1:2] * w_rad_s**2 + 1j * theta[:, 2:3] * w_rad_s
         weights = base / np.maximum(np.abs(z) ** 2, 1e-300)
     with np.errstate(divide="ignore", invalid="ignore"):
         model = 1.0 / z
         err = np.linalg.norm(g - model, axis=1) / np.linalg.norm(g, axis=1)
     return theta, err
+
+
+def _solve_shared(
+    normal: FloatArray, rhs: FloatArray, free: list[int], shared: list[int]
+) -> FloatArray:
+    """Per-row normal equations with the ``shared`` unknowns common to all rows.
+
+    Eliminates each row's ``free`` unknowns (Schur complement), solves the small common
+    system summed over rows, then back-substitutes.
+    """
+    m_ff = normal[:, free][:, :, free]
+    m_fc = normal[:, free][:, :, shared]
+    m_cc = normal[:, shared][:, :, shared]
+    r_f, r_c = rhs[:, free], rhs[:, shared]
+    scale = np.sqrt(np.abs(np.einsum("tii->ti", m_ff)))
+    scale[scale == 0] = 1.0
+    m_ff_s = m_ff / (scale[:, :, None] * scale[:, None, :])
+    x = np.linalg.pinv(m_ff_s) @ (np.concatenate([m_fc, r_f[..., None]], axis=2) / scale[..., None])
+    x /= scale[..., None]  # M_ff^{-1} [M_fc | r_f]
+    x_c, x_r = x[..., :-1], x[..., -1]
+    schur = np.sum(m_cc - np.transpose(m_fc, (0, 2, 1)) @ x_c, axis=0)
+    target = np.sum(r_c - np.einsum("tfc,tf->tc", m_fc, x_r), axis=0)
+    d = np.sqrt(np.abs(np.diag(schur)))
+    d[d == 0] = 1.0
+    common_values = np.linalg.lstsq(schur / np.outer(d, d), target / d, rcond=None)[0] / d
+    theta = np.empty_like(rhs)
+    theta[:, shared] = common_values
+    theta[:, free] = x_r - x_c @ common_values
+    return theta
 
 
 def _solve_batched(normal: FloatArray, rhs: FloatArray) -> FloatArray:

@@ -154,6 +154,24 @@ def test_second_order_fit_recovers_k_b_i_exactly():
     assert np.all(err < 1e-9)
 
 
+def test_common_inertia_is_fitted_jointly_while_stiffness_stays_free():
+    w = 2 * np.pi * np.arange(1.0, 10.0)
+    k = np.linspace(0.4, 6.0, 25)
+    g = admittance(k[:, None], w[None, :])
+    rng = np.random.default_rng(2)
+    noisy = g * (1 + 0.02 * (rng.standard_normal(g.shape) + 1j * rng.standard_normal(g.shape)))
+    free, _ = fit_admittance(noisy, w)
+    held, _ = fit_admittance(noisy, w, common=("inertia",))
+    assert np.ptp(held[:, 1]) == 0.0  # one inertia for every time
+    assert held[0, 1] == pytest.approx(INERTIA, rel=0.01)
+    assert np.std(held[:, 0] - k) < np.std(free[:, 0] - k)
+    exact, _ = fit_admittance(g, w, common=("inertia", "damping"))
+    np.testing.assert_allclose(exact[:, 0], k, rtol=1e-8)
+    np.testing.assert_allclose(exact[:, 2], DAMPING, rtol=1e-8)
+    with pytest.raises(InputDataError, match="'inertia', 'damping'"):
+        fit_admittance(g, w, common=("mass",))
+
+
 def test_resonance_from_peak_picks_the_line_of_largest_gain(ms):
     g = admittance(3.2, 2 * np.pi * ms.frequencies_hz)  # f_n = 2.01 Hz
     est = LtvEstimate(
