@@ -69,6 +69,14 @@ def test_common_inertia_option_holds_one_inertia(small_experiment, tmp_path):
     assert table["inertia_nms2_per_rad"][0] == pytest.approx(exp.inertia, rel=0.15)
 
 
+def test_auto_basis_takes_the_largest_well_conditioned_n_p(small_experiment, capsys):
+    path, _ = small_experiment
+    assert main(["tv", str(path), "-p", "auto", "--times", "2"]) == 0
+    assert "N_p = 20 (auto" in capsys.readouterr().out
+    assert main(["tv", str(path), "-p", "many"]) == 2
+    assert "positive integer or 'auto'" in capsys.readouterr().err
+
+
 def test_too_many_basis_functions_print_a_warning(small_experiment, capsys):
     path, _ = small_experiment
     assert main(["tv", str(path), "-p", "24", "--times", "2"]) == 0

@@ -7,6 +7,7 @@ import sys
 import warnings
 
 from rtsid.errors import InputDataError
+from rtsid.ident.skirt import WARN_VARIANCE_INFLATION as WARN
 from rtsid.ident.skirt import SkirtConditioningWarning
 
 
@@ -17,7 +18,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=".npz with torque_nm, position_rad, fs_hz, excited_bins, period_samples",
     )
     parser.add_argument(
-        "--basis", "-p", type=int, default=8, metavar="N_P", help="Legendre polynomials N_p (8)"
+        "--basis",
+        "-p",
+        default="8",
+        metavar="N_P",
+        help="Legendre polynomials N_p (8), or 'auto': the largest well-conditioned N_p ≤ 20",
     )
     parser.add_argument(
         "--transient",
@@ -79,11 +84,18 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         tv.require_matplotlib()  # fail before the work, not after
     data = tv.load_tv_npz(args.recording, trim=args.trim)
+    if args.basis == "auto":
+        n_basis = tv.auto_basis(data)
+        print(f"N_p = {n_basis} (auto: largest ≤ 20 with variance inflation ≤ {WARN:g})")
+    elif args.basis.isdigit() and int(args.basis) >= 1:
+        n_basis = int(args.basis)
+    else:
+        raise InputDataError(f"--basis must be a positive integer or 'auto', got {args.basis!r}")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", SkirtConditioningWarning)
         common = ("inertia",) * args.common_inertia + ("damping",) * args.common_damping
         result = tv.identify_recording(
-            data, n_basis=args.basis, n_transient=args.transient, common=common
+            data, n_basis=n_basis, n_transient=args.transient, common=common
         )
     for w in caught:
         print(f"rtsid tv: warning: {w.message}", file=sys.stderr)
