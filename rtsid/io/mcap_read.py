@@ -114,7 +114,10 @@ def _iter_records(path: str | Path, report: ReadReport) -> Iterator[Any]:
                     raise RecordingError(
                         f"{str(path)!r} is empty or shorter than an MCAP header; nothing to read"
                     ) from None
-                report.error = "file ends inside a record (writer stopped without a footer)"
+                report.error = (
+                    "no footer: the writer stopped before finishing the file "
+                    "(kill -9, crash or full disk)"
+                )
                 return
             except damage as exc:
                 report.error = f"damaged record after {report.messages} messages: {exc}"

@@ -280,13 +280,18 @@ class ZenohPublisher:
     def publish_samples(
         self,
         first_index: int,
-        fs_hz: float,
         position_rad: Any,
         torque_nm: Any,
         valid: Any,
         status: Any,
+        *,
+        fs_hz: float,
     ) -> bool:
-        """Publish a batch of raw samples when ``publish_samples`` is on (else returns False)."""
+        """Publish a batch of raw samples when ``publish_samples`` is on (else returns False).
+
+        Same arguments as :meth:`rtsid.io.mcap_log.McapLogger.log_samples` plus the sample
+        rate; encoded on the calling thread (≈ 0.6 ms for 250 samples).
+        """
         if not self.cfg.publish_samples:
             return False
         payload = encode_samples(first_index, fs_hz, position_rad, torque_nm, valid, status)
@@ -406,10 +411,10 @@ class ZenohPublisher:
         import zenoh
 
         try:
-            with query:
+            with query:  # dropping the query finalizes it for the caller
                 query.reply(self.keys[name], snapshot, encoding=zenoh.Encoding.APPLICATION_JSON)
-            with self._count_lock:
-                self._queries += 1
+                with self._count_lock:
+                    self._queries += 1
         except Exception as exc:  # never let an exception escape into zenoh's thread
             self._record_error(f"zenoh reply on {self.keys[name]} failed: {exc}")
 

@@ -109,7 +109,7 @@ def test_publish_liveliness_and_queryables_in_process() -> None:
         assert pub.stats()["state"] == "up"
         sub = sub_session.declare_subscriber(keys["estimate"], zenoh.handlers.FifoChannel(64))
         received: list[dict[str, Any]] = []
-        for seq in range(200):  # bounded: until the subscription has propagated
+        for seq in range(1000):  # bounded: until the subscription has propagated
             assert pub.publish_estimate(estimate(seq))
             sample = sub.try_recv()
             if sample is not None:
@@ -126,7 +126,7 @@ def test_publish_liveliness_and_queryables_in_process() -> None:
         status_replies = list(sub_session.get(keys["status"], timeout=5))
         assert json.loads(status_replies[0].ok.payload.to_bytes())["uptime_s"] == 3.0
         assert pub.stats()["queries"] == 2 and pub.stats()["errors"] == 0
-        assert not pub.publish_samples(0, 2500.0, [0.0], [0.0], [True], [0])  # off by default
+        assert not pub.publish_samples(0, [0.0], [0.0], [True], [0], fs_hz=2500.0)  # off by default
     assert pub.stats()["state"] == "closed"
 
 
@@ -207,3 +207,35 @@ def test_cross_process_subscriber_receives_and_its_departure_is_harmless() -> No
         child.join(timeout=10)
         out.close()
         out.join_thread()
+
+
+def test_samples_are_published_when_enabled() -> None:
+    from rtsid.io.schemas import decode_samples
+
+    port = free_port()
+    cfg = config(port, publish_samples=True)
+    with (
+        ZenohPublisher(cfg) as pub,
+        zenoh.open(subscriber_config((f"tcp/127.0.0.1:{port}",), mode="client")) as session,
+    ):
+        sub = session.declare_subscriber(
+            key_expressions(cfg)["samples"], zenoh.handlers.FifoChannel(64)
+        )
+        sample = None
+        for k in range(1000):  # bounded: until the subscription has propagated
+            assert pub.publish_samples(
+                k * 3,
+                [0.1, float("nan"), 0.3],
+                [1.0, 2.0, 3.0],
+                [True, False, True],
+                [0, 1, 0],
+                fs_hz=2500.0,
+            )
+            sample = sub.try_recv()
+            if sample is not None:
+                break
+            time.sleep(0.01)
+        assert sample is not None
+        batch = decode_samples(sample.payload.to_bytes())
+        assert batch.fs_hz == 2500.0 and batch.valid.tolist() == [True, False, True]
+        assert batch.position_rad[0] == 0.1 and batch.torque_nm[2] == 3.0
