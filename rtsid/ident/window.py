@@ -266,6 +266,9 @@ def _parameter_covariance(
     noise_lags = min(n_h, residual.size - 1)
     phi_ee = auto_correlation(residual, noise_lags)
     phi_uu = auto_correlation(u, n_h - 1 + noise_lags)
+    # Bartlett taper: the truncated residual autocorrelation then has a non-negative
+    # spectrum (Fejér-smoothed), so C_φ is positive semi-definite and no variance is < 0.
+    phi_ee = phi_ee * (1.0 - np.arange(noise_lags + 1) / (noise_lags + 1))
     ee = np.concatenate((phi_ee[:0:-1], phi_ee))
     uu = np.concatenate((phi_uu[noise_lags:0:-1], phi_uu))
     c = np.correlate(uu, ee, mode="valid")[:n_h] / u.size

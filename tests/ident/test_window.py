@@ -140,3 +140,20 @@ def test_real_recording_whole_record_matches_the_reference(reklab_path):
     assert 0.6 < est.B < 1.8
     assert 70.0 < est.vaf < 90.0
     assert est.vaf_irf > 80.0
+
+
+def test_standard_errors_are_positive_for_a_servoed_prbs_perturbation():
+    # PRBS through a position servo (what the virtual plant sends) once made the
+    # cross-correlation covariance indefinite and a variance clip to zero.
+    from rtsid.ident.excitation import prbs
+    from rtsid.sim.joint import robot_servo
+
+    rng = np.random.default_rng(11)
+    theta = robot_servo(prbs(25_000, 0.03, min_hold=31, seed=rng), FS, 60.0)
+    tau = simulate_impedance(theta, FS, ANKLE, noise_percent=3.0, seed=rng)
+    z = []
+    for start in range(0, theta.size - 750, 400):
+        est = estimate_window(theta[start : start + 750], tau[start : start + 750], FS)
+        assert est.K_se > 0 and est.B_se > 0 and est.I_se > 0
+        z.append((est.K - 150.0) / est.K_se)
+    assert np.mean(np.abs(z) > 3) < 0.05

@@ -1,0 +1,78 @@
+"""``rtsid run``: the daemon. With no config it runs on the embedded virtual plant."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from typing import Any
+
+from rtsid.runtime.daemon import Daemon, DaemonConfig
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", metavar="TOML", help="daemon config (default: virtual plant)")
+    parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    parser.add_argument("--quiet", action="store_true", help="no console line per status")
+
+
+def _fmt(value: Any, spec: str) -> str:
+    return "—" if value is None else format(value, spec)
+
+
+def status_line(status: dict[str, Any], estimate: dict[str, Any] | None) -> str:
+    """One console line: the newest estimate and the health counters."""
+    acq, worker = status.get("acquisition", {}), status.get("worker", {})
+    withheld = sum(worker.get("withheld", {}).values())
+    head = f"t={status.get('uptime_s', 0):6.1f}s"
+    if estimate is None:
+        est = "waiting for the first window"
+    elif estimate["ok"]:
+        est = (
+            f"K={_fmt(estimate['K'], '7.1f')}±{_fmt(estimate['K_se'], '.1f')} N·m/rad  "
+            f"B={_fmt(estimate['B'], '.3f')}  I={_fmt(estimate['I'], '.4f')}  "
+            f"VAF={_fmt(estimate['vaf'], '5.1f')}%  latency={estimate['latency_ms']:.1f} ms"
+        )
+    else:
+        est = f"withheld: {estimate['reason']}"
+    health = (
+        f"[{worker.get('estimates', 0)} estimates, {withheld} withheld, "
+        f"{worker.get('deadline_misses', 0)} misses, {acq.get('lost_samples', 0)} lost, "
+        f"cpu {status.get('cpu_percent', 0):.0f}%]"
+    )
+    return f"{head}  {est}  {health}"
+
+
+def run(args: argparse.Namespace) -> int:
+    config = DaemonConfig.load(args.config)
+
+    def show(status: dict[str, Any], estimate: dict[str, Any] | None) -> None:
+        print(status_line(status, estimate), flush=True)
+
+    daemon = Daemon(config, on_status=None if args.quiet else show)
+    previous = {
+        sig: signal.signal(sig, lambda *_: daemon.request_stop())
+        for sig in (signal.SIGINT, signal.SIGTERM)
+    }
+    source = config.link.interface
+    if source == "embedded":
+        source = f"embedded virtual plant ({config.plant.mode})"
+    print(
+        f"rtsid run: {source}, {config.worker.window_s * 1e3:.0f} ms windows every "
+        f"{config.worker.hop_s * 1e3:.0f} ms; zenoh {', '.join(config.zenoh.listen) or 'off'}; "
+        f"MCAP in {config.mcap.directory}. Ctrl-C stops.",
+        flush=True,
+    )
+    try:
+        summary = daemon.run(duration_s=args.duration)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    print(
+        f"rtsid run: stopped — {summary.estimates} estimates, withheld {summary.withheld or 0}, "
+        f"{summary.deadline_misses} deadline misses, {summary.samples} samples "
+        f"({summary.lost_samples} lost), MCAP: {', '.join(summary.mcap_files) or 'none'}"
+        f"{'' if summary.clean_shutdown else ' (shutdown was not clean)'}",
+        file=sys.stderr,
+    )
+    return 0 if summary.clean_shutdown else 1

@@ -1,0 +1,2 @@
+"""The live service: absolute-deadline clock, window worker and the daemon that wires
+link → ring → worker → zenoh + MCAP."""

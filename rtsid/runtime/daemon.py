@@ -1,0 +1,300 @@
+"""The daemon: link → ring → window worker → zenoh + MCAP, with status and a bounded shutdown.
+
+Threads: acquisition (link), window worker, MCAP writer, zenoh's own; the calling thread runs
+the housekeeping loop — forwarding every sample from the ring to the MCAP log (and optionally to
+zenoh) and publishing status — on absolute deadlines until asked to stop.
+
+Shutdown order keeps every sample: worker, then acquisition, then a last forward of the ring,
+then the MCAP file is finished, zenoh closed and the embedded plant stopped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from rtsid import __version__
+from rtsid.config import load_toml, require_range, section_from_mapping
+from rtsid.errors import ConfigError
+from rtsid.ident.window import EstimatorOptions
+from rtsid.io.mcap_log import McapConfig, McapLogger
+from rtsid.io.procstats import ProcessMeter
+from rtsid.io.zenoh_link import ZenohConfig, ZenohPublisher
+from rtsid.link.acquisition import Acquisition
+from rtsid.link.config import LinkConfig, PlantConfig, link_configs_from_mapping
+from rtsid.link.open import open_link
+from rtsid.link.ring import RingBuffer
+from rtsid.runtime.clock import Deadlines
+from rtsid.runtime.worker import WindowWorker, WorkerConfig
+
+__all__ = ["Daemon", "DaemonConfig", "DaemonSettings", "RunSummary"]
+
+log = logging.getLogger(__name__)
+
+SECTIONS = ("daemon", "link", "plant", "estimator", "worker", "mcap", "zenoh")
+
+
+@dataclass(frozen=True)
+class DaemonSettings:
+    """The ``[daemon]`` config section.
+
+    Attributes
+    ----------
+    status_period_s : float
+        Period of the status message, s (1–2 Hz is usual).
+    sample_batch_s : float
+        Samples are forwarded to MCAP (and zenoh) in batches this long, s.
+    shutdown_timeout_s : float
+        Longest wait for each thread to stop, s.
+    """
+
+    status_period_s: float = 0.5
+    sample_batch_s: float = 0.1
+    shutdown_timeout_s: float = 3.0
+
+    def __post_init__(self) -> None:
+        require_range("status_period_s", self.status_period_s, 0.05, 60.0)
+        require_range("sample_batch_s", self.sample_batch_s, 0.005, 5.0)
+        require_range("shutdown_timeout_s", self.shutdown_timeout_s, 0.1, 60.0)
+
+
+@dataclass(frozen=True)
+class DaemonConfig:
+    """The whole configuration of ``rtsid run`` (one TOML file, one section per part)."""
+
+    daemon: DaemonSettings = field(default_factory=DaemonSettings)
+    link: LinkConfig = field(default_factory=LinkConfig)
+    plant: PlantConfig = field(default_factory=PlantConfig)
+    estimator: EstimatorOptions = field(default_factory=EstimatorOptions)
+    worker: WorkerConfig = field(default_factory=WorkerConfig)
+    mcap: McapConfig = field(default_factory=McapConfig)
+    zenoh: ZenohConfig = field(default_factory=ZenohConfig)
+
+    @classmethod
+    def from_mapping(
+        cls, document: Mapping[str, Any], base_dir: str | Path | None = None
+    ) -> DaemonConfig:
+        """Validate a parsed TOML document; unknown sections and keys are errors."""
+        unknown = sorted(set(document) - set(SECTIONS))
+        if unknown:
+            raise ConfigError(
+                f"unknown config section [{unknown[0]}]; accepted sections: "
+                + ", ".join(f"[{s}]" for s in SECTIONS)
+            )
+        for name in SECTIONS:
+            if name in document and not isinstance(document[name], Mapping):
+                raise ConfigError(f"config key {name!r} must be a table [{name}]")
+        link, plant = link_configs_from_mapping(document, base_dir)
+        return cls(
+            daemon=section_from_mapping(DaemonSettings, document.get("daemon"), "daemon"),
+            link=link,
+            plant=plant,
+            estimator=section_from_mapping(
+                EstimatorOptions, document.get("estimator"), "estimator"
+            ),
+            worker=WorkerConfig.from_mapping(document.get("worker")),
+            mcap=McapConfig.from_mapping(document.get("mcap")),
+            zenoh=ZenohConfig.from_mapping(document.get("zenoh")),
+        )
+
+    @classmethod
+    def load(cls, path: str | Path | None) -> DaemonConfig:
+        """From a TOML file, or all defaults (embedded virtual plant) when ``path`` is None."""
+        if path is None:
+            return cls()
+        return cls.from_mapping(load_toml(path), Path(path).resolve().parent)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Every section as plain data (for MCAP metadata and the ``config`` queryable)."""
+        return {name: _plain(getattr(self, name)) for name in SECTIONS}
+
+
+def _plain(value: Any) -> Any:
+    """Dataclasses, mappings and tuples as dicts and lists of plain values."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, tuple | list):
+        return [_plain(v) for v in value]
+    return value
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    """What a run did (printed by ``rtsid run`` at exit)."""
+
+    estimates: int
+    withheld: dict[str, int]
+    deadline_misses: int
+    overruns: int
+    samples: int
+    lost_samples: int
+    mcap_files: list[str]
+    mcap_dropped: int
+    clean_shutdown: bool
+
+
+class Daemon:
+    """Wire and run everything for one joint.
+
+    Parameters
+    ----------
+    config : DaemonConfig
+        The whole configuration.
+    on_status : callable, optional
+        Called on the housekeeping thread with each status message and the newest estimate
+        message (or None) — e.g. to print a line to the console.
+    """
+
+    def __init__(
+        self,
+        config: DaemonConfig,
+        on_status: Callable[[dict[str, Any], dict[str, Any] | None], None] | None = None,
+    ) -> None:
+        self.config = config
+        self.on_status = on_status
+        self.last_estimate: dict[str, Any] | None = None
+        self.stop_event = threading.Event()
+        self.meter = ProcessMeter()
+        self._cursor = -1
+        self._overwritten = 0
+        self.worker: WindowWorker | None = None
+        self.acquisition: Acquisition | None = None
+
+    def request_stop(self) -> None:
+        """Ask :meth:`run` to shut down (safe from a signal handler)."""
+        self.stop_event.set()
+
+    def run(self, duration_s: float | None = None) -> RunSummary:
+        """Run until :meth:`request_stop` (or for ``duration_s``); returns a summary."""
+        cfg = self.config
+        robot, joint = cfg.zenoh.robot, cfg.zenoh.joint
+        run_config = self.config.as_dict()
+        with open_link(cfg.link, cfg.plant, start_plant=False) as handle:
+            ring = handle.make_ring()
+            mcap = McapLogger(
+                cfg.mcap,
+                robot=robot,
+                joint=joint,
+                fs_hz=cfg.link.fs_hz,
+                run_config=run_config,
+                metadata={"software": f"rtsid {__version__}"},
+            )
+            with mcap, ZenohPublisher(cfg.zenoh, run_config=run_config) as zenoh:
+                acquisition = handle.make_acquisition(ring)
+                self.acquisition = acquisition
+                acquisition.start(require_bus=False)
+                if handle.plant is not None:
+                    handle.plant.start()
+                worker = WindowWorker(
+                    ring,
+                    cfg.link.fs_hz,
+                    cfg.worker,
+                    cfg.estimator,
+                    lambda msg: self._publish_estimate(msg, mcap, zenoh),
+                    robot=robot,
+                    joint=joint,
+                )
+                self.worker = worker
+                worker.start()
+                clean = True
+                try:
+                    self._housekeeping(ring, mcap, zenoh, duration_s)
+                finally:
+                    timeout = cfg.daemon.shutdown_timeout_s
+                    clean &= worker.stop(timeout)
+                    clean &= acquisition.stop(timeout)
+                    self._forward_samples(ring, mcap, zenoh)
+                    self._publish_status(mcap, zenoh)
+            clean &= not mcap.stats().get("errors", 0)
+        return self._summary(mcap, clean)
+
+    # ------------------------------------------------------------------ housekeeping
+    def _housekeeping(
+        self, ring: RingBuffer, mcap: McapLogger, zenoh: ZenohPublisher, duration_s: float | None
+    ) -> None:
+        settings = self.config.daemon
+        ticks = Deadlines(settings.sample_batch_s)
+        status_every = max(1, round(settings.status_period_s / settings.sample_batch_s))
+        end = None if duration_s is None else time.monotonic() + duration_s
+        tick = 0
+        while ticks.wait(self.stop_event):
+            self._forward_samples(ring, mcap, zenoh)
+            tick += 1
+            if tick % status_every == 0:
+                self._publish_status(mcap, zenoh)
+            if self.worker is not None and self.worker.error is not None:
+                log.error("window worker failed: %r; stopping", self.worker.error)
+                break
+            if end is not None and time.monotonic() >= end:
+                break
+
+    def _forward_samples(self, ring: RingBuffer, mcap: McapLogger, zenoh: ZenohPublisher) -> None:
+        while True:
+            snap = ring.read_since(self._cursor, 4096)
+            self._overwritten += snap.overwritten
+            if len(snap) == 0:
+                return
+            first = int(snap.sample_index[0])
+            mcap.log_samples(first, snap.position_rad, snap.torque_nm, snap.valid, snap.status)
+            zenoh.publish_samples(
+                first,
+                snap.position_rad,
+                snap.torque_nm,
+                snap.valid,
+                snap.status,
+                fs_hz=self.config.link.fs_hz,
+            )
+            self._cursor = snap.next_index
+
+    def _publish_estimate(
+        self, message: dict[str, Any], mcap: McapLogger, zenoh: ZenohPublisher
+    ) -> None:
+        zenoh.publish_estimate(message)
+        mcap.log_estimate(message)
+        self.last_estimate = message
+
+    def _status(self, mcap: McapLogger, zenoh: ZenohPublisher) -> dict[str, Any]:
+        acq = dataclasses.asdict(self.acquisition.counters()) if self.acquisition else {}
+        acq["logger_overwritten"] = self._overwritten
+        worker = dataclasses.asdict(self.worker.counters()) if self.worker else {}
+        return {
+            "robot": self.config.zenoh.robot,
+            "joint": self.config.zenoh.joint,
+            "host_time_ns": time.time_ns(),
+            **self.meter.sample(),
+            "acquisition": acq,
+            "worker": worker,
+            "mcap": mcap.stats(),
+            "zenoh": zenoh.stats(),
+        }
+
+    def _publish_status(self, mcap: McapLogger, zenoh: ZenohPublisher) -> None:
+        status = self._status(mcap, zenoh)
+        zenoh.publish_status(status)
+        mcap.log_status(status)
+        if self.on_status is not None:
+            self.on_status(status, self.last_estimate)
+
+    def _summary(self, mcap: McapLogger, clean: bool) -> RunSummary:
+        worker = self.worker.counters() if self.worker else None
+        acq = self.acquisition.counters() if self.acquisition else None
+        stats = mcap.stats()
+        return RunSummary(
+            estimates=worker.estimates if worker else 0,
+            withheld=worker.withheld if worker else {},
+            deadline_misses=worker.deadline_misses if worker else 0,
+            overruns=worker.overruns if worker else 0,
+            samples=acq.samples if acq else 0,
+            lost_samples=acq.lost_samples if acq else 0,
+            mcap_files=[str(p) for p in mcap.files],
+            mcap_dropped=int(stats.get("dropped", 0)),
+            clean_shutdown=clean,
+        )
