@@ -75,6 +75,7 @@ class JointView:
     estimates: int = 0
     withheld: int = 0
     last_age_ms: float | None = None
+    alive: bool | None = None  # liveliness token seen (True) / withdrawn (False)
 
 
 @dataclass
@@ -107,6 +108,13 @@ class WatchState:
         if isinstance(message.get("host_time_ns"), int):
             view.last_age_ms = (received_ns - message["host_time_ns"]) / 1e6
         return message
+
+    def set_alive(self, token_key: str, alive: bool) -> str:
+        """Record a liveliness change of ``<prefix>/<robot>/<joint>/alive``; returns the
+        ``robot/joint`` name."""
+        name = "/".join(token_key.rstrip("/").split("/")[-3:-1])
+        self.joints.setdefault(name, JointView()).alive = alive
+        return name
 
 
 def _status_line(name: str, s: Mapping[str, Any]) -> str:
@@ -153,8 +161,9 @@ def render_view(state: WatchState, *, title: str, now_s: float | None = None) ->
         lines.append("  (waiting for estimates…)")
     for name, view in sorted(state.joints.items()):
         e = view.estimate
+        gone = " — DAEMON GONE (liveliness lost)" if view.alive is False else ""
         if e is None:
-            lines.append(f"{name:<18}{'-':>8}")
+            lines.append(f"{name:<18}{'-':>8}{gone}")
             continue
         ok = bool(e.get("ok"))
         state_txt = "ok" if ok else f"withheld: {e.get('reason')}"
@@ -167,7 +176,7 @@ def render_view(state: WatchState, *, title: str, now_s: float | None = None) ->
             f"{_pm(e, 'I', '.5f') if ok else '-':>18}  "
             f"{_num(e.get('vaf'), '.1f') if ok else '-':>6}  "
             f"{_num(e.get('latency_ms'), '.1f'):>7}  {_num(view.last_age_ms, '.1f'):>7}  "
-            f"{state_txt}"
+            f"{state_txt}{gone}"
         )
     lines += ["", "status:"]
     shown = False
@@ -243,6 +252,9 @@ def watch(
                 session.declare_subscriber(f"{key}/{name}", zenoh.handlers.RingChannel(1024))
                 for name in ("estimate", "status")
             ]
+            alive = session.liveliness().declare_subscriber(
+                f"{key}/alive", zenoh.handlers.RingChannel(64), history=True
+            )
             print(
                 f"rtsid watch: waiting for estimates on {key}/estimate via {', '.join(connect)}",
                 file=sys.stderr,
@@ -264,6 +276,18 @@ def watch(
                         seen += 1
                         if not live:
                             print(format_estimate_line(est, rx_ns), file=out, flush=True)
+                token = alive.try_recv()
+                if token is not None:
+                    got = True
+                    up = token.kind == zenoh.SampleKind.PUT
+                    name = state.set_alive(str(token.key_expr), up)
+                    if not live:
+                        print(
+                            f"rtsid watch: {name} "
+                            + ("daemon alive" if up else "daemon gone (liveliness token lost)"),
+                            file=sys.stderr,
+                            flush=True,
+                        )
                 if live and now >= next_draw:
                     out.write(_CLEAR + render_view(state, title=title) + "\n")
                     out.flush()

@@ -198,3 +198,64 @@ def test_watch_rejects_bad_arguments(capsys: Any) -> None:
 
     assert main(["watch", "--count", "0"]) == 2
     assert "--count 0" in capsys.readouterr().err
+
+
+def test_render_marks_a_daemon_whose_liveliness_token_is_gone() -> None:
+    state = WatchState()
+    state.update("rtsid/rig/ankle/estimate", encode_estimate(estimate(3)), 0)
+    assert state.set_alive("rtsid/rig/ankle/alive", False) == "rig/ankle"
+    text = render_view(state, title="t", now_s=0.0)
+    assert "DAEMON GONE" in next(line for line in text.splitlines() if line.startswith("rig/ankle"))
+    state.set_alive("rtsid/rig/ankle/alive", True)
+    assert "DAEMON GONE" not in render_view(state, title="t", now_s=0.0)
+
+
+def test_watch_reports_a_daemon_that_goes_away(tmp_path: Any) -> None:
+    port = free_port()
+    ctx = mp.get_context("spawn")
+    stop = ctx.Event()
+    publisher = ctx.Process(target=_publish_until_stopped, args=(port, stop))
+    out_path = tmp_path / "watch.out"
+    with out_path.open("w") as out_file:
+        watcher = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "rtsid.cli",
+                "watch",
+                "--connect",
+                f"tcp/127.0.0.1:{port}",
+                "--timeout",
+                "60",
+            ],
+            stdout=out_file,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            assert watcher.stderr is not None
+            assert "waiting for estimates" in watcher.stderr.readline()
+            publisher.start()
+            assert watcher.stderr.readline().strip() == "rtsid watch: rig/ankle daemon alive"
+            deadline = time.monotonic() + 30
+            while len(out_path.read_text().splitlines()) < 3:  # bounded by the deadline
+                assert time.monotonic() < deadline, "no estimates reached the watcher"
+                time.sleep(0.05)
+            stop.set()
+            publisher.join(timeout=20)
+            gone = watcher.stderr.readline().strip()
+            assert gone == "rtsid watch: rig/ankle daemon gone (liveliness token lost)"
+            os.kill(watcher.pid, signal.SIGINT)
+            watcher.communicate(timeout=20)
+        finally:
+            stop.set()
+            if watcher.poll() is None:
+                watcher.kill()
+                watcher.communicate(timeout=10)
+            if publisher.pid is not None:
+                publisher.join(timeout=20)
+                if publisher.is_alive():
+                    publisher.kill()
+                    publisher.join(timeout=10)
+    assert watcher.returncode == 0
+    assert all(line.startswith("rig/ankle seq=") for line in out_path.read_text().splitlines())
