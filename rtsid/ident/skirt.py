@@ -566,6 +566,10 @@ class LtvEstimate:
         return SecondOrderTrack(t, k, damping, inertia, fn, fit_error)
 
 
+#: Times per block in the (independent-row) second-order fit.
+_FIT_CHUNK = 4096
+
+
 def fit_admittance(
     g: ComplexArray,
     w_rad_s: FloatArray,
@@ -590,14 +594,28 @@ def fit_admittance(
         )
     shared = [names.index(c) for c in names if c in common]
     free = [i for i in range(3) if i not in shared]
-    a = np.stack([g, -(w_rad_s**2) * g, 1j * w_rad_s * g], axis=-1)  # (T, E, 3)
+    if not shared and g.shape[0] > _FIT_CHUNK:  # rows are independent: bound the memory
+        parts = [
+            fit_admittance(
+                g[i : i + _FIT_CHUNK],
+                w_rad_s,
+                iterations,
+                line_weights=None if line_weights is None else line_weights[i : i + _FIT_CHUNK],
+            )
+            for i in range(0, g.shape[0], _FIT_CHUNK)
+        ]
+        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+    # Columns a_tei = g_te·c_ei with c_e = (1, −ω_e², jω_e): the normal equations are
+    # matrix products over lines instead of a (T, E, 3) temporary.
+    c = np.stack([np.ones_like(w_rad_s), -(w_rad_s**2), 1j * w_rad_s], axis=-1)  # (E, 3)
+    cc = (c.conj()[:, :, None] * c[:, None, :]).real.reshape(-1, 9)  # (E, 9)
+    g_abs2 = np.abs(g) ** 2
     base = np.ones(g.shape) if line_weights is None else np.asarray(line_weights, float)
-    weights = base / np.maximum(np.abs(g) ** 2, 1e-300)  # first pass ≈ output error
+    weights = base / np.maximum(g_abs2, 1e-300)  # first pass ≈ output error
     theta = np.zeros((g.shape[0], 3))
     for _ in range(iterations + 1):
-        wa = weights[..., None] * a
-        normal = np.einsum("tei,tej->tij", wa.conj(), a).real
-        rhs = np.sum(wa.conj(), axis=1).real
+        normal = ((weights * g_abs2) @ cc).reshape(-1, 3, 3)
+        rhs = ((weights * g.conj()) @ c.conj()).real
         theta = _solve_shared(normal, rhs, free, shared) if shared else _solve_batched(normal, rhs)
         z = theta[:, :1] - theta[:, 1:2] * w_rad_s**2 + 1j * theta[:, 2:3] * w_rad_s
         weights = base / np.maximum(np.abs(z) ** 2, 1e-300)
@@ -622,7 +640,11 @@ def _solve_shared(
     scale = np.sqrt(np.abs(np.einsum("tii->ti", m_ff)))
     scale[scale == 0] = 1.0
     m_ff_s = m_ff / (scale[:, :, None] * scale[:, None, :])
-    x = np.linalg.pinv(m_ff_s) @ (np.concatenate([m_fc, r_f[..., None]], axis=2) / scale[..., None])
+    stacked = np.concatenate([m_fc, r_f[..., None]], axis=2) / scale[..., None]
+    try:
+        x = np.linalg.solve(m_ff_s, stacked)
+    except np.linalg.LinAlgError:
+        x = np.linalg.pinv(m_ff_s) @ stacked
     x /= scale[..., None]  # M_ff^{-1} [M_fc | r_f]
     x_c, x_r = x[..., :-1], x[..., -1]
     schur = np.sum(m_cc - np.transpose(m_fc, (0, 2, 1)) @ x_c, axis=0)
