@@ -1,10 +1,15 @@
-"""The window worker: every hop, the latest window from the ring → one estimate message.
+"""The window worker: every hop, one window from the ring → one estimate message.
 
-Runs on its own thread against absolute deadlines (:class:`~rtsid.runtime.clock.Deadlines`).
+Windows end on a fixed grid of sample indices — every ``hop`` samples (``end + 1`` a multiple
+of the hop) — so the windows do not depend on thread timing and a replay of the recording
+reproduces them exactly (same windows, same numbers). The worker thread sleeps until the
+window's last sample is due by the sample clock (absolute deadlines derived from the newest
+sample's arrival), so the time from that sample to the estimate is the compute time.
+
 A window is estimated only from contiguous, valid, unsaturated, fresh samples; otherwise the
-message says why (``ok: false`` and a ``reason``) — never a silent number. Work that overruns
-its budget is counted, and the worker then takes the newest window rather than catching up on
-stale ones.
+message says why (``ok: false`` and a ``reason``) — never a silent number. When the worker
+falls behind by a hop or more it skips to the newest window (stale work is dropped and
+counted as overruns); compute beyond the budget counts a deadline miss.
 """
 
 from __future__ import annotations
@@ -27,7 +32,6 @@ from rtsid.link.protocol import (
     STATUS_TORQUE_SATURATED,
 )
 from rtsid.link.ring import RingBuffer, Snapshot
-from rtsid.runtime.clock import Deadlines
 
 __all__ = ["WindowWorker", "WorkerConfig", "WorkerCounters", "assess_window"]
 
@@ -156,15 +160,15 @@ class WindowWorker:
         self.joint = joint
         self.torque_offset = torque_offset
         self.window_samples = round(config.window_s * fs_hz)
+        self.hop_samples = max(1, round(config.hop_s * fs_hz))
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._seq = 0
         self._withheld: Counter[str] = Counter()
         self._estimates = 0
         self._misses = 0
-        self._deadlines: Deadlines | None = None
+        self._overruns = 0
         self._compute_ms = 0.0
-        self._last_end_index = -1
         self.error: BaseException | None = None
 
     # ------------------------------------------------------------------ life cycle
@@ -194,38 +198,96 @@ class WindowWorker:
         return WorkerCounters(
             estimates=self._estimates,
             withheld=dict(self._withheld),
-            overruns=self._deadlines.skipped if self._deadlines else 0,
+            overruns=self._overruns,
             deadline_misses=self._misses,
             compute_ms_last=self._compute_ms,
         )
 
+    # ------------------------------------------------------------------ the grid
+    def first_window_end(self, first_index: int) -> int:
+        """The first grid window end whose window starts at or after ``first_index``."""
+        hop = self.hop_samples
+        earliest = first_index + self.window_samples - 1
+        return -(-(earliest + 1) // hop) * hop - 1
+
     # ------------------------------------------------------------------ the loop
     def _run(self) -> None:
-        self._deadlines = Deadlines(self.config.hop_s)
         try:
-            while self._deadlines.wait(self._stop):
-                self.step()
+            self._loop()
         except BaseException as exc:  # reported in status; the daemon decides what to do
             self.error = exc
             raise
 
-    def step(self) -> dict[str, Any] | None:
-        """Estimate the newest window now and publish the message (None while warming up)."""
+    def _loop(self) -> None:
+        hop_s = self.config.hop_s
+        next_end: int | None = None
+        next_stale_s = 0.0
+        while not self._stop.is_set():
+            newest = self.ring.newest_index
+            if newest < 0:
+                self._stop.wait(hop_s)
+                continue
+            if next_end is None:
+                next_end = self.first_window_end(self.ring.oldest_index)
+            if newest >= next_end:
+                behind = (newest - next_end) // self.hop_samples
+                if behind:
+                    self._overruns += behind
+                    next_end += behind * self.hop_samples
+                self.process_window(next_end)
+                next_end += self.hop_samples
+                continue
+            last = self.ring.latest(1)
+            now = time.monotonic()
+            arrived_s = float(last.host_time_s[-1]) if last is not None else now
+            if now - arrived_s > self.config.max_sample_age_s and now >= next_stale_s:
+                self._publish_stale(next_end)
+                next_stale_s = now + hop_s
+            due_s = arrived_s + (next_end - newest) / self.fs_hz
+            self._stop.wait(min(max(due_s - now, 2e-4), hop_s))
+
+    def process_window(
+        self, end_index: int, *, now_s: float | None = None
+    ) -> dict[str, Any] | None:
+        """Estimate the window ending at ``end_index`` and publish its message.
+
+        Parameters
+        ----------
+        end_index : int
+            Index of the window's last sample.
+        now_s : float, optional
+            Time (``time.monotonic()`` scale) against which staleness is judged; default
+            now. Replay passes the window's own arrival time, so a recording is never stale.
+
+        Returns
+        -------
+        dict or None
+            The message, or None when those samples are no longer (or not yet) in the ring.
+        """
         started = time.perf_counter()
-        snap = self.ring.latest(self.window_samples)
-        if snap is None:
+        start = end_index - self.window_samples + 1
+        snap = self.ring.read_since(start, self.window_samples)
+        if len(snap) != self.window_samples or int(snap.sample_index[0]) != start:
+            self._overruns += 1  # overwritten before we got to it
             return None
-        reason = assess_window(snap, time.monotonic(), self.config.max_sample_age_s)
-        if reason is None and int(snap.sample_index[-1]) == self._last_end_index:
-            reason = "stale"  # no new sample since the previous estimate
+        now = time.monotonic() if now_s is None else now_s
+        reason = assess_window(snap, now, self.config.max_sample_age_s)
         estimate, reason = self._estimate(snap, reason)
         compute_s = time.perf_counter() - started
         self._compute_ms = compute_s * 1e3
         if compute_s > self.config.effective_budget_s:
             self._misses += 1
-        message = self._message(snap, estimate, reason, compute_s)
+        message = self._message(
+            start, end_index, estimate, reason, compute_s, float(snap.host_time_s[-1])
+        )
         self.publish(message)
         return message
+
+    def _publish_stale(self, end_index: int) -> None:
+        """No samples are arriving: say so once per hop for the window that is due."""
+        self._withheld["stale"] += 1
+        start = end_index - self.window_samples + 1
+        self.publish(self._message(start, end_index, None, "stale", 0.0, None))
 
     def _estimate(
         self, snap: Snapshot, reason: str | None
@@ -245,27 +307,22 @@ class WindowWorker:
             self._withheld["numerical"] += 1
             return None, "numerical"
         self._estimates += 1
-        self._last_end_index = int(snap.sample_index[-1])
         return estimate, None
 
     def _message(
         self,
-        snap: Snapshot,
+        first: int,
+        last: int,
         estimate: WindowEstimate | None,
         reason: str | None,
         compute_s: float,
+        last_arrival_s: float | None,
     ) -> dict[str, Any]:
-        first, last = int(snap.sample_index[0]), int(snap.sample_index[-1])
-        values = (
-            {
-                k: getattr(estimate, k)
-                for k in ("I", "B", "K", "I_se", "B_se", "K_se", "vaf", "vaf_irf")
-            }
-            if estimate is not None
-            else dict.fromkeys(("I", "B", "K", "I_se", "B_se", "K_se", "vaf", "vaf_irf"))
-        )
+        keys = ("I", "B", "K", "I_se", "B_se", "K_se", "vaf", "vaf_irf")
+        values = {k: getattr(estimate, k) if estimate else None for k in keys}
         overrun = compute_s > self.config.effective_budget_s
         flags = [*(estimate.flags if estimate else ()), *(("over_budget",) if overrun else ())]
+        latency = None if last_arrival_s is None else (time.monotonic() - last_arrival_s) * 1e3
         seq = self._seq
         self._seq += 1
         return {
@@ -278,7 +335,7 @@ class WindowWorker:
             "t_end_s": last / self.fs_hz,
             **values,
             "compute_ms": compute_s * 1e3,
-            "latency_ms": (time.monotonic() - float(snap.host_time_s[-1])) * 1e3,
+            "latency_ms": latency,
             "ok": estimate is not None,
             "reason": reason,
             "flags": flags,

@@ -41,14 +41,22 @@ def make_worker(ring, published, **cfg):
     )
 
 
-def test_step_publishes_a_complete_estimate_message():
+def test_windows_end_on_a_grid_of_sample_indices():
+    worker = make_worker(filled_ring(), [], hop_s=0.02)  # 50 samples
+    assert worker.first_window_end(0) == 749
+    assert worker.first_window_end(1) == 799
+    assert worker.first_window_end(700) == 1449
+    assert all((worker.first_window_end(k) + 1) % 50 == 0 for k in range(0, 200, 7))
+
+
+def test_process_window_publishes_a_complete_estimate_message():
     published = []
-    msg = make_worker(filled_ring(), published).step()
+    msg = make_worker(filled_ring(), published).process_window(1449)
     assert published == [msg]
     assert set(msg) == set(ESTIMATE_FIELDS)
     assert msg["ok"] and msg["reason"] is None
     assert msg["K"] == pytest.approx(150.0, rel=0.1)
-    assert msg["window_end_index"] - msg["window_start_index"] == 749
+    assert (msg["window_start_index"], msg["window_end_index"]) == (700, 1449)
     assert msg["t_end_s"] == pytest.approx(msg["window_end_index"] / FS)
     assert msg["robot"] == "r1" and msg["seq"] == 0
     assert msg["compute_ms"] > 0 and msg["latency_ms"] >= 0
@@ -65,37 +73,37 @@ def test_step_publishes_a_complete_estimate_message():
 def test_bad_windows_are_withheld_with_the_reason(ring_kwargs, reason):
     published = []
     worker = make_worker(filled_ring(**ring_kwargs), published)
-    msg = worker.step()
+    msg = worker.process_window(1499)
     assert not msg["ok"] and msg["reason"] == reason
     assert msg["K"] is None and msg["I_se"] is None
     assert worker.counters().withheld == {reason: 1}
 
 
-def test_same_window_twice_is_stale_and_short_ring_waits():
+def test_windows_not_in_the_ring_are_skipped_and_counted():
     published = []
-    worker = make_worker(filled_ring(), published)
-    assert worker.step()["ok"]
-    assert worker.step()["reason"] == "stale"  # nothing new arrived
-    assert make_worker(filled_ring(n=100), published).step() is None  # warming up
+    worker = make_worker(filled_ring(n=1000), published)
+    assert worker.process_window(1099) is None  # not yet arrived
+    assert worker.process_window(600) is None  # starts before the first sample
+    assert published == [] and worker.counters().overruns == 2
 
 
 def test_over_budget_is_counted_and_flagged():
     published = []
     worker = make_worker(filled_ring(), published, budget_s=1e-6)
-    msg = worker.step()
+    msg = worker.process_window(1449)
     assert "over_budget" in msg["flags"]
     assert worker.counters().deadline_misses == 1
 
 
-def test_thread_runs_on_its_hop_and_stops_within_bound():
+def test_thread_catches_up_to_the_newest_window_then_reports_stale(wait_for):
     published = []
-    ring = filled_ring()
-    worker = make_worker(ring, published, hop_s=0.01, max_sample_age_s=30.0)
+    ring = filled_ring()  # 1500 samples already there, nothing more arrives
+    worker = make_worker(ring, published, hop_s=0.02, max_sample_age_s=0.05)
     with worker:
-        deadline = time.monotonic() + 5.0
-        while len(published) < 3 and time.monotonic() < deadline:
-            time.sleep(0.01)
+        wait_for(lambda: len(published) >= 3, 5.0, "three messages")
     assert worker.stop(timeout_s=1.0)
-    assert len(published) >= 3
+    first = published[0]
+    assert first["ok"] and first["window_end_index"] == 1499  # skipped to the newest window
+    assert worker.counters().overruns == 15  # windows ending 749 … 1449 were stale work
+    assert all(m["reason"] == "stale" and m["window_end_index"] == 1549 for m in published[1:])
     assert [m["seq"] for m in published] == list(range(len(published)))
-    assert published[0]["ok"] and all(m["reason"] == "stale" for m in published[1:])
