@@ -198,6 +198,8 @@ def test_input_that_is_not_the_declared_multisine_is_rejected(ms):
     u = ms.samples(PERIODS)
     with pytest.raises(InputDataError, match="not a periodic multisine"):
         identify_ltv(u, u, FS, ms.excited_bins[::2], ms.period_samples)  # bins missing
+    with pytest.raises(InputDataError, match="DC offset of 0.5"):
+        identify_ltv(u + 0.5, u, FS, ms.excited_bins, ms.period_samples)
     with pytest.raises(InputDataError, match="carries no power"):
         identify_ltv(u, u, FS, np.r_[ms.excited_bins, ms.excited_bins[-1] + 1], ms.period_samples)
 
