@@ -252,6 +252,7 @@ def _zenoh_latency(messages: int) -> None:
     warmup = 50
     child = ctx.Process(target=_subscriber, args=(f"tcp/127.0.0.1:{port}", ready, out))
     lat: dict[str, list[float]] = {}
+    calls: dict[str, list[float]] = {"raw": [], "estimate": []}  # publisher-side call cost
     try:
         with ZenohPublisher(cfg) as pub:
             session = pub._entities.session if pub._entities is not None else None
@@ -266,12 +267,17 @@ def _zenoh_latency(messages: int) -> None:
             time.sleep(0.5)  # let the subscriptions propagate; the first messages warm up
             deadline = time.monotonic()
             for seq in range(warmup + messages):  # raw and estimate alternate, 10 ms apart
+                t0 = time.perf_counter()
                 raw.put(struct.pack("<q", time.time_ns()))
+                calls["raw"].append((time.perf_counter() - t0) * 1e6)
                 deadline += HOP_S / 2
                 time.sleep(max(0.0, deadline - time.monotonic()))
                 est = _estimate(seq)
                 est["host_time_ns"] = time.time_ns()
-                pub.publish_estimate(encode_estimate(est))
+                payload = encode_estimate(est)
+                t0 = time.perf_counter()
+                pub.publish_estimate(payload)
+                calls["estimate"].append((time.perf_counter() - t0) * 1e6)
                 deadline += HOP_S / 2
                 time.sleep(max(0.0, deadline - time.monotonic()))
             for _ in range(200):  # bounded: until the child reports
@@ -294,7 +300,7 @@ def _zenoh_latency(messages: int) -> None:
     )
     print(
         f"{'payload':38}{'received':>9}{'median µs':>11}{'p99 µs':>9}{'max µs':>9}"
-        f"{'× baseline':>12}"
+        f"{'× baseline':>12}{'put call median/p99 µs':>24}"
     )
     base = _pct(lat.get("raw", []), 50)
     for label, key in (
@@ -306,6 +312,7 @@ def _zenoh_latency(messages: int) -> None:
         print(
             f"{label:38}{len(v):>9}{med:>11.0f}{_pct(v, 99):>9.0f}"
             f"{(max(v) if v else float('nan')):>9.0f}{med / base:>12.2f}"
+            f"{_pct(calls[key], 50):>14.0f} / {_pct(calls[key], 99):<7.0f}"
         )
 
 
