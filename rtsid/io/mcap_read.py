@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import re
 import struct
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -34,6 +35,7 @@ __all__ = [
     "iter_status",
     "read_metadata",
     "read_run_config",
+    "recording_parts",
     "recover",
     "sample_count",
     "summarize",
@@ -235,6 +237,35 @@ def read_run_config(path: str | Path) -> dict[str, Any]:
     """The daemon configuration stored in the recording (``{}`` when none was stored)."""
     meta = read_metadata(path).get("config", {})
     return dict(json.loads(meta["json"])) if "json" in meta else {}
+
+
+_PART = re.compile(
+    r"^(?P<session>rtsid-.+-\d{8}T\d{6}Z)(?:-(?P<part>\d{3,}))?(?:-recovered)?\.mcap$"
+)
+
+
+def recording_parts(path: str | Path) -> list[Path]:
+    """Every part of the recording session ``path`` belongs to, in order.
+
+    A daemon's session is ``rtsid-<robot>-<joint>-<UTC>.mcap`` followed by ``-001``, ``-002``, …
+    after rotation (or after a write error). Given any part, returns the existing parts in the
+    same directory sorted by part number (a file not named that way is returned alone).
+    """
+    p = Path(path)
+    match = _PART.match(p.name)
+    if match is None:
+        return [p]
+    session = match["session"]
+    parts = []
+    for candidate in p.parent.glob(f"{session}*.mcap"):
+        m = _PART.match(candidate.name)
+        if (
+            m is not None
+            and m["session"] == session
+            and not candidate.name.endswith("-recovered.mcap")
+        ):
+            parts.append((int(m["part"] or 0), candidate))
+    return [c for _n, c in sorted(parts)] or [p]
 
 
 def sample_count(path: str | Path) -> int:

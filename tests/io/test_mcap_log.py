@@ -316,3 +316,21 @@ def test_sigkill_loses_at_most_about_one_second(tmp_path: Path, flush_interval_s
     assert len(messages) == report.messages
     positions = np.concatenate([b.position_rad for b in mcap_read.iter_sample_batches(out)])
     np.testing.assert_array_equal(positions, np.sin(np.arange(saved) / 100.0))
+
+
+def test_recording_parts_lists_a_rotated_session_in_order(tmp_path: Path) -> None:
+    cfg = McapConfig(
+        directory=str(tmp_path), flush_interval_s=0.01, rotate_size_mb=0.02, chunk_size=4096
+    )
+    with McapLogger(cfg, robot="r", joint="j", fs_hz=FS_HZ) as logger:
+        for k in range(200):  # bounded
+            log_batches(logger, 1, start=k)
+            time.sleep(0.003)
+            if len(logger.files) >= 3:
+                break
+    (tmp_path / "unrelated.mcap").write_bytes(b"")
+    files = logger.files
+    assert mcap_read.recording_parts(files[1]) == files
+    assert mcap_read.recording_parts(tmp_path / "unrelated.mcap") == [tmp_path / "unrelated.mcap"]
+    starts = [b.first_index for p in files for b in mcap_read.iter_sample_batches(p)]
+    assert starts == sorted(starts) and starts[0] == 0
