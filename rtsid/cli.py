@@ -26,6 +26,7 @@ from rtsid.errors import RtsidError  # noqa: E402
 # name -> (module, one-line help). Add a command by adding a line here.
 COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("rtsid.commands.run", "the daemon: acquire, identify every hop, publish and log"),
+    "replay": ("rtsid.commands.replay", "run the window worker over MCAP recordings"),
     "identify": (
         "rtsid.commands.identify",
         "estimate I, B, K and VAF window by window from a file",

@@ -14,6 +14,7 @@ counted as overruns); compute beyond the budget counts a deadline miss.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections import Counter
@@ -121,8 +122,9 @@ class WindowWorker:
 
     Parameters
     ----------
-    ring : RingBuffer
-        Samples written by the acquisition thread.
+    ring : RingBuffer or None
+        Samples written by the acquisition thread; None when windows are handed to
+        :meth:`evaluate` directly (replay), in which case :meth:`start` is not used.
     fs_hz : float
         Sample rate, Hz.
     config : WorkerConfig
@@ -141,7 +143,7 @@ class WindowWorker:
 
     def __init__(
         self,
-        ring: RingBuffer,
+        ring: RingBuffer | None,
         fs_hz: float,
         config: WorkerConfig,
         options: EstimatorOptions,
@@ -173,7 +175,9 @@ class WindowWorker:
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> WindowWorker:
-        """Start the worker thread."""
+        """Start the worker thread (needs a ring)."""
+        if self.ring is None:
+            raise ValueError("WindowWorker.start() needs a ring; replay calls evaluate()")
         if self._thread is None:
             self._thread = threading.Thread(target=self._run, name="rtsid-worker", daemon=True)
             self._thread.start()
@@ -219,6 +223,7 @@ class WindowWorker:
             raise
 
     def _loop(self) -> None:
+        assert self.ring is not None
         hop_s = self.config.hop_s
         next_end: int | None = None
         next_stale_s = 0.0
@@ -246,40 +251,50 @@ class WindowWorker:
             due_s = arrived_s + (next_end - newest) / self.fs_hz
             self._stop.wait(min(max(due_s - now, 2e-4), hop_s))
 
-    def process_window(
-        self, end_index: int, *, now_s: float | None = None
-    ) -> dict[str, Any] | None:
-        """Estimate the window ending at ``end_index`` and publish its message.
-
-        Parameters
-        ----------
-        end_index : int
-            Index of the window's last sample.
-        now_s : float, optional
-            Time (``time.monotonic()`` scale) against which staleness is judged; default
-            now. Replay passes the window's own arrival time, so a recording is never stale.
+    def process_window(self, end_index: int) -> dict[str, Any] | None:
+        """Estimate the window ending at ``end_index`` from the ring and publish its message.
 
         Returns
         -------
         dict or None
             The message, or None when those samples are no longer (or not yet) in the ring.
         """
+        assert self.ring is not None
         started = time.perf_counter()
         start = end_index - self.window_samples + 1
         snap = self.ring.read_since(start, self.window_samples)
         if len(snap) != self.window_samples or int(snap.sample_index[0]) != start:
             self._overruns += 1  # overwritten before we got to it
             return None
-        now = time.monotonic() if now_s is None else now_s
-        reason = assess_window(snap, now, self.config.max_sample_age_s)
+        return self.evaluate(snap, started_s=started)
+
+    def evaluate(
+        self, snap: Snapshot, *, replay: bool = False, started_s: float | None = None
+    ) -> dict[str, Any]:
+        """Estimate one window of samples and publish its message (also used by replay).
+
+        Parameters
+        ----------
+        snap : Snapshot
+            The window's rows, oldest first.
+        replay : bool
+            The samples come from a recording: they are never stale, and the message's
+            ``latency_ms`` is null (there was no live arrival).
+        started_s : float, optional
+            ``perf_counter()`` when work on the window began (default: now).
+        """
+        started = time.perf_counter() if started_s is None else started_s
+        arrival = None if replay else float(snap.host_time_s[-1])
+        now = time.monotonic() if arrival is not None else math.inf
+        max_age = math.inf if replay else self.config.max_sample_age_s
+        reason = assess_window(snap, now, max_age)
         estimate, reason = self._estimate(snap, reason)
         compute_s = time.perf_counter() - started
         self._compute_ms = compute_s * 1e3
         if compute_s > self.config.effective_budget_s:
             self._misses += 1
-        message = self._message(
-            start, end_index, estimate, reason, compute_s, float(snap.host_time_s[-1])
-        )
+        first, last = int(snap.sample_index[0]), int(snap.sample_index[-1])
+        message = self._message(first, last, estimate, reason, compute_s, arrival)
         self.publish(message)
         return message
 

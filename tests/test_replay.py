@@ -1,0 +1,109 @@
+"""Replay: same windows and numbers as the live daemon, reference outputs, damaged files."""
+
+from __future__ import annotations
+
+import csv
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rtsid.cli import main
+from rtsid.io.mcap_read import iter_estimates
+from rtsid.replay import replay_file
+from rtsid.runtime.daemon import Daemon, DaemonConfig
+
+REFERENCE = Path(__file__).resolve().parents[1] / "replay" / "reference"
+NUMBERS = ("I", "B", "K", "I_se", "B_se", "K_se", "vaf", "vaf_irf")
+
+
+def by_window(messages):
+    return {m["window_end_index"]: m for m in messages}
+
+
+def assert_same_estimates(expected, got, rtol=0.0):
+    for end, e in expected.items():
+        g = got[end]
+        assert (g["ok"], g["reason"]) == (e["ok"], e["reason"]), end
+        if e["ok"]:
+            np.testing.assert_allclose([g[k] for k in NUMBERS], [e[k] for k in NUMBERS], rtol=rtol)
+
+
+def test_replay_gives_the_live_daemons_windows_and_numbers_exactly():
+    recording = REFERENCE / "sim_3s.mcap"
+    live = by_window(iter_estimates(recording))
+    replayed = by_window(replay_file(recording).messages)
+    assert len(live) > 100 and set(live) <= set(replayed)
+    assert_same_estimates(live, replayed)  # bit for bit
+
+
+def test_replay_reproduces_the_stored_reference_output():
+    with (REFERENCE / "sim_3s.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    stored = {
+        int(r["window_end_index"]): {
+            "ok": r["ok"] == "True",
+            "reason": r["reason"] or None,
+            **{k: float(r[k]) if r[k] else None for k in NUMBERS},
+        }
+        for r in rows
+    }
+    replayed = by_window(replay_file(REFERENCE / "sim_3s.mcap").messages)
+    assert set(stored) == set(replayed)
+    assert_same_estimates(stored, replayed, rtol=1e-9)
+
+
+def test_a_recording_cut_short_replays_up_to_the_cut(tmp_path):
+    full = replay_file(REFERENCE / "sim_3s.mcap").messages
+    cut = tmp_path / "cut.mcap"
+    data = (REFERENCE / "sim_3s.mcap").read_bytes()
+    cut.write_bytes(data[: int(len(data) * 0.6)])  # no footer, last chunk torn
+    partial = by_window(replay_file(cut).messages)
+    assert 0 < len(partial) < len(full)
+    assert_same_estimates(partial, by_window(full))
+
+
+def test_lost_samples_are_gaps_never_bridged(tmp_path, free_port):
+    config = DaemonConfig.from_mapping(
+        {
+            "zenoh": {"listen": [f"tcp/127.0.0.1:{free_port}"]},
+            "mcap": {"directory": str(tmp_path)},
+            "plant": {"faults": {"drop_rate": 0.0005}},
+        }
+    )
+    summary = Daemon(config).run(duration_s=2.0)
+    assert summary.lost_samples > 0
+    recording = next(tmp_path.glob("*.mcap"))
+    live = by_window(iter_estimates(recording))
+    replayed = by_window(replay_file(recording).messages)
+    assert_same_estimates(live, replayed)
+    gaps = [m for m in replayed.values() if m["reason"] == "gap"]
+    assert len(gaps) >= 15  # each lost sample withholds every window across it
+
+
+def test_replay_command_outputs_and_directories(tmp_path, capsys):
+    folder = tmp_path / "recs"
+    folder.mkdir()
+    for name in ("a.mcap", "b.mcap"):
+        shutil.copy(REFERENCE / "sim_3s.mcap", folder / name)
+    assert main(["replay", str(folder), "--out", str(tmp_path / "out"), "--jobs", "2"]) == 0
+    table = capsys.readouterr().out
+    assert "a.mcap" in table and "b.mcap" in table
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a.csv", "b.csv"]
+    out_mcap = tmp_path / "one.mcap"
+    assert main(["replay", str(folder / "a.mcap"), "--out", str(out_mcap), "--rate", "50"]) == 0
+    assert len(list(iter_estimates(out_mcap))) == len(replay_file(folder / "a.mcap").messages)
+
+
+@pytest.mark.parametrize(
+    "argv,message",
+    [
+        (["replay", "missing.mcap"], "no such file"),
+        (["replay", str(REFERENCE / "sim_3s.mcap"), "--rate", "fast"], "--rate 'fast'"),
+        (["replay", str(REFERENCE / "sim_3s.mcap"), "--out", "x.txt"], "use a .csv or .mcap"),
+    ],
+)
+def test_replay_errors_are_one_line(argv, message, capsys):
+    assert main(argv) == 2
+    assert message in capsys.readouterr().err
