@@ -79,8 +79,8 @@ def test_auto_basis_takes_the_largest_well_conditioned_n_p(small_experiment, cap
 
 def test_too_many_basis_functions_print_a_warning(small_experiment, capsys):
     path, _ = small_experiment
-    assert main(["tv", str(path), "-p", "24", "--times", "2"]) == 0
-    assert "warning: N_p = 24 is too large" in capsys.readouterr().err
+    assert main(["tv", str(path), "-p", "36", "--times", "2"]) == 0
+    assert "warning: N_p = 36 is too large" in capsys.readouterr().err
 
 
 def test_missing_matplotlib_is_a_one_line_error(monkeypatch):

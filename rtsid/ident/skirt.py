@@ -28,14 +28,16 @@ least-squares problem per line gives ``G_p(k_e)``; the neighbours' ``G_p`` and t
 polynomial are nuisance parameters of that problem.
 
 Two choices differ from a literal reading of the paper, both measured on its simulation
-study (``rtsid bench skirt``, ``docs/skirt.md``): the window reaches from neighbour to
-neighbour (``window_lines=1.0``) rather than half-way, which captures the line's own
-skirts whole: the validation VAF then matches the best any ``N_p``-term Legendre expansion
-of the true ``G(jω, t)`` can give with lines 0.8 or 1.4 Hz apart, and comes within 3 % of it
-at 0.2 Hz (half-way windows lose up to 10 % at 0.8 Hz and collapse at 0.2 Hz); and the
-transient polynomial is off by default (``n_transient=None``): in 200 s records the
-start-up transient is small and the polynomial's extra unknowns cost more (14 % VAF for CS3
-with lines 0.2 Hz apart at ``N_p = 8``) than they gain.
+study (``rtsid bench skirt``, ``docs/skirt.md``). The window reaches a quarter of a line
+spacing past each neighbour (``window_lines=1.25``) rather than half-way: the line's own
+skirts are captured whole and the neighbours' skirts are seen on both sides of their lines,
+so the validation VAF matches the best any ``N_p``-term Legendre expansion of the true
+``G(jω, t)`` can give (half-way windows lose up to 10 % with lines 0.8 Hz apart and
+collapse at 0.2 Hz; windows ending at the neighbours collapse at 0.2 Hz from ``N_p ≈ 12``).
+And the transient polynomial is off by default (``n_transient=None``): in 200 s records
+the start-up transient is small and the polynomial's extra unknowns cost more than they
+gain (see the ablation in ``docs/skirt.md``); it does absorb the leakage of lines beyond
+the modelled neighbours.
 
 Legendre skirts widen roughly as ``p²/π`` bins, so a large ``N_p`` with closely spaced
 lines makes the local problems ill-conditioned. :func:`skirt_conditioning` measures it (the
@@ -301,7 +303,7 @@ def skirt_conditioning(
     n_basis: int,
     n_transient: int | None = None,
     *,
-    window_lines: float = 1.0,
+    window_lines: float = 1.25,
     neighbours: int = 1,
 ) -> SkirtConditioning:
     """Conditioning of an interior line's local problem (depends on the design only).
@@ -355,7 +357,7 @@ def max_stable_basis(
     limit: float = WARN_VARIANCE_INFLATION,
     n_max: int = 40,
     *,
-    window_lines: float = 1.0,
+    window_lines: float = 1.25,
     neighbours: int = 1,
 ) -> int:
     """Largest ``N_p`` (≤ ``n_max``) whose variance inflation stays ≤ ``limit`` (0: none)."""
@@ -830,7 +832,7 @@ def identify_ltv(
     n_basis: int = 8,
     *,
     n_transient: int | None = None,
-    window_lines: float = 1.0,
+    window_lines: float = 1.25,
     neighbours: int = 1,
     input_tolerance: float = DEFAULT_INPUT_TOLERANCE,
 ) -> LtvEstimate:
@@ -857,7 +859,8 @@ def identify_ltv(
         window (None, the default: no polynomial; see the module notes).
     window_lines : float
         How far each local window reaches, in units of the distance to the next line on
-        each side (1.0: from neighbour to neighbour; 0.5: half-way, windows tile the band).
+        each side (1.25, the default: a quarter spacing past each neighbour; 1.0: from
+        neighbour to neighbour; 0.5: half-way, windows tile the band).
     neighbours : int
         Lines on each side whose skirts are modelled as nuisance (plus any inside the
         window).

@@ -52,8 +52,10 @@ def test_lti_system_is_recovered_exactly_with_one_basis_function(ms):
     np.testing.assert_allclose(est.simulate(u), y, atol=1e-10 * np.std(y))
 
 
-@pytest.mark.parametrize(("n_transient", "tolerance"), [(2, 1e-3), (None, 2e-2)])
-def test_known_ltv_system_is_recovered_and_reproduced(ms, n_transient, tolerance):
+@pytest.mark.parametrize(
+    ("n_transient", "neighbours", "tolerance"), [(None, 1, 5e-2), (2, 1, 5e-3), (2, 3, 1e-4)]
+)
+def test_known_ltv_system_is_recovered_and_reproduced(ms, n_transient, neighbours, tolerance):
     rng = np.random.default_rng(1)
     n_basis = 4
     g_p = rng.standard_normal((n_basis, ms.excited_bins.size)) + 1j * rng.standard_normal(
@@ -63,11 +65,19 @@ def test_known_ltv_system_is_recovered_and_reproduced(ms, n_transient, tolerance
     u = ms.samples(PERIODS)
     y = ltv_output(u, ms.excited_bins, g_p)
     est = identify_ltv(
-        u, y, FS, ms.excited_bins, ms.period_samples, n_basis=n_basis, n_transient=n_transient
+        u,
+        y,
+        FS,
+        ms.excited_bins,
+        ms.period_samples,
+        n_basis=n_basis,
+        n_transient=n_transient,
+        neighbours=neighbours,
     )
-    # Far lines (beyond the neighbours) and the mirror lines at negative frequencies leak a
-    # little into each window: not modelled, so recovery is close, not to round-off; the
-    # transient polynomial absorbs most of that leakage.
+    # Lines beyond the modelled neighbours (and the mirror lines at negative frequencies)
+    # leak into each window. This synthetic system has large high-order G_p at every line,
+    # the worst case: the defaults recover it to a few %, and modelling more neighbours plus
+    # the transient polynomial (which absorbs far leakage) converges towards exact.
     assert np.max(np.abs(est.G_p - g_p)) < tolerance * np.max(np.abs(g_p))
     # Another realisation of the multisine through the estimated model.
     u_val = multisine(FS, 2.0, 10.0, every=2, rms=0.1, seed=8).samples(PERIODS)
@@ -223,7 +233,7 @@ def test_too_many_basis_functions_for_the_line_spacing_warn_then_fail(ms):
     u = ms.samples(PERIODS)
     y = ltv_output(u, ms.excited_bins, admittance(2.0, 2 * np.pi * ms.frequencies_hz)[None, :])
     stable = max_stable_basis(u.size, 20)
-    assert 3 <= stable < 9
+    assert 3 <= stable <= 10
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         identify_ltv(u, y, FS, ms.excited_bins, ms.period_samples, n_basis=stable)
@@ -231,7 +241,7 @@ def test_too_many_basis_functions_for_the_line_spacing_warn_then_fail(ms):
         est = identify_ltv(u, y, FS, ms.excited_bins, ms.period_samples, n_basis=stable + 2)
     assert est.variance_inflation > WARN_VARIANCE_INFLATION
     with pytest.raises(NumericalError, match="too large for Δf_exc = 1 Hz"):
-        identify_ltv(u, y, FS, ms.excited_bins, ms.period_samples, n_basis=14)
+        identify_ltv(u, y, FS, ms.excited_bins, ms.period_samples, n_basis=17)
 
 
 def test_conditioning_worsens_with_basis_size_and_eases_with_spacing():
