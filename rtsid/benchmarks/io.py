@@ -59,6 +59,7 @@ def _estimate(seq: int) -> dict[str, Any]:
         K_se=2.31,
         vaf=95.3,
         vaf_irf=97.1,
+        vaf_fit=98.0,
         compute_ms=3.1,
         latency_ms=4.2,
         ok=True,

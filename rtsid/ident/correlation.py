@@ -7,6 +7,8 @@ used for short lag spans and FFTs for long ones, whichever does less work.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -18,6 +20,13 @@ FloatArray = NDArray[np.float64]
 
 # Above this many lags per sample an FFT beats np.correlate's direct sum (measured).
 _FFT_LAG_FRACTION = 0.05
+
+
+@lru_cache(maxsize=16)
+def _centred_ramp(n: int) -> tuple[FloatArray, float]:
+    t = np.arange(n, dtype=np.float64) - (n - 1) / 2.0
+    t.setflags(write=False)
+    return t, max(float(t @ t), 1e-300)
 
 
 def detrend(x: ArrayLike, kind: str = "linear") -> FloatArray:
@@ -41,10 +50,8 @@ def detrend(x: ArrayLike, kind: str = "linear") -> FloatArray:
     if kind == "mean":
         return arr - arr.mean()
     if kind == "linear":
-        n = arr.size
-        t = np.arange(n, dtype=np.float64) - (n - 1) / 2.0
-        slope = (t @ arr) / max(t @ t, 1e-300)
-        return arr - arr.mean() - slope * t
+        t, tt = _centred_ramp(arr.size)
+        return arr - arr.mean() - ((t @ arr) / tt) * t
     raise InputDataError(f"detrend kind {kind!r} is not one of 'linear', 'mean', 'none'")
 
 

@@ -56,20 +56,31 @@ class ParameterFit:
     method: str
 
 
-def _design(f_hz: FloatArray) -> FloatArray:
-    """Rows ``[Re; Im]`` of ``Z`` as a linear function of ``(I, B, K)``, shape (2n_f, 3)."""
+def _weighted_solution_map(f_hz: FloatArray, weights: FloatArray) -> FloatArray:
+    """``P`` (3 × 2n_f) with ``(I, B, K) = P @ [Re H; Im H]``, weighted least squares.
+
+    The real part ``K − I·ω²`` involves only ``(I, K)`` and the imaginary part ``B·ω`` only
+    ``B``, so the normal equations split into a 2 × 2 system and a scalar, solved in closed
+    form.
+    """
     w = 2 * np.pi * f_hz
-    zeros, ones = np.zeros_like(w), np.ones_like(w)
-    real_rows = np.column_stack((-(w**2), zeros, ones))
-    imag_rows = np.column_stack((zeros, w, zeros))
-    return np.vstack((real_rows, imag_rows))
-
-
-def _weighted_solution_map(design: FloatArray, weights: FloatArray) -> FloatArray:
-    """``P`` with ``params = P @ [Re H; Im H]`` for row weights ``weights``."""
-    w2 = np.concatenate((weights, weights)) ** 2
-    weighted_t = design.T * w2[None, :]
-    return np.asarray(np.linalg.solve(weighted_t @ design, weighted_t), dtype=np.float64)
+    w2 = weights**2
+    w2_omega2 = w2 * w**2
+    a11 = float(w2_omega2 @ w**2)
+    a12 = -float(np.sum(w2_omega2))
+    a22 = float(np.sum(w2))
+    det = a11 * a22 - a12 * a12
+    if not det > 0:
+        raise NumericalError(
+            "the fit grid cannot separate inertia from stiffness (too few weighted "
+            "frequencies); widen fit_band_hz or check the perturbation"
+        )
+    n = f_hz.size
+    solution = np.zeros((3, 2 * n))
+    solution[0, :n] = (-a22 * w2_omega2 - a12 * w2) / det  # inertia
+    solution[2, :n] = (a12 * w2_omega2 + a11 * w2) / det  # stiffness
+    solution[1, n:] = w2 * w / float(w2_omega2 @ np.ones(n))  # damping
+    return solution
 
 
 def _check_grid(f_hz: ArrayLike, dft: ArrayLike) -> tuple[FloatArray, ComplexArray]:
@@ -113,16 +124,15 @@ def fit_linear(
     """
     f, e = _check_grid(f_hz, dft)
     h_arr = np.asarray(h, dtype=np.float64)
-    design = _design(f)
     to_real = np.vstack((e.real, e.imag))
     z_obs = to_real @ h_arr
     base = np.ones_like(f) if weights is None else np.asarray(weights, dtype=np.float64)
-    solution_map = _weighted_solution_map(design, base)
+    solution_map = _weighted_solution_map(f, base)
     params = solution_map @ z_obs
     if reweight:
         magnitude = np.abs(impedance_response(*params, f))
         floor = 1e-6 * max(float(np.max(magnitude)), 1e-300)
-        solution_map = _weighted_solution_map(design, base / np.maximum(magnitude, floor))
+        solution_map = _weighted_solution_map(f, base / np.maximum(magnitude, floor))
         params = solution_map @ z_obs
     return ParameterFit(params=params, sensitivity=solution_map @ to_real, method="linear")
 

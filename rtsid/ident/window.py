@@ -227,31 +227,25 @@ def _preprocess(
 
 
 @lru_cache(maxsize=32)
-def _periodogram_basis(
-    n: int, fs_hz: float, grid_key: tuple[float, float, int, float]
-) -> NDArray[Any]:
-    """Hann-tapered DFT rows at each fit frequency and its two neighbouring bins."""
-    f = _fit_grid(grid_key[:2], grid_key[2], grid_key[3])
-    df = fs_hz / n
-    freqs = np.add.outer(f, np.array([-df, 0.0, df])).ravel()
-    t = np.arange(n) / fs_hz
-    basis = np.exp(-2j * np.pi * np.multiply.outer(freqs, t)) * np.hanning(n)
-    basis.setflags(write=False)
-    return basis
+def _hann(n: int) -> FloatArray:
+    window = np.hanning(n)
+    window.setflags(write=False)
+    return window
 
 
-def _excitation_weights(
-    u: FloatArray, fs_hz: float, grid_key: tuple[float, float, int, float], power: float
-) -> FloatArray:
+def _excitation_weights(u: FloatArray, fs_hz: float, f_hz: FloatArray, power: float) -> FloatArray:
     """``(S_uu(f) / max S_uu)^power`` on the fit grid, from the window's own periodogram.
 
     Frequencies the perturbation did not excite get (almost) no weight in the fit. The
-    periodogram is taken with a Hann taper and averaged over three neighbouring bins.
+    periodogram (Hann taper, FFT) is averaged over three neighbouring bins and interpolated
+    onto the grid — no dense matrix products, so no BLAS threads on the hot path.
     """
-    basis = _periodogram_basis(u.size, fs_hz, grid_key)
-    spectrum = (np.abs(basis @ u) ** 2).reshape(-1, 3).mean(axis=1)
-    top = float(np.max(spectrum))
-    return np.asarray((spectrum / top) ** power) if top > 0 else np.ones(spectrum.size)
+    spectrum = np.abs(np.fft.rfft(u * _hann(u.size))) ** 2
+    smoothed = np.convolve(spectrum, np.full(3, 1.0 / 3.0), mode="same")
+    bins_hz = np.arange(smoothed.size) * (fs_hz / u.size)
+    on_grid = np.interp(f_hz, bins_hz, smoothed)
+    top = float(np.max(on_grid))
+    return np.asarray((on_grid / top) ** power) if top > 0 else np.ones(f_hz.size)
 
 
 def _parameter_covariance(
@@ -383,7 +377,7 @@ def fit_parameters(irf: IRF, u: FloatArray, options: EstimatorOptions) -> Parame
     grid_key = (*options.fit_band_hz, options.fit_points, fs_a / 2)
     f = _fit_grid(options.fit_band_hz, options.fit_points, fs_a / 2)
     e = _dft(irf.max_lag, fs_a, grid_key)
-    weights = _excitation_weights(u, fs_a, grid_key, options.weight_power)
+    weights = _excitation_weights(u, fs_a, f, options.weight_power)
     fit = fit_linear(f, e, irf.h, weights=weights)
     if options.fit_method == "logmag":
         fit = fit_logmag(f, e, irf.h, start=fit.params, weights=weights)

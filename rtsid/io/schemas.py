@@ -93,6 +93,7 @@ ESTIMATE_SCHEMA: dict[str, Any] = {
         "K_se": _num("standard error of K, N·m/rad"),
         "vaf": _num("variance accounted for by the I, B, K model's torque, %"),
         "vaf_irf": _num("variance accounted for by the IRF's torque, %"),
+        "vaf_fit": _num("variance of the IRF's torque accounted for by the I, B, K model, %"),
         "compute_ms": _num("time spent identifying the window, ms"),
         "latency_ms": _num("time from the window's last sample to publication, ms"),
         "ok": {"type": "boolean", "description": "true: I, B, K are usable"},

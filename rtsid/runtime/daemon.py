@@ -20,11 +20,13 @@ from pathlib import Path
 from typing import Any
 
 from rtsid import __version__
+from rtsid.calibrate import robot_torque_offset
 from rtsid.config import load_toml, require_range, section_from_mapping
 from rtsid.errors import ConfigError
 from rtsid.ident.window import EstimatorOptions
 from rtsid.io.mcap_log import McapConfig, McapLogger
 from rtsid.io.procstats import ProcessMeter
+from rtsid.io.schemas import encode_estimate, encode_status
 from rtsid.io.zenoh_link import ZenohConfig, ZenohPublisher
 from rtsid.link.acquisition import Acquisition
 from rtsid.link.config import LinkConfig, PlantConfig, link_configs_from_mapping
@@ -201,6 +203,7 @@ class Daemon:
                     lambda msg: self._publish_estimate(msg, mcap, zenoh),
                     robot=robot,
                     joint=joint,
+                    torque_offset=robot_torque_offset(cfg.worker.calibration_file, cfg.link.fs_hz),
                 )
                 self.worker = worker
                 worker.start()
@@ -257,8 +260,9 @@ class Daemon:
     def _publish_estimate(
         self, message: dict[str, Any], mcap: McapLogger, zenoh: ZenohPublisher
     ) -> None:
-        zenoh.publish_estimate(message)
-        mcap.log_estimate(message)
+        payload = encode_estimate(message)  # once, for both sinks
+        zenoh.publish_estimate(payload)
+        mcap.log_estimate(payload, log_time_ns=message["host_time_ns"])
         self.last_estimate = message
 
     def _status(self, mcap: McapLogger, zenoh: ZenohPublisher) -> dict[str, Any]:
@@ -278,8 +282,9 @@ class Daemon:
 
     def _publish_status(self, mcap: McapLogger, zenoh: ZenohPublisher) -> None:
         status = self._status(mcap, zenoh)
-        zenoh.publish_status(status)
-        mcap.log_status(status)
+        payload = encode_status(status)
+        zenoh.publish_status(payload)
+        mcap.log_status(payload, log_time_ns=status["host_time_ns"])
         if self.on_status is not None:
             self.on_status(status, self.last_estimate)
 

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from rtsid.config import require_range, section_from_mapping
-from rtsid.errors import NumericalError, WindowError
+from rtsid.errors import ConfigError, InputDataError, NumericalError, WindowError
 from rtsid.ident.window import EstimatorOptions, WindowEstimate, estimate_window
 from rtsid.link.protocol import (
     STATUS_DISCONTINUITY,
@@ -53,18 +53,29 @@ class WorkerConfig:
         Compute budget per window, s (0: the hop). Exceeding it counts a deadline miss.
     max_sample_age_s : float
         A window whose newest sample arrived longer ago than this is ``stale``.
+    calibration_file : str
+        Robot-dynamics calibration (``rtsid calibrate``) whose predicted robot torque is
+        subtracted from every window before identification ("": none).
     """
 
     window_s: float = 0.3
     hop_s: float = 0.02
     budget_s: float = 0.0
     max_sample_age_s: float = 0.1
+    calibration_file: str = ""
 
     def __post_init__(self) -> None:
         require_range("window_s", self.window_s, 0.01, 60.0)
         require_range("hop_s", self.hop_s, 0.001, 60.0)
         require_range("budget_s", self.budget_s, 0.0, 60.0)
         require_range("max_sample_age_s", self.max_sample_age_s, 0.0, 60.0, low_inclusive=False)
+        if self.calibration_file:
+            from rtsid.calibrate import load_calibration
+
+            try:
+                load_calibration(self.calibration_file)
+            except InputDataError as exc:
+                raise ConfigError(f"config key 'worker.calibration_file': {exc}") from None
 
     @classmethod
     def from_mapping(cls, mapping: Any) -> WorkerConfig:
@@ -333,7 +344,7 @@ class WindowWorker:
         compute_s: float,
         last_arrival_s: float | None,
     ) -> dict[str, Any]:
-        keys = ("I", "B", "K", "I_se", "B_se", "K_se", "vaf", "vaf_irf")
+        keys = ("I", "B", "K", "I_se", "B_se", "K_se", "vaf", "vaf_irf", "vaf_fit")
         values = {k: getattr(estimate, k) if estimate else None for k in keys}
         overrun = compute_s > self.config.effective_budget_s
         flags = [*(estimate.flags if estimate else ()), *(("over_budget",) if overrun else ())]

@@ -42,6 +42,7 @@ def make_estimate(**overrides: object) -> dict[str, object]:
         "K_se": 2.0,
         "vaf": 95.5,
         "vaf_irf": 97.0,
+        "vaf_fit": 98.0,
         "compute_ms": 3.2,
         "latency_ms": 4.1,
         "ok": True,
