@@ -102,7 +102,7 @@ def load_tv_npz(path: str | Path, *, trim: bool = False) -> TvData:
             f"recording {str(p)!r} lacks {', '.join(missing)}; a time-varying experiment needs "
             f"{', '.join(REQUIRED)} (make one with 'rtsid tv --simulate CS3 -o exp.npz')"
         )
-    period = int(arrays["period_samples"])
+    period = int(_scalar(arrays, "period_samples", p))
     torque = np.asarray(arrays["torque_nm"], dtype=np.float64)
     position = np.asarray(arrays["position_rad"], dtype=np.float64)
     truth = arrays.get("stiffness_nm_per_rad")
@@ -116,12 +116,21 @@ def load_tv_npz(path: str | Path, *, trim: bool = False) -> TvData:
     return TvData(
         torque_nm=torque[:n],
         position_rad=position[:n],
-        fs_hz=float(arrays["fs_hz"]),
+        fs_hz=_scalar(arrays, "fs_hz", p),
         excited_bins=np.asarray(arrays["excited_bins"], dtype=np.int64),
         period_samples=period,
         stiffness_nm_per_rad=None if truth is None else np.asarray(truth, dtype=float)[:n],
-        inertia=float(arrays["inertia"]) if "inertia" in arrays else None,
+        inertia=_scalar(arrays, "inertia", p) if "inertia" in arrays else None,
     )
+
+
+def _scalar(arrays: dict[str, Any], key: str, path: Path) -> float:
+    value = np.asarray(arrays[key])
+    if value.size != 1 or not np.isfinite(value).all():
+        raise RecordingError(
+            f"recording {str(path)!r}: {key} must be one finite number, got shape {value.shape}"
+        )
+    return float(value.reshape(()))
 
 
 def simulate_to_npz(
@@ -135,9 +144,13 @@ def simulate_to_npz(
     exp = multisine_experiment(case, spacing_hz=spacing_hz, snr_db=snr_db, seed=seed)
     buffer = io.BytesIO()
     np.savez_compressed(buffer, **exp.as_npz_dict())  # type: ignore[arg-type]
-    try:
-        Path(path).write_bytes(buffer.getvalue())
+    target = Path(path)
+    partial = target.with_name(target.name + ".partial")
+    try:  # never leave a half-written recording under the final name
+        partial.write_bytes(buffer.getvalue())
+        partial.replace(target)
     except OSError as exc:
+        partial.unlink(missing_ok=True)
         raise RecordingError(f"cannot write {str(path)!r}: {exc}") from None
     return TvData(
         exp.torque_nm,

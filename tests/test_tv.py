@@ -33,6 +33,13 @@ def test_tv_command_identifies_a_recording_and_writes_track_and_figure(
     assert png.stat().st_size > 10_000
 
 
+def test_simulate_to_an_unwritable_place_is_a_clear_error(tmp_path, capsys):
+    out = tmp_path / "missing-dir" / "exp.npz"
+    assert main(["tv", "--simulate", "CS2", "-o", str(out)]) == 2
+    assert "cannot write" in capsys.readouterr().err
+    assert not out.parent.exists()
+
+
 def test_simulate_writes_a_recording_the_command_reads(tmp_path, capsys):
     out = tmp_path / "cs1.npz"
     assert main(["tv", "--simulate", "CS1", "-o", str(out), "--spacing", "1.4"]) == 0
@@ -48,6 +55,11 @@ def test_missing_arrays_and_partial_periods_are_clear_errors(small_experiment, t
     np.savez(bad, torque_nm=exp.torque_nm, position_rad=exp.position_rad, fs_hz=25.0)
     assert main(["tv", str(bad)]) == 2
     assert "lacks excited_bins, period_samples" in capsys.readouterr().err
+    arrays = exp.as_npz_dict()
+    arrays["fs_hz"] = np.array([25.0, 25.0])
+    np.savez(bad, **arrays)
+    assert main(["tv", str(bad)]) == 2
+    assert "fs_hz must be one finite number" in capsys.readouterr().err
     cut = tmp_path / "cut.npz"
     arrays = exp.as_npz_dict()
     arrays["torque_nm"] = exp.torque_nm[:-30]
