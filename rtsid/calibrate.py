@@ -1,0 +1,323 @@
+"""Robot-dynamics calibration: identify the robot alone, save it, subtract it later.
+
+``rtsid calibrate BASELINE -o CAL.json`` reads a run made with **no person attached** (an
+rtsid MCAP recording, or an ``.npz``/``.csv`` sample file), identifies the robot's
+acceleration → torque IRF (:func:`rtsid.ident.robot.identify_robot`), reports its VAF and
+writes a calibration file. With ``[worker] calibration_file`` set, the daemon and replay
+subtract the robot torque it predicts from every window before identifying the ankle
+(:meth:`Calibration.torque_offset`).
+
+The calibration file is JSON::
+
+    {"format": "rtsid-calibration", "format_version": 1,
+     "fs_hz": 2500.0, "lowpass_hz": 100.0, "lags_s": [...], "irf": [...],
+     "inertia_kgm2": 0.05, "vaf": 99.9, "samples": 25000, "segments": 1,
+     "source": "baseline.mcap", "software": "rtsid 0.1.0", "created_utc": "..."}
+
+``irf`` is in N·m per rad/s² per s (``Σ irf·Δt`` = ``inertia_kgm2``), ``vaf`` in percent.
+Imports only :mod:`rtsid.ident` and :mod:`rtsid.io` (the runtime loads calibration files).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rtsid import __version__
+from rtsid.errors import ConfigError, InputDataError, RecordingError
+from rtsid.ident.robot import RobotDynamics, identify_robot
+from rtsid.io.mcap_read import iter_sample_batches, read_run_config
+from rtsid.io.sample_files import load_samples
+from rtsid.link.protocol import (
+    STATUS_DISCONTINUITY,
+    STATUS_POSITION_SATURATED,
+    STATUS_TORQUE_SATURATED,
+)
+
+__all__ = [
+    "Calibration",
+    "calibrate_file",
+    "contiguous_segments",
+    "load_calibration",
+    "read_samples",
+    "robot_torque_offset",
+    "save_calibration",
+]
+
+FORMAT = "rtsid-calibration"
+FORMAT_VERSION = 1
+FloatArray = NDArray[np.float64]
+_BAD_STATUS = STATUS_POSITION_SATURATED | STATUS_TORQUE_SATURATED
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """A saved robot-dynamics calibration.
+
+    Attributes
+    ----------
+    robot : RobotDynamics
+        The acceleration → torque IRF at ``robot.fs_hz``.
+    source : str
+        The baseline run it was identified from.
+    software : str
+        ``rtsid <version>`` that made it.
+    created_utc : str
+        ISO time of creation.
+    """
+
+    robot: RobotDynamics
+    source: str = ""
+    software: str = f"rtsid {__version__}"
+    created_utc: str = field(default_factory=lambda: datetime.now(UTC).isoformat())
+
+    @property
+    def fs_hz(self) -> float:
+        """Sample rate the calibration applies to, Hz."""
+        return self.robot.fs_hz
+
+    @property
+    def vaf(self) -> float:
+        """Percent of the baseline's robot torque the IRF predicts."""
+        return self.robot.vaf
+
+    def torque_offset(self, position_rad: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Predicted robot torque (N·m) for a window of joint angle (rad), same shape.
+
+        This is the ``torque_offset`` callable of :class:`rtsid.runtime.worker.WindowWorker`.
+        """
+        return self.robot.predict_torque(position_rad)
+
+    def check_rate(self, fs_hz: float) -> Calibration:
+        """This calibration, or a :class:`ConfigError` if it was made at another rate."""
+        if not math.isclose(self.fs_hz, fs_hz, rel_tol=1e-9):
+            raise ConfigError(
+                f"worker.calibration_file was identified at {self.fs_hz:g} Hz but the samples "
+                f"are at {fs_hz:g} Hz; calibrate from a baseline recorded at {fs_hz:g} Hz"
+            )
+        return self
+
+    def as_dict(self) -> dict[str, Any]:
+        """The JSON document (see the module docstring)."""
+        r = self.robot
+        return {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "fs_hz": r.fs_hz,
+            "lowpass_hz": r.lowpass_hz,
+            "lags_s": r.lags_s.tolist(),
+            "irf": r.irf.tolist(),
+            "inertia_kgm2": r.inertia,
+            "vaf": r.vaf,
+            "samples": r.samples,
+            "segments": r.segments,
+            "source": self.source,
+            "software": self.software,
+            "created_utc": self.created_utc,
+        }
+
+
+def save_calibration(calibration: Calibration, path: str | Path) -> Path:
+    """Write the calibration as JSON, atomically (a temporary file renamed into place)."""
+    out = Path(path)
+    text = json.dumps(calibration.as_dict(), indent=1) + "\n"
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=out.name + ".", suffix=".part", dir=out.parent)
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, out)
+    except OSError as exc:
+        raise RecordingError(
+            f"cannot write calibration {str(out)!r}: {exc.strerror or exc}"
+        ) from exc
+    return out
+
+
+def load_calibration(path: str | Path) -> Calibration:
+    """Read a calibration file written by :func:`save_calibration`.
+
+    Raises
+    ------
+    InputDataError
+        Missing, unreadable or not an rtsid calibration file (the message says which).
+    """
+    p = Path(path)
+    try:
+        document = json.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputDataError(
+            f"calibration file {str(p)!r} does not exist; make one with "
+            "'rtsid calibrate BASELINE -o CAL.json'"
+        ) from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputDataError(f"calibration file {str(p)!r} is not readable JSON: {exc}") from None
+    if not isinstance(document, dict) or document.get("format") != FORMAT:
+        raise InputDataError(
+            f'{str(p)!r} is not an rtsid calibration file (no "format": "{FORMAT}"); '
+            "make one with 'rtsid calibrate'"
+        )
+    try:
+        irf = np.asarray(document["irf"], dtype=np.float64)
+        fs_hz = float(document["fs_hz"])
+        robot = RobotDynamics(
+            irf=irf,
+            fs_hz=fs_hz,
+            lowpass_hz=float(document["lowpass_hz"]),
+            vaf=float(document["vaf"]),
+            samples=int(document.get("samples", 0)),
+            segments=int(document.get("segments", 0)),
+        )
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputDataError(f"calibration file {str(p)!r} lacks or garbles {exc}") from None
+    if irf.ndim != 1 or irf.size % 2 != 1 or not np.all(np.isfinite(irf)) or not fs_hz > 0:
+        raise InputDataError(
+            f"calibration file {str(p)!r}: irf must be an odd-length list of finite numbers "
+            "and fs_hz > 0; recreate it with 'rtsid calibrate'"
+        )
+    return Calibration(
+        robot=robot,
+        source=str(document.get("source", "")),
+        software=str(document.get("software", "")),
+        created_utc=str(document.get("created_utc", "")),
+    )
+
+
+@dataclass(frozen=True)
+class SampleRows:
+    """Rows of a run: values, and which rows may be used (valid, finite, unsaturated)."""
+
+    position_rad: FloatArray
+    torque_nm: FloatArray
+    usable: NDArray[np.bool_]
+    breaks: NDArray[np.bool_]  # row does not continue the previous one
+    fs_hz: float
+    config: dict[str, Any]
+
+
+def read_samples(path: str | Path, fs_hz: float | None = None) -> SampleRows:
+    """All rows of an rtsid MCAP recording or an ``.npz``/``.csv`` file (gaps as unusable rows).
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.mcap`` (rows lost by the link or the logger become unusable rows), ``.npz`` or
+        ``.csv`` (non-finite values are unusable).
+    fs_hz : float, optional
+        Rate of a CSV without a time column.
+    """
+    p = Path(path)
+    if p.suffix.lower() != ".mcap":
+        record = load_samples(p, fs_hz)
+        usable = np.isfinite(record.position_rad) & np.isfinite(record.torque_nm)
+        breaks = np.zeros(usable.size, dtype=bool)
+        return SampleRows(record.position_rad, record.torque_nm, usable, breaks, record.fs_hz, {})
+    return _read_mcap_rows(p)
+
+
+def _read_mcap_rows(path: Path) -> SampleRows:
+    pos: list[FloatArray] = []
+    tq: list[FloatArray] = []
+    ok: list[NDArray[np.bool_]] = []
+    brk: list[NDArray[np.bool_]] = []
+    end = None
+    rate = None
+    for batch in iter_sample_batches(path):
+        rate = batch.fs_hz if rate is None else rate
+        skip = 0 if end is None else max(0, end - batch.first_index)
+        missing = 0 if end is None else max(0, batch.first_index - end)
+        if missing:
+            pos.append(np.full(missing, np.nan))
+            tq.append(np.full(missing, np.nan))
+            ok.append(np.zeros(missing, dtype=bool))
+            brk.append(np.zeros(missing, dtype=bool))
+        status = np.asarray(batch.status[skip:], dtype=np.int64)
+        pos.append(batch.position_rad[skip:])
+        tq.append(batch.torque_nm[skip:])
+        ok.append(batch.valid[skip:] & ((status & _BAD_STATUS) == 0))
+        brk.append((status & STATUS_DISCONTINUITY) != 0)
+        end = max(end or 0, batch.end_index)
+    if rate is None:
+        raise RecordingError(f"{path}: no /samples messages; is it an rtsid recording?")
+    position, torque = np.concatenate(pos), np.concatenate(tq)
+    usable = np.concatenate(ok) & np.isfinite(position) & np.isfinite(torque)
+    return SampleRows(
+        position, torque, usable, np.concatenate(brk), float(rate), read_run_config(path)
+    )
+
+
+def contiguous_segments(rows: SampleRows) -> Iterator[tuple[FloatArray, FloatArray]]:
+    """``(position_rad, torque_nm)`` of each stretch of usable rows without a break."""
+    usable = rows.usable
+    if usable.size == 0:
+        return
+    starts = np.flatnonzero(usable & (np.r_[True, ~usable[:-1]] | rows.breaks))
+    enders = np.flatnonzero(~usable | rows.breaks)  # rows that cannot continue a stretch
+    stops = np.r_[enders, usable.size][np.searchsorted(enders, starts, side="right")]
+    for start, stop in zip(starts.tolist(), stops.tolist(), strict=True):
+        yield rows.position_rad[start:stop], rows.torque_nm[start:stop]
+
+
+def calibrate_file(
+    path: str | Path,
+    *,
+    fs_hz: float | None = None,
+    lowpass_hz: float | None = None,
+    lag_s: float = 0.01,
+    ridge: float = 1e-3,
+) -> Calibration:
+    """Identify the robot from a run with no person attached.
+
+    Parameters
+    ----------
+    path : str or Path
+        An rtsid ``.mcap`` recording, or an ``.npz``/``.csv`` sample file.
+    fs_hz : float, optional
+        Rate of a CSV without a time column.
+    lowpass_hz : float, optional
+        FIR pass-band edge, Hz. Default: the recording's ``estimator.lowpass_hz`` when it
+        has one, else 100 Hz (at most ``fs/4``).
+    lag_s, ridge : float
+        IRF lag span (s) and relative ridge (see :func:`rtsid.ident.robot.identify_robot`).
+
+    Returns
+    -------
+    Calibration
+    """
+    rows = read_samples(path, fs_hz)
+    if lowpass_hz is None:
+        stored = rows.config.get("estimator", {}).get("lowpass_hz")
+        lowpass_hz = float(stored) if stored else min(100.0, rows.fs_hz / 5)
+    robot = identify_robot(
+        contiguous_segments(rows), rows.fs_hz, lowpass_hz=lowpass_hz, lag_s=lag_s, ridge=ridge
+    )
+    return Calibration(robot=robot, source=str(path))
+
+
+def robot_torque_offset(
+    calibration_file: str, fs_hz: float
+) -> Callable[[NDArray[np.float64]], NDArray[np.float64]] | None:
+    """The window worker's ``torque_offset`` for ``[worker] calibration_file`` (None if "").
+
+    Raises
+    ------
+    ConfigError
+        The file does not load, or was made at another sample rate.
+    """
+    if not calibration_file:
+        return None
+    try:
+        calibration = load_calibration(calibration_file)
+    except InputDataError as exc:
+        raise ConfigError(f"config key 'worker.calibration_file': {exc}") from None
+    return calibration.check_rate(fs_hz).torque_offset
