@@ -21,6 +21,7 @@ from typing import IO, Any
 import numpy as np
 
 from rtsid import __version__
+from rtsid.calibrate import robot_torque_offset
 from rtsid.errors import RecordingError
 from rtsid.io.mcap_read import iter_sample_batches, read_run_config, sample_count
 from rtsid.io.schemas import ESTIMATE_FIELDS, SCHEMAS, SampleBatch, encode_estimate, encode_json
@@ -201,6 +202,7 @@ def replay_file(
         publish=sink,
         robot=config.zenoh.robot,
         joint=config.zenoh.joint,
+        torque_offset=robot_torque_offset(config.worker.calibration_file, config.link.fs_hz),
     )
     total = sample_count(path) if progress is not None else 0
     batches: Iterable[SampleBatch] = _counted(iter_sample_batches(path), result, progress, total)
