@@ -51,12 +51,53 @@ from rtsid.link.protocol import (
 )
 from rtsid.link.ring import RingBuffer
 
-__all__ = ["Acquisition", "LinkCounters"]
+__all__ = ["Acquisition", "LinkCounters", "unwrap_counter"]
 
 BusFactory = Callable[[], can.BusABC]
 CAN_ERR_BUSOFF = 0x40
 _CPU_EVERY = 512  # frames between thread CPU readings
 _WRAP_TOLERANCE = 0.1  # of a wrap period: how much earlier than expected a frame may arrive
+
+
+def unwrap_counter(
+    counter: int, last: int, elapsed_s: float, fs_hz: float, reorder_window: int = 64
+) -> int:
+    """Unwrapped sample index of a 12-bit frame ``counter`` given the newest index ``last``.
+
+    Whole wraps hidden in a silence are counted from the elapsed time, rounded towards
+    fewer wraps: frames arrive late (a stalled sender catching up) far more often than
+    early, so an elapsed time up to 0.9 of a wrap period longer than the counter says is
+    taken as delay, not as 4096 lost samples. Used live by :class:`Acquisition` and offline
+    by the CAN-log import, so both number samples alike.
+
+    Parameters
+    ----------
+    counter : int
+        The frame's counter, ``0 .. COUNTER_MODULO - 1``.
+    last : int
+        Unwrapped index of the newest sample so far.
+    elapsed_s : float
+        Time since the newest sample's frame, s (0 when unknown).
+    fs_hz : float
+        Sample rate, Hz.
+    reorder_window : int
+        Counter distance behind the newest treated as a late frame rather than a wrap.
+
+    Returns
+    -------
+    int
+        The index: ``last + 1`` for the next sample, more after lost samples, ``<= last``
+        for a late (duplicate or reordered) frame.
+    """
+    delta = (counter - last) % COUNTER_MODULO
+    wraps = math.floor((elapsed_s * fs_hz - delta) / COUNTER_MODULO + _WRAP_TOLERANCE)
+    if wraps >= 1:  # a silence of at least one whole wrap
+        return last + delta + wraps * COUNTER_MODULO
+    if delta == 0:
+        return last  # the newest sample again
+    if delta > COUNTER_MODULO - reorder_window:
+        return last + delta - COUNTER_MODULO  # behind the newest: late
+    return last + delta
 
 
 @dataclass(frozen=True)
@@ -408,26 +449,13 @@ class Acquisition:
         self._backoff = self.backoff_min_s
 
     def _unwrap(self, counter: int, last: int, bus_time: float, now: float) -> int:
-        """Unwrapped index of ``counter`` given the newest index ``last``.
-
-        Whole wraps hidden in a silence are counted from the elapsed (bus) time, rounded
-        towards fewer wraps: frames arrive late (a stalled sender catching up) far more
-        often than early, so an elapsed time up to 0.9 of a wrap period longer than the
-        counter says is taken as delay, not as 4096 lost samples.
-        """
-        delta = (counter - last) % COUNTER_MODULO
+        """Unwrapped index of ``counter`` given the newest index ``last`` (bus time when
+        the interface stamps frames, else the host clock)."""
         if bus_time > 0 and self._last_bus_time > 0 and bus_time >= self._last_bus_time:
             elapsed = bus_time - self._last_bus_time
         else:
             elapsed = now - self._last_frame_host
-        wraps = math.floor((elapsed * self.fs_hz - delta) / COUNTER_MODULO + _WRAP_TOLERANCE)
-        if wraps >= 1:  # a silence of at least one whole wrap
-            return last + delta + wraps * COUNTER_MODULO
-        if delta == 0:
-            return last  # the newest sample again
-        if delta > COUNTER_MODULO - self.reorder_window:
-            return last + delta - COUNTER_MODULO  # behind the newest: late
-        return last + delta
+        return unwrap_counter(counter, last, elapsed, self.fs_hz, self.reorder_window)
 
     def _late(self, index: int) -> None:
         valid = self.ring.is_valid(index)
