@@ -46,7 +46,7 @@ from rtsid.io.schemas import (
     encode_status,
 )
 
-__all__ = ["McapConfig", "McapLogger", "recording_name"]
+__all__ = ["McapConfig", "McapLogger", "recording_name", "register_channels"]
 
 log = logging.getLogger("rtsid.io.mcap")
 
@@ -118,6 +118,32 @@ def recording_name(robot: str, joint: str, start: datetime, part: int) -> str:
     stamp = start.astimezone(UTC).strftime("%Y%m%dT%H%M%SZ")
     suffix = f"-{part:03d}" if part else ""
     return f"rtsid-{_SAFE.sub('_', robot)}-{_SAFE.sub('_', joint)}-{stamp}{suffix}.mcap"
+
+
+def register_channels(writer: Any, *, can_frames: bool = False) -> dict[str, int]:
+    """Register rtsid's schemas and channels on a started ``mcap.writer.Writer``.
+
+    Every rtsid recording (the live logger's, and files written by ``rtsid convert``) has
+    the same channels: ``/samples``, ``/estimate``, ``/status`` and optionally
+    ``/can_frames``, JSON messages with JSON-schema schemas.
+
+    Returns
+    -------
+    dict[str, int]
+        Channel id by kind (``"samples"``, ``"estimate"``, ``"status"``, ``"can_frames"``).
+    """
+    channels = {}
+    for kind in _KINDS:
+        if kind == "can_frames" and not can_frames:
+            continue
+        schema, topic = SCHEMAS[kind]
+        schema_id = writer.register_schema(
+            name=schema["title"], encoding="jsonschema", data=encode_json(schema)
+        )
+        channels[kind] = writer.register_channel(
+            topic=topic, message_encoding="json", schema_id=schema_id
+        )
+    return channels
 
 
 def _open_exclusive(path: Path) -> IO[bytes]:
@@ -486,18 +512,7 @@ class McapLogger:
         log.info("recording to %s", path)
 
     def _register(self, writer: Any) -> dict[str, int]:
-        channels = {}
-        for kind in _KINDS:
-            if kind == "can_frames" and not self.config.log_can_frames:
-                continue
-            schema, topic = SCHEMAS[kind]
-            schema_id = writer.register_schema(
-                name=schema["title"], encoding="jsonschema", data=encode_json(schema)
-            )
-            channels[kind] = writer.register_channel(
-                topic=topic, message_encoding="json", schema_id=schema_id
-            )
-        return channels
+        return register_channels(writer, can_frames=self.config.log_can_frames)
 
     def _rtsid_metadata(self) -> dict[str, str]:
         import mcap
