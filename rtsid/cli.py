@@ -38,6 +38,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "watch": ("rtsid.commands.watch", "show live K, B, I, VAF and status from a daemon (zenoh)"),
     "tv": ("rtsid.commands.tv", "time-varying G(jω,t), K(t), f_n(t) from a multisine record"),
     "calibrate": ("rtsid.commands.calibrate", "identify the robot's own dynamics (no person)"),
+    "convert": ("rtsid.commands.convert", "CAN captures and .npz/.csv files as rtsid recordings"),
 }
 
 
