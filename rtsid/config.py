@@ -148,3 +148,41 @@ def section_from_mapping(cls: type[T], mapping: Mapping[str, Any] | None, sectio
         if f"'{section}." not in msg and msg.startswith("config key '"):
             msg = msg.replace("config key '", f"config key '{section}.", 1)
         raise ConfigError(msg) from None
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float):
+        return repr(value)
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"cannot write {value!r} as TOML")
+
+
+def to_toml(document: Mapping[str, Any], prefix: str = "") -> str:
+    """Write nested tables of plain values as TOML (keys first, then sub-tables).
+
+    ``None`` values are written as comments (TOML has no null). The result reads back with
+    :func:`load_toml` to the same document, minus the ``None`` keys.
+    """
+    lines: list[str] = []
+    tables = []
+    for key, value in document.items():
+        if isinstance(value, Mapping):
+            tables.append((key, value))
+        elif value is None:
+            lines.append(f"# {key} = (not set)")
+        else:
+            lines.append(f"{key} = {_toml_value(value)}")
+    out = []
+    if prefix and (lines or not tables):
+        out.append(f"[{prefix}]")
+    out.extend(lines)
+    for key, value in tables:
+        name = f"{prefix}.{key}" if prefix else key
+        out.append("")
+        out.append(to_toml(value, name).rstrip("\n"))
+    return "\n".join(out).strip("\n") + "\n"

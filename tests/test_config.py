@@ -50,3 +50,29 @@ def test_load_toml_errors_name_the_file(tmp_path):
         load_toml(bad)
     with pytest.raises(ConfigError, match="does not exist"):
         load_toml(tmp_path / "missing.toml")
+
+
+def test_to_toml_round_trips_nested_tables(tmp_path):
+    from rtsid.config import to_toml
+
+    doc = {
+        "a": {"x": 1, "y": [1.5, 2.0], "s": 'q"uote', "flag": True, "sub": {"z": "w"}},
+        "b": {"none": None, "k": 0.25},
+    }
+    path = tmp_path / "c.toml"
+    path.write_text(to_toml(doc))
+    assert load_toml(path) == {"a": doc["a"], "b": {"k": 0.25}}
+    assert "# none = (not set)" in path.read_text()
+
+
+def test_print_config_is_the_full_default_configuration(tmp_path, capsys):
+    from rtsid.cli import main
+    from rtsid.runtime.daemon import DaemonConfig
+
+    assert main(["run", "--print-config"]) == 0
+    path = tmp_path / "full.toml"
+    path.write_text(capsys.readouterr().out)
+    assert DaemonConfig.load(path) == DaemonConfig()
+    assert {"daemon", "link", "plant", "estimator", "worker", "mcap", "zenoh"} <= set(
+        load_toml(path)
+    )

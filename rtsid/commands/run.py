@@ -7,6 +7,7 @@ import signal
 import sys
 from typing import Any
 
+from rtsid.config import to_toml
 from rtsid.runtime.daemon import Daemon, DaemonConfig
 
 
@@ -14,6 +15,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", metavar="TOML", help="daemon config (default: virtual plant)")
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     parser.add_argument("--quiet", action="store_true", help="no console line per status")
+    parser.add_argument(
+        "--print-config",
+        action="store_true",
+        help="print the configuration in effect (every section and key) as TOML and exit",
+    )
 
 
 def _fmt(value: Any, spec: str) -> str:
@@ -45,6 +51,9 @@ def status_line(status: dict[str, Any], estimate: dict[str, Any] | None) -> str:
 
 def run(args: argparse.Namespace) -> int:
     config = DaemonConfig.load(args.config)
+    if args.print_config:
+        print(to_toml(config.as_dict()), end="")
+        return 0
 
     def show(status: dict[str, Any], estimate: dict[str, Any] | None) -> None:
         print(status_line(status, estimate), flush=True)
