@@ -39,6 +39,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "tv": ("rtsid.commands.tv", "time-varying G(jω,t), K(t), f_n(t) from a multisine record"),
     "calibrate": ("rtsid.commands.calibrate", "identify the robot's own dynamics (no person)"),
     "convert": ("rtsid.commands.convert", "CAN captures and .npz/.csv files as rtsid recordings"),
+    "plot": ("rtsid.commands.plot", "figure of K, B, I (95 % bands) and VAF from a recording"),
 }
 
 

@@ -1,0 +1,81 @@
+"""``rtsid plot REC.mcap -o FIG.png``: K, B, I with 95 % bands, and VAF, over time."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rtsid.errors import InputDataError
+
+KEYS = ("K", "B", "I", "K_se", "B_se", "I_se", "vaf")
+IGNORED_FLAGS = ("over_budget",)  # about the computer, not the estimate
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("recording", type=Path, help="an .mcap with /estimate messages")
+    parser.add_argument("-o", "--output", type=Path, required=True, help="the PNG to write")
+    parser.add_argument("--hist", type=Path, metavar="PNG", help="also histograms of K, B, I, VAF")
+    parser.add_argument("--title", help="figure title (default: the file name)")
+    parser.add_argument(
+        "--every",
+        type=int,
+        default=1,
+        metavar="N",
+        help="plot every N-th window only (long recordings at a 20 ms hop get dense)",
+    )
+
+
+def estimate_series(
+    messages: Sequence[dict[str, Any]],
+) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
+    """Times (window end, s), series by key (NaN where withheld) and flagged windows."""
+    t = np.array([m["t_end_s"] for m in messages], dtype=float)
+    series = {
+        k: np.array(
+            [m[k] if m.get("ok") and m.get(k) is not None else np.nan for m in messages],
+            dtype=float,
+        )
+        for k in KEYS
+    }
+    flagged = np.array(
+        [bool(m.get("ok")) and any(f not in IGNORED_FLAGS for f in m["flags"]) for m in messages]
+    )
+    return t, series, flagged
+
+
+def run(args: argparse.Namespace) -> int:
+    from rtsid.io.mcap_read import iter_estimates
+    from rtsid.plots import plot_distributions, plot_impedance_track, require_matplotlib
+
+    require_matplotlib()
+    messages = list(iter_estimates(args.recording))
+    if not messages:
+        raise InputDataError(
+            f"{args.recording} has no /estimate messages (raw samples only?); estimate them "
+            f"first with: rtsid replay {args.recording} -o OUT.mcap, then rtsid plot OUT.mcap"
+        )
+    if args.every < 1:
+        raise InputDataError(f"--every {args.every}: give a whole number >= 1")
+    t, series, flagged = estimate_series(messages[:: args.every])
+    ok = np.isfinite(series["K"])
+    if not ok.any():
+        reasons = sorted({str(m.get("reason")) for m in messages})
+        raise InputDataError(
+            f"{args.recording}: all {len(t)} windows plotted were withheld ({', '.join(reasons)}); "
+            "nothing to plot"
+        )
+    title = args.title or f"{args.recording.name}: {int(ok.sum())} of {len(t)} windows"
+    out = plot_impedance_track(t, series, args.output, title=title, flagged=flagged)
+    print(
+        f"wrote {out}: median K {np.nanmedian(series['K']):.1f} N·m/rad, "
+        f"B {np.nanmedian(series['B']):.3f} N·m·s/rad, I {np.nanmedian(series['I']):.4f} kg·m², "
+        f"VAF {np.nanmedian(series['vaf']):.1f} % over {int(ok.sum())} windows "
+        f"({len(t) - int(ok.sum())} withheld, {int(flagged.sum())} flagged)"
+    )
+    if args.hist:
+        print(f"wrote {plot_distributions(series, args.hist, title=title)}")
+    return 0

@@ -1,0 +1,63 @@
+"""rtsid plot: the estimates of a recording as a figure; a clear hint when it has none."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rtsid.cli import main
+from rtsid.commands.plot import estimate_series
+from rtsid.io.mcap_read import iter_estimates
+
+pytest.importorskip("matplotlib")
+
+REFERENCE = Path(__file__).resolve().parents[2] / "replay" / "reference" / "sim_3s.mcap"
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def test_plots_a_daemon_recording_and_its_histograms(tmp_path, capsys):
+    out, hist = tmp_path / "fig.png", tmp_path / "hist.png"
+    assert main(["plot", str(REFERENCE), "-o", str(out), "--hist", str(hist)]) == 0
+    for path in (out, hist):
+        assert path.read_bytes()[:8] == PNG_MAGIC and path.stat().st_size > 10_000
+    messages = list(iter_estimates(REFERENCE))
+    ok = [m for m in messages if m["ok"]]
+    printed = capsys.readouterr().out
+    assert f"over {len(ok)} windows ({len(messages) - len(ok)} withheld" in printed
+    assert f"median K {np.median([m['K'] for m in ok]):.1f}" in printed
+
+
+def test_withheld_windows_are_gaps_in_the_series():
+    messages = list(iter_estimates(REFERENCE))
+    t, series, flagged = estimate_series(messages)
+    withheld = np.array([not m["ok"] for m in messages])
+    assert withheld.any() and np.all(np.isnan(series["K"][withheld]))
+    assert np.all(np.isfinite(series["K"][~withheld]))
+    assert not flagged[withheld].any()
+    assert np.all(np.diff(t) > 0)
+
+
+def test_a_recording_without_estimates_says_how_to_make_them(tmp_path, capsys):
+    rng = np.random.default_rng(1)
+    np.savez(
+        tmp_path / "r.npz",
+        position_rad=rng.normal(size=300),
+        torque_nm=rng.normal(size=300),
+        fs_hz=1000.0,
+    )
+    rec = tmp_path / "r.mcap"
+    assert main(["convert", str(tmp_path / "r.npz"), "-o", str(rec)]) == 0
+    capsys.readouterr()
+    assert main(["plot", str(rec), "-o", str(tmp_path / "x.png")]) == 2
+    err = capsys.readouterr().err
+    assert "no /estimate messages" in err and f"rtsid replay {rec} -o OUT.mcap" in err
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_replayed_estimates_plot(tmp_path):
+    replayed = tmp_path / "replayed.mcap"
+    assert main(["replay", str(REFERENCE), "-o", str(replayed)]) == 0
+    assert main(["plot", str(replayed), "-o", str(tmp_path / "r.png"), "--every", "3"]) == 0
+    assert (tmp_path / "r.png").read_bytes()[:8] == PNG_MAGIC
