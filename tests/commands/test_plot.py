@@ -61,3 +61,32 @@ def test_replayed_estimates_plot(tmp_path):
     assert main(["replay", str(REFERENCE), "-o", str(replayed)]) == 0
     assert main(["plot", str(replayed), "-o", str(tmp_path / "r.png"), "--every", "3"]) == 0
     assert (tmp_path / "r.png").read_bytes()[:8] == PNG_MAGIC
+
+
+def _leaves(node):
+    if isinstance(node, str):
+        return [node]
+    return _leaves(node["first"]) + _leaves(node["second"])
+
+
+def test_foxglove_layout_shows_fields_the_recordings_have():
+    import json
+
+    from rtsid.io.schemas import SCHEMAS
+
+    layout_path = REFERENCE.parents[1] / "foxglove_layout.json"
+    layout = json.loads(layout_path.read_text(encoding="utf-8"))
+    panels = layout["configById"]
+    assert sorted(_leaves(layout["layout"])) == sorted(panels)
+    fields = {topic: set(schema["properties"]) for schema, topic in SCHEMAS.values()}
+    plotted = set()
+    for panel_id, config in panels.items():
+        if panel_id.startswith("Plot!"):
+            for path in config["paths"]:
+                topic, field = path["value"].split(".", 1)
+                assert field in fields[topic], path["value"]
+                plotted.add(path["value"])
+        else:
+            assert config["topicPath"] in fields
+    assert {"/estimate.K", "/estimate.B", "/estimate.I", "/estimate.vaf"} <= plotted
+    assert any(p.startswith("/samples.") for p in plotted)
