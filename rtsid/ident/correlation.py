@@ -48,10 +48,10 @@ def detrend(x: ArrayLike, kind: str = "linear") -> FloatArray:
     if kind == "none":
         return arr
     if kind == "mean":
-        return arr - arr.mean()
+        return arr - np.sum(arr) / arr.size
     if kind == "linear":
         t, tt = _centred_ramp(arr.size)
-        return arr - arr.mean() - ((t @ arr) / tt) * t
+        return arr - (np.sum(arr) / arr.size + ((t @ arr) / tt) * t)
     raise InputDataError(f"detrend kind {kind!r} is not one of 'linear', 'mean', 'none'")
 
 

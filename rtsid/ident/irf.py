@@ -125,7 +125,7 @@ def estimate_irf(
             f"a window of {u_arr.size} samples cannot support a {n_lags}-lag IRF; "
             "lengthen the window or shorten the lag span"
         )
-    if not (np.all(np.isfinite(u_arr)) and np.all(np.isfinite(y_arr))):
+    if not (np.isfinite(np.sum(u_arr)) and np.isfinite(np.sum(y_arr))):
         raise InputDataError("IRF input or output contains NaN or inf; clean the window first")
     phi_uu = auto_correlation(u_arr, 2 * max_lag)
     loading = ridge * phi_uu[0]

@@ -32,10 +32,11 @@ def vaf(measured: ArrayLike, predicted: ArrayLike) -> float:
     y_hat = np.asarray(predicted, dtype=np.float64)
     if y.shape != y_hat.shape:
         raise InputDataError(f"VAF needs equal shapes, got {y.shape} and {y_hat.shape}")
-    y_c = y - y.mean()
+    n = y.size
+    y_c = y - np.sum(y) / n
     total = float(y_c @ y_c)
     if total <= 0:
         return 0.0
     err = y - y_hat
-    err -= err.mean()
+    err -= np.sum(err) / n
     return round(max(0.0, 1.0 - float(err @ err) / total) * 100.0, 12)

@@ -123,7 +123,7 @@ def assess_window(snap: Snapshot, now_s: float, max_age_s: float) -> str | None:
         return "gap"
     if bool(np.any(snap.status & _SATURATED)):
         return "saturated"
-    if not (np.all(np.isfinite(snap.position_rad)) and np.all(np.isfinite(snap.torque_nm))):
+    if not (np.isfinite(np.sum(snap.position_rad)) and np.isfinite(np.sum(snap.torque_nm))):
         return "nan"
     return None
 
