@@ -164,7 +164,7 @@ def replay_file(
     config: DaemonConfig | None = None,
     *,
     rate: float | None = None,
-    publish: Callable[[dict[str, Any]], None] | None = None,
+    publish: Callable[[dict[str, Any]], object] | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> ReplayResult:
     """Run the window worker over a recording's samples.

@@ -10,6 +10,7 @@ part above 100 Hz, so (e) repeats the floor case with noise confined to the sign
 from __future__ import annotations
 
 import argparse
+import functools
 from collections.abc import Callable
 
 import numpy as np
@@ -91,9 +92,8 @@ def _table_window_noise(reps: int) -> None:
     for window_s in (0.1, 0.2, 0.3, 0.5, 1.0):
         options = EstimatorOptions(lag_s=min(0.02, window_s / 8))
         for noise in (0.0, 5.0, 10.0, 20.0):
-            med, vaf, withheld = _median_errors(
-                lambda s, w=window_s, nz=noise: _window(s, w, nz), reps, options=options
-            )
+            make = functools.partial(_window, window_s=window_s, noise=noise)
+            med, vaf, withheld = _median_errors(make, reps, options=options)
             rows.append(
                 [
                     f"{window_s * 1e3:.0f}",
@@ -224,7 +224,8 @@ def _table_sinusoidal_tracking(reps: int) -> None:
 def _table_bandwidth(reps: int) -> None:
     rows = []
     for bw in (5.0, 10.0, 20.0, 30.0, 60.0, 150.0):
-        med, vaf, withheld = _median_errors(lambda s, b=bw: _window(s, 0.3, 10.0, bw_hz=b), reps)
+        make = functools.partial(_window, window_s=0.3, noise=10.0, bw_hz=bw)
+        med, vaf, withheld = _median_errors(make, reps)
         rows.append([bw, med[2], med[1], med[0], vaf, withheld])
     soft = JointParameters(0.03, 2.0, 30.0)
     med, vaf, withheld = _median_errors(lambda s: _window(s, 0.3, 10.0, joint=soft), reps, soft)

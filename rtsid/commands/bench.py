@@ -23,7 +23,7 @@ def benchmark_parser(name: str) -> tuple[argparse.ArgumentParser, object]:
     module = importlib.import_module(module_name)
     parser = argparse.ArgumentParser(prog=f"rtsid bench {name}", description=help_text)
     parser.add_argument("--quick", action="store_true", help="a short run to check it works")
-    module.add_arguments(parser)  # type: ignore[attr-defined]
+    module.add_arguments(parser)
     return parser, module
 
 

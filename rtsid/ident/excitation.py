@@ -161,7 +161,7 @@ class Multisine:
     @property
     def frequencies_hz(self) -> FloatArray:
         """Excited frequencies, Hz."""
-        return self.excited_bins * (self.fs_hz / self.period_samples)
+        return np.asarray(self.excited_bins * (self.fs_hz / self.period_samples), dtype=float)
 
     def evaluate(self, t_s: FloatArray | float) -> FloatArray:
         """Value at arbitrary times (seconds), e.g. inside an ODE solver."""

@@ -55,7 +55,8 @@ class IRF:
     def dft_matrix(self, f_hz: ArrayLike) -> ComplexArray:
         """``E`` with ``E @ h`` the frequency response at ``f_hz``, shape (n_f, 2L+1)."""
         f = np.asarray(f_hz, dtype=np.float64)
-        return np.exp(-2j * np.pi * np.multiply.outer(f, self.lags_s)) / self.fs_hz
+        phase = -2j * np.pi * np.multiply.outer(f, self.lags_s)
+        return np.asarray(np.exp(phase) / self.fs_hz, dtype=np.complex128)
 
     def frequency_response(self, f_hz: ArrayLike) -> ComplexArray:
         """``H(j2πf) = Σ_k h(k)·e^{−j2πf·τ_k}·Δt`` at ``f_hz``, output unit per input unit."""

@@ -21,13 +21,16 @@ References
 
 from __future__ import annotations
 
+import importlib
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from rtsid.errors import InputDataError, NotPositiveDefiniteError
 
 try:  # the compiled kernel is optional: see setup.py
-    from rtsid.ident import _eureka
+    _eureka: Any = importlib.import_module("rtsid.ident._eureka")
 except ImportError:  # pragma: no cover - exercised on machines without a compiler
     _eureka = None
 

@@ -130,7 +130,7 @@ def fit_linear(
     solution_map = _weighted_solution_map(f, base)
     params = solution_map @ z_obs
     if reweight:
-        magnitude = np.abs(impedance_response(*params, f))
+        magnitude = np.abs(impedance_response(params[0], params[1], params[2], f))
         floor = 1e-6 * max(float(np.max(magnitude)), 1e-300)
         solution_map = _weighted_solution_map(f, base / np.maximum(magnitude, floor))
         params = solution_map @ z_obs
@@ -138,7 +138,7 @@ def fit_linear(
 
 
 def _log_magnitude_residuals(params: FloatArray, f: FloatArray, log_h: FloatArray) -> FloatArray:
-    mag = np.abs(impedance_response(*params, f))
+    mag = np.abs(impedance_response(params[0], params[1], params[2], f))
     return np.log(np.maximum(mag, 1e-300)) - log_h
 
 
@@ -202,7 +202,7 @@ def _logmag_sensitivity(
 ) -> FloatArray:
     """Gauss–Newton ``∂θ/∂h = (JᵀWJ)⁻¹JᵀW·∂log|H|/∂h`` at the optimum (rows weighted)."""
     w_rad = 2 * np.pi * f
-    z = impedance_response(*params, f)
+    z = impedance_response(params[0], params[1], params[2], f)
     mag2 = np.maximum(np.abs(z) ** 2, 1e-300)
     real_part, imag_part = z.real, z.imag
     jac = (

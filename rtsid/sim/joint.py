@@ -152,7 +152,7 @@ def add_noise(
             raise InputDataError("band-limited noise needs fs_hz")
         sos = signal.butter(4, band_hz, fs=fs_hz, output="sos")
         noise = signal.sosfiltfilt(sos, noise)
-    scale = percent / 100.0 * np.std(y) / max(np.std(noise), 1e-300)
+    scale = percent / 100.0 * float(np.std(y)) / max(float(np.std(noise)), 1e-300)
     return np.asarray(y + scale * noise, dtype=float)
 
 
