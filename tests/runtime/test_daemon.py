@@ -172,3 +172,33 @@ def test_sigkill_leaves_a_recoverable_file_missing_at_most_about_a_second(tmp_pa
     assert valid >= last_seen + 1 - 1.0 * fs
     with fixed.open("rb") as fh:
         assert sum(1 for _ in make_reader(fh).iter_messages(topics=["/estimate"])) > 0
+
+
+def test_zenoh_unavailable_does_not_stop_acquisition_or_logging(tmp_path, free_port):
+    import socket
+
+    with socket.socket() as blocker:  # something else already listens on the zenoh port
+        blocker.bind(("127.0.0.1", free_port))
+        blocker.listen()
+        config = DaemonConfig.load(write_config(tmp_path, free_port))
+        summary = Daemon(config).run(duration_s=1.5)
+    assert summary.estimates > 20 and summary.samples > 3000
+    path = only_recording(tmp_path)
+    assert sample_rows(path)[0] == summary.samples
+    zenoh_state = list(iter_status(path))[-1]["zenoh"]
+    assert zenoh_state["state"] != "up" and zenoh_state["errors"] >= 1
+
+
+def test_unwritable_recordings_folder_keeps_estimating_and_says_why(tmp_path, free_port):
+    blocked = tmp_path / "not-a-folder"
+    blocked.write_text("a file where the recordings folder should be")
+    config_path = write_config(tmp_path, free_port)
+    text = config_path.read_text().replace(str(tmp_path / "rec"), str(blocked / "rec"))
+    config_path.write_text(text)
+    statuses = []
+    daemon = Daemon(DaemonConfig.load(config_path), on_status=lambda s, e: statuses.append(s))
+    summary = daemon.run(duration_s=1.5)
+    assert summary.estimates > 20  # identification and publishing went on
+    assert not summary.clean_shutdown  # …but the run reports that logging failed
+    mcap_state = statuses[-1]["mcap"]
+    assert mcap_state["errors"] >= 1 and "not-a-folder" in mcap_state["last_error"]
