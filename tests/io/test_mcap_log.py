@@ -54,13 +54,6 @@ def read_all_with_mcap_reader(path: Path) -> list[Any]:
         return list(make_reader(fh).iter_messages())
 
 
-def wait_for(predicate: Any, timeout_s: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < deadline, "condition not reached in time"
-        time.sleep(0.01)
-
-
 def test_config_errors_name_the_key() -> None:
     with pytest.raises(ConfigError, match=r"mcap\.queue_size"):
         McapConfig.from_mapping({"queue_size": 1})
@@ -187,7 +180,7 @@ class FullDisk:
         self._fh.close()
 
 
-def test_full_disk_is_reported_while_the_caller_keeps_going(tmp_path: Path) -> None:
+def test_full_disk_is_reported_while_the_caller_keeps_going(tmp_path: Path, wait_for: Any) -> None:
     opened: list[Path] = []
 
     def open_file(path: Path) -> IO[bytes]:
@@ -221,7 +214,9 @@ def test_full_disk_is_reported_while_the_caller_keeps_going(tmp_path: Path) -> N
     assert read_all_with_mcap_reader(opened[1])
 
 
-def test_unwritable_directory_is_an_error_in_stats_not_an_exception(tmp_path: Path) -> None:
+def test_unwritable_directory_is_an_error_in_stats_not_an_exception(
+    tmp_path: Path, wait_for: Any
+) -> None:
     not_a_dir = tmp_path / "file"
     not_a_dir.write_text("x")
     cfg = McapConfig(directory=str(not_a_dir / "recordings"), retry_interval_s=60.0)

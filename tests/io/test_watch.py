@@ -7,7 +7,6 @@ import io
 import multiprocessing as mp
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -15,12 +14,6 @@ from typing import Any
 
 from rtsid.io.schemas import ESTIMATE_FIELDS, encode_estimate
 from rtsid.io.watch import WatchState, format_estimate_line, render_view, watch
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def estimate(seq: int, ok: bool = True, **kw: Any) -> dict[str, Any]:
@@ -97,11 +90,11 @@ def test_live_view_renders_estimates_and_status_without_a_terminal() -> None:
     assert "\x1b" not in text
 
 
-def test_watch_live_mode_writes_redraws(monkeypatch: Any) -> None:
+def test_watch_live_mode_writes_redraws(monkeypatch: Any, free_port: int) -> None:
     # no daemon: live mode still draws the empty view and times out with exit 1
     out = io.StringIO()
     code = watch(
-        "rtsid/*/*", (f"tcp/127.0.0.1:{free_port()}",), count=1, timeout_s=0.3, out=out, live=True
+        "rtsid/*/*", (f"tcp/127.0.0.1:{free_port}",), count=1, timeout_s=0.3, out=out, live=True
     )
     assert code == 1
     assert out.getvalue().startswith("\x1b[H\x1b[J") and "waiting for estimates" in out.getvalue()
@@ -124,8 +117,8 @@ def _publish_until_stopped(port: int, stop: Any) -> None:
             time.sleep(max(0.0, deadline - time.monotonic()))
 
 
-def test_watch_command_against_a_publisher_in_another_process() -> None:
-    port = free_port()
+def test_watch_command_against_a_publisher_in_another_process(free_port: int) -> None:
+    port = free_port
     ctx = mp.get_context("spawn")
     stop = ctx.Event()
     publisher = ctx.Process(target=_publish_until_stopped, args=(port, stop))
@@ -164,7 +157,7 @@ def test_watch_command_against_a_publisher_in_another_process() -> None:
     assert "\x1b" not in result.stdout
 
 
-def test_watch_exits_cleanly_on_ctrl_c() -> None:
+def test_watch_exits_cleanly_on_ctrl_c(free_port: int) -> None:
     proc = subprocess.Popen(
         [
             sys.executable,
@@ -172,7 +165,7 @@ def test_watch_exits_cleanly_on_ctrl_c() -> None:
             "rtsid.cli",
             "watch",
             "--connect",
-            f"tcp/127.0.0.1:{free_port()}",
+            f"tcp/127.0.0.1:{free_port}",
             "--timeout",
             "60",
         ],
@@ -210,8 +203,8 @@ def test_render_marks_a_daemon_whose_liveliness_token_is_gone() -> None:
     assert "DAEMON GONE" not in render_view(state, title="t", now_s=0.0)
 
 
-def test_watch_reports_a_daemon_that_goes_away(tmp_path: Any) -> None:
-    port = free_port()
+def test_watch_reports_a_daemon_that_goes_away(tmp_path: Any, free_port: int) -> None:
+    port = free_port
     ctx = mp.get_context("spawn")
     stop = ctx.Event()
     publisher = ctx.Process(target=_publish_until_stopped, args=(port, stop))

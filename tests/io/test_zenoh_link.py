@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import multiprocessing as mp
-import socket
 import time
 from typing import Any
 
@@ -23,12 +22,6 @@ from rtsid.io.zenoh_link import (
 )
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def estimate(seq: int) -> dict[str, Any]:
     est: dict[str, Any] = dict.fromkeys(ESTIMATE_FIELDS, 1.0)
     est.update(
@@ -43,13 +36,6 @@ def estimate(seq: int) -> dict[str, Any]:
         host_time_ns=time.time_ns(),
     )
     return est
-
-
-def wait_for(predicate: Any, timeout_s: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < deadline, "condition not reached in time"
-        time.sleep(0.01)
 
 
 def config(port: int, **kw: Any) -> ZenohConfig:
@@ -81,8 +67,8 @@ def test_default_zenoh_config_is_loopback_without_scouting() -> None:
         assert json.loads(conf.get_json(key)) is False
 
 
-def test_config_file_replaces_the_session_settings(tmp_path: Any) -> None:
-    port = free_port()
+def test_config_file_replaces_the_session_settings(tmp_path: Any, free_port: int) -> None:
+    port = free_port
     lab = tmp_path / "lab.json5"
     lab.write_text(
         '{ mode: "peer", listen: { endpoints: ["tcp/127.0.0.1:' + str(port) + '"] },\n'
@@ -98,8 +84,8 @@ def test_config_file_replaces_the_session_settings(tmp_path: Any) -> None:
         zenoh_config(ZenohConfig(config_file=str(bad)))
 
 
-def test_publish_liveliness_and_queryables_in_process() -> None:
-    port = free_port()
+def test_publish_liveliness_and_queryables_in_process(free_port: int) -> None:
+    port = free_port
     cfg = config(port)
     keys = key_expressions(cfg)
     with (
@@ -130,8 +116,10 @@ def test_publish_liveliness_and_queryables_in_process() -> None:
     assert pub.stats()["state"] == "closed"
 
 
-def test_taken_port_is_reported_then_recovered_without_raising() -> None:
-    port = free_port()
+def test_taken_port_is_reported_then_recovered_without_raising(
+    free_port: int, wait_for: Any
+) -> None:
+    port = free_port
     blocker = zenoh.open(zenoh_config(config(port)))
     try:
         with ZenohPublisher(config(port, retry_interval_s=0.05)) as pub:
@@ -175,8 +163,8 @@ def _subscribe_n(endpoint: str, key: str, n: int, out: Any) -> None:
     out.put(seqs)
 
 
-def test_cross_process_subscriber_receives_and_its_departure_is_harmless() -> None:
-    port = free_port()
+def test_cross_process_subscriber_receives_and_its_departure_is_harmless(free_port: int) -> None:
+    port = free_port
     cfg = config(port)
     ctx = mp.get_context("spawn")
     out = ctx.Queue()
@@ -209,10 +197,10 @@ def test_cross_process_subscriber_receives_and_its_departure_is_harmless() -> No
         out.join_thread()
 
 
-def test_samples_are_published_when_enabled() -> None:
+def test_samples_are_published_when_enabled(free_port: int) -> None:
     from rtsid.io.schemas import decode_samples
 
-    port = free_port()
+    port = free_port
     cfg = config(port, publish_samples=True)
     with (
         ZenohPublisher(cfg) as pub,
