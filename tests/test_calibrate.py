@@ -172,3 +172,13 @@ def test_daemon_end_to_end_baseline_calibrate_and_subtract(tmp_path, free_port):
     plain = replace(stored, worker=replace(stored.worker, calibration_file=""))
     biased = [m["I"] for m in replay_file(recording, plain).messages if m["ok"]]
     assert np.median(biased) == pytest.approx(ANKLE["I"] + ROBOT_INERTIA, rel=0.15)
+
+
+def test_a_relative_calibration_path_is_kept_absolute(tmp_path, monkeypatch):
+    position, torque = simulate(NO_PERSON, 1.0)
+    save_calibration(Calibration(identify_robot([(position, torque)], FS)), tmp_path / "c.json")
+    monkeypatch.chdir(tmp_path)
+    config = WorkerConfig(calibration_file="c.json")
+    assert config.calibration_file == str(tmp_path / "c.json")
+    monkeypatch.chdir(tmp_path.parent)  # a stored config still finds it from elsewhere
+    assert WorkerConfig(calibration_file=config.calibration_file) == config

@@ -15,6 +15,7 @@ counted as overruns); compute beyond the budget counts a deadline miss.
 from __future__ import annotations
 
 import math
+import os
 import threading
 import time
 from collections import Counter
@@ -55,7 +56,9 @@ class WorkerConfig:
         A window whose newest sample arrived longer ago than this is ``stale``.
     calibration_file : str
         Robot-dynamics calibration (``rtsid calibrate``) whose predicted robot torque is
-        subtracted from every window before identification ("": none).
+        subtracted from every window before identification ("": none). A relative path is
+        taken from the working directory and kept absolute (so a recording's stored config
+        still finds it when replayed from elsewhere).
     """
 
     window_s: float = 0.3
@@ -72,8 +75,10 @@ class WorkerConfig:
         if self.calibration_file:
             from rtsid.calibrate import load_calibration
 
+            path = os.path.abspath(os.path.expanduser(self.calibration_file))
+            object.__setattr__(self, "calibration_file", path)
             try:
-                load_calibration(self.calibration_file)
+                load_calibration(path)
             except InputDataError as exc:
                 raise ConfigError(f"config key 'worker.calibration_file': {exc}") from None
 
