@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -179,3 +180,9 @@ def test_real_recording_converts_and_replays_with_its_preset(tmp_path, reklab_pa
     ok = [m for m in result.messages if m["ok"]]
     assert 80.0 < np.median([m["K"] for m in ok]) < 130.0
     assert np.median([m["vaf"] for m in ok]) > 70.0
+    # the converted file also feeds calibration (here with a person attached: only a smoke
+    # test that it reads the stored rate and the preset's band)
+    cal = tmp_path / "cal.json"
+    assert main(["calibrate", str(out), "-o", str(cal)]) == 0
+    document = json.loads(cal.read_text())
+    assert document["fs_hz"] == 1000.0 and document["lowpass_hz"] == 50.0
