@@ -32,6 +32,7 @@ __all__ = [
     "LtvExperiment",
     "multisine_experiment",
     "simulate_ltv_admittance",
+    "simulate_ltv_block",
     "study_stiffness",
 ]
 
@@ -128,44 +129,129 @@ def simulate_ltv_admittance(
     numpy.ndarray, shape (n_samples,)
         Angle ``φ``, rad.
     """
+    _check_grid(n_samples, substeps, fs_hz)
+    phi, _state = _integrate(
+        torque,
+        fs_hz,
+        0,
+        n_samples - 1,
+        joint,
+        stiffness,
+        (0.0, 0.0),
+        substeps,
+        input_period_samples,
+    )
+    return phi
+
+
+def simulate_ltv_block(
+    torque: Callable[[FloatArray], FloatArray],
+    fs_hz: float,
+    first_sample: int,
+    n_samples: int,
+    joint: JointParameters,
+    stiffness: StiffnessProfile,
+    *,
+    state: tuple[float, float] = (0.0, 0.0),
+    substeps: int = 8,
+    input_period_samples: int | None = None,
+) -> tuple[FloatArray, tuple[float, float]]:
+    """One block of :func:`simulate_ltv_admittance`, continuing from a given state.
+
+    Consecutive blocks, each started from the state the previous one returned, give the
+    same samples as one long simulation (the same RK4 steps on the same time grid).
+
+    Parameters
+    ----------
+    torque, fs_hz, joint, stiffness, substeps, input_period_samples
+        As in :func:`simulate_ltv_admittance` (times are absolute: sample ``k`` is at
+        ``k / fs_hz``; a periodic input is periodic from sample 0).
+    first_sample : int
+        Index of the block's first sample (>= 0).
+    n_samples : int
+        Samples in the block (>= 1).
+    state : tuple of float
+        Angle (rad) and angular velocity (rad/s) at ``first_sample``.
+
+    Returns
+    -------
+    angle : numpy.ndarray, shape (n_samples,)
+        ``φ`` at samples ``first_sample .. first_sample + n_samples − 1``, rad.
+    next_state : tuple of float
+        Angle and velocity at ``first_sample + n_samples`` (pass it to the next block).
+    """
+    _check_grid(n_samples, substeps, fs_hz)
+    if first_sample < 0:
+        raise InputDataError(f"first_sample must be >= 0, got {first_sample}")
+    phi, last = _integrate(
+        torque,
+        fs_hz,
+        first_sample,
+        n_samples,
+        joint,
+        stiffness,
+        state,
+        substeps,
+        input_period_samples,
+    )
+    return phi[:-1], last
+
+
+def _check_grid(n_samples: int, substeps: int, fs_hz: float) -> None:
     if n_samples < 1 or substeps < 1:
         raise InputDataError(f"need n_samples >= 1 and substeps >= 1, got {n_samples}, {substeps}")
     if not np.isfinite(fs_hz) or fs_hz <= 0:
         raise InputDataError(f"fs_hz must be positive, got {fs_hz}")
+
+
+def _integrate(
+    torque: Callable[[FloatArray], FloatArray],
+    fs_hz: float,
+    first_sample: int,
+    n_intervals: int,
+    joint: JointParameters,
+    stiffness: StiffnessProfile,
+    state: tuple[float, float],
+    substeps: int,
+    input_period_samples: int | None,
+) -> tuple[FloatArray, tuple[float, float]]:
+    """Angles at samples ``first .. first + n_intervals`` and the state at the last one."""
+    phi = np.empty(n_intervals + 1)
+    phi[0] = state[0]
+    if n_intervals == 0:
+        return phi, (float(state[0]), float(state[1]))
     h = 1.0 / (fs_hz * substeps)
-    n_steps = (n_samples - 1) * substeps
-    phi = np.zeros(n_samples)
-    if n_steps == 0:
-        return phi
-    # Times of each step's start, middle and end on a grid of half sub-steps.
-    half = np.arange(2 * n_steps + 1)
+    n_steps = n_intervals * substeps
+    # Times of each step's start, middle and end on a grid of half sub-steps (absolute
+    # integer indices, so that a block's grid is exactly the long simulation's).
+    half = 2 * substeps * int(first_sample) + np.arange(2 * n_steps + 1)
     t_half = np.asarray(half * (h / 2), dtype=np.float64)
     if input_period_samples is not None:
         period_half = 2 * substeps * int(input_period_samples)
-        u_half = np.asarray(torque(t_half[:period_half]), dtype=np.float64)
-        u_half = u_half[half % period_half]
+        u_one = np.asarray(torque(np.arange(period_half) * (h / 2)), dtype=np.float64)
+        u_half = u_one[half % period_half]
     else:
         u_half = np.asarray(torque(t_half), dtype=np.float64)
     k_half = np.asarray(stiffness.at(t_half), dtype=np.float64)
     idx = 2 * np.arange(n_steps)[:, None] + np.array([0, 1, 2])
     m, c = _affine_rk4_steps(
-        idx[:, 0] * (h / 2), h, u_half[idx], k_half[idx], joint.inertia, joint.damping
+        t_half[idx[:, 0]], h, u_half[idx], k_half[idx], joint.inertia, joint.damping
     )
-    m = m.reshape(n_samples - 1, substeps, 2, 2)
-    c = c.reshape(n_samples - 1, substeps, 2)
+    m = m.reshape(n_intervals, substeps, 2, 2)
+    c = c.reshape(n_intervals, substeps, 2)
     m_total, c_total = m[:, 0], c[:, 0]
     for j in range(1, substeps):
         c_total = np.einsum("nij,nj->ni", m[:, j], c_total) + c[:, j]
         m_total = m[:, j] @ m_total
     m00, m01, m10, m11 = (m_total[:, i, j].tolist() for i, j in ((0, 0), (0, 1), (1, 0), (1, 1)))
     c0, c1 = c_total[:, 0].tolist(), c_total[:, 1].tolist()
-    x0 = x1 = 0.0
-    out = [0.0] * n_samples
-    for i in range(n_samples - 1):
+    x0, x1 = float(state[0]), float(state[1])
+    out = [x0] * (n_intervals + 1)
+    for i in range(n_intervals):
         x0, x1 = m00[i] * x0 + m01[i] * x1 + c0[i], m10[i] * x0 + m11[i] * x1 + c1[i]
         out[i + 1] = x0
     phi[:] = out
-    return phi
+    return phi, (x0, x1)
 
 
 @dataclass(frozen=True)

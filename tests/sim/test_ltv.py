@@ -8,6 +8,7 @@ from rtsid.sim.ltv import (
     STUDY_JOINT,
     multisine_experiment,
     simulate_ltv_admittance,
+    simulate_ltv_block,
     study_stiffness,
 )
 
@@ -80,3 +81,34 @@ def test_bad_case_and_spacing_are_rejected():
         study_stiffness("CS9", 10.0)
     with pytest.raises(InputDataError, match=r"multiple of 0\.1 Hz"):
         multisine_experiment("CS1", spacing_hz=0.25, n_periods=2)
+
+
+@pytest.mark.parametrize("period", [None, 250])
+def test_blocks_carrying_the_state_equal_one_long_simulation(period):
+    fs = 250.0
+    ms = multisine(fs, 1.0, 20.0, every=2, rms=0.5, seed=4)
+    joint = JointParameters(inertia=0.015, damping=0.3)
+    k = StiffnessProfile("raised_cosine", k0=20.0, k1=150.0, t0=0.0, t1=3.0)
+    n = 750
+    whole = simulate_ltv_admittance(
+        ms.evaluate, fs, n, joint, k, substeps=3, input_period_samples=period
+    )
+    pieces, state, first = [], (0.0, 0.0), 0
+    for size in (1, 99, 250, 37, 363):  # seams anywhere, also mid-period
+        angle, state = simulate_ltv_block(
+            ms.evaluate,
+            fs,
+            first,
+            size,
+            joint,
+            k,
+            state=state,
+            substeps=3,
+            input_period_samples=period,
+        )
+        pieces.append(angle)
+        first += size
+    blocks = np.concatenate(pieces)
+    np.testing.assert_allclose(blocks, whole, rtol=0, atol=1e-12 * np.max(np.abs(whole)))
+    with pytest.raises(InputDataError, match="first_sample"):
+        simulate_ltv_block(ms.evaluate, fs, -1, 10, joint, k)
