@@ -16,7 +16,12 @@ IGNORED_FLAGS = ("over_budget",)  # about the computer, not the estimate
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("recording", type=Path, help="an .mcap with /estimate messages")
+    parser.add_argument(
+        "recording",
+        type=Path,
+        nargs="+",
+        help="an .mcap with /estimate messages (several: the parts of a rotated session)",
+    )
     parser.add_argument("-o", "--output", type=Path, required=True, help="the PNG to write")
     parser.add_argument("--hist", type=Path, metavar="PNG", help="also histograms of K, B, I, VAF")
     parser.add_argument("--title", help="figure title (default: the file name)")
@@ -52,12 +57,19 @@ def run(args: argparse.Namespace) -> int:
     from rtsid.plots import plot_distributions, plot_impedance_track, require_matplotlib
 
     require_matplotlib()
-    messages = list(iter_estimates(args.recording))
-    if not messages:
-        raise InputDataError(
-            f"{args.recording} has no /estimate messages (raw samples only?); estimate them "
-            f"first with: rtsid replay {args.recording} -o OUT.mcap, then rtsid plot OUT.mcap"
-        )
+    messages = []
+    for path in args.recording:
+        found = list(iter_estimates(path))
+        if not found:
+            raise InputDataError(
+                f"{path} has no /estimate messages (raw samples only?); estimate them first "
+                f"with: rtsid replay {path} -o OUT.mcap, then rtsid plot OUT.mcap"
+            )
+        messages.extend(found)
+    messages.sort(key=lambda m: m["window_end_index"])
+    name = args.recording[0].name + (
+        f" (+{len(args.recording) - 1} more)" if len(args.recording) > 1 else ""
+    )
     if args.every < 1:
         raise InputDataError(f"--every {args.every}: give a whole number >= 1")
     t, series, flagged = estimate_series(messages[:: args.every])
@@ -65,10 +77,10 @@ def run(args: argparse.Namespace) -> int:
     if not ok.any():
         reasons = sorted({str(m.get("reason")) for m in messages})
         raise InputDataError(
-            f"{args.recording}: all {len(t)} windows plotted were withheld ({', '.join(reasons)}); "
+            f"{name}: all {len(t)} windows plotted were withheld ({', '.join(reasons)}); "
             "nothing to plot"
         )
-    title = args.title or f"{args.recording.name}: {int(ok.sum())} of {len(t)} windows"
+    title = args.title or f"{name}: {int(ok.sum())} of {len(t)} windows"
     out = plot_impedance_track(t, series, args.output, title=title, flagged=flagged)
     print(
         f"wrote {out}: median K {np.nanmedian(series['K']):.1f} N·m/rad, "

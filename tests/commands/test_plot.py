@@ -90,3 +90,19 @@ def test_foxglove_layout_shows_fields_the_recordings_have():
             assert config["topicPath"] in fields
     assert {"/estimate.K", "/estimate.B", "/estimate.I", "/estimate.vaf"} <= plotted
     assert any(p.startswith("/samples.") for p in plotted)
+
+
+def test_parts_of_a_rotated_session_plot_as_one(tmp_path, capsys):
+    from rtsid.replay import recording_config, write_estimates_mcap
+
+    messages = list(iter_estimates(REFERENCE))
+    config = recording_config(REFERENCE)
+    half = len(messages) // 2
+    parts = [tmp_path / "part-000.mcap", tmp_path / "part-001.mcap"]
+    for path, chunk in zip(parts, (messages[half:], messages[:half]), strict=True):
+        with path.open("wb") as fh:
+            write_estimates_mcap(chunk, fh, source=str(REFERENCE), config=config)
+    capsys.readouterr()
+    assert main(["plot", *map(str, parts), "-o", str(tmp_path / "p.png")]) == 0
+    ok = sum(m["ok"] for m in messages)
+    assert f"over {ok} windows ({len(messages) - ok} withheld" in capsys.readouterr().out
