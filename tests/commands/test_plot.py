@@ -93,9 +93,9 @@ def test_foxglove_layout_shows_fields_the_recordings_have():
 
 
 def test_parts_of_a_rotated_session_plot_as_one(tmp_path, capsys):
-    from rtsid.replay import recording_config, write_estimates_mcap
+    from rtsid.replay import recording_config, replay_file, write_estimates_mcap
 
-    messages = list(iter_estimates(REFERENCE))
+    messages = replay_file(REFERENCE).messages
     config = recording_config(REFERENCE)
     half = len(messages) // 2
     parts = [tmp_path / "part-000.mcap", tmp_path / "part-001.mcap"]
