@@ -14,5 +14,5 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "skirt": ("rtsid.benchmarks.skirt", "LTV skirt decomposition study: VAF, resonance RMSE, time"),
     "io": ("rtsid.benchmarks.io", "MCAP logger cost at daemon rates and zenoh one-way latency"),
     "link": ("rtsid.benchmarks.link", "2500 Hz CAN acquisition: loss, latency, CPU, highest rate"),
-    "calibrate": ("rtsid.benchmarks.calibrate", "robot-dynamics calibration vs the source's method"),
+    "calibrate": ("rtsid.benchmarks.calibrate", "robot calibration vs the source's method"),
 }
