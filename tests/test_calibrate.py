@@ -182,3 +182,15 @@ def test_a_relative_calibration_path_is_kept_absolute(tmp_path, monkeypatch):
     assert config.calibration_file == str(tmp_path / "c.json")
     monkeypatch.chdir(tmp_path.parent)  # a stored config still finds it from elsewhere
     assert WorkerConfig(calibration_file=config.calibration_file) == config
+
+
+def test_benchmark_table_shows_the_calibration_beating_the_source(capsys):
+    assert main(["bench", "calibrate", "--quick"]) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("|")]
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in lines[2:]]
+    ours = [r for r in rows if r[1].startswith("rtsid")]
+    source = [r for r in rows if r[1].startswith("source")]
+    assert len(ours) == len(source) == 4
+    for mine, theirs in zip(ours, source, strict=True):
+        assert float(mine[3]) > 99.0 > float(theirs[3])  # VAF inside the estimator's band
+        assert float(mine[4]) == pytest.approx(ROBOT_INERTIA, rel=0.02)
