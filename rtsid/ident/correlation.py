@@ -79,10 +79,17 @@ def _fft_cross(u: FloatArray, y: FloatArray) -> FloatArray:
 
 
 def _direct_lags(u: FloatArray, y: FloatArray, first: int, last: int) -> FloatArray:
-    """``Σ_t u(t)·y(t+k)`` for ``k = first..last`` by one direct correlation."""
+    """``Σ_t u(t)·y(t+k)`` for ``k = first..last``, in O(N·(last − first + 1)).
+
+    ``y`` is zero-padded so that one ``valid``-mode correlation yields exactly the wanted
+    lags (a ``full`` correlation would cost O(N²) on long records).
+    """
     n = u.size
-    full = np.correlate(y, u, mode="full")  # index n-1+k holds lag k
-    return np.asarray(full[n - 1 + first : n + last], dtype=np.float64)
+    padded = np.zeros(n + (last - first))
+    lo, hi = max(0, first), min(n, n + last)
+    # padded[j] = y[j + first] where that index exists, so out[k - first] = Σ_t u(t)·y(t+k).
+    padded[lo - first : hi - first] = y[lo:hi]
+    return np.asarray(np.correlate(padded, u, mode="valid"), dtype=np.float64)
 
 
 def auto_correlation(u: ArrayLike, max_lag: int) -> FloatArray:
