@@ -1,7 +1,8 @@
 """Configuration of the hardware link (``[link]``) and of the virtual plant (``[plant]``).
 
-``[plant]`` has two sub-tables, ``[plant.faults]`` (:class:`FaultConfig`) and
-``[plant.stiffness]`` (:class:`StiffnessConfig`). Build them from a parsed TOML document with
+``[plant]`` has three sub-tables, ``[plant.faults]`` (:class:`FaultConfig`),
+``[plant.stiffness_profile]`` (:class:`StiffnessConfig`) and ``[plant.torque_multisine]``
+(:class:`TorqueMultisineConfig`). Build them from a parsed TOML document with
 :func:`link_configs_from_mapping` (or from a file with :func:`load_link_configs`); every
 unknown key, wrong type or out-of-range value is a one-line :class:`~rtsid.errors.ConfigError`
 naming ``section.key``.
@@ -16,7 +17,8 @@ from pathlib import Path
 from typing import Any
 
 from rtsid.config import invalid, load_toml, require_choice, require_range, section_from_mapping
-from rtsid.errors import ConfigError
+from rtsid.errors import ConfigError, InputDataError
+from rtsid.ident.excitation import Multisine, multisine
 from rtsid.link.protocol import PERTURBATION_KINDS
 
 __all__ = [
@@ -24,6 +26,7 @@ __all__ = [
     "LinkConfig",
     "PlantConfig",
     "StiffnessConfig",
+    "TorqueMultisineConfig",
     "link_configs_from_mapping",
     "load_link_configs",
     "plant_config_from_mapping",
@@ -251,13 +254,92 @@ class StiffnessConfig:
 
 
 @dataclass(frozen=True)
+class TorqueMultisineConfig:
+    """``[plant.torque_multisine]``: a periodic random-phase multisine torque experiment.
+
+    With ``[plant] mode = "torque_multisine"`` the virtual plant applies this torque to the
+    joint (admittance: ``I·φ̈ = τ − B·φ̇ − K(t)·φ``). A recording made on a real rig running
+    such an experiment declares it here the same way, so that ``rtsid tv REC.mcap`` finds
+    the excited bins and the periods (the ``[plant]`` section is otherwise unused then).
+    The signal is :func:`rtsid.ident.excitation.multisine` with these arguments.
+
+    Attributes
+    ----------
+    period_s : float
+        Period, s (a whole number of samples at ``[plant] fs_hz``); 0: no multisine declared.
+    f_max_hz : float
+        Highest excited frequency, Hz.
+    f_min_hz : float
+        Lowest excited frequency, Hz (0: from the first excited bin).
+    every : int
+        Excite every ``every``-th bin of the ``1/period_s`` grid (lines ``every/period_s``
+        Hz apart; the bins between carry the time variation).
+    rms_nm : float
+        RMS torque, N·m.
+    seed : int
+        Seed of the random phases.
+    start_index : int
+        Sample index at which the first period starts (the plant starts it at 0, its first
+        sample). Samples before it are not part of the experiment.
+    """
+
+    period_s: float = 0.0
+    f_max_hz: float = 20.0
+    f_min_hz: float = 0.0
+    every: int = 1
+    rms_nm: float = 1.0
+    seed: int = 1
+    start_index: int = 0
+
+    def __post_init__(self) -> None:
+        require_range("period_s", self.period_s, 0.0, 600.0)
+        require_range("f_max_hz", self.f_max_hz, 0.0, None, low_inclusive=False)
+        require_range("f_min_hz", self.f_min_hz, 0.0, self.f_max_hz)
+        require_range("every", self.every, 1, 1_000_000)
+        require_range("rms_nm", self.rms_nm, 0.0, None, low_inclusive=False)
+        require_range("start_index", self.start_index, 0)
+
+    @property
+    def declared(self) -> bool:
+        """Whether a multisine is declared (``period_s > 0``)."""
+        return self.period_s > 0
+
+    def multisine(self, fs_hz: float) -> Multisine:
+        """The declared signal at ``fs_hz`` (excited bins, period samples, phases, amplitudes).
+
+        Raises
+        ------
+        ConfigError
+            No multisine declared, or parameters :func:`multisine` refuses (named).
+        """
+        if not self.declared:
+            raise invalid(
+                "plant.torque_multisine.period_s", self.period_s, "a period > 0 s (none declared)"
+            )
+        try:
+            return multisine(
+                fs_hz,
+                self.period_s,
+                self.f_max_hz,
+                every=self.every,
+                f_min_hz=self.f_min_hz or None,
+                rms=self.rms_nm,
+                seed=self.seed,
+            )
+        except InputDataError as exc:
+            raise ConfigError(f"[plant.torque_multisine]: {exc}") from None
+
+
+@dataclass(frozen=True)
 class PlantConfig:
     """The ``[plant]`` section: the simulated (or replayed) ankle robot.
 
     Attributes
     ----------
     mode : str
-        ``"sim"`` (simulated joint) or ``"player"`` (stream ``player_file``).
+        ``"sim"`` (simulated joint under a position perturbation), ``"player"`` (stream
+        ``player_file``) or ``"torque_multisine"`` (the joint driven by the multisine
+        torque of ``[plant.torque_multisine]``; perturbation keys and commands are ignored).
     fs_hz : float
         State frames per second (the robot's sample rate).
     realtime : bool
@@ -299,6 +381,7 @@ class PlantConfig:
         Stop producing after this many samples (0: run until stopped).
     faults : FaultConfig
     stiffness_profile : StiffnessConfig
+    torque_multisine : TorqueMultisineConfig
     """
 
     mode: str = "sim"
@@ -325,9 +408,10 @@ class PlantConfig:
     max_samples: int = 0
     faults: FaultConfig = field(default_factory=FaultConfig)
     stiffness_profile: StiffnessConfig = field(default_factory=StiffnessConfig)
+    torque_multisine: TorqueMultisineConfig = field(default_factory=TorqueMultisineConfig)
 
     def __post_init__(self) -> None:
-        require_choice("mode", self.mode, ("sim", "player"))
+        require_choice("mode", self.mode, ("sim", "player", "torque_multisine"))
         require_range("fs_hz", self.fs_hz, 1.0, 200_000.0)
         require_range("frames_per_tick", self.frames_per_tick, 1, 10_000)
         require_range("block_s", self.block_s, 0.01, 10.0)
@@ -353,10 +437,32 @@ class PlantConfig:
             require_range(name, getattr(self, name), 0.0)
         require_range("max_samples", self.max_samples, 0)
         require_choice("player_torque_sign", self.player_torque_sign, (1.0, -1.0))
+        if self.mode == "torque_multisine":
+            self._check_torque_multisine()
         if self.mode == "player" and not self.player_file:
             raise invalid(
                 "player_file", self.player_file, "the path of an .npz file in player mode"
             )
+
+    def _check_torque_multisine(self) -> None:
+        ms = self.torque_multisine
+        if not ms.declared:
+            raise invalid(
+                "torque_multisine.period_s",
+                ms.period_s,
+                "a period > 0 s in mode 'torque_multisine'",
+            )
+        n = ms.period_s * self.fs_hz
+        if abs(n - round(n)) > 1e-6 * n:
+            raise invalid(
+                "torque_multisine.period_s",
+                ms.period_s,
+                f"a whole number of samples at fs_hz = {self.fs_hz}",
+            )
+        if ms.f_max_hz >= self.fs_hz / 2:
+            raise invalid("torque_multisine.f_max_hz", ms.f_max_hz, f"below {self.fs_hz / 2} Hz")
+        if self.inertia + self.robot_inertia <= 0:
+            raise invalid("inertia", self.inertia, "inertia + robot_inertia > 0 (an admittance)")
 
     @property
     def block_samples(self) -> int:
@@ -380,6 +486,7 @@ def plant_config_from_mapping(
     for key, cls, attr in (
         ("faults", FaultConfig, "faults"),
         ("stiffness_profile", StiffnessConfig, "stiffness_profile"),
+        ("torque_multisine", TorqueMultisineConfig, "torque_multisine"),
     ):
         table = values.pop(key, None)
         if table is not None and not isinstance(table, Mapping):

@@ -42,7 +42,7 @@ from rtsid.link.protocol import (
     quantise_position,
     quantise_torque,
 )
-from rtsid.link.signals import Block, PlantTruth, PlayerSource, SimSource
+from rtsid.link.signals import Block, PlantTruth, PlayerSource, SimSource, TorqueMultisineSource
 
 __all__ = ["UNKNOWN_ID", "BusSink", "FrameSink", "PlantCounters", "VirtualPlant", "plant_fields"]
 
@@ -278,9 +278,13 @@ class VirtualPlant:
             self._sink: Any = bus
         else:
             self._sink = BusSink(bus, blocking=not cfg.realtime)
-        self._source: SimSource | PlayerSource = (
-            SimSource(cfg) if cfg.mode == "sim" else PlayerSource(cfg)
-        )
+        self._source: SimSource | PlayerSource | TorqueMultisineSource
+        if cfg.mode == "sim":
+            self._source = SimSource(cfg)
+        elif cfg.mode == "torque_multisine":
+            self._source = TorqueMultisineSource(cfg)
+        else:
+            self._source = PlayerSource(cfg)
         self._faults = _FaultInjector(cfg.faults, cfg.fs_hz)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None

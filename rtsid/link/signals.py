@@ -1,5 +1,8 @@
 """Sample sources of the virtual plant: a simulated ankle and a player for recordings.
 
+:class:`SimSource` moves the ankle with a position perturbation (impedance: torque out);
+:class:`TorqueMultisineSource` drives it with a multisine torque (admittance: angle out).
+
 Each source yields consecutive blocks of samples (``next_block()``) that continue one another
 exactly: the perturbation, the servo filter and the derivative stencils carry their state
 across blocks, so a stream cut into blocks equals the same stream generated at once.
@@ -21,12 +24,14 @@ from rtsid.ident.excitation import multisine, prbs
 from rtsid.link.config import PlantConfig, StiffnessConfig
 from rtsid.link.protocol import Command
 from rtsid.sim.joint import JointParameters, StiffnessProfile, add_noise, simulate_impedance
+from rtsid.sim.ltv import simulate_ltv_block
 
 __all__ = [
     "Block",
     "PlantTruth",
     "PlayerSource",
     "SimSource",
+    "TorqueMultisineSource",
     "load_recording",
     "servo_coefficients",
     "stiffness_profile",
@@ -234,6 +239,99 @@ class SimSource:
     def lookahead_samples(self) -> int:
         """Samples by which the torque lags the newest generated position (stencil reach)."""
         return _STENCIL_HALF
+
+
+class TorqueMultisineSource:
+    """Simulated joint driven by a periodic multisine torque: ``I·φ̈ = τ − B·φ̇ − K(t)·φ``.
+
+    The torque is :meth:`TorqueMultisineConfig.multisine` from sample ``start_index`` on
+    (zero before), the angle comes from :func:`rtsid.sim.ltv.simulate_ltv_block` block by
+    block with the state carried across blocks (the same samples as one long simulation),
+    with ``I = inertia + robot_inertia``. Measurement noise: ``position_noise_rad`` (encoder,
+    rad std) on the angle and ``noise_percent`` % of the multisine's RMS on the torque.
+    Commands are accepted and ignored (the experiment is scripted by the config).
+
+    Parameters
+    ----------
+    cfg : PlantConfig
+        ``mode = "torque_multisine"`` with ``[plant.torque_multisine]`` and
+        ``[plant.stiffness_profile]``.
+    """
+
+    #: RK4 steps per second of simulated time (at least): 8 per sample at 200 Hz.
+    STEP_RATE_HZ = 1600.0
+
+    def __init__(self, cfg: PlantConfig) -> None:
+        self.cfg = cfg
+        self.fs_hz = cfg.fs_hz
+        self.n = cfg.block_samples
+        self.rng = np.random.default_rng(cfg.seed)
+        self.multisine = cfg.torque_multisine.multisine(cfg.fs_hz)
+        self.start_index = cfg.torque_multisine.start_index
+        self._period = self.multisine.samples(1)
+        self.truth = PlantTruth(
+            cfg.inertia,
+            cfg.damping,
+            cfg.robot_inertia,
+            cfg.fs_hz,
+            stiffness_profile(cfg.stiffness_profile, cfg.stiffness),
+            cfg.stiffness_profile.period_s,
+        )
+        self._k = _TruthStiffness(self.truth)
+        self.joint = JointParameters(cfg.inertia + cfg.robot_inertia, cfg.damping, 0.0)
+        self.substeps = max(1, int(np.ceil(self.STEP_RATE_HZ / cfg.fs_hz)))
+        self.command = Command(enable=True, kind="multisine", amplitude_rad=0.0, bandwidth_hz=0.0)
+        self._state = (0.0, 0.0)  # angle (rad) and velocity (rad/s) at the next sample
+        self._next_index = 0
+
+    def apply(self, command: Command) -> None:
+        """The experiment is scripted by the config: commands are accepted and ignored."""
+        self.command = replace(command)
+
+    def torque_at(self, t_s: FloatArray) -> FloatArray:
+        """Applied torque at times ``t_s`` (s since sample 0), N·m: 0 before the start."""
+        t0 = self.start_index / self.fs_hz
+        t = np.asarray(t_s, dtype=float)
+        return np.where(t >= t0, self.multisine.evaluate(t - t0), 0.0)
+
+    def next_block(self) -> Block:
+        """The next ``block_s`` of samples."""
+        first, n = self._next_index, self.n
+        angle, self._state = simulate_ltv_block(
+            self.torque_at,
+            self.fs_hz,
+            first,
+            n,
+            self.joint,
+            self._k,
+            state=self._state,
+            substeps=self.substeps,
+        )
+        index = first + np.arange(n)
+        started = index >= self.start_index
+        torque = np.where(started, self._period[(index - self.start_index) % self._period.size], 0)
+        cfg = self.cfg
+        if cfg.noise_percent > 0:
+            rms = cfg.torque_multisine.rms_nm
+            torque = torque + (cfg.noise_percent / 100 * rms) * self.rng.standard_normal(n)
+        if cfg.position_noise_rad > 0:
+            angle = angle + cfg.position_noise_rad * self.rng.standard_normal(n)
+        discontinuity = np.zeros(n, dtype=bool)
+        discontinuity[0] = first == 0
+        self._next_index += n
+        return Block(
+            first, angle, np.asarray(torque, dtype=float), discontinuity, bool(started[-1])
+        )
+
+
+class _TruthStiffness:
+    """``K(t)`` of a :class:`PlantTruth` (periodic profile included) as ``.at(t)``."""
+
+    def __init__(self, truth: PlantTruth) -> None:
+        self.truth = truth
+
+    def at(self, t_s: FloatArray | float) -> FloatArray:
+        return self.truth.stiffness_at(t_s)
 
 
 class PlayerSource:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -30,6 +31,7 @@ __all__ = [
     "STUDY_CASES",
     "STUDY_JOINT",
     "LtvExperiment",
+    "StiffnessFunction",
     "multisine_experiment",
     "simulate_ltv_admittance",
     "simulate_ltv_block",
@@ -37,6 +39,15 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
+
+
+class StiffnessFunction(Protocol):
+    """Anything with ``at(t_s) -> K`` (N·m/rad), like :class:`StiffnessProfile`."""
+
+    def at(self, t_s: FloatArray | float) -> FloatArray:
+        """Stiffness at times ``t_s`` (s), N·m/rad."""
+        ...
+
 
 #: Plant of the published study: I = 0.02 N·m·s²/rad, B = 0.05 N·m·s/rad.
 STUDY_JOINT = JointParameters(inertia=0.02, damping=0.05, stiffness=0.4)
@@ -150,7 +161,7 @@ def simulate_ltv_block(
     first_sample: int,
     n_samples: int,
     joint: JointParameters,
-    stiffness: StiffnessProfile,
+    stiffness: StiffnessFunction,
     *,
     state: tuple[float, float] = (0.0, 0.0),
     substeps: int = 8,
@@ -210,7 +221,7 @@ def _integrate(
     first_sample: int,
     n_intervals: int,
     joint: JointParameters,
-    stiffness: StiffnessProfile,
+    stiffness: StiffnessFunction,
     state: tuple[float, float],
     substeps: int,
     input_period_samples: int | None,
@@ -228,7 +239,8 @@ def _integrate(
     t_half = np.asarray(half * (h / 2), dtype=np.float64)
     if input_period_samples is not None:
         period_half = 2 * substeps * int(input_period_samples)
-        u_one = np.asarray(torque(np.arange(period_half) * (h / 2)), dtype=np.float64)
+        t_one = np.asarray(np.arange(period_half) * (h / 2), dtype=np.float64)
+        u_one = np.asarray(torque(t_one), dtype=np.float64)
         u_half = u_one[half % period_half]
     else:
         u_half = np.asarray(torque(t_half), dtype=np.float64)

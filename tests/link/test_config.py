@@ -45,6 +45,22 @@ def test_defaults_are_the_embedded_virtual_plant():
         ),
         ({"plant": {"mode": "player"}}, r"'plant\.player_file' = ''"),
         ({"plant": {"fs_hz": 1000.0}}, r"'plant\.fs_hz' = 1000\.0.*link\.fs_hz"),
+        (
+            {"plant": {"mode": "torque_multisine"}},
+            r"'plant\.torque_multisine\.period_s' = 0\.0.*period > 0",
+        ),
+        (
+            {"plant": {"mode": "torque_multisine", "torque_multisine": {"period_s": 1.0001}}},
+            r"'plant\.torque_multisine\.period_s' = 1\.0001.*whole number of samples",
+        ),
+        (
+            {"plant": {"torque_multisine": {"every": 0}}},
+            r"'plant\.torque_multisine\.every' = 0",
+        ),
+        (
+            {"plant": {"torque_multisine": {"perod_s": 1.0}}},
+            r"unknown config key plant\.torque_multisine\.perod_s",
+        ),
     ],
 )
 def test_config_errors_are_one_line_naming_the_key(document, pattern):

@@ -5,9 +5,10 @@ import pytest
 from scipy import signal
 
 from rtsid.errors import InputDataError
-from rtsid.link.config import PlantConfig, StiffnessConfig
-from rtsid.link.signals import PlayerSource, SimSource, load_recording
+from rtsid.link.config import PlantConfig, StiffnessConfig, TorqueMultisineConfig
+from rtsid.link.signals import PlayerSource, SimSource, TorqueMultisineSource, load_recording
 from rtsid.sim.joint import JointParameters, robot_servo, simulate_impedance
+from rtsid.sim.ltv import simulate_ltv_admittance
 
 
 @pytest.mark.parametrize("kind", ["prbs", "filtered_noise", "multisine"])
@@ -91,3 +92,53 @@ def test_real_recording_streams(reklab_path):
     raw = np.load(reklab_path)
     expected = signal.resample_poly(raw["position_rad"], 5, 2)
     assert np.array_equal(position, expected)
+
+
+def torque_multisine_plant(**overrides) -> PlantConfig:
+    values = {
+        "mode": "torque_multisine",
+        "block_s": 0.13,  # 325 samples: seams fall mid-period
+        "noise_percent": 0.0,
+        "robot_inertia": 0.002,
+        "torque_multisine": TorqueMultisineConfig(period_s=0.4, f_max_hz=20.0, rms_nm=2.0),
+        "stiffness_profile": StiffnessConfig(
+            kind="raised_cosine", k0=20.0, k1=150.0, t0_s=0.0, t1_s=2.0
+        ),
+    }
+    return PlantConfig(**{**values, **overrides})
+
+
+def test_torque_multisine_blocks_equal_one_long_simulation():
+    cfg = torque_multisine_plant()
+    source = TorqueMultisineSource(cfg)
+    blocks = [source.next_block() for _ in range(8)]
+    angle = np.concatenate([b.position_rad for b in blocks])
+    torque = np.concatenate([b.torque_nm for b in blocks])
+    assert [b.first_index for b in blocks] == list(range(0, 8 * 325, 325))
+    ms = cfg.torque_multisine.multisine(cfg.fs_hz)
+    joint = JointParameters(cfg.inertia + cfg.robot_inertia, cfg.damping, 0.0)
+    whole = simulate_ltv_admittance(
+        ms.evaluate, cfg.fs_hz, angle.size, joint, source.truth.profile, substeps=1
+    )
+    np.testing.assert_allclose(angle, whole, rtol=0, atol=1e-12 * np.max(np.abs(whole)))
+    # the torque is the multisine from sample 0: whole periods carry only the excited bins
+    n = (torque.size // ms.period_samples) * ms.period_samples
+    np.testing.assert_allclose(torque[:n], ms.samples(n // ms.period_samples), atol=1e-12)
+    assert blocks[0].discontinuity[0] and blocks[0].perturbation_on
+    assert np.std(angle) > 1e-3  # 2 N·m rms moves a 20…150 N·m/rad joint by ~0.01 rad
+
+
+def test_torque_multisine_noise_and_a_later_start():
+    quiet = TorqueMultisineSource(torque_multisine_plant()).next_block()
+    cfg = torque_multisine_plant(
+        noise_percent=1.0,
+        position_noise_rad=1e-4,
+        torque_multisine=TorqueMultisineConfig(period_s=0.4, rms_nm=2.0, start_index=100),
+    )
+    source = TorqueMultisineSource(cfg)
+    block = source.next_block()
+    assert np.std(block.torque_nm[:100]) == pytest.approx(0.02, rel=0.3)  # 1 % of 2 N·m
+    assert np.std(block.position_rad[:100]) == pytest.approx(1e-4, rel=0.3)  # at rest + noise
+    # from sample 100 on, the same multisine as the plant started at 0, delayed by 100
+    np.testing.assert_allclose(block.torque_nm[100:325], quiet.torque_nm[:225], atol=0.1)
+    source.apply(source.command)  # commands are accepted and ignored
