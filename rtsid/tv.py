@@ -7,9 +7,16 @@ frozen second-order track ``K(t), B(t), I(t), f_n(t)`` and the paper's peak-pick
 resonance, compared with the truth when the recording carries it (simulated experiments
 made with :func:`simulate_to_npz` do).
 
-Recording format (``.npz``): ``torque_nm`` (n,), ``position_rad`` (n,), ``fs_hz`` (scalar),
-``excited_bins`` (excited DFT bins of one period), ``period_samples`` (scalar); optional
-truth ``stiffness_nm_per_rad`` (n,), ``inertia``, ``damping``.
+Recording formats:
+
+* ``.npz`` (:func:`load_tv_npz`): ``torque_nm`` (n,), ``position_rad`` (n,), ``fs_hz``
+  (scalar), ``excited_bins`` (excited DFT bins of one period), ``period_samples`` (scalar);
+  optional truth ``stiffness_nm_per_rad`` (n,), ``inertia``, ``damping``.
+* rtsid MCAP recordings (:func:`load_tv_mcap`): the ``/samples`` channel, and the multisine
+  declared in the stored configuration's ``[plant.torque_multisine]`` (the virtual plant's
+  ``mode = "torque_multisine"`` writes it; a real rig declares it the same way). The
+  longest run of whole periods without lost samples is used; with a simulated plant the
+  truth ``K(t)`` comes from the stored ``[plant.stiffness_profile]``.
 """
 
 from __future__ import annotations
@@ -23,8 +30,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from rtsid.config import section_from_mapping
 from rtsid.errors import InputDataError, RecordingError, RtsidError
 from rtsid.ident.skirt import LtvEstimate, SecondOrderTrack, identify_ltv, max_stable_basis
+from rtsid.io.mcap_read import iter_sample_batches, read_run_config
+from rtsid.link.config import TorqueMultisineConfig, plant_config_from_mapping
+from rtsid.link.signals import PlantTruth
 from rtsid.sim.ltv import multisine_experiment
 
 __all__ = [
@@ -33,6 +44,8 @@ __all__ = [
     "auto_basis",
     "format_report",
     "identify_recording",
+    "load_tv",
+    "load_tv_mcap",
     "load_tv_npz",
     "plot_result",
     "require_matplotlib",
@@ -70,6 +83,21 @@ class TvData:
     period_samples: int
     stiffness_nm_per_rad: FloatArray | None = None
     inertia: float | None = None
+    selection: str = ""
+
+
+def load_tv(path: str | Path, *, trim: bool = False) -> TvData:
+    """A multisine experiment from ``.npz`` (:func:`load_tv_npz`) or ``.mcap``
+    (:func:`load_tv_mcap`), by suffix."""
+    suffix = Path(path).suffix.lower()
+    if suffix == ".mcap":
+        return load_tv_mcap(path)
+    if suffix == ".npz":
+        return load_tv_npz(path, trim=trim)
+    raise InputDataError(
+        f"{str(path)!r}: rtsid tv reads .npz experiments and .mcap recordings, not {suffix!r} "
+        "files (import other files with 'rtsid convert' first)"
+    )
 
 
 def load_tv_npz(path: str | Path, *, trim: bool = False) -> TvData:
@@ -122,6 +150,126 @@ def load_tv_npz(path: str | Path, *, trim: bool = False) -> TvData:
         stiffness_nm_per_rad=None if truth is None else np.asarray(truth, dtype=float)[:n],
         inertia=_scalar(arrays, "inertia", p) if "inertia" in arrays else None,
     )
+
+
+def load_tv_mcap(path: str | Path) -> TvData:
+    """Read a multisine experiment from an rtsid MCAP recording (footer-less files too).
+
+    The multisine comes from the stored configuration's ``[plant.torque_multisine]``
+    (period, excited bins; its first period starts at sample ``start_index``). Periods are
+    counted from there; the longest run of consecutive whole periods whose samples are all
+    valid is returned (``TvData.selection`` says which). A recording of the virtual plant
+    in ``mode = "torque_multisine"`` carries the truth ``K(t)`` and ``I`` too.
+
+    Raises
+    ------
+    RecordingError
+        Missing or unreadable file, or no samples.
+    InputDataError
+        No multisine declared in the stored configuration, or no whole period without
+        lost samples.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise RecordingError(f"recording {str(p)!r} does not exist; check the path")
+    document = read_run_config(p)
+    declared = _declared_multisine(document, p)
+    first, fs_hz, position, torque, valid = _recorded_rows(p)
+    ms = declared.multisine(fs_hz)
+    period = ms.period_samples
+    j0, j1 = _longest_whole_periods(valid, first, declared.start_index, period)
+    if j1 <= j0:
+        raise InputDataError(
+            f"recording {str(p)!r} holds no whole {declared.period_s:g} s multisine period "
+            f"without lost samples after sample {declared.start_index} (rows {first}.."
+            f"{first + valid.size - 1}); record at least two periods, or check the link for "
+            "lost samples"
+        )
+    lo = declared.start_index + j0 * period - first
+    hi = declared.start_index + j1 * period - first
+    selection = (
+        f"periods {j0}..{j1 - 1} of the multisine ({j1 - j0} × {period} samples: rows "
+        f"{lo + first}..{hi + first - 1}, t = {(lo + first) / fs_hz:g}..{(hi + first) / fs_hz:g} "
+        f"s); times below count from row {lo + first}"
+    )
+    k_true, inertia = _simulated_truth(document, first + lo, hi - lo, fs_hz)
+    return TvData(
+        torque_nm=torque[lo:hi],
+        position_rad=position[lo:hi],
+        fs_hz=fs_hz,
+        excited_bins=ms.excited_bins,
+        period_samples=period,
+        stiffness_nm_per_rad=k_true,
+        inertia=inertia,
+        selection=selection,
+    )
+
+
+def _declared_multisine(document: dict[str, Any], path: Path) -> TorqueMultisineConfig:
+    plant = document.get("plant")
+    table = plant.get("torque_multisine") if isinstance(plant, dict) else None
+    declared = section_from_mapping(TorqueMultisineConfig, table, "plant.torque_multisine")
+    if not declared.declared:
+        raise InputDataError(
+            f"recording {str(path)!r} declares no torque multisine (its stored config has no "
+            "[plant.torque_multisine] period_s > 0); record one with [plant] mode = "
+            '"torque_multisine" (hw/configs/torque-multisine.toml), declare the rig\'s multisine '
+            "in [plant.torque_multisine] when recording, or give an .npz experiment"
+        )
+    return declared
+
+
+def _recorded_rows(path: Path) -> tuple[int, float, FloatArray, FloatArray, NDArray[np.bool_]]:
+    """All rows of the recording on one index grid: ``(first, fs_hz, position, torque,
+    valid)``; rows no batch carried (logger drops) are invalid."""
+    batches = list(iter_sample_batches(path))
+    if not batches:
+        raise RecordingError(
+            f"recording {str(path)!r} has no /samples messages; it holds no experiment"
+        )
+    first = min(b.first_index for b in batches)
+    end = max(b.end_index for b in batches)
+    position = np.full(end - first, np.nan)
+    torque = np.full(end - first, np.nan)
+    valid = np.zeros(end - first, dtype=bool)
+    for b in batches:
+        rows = slice(b.first_index - first, b.end_index - first)
+        position[rows], torque[rows], valid[rows] = b.position_rad, b.torque_nm, b.valid
+    valid &= np.isfinite(position) & np.isfinite(torque)
+    return first, float(batches[0].fs_hz), position, torque, valid
+
+
+def _longest_whole_periods(
+    valid: NDArray[np.bool_], first: int, start_index: int, period: int
+) -> tuple[int, int]:
+    """``(j0, j1)``: periods ``j0 .. j1 − 1`` (counted from ``start_index``) are the longest
+    run (earliest of equals) whose rows are all present and valid; ``j1 == j0`` if none."""
+    j_lo = max(0, -((start_index - first) // period))  # first period starting at a row
+    j_hi = (first + valid.size - start_index) // period  # periods ending at or before the end
+    if j_hi <= j_lo:
+        return 0, 0
+    lo = start_index + j_lo * period - first
+    rows = valid[lo : lo + (j_hi - j_lo) * period].reshape(-1, period)
+    whole: list[bool] = np.all(rows, axis=1).tolist()
+    best, best_at, run = 0, 0, 0
+    for j, ok in enumerate(whole):
+        run = run + 1 if ok else 0
+        if run > best:
+            best, best_at = run, j - run + 1
+    return j_lo + best_at, j_lo + best_at + best
+
+
+def _simulated_truth(
+    document: dict[str, Any], first: int, n: int, fs_hz: float
+) -> tuple[FloatArray | None, float | None]:
+    """True ``K`` per row and the simulated inertia when the virtual plant ran the
+    experiment (``[plant] mode = "torque_multisine"``), else ``(None, None)``."""
+    plant = document.get("plant")
+    if not isinstance(plant, dict) or plant.get("mode") != "torque_multisine":
+        return None, None
+    cfg = plant_config_from_mapping(plant)
+    k = PlantTruth.from_config(cfg).stiffness_at((first + np.arange(n)) / fs_hz)
+    return np.asarray(k, dtype=float), cfg.inertia + cfg.robot_inertia
 
 
 def _scalar(arrays: dict[str, Any], key: str, path: Path) -> float:

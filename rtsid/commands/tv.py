@@ -1,4 +1,5 @@
-"""``rtsid tv REC``: time-varying identification (skirt decomposition) of a multisine record."""
+"""``rtsid tv REC``: time-varying identification (skirt decomposition) of a multisine record
+(``.npz`` experiment or rtsid ``.mcap`` recording)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "recording",
         nargs="?",
-        help=".npz with torque_nm, position_rad, fs_hz, excited_bins, period_samples",
+        help=".npz with torque_nm, position_rad, fs_hz, excited_bins, period_samples; or an "
+        "rtsid .mcap recording whose config declares [plant.torque_multisine]",
     )
     parser.add_argument(
         "--basis",
@@ -31,7 +33,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="add a transient polynomial of this degree (default: none)",
     )
     parser.add_argument(
-        "--trim", action="store_true", help="keep only the whole multisine periods at the start"
+        "--trim",
+        action="store_true",
+        help=".npz: keep only the whole multisine periods at the start (.mcap: always the "
+        "longest run of whole periods without lost samples)",
     )
     parser.add_argument(
         "--times", type=int, default=11, metavar="N", help="rows of the printed track (11)"
@@ -80,10 +85,14 @@ def run(args: argparse.Namespace) -> int:
         if not args.recording:
             return 0
     if not args.recording:
-        raise InputDataError("give a recording (.npz), or --simulate CS1|CS2|CS3 -o FILE.npz")
+        raise InputDataError(
+            "give a recording (.npz or .mcap), or --simulate CS1|CS2|CS3 -o FILE.npz"
+        )
     if args.plot:
         tv.require_matplotlib()  # fail before the work, not after
-    data = tv.load_tv_npz(args.recording, trim=args.trim)
+    data = tv.load_tv(args.recording, trim=args.trim)
+    if data.selection:
+        print(f"used {data.selection}")
     if args.basis == "auto":
         n_basis = tv.auto_basis(data)
         print(f"N_p = {n_basis} (auto: largest ≤ 20 with variance inflation ≤ {WARN:g})")

@@ -87,6 +87,18 @@ class PlantTruth:
     profile: StiffnessProfile
     period_s: float = 0.0
 
+    @classmethod
+    def from_config(cls, cfg: PlantConfig) -> PlantTruth:
+        """The joint a ``[plant]`` section simulates."""
+        return cls(
+            cfg.inertia,
+            cfg.damping,
+            cfg.robot_inertia,
+            cfg.fs_hz,
+            stiffness_profile(cfg.stiffness_profile, cfg.stiffness),
+            cfg.stiffness_profile.period_s,
+        )
+
     def stiffness_at(self, t_s: FloatArray | float) -> FloatArray:
         """Stiffness K at times ``t_s`` (s since sample 0), N·m/rad."""
         t = np.asarray(t_s, dtype=float)
@@ -169,14 +181,7 @@ class SimSource:
         self.fs_hz = cfg.fs_hz
         self.n = cfg.block_samples
         self.rng = np.random.default_rng(cfg.seed)
-        self.truth = PlantTruth(
-            cfg.inertia,
-            cfg.damping,
-            cfg.robot_inertia,
-            cfg.fs_hz,
-            stiffness_profile(cfg.stiffness_profile, cfg.stiffness),
-            cfg.stiffness_profile.period_s,
-        )
+        self.truth = PlantTruth.from_config(cfg)
         self.joint = JointParameters(cfg.inertia + cfg.robot_inertia, cfg.damping, 0.0)
         self.command = Command(
             enable=cfg.perturbation != "off",
@@ -269,14 +274,7 @@ class TorqueMultisineSource:
         self.multisine = cfg.torque_multisine.multisine(cfg.fs_hz)
         self.start_index = cfg.torque_multisine.start_index
         self._period = self.multisine.samples(1)
-        self.truth = PlantTruth(
-            cfg.inertia,
-            cfg.damping,
-            cfg.robot_inertia,
-            cfg.fs_hz,
-            stiffness_profile(cfg.stiffness_profile, cfg.stiffness),
-            cfg.stiffness_profile.period_s,
-        )
+        self.truth = PlantTruth.from_config(cfg)
         self._k = _TruthStiffness(self.truth)
         self.joint = JointParameters(cfg.inertia + cfg.robot_inertia, cfg.damping, 0.0)
         self.substeps = max(1, int(np.ceil(self.STEP_RATE_HZ / cfg.fs_hz)))
