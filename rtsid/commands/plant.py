@@ -18,7 +18,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", default="127.0.0.1", help="loopback address (default 127.0.0.1)")
     parser.add_argument("--port", type=int, default=29536, help="TCP port, 0 = a free one")
     parser.add_argument("--channel", default="can0", help="bus name clients open (default can0)")
-    parser.add_argument("--mode", choices=("sim", "player"), help="override [plant] mode")
+    parser.add_argument(
+        "--mode", choices=("sim", "player", "torque_multisine"), help="override [plant] mode"
+    )
     parser.add_argument("--file", metavar="NPZ", help="recording for player mode")
     parser.add_argument("--fs-hz", type=float, help="override [plant] fs_hz (frame rate)")
     parser.add_argument("--fast", action="store_true", help="as fast as the client reads")
