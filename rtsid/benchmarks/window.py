@@ -8,6 +8,7 @@ matrix inversion (no refinement) and the log-magnitude Nelder–Mead fit.
 from __future__ import annotations
 
 import argparse
+import functools
 import time
 from collections.abc import Callable
 from typing import Any
@@ -23,6 +24,7 @@ from rtsid.ident.window import (
     EstimatorOptions,
     estimate_window,
     fit_parameters,
+    front_end,
     predict_torque,
     prepare_window,
     standard_errors,
@@ -45,6 +47,16 @@ def _windows(count: int) -> list[tuple[np.ndarray, np.ndarray]]:
     return [(theta[s : s + n], tau[s : s + n]) for s in starts]
 
 
+STAGES = (
+    "front end, compiled (detrend, FIR, correlations, EUREKA ×4)",
+    "  same in numpy: prepare (detrend, FIR, decimate)",
+    "  same in numpy: IRF (correlations + EUREKA ×4)",
+    "fit I, B, K",
+    "predictions",
+    "standard errors",
+)
+
+
 def _staged(
     p: np.ndarray, t: np.ndarray, opts: EstimatorOptions, clock: dict[str, list[float]]
 ) -> None:
@@ -54,17 +66,18 @@ def _staged(
         clock[name].append(time.perf_counter() - start)
         return out
 
-    u, y, fs_a = timed(
-        "prepare (detrend, FIR, decimate)", lambda: prepare_window(p, t, FS_HZ, opts)
-    )
+    u, y, irf = timed(STAGES[0], functools.partial(front_end, p, t, FS_HZ, opts))
+    u_np, y_np, fs_a = timed(STAGES[1], functools.partial(prepare_window, p, t, FS_HZ, opts))
     lag = round(opts.lag_s * fs_a)
-    irf = timed(
-        "IRF (correlations + EUREKA ×4)",
-        lambda: estimate_irf(u, y, fs_a, lag, ridge=opts.ridge, refine=opts.refine),
+    timed(
+        STAGES[2],
+        functools.partial(
+            estimate_irf, u_np, y_np, fs_a, lag, ridge=opts.ridge, refine=opts.refine
+        ),
     )
-    fit = timed("fit I, B, K", lambda: fit_parameters(irf, u, opts))
-    pred = timed("predictions + VAF", lambda: predict_torque(irf, u, y, fit))
-    timed("standard errors", lambda: standard_errors(irf, u, pred, fit))
+    fit = timed(STAGES[3], functools.partial(fit_parameters, irf, u, opts))
+    pred = timed(STAGES[4], functools.partial(predict_torque, irf, u, y, fit))
+    timed(STAGES[5], functools.partial(standard_errors, irf, u, pred, fit))
 
 
 def _baseline(p: np.ndarray, t: np.ndarray, opts: EstimatorOptions) -> None:
@@ -78,39 +91,29 @@ def _baseline(p: np.ndarray, t: np.ndarray, opts: EstimatorOptions) -> None:
     predict_torque(irf, u, y, fit)
 
 
-def _time_each(
-    windows: list[tuple[np.ndarray, np.ndarray]], func: Callable[..., Any]
-) -> list[float]:
-    times = []
-    for p, t in windows:
-        start = time.perf_counter()
-        func(p, t)
-        times.append(time.perf_counter() - start)
-    return times
+def _timed(func: Callable[[], Any]) -> float:
+    start = time.perf_counter()
+    func()
+    return time.perf_counter() - start
 
 
 def run(args: argparse.Namespace) -> int:
     count = min(200, args.windows) if args.quick else args.windows
     windows = _windows(count)
     opts = EstimatorOptions()
+    no_se = EstimatorOptions(uncertainty=False)
     for p, t in windows[:20]:
         estimate_window(p, t, FS_HZ, opts)  # warm caches (filter taps, DFT grids)
-    total = _time_each(windows, lambda p, t: estimate_window(p, t, FS_HZ, opts))
-    no_se = EstimatorOptions(uncertainty=False)
-    without_se = _time_each(windows, lambda p, t: estimate_window(p, t, FS_HZ, no_se))
-    baseline = _time_each(windows[: max(20, count // 10)], lambda p, t: _baseline(p, t, opts))
-    clock: dict[str, list[float]] = {
-        k: []
-        for k in (
-            "prepare (detrend, FIR, decimate)",
-            "IRF (correlations + EUREKA ×4)",
-            "fit I, B, K",
-            "predictions + VAF",
-            "standard errors",
-        )
-    }
-    for p, t in windows:
+    clock: dict[str, list[float]] = {k: [] for k in STAGES}
+    total, without_se, baseline = [], [], []
+    every_baseline = max(1, count // max(20, count // 10))
+    # Interleaved: every variant sees each window under the same conditions.
+    for k, (p, t) in enumerate(windows):
+        total.append(_timed(functools.partial(estimate_window, p, t, FS_HZ, opts)))
+        without_se.append(_timed(functools.partial(estimate_window, p, t, FS_HZ, no_se)))
         _staged(p, t, opts, clock)
+        if k % every_baseline == 0:
+            baseline.append(_timed(functools.partial(_baseline, p, t, opts)))
     base_median = median_p99(baseline)[0]
     rows = []
     for name, times in [
@@ -128,7 +131,8 @@ def run(args: argparse.Namespace) -> int:
         note=(
             "Simulated ankle (I 0.015, B 0.8, K 150), 30 Hz filtered-noise perturbation, "
             "10 % noise. "
-            "Defaults: decimate to 500 Hz, ±20 ms IRF (21 lags), 3 refinement sweeps, linear fit. "
+            "Defaults: decimate to 500 Hz, ±20 ms IRF (21 lags), 3 refinement sweeps, linear fit; "
+            "estimate_window runs the compiled front end (the numpy rows are its reference). "
             "Baseline = dense inversion IRF + Nelder–Mead log-magnitude fit (the source's method)."
         ),
     )

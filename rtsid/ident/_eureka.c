@@ -89,6 +89,179 @@ static int get_doubles(PyObject *obj, Py_buffer *view, int writable, const char 
     return 0;
 }
 
+
+/* ------------------------------------------------------------------ window front end
+ * prepare_irf: detrend, FIR low-pass + decimate, correlate, EUREKA and refinement sweeps for
+ * one window in one call (what rtsid.ident.window.prepare_window + irf.estimate_irf do in
+ * numpy, which stays the reference). Loops are O(N·T) and O(M·L).
+ */
+static void detrend_into(const double *x, double *out, Py_ssize_t n, double sign, int kind)
+{
+    double mean = 0.0, slope = 0.0, tt = 0.0, tx = 0.0;
+    const double centre = (double)(n - 1) / 2.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        mean += sign * x[i];
+    }
+    mean /= (double)n;
+    if (kind == 2) {
+        for (Py_ssize_t i = 0; i < n; i++) {
+            double t = (double)i - centre;
+            tt += t * t;
+            tx += t * sign * x[i];
+        }
+        slope = tt > 0.0 ? tx / tt : 0.0;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double v = sign * x[i];
+        if (kind >= 1) v -= mean;
+        if (kind == 2) v -= slope * ((double)i - centre);
+        out[i] = v;
+    }
+}
+
+static void fir_decimate(const double *x, Py_ssize_t n, const double *taps, Py_ssize_t nt,
+                         Py_ssize_t factor, double *out, Py_ssize_t m)
+{
+    for (Py_ssize_t k = 0; k < m; k++) {
+        const double *seg = x + k * factor + nt - 1;
+        double acc = 0.0;
+        for (Py_ssize_t j = 0; j < nt; j++) {
+            acc += taps[j] * seg[-j];
+        }
+        out[k] = acc;
+    }
+    (void)n;
+}
+
+/* c[k - first] = sum_t u[t] * y[t + k] / norm for k = first..last (t over the overlap) */
+static void xcorr(const double *u, const double *y, Py_ssize_t n, Py_ssize_t first,
+                  Py_ssize_t last, double norm, double *c)
+{
+    for (Py_ssize_t k = first; k <= last; k++) {
+        Py_ssize_t lo = k < 0 ? -k : 0, hi = k > 0 ? n - k : n;
+        double acc = 0.0;
+        for (Py_ssize_t t = lo; t < hi; t++) {
+            acc += u[t] * y[t + k];
+        }
+        c[k - first] = acc / norm;
+    }
+}
+
+static Py_ssize_t window_irf(const double *pos, const double *trq, Py_ssize_t n,
+                             const double *taps, Py_ssize_t nt, Py_ssize_t factor, double sign,
+                             int kind, Py_ssize_t lag, double ridge, Py_ssize_t sweeps,
+                             double fs, double *u, double *y, Py_ssize_t m, double *h,
+                             double *phi, double *work, double *alpha)
+{
+    const Py_ssize_t nh = 2 * lag + 1;
+    double *dp = work, *dt = work + n;              /* detrended, n each */
+    double *a = dt + n, *rr = a + nh;               /* Levinson scratch, nh each */
+    double *g = rr + nh, *delta = g + nh;           /* gradient and update, nh each */
+    double *err = delta + nh;                        /* residual, m */
+    detrend_into(pos, dp, n, 1.0, kind);
+    detrend_into(trq, dt, n, sign, kind);
+    fir_decimate(dp, n, taps, nt, factor, u, m);
+    fir_decimate(dt, n, taps, nt, factor, y, m);
+    xcorr(u, u, m, 0, nh - 1, (double)m, phi);
+    const double loading = ridge * phi[0];
+    phi[0] += loading;
+    /* phi_uy(k) = sum_t u(t-k) y(t) / m  =  sum_s u(s) y(s+k) / m */
+    xcorr(u, y, m, -lag, lag, (double)m, g);
+    Py_ssize_t status = eureka_solve(phi, g, h, a, rr, nh, alpha);
+    if (status >= 0) return status;
+    for (Py_ssize_t k = 0; k < nh; k++) h[k] *= fs;
+    const Py_ssize_t inner = m - 2 * lag;
+    for (Py_ssize_t s = 0; s < sweeps; s++) {
+        for (Py_ssize_t t = lag; t < m - lag; t++) {
+            double pred = 0.0;
+            for (Py_ssize_t j = 0; j < nh; j++) {
+                pred += h[j] * u[t - (j - lag)];
+            }
+            err[t] = y[t] - pred / fs;
+        }
+        for (Py_ssize_t j = 0; j < nh; j++) {
+            Py_ssize_t k = j - lag;
+            double acc = 0.0;
+            for (Py_ssize_t t = lag; t < m - lag; t++) {
+                acc += u[t - k] * err[t];
+            }
+            g[j] = acc / (double)inner - loading * h[j] / fs;
+        }
+        status = eureka_solve(phi, g, delta, a, rr, nh, alpha);
+        if (status >= 0) return status;
+        for (Py_ssize_t j = 0; j < nh; j++) h[j] += delta[j] * fs;
+    }
+    return -1;
+}
+
+static PyObject *py_window_irf(PyObject *self, PyObject *args)
+{
+    PyObject *po, *to, *tapso, *uo, *yo, *ho, *phio;
+    Py_ssize_t factor, lag, sweeps;
+    double sign, ridge, fs;
+    int kind;
+    if (!PyArg_ParseTuple(args, "OOOndinnddOOOO", &po, &to, &tapso, &factor, &sign, &kind, &lag,
+                          &sweeps, &ridge, &fs, &uo, &yo, &ho, &phio)) {
+        return NULL;
+    }
+    PyObject *objs[7] = {po, to, tapso, uo, yo, ho, phio};
+    const char *names[7] = {"position", "torque", "taps", "u", "y", "h", "phi"};
+    Py_buffer b[7];
+    int got = 0;
+    for (; got < 7; got++) {
+        if (get_doubles(objs[got], &b[got], got >= 3, names[got]) < 0) break;
+    }
+    PyObject *result = NULL;
+    if (got == 7) {
+        Py_ssize_t n = b[0].len / 8, nt = b[2].len / 8, m = b[3].len / 8, nh = 2 * lag + 1;
+        Py_ssize_t expect_m = n >= nt && factor > 0 ? (n - nt) / factor + 1 : -1;
+        if (b[1].len != b[0].len || b[4].len != b[3].len || m != expect_m || lag < 1 ||
+            b[5].len / 8 != nh || b[6].len / 8 != nh || m <= nh || sweeps < 0) {
+            PyErr_SetString(PyExc_ValueError, "window_irf: inconsistent sizes");
+        } else {
+            double *work = PyMem_Malloc(sizeof(double) * (2 * n + 4 * nh + m));
+            if (work == NULL) {
+                PyErr_NoMemory();
+            } else {
+                double alpha = 0.0;
+                Py_ssize_t status;
+                Py_BEGIN_ALLOW_THREADS
+                status = window_irf(b[0].buf, b[1].buf, n, b[2].buf, nt, factor, sign, kind, lag,
+                                    ridge, sweeps, fs, b[3].buf, b[4].buf, m, b[5].buf,
+                                    b[6].buf, work, &alpha);
+                Py_END_ALLOW_THREADS
+                PyMem_Free(work);
+                result = Py_BuildValue("nd", status, alpha);
+            }
+        }
+    }
+    for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
+    return result;
+}
+
+static PyObject *py_xcorr(PyObject *self, PyObject *args)
+{
+    PyObject *uo, *yo, *co;
+    Py_ssize_t first, last;
+    double norm;
+    if (!PyArg_ParseTuple(args, "OOnndO", &uo, &yo, &first, &last, &norm, &co)) return NULL;
+    Py_buffer u, y, c;
+    if (get_doubles(uo, &u, 0, "u") < 0) return NULL;
+    if (get_doubles(yo, &y, 0, "y") < 0) { PyBuffer_Release(&u); return NULL; }
+    if (get_doubles(co, &c, 1, "c") < 0) { PyBuffer_Release(&u); PyBuffer_Release(&y); return NULL; }
+    PyObject *result = NULL;
+    Py_ssize_t n = u.len / 8;
+    if (y.len != u.len || c.len / 8 != last - first + 1 || first > last || last >= n || -first >= n) {
+        PyErr_SetString(PyExc_ValueError, "xcorr: inconsistent sizes");
+    } else {
+        xcorr(u.buf, y.buf, n, first, last, norm, c.buf);
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+    PyBuffer_Release(&u); PyBuffer_Release(&y); PyBuffer_Release(&c);
+    return result;
+}
+
 static PyObject *py_solve(PyObject *self, PyObject *args)
 {
     PyObject *ro, *bo, *xo, *wo;
@@ -126,6 +299,11 @@ static PyObject *py_solve(PyObject *self, PyObject *args)
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
      "solve(r, b, x, work) -> (status, alpha): symmetric Toeplitz R x = b by EUREKA."},
+    {"window_irf", py_window_irf, METH_VARARGS,
+     "window_irf(position, torque, taps, factor, sign, detrend, lag, sweeps, ridge, fs, u, y, h, "
+     "phi) -> (status, alpha): detrend, FIR-decimate, correlate, EUREKA and refine one window."},
+    {"xcorr", py_xcorr, METH_VARARGS,
+     "xcorr(u, y, first, last, norm, c): c[k-first] = sum_t u[t] y[t+k] / norm."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -9,9 +9,11 @@ depends on velocity and acceleration), so the IRF is two-sided.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import ArrayLike, NDArray
 
 from rtsid.errors import InputDataError
@@ -126,19 +128,20 @@ def estimate_irf(
             f"a window of {u_arr.size} samples cannot support a {n_lags}-lag IRF; "
             "lengthen the window or shorten the lag span"
         )
-    if not (np.isfinite(np.sum(u_arr)) and np.isfinite(np.sum(y_arr))):
+    if not (math.isfinite(u_arr.sum()) and math.isfinite(y_arr.sum())):
         raise InputDataError("IRF input or output contains NaN or inf; clean the window first")
     phi_uu = auto_correlation(u_arr, 2 * max_lag)
     loading = ridge * phi_uu[0]
     phi_uu[0] += loading
     h = eureka_unchecked(phi_uu, cross_correlation(u_arr, y_arr, max_lag)) * fs_hz
     irf = IRF(h=h, fs_hz=float(fs_hz), phi_uu=phi_uu)
-    scale = u_arr.size / (u_arr.size - 2 * max_lag)
+    if refine == 0:
+        return irf
+    # Rows: fully supported samples t = L … N−L−1; columns: u(t − k) for k = −L … L.
+    lagged = np.ascontiguousarray(sliding_window_view(u_arr, n_lags)[:, ::-1])
+    y_inner = y_arr[max_lag : u_arr.size - max_lag]
     for _ in range(refine):
-        error = y_arr - irf.predict(u_arr)
-        error[:max_lag] = 0.0
-        error[u_arr.size - max_lag :] = 0.0
-        gradient = cross_correlation(u_arr, error, max_lag) * scale - loading * h / fs_hz
+        error = y_inner - lagged @ (h / fs_hz)
+        gradient = (error @ lagged) / y_inner.size - loading * h / fs_hz
         h = h + eureka_unchecked(phi_uu, gradient) * fs_hz
-        irf = IRF(h=h, fs_hz=float(fs_hz), phi_uu=phi_uu)
-    return irf
+    return IRF(h=h, fs_hz=float(fs_hz), phi_uu=phi_uu)

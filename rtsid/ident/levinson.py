@@ -34,13 +34,25 @@ try:  # the compiled kernel is optional: see setup.py
 except ImportError:  # pragma: no cover - exercised on machines without a compiler
     _eureka = None
 
-__all__ = ["HAVE_COMPILED_KERNEL", "eureka", "eureka_numpy", "eureka_unchecked"]
+__all__ = [
+    "HAVE_COMPILED_KERNEL",
+    "compiled_kernel",
+    "eureka",
+    "eureka_numpy",
+    "eureka_unchecked",
+    "not_positive_definite",
+]
 
 FloatArray = NDArray[np.float64]
 HAVE_COMPILED_KERNEL = _eureka is not None
 
 
-def _not_positive_definite(step: int, alpha: float) -> NotPositiveDefiniteError:
+def compiled_kernel() -> Any:
+    """The compiled module (``solve``, ``window_irf``, ``xcorr``), or None when not built."""
+    return _eureka
+
+
+def not_positive_definite(step: int, alpha: float) -> NotPositiveDefiniteError:
     return NotPositiveDefiniteError(
         f"Toeplitz matrix is not positive definite: prediction-error variance {alpha:.3g} <= 0 "
         f"at recursion step {step}. The input has too little excitation for this many lags "
@@ -89,7 +101,7 @@ def eureka_numpy(r: ArrayLike, b: ArrayLike) -> FloatArray:
     x = np.zeros(n)
     alpha = float(r_arr[0])
     if not alpha > 0:
-        raise _not_positive_definite(0, alpha)
+        raise not_positive_definite(0, alpha)
     a[0] = 1.0
     x[0] = b_arr[0] / alpha
     for k in range(1, n):
@@ -98,7 +110,7 @@ def eureka_numpy(r: ArrayLike, b: ArrayLike) -> FloatArray:
         a[: k + 1] += refl * a[k::-1].copy()
         alpha *= 1.0 - refl * refl
         if not alpha > 0:
-            raise _not_positive_definite(k, alpha)
+            raise not_positive_definite(k, alpha)
         mu = (b_arr[k] - float(x[:k] @ r_k)) / alpha
         x[: k + 1] += mu * a[k::-1]
     return x
@@ -159,5 +171,5 @@ def eureka_unchecked(r: FloatArray, b: FloatArray) -> FloatArray:
     x = np.empty_like(r)
     status, alpha = _eureka.solve(r, b, x, np.empty(2 * r.size))
     if status >= 0:
-        raise _not_positive_definite(status, alpha)
+        raise not_positive_definite(status, alpha)
     return x

@@ -56,6 +56,28 @@ class ParameterFit:
     method: str
 
 
+def _weighted_parameters(f_hz: FloatArray, weights: FloatArray, z_obs: FloatArray) -> FloatArray:
+    """``(I, B, K)`` of the weighted fit without forming :func:`_weighted_solution_map`."""
+    n = f_hz.size
+    w = 2 * np.pi * f_hz
+    omega2 = w * w
+    w2 = weights * weights
+    w2_omega2 = w2 * omega2
+    s0, s2, s4 = float(w2.sum()), float(w2_omega2.sum()), float(w2_omega2 @ omega2)
+    re, im = z_obs[:n], z_obs[n:]
+    r_i, r_k = -float(w2_omega2 @ re), float(w2 @ re)
+    det = s4 * s0 - s2 * s2
+    if not det > 0:
+        raise NumericalError(
+            "the fit grid cannot separate inertia from stiffness (too few weighted "
+            "frequencies); widen fit_band_hz or check the perturbation"
+        )
+    inertia = (s0 * r_i + s2 * r_k) / det
+    stiffness = (s2 * r_i + s4 * r_k) / det
+    damping = float((w2 * w) @ im) / s2
+    return np.array([inertia, damping, stiffness])
+
+
 def _weighted_solution_map(f_hz: FloatArray, weights: FloatArray) -> FloatArray:
     """``P`` (3 × 2n_f) with ``(I, B, K) = P @ [Re H; Im H]``, weighted least squares.
 
@@ -63,23 +85,22 @@ def _weighted_solution_map(f_hz: FloatArray, weights: FloatArray) -> FloatArray:
     ``B``, so the normal equations split into a 2 × 2 system and a scalar, solved in closed
     form.
     """
+    n = f_hz.size
     w = 2 * np.pi * f_hz
-    w2 = weights**2
-    w2_omega2 = w2 * w**2
-    a11 = float(w2_omega2 @ w**2)
-    a12 = -float(np.sum(w2_omega2))
-    a22 = float(np.sum(w2))
-    det = a11 * a22 - a12 * a12
+    omega2 = w * w
+    w2 = weights * weights
+    w2_omega2 = w2 * omega2
+    s0, s2, s4 = float(w2.sum()), float(w2_omega2.sum()), float(w2_omega2 @ omega2)
+    det = s4 * s0 - s2 * s2
     if not det > 0:
         raise NumericalError(
             "the fit grid cannot separate inertia from stiffness (too few weighted "
             "frequencies); widen fit_band_hz or check the perturbation"
         )
-    n = f_hz.size
     solution = np.zeros((3, 2 * n))
-    solution[0, :n] = (-a22 * w2_omega2 - a12 * w2) / det  # inertia
-    solution[2, :n] = (a12 * w2_omega2 + a11 * w2) / det  # stiffness
-    solution[1, n:] = w2 * w / float(w2_omega2 @ np.ones(n))  # damping
+    solution[0, :n] = (s2 * w2 - s0 * w2_omega2) / det  # inertia
+    solution[2, :n] = (s4 * w2 - s2 * w2_omega2) / det  # stiffness
+    solution[1, n:] = (w2 * w) / s2  # damping
     return solution
 
 
@@ -127,13 +148,14 @@ def fit_linear(
     to_real = np.vstack((e.real, e.imag))
     z_obs = to_real @ h_arr
     base = np.ones_like(f) if weights is None else np.asarray(weights, dtype=np.float64)
-    solution_map = _weighted_solution_map(f, base)
-    params = solution_map @ z_obs
+    final_weights = base
     if reweight:
-        magnitude = np.abs(impedance_response(params[0], params[1], params[2], f))
-        floor = 1e-6 * max(float(np.max(magnitude)), 1e-300)
-        solution_map = _weighted_solution_map(f, base / np.maximum(magnitude, floor))
-        params = solution_map @ z_obs
+        first = _weighted_parameters(f, base, z_obs)
+        magnitude = np.abs(impedance_response(first[0], first[1], first[2], f))
+        floor = 1e-6 * max(float(magnitude.max()), 1e-300)
+        final_weights = base / np.maximum(magnitude, floor)
+    solution_map = _weighted_solution_map(f, final_weights)
+    params = solution_map @ z_obs
     return ParameterFit(params=params, sensitivity=solution_map @ to_real, method="linear")
 
 

@@ -23,16 +23,21 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.linalg import toeplitz
 
 from rtsid.config import invalid, require_choice, require_range
 from rtsid.errors import InputDataError, NumericalError, WindowError
 from rtsid.ident.correlation import auto_correlation, detrend
-from rtsid.ident.filters import decimation_factor, lowpass_decimate, stencil_derivatives
+from rtsid.ident.filters import (
+    decimation_factor,
+    lowpass_decimate,
+    lowpass_taps,
+    stencil_derivatives,
+)
 from rtsid.ident.irf import IRF, estimate_irf
-from rtsid.ident.levinson import eureka_unchecked
+from rtsid.ident.levinson import compiled_kernel, eureka_unchecked, not_positive_definite
 from rtsid.ident.second_order import ParameterFit, fit_linear, fit_logmag
-from rtsid.ident.vaf import vaf
+
+_eureka = compiled_kernel()
 
 __all__ = [
     "EstimatorOptions",
@@ -185,9 +190,11 @@ def _check_window(position: FloatArray, torque: FloatArray, options: EstimatorOp
             f"{torque.shape}"
         )
     # One pass each: a sum is finite only if every term is (rad and N·m never overflow).
-    if not (math.isfinite(float(np.sum(position))) and math.isfinite(float(np.sum(torque)))):
+    if not (math.isfinite(position.sum()) and math.isfinite(torque.sum())):
         raise WindowError("window contains NaN or inf samples; it is withheld", "nan")
-    if np.std(position) < options.min_excitation_rad:
+    mean = position.sum() / position.size
+    variance = max(0.0, float(position @ position) / position.size - mean * mean)
+    if math.sqrt(variance) < options.min_excitation_rad:
         raise WindowError(
             f"position varies by less than {options.min_excitation_rad} rad in this window: "
             "no perturbation, nothing to identify (is the perturbation enabled?)",
@@ -228,6 +235,16 @@ def _preprocess(
     return u, y, fs_hz / factor
 
 
+_THIRDS = np.full(3, 1.0 / 3.0)
+
+
+@lru_cache(maxsize=32)
+def _bin_frequencies(n: int, fs_hz: float) -> FloatArray:
+    bins = np.arange(n // 2 + 1, dtype=np.float64) * (fs_hz / n)
+    bins.setflags(write=False)
+    return bins
+
+
 @lru_cache(maxsize=32)
 def _hann(n: int) -> FloatArray:
     window = np.hanning(n)
@@ -243,11 +260,25 @@ def _excitation_weights(u: FloatArray, fs_hz: float, f_hz: FloatArray, power: fl
     onto the grid — no dense matrix products, so no BLAS threads on the hot path.
     """
     spectrum = np.abs(np.fft.rfft(u * _hann(u.size))) ** 2
-    smoothed = np.convolve(spectrum, np.full(3, 1.0 / 3.0), mode="same")
-    bins_hz = np.arange(smoothed.size) * (fs_hz / u.size)
-    on_grid = np.interp(f_hz, bins_hz, smoothed)
-    top = float(np.max(on_grid))
+    smoothed = np.convolve(spectrum, _THIRDS, mode="same")
+    on_grid = np.interp(f_hz, _bin_frequencies(u.size, fs_hz), smoothed)
+    top = float(on_grid.max())
     return np.asarray((on_grid / top) ** power) if top > 0 else np.ones(f_hz.size)
+
+
+@lru_cache(maxsize=8)
+def _bartlett(lags: int) -> FloatArray:
+    taper = 1.0 - np.arange(lags + 1) / (lags + 1)
+    taper.setflags(write=False)
+    return taper
+
+
+@lru_cache(maxsize=8)
+def _toeplitz_index(n: int) -> NDArray[np.intp]:
+    """``|i − j|`` for an n × n symmetric Toeplitz matrix built by indexing."""
+    index = np.abs(np.subtract.outer(np.arange(n), np.arange(n)))
+    index.setflags(write=False)
+    return index
 
 
 def _parameter_covariance(
@@ -260,18 +291,17 @@ def _parameter_covariance(
     """
     n_h = irf.h.size
     noise_lags = min(n_h, residual.size - 1)
-    phi_ee = auto_correlation(residual, noise_lags)
-    phi_uu = auto_correlation(u, n_h - 1 + noise_lags)
     # Bartlett taper: the truncated residual autocorrelation then has a non-negative
     # spectrum (Fejér-smoothed), so C_φ is positive semi-definite and no variance is < 0.
-    phi_ee = phi_ee * (1.0 - np.arange(noise_lags + 1) / (noise_lags + 1))
+    phi_ee = auto_correlation(residual, noise_lags) * _bartlett(noise_lags)
+    phi_uu = auto_correlation(u, n_h - 1 + noise_lags)
     ee = np.concatenate((phi_ee[:0:-1], phi_ee))
     uu = np.concatenate((phi_uu[noise_lags:0:-1], phi_uu))
     c = np.correlate(uu, ee, mode="valid")[:n_h] / u.size
     z = np.column_stack(
         [eureka_unchecked(irf.phi_uu, np.ascontiguousarray(row)) for row in sensitivity]
     )
-    cov = (z.T @ toeplitz(c) @ z) * irf.fs_hz**2
+    cov = (z.T @ c[_toeplitz_index(n_h)] @ z) * irf.fs_hz**2
     return np.asarray((cov + cov.T) / 2, dtype=np.float64)
 
 
@@ -343,13 +373,79 @@ def estimate_window(
     options = options or EstimatorOptions()
     if overrides:
         options = replace(options, **overrides)
-    u, y, fs_a = prepare_window(position, torque, fs, options)
-    max_lag = max(1, round(options.lag_s * fs_a))
-    irf = estimate_irf(u, y, fs_a, max_lag, ridge=options.ridge, refine=options.refine)
+    u, y, irf = front_end(position, torque, fs, options)
     fit = fit_parameters(irf, u, options)
     predictions = predict_torque(irf, u, y, fit)
     se = standard_errors(irf, u, predictions, fit) if options.uncertainty else np.full(3, np.nan)
     return _assemble(irf, fit, predictions, se)
+
+
+_DETREND_CODES = {"none": 0, "mean": 1, "linear": 2}
+_NO_FILTER = np.ones(1)
+
+
+def front_end(
+    position: ArrayLike, torque: ArrayLike, fs: float, options: EstimatorOptions
+) -> tuple[FloatArray, FloatArray, IRF]:
+    """Stages 1–4: the analysis-rate signals ``(u, y)`` and the refined IRF.
+
+    One call into the compiled kernel when it was built (detrend, FIR decimation,
+    correlations, EUREKA and refinement in C); otherwise :func:`prepare_window` and
+    :func:`rtsid.ident.irf.estimate_irf` in numpy, the reference it is tested against.
+    """
+    if _eureka is None:
+        u, y, fs_a = prepare_window(position, torque, fs, options)
+        max_lag = max(1, round(options.lag_s * fs_a))
+        return u, y, estimate_irf(u, y, fs_a, max_lag, ridge=options.ridge, refine=options.refine)
+    pos = np.ascontiguousarray(position, dtype=np.float64)
+    tor = np.ascontiguousarray(torque, dtype=np.float64)
+    _check_window(pos, tor, options)
+    fs = float(fs)
+    factor = decimation_factor(fs, options.analysis_fs_hz)
+    if options.lowpass_hz is None and factor != 1:
+        raise InputDataError("decimation needs a low-pass cut-off to avoid aliasing")
+    try:
+        taps = (
+            _NO_FILTER
+            if options.lowpass_hz is None
+            else lowpass_taps(fs, float(options.lowpass_hz), factor)
+        )
+    except InputDataError as exc:
+        raise WindowError(str(exc), "too_short") from None
+    fs_a = fs / factor
+    max_lag = max(1, round(options.lag_s * fs_a))
+    m = (pos.size - taps.size) // factor + 1 if pos.size >= taps.size else 0
+    _check_analysis_length(m, fs_a, max_lag)
+    u, y = np.empty(m), np.empty(m)
+    h, phi = np.empty(2 * max_lag + 1), np.empty(2 * max_lag + 1)
+    status, alpha = _eureka.window_irf(
+        pos,
+        tor,
+        taps,
+        factor,
+        options.torque_sign,
+        _DETREND_CODES[options.detrend],
+        max_lag,
+        options.refine,
+        options.ridge,
+        fs_a,
+        u,
+        y,
+        h,
+        phi,
+    )
+    if status >= 0:
+        raise not_positive_definite(status, alpha)
+    return u, y, IRF(h=h, fs_hz=fs_a, phi_uu=phi)
+
+
+def _check_analysis_length(m: int, fs_a: float, max_lag: int) -> None:
+    if m <= 4 * max_lag + 1:
+        raise WindowError(
+            f"window gives {m} samples at {fs_a:g} Hz, too few for a ±{max_lag}-lag IRF; "
+            "lengthen the window or shorten lag_s",
+            "too_short",
+        )
 
 
 def prepare_window(
@@ -363,13 +459,7 @@ def prepare_window(
         u, y, fs_a = _preprocess(pos, tor, float(fs), options)
     except InputDataError as exc:
         raise WindowError(str(exc), "too_short") from None
-    max_lag = max(1, round(options.lag_s * fs_a))
-    if u.size <= 4 * max_lag + 1:
-        raise WindowError(
-            f"window gives {u.size} samples at {fs_a:g} Hz, too few for a ±{max_lag}-lag IRF; "
-            "lengthen the window or shorten lag_s",
-            "too_short",
-        )
+    _check_analysis_length(u.size, fs_a, max(1, round(options.lag_s * fs_a)))
     return u, y, fs_a
 
 
@@ -419,11 +509,30 @@ def standard_errors(
     return np.asarray(np.sqrt(np.clip(np.diag(cov), 0.0, None)), dtype=np.float64)
 
 
+def _three_vafs(p: TorquePredictions) -> tuple[float, float, float]:
+    """VAF of the model and of the IRF against the measurement, and of the model against
+    the IRF — :func:`rtsid.ident.vaf.vaf` three times, sharing the centred signals."""
+    n = p.measured.size
+    measured = p.measured - p.measured.sum() / n
+    irf = p.irf - p.irf.sum() / n
+    model = p.model - p.model.sum() / n
+
+    def percent(target: FloatArray, error: FloatArray) -> float:
+        total = float(target @ target)
+        return 0.0 if total <= 0 else round(max(0.0, 1.0 - float(error @ error) / total) * 100, 12)
+
+    return (
+        percent(measured, measured - model),
+        percent(measured, measured - irf),
+        percent(irf, irf - model),
+    )
+
+
 def _assemble(
     irf: IRF, fit: ParameterFit, predictions: TorquePredictions, se: FloatArray
 ) -> WindowEstimate:
     inertia, damping, stiffness = (float(v) for v in fit.params)
-    vaf_fit = vaf(predictions.irf, predictions.model)
+    vaf_model, vaf_irf, vaf_fit = _three_vafs(predictions)
     return WindowEstimate(
         I=inertia,
         B=damping,
@@ -431,8 +540,8 @@ def _assemble(
         I_se=float(se[0]),
         B_se=float(se[1]),
         K_se=float(se[2]),
-        vaf=vaf(predictions.measured, predictions.model),
-        vaf_irf=vaf(predictions.measured, predictions.irf),
+        vaf=vaf_model,
+        vaf_irf=vaf_irf,
         vaf_fit=vaf_fit,
         irf=irf.h,
         lags_s=irf.lags_s,

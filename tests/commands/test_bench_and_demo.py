@@ -14,7 +14,14 @@ def test_toeplitz_benchmark_prints_its_table(capsys):
 def test_window_benchmark_lists_every_stage(capsys):
     assert main(["bench", "window", "--quick", "--windows", "20"]) == 0
     out = capsys.readouterr().out
-    for stage in ("prepare", "IRF", "fit I, B, K", "standard errors", "baseline: source method"):
+    for stage in (
+        "front end, compiled",
+        "prepare",
+        "IRF",
+        "fit I, B, K",
+        "standard errors",
+        "baseline: source method",
+    ):
         assert stage in out
 
 

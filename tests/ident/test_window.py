@@ -157,3 +157,32 @@ def test_standard_errors_are_positive_for_a_servoed_prbs_perturbation():
         assert est.K_se > 0 and est.B_se > 0 and est.I_se > 0
         z.append((est.K - 150.0) / est.K_se)
     assert np.mean(np.abs(z) > 3) < 0.05
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        {},
+        {"detrend": "mean", "torque_sign": -1.0},
+        {"detrend": "none", "refine": 0},
+        {"analysis_fs_hz": None, "lowpass_hz": None, "lag_s": 0.004, "fit_band_hz": (1.0, 60.0)},
+        {"analysis_fs_hz": 250.0, "lowpass_hz": 80.0, "fit_band_hz": (1.0, 60.0), "ridge": 0.0},
+    ],
+)
+def test_compiled_front_end_matches_the_numpy_reference(overrides):
+    from rtsid.ident import window
+    from rtsid.ident.irf import estimate_irf
+
+    if window._eureka is None:
+        pytest.skip("compiled kernel not built")
+    options = EstimatorOptions(**overrides)
+    theta, tau = simulated_window(21, noise=10.0)
+    u, y, irf = window.front_end(theta, tau, FS, options)
+    u_ref, y_ref, fs_a = window.prepare_window(theta, tau, FS, options)
+    lag = max(1, round(options.lag_s * fs_a))
+    ref = estimate_irf(u_ref, y_ref, fs_a, lag, ridge=options.ridge, refine=options.refine)
+    np.testing.assert_allclose(u, u_ref, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(y, y_ref, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(irf.phi_uu, ref.phi_uu, rtol=1e-10)
+    np.testing.assert_allclose(irf.h, ref.h, rtol=1e-8, atol=1e-8 * np.max(np.abs(ref.h)))
+    assert irf.fs_hz == fs_a
