@@ -10,6 +10,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "window": ("rtsid.benchmarks.window", "IRF + fit + VAF per 300 ms window at 2500 Hz, by stage"),
     "accuracy": ("rtsid.benchmarks.accuracy", "I/B/K error and VAF on the simulated joint"),
     "service": ("rtsid.benchmarks.service", "the daemon end to end: latency, misses, CPU, memory"),
+    "replay": ("rtsid.benchmarks.replay", "replay speed of a long recording (× real time)"),
     "real": ("rtsid.benchmarks.real", "windowed estimates over the real ankle recording"),
     "skirt": ("rtsid.benchmarks.skirt", "LTV skirt decomposition study: VAF, resonance RMSE, time"),
     "io": ("rtsid.benchmarks.io", "MCAP logger cost at daemon rates and zenoh one-way latency"),

@@ -54,3 +54,11 @@ def test_real_benchmark_tables_and_figures(reklab_path, tmp_path, capsys):
         "real_preset_hist.png",
     ]
     assert all((figures / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for name in pngs)
+
+
+def test_replay_benchmark_compares_replay_with_the_bare_estimator(capsys):
+    assert main(["bench", "replay", "--minutes", "0.1"]) == 0
+    out = capsys.readouterr().out
+    rows = [line for line in out.splitlines() if line.startswith("|") and "windows" not in line]
+    windows = [int(r.split("|")[2]) for r in rows if r.split("|")[2].strip().isdigit()]
+    assert len(windows) == 2 and windows[0] == windows[1] == 286  # 6 s, 300 ms every 20 ms
