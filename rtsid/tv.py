@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 from rtsid.config import section_from_mapping
 from rtsid.errors import InputDataError, RecordingError, RtsidError
 from rtsid.ident.skirt import LtvEstimate, SecondOrderTrack, identify_ltv, max_stable_basis
-from rtsid.io.mcap_read import iter_sample_batches, read_run_config
+from rtsid.io.mcap_read import iter_sample_batches, read_run_config, recording_parts
 from rtsid.link.config import TorqueMultisineConfig, plant_config_from_mapping
 from rtsid.link.signals import PlantTruth
 from rtsid.sim.ltv import multisine_experiment
@@ -155,6 +155,8 @@ def load_tv_npz(path: str | Path, *, trim: bool = False) -> TvData:
 def load_tv_mcap(path: str | Path) -> TvData:
     """Read a multisine experiment from an rtsid MCAP recording (footer-less files too).
 
+    Given any part of a rotated daemon session (``…-001.mcap``, …), every part is read.
+
     The multisine comes from the stored configuration's ``[plant.torque_multisine]``
     (period, excited bins; its first period starts at sample ``start_index``). Periods are
     counted from there; the longest run of consecutive whole periods whose samples are all
@@ -220,9 +222,10 @@ def _declared_multisine(document: dict[str, Any], path: Path) -> TorqueMultisine
 
 
 def _recorded_rows(path: Path) -> tuple[int, float, FloatArray, FloatArray, NDArray[np.bool_]]:
-    """All rows of the recording on one index grid: ``(first, fs_hz, position, torque,
-    valid)``; rows no batch carried (logger drops) are invalid."""
-    batches = list(iter_sample_batches(path))
+    """All rows of the recording session (every part of a rotated one, in order) on one
+    index grid: ``(first, fs_hz, position, torque, valid)``; rows no batch carried (logger
+    drops) are invalid."""
+    batches = [b for part in recording_parts(path) for b in iter_sample_batches(part)]
     if not batches:
         raise RecordingError(
             f"recording {str(path)!r} has no /samples messages; it holds no experiment"

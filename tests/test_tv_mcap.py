@@ -11,6 +11,7 @@ import pytest
 from rtsid.cli import main
 from rtsid.errors import InputDataError
 from rtsid.io.convert import ImportedSamples, write_recording
+from rtsid.io.mcap_read import recording_parts
 from rtsid.link.config import plant_config_from_mapping
 from rtsid.link.signals import TorqueMultisineSource
 from rtsid.runtime.daemon import Daemon, DaemonConfig
@@ -46,14 +47,16 @@ def test_virtual_plant_recording_to_stiffness_track(tmp_path, free_port, capsys)
     config = DaemonConfig.from_mapping(
         {
             "zenoh": {"listen": [f"tcp/127.0.0.1:{free_port}"], "robot": "tv"},
-            "mcap": {"directory": str(tmp_path / "rec")},
+            # parts of ~0.1 MB: the session rotates, tv reads every part
+            "mcap": {"directory": str(tmp_path / "rec"), "rotate_size_mb": 0.1},
             # as fast as the acquisition takes frames, and a little more than 6 periods
             "plant": plant_table(realtime=False, max_samples=n + 400),
         }
     )
     summary = Daemon(config).run(duration_s=4.0)
     assert summary.lost_samples == 0 and summary.samples >= n
-    (recording,) = (tmp_path / "rec").glob("*.mcap")
+    recording, *later_parts = recording_parts(next((tmp_path / "rec").glob("*.mcap")))
+    assert later_parts  # rotated
     csv = tmp_path / "track.csv"
     argv = ["tv", str(recording), "--common-inertia", "-p", "auto", "--csv", str(csv)]
     assert main(argv) == 0
