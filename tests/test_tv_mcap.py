@@ -89,8 +89,9 @@ def test_virtual_plant_recording_to_stiffness_track(tmp_path, free_port, capsys)
 def write_plant_recording(
     path: Path, plant: dict | None, *, first_index: int = 0, lost: slice | None = None
 ) -> Path:
-    """The plant's samples (simulated without the link) written as an rtsid recording
-    whose stored config has ``plant`` as its ``[plant]`` table (or no config at all)."""
+    """The samples of ``plant_table()``'s experiment (simulated without the link) written
+    as an rtsid recording whose stored config has ``plant`` as its ``[plant]`` table (or no
+    config at all), whatever that table declares."""
     cfg = plant_config_from_mapping(plant_table())
     source = TorqueMultisineSource(cfg)
     blocks = [source.next_block() for _ in range(round(N_PERIODS * PERIOD_S / cfg.block_s))]
@@ -158,3 +159,14 @@ def test_other_files_and_missing_recordings_are_clear_errors(tmp_path, capsys):
     assert "does not exist" in capsys.readouterr().err
     assert main(["tv", str(tmp_path / "rec.csv")]) == 2
     assert "rtsid convert" in capsys.readouterr().err
+
+
+def test_a_declared_multisine_the_torque_does_not_follow_is_refused(tmp_path, capsys):
+    # the plant excited every 2nd bin; the config claims every 3rd
+    plant = plant_table()
+    plant["torque_multisine"] = {**plant["torque_multisine"], "every": 3}
+    path = write_plant_recording(tmp_path / "wrong.mcap", plant)
+    assert main(["tv", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "not a periodic multisine on the declared excited bins" in err
+    assert err.count("\n") == 1
