@@ -7,6 +7,8 @@ RK4 step is an affine map ``x ↦ M·x + c`` whose ``M`` and ``c`` depend only o
 are built for all steps at once with array operations and only a 2×2 recursion per sample is
 left. Against an adaptive DOP853 reference at ``rtol = 1e-11`` the default (8 sub-steps per
 sample at 200 Hz) agrees to ≈3e-10 of the output's RMS (see ``tests/sim/test_ltv.py``).
+:func:`simulate_ltv_block` runs the same integration one block at a time from a given state
+(the virtual plant's ``mode = "torque_multisine"``); consecutive blocks equal one long run.
 
 :func:`multisine_experiment` builds one realisation of the published skirt-decomposition study
 (Lataire, Pintelon & Louarroudi, Automatica 2012): a random-phase multisine torque exciting
