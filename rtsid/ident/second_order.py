@@ -56,25 +56,47 @@ class ParameterFit:
     method: str
 
 
-def _weighted_parameters(f_hz: FloatArray, weights: FloatArray, z_obs: FloatArray) -> FloatArray:
-    """``(I, B, K)`` of the weighted fit without forming :func:`_weighted_solution_map`."""
-    n = f_hz.size
-    w = 2 * np.pi * f_hz
-    omega2 = w * w
+@dataclass(frozen=True)
+class _NormalSums:
+    """Weighted sums of the decoupled normal equations on one fit grid."""
+
+    omega: FloatArray
+    w2: FloatArray  # squared weights
+    w2_omega2: FloatArray  # squared weights · ω²
+    s0: float  # Σ w²
+    s2: float  # Σ w²ω²
+    s4: float  # Σ w²ω⁴
+
+    @property
+    def det(self) -> float:
+        return self.s4 * self.s0 - self.s2 * self.s2
+
+
+def _normal_sums(f_hz: FloatArray, weights: FloatArray) -> _NormalSums:
+    omega = 2 * np.pi * f_hz
+    omega2 = omega * omega
     w2 = weights * weights
     w2_omega2 = w2 * omega2
-    s0, s2, s4 = float(w2.sum()), float(w2_omega2.sum()), float(w2_omega2 @ omega2)
-    re, im = z_obs[:n], z_obs[n:]
-    r_i, r_k = -float(w2_omega2 @ re), float(w2 @ re)
-    det = s4 * s0 - s2 * s2
-    if not det > 0:
+    sums = _NormalSums(
+        omega, w2, w2_omega2, float(w2.sum()), float(w2_omega2.sum()), float(w2_omega2 @ omega2)
+    )
+    if not sums.det > 0:
         raise NumericalError(
             "the fit grid cannot separate inertia from stiffness (too few weighted "
             "frequencies); widen fit_band_hz or check the perturbation"
         )
-    inertia = (s0 * r_i + s2 * r_k) / det
-    stiffness = (s2 * r_i + s4 * r_k) / det
-    damping = float((w2 * w) @ im) / s2
+    return sums
+
+
+def _weighted_parameters(f_hz: FloatArray, weights: FloatArray, z_obs: FloatArray) -> FloatArray:
+    """``(I, B, K)`` of the weighted fit without forming :func:`_weighted_solution_map`."""
+    n = f_hz.size
+    q = _normal_sums(f_hz, weights)
+    re, im = z_obs[:n], z_obs[n:]
+    r_i, r_k = -float(q.w2_omega2 @ re), float(q.w2 @ re)
+    inertia = (q.s0 * r_i + q.s2 * r_k) / q.det
+    stiffness = (q.s2 * r_i + q.s4 * r_k) / q.det
+    damping = float((q.w2 * q.omega) @ im) / q.s2
     return np.array([inertia, damping, stiffness])
 
 
@@ -86,21 +108,11 @@ def _weighted_solution_map(f_hz: FloatArray, weights: FloatArray) -> FloatArray:
     form.
     """
     n = f_hz.size
-    w = 2 * np.pi * f_hz
-    omega2 = w * w
-    w2 = weights * weights
-    w2_omega2 = w2 * omega2
-    s0, s2, s4 = float(w2.sum()), float(w2_omega2.sum()), float(w2_omega2 @ omega2)
-    det = s4 * s0 - s2 * s2
-    if not det > 0:
-        raise NumericalError(
-            "the fit grid cannot separate inertia from stiffness (too few weighted "
-            "frequencies); widen fit_band_hz or check the perturbation"
-        )
+    q = _normal_sums(f_hz, weights)
     solution = np.zeros((3, 2 * n))
-    solution[0, :n] = (s2 * w2 - s0 * w2_omega2) / det  # inertia
-    solution[2, :n] = (s4 * w2 - s2 * w2_omega2) / det  # stiffness
-    solution[1, n:] = (w2 * w) / s2  # damping
+    solution[0, :n] = (q.s2 * q.w2 - q.s0 * q.w2_omega2) / q.det  # inertia
+    solution[2, :n] = (q.s4 * q.w2 - q.s2 * q.w2_omega2) / q.det  # stiffness
+    solution[1, n:] = (q.w2 * q.omega) / q.s2  # damping
     return solution
 
 
