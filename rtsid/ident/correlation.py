@@ -48,10 +48,10 @@ def detrend(x: ArrayLike, kind: str = "linear") -> FloatArray:
     if kind == "none":
         return arr
     if kind == "mean":
-        return arr - np.sum(arr) / arr.size
+        return arr - arr.sum() / arr.size
     if kind == "linear":
         t, tt = _centred_ramp(arr.size)
-        return arr - (np.sum(arr) / arr.size + ((t @ arr) / tt) * t)
+        return arr - (arr.sum() / arr.size + ((t @ arr) / tt) * t)
     raise InputDataError(f"detrend kind {kind!r} is not one of 'linear', 'mean', 'none'")
 
 

@@ -33,10 +33,10 @@ def vaf(measured: ArrayLike, predicted: ArrayLike) -> float:
     if y.shape != y_hat.shape:
         raise InputDataError(f"VAF needs equal shapes, got {y.shape} and {y_hat.shape}")
     n = y.size
-    y_c = y - np.sum(y) / n
+    y_c = y - y.sum() / n
     total = float(y_c @ y_c)
     if total <= 0:
         return 0.0
     err = y - y_hat
-    err -= np.sum(err) / n
+    err -= err.sum() / n
     return round(max(0.0, 1.0 - float(err @ err) / total) * 100.0, 12)

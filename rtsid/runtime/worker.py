@@ -124,11 +124,11 @@ def assess_window(snap: Snapshot, now_s: float, max_age_s: float) -> str | None:
     """
     if now_s - float(snap.host_time_s[-1]) > max_age_s:
         return "stale"
-    if not bool(np.all(snap.valid)) or bool(np.any(snap.status & STATUS_DISCONTINUITY)):
+    if not snap.valid.all() or (snap.status & STATUS_DISCONTINUITY).any():
         return "gap"
-    if bool(np.any(snap.status & _SATURATED)):
+    if (snap.status & _SATURATED).any():
         return "saturated"
-    if not (np.isfinite(np.sum(snap.position_rad)) and np.isfinite(np.sum(snap.torque_nm))):
+    if not (math.isfinite(snap.position_rad.sum()) and math.isfinite(snap.torque_nm.sum())):
         return "nan"
     return None
 
