@@ -3,8 +3,8 @@
  *
  * Compiled kernel behind rtsid.ident.levinson.eureka; the pure-numpy version in levinson.py
  * is the reference and the fallback when this module cannot be built. Only the buffer
- * protocol is used (no numpy headers), and the GIL is released during the recursion so the
- * acquisition thread keeps running while a window is solved.
+ * protocol is used (no numpy headers). The GIL is released only for large systems: for the
+ * small per-window systems, handing it over costs the caller a switch interval.
  *
  * solve(r, b, x, work) -> (status, alpha)
  *   r     float64[n]  first column of R (r[0] > 0)
@@ -17,6 +17,10 @@
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+
+/* Release the GIL only for systems this large (≈ 1 ms and up); shorter calls keep it so that
+ * a latency-critical caller does not wait a whole switch interval to get it back. */
+#define RELEASE_GIL_ABOVE 1000
 
 static double dot_unrolled(const double *u, const double *v, Py_ssize_t n)
 {
@@ -225,11 +229,11 @@ static PyObject *py_window_irf(PyObject *self, PyObject *args)
             } else {
                 double alpha = 0.0;
                 Py_ssize_t status;
-                Py_BEGIN_ALLOW_THREADS
+                /* Short (tens of µs): keep the GIL. Releasing it would let another thread
+                 * take it for a whole switch interval before this one gets it back. */
                 status = window_irf(b[0].buf, b[1].buf, n, b[2].buf, nt, factor, sign, kind, lag,
                                     ridge, sweeps, fs, b[3].buf, b[4].buf, m, b[5].buf,
                                     b[6].buf, work, &alpha);
-                Py_END_ALLOW_THREADS
                 PyMem_Free(work);
                 result = Py_BuildValue("nd", status, alpha);
             }
@@ -283,10 +287,15 @@ static PyObject *py_solve(PyObject *self, PyObject *args)
         double alpha = 0.0;
         Py_ssize_t status;
         double *work = (double *)w.buf;
-        Py_BEGIN_ALLOW_THREADS
-        status = eureka_solve((const double *)r.buf, (const double *)b.buf, (double *)x.buf,
-                              work, work + n, n, &alpha);
-        Py_END_ALLOW_THREADS
+        if (n >= RELEASE_GIL_ABOVE) {
+            Py_BEGIN_ALLOW_THREADS
+            status = eureka_solve((const double *)r.buf, (const double *)b.buf,
+                                  (double *)x.buf, work, work + n, n, &alpha);
+            Py_END_ALLOW_THREADS
+        } else {
+            status = eureka_solve((const double *)r.buf, (const double *)b.buf,
+                                  (double *)x.buf, work, work + n, n, &alpha);
+        }
         result = Py_BuildValue("nd", status, alpha);
     }
     PyBuffer_Release(&r);

@@ -13,10 +13,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from rtsid.errors import InputDataError
+from rtsid.ident.levinson import compiled_kernel
 
 __all__ = ["auto_correlation", "cross_correlation", "detrend"]
 
 FloatArray = NDArray[np.float64]
+
+_KERNEL = compiled_kernel()
 
 # Above this many lags per sample an FFT beats np.correlate's direct sum (measured).
 _FFT_LAG_FRACTION = 0.05
@@ -81,10 +84,15 @@ def _fft_cross(u: FloatArray, y: FloatArray) -> FloatArray:
 def _direct_lags(u: FloatArray, y: FloatArray, first: int, last: int) -> FloatArray:
     """``Σ_t u(t)·y(t+k)`` for ``k = first..last``, in O(N·(last − first + 1)).
 
-    ``y`` is zero-padded so that one ``valid``-mode correlation yields exactly the wanted
-    lags (a ``full`` correlation would cost O(N²) on long records).
+    The compiled kernel's loop when it was built; otherwise ``y`` is zero-padded so that one
+    ``valid``-mode correlation yields exactly the wanted lags (a ``full`` correlation would
+    cost O(N²) on long records).
     """
     n = u.size
+    if _KERNEL is not None:
+        out = np.empty(last - first + 1)
+        _KERNEL.xcorr(np.ascontiguousarray(u), np.ascontiguousarray(y), first, last, 1.0, out)
+        return out
     padded = np.zeros(n + (last - first))
     lo, hi = max(0, first), min(n, n + last)
     # padded[j] = y[j + first] where that index exists, so out[k - first] = Σ_t u(t)·y(t+k).

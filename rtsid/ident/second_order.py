@@ -133,6 +133,7 @@ def fit_linear(
     *,
     reweight: bool = True,
     weights: ArrayLike | None = None,
+    stacked: FloatArray | None = None,
 ) -> ParameterFit:
     """Closed-form fit of ``(I, B, K)`` to ``H = dft @ h`` on the grid ``f_hz``.
 
@@ -149,6 +150,8 @@ def fit_linear(
     weights : array_like, shape (n_f,), optional
         Confidence in each frequency, e.g. the square root of the input's power spectral
         density there, so frequencies the perturbation did not excite do not count.
+    stacked : numpy.ndarray, shape (2n_f, n_h), optional
+        ``[dft.real; dft.imag]`` when the caller has it cached.
 
     Returns
     -------
@@ -157,7 +160,7 @@ def fit_linear(
     """
     f, e = _check_grid(f_hz, dft)
     h_arr = np.asarray(h, dtype=np.float64)
-    to_real = np.vstack((e.real, e.imag))
+    to_real = np.vstack((e.real, e.imag)) if stacked is None else stacked
     z_obs = to_real @ h_arr
     base = np.ones_like(f) if weights is None else np.asarray(weights, dtype=np.float64)
     final_weights = base

@@ -216,6 +216,16 @@ def _fit_grid(band: tuple[float, float], points: int, nyquist_hz: float) -> Floa
 
 
 @lru_cache(maxsize=32)
+def _stacked_dft(
+    max_lag: int, fs_hz: float, grid_key: tuple[float, float, int, float]
+) -> FloatArray:
+    e = _dft(max_lag, fs_hz, grid_key)
+    stacked = np.vstack((e.real, e.imag))
+    stacked.setflags(write=False)
+    return stacked
+
+
+@lru_cache(maxsize=32)
 def _dft(max_lag: int, fs_hz: float, grid_key: tuple[float, float, int, float]) -> NDArray[Any]:
     f = _fit_grid(grid_key[:2], grid_key[2], grid_key[3])
     lags = np.arange(-max_lag, max_lag + 1) / fs_hz
@@ -470,7 +480,9 @@ def fit_parameters(irf: IRF, u: FloatArray, options: EstimatorOptions) -> Parame
     f = _fit_grid(options.fit_band_hz, options.fit_points, fs_a / 2)
     e = _dft(irf.max_lag, fs_a, grid_key)
     weights = _excitation_weights(u, fs_a, f, options.weight_power)
-    fit = fit_linear(f, e, irf.h, weights=weights)
+    fit = fit_linear(
+        f, e, irf.h, weights=weights, stacked=_stacked_dft(irf.max_lag, fs_a, grid_key)
+    )
     if options.fit_method == "logmag":
         fit = fit_logmag(f, e, irf.h, start=fit.params, weights=weights)
     return fit

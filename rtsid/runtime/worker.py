@@ -230,6 +230,14 @@ class WindowWorker:
         earliest = first_index + self.window_samples - 1
         return -(-(earliest + 1) // hop) * hop - 1
 
+    def _starting_window_end(self, newest: int) -> int:
+        """At start, the newest complete grid window (earlier ones are history, not overruns)."""
+        assert self.ring is not None
+        first = self.first_window_end(self.ring.oldest_index)
+        hop = self.hop_samples
+        newest_end = (newest + 1) // hop * hop - 1
+        return max(first, newest_end)
+
     # ------------------------------------------------------------------ the loop
     def _run(self) -> None:
         try:
@@ -249,7 +257,7 @@ class WindowWorker:
                 self._stop.wait(hop_s)
                 continue
             if next_end is None:
-                next_end = self.first_window_end(self.ring.oldest_index)
+                next_end = self._starting_window_end(newest)
             if newest >= next_end:
                 behind = (newest - next_end) // self.hop_samples
                 if behind:

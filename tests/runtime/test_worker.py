@@ -1,5 +1,6 @@
 import time
 
+import numpy as np
 import pytest
 
 from rtsid.ident.excitation import filtered_noise
@@ -95,7 +96,7 @@ def test_over_budget_is_counted_and_flagged():
     assert worker.counters().deadline_misses == 1
 
 
-def test_thread_catches_up_to_the_newest_window_then_reports_stale(wait_for):
+def test_thread_starts_at_the_newest_window_then_reports_stale(wait_for):
     published = []
     ring = filled_ring()  # 1500 samples already there, nothing more arrives
     worker = make_worker(ring, published, hop_s=0.02, max_sample_age_s=0.05)
@@ -103,7 +104,23 @@ def test_thread_catches_up_to_the_newest_window_then_reports_stale(wait_for):
         wait_for(lambda: len(published) >= 3, 5.0, "three messages")
     assert worker.stop(timeout_s=1.0)
     first = published[0]
-    assert first["ok"] and first["window_end_index"] == 1499  # skipped to the newest window
-    assert worker.counters().overruns == 15  # windows ending 749 … 1449 were stale work
+    assert first["ok"] and first["window_end_index"] == 1499  # starts at the newest window
+    assert worker.counters().overruns == 0  # what was in the ring at start is history
     assert all(m["reason"] == "stale" and m["window_end_index"] == 1549 for m in published[1:])
     assert [m["seq"] for m in published] == list(range(len(published)))
+
+
+def test_falling_behind_skips_to_the_newest_window_and_counts_the_rest(wait_for):
+    published = []
+    ring = filled_ring()
+    worker = make_worker(ring, published, hop_s=0.02, max_sample_age_s=30.0)
+    with worker:
+        wait_for(lambda: any(m["window_end_index"] == 1499 for m in published), 5.0, "first")
+        now = time.monotonic()
+        for k in range(500):  # ten hops arrive at once, e.g. after a stall
+            ring.append(0.01 * np.sin(k / 5.0), 1.0 * np.cos(k / 7.0), 0, now, 0.0)
+        wait_for(lambda: any(m["window_end_index"] == 1999 for m in published), 5.0, "newest")
+    assert worker.stop(timeout_s=1.0)
+    ends = [m["window_end_index"] for m in published]
+    assert 1549 not in ends and ends[-1] == 1999
+    assert worker.counters().overruns == 9  # windows ending 1549 … 1949 were skipped
