@@ -578,16 +578,26 @@ def _figure_grid(
     return path
 
 
-def _figure_resonance(
-    figure: Any, out_dir: Path, cases: dict[tuple[str, float], Case], spacing: float, n_basis: int
-) -> Path:
+def _case_panels(
+    figure: Any, cases: dict[tuple[str, float], Case], spacing: float, n_basis: int
+) -> tuple[Any, Any, list[tuple[Any, str, Case, Any]]]:
+    """A row of panels, one per case, with each case's identification (skipped if none)."""
     fig = figure.Figure(figsize=(12, 3.6), layout="constrained")
     axes = fig.subplots(1, len(CASES), sharey=True)
+    panels = []
     for ax, c in zip(axes, CASES, strict=True):
         case = cases[(c, spacing)]
         est, _, _ = _identify(case, n_basis)
-        if est is None:
-            continue
+        if est is not None:
+            panels.append((ax, c, case, est))
+    return fig, axes, panels
+
+
+def _figure_resonance(
+    figure: Any, out_dir: Path, cases: dict[tuple[str, float], Case], spacing: float, n_basis: int
+) -> Path:
+    fig, axes, panels = _case_panels(figure, cases, spacing, n_basis)
+    for ax, c, case, est in panels:
         ax.plot(case.t_s, case.fn_true, "k--", label="truth √(K/I)/2π")
         ax.step(
             case.t_s,
@@ -611,13 +621,8 @@ def _figure_resonance(
 def _figure_image(
     figure: Any, out_dir: Path, cases: dict[tuple[str, float], Case], spacing: float, n_basis: int
 ) -> Path:
-    fig = figure.Figure(figsize=(12, 3.6), layout="constrained")
-    axes = fig.subplots(1, len(CASES), sharey=True)
-    for ax, c in zip(axes, CASES, strict=True):
-        case = cases[(c, spacing)]
-        est, _, _ = _identify(case, n_basis)
-        if est is None:
-            continue
+    fig, axes, panels = _case_panels(figure, cases, spacing, n_basis)
+    for ax, c, case, est in panels:
         f = est.frequencies_hz
         df = f[1] - f[0]
         g_db = 20 * np.log10(np.abs(est.G(case.t_s)).T)
