@@ -17,6 +17,7 @@
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <math.h>
 
 /* Release the GIL only for systems this large (≈ 1 ms and up); shorter calls keep it so that
  * a latency-critical caller does not wait a whole switch interval to get it back. */
@@ -198,6 +199,309 @@ static Py_ssize_t window_irf(const double *pos, const double *trq, Py_ssize_t n,
     return -1;
 }
 
+
+/* ------------------------------------------------------------------ window back end
+ * window_fit: stages 5-7 of rtsid.ident.window for the linear fit, in one call: excitation
+ * weights (Hann periodogram, 3-bin smoothing, interpolation onto the fit grid), the closed-form
+ * weighted fit re-weighted by 1/|Z|, the IRF's and the model's torque predictions, the three
+ * VAFs and the sandwich standard errors. window.fit_parameters, predict_torque,
+ * standard_errors and _three_vafs are the numpy reference it is tested against.
+ */
+static const double STENCIL_D1[9] = {1.0 / 280, -4.0 / 105, 1.0 / 5, -4.0 / 5, 0.0,
+                                     4.0 / 5, -1.0 / 5, 4.0 / 105, -1.0 / 280};
+static const double STENCIL_D2[9] = {-1.0 / 560, 8.0 / 315, -1.0 / 5, 8.0 / 5, -205.0 / 72,
+                                     8.0 / 5, -1.0 / 5, 8.0 / 315, -1.0 / 560};
+
+static const double TWO_PI = 6.283185307179586476925286766559;
+
+enum { FIT_OK = -1, FIT_FIRST_SINGULAR = 1, FIT_FINAL_SINGULAR = 2, FIT_NOT_PD = 3, FIT_ZERO_RESPONSE = 4 };
+
+typedef struct {
+    double s0, s2, s4, det;
+} normal_sums_t;
+
+/* Σw², Σw²ω², Σw²ω⁴ and the 2 × 2 determinant; 0 when (I, K) cannot be separated. */
+static int normal_sums(const double *omega, const double *w, Py_ssize_t nf, normal_sums_t *q)
+{
+    q->s0 = q->s2 = q->s4 = 0.0;
+    for (Py_ssize_t i = 0; i < nf; i++) {
+        double w2 = w[i] * w[i], o2 = omega[i] * omega[i];
+        q->s0 += w2;
+        q->s2 += w2 * o2;
+        q->s4 += w2 * o2 * o2;
+    }
+    q->det = q->s4 * q->s0 - q->s2 * q->s2;
+    return q->det > 0.0;
+}
+
+/* (S_uu(f) / max S_uu)^power on the grid f, from the Hann-tapered periodogram of u. */
+static void excitation_weights(const double *u, const double *hann, Py_ssize_t m, double fs,
+                               const double *f, Py_ssize_t nf, double power, double *w,
+                               double *scratch)
+{
+    const Py_ssize_t nbins = m / 2 + 1;
+    const double df = fs / (double)m;
+    double fmax = 0.0;
+    for (Py_ssize_t i = 0; i < nf; i++) fmax = f[i] > fmax ? f[i] : fmax;
+    Py_ssize_t need = (Py_ssize_t)(fmax / df) + 3; /* interpolation + smoothing neighbours */
+    if (need > nbins) need = nbins;
+    double *cos_t = scratch, *sin_t = scratch + m, *tapered = sin_t + m, *spec = tapered + m;
+    for (Py_ssize_t t = 0; t < m; t++) {
+        double angle = TWO_PI * (double)t / (double)m;
+        cos_t[t] = cos(angle);
+        sin_t[t] = sin(angle);
+        tapered[t] = u[t] * hann[t];
+    }
+    for (Py_ssize_t k = 0; k < need; k++) {
+        double re = 0.0, im = 0.0;
+        Py_ssize_t idx = 0;
+        for (Py_ssize_t t = 0; t < m; t++) {
+            re += tapered[t] * cos_t[idx];
+            im -= tapered[t] * sin_t[idx];
+            idx += k;
+            if (idx >= m) idx -= m;
+        }
+        spec[k] = re * re + im * im;
+    }
+    double top = 0.0;
+    for (Py_ssize_t i = 0; i < nf; i++) {
+        Py_ssize_t j = (Py_ssize_t)(f[i] / df);
+        double value;
+        if (j >= nbins - 1) {
+            j = nbins - 1;
+            value = (spec[j - 1] + spec[j]) / 3.0; /* right edge: spec[nbins] is 0 */
+        } else {
+            double left = ((j > 0 ? spec[j - 1] : 0.0) + spec[j] + spec[j + 1]) / 3.0;
+            double right = (spec[j] + spec[j + 1] + (j + 2 < nbins ? spec[j + 2] : 0.0)) / 3.0;
+            double xj = (double)j * df;
+            double slope = (right - left) / ((double)(j + 1) * df - xj);
+            value = slope * (f[i] - xj) + left;
+        }
+        w[i] = value;
+        top = value > top ? value : top;
+    }
+    for (Py_ssize_t i = 0; i < nf; i++) {
+        w[i] = top > 0.0 ? pow(w[i] / top, power) : 1.0;
+    }
+}
+
+/* (I, B, K) of the weighted fit to z = [Re H; Im H]; with rows != NULL also the solution
+ * map rows (3 × 2nf) whose product with z gives them. */
+static int weighted_fit(const double *omega, const double *w, Py_ssize_t nf, const double *z,
+                        double *params, double *rows)
+{
+    normal_sums_t q;
+    if (!normal_sums(omega, w, nf, &q)) return 0;
+    double r_i = 0.0, r_k = 0.0, r_b = 0.0;
+    for (Py_ssize_t i = 0; i < nf; i++) {
+        double w2 = w[i] * w[i], w2o2 = w2 * omega[i] * omega[i];
+        double p_i = (q.s2 * w2 - q.s0 * w2o2) / q.det;
+        double p_k = (q.s4 * w2 - q.s2 * w2o2) / q.det;
+        double p_b = w2 * omega[i] / q.s2;
+        r_i += p_i * z[i];
+        r_k += p_k * z[i];
+        r_b += p_b * z[nf + i];
+        if (rows != NULL) {
+            rows[i] = p_i;
+            rows[nf + i] = 0.0;
+            rows[2 * nf + i] = 0.0;
+            rows[3 * nf + i] = p_b;
+            rows[4 * nf + i] = p_k;
+            rows[5 * nf + i] = 0.0;
+        }
+    }
+    params[0] = r_i;
+    params[1] = r_b;
+    params[2] = r_k;
+    return 1;
+}
+
+static int linear_fit(const double *h, Py_ssize_t nh, const double *stacked, const double *f,
+                      Py_ssize_t nf, const double *base, double *params, double *sens,
+                      double *scratch)
+{
+    double *omega = scratch, *z = omega + nf, *w = z + 2 * nf, *rows = w + nf;
+    for (Py_ssize_t i = 0; i < nf; i++) omega[i] = TWO_PI * f[i];
+    for (Py_ssize_t i = 0; i < 2 * nf; i++) {
+        z[i] = dot_unrolled(stacked + i * nh, h, nh);
+    }
+    double first[3];
+    if (!weighted_fit(omega, base, nf, z, first, NULL)) return FIT_FIRST_SINGULAR;
+    double top = 0.0;
+    for (Py_ssize_t i = 0; i < nf; i++) {
+        double re = first[2] - first[0] * omega[i] * omega[i], im = first[1] * omega[i];
+        w[i] = sqrt(re * re + im * im);
+        top = w[i] > top ? w[i] : top;
+    }
+    if (!(top > 0.0)) return FIT_ZERO_RESPONSE;
+    double floor = 1e-6 * top;
+    for (Py_ssize_t i = 0; i < nf; i++) w[i] = base[i] / (w[i] > floor ? w[i] : floor);
+    if (!weighted_fit(omega, w, nf, z, params, rows)) return FIT_FINAL_SINGULAR;
+    for (int r = 0; r < 3; r++) {
+        for (Py_ssize_t j = 0; j < nh; j++) {
+            double acc = 0.0;
+            for (Py_ssize_t i = 0; i < 2 * nf; i++) acc += rows[r * 2 * nf + i] * stacked[i * nh + j];
+            sens[r * nh + j] = acc;
+        }
+    }
+    return FIT_OK;
+}
+
+/* Measured torque, IRF prediction and model prediction at samples edge .. m-edge-1. */
+static void predictions(const double *u, const double *y, Py_ssize_t m, const double *h,
+                        Py_ssize_t lag, double fs, const double *params, Py_ssize_t edge,
+                        double *measured, double *by_irf, double *by_model)
+{
+    const Py_ssize_t nh = 2 * lag + 1;
+    for (Py_ssize_t t = edge; t < m - edge; t++) {
+        double acc = 0.0, d1 = 0.0, d2 = 0.0;
+        for (Py_ssize_t j = 0; j < nh; j++) acc += h[j] * u[t + lag - j];
+        for (int s = 0; s < 9; s++) {
+            d1 += u[t - 4 + s] * STENCIL_D1[s];
+            d2 += u[t - 4 + s] * STENCIL_D2[s];
+        }
+        measured[t - edge] = y[t];
+        by_irf[t - edge] = acc / fs;
+        by_model[t - edge] = params[0] * (d2 * (fs * fs)) + params[1] * (d1 * fs) + params[2] * u[t];
+    }
+}
+
+static double centred_mean(const double *x, Py_ssize_t n)
+{
+    double s = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) s += x[i];
+    return s / (double)n;
+}
+
+/* vaf[0] model vs measured, vaf[1] IRF vs measured, vaf[2] model vs IRF; percent. */
+static void three_vafs(const double *measured, const double *by_irf, const double *by_model,
+                       Py_ssize_t n, double *vaf)
+{
+    double mm = centred_mean(measured, n), mi = centred_mean(by_irf, n),
+           mo = centred_mean(by_model, n);
+    double tot_m = 0.0, tot_i = 0.0, e_model = 0.0, e_irf = 0.0, e_fit = 0.0;
+    for (Py_ssize_t t = 0; t < n; t++) {
+        double a = measured[t] - mm, b = by_irf[t] - mi, c = by_model[t] - mo;
+        tot_m += a * a;
+        tot_i += b * b;
+        e_model += (a - c) * (a - c);
+        e_irf += (a - b) * (a - b);
+        e_fit += (b - c) * (b - c);
+    }
+    double totals[3] = {tot_m, tot_m, tot_i}, errors[3] = {e_model, e_irf, e_fit};
+    for (int k = 0; k < 3; k++) {
+        double v = 1.0 - errors[k] / totals[k];
+        vaf[k] = totals[k] <= 0.0 ? 0.0 : (v > 0.0 ? v : 0.0) * 100.0;
+    }
+}
+
+/* Biased autocorrelation (1/n) Σ x(t) x(t+k), k = 0..last (0 where the overlap is empty). */
+static void auto_corr(const double *x, Py_ssize_t n, Py_ssize_t last, double *out)
+{
+    for (Py_ssize_t k = 0; k <= last; k++) {
+        out[k] = k < n ? dot_unrolled(x, x + k, n - k) / (double)n : 0.0;
+    }
+}
+
+/* Sandwich standard errors of (I, B, K): diag(M R⁻¹ C_φ R⁻¹ Mᵀ)·fs², C_φ from the residual's
+ * Bartlett-tapered autocorrelation (see window._parameter_covariance). */
+static int sandwich_errors(const double *inner_u, const double *residual, Py_ssize_t n,
+                           const double *phi, const double *sens, Py_ssize_t nh, double fs,
+                           double *se, double *scratch)
+{
+    const Py_ssize_t nl = nh < n - 1 ? nh : n - 1;
+    double *phi_ee = scratch, *phi_u = phi_ee + nl + 1, *c = phi_u + nh + nl;
+    double *z = c + nh, *a = z + nh, *rr = a + nh;
+    auto_corr(residual, n, nl, phi_ee);
+    for (Py_ssize_t k = 0; k <= nl; k++) phi_ee[k] *= 1.0 - (double)k / (double)(nl + 1);
+    auto_corr(inner_u, n, nh - 1 + nl, phi_u);
+    for (Py_ssize_t k = 0; k < nh; k++) {
+        double acc = 0.0;
+        for (Py_ssize_t l = -nl; l <= nl; l++) {
+            Py_ssize_t at = k + l < 0 ? -(k + l) : k + l;
+            acc += phi_u[at] * phi_ee[l < 0 ? -l : l];
+        }
+        c[k] = acc / (double)n;
+    }
+    for (int r = 0; r < 3; r++) {
+        double alpha;
+        if (eureka_solve(phi, sens + r * nh, z, a, rr, nh, &alpha) >= 0) return FIT_NOT_PD;
+        double var = 0.0;
+        for (Py_ssize_t i = 0; i < nh; i++) {
+            double acc = 0.0;
+            for (Py_ssize_t j = 0; j < nh; j++) acc += c[i > j ? i - j : j - i] * z[j];
+            var += z[i] * acc;
+        }
+        var *= fs * fs;
+        se[r] = var > 0.0 ? sqrt(var) : 0.0;
+    }
+    return FIT_OK;
+}
+
+static Py_ssize_t window_fit(const double *u, const double *y, Py_ssize_t m, const double *h,
+                             Py_ssize_t lag, const double *phi, const double *stacked,
+                             const double *f, Py_ssize_t nf, const double *hann, double fs,
+                             double power, int uncertainty, double *params, double *sens,
+                             double *out, double *work)
+{
+    const Py_ssize_t nh = 2 * lag + 1, edge = lag > 4 ? lag : 4, n = m - 2 * edge;
+    double *base = work, *scratch = base + nf;
+    excitation_weights(u, hann, m, fs, f, nf, power, base, scratch);
+    Py_ssize_t status = linear_fit(h, nh, stacked, f, nf, base, params, sens, scratch);
+    if (status != FIT_OK) return status;
+    double *measured = scratch, *by_irf = measured + n, *by_model = by_irf + n;
+    predictions(u, y, m, h, lag, fs, params, edge, measured, by_irf, by_model);
+    three_vafs(measured, by_irf, by_model, n, out + 3);
+    out[0] = out[1] = out[2] = NAN;
+    if (!uncertainty) return FIT_OK;
+    for (Py_ssize_t t = 0; t < n; t++) by_model[t] = measured[t] - by_irf[t]; /* residual */
+    return sandwich_errors(u + edge, by_model, n, phi, sens, nh, fs, out, by_model + n);
+}
+
+static PyObject *py_window_fit(PyObject *self, PyObject *args)
+{
+    PyObject *objs[10];
+    double fs, power;
+    int uncertainty;
+    if (!PyArg_ParseTuple(args, "OOOOOOOddpOOO", &objs[0], &objs[1], &objs[2], &objs[3],
+                          &objs[4], &objs[5], &objs[6], &fs, &power, &uncertainty, &objs[7],
+                          &objs[8], &objs[9])) {
+        return NULL;
+    }
+    const char *names[10] = {"u", "y", "h", "phi", "stacked", "f", "hann", "params", "sens", "out"};
+    Py_buffer b[10];
+    int got = 0;
+    for (; got < 10; got++) {
+        if (get_doubles(objs[got], &b[got], got >= 7, names[got]) < 0) break;
+    }
+    PyObject *result = NULL;
+    if (got == 10) {
+        Py_ssize_t m = b[0].len / 8, nh = b[2].len / 8, nf = b[5].len / 8, lag = (nh - 1) / 2;
+        Py_ssize_t edge = lag > 4 ? lag : 4;
+        if (b[1].len != b[0].len || nh % 2 != 1 || lag < 1 || b[3].len / 8 != nh ||
+            b[4].len / 8 != 2 * nf * nh || b[6].len != b[0].len || b[7].len / 8 != 3 ||
+            b[8].len / 8 != 3 * nh || b[9].len / 8 != 6 || nf < 3 || m - 2 * edge < 2 ||
+            m < 2) {
+            PyErr_SetString(PyExc_ValueError, "window_fit: inconsistent sizes");
+        } else {
+            /* base weights + max(periodogram scratch, fit scratch, predictions + SE scratch) */
+            Py_ssize_t size = nf + 4 * m + 10 * nf + 3 * m + 8 * nh + 8;
+            double *work = PyMem_Malloc(sizeof(double) * size);
+            if (work == NULL) {
+                PyErr_NoMemory();
+            } else {
+                Py_ssize_t status = window_fit(
+                    b[0].buf, b[1].buf, m, b[2].buf, lag, b[3].buf, b[4].buf, b[5].buf, nf,
+                    b[6].buf, fs, power, uncertainty, b[7].buf, b[8].buf, b[9].buf, work);
+                PyMem_Free(work);
+                result = PyLong_FromSsize_t(status);
+            }
+        }
+    }
+    for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
+    return result;
+}
+
 static PyObject *py_window_irf(PyObject *self, PyObject *args)
 {
     PyObject *po, *to, *tapso, *uo, *yo, *ho, *phio;
@@ -311,6 +615,9 @@ static PyMethodDef methods[] = {
     {"window_irf", py_window_irf, METH_VARARGS,
      "window_irf(position, torque, taps, factor, sign, detrend, lag, sweeps, ridge, fs, u, y, h, "
      "phi) -> (status, alpha): detrend, FIR-decimate, correlate, EUREKA and refine one window."},
+    {"window_fit", py_window_fit, METH_VARARGS,
+     "window_fit(u, y, h, phi, stacked, f, hann, fs, power, uncertainty, params, sens, out) -> "
+     "status: linear fit, predictions, VAFs and standard errors of one window."},
     {"xcorr", py_xcorr, METH_VARARGS,
      "xcorr(u, y, first, last, norm, c): c[k-first] = sum_t u[t] y[t+k] / norm."},
     {NULL, NULL, 0, NULL},

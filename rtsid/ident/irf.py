@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -24,6 +25,13 @@ __all__ = ["IRF", "estimate_irf"]
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
+
+
+@lru_cache(maxsize=16)
+def _lag_times(max_lag: int, fs_hz: float) -> FloatArray:
+    lags = np.arange(-max_lag, max_lag + 1) / fs_hz
+    lags.setflags(write=False)
+    return lags
 
 
 @dataclass(frozen=True)
@@ -51,8 +59,8 @@ class IRF:
 
     @property
     def lags_s(self) -> FloatArray:
-        """Lag of each IRF value, s (``−L·Δt … L·Δt``)."""
-        return np.arange(-self.max_lag, self.max_lag + 1) / self.fs_hz
+        """Lag of each IRF value, s (``−L·Δt … L·Δt``); read-only, shared between IRFs."""
+        return _lag_times(self.max_lag, self.fs_hz)
 
     def dft_matrix(self, f_hz: ArrayLike) -> ComplexArray:
         """``E`` with ``E @ h`` the frequency response at ``f_hz``, shape (n_f, 2L+1)."""

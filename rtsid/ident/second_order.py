@@ -23,7 +23,14 @@ from scipy import optimize
 
 from rtsid.errors import InputDataError, NumericalError
 
-__all__ = ["ParameterFit", "fit_linear", "fit_logmag", "impedance_response"]
+__all__ = [
+    "ParameterFit",
+    "fit_linear",
+    "fit_logmag",
+    "impedance_response",
+    "inseparable_fit",
+    "zero_response",
+]
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
@@ -81,11 +88,24 @@ def _normal_sums(f_hz: FloatArray, weights: FloatArray) -> _NormalSums:
         omega, w2, w2_omega2, float(w2.sum()), float(w2_omega2.sum()), float(w2_omega2 @ omega2)
     )
     if not sums.det > 0:
-        raise NumericalError(
-            "the fit grid cannot separate inertia from stiffness (too few weighted "
-            "frequencies); widen fit_band_hz or check the perturbation"
-        )
+        raise inseparable_fit()
     return sums
+
+
+def zero_response() -> NumericalError:
+    """The error for an IRF whose fitted response vanishes on the whole fit grid."""
+    return NumericalError(
+        "the identified response is zero on the fit grid: torque does not follow position "
+        "(is the torque signal connected and scaled?)"
+    )
+
+
+def inseparable_fit() -> NumericalError:
+    """The error for a weighted fit grid whose normal equations are singular."""
+    return NumericalError(
+        "the fit grid cannot separate inertia from stiffness (too few weighted "
+        "frequencies); widen fit_band_hz or check the perturbation"
+    )
 
 
 def _weighted_parameters(f_hz: FloatArray, weights: FloatArray, z_obs: FloatArray) -> FloatArray:
@@ -167,7 +187,10 @@ def fit_linear(
     if reweight:
         first = _weighted_parameters(f, base, z_obs)
         magnitude = np.abs(impedance_response(first[0], first[1], first[2], f))
-        floor = 1e-6 * max(float(magnitude.max()), 1e-300)
+        top = float(magnitude.max())
+        if not top > 0:
+            raise zero_response()
+        floor = 1e-6 * top
         final_weights = base / np.maximum(magnitude, floor)
     solution_map = _weighted_solution_map(f, final_weights)
     params = solution_map @ z_obs

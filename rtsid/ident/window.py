@@ -35,7 +35,13 @@ from rtsid.ident.filters import (
 )
 from rtsid.ident.irf import IRF, estimate_irf
 from rtsid.ident.levinson import compiled_kernel, eureka_unchecked, not_positive_definite
-from rtsid.ident.second_order import ParameterFit, fit_linear, fit_logmag
+from rtsid.ident.second_order import (
+    ParameterFit,
+    fit_linear,
+    fit_logmag,
+    inseparable_fit,
+    zero_response,
+)
 
 _eureka = compiled_kernel()
 
@@ -315,8 +321,10 @@ def _parameter_covariance(
     return np.asarray((cov + cov.T) / 2, dtype=np.float64)
 
 
-def _flags(fit: ParameterFit, se: FloatArray, vaf_fit: float) -> tuple[str, ...]:
-    inertia, damping, stiffness = fit.params
+def _flags(
+    params: tuple[float, float, float], se: tuple[float, float, float], vaf_fit: float
+) -> tuple[str, ...]:
+    inertia, damping, stiffness = params
     flags = []
     if vaf_fit < 50.0:
         flags.append("model_mismatch")
@@ -326,9 +334,9 @@ def _flags(fit: ParameterFit, se: FloatArray, vaf_fit: float) -> tuple[str, ...]
         flags.append("negative_damping")
     if inertia <= 0:
         flags.append("negative_inertia")
-    if np.isfinite(se[0]) and se[0] > 0.25 * abs(inertia):
+    if math.isfinite(se[0]) and se[0] > 0.25 * abs(inertia):
         flags.append("inertia_uncertain")
-    if np.isfinite(se[2]) and se[2] > 0.1 * abs(stiffness):
+    if math.isfinite(se[2]) and se[2] > 0.1 * abs(stiffness):
         flags.append("stiffness_uncertain")
     return tuple(flags)
 
@@ -384,10 +392,63 @@ def estimate_window(
     if overrides:
         options = replace(options, **overrides)
     u, y, irf = front_end(position, torque, fs, options)
+    return back_end(irf, u, y, options)
+
+
+def back_end(irf: IRF, u: FloatArray, y: FloatArray, options: EstimatorOptions) -> WindowEstimate:
+    """Stages 5–7: fit, VAFs and standard errors of one window's IRF.
+
+    One call into the compiled kernel for the linear fit when it was built;
+    :func:`numpy_back_end` otherwise (and for the log-magnitude fit), the reference it is
+    tested against.
+    """
+    if _eureka is None or options.fit_method != "linear":
+        return numpy_back_end(irf, u, y, options)
+    fs_a = irf.fs_hz
+    grid_key = (*options.fit_band_hz, options.fit_points, fs_a / 2)
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    params, sensitivity, out = np.empty(3), np.empty((3, irf.h.size)), np.empty(6)
+    status = _eureka.window_fit(
+        u,
+        np.ascontiguousarray(y, dtype=np.float64),
+        irf.h,
+        irf.phi_uu,
+        _stacked_dft(irf.max_lag, fs_a, grid_key),
+        _fit_grid(options.fit_band_hz, options.fit_points, fs_a / 2),
+        _hann(u.size),
+        fs_a,
+        options.weight_power,
+        options.uncertainty,
+        params,
+        sensitivity,
+        out,
+    )
+    if status in (_FIRST_FIT_SINGULAR, _FINAL_FIT_SINGULAR):
+        raise inseparable_fit()
+    if status == _ZERO_RESPONSE:
+        raise zero_response()
+    if status >= 0:
+        raise not_positive_definite(status, float("nan"))
+    se_i, se_b, se_k, vaf, vaf_irf, vaf_fit = out.tolist()
+    fit = ParameterFit(params=params, sensitivity=sensitivity, method="linear")
+    vafs = (round(vaf, 12), round(vaf_irf, 12), round(vaf_fit, 12))
+    return _assemble(irf, fit, (se_i, se_b, se_k), vafs)
+
+
+# window_fit's status codes (see _eureka.c)
+_FIRST_FIT_SINGULAR, _FINAL_FIT_SINGULAR, _ZERO_RESPONSE = 1, 2, 4
+
+
+def numpy_back_end(
+    irf: IRF, u: FloatArray, y: FloatArray, options: EstimatorOptions
+) -> WindowEstimate:
+    """Stages 5–7 in numpy: :func:`fit_parameters`, :func:`predict_torque`, the VAFs and
+    :func:`standard_errors`."""
     fit = fit_parameters(irf, u, options)
     predictions = predict_torque(irf, u, y, fit)
     se = standard_errors(irf, u, predictions, fit) if options.uncertainty else np.full(3, np.nan)
-    return _assemble(irf, fit, predictions, se)
+    se_i, se_b, se_k = se.tolist()
+    return _assemble(irf, fit, (se_i, se_b, se_k), _three_vafs(predictions))
 
 
 _DETREND_CODES = {"none": 0, "mean": 1, "linear": 2}
@@ -499,23 +560,30 @@ class TorquePredictions:
 
 def predict_torque(irf: IRF, u: FloatArray, y: FloatArray, fit: ParameterFit) -> TorquePredictions:
     """Stage 6: torque predicted by the IRF and by the parametric model."""
-    max_lag = irf.max_lag
+    edge = _supported_edge(irf)
     inertia, damping, stiffness = fit.params
     d1, d2 = stencil_derivatives(u, irf.fs_hz)
     model_torque = inertia * d2 + damping * d1 + stiffness * u[4:-4]  # samples 4 … n−5
-    inner = slice(max_lag, u.size - max_lag)
+    inner = slice(edge, u.size - edge)
     return TorquePredictions(
         measured=y[inner],
         irf=irf.predict(u)[inner],
-        model=model_torque[max_lag - 4 : u.size - max_lag - 4],
+        model=model_torque[edge - 4 : u.size - edge - 4],
     )
+
+
+def _supported_edge(irf: IRF) -> int:
+    """Samples at each end without full support for the IRF (``L``) or the 9-point
+    derivative stencils (4): predictions and residuals skip them."""
+    return max(irf.max_lag, 4)
 
 
 def standard_errors(
     irf: IRF, u: FloatArray, predictions: TorquePredictions, fit: ParameterFit
 ) -> FloatArray:
     """Stage 7: standard errors of ``(I, B, K)`` from the IRF's sandwich covariance."""
-    inner_u = u[irf.max_lag : u.size - irf.max_lag]
+    edge = _supported_edge(irf)
+    inner_u = u[edge : u.size - edge]
     residual = predictions.measured - predictions.irf
     cov = _parameter_covariance(irf, inner_u, residual, fit.sensitivity)
     return np.asarray(np.sqrt(np.clip(np.diag(cov), 0.0, None)), dtype=np.float64)
@@ -541,24 +609,27 @@ def _three_vafs(p: TorquePredictions) -> tuple[float, float, float]:
 
 
 def _assemble(
-    irf: IRF, fit: ParameterFit, predictions: TorquePredictions, se: FloatArray
+    irf: IRF,
+    fit: ParameterFit,
+    se: tuple[float, float, float],
+    vafs: tuple[float, float, float],
 ) -> WindowEstimate:
-    inertia, damping, stiffness = (float(v) for v in fit.params)
-    vaf_model, vaf_irf, vaf_fit = _three_vafs(predictions)
+    inertia, damping, stiffness = fit.params.tolist()
+    vaf_model, vaf_irf, vaf_fit = vafs
     return WindowEstimate(
         I=inertia,
         B=damping,
         K=stiffness,
-        I_se=float(se[0]),
-        B_se=float(se[1]),
-        K_se=float(se[2]),
+        I_se=se[0],
+        B_se=se[1],
+        K_se=se[2],
         vaf=vaf_model,
         vaf_irf=vaf_irf,
         vaf_fit=vaf_fit,
         irf=irf.h,
         lags_s=irf.lags_s,
         fs_hz=irf.fs_hz,
-        flags=_flags(fit, se, vaf_fit),
+        flags=_flags((inertia, damping, stiffness), se, vaf_fit),
         method=fit.method,
     )
 

@@ -186,3 +186,49 @@ def test_compiled_front_end_matches_the_numpy_reference(overrides):
     np.testing.assert_allclose(irf.phi_uu, ref.phi_uu, rtol=1e-10)
     np.testing.assert_allclose(irf.h, ref.h, rtol=1e-8, atol=1e-8 * np.max(np.abs(ref.h)))
     assert irf.fs_hz == fs_a
+
+
+SCALARS = ("I", "B", "K", "I_se", "B_se", "K_se", "vaf", "vaf_irf", "vaf_fit")
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        {},
+        {"detrend": "mean", "torque_sign": -1.0},
+        {"uncertainty": False},
+        {"weight_power": 1.0, "fit_points": 7, "fit_band_hz": (0.0, 40.0)},
+        {"analysis_fs_hz": None, "lowpass_hz": None, "lag_s": 0.004, "fit_band_hz": (1.0, 60.0)},
+        {"analysis_fs_hz": 250.0, "lowpass_hz": 80.0, "fit_band_hz": (1.0, 60.0), "ridge": 0.0},
+        {"lag_s": 0.004},  # 2 lags at 500 Hz: fewer than the derivative stencils' 4
+    ],
+)
+def test_compiled_back_end_matches_the_numpy_reference(overrides):
+    from rtsid.ident import window
+
+    if window._eureka is None:
+        pytest.skip("compiled kernel not built")
+    options = EstimatorOptions(**overrides)
+    u, y, irf = window.front_end(*simulated_window(23, noise=10.0), FS, options)
+    compiled = window.back_end(irf, u, y, options)
+    reference = window.numpy_back_end(irf, u, y, options)
+    for name in SCALARS:
+        np.testing.assert_allclose(
+            getattr(compiled, name), getattr(reference, name), rtol=1e-9, err_msg=name
+        )
+    assert compiled.flags == reference.flags
+    assert np.isnan(compiled.K_se) == (not options.uncertainty)
+
+
+def test_back_end_rejects_a_window_whose_torque_does_not_respond():
+    from rtsid.errors import NumericalError
+    from rtsid.ident import window
+
+    # Zero torque (an unplugged sensor): the IRF is zero, so is the fitted response.
+    theta, _ = simulated_window(24)
+    options = EstimatorOptions()
+    u, y, irf = window.front_end(theta, np.zeros_like(theta), FS, options)
+    assert not np.any(irf.h)
+    for back in (window.back_end, window.numpy_back_end):
+        with pytest.raises(NumericalError, match="torque does not follow position"):
+            back(irf, u, y, options)
