@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from rtsid.benchmarks.table import median_p99, print_table
+from rtsid.runtime.power import PM_QOS_DEVICE
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -39,6 +40,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="socketcand",
         help="socketcand: the simulated robot runs as its own process ('rtsid plant') as a "
         "real rig would; embedded: inside the daemon (the quick-start setup)",
+    )
+    parser.add_argument(
+        "--cpu-latency-us",
+        type=int,
+        default=0,
+        help="the daemon's [daemon] cpu_latency_us (0, the lab setting: idle CPUs poll; -1: "
+        "no PM QoS request). Falls back to -1 when /dev/cpu_dma_latency is not writable",
     )
 
 
@@ -72,6 +80,8 @@ class Phase:
     name: str
     steal_percent: float = float("nan")
     e2e_ms: list[float] = field(default_factory=list)
+    daemon_ms: list[float] = field(default_factory=list)
+    transit_ms: list[float] = field(default_factory=list)
     compute_ms: list[float] = field(default_factory=list)
     withheld: int = 0
     estimates: int = 0
@@ -79,7 +89,7 @@ class Phase:
     seconds: float = 0.0
 
 
-def _config_file(folder: Path, port: int, can_port: int | None) -> Path:
+def _config_file(folder: Path, port: int, can_port: int | None, cpu_latency_us: int) -> Path:
     path = folder / "bench.toml"
     link = (
         f'[link]\ninterface = "socketcand"\nchannel = "can0"\nport = {can_port}\n'
@@ -89,6 +99,7 @@ def _config_file(folder: Path, port: int, can_port: int | None) -> Path:
     path.write_text(
         f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\nrobot = "bench"\n'
         f'[mcap]\ndirectory = "{folder / "rec"}"\n{link}'
+        f"[daemon]\ncpu_latency_us = {cpu_latency_us}\n"
     )
     return path
 
@@ -151,6 +162,8 @@ def _subscribe(port: int, seconds: float, phase: Phase) -> None:
                 phase.estimates += 1
                 phase.compute_ms.append(msg["compute_ms"])
                 transit_ms = (received_ns - msg["host_time_ns"]) / 1e6
+                phase.daemon_ms.append(msg["latency_ms"])
+                phase.transit_ms.append(transit_ms)
                 phase.e2e_ms.append(msg["latency_ms"] + transit_ms)
             else:
                 phase.withheld += 1
@@ -161,13 +174,13 @@ def _subscribe(port: int, seconds: float, phase: Phase) -> None:
         stat.undeclare()
 
 
-def _run_phase(name: str, seconds: float, burn: bool, transport: str) -> Phase:
+def _run_phase(name: str, seconds: float, burn: bool, transport: str, cpu_latency_us: int) -> Phase:
     phase = Phase(name)
     with tempfile.TemporaryDirectory(prefix="rtsid-bench-") as tmp:
         port = _free_port()
         can_port = _free_port() if transport == "socketcand" else None
         plant = _start_plant(can_port) if can_port is not None else None
-        config = _config_file(Path(tmp), port, can_port)
+        config = _config_file(Path(tmp), port, can_port, cpu_latency_us)
         daemon = subprocess.Popen(
             [sys.executable, "-m", "rtsid.cli", "run", "--config", str(config), "--quiet"],
             stdout=subprocess.DEVNULL,
@@ -217,6 +230,8 @@ def _row(phase: Phase, base: Phase | None) -> list[Any]:
         max(phase.e2e_ms) if phase.e2e_ms else float("nan"),
         c50,
         c99,
+        median_p99(phase.daemon_ms)[1],
+        median_p99(phase.transit_ms)[1],
         cpu,
         rss[0] if rss else float("nan"),
         rss[-1] if rss else float("nan"),
@@ -229,14 +244,19 @@ def _row(phase: Phase, base: Phase | None) -> list[Any]:
 
 def run(args: argparse.Namespace) -> int:
     seconds = 20.0 if args.quick else args.duration
-    idle = _run_phase("idle machine", seconds, burn=False, transport=args.transport)
+    qos = args.cpu_latency_us
+    if qos >= 0 and not os.access(PM_QOS_DEVICE, os.W_OK):
+        print(f"note: {PM_QOS_DEVICE} is not writable here; running with cpu_latency_us = -1")
+        qos = -1
+    idle = _run_phase("idle machine", seconds, False, args.transport, qos)
     rows = [_row(idle, None)]
     if not args.no_load_phase:
-        loaded = _run_phase("other core loaded", seconds, burn=True, transport=args.transport)
+        loaded = _run_phase("other core loaded", seconds, True, args.transport, qos)
         rows.append(_row(loaded, idle))
     print_table(
         f"Daemon at 2500 Hz, 300 ms windows every 20 ms, {seconds:g} s per phase "
-        f"(virtual plant via {args.transport}; subscriber in another process)",
+        f"(virtual plant via {args.transport}; subscriber in another process; "
+        f"cpu_latency_us = {qos})",
         [
             "phase",
             "estimates/s",
@@ -249,6 +269,8 @@ def run(args: argparse.Namespace) -> int:
             "e2e max ms",
             "compute p50 ms",
             "compute p99 ms",
+            "in-daemon p99 ms",
+            "zenoh transit p99 ms",
             "daemon CPU %",
             "RSS start MiB",
             "RSS end MiB",
@@ -259,10 +281,15 @@ def run(args: argparse.Namespace) -> int:
         ],
         rows,
         note=(
-            "e2e = window's last sample arriving at the daemon → estimate received here. "
+            "e2e = window's last sample arriving at the daemon → estimate received here; "
+            "in-daemon = that sample's arrival → the estimate message built (wake-up + "
+            "compute); zenoh transit = message built → received here (encode, put, loopback "
+            "TCP, the subscriber's wake-up). "
             "With --transport embedded the daemon's CPU includes the simulated robot, which a "
             "real rig does not cost. VM steal = CPU time the hypervisor took from this machine "
-            "during the phase (/proc/stat): host preemption, not the daemon. Floors: 0 deadline "
+            "during the phase (/proc/stat): host preemption, not the daemon. "
+            "cpu_latency_us = 0: the daemon holds a PM QoS request keeping idle CPUs polling "
+            "(rtsid.runtime.power); -1: none. Floors: 0 deadline "
             "misses idle, e2e p99 ≤ 5 ms, CPU ≤ 30 %."
         ),
     )

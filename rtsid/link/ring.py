@@ -95,6 +95,8 @@ class RingBuffer:
         self._claimed = -1  # highest index whose slot the writer is writing or has written
         self._reader_lock = threading.Lock()
         self.reader_overruns = 0
+        # (index, event): the writer sets event once row index is published (see wake_at)
+        self._wake: tuple[int, threading.Event] | None = None
 
     # ------------------------------------------------------------------ writer side
     @property
@@ -139,6 +141,9 @@ class RingBuffer:
         self._host_time[slot] = host_time_s
         self._bus_time[slot] = bus_time_s
         self._newest = index
+        wake = self._wake
+        if wake is not None and index >= wake[0]:
+            wake[1].set()
         return index
 
     def append_gap(self, count: int, host_time_s: float) -> None:
@@ -156,6 +161,20 @@ class RingBuffer:
         self._claimed = stop - 1
         self._write_invalid(max(start, stop - self.capacity), stop, host_time_s)
         self._newest = stop - 1
+        wake = self._wake
+        if wake is not None and self._newest >= wake[0]:
+            wake[1].set()
+
+    def wake_at(self, index: int, event: threading.Event) -> None:
+        """Have the writer set ``event`` when row ``index`` is published (at once if it is).
+
+        One waiter at a time (a new call replaces the previous one). Clear the event
+        before calling: the writer sets it for every row at or past ``index``, so a reader
+        woken by the sample clock needs no polling.
+        """
+        self._wake = (index, event)
+        if self._newest >= index:
+            event.set()
 
     def _write_invalid(self, lo: int, hi: int, host_time_s: float) -> None:
         slots_a = lo % self.capacity

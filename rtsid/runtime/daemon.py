@@ -35,6 +35,7 @@ from rtsid.link.config import LinkConfig, PlantConfig, link_configs_from_mapping
 from rtsid.link.open import open_link
 from rtsid.link.ring import RingBuffer
 from rtsid.runtime.clock import Deadlines
+from rtsid.runtime.power import cpu_latency_request
 from rtsid.runtime.worker import WindowWorker, WorkerConfig
 
 __all__ = ["Daemon", "DaemonConfig", "DaemonSettings", "RunSummary"]
@@ -60,18 +61,25 @@ class DaemonSettings:
         Python's thread switch interval while the daemon runs, s (CPython's default is
         5 ms, which lets a busy thread delay the window worker by that much; 0.1 ms keeps
         the worker's waits short at a small switching cost).
+    cpu_latency_us : int
+        Linux PM QoS request held while the daemon runs (``/dev/cpu_dma_latency``): idle
+        CPUs only use states that wake within this many µs; 0 keeps them polling, which
+        cuts the wake-up tail of every thread on the machine, subscribers included (see
+        :mod:`rtsid.runtime.power`). -1: no request (the default; it costs power).
     """
 
     status_period_s: float = 0.5
     sample_batch_s: float = 0.1
     shutdown_timeout_s: float = 3.0
     gil_switch_interval_s: float = 0.0001
+    cpu_latency_us: int = -1
 
     def __post_init__(self) -> None:
         require_range("status_period_s", self.status_period_s, 0.05, 60.0)
         require_range("sample_batch_s", self.sample_batch_s, 0.005, 5.0)
         require_range("shutdown_timeout_s", self.shutdown_timeout_s, 0.1, 60.0)
         require_range("gil_switch_interval_s", self.gil_switch_interval_s, 1e-5, 0.1)
+        require_range("cpu_latency_us", self.cpu_latency_us, -1, 1_000_000)
 
 
 @dataclass(frozen=True)
@@ -189,7 +197,8 @@ class Daemon:
         previous_interval = sys.getswitchinterval()
         sys.setswitchinterval(min(previous_interval, self.config.daemon.gil_switch_interval_s))
         try:
-            return self._run(duration_s)
+            with cpu_latency_request(self.config.daemon.cpu_latency_us):
+                return self._run(duration_s)
         finally:
             sys.setswitchinterval(previous_interval)
             gc.unfreeze()

@@ -3,8 +3,8 @@
 Windows end on a fixed grid of sample indices — every ``hop`` samples (``end + 1`` a multiple
 of the hop) — so the windows do not depend on thread timing and a replay of the recording
 reproduces them exactly (same windows, same numbers). The worker thread sleeps until the
-window's last sample is due by the sample clock (absolute deadlines derived from the newest
-sample's arrival), so the time from that sample to the estimate is the compute time.
+acquisition thread publishes the window's last sample (the ring wakes it), so the time from
+that sample to the estimate is the wake-up plus the compute time.
 
 A window is estimated only from contiguous, valid, unsaturated, fresh samples; otherwise the
 message says why (``ok: false`` and a ``reason``) — never a silent number. When the worker
@@ -180,6 +180,7 @@ class WindowWorker:
         self.window_samples = round(config.window_s * fs_hz)
         self.hop_samples = max(1, round(config.hop_s * fs_hz))
         self._stop = threading.Event()
+        self._wake = threading.Event()  # set by the ring's writer, or by stop()
         self._thread: threading.Thread | None = None
         self._seq = 0
         self._withheld: Counter[str] = Counter()
@@ -202,6 +203,7 @@ class WindowWorker:
     def stop(self, timeout_s: float = 2.0) -> bool:
         """Stop and join; True if the thread ended within ``timeout_s``."""
         self._stop.set()
+        self._wake.set()
         if self._thread is None:
             return True
         self._thread.join(timeout_s)
@@ -272,8 +274,16 @@ class WindowWorker:
             if now - arrived_s > self.config.max_sample_age_s and now >= next_stale_s:
                 self._publish_stale(next_end)
                 next_stale_s = now + hop_s
-            due_s = arrived_s + (next_end - newest) / self.fs_hz
-            self._stop.wait(min(max(due_s - now, 2e-4), hop_s))
+            self._wait_for_sample(next_end, hop_s)
+
+    def _wait_for_sample(self, index: int, timeout_s: float) -> None:
+        """Sleep until the ring publishes row ``index`` (or ``timeout_s``, or stop())."""
+        assert self.ring is not None
+        self._wake.clear()
+        if self._stop.is_set():
+            return
+        self.ring.wake_at(index, self._wake)
+        self._wake.wait(timeout_s)
 
     def process_window(self, end_index: int) -> dict[str, Any] | None:
         """Estimate the window ending at ``end_index`` from the ring and publish its message.

@@ -105,3 +105,23 @@ def test_readers_always_see_consistent_rows_while_the_writer_runs():
     finally:
         thread.join(timeout=30)
     assert checked > 0 and cursor == ring.newest_index + 1
+
+
+def test_wake_at_sets_the_event_when_the_row_is_published():
+    ring = RingBuffer(16)
+    event = threading.Event()
+    ring.wake_at(2, event)
+    ring.append(0.0, 0.0, 0, 0.0, 0.0)
+    ring.append(0.0, 0.0, 0, 0.0, 0.0)
+    assert not event.is_set()  # rows 0 and 1: not yet
+    ring.append(0.0, 0.0, 0, 0.0, 0.0)
+    assert event.is_set()
+    event.clear()
+    ring.wake_at(6, event)
+    ring.append_gap(2, 0.0)  # rows 3-4
+    assert not event.is_set()
+    ring.append_gap(3, 0.0)  # rows 5-7: a gap publishes row 6 too
+    assert event.is_set()
+    event.clear()
+    ring.wake_at(7, event)  # already published: set at once
+    assert event.is_set()

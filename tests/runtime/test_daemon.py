@@ -78,6 +78,27 @@ def test_daemon_logs_every_sample_and_every_estimate(tmp_path, free_port):
     assert final["worker"]["estimates"] == summary.estimates
 
 
+def open_files() -> set[str]:
+    return {os.path.realpath(f"/proc/self/fd/{fd}") for fd in os.listdir("/proc/self/fd")}
+
+
+def test_cpu_latency_request_is_held_while_the_daemon_runs(tmp_path, free_port, monkeypatch):
+    from rtsid.runtime import power
+
+    device = tmp_path / "cpu_dma_latency"
+    device.write_bytes(b"")
+    monkeypatch.setattr(power, "PM_QOS_DEVICE", str(device))
+    config = DaemonConfig.load(write_config(tmp_path, free_port, "[daemon]\ncpu_latency_us = 0"))
+    held = []
+    Daemon(config, on_status=lambda *_: held.append(str(device) in open_files())).run(1.0)
+    assert held and all(held)
+    assert device.read_bytes() == b"\0\0\0\0"
+    assert str(device) not in open_files()
+    monkeypatch.setattr(power, "PM_QOS_DEVICE", str(tmp_path / "missing" / "device"))
+    with pytest.raises(ConfigError, match=r"daemon\.cpu_latency_us"):
+        Daemon(config).run(duration_s=1.0)
+
+
 def test_bad_config_is_one_clear_error(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text("[workr]\nhop_s = 0.02\n")
