@@ -28,6 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from rtsid.runtime.power import PM_QOS_DEVICE, cpu_latency_request
+
 FS_HZ = 2500.0
 BATCH = 250  # samples per batch: 100 ms
 HOP_S = 0.02
@@ -240,7 +242,13 @@ def _subscriber(endpoint: str, ready: Any, out: Any) -> None:
 _BASE = "rtsid/bench/ankle"
 
 
-def _zenoh_latency(messages: int) -> None:
+def _zenoh_latency(messages: int, cpu_latency_us: int = -1) -> dict[str, list[float]]:
+    """One-way latencies (µs) by kind, with the daemon's PM QoS request held as configured."""
+    with cpu_latency_request(cpu_latency_us):
+        return _zenoh_latency_run(messages, cpu_latency_us)
+
+
+def _zenoh_latency_run(messages: int, cpu_latency_us: int) -> dict[str, list[float]]:
     import zenoh
 
     from rtsid.io.schemas import encode_estimate
@@ -259,7 +267,7 @@ def _zenoh_latency(messages: int) -> None:
             session = pub._entities.session if pub._entities is not None else None
             if session is None:
                 print(f"zenoh unavailable: {pub.stats()['last_error']}")
-                return
+                return {}
             raw = session.declare_publisher(
                 f"{_BASE}/raw", congestion_control=zenoh.CongestionControl.DROP, express=True
             )
@@ -297,7 +305,8 @@ def _zenoh_latency(messages: int) -> None:
             child.join(timeout=10)
     print(
         f"\nzenoh one-way latency, publisher → subscriber in another process, "
-        f"tcp/127.0.0.1, {messages} messages each at 50 Hz, interleaved 10 ms apart"
+        f"tcp/127.0.0.1, {messages} messages each at 50 Hz, interleaved 10 ms apart, "
+        f"cpu_latency_us = {cpu_latency_us}"
     )
     print(
         f"{'payload':38}{'received':>9}{'median µs':>11}{'p99 µs':>9}{'max µs':>9}"
@@ -315,6 +324,21 @@ def _zenoh_latency(messages: int) -> None:
             f"{(max(v) if v else float('nan')):>9.0f}{med / base:>12.2f}"
             f"{_pct(calls[key], 50):>14.0f} / {_pct(calls[key], 99):<7.0f}"
         )
+    return lat
+
+
+def _compare_pm_qos(without: dict[str, list[float]], held: dict[str, list[float]]) -> None:
+    print("\nzenoh estimate latency without and with the PM QoS request (same run)")
+    print(
+        f"{'cpu_latency_us':>16}{'median µs':>11}{'p99 µs':>9}{'p99.9 µs':>10}{'p99 / without':>15}"
+    )
+    base = _pct(without.get("estimate", []), 99)
+    for label, lat in (("-1 (none)", without), ("0 (poll)", held)):
+        v = lat.get("estimate", [])
+        print(
+            f"{label:>16}{_pct(v, 50):>11.0f}{_pct(v, 99):>9.0f}{_pct(v, 99.9):>10.0f}"
+            f"{_pct(v, 99) / base:>15.2f}"
+        )
 
 
 def _load() -> str:
@@ -330,6 +354,10 @@ def run(args: argparse.Namespace) -> int:
         directory = Path(args.directory or tmp)
         _mcap_real_time(directory, seconds)
         _mcap_flat_out(directory, 200 if args.quick else 2000)
-    _zenoh_latency(messages)
+    without = _zenoh_latency(messages, -1)
+    if os.access(PM_QOS_DEVICE, os.W_OK):
+        _compare_pm_qos(without, _zenoh_latency(messages, 0))
+    else:
+        print(f"\n{PM_QOS_DEVICE} is not writable: the PM QoS comparison is skipped")
     print(f"\nafter: {_load()}")
     return 0

@@ -6,6 +6,10 @@
  * protocol is used (no numpy headers). The GIL is released only for large systems: for the
  * small per-window systems, handing it over costs the caller a switch interval.
  *
+ * Also the per-window pipeline of rtsid.ident.window in two calls: window_irf (front end:
+ * detrend, FIR decimation, correlations, EUREKA and refinement) and window_fit (back end: fit,
+ * predictions, VAFs, standard errors); window.py's numpy stages are their tested reference.
+ *
  * solve(r, b, x, work) -> (status, alpha)
  *   r     float64[n]  first column of R (r[0] > 0)
  *   b     float64[n]  right-hand side
