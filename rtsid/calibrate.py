@@ -47,11 +47,13 @@ from rtsid.link.protocol import (
 __all__ = [
     "Calibration",
     "calibrate_file",
+    "calibration_record",
     "contiguous_segments",
     "load_calibration",
     "read_samples",
     "robot_torque_offset",
     "save_calibration",
+    "with_recorded_calibration",
 ]
 
 FORMAT = "rtsid-calibration"
@@ -321,3 +323,75 @@ def robot_torque_offset(
     except InputDataError as exc:
         raise ConfigError(f"config key 'worker.calibration_file': {exc}") from None
     return calibration.check_rate(fs_hz).torque_offset
+
+
+def calibration_record(calibration_file: str) -> dict[str, dict[str, str]]:
+    """The ``calibration`` metadata record the daemon writes into every recording file: the
+    calibration file's text, so a replay needs no file of its own ({} without one).
+
+    Raises
+    ------
+    ConfigError
+        The file cannot be read.
+    """
+    if not calibration_file:
+        return {}
+    try:
+        text = Path(calibration_file).read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(
+            f"config key 'worker.calibration_file': cannot read {calibration_file!r} "
+            f"({exc.strerror or exc})"
+        ) from None
+    return {"calibration": {"json": text, "file": calibration_file}}
+
+
+def with_recorded_calibration(
+    document: dict[str, Any], recorded: dict[str, str] | None
+) -> dict[str, Any]:
+    """A stored run configuration pointing at the calibration its recording carries.
+
+    Unless the file at the stored path still holds exactly the recorded text (moved, edited,
+    or never copied to this machine), the recorded text is written once to the user cache
+    (``$XDG_CACHE_HOME/rtsid/calibrations/<sha256>.json``) and the configuration points
+    there — so a replay uses what the live run used. Recordings without the record (older
+    ones) keep the stored path.
+
+    Raises
+    ------
+    RecordingError
+        The cache folder cannot be written (the message names it).
+    """
+    worker = document.get("worker")
+    text = (recorded or {}).get("json")
+    if not isinstance(worker, dict) or not worker.get("calibration_file") or text is None:
+        return document
+    stored = str(worker["calibration_file"])
+    try:
+        if Path(stored).read_text(encoding="utf-8") == text:
+            return document
+    except (OSError, UnicodeDecodeError):
+        pass
+    copy = _cached_calibration(text)
+    return {**document, "worker": {**worker, "calibration_file": str(copy)}}
+
+
+def _cached_calibration(text: str) -> Path:
+    import hashlib
+
+    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    path = cache / "rtsid" / "calibrations" / f"{hashlib.sha256(text.encode()).hexdigest()}.json"
+    if path.is_file():
+        return path
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise RecordingError(
+            f"cannot store the recording's calibration in {str(path.parent)!r} "
+            f"({exc.strerror or exc}); set XDG_CACHE_HOME to a writable folder"
+        ) from None
+    return path

@@ -21,9 +21,14 @@ from typing import IO, Any
 import numpy as np
 
 from rtsid import __version__
-from rtsid.calibrate import robot_torque_offset
+from rtsid.calibrate import robot_torque_offset, with_recorded_calibration
 from rtsid.errors import RecordingError
-from rtsid.io.mcap_read import iter_sample_batches, read_run_config, sample_count
+from rtsid.io.mcap_read import (
+    iter_sample_batches,
+    read_metadata,
+    run_config_from_metadata,
+    sample_count,
+)
 from rtsid.io.schemas import ESTIMATE_FIELDS, SCHEMAS, SampleBatch, encode_estimate, encode_json
 from rtsid.link.ring import Snapshot
 from rtsid.runtime.daemon import DaemonConfig
@@ -41,11 +46,15 @@ __all__ = [
 
 
 def recording_config(path: str | Path) -> DaemonConfig:
-    """The configuration a recording was made with (defaults where it has none)."""
-    document = read_run_config(path)
+    """The configuration a recording was made with (defaults where it has none), with the
+    robot calibration the recording carries (:func:`rtsid.calibrate.with_recorded_calibration`)."""
+    metadata = read_metadata(path)
+    document = run_config_from_metadata(metadata)
     if not document:
         return DaemonConfig()
-    return DaemonConfig.from_mapping(document)
+    return DaemonConfig.from_mapping(
+        with_recorded_calibration(document, metadata.get("calibration"))
+    )
 
 
 class _Tail:

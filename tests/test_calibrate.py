@@ -21,7 +21,7 @@ from rtsid.cli import main
 from rtsid.errors import ConfigError, InputDataError
 from rtsid.ident.robot import identify_robot
 from rtsid.ident.window import estimate_window
-from rtsid.io.mcap_read import iter_estimates
+from rtsid.io.mcap_read import iter_estimates, read_metadata
 from rtsid.link.config import PlantConfig
 from rtsid.link.signals import SimSource
 from rtsid.replay import recording_config, replay_file
@@ -144,7 +144,7 @@ def daemon_config(
     return replace(config, plant=plant, worker=replace(config.worker, **worker))
 
 
-def test_daemon_end_to_end_baseline_calibrate_and_subtract(tmp_path, free_port):
+def test_daemon_end_to_end_baseline_calibrate_and_subtract(tmp_path, free_port, monkeypatch):
     baseline = daemon_config(tmp_path, free_port, NO_PERSON, "baseline")
     Daemon(baseline).run(duration_s=2.0)
     (recording,) = (tmp_path / "baseline").glob("*.mcap")
@@ -166,6 +166,15 @@ def test_daemon_end_to_end_baseline_calibrate_and_subtract(tmp_path, free_port):
     assert stored.worker.calibration_file == str(cal_path)
     # (the live worker stops at shutdown before the last windows the log holds: compare the
     # windows it estimated)
+    replayed = {m["window_end_index"]: m for m in replay_file(recording).messages}
+    assert [replayed[e["window_end_index"]]["K"] for e in live] == [e["K"] for e in live]
+    # the recording carries the calibration: replayed where the file is gone (or was
+    # edited since), the live run's calibration is used from a cached copy
+    assert read_metadata(recording)["calibration"]["json"] == cal_path.read_text()
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    cal_path.unlink()
+    moved = recording_config(recording)
+    assert Path(moved.worker.calibration_file).parent == tmp_path / "cache/rtsid/calibrations"
     replayed = {m["window_end_index"]: m for m in replay_file(recording).messages}
     assert [replayed[e["window_end_index"]]["K"] for e in live] == [e["K"] for e in live]
     # and without the calibration the robot's inertia is back in I
@@ -194,3 +203,21 @@ def test_benchmark_table_shows_the_calibration_beating_the_source(capsys):
     for mine, theirs in zip(ours, source, strict=True):
         assert float(mine[3]) > 99.0 > float(theirs[3])  # VAF inside the estimator's band
         assert float(mine[4]) == pytest.approx(ROBOT_INERTIA, rel=0.02)
+
+
+def test_a_recorded_calibration_is_used_only_when_the_stored_file_differs(tmp_path, monkeypatch):
+    from rtsid.calibrate import with_recorded_calibration
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    cal = tmp_path / "cal.json"
+    cal.write_text('{"format": "rtsid-calibration"}')
+    document = {"worker": {"calibration_file": str(cal)}}
+    recorded = {"json": cal.read_text()}
+    assert with_recorded_calibration(document, recorded) is document  # unchanged file: kept
+    assert with_recorded_calibration(document, None) is document  # older recording: kept
+    cal.write_text("edited since the run")
+    moved = with_recorded_calibration(document, recorded)
+    copy = Path(moved["worker"]["calibration_file"])
+    assert copy.parent == tmp_path / "cache" / "rtsid" / "calibrations"
+    assert copy.read_text() == recorded["json"]
+    assert with_recorded_calibration(document, recorded) == moved  # same content, same copy

@@ -182,6 +182,8 @@ class McapLogger:
         The daemon's whole configuration, stored as JSON in the ``config`` metadata record.
     metadata : Mapping[str, str], optional
         Extra key/values for the ``rtsid`` metadata record.
+    records : Mapping[str, Mapping[str, str]], optional
+        Further metadata records written into every file (e.g. ``calibration``).
     open_file : callable, optional
         ``open_file(path) -> binary file``; tests inject failing files. Default: exclusive create.
 
@@ -201,6 +203,7 @@ class McapLogger:
         fs_hz: float,
         run_config: Mapping[str, Any] | None = None,
         metadata: Mapping[str, str] | None = None,
+        records: Mapping[str, Mapping[str, str]] | None = None,
         open_file: Callable[[Path], IO[bytes]] = _open_exclusive,
     ) -> None:
         if not fs_hz > 0:
@@ -211,6 +214,7 @@ class McapLogger:
         self.fs_hz = float(fs_hz)
         self._run_config_json = encode_json(run_config or {}).decode()
         self._extra_metadata = {str(k): str(v) for k, v in (metadata or {}).items()}
+        self._records = {name: dict(record) for name, record in (records or {}).items()}
         self._open_file = open_file
         self._queue: queue.Queue[tuple[str, int, Any]] = queue.Queue(maxsize=config.queue_size)
         self._stop = threading.Event()
@@ -496,6 +500,8 @@ class McapLogger:
             self._channels = self._register(writer)
             writer.add_metadata("rtsid", self._rtsid_metadata())
             writer.add_metadata("config", {"json": self._run_config_json})
+            for name, record in self._records.items():
+                writer.add_metadata(name, record)
             writer.flush()
             size = stream.tell()
         except OSError as exc:

@@ -37,6 +37,7 @@ __all__ = [
     "read_run_config",
     "recording_parts",
     "recover",
+    "run_config_from_metadata",
     "sample_count",
     "summarize",
 ]
@@ -235,7 +236,12 @@ def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
 
 def read_run_config(path: str | Path) -> dict[str, Any]:
     """The daemon configuration stored in the recording (``{}`` when none was stored)."""
-    meta = read_metadata(path).get("config", {})
+    return run_config_from_metadata(read_metadata(path))
+
+
+def run_config_from_metadata(metadata: dict[str, dict[str, str]]) -> dict[str, Any]:
+    """The daemon configuration in :func:`read_metadata`'s result (``{}`` when none)."""
+    meta = metadata.get("config", {})
     return dict(json.loads(meta["json"])) if "json" in meta else {}
 
 

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from rtsid import __version__
-from rtsid.calibrate import robot_torque_offset
+from rtsid.calibrate import calibration_record, robot_torque_offset
 from rtsid.config import load_toml, require_range, section_from_mapping
 from rtsid.errors import ConfigError
 from rtsid.ident.window import EstimatorOptions
@@ -216,6 +216,7 @@ class Daemon:
                 fs_hz=cfg.link.fs_hz,
                 run_config=run_config,
                 metadata={"software": f"rtsid {__version__}"},
+                records=calibration_record(cfg.worker.calibration_file),
             )
             with mcap, ZenohPublisher(cfg.zenoh, run_config=run_config) as zenoh:
                 acquisition = handle.make_acquisition(ring)
