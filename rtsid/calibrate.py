@@ -134,16 +134,21 @@ def save_calibration(calibration: Calibration, path: str | Path) -> Path:
     out = Path(path)
     text = json.dumps(calibration.as_dict(), indent=1) + "\n"
     try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=out.name + ".", suffix=".part", dir=out.parent)
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, out)
+        _write_atomically(out, text)
     except OSError as exc:
         raise RecordingError(
             f"cannot write calibration {str(out)!r}: {exc.strerror or exc}"
         ) from exc
     return out
+
+
+def _write_atomically(path: Path, text: str) -> None:
+    """Write ``text`` to a temporary file beside ``path`` and rename it into place."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
+    with os.fdopen(fd, "w", encoding="utf-8") as fh:
+        fh.write(text)
+    os.replace(tmp, path)
 
 
 def load_calibration(path: str | Path) -> Calibration:
@@ -384,11 +389,7 @@ def _cached_calibration(text: str) -> Path:
     if path.is_file():
         return path
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
+        _write_atomically(path, text)
     except OSError as exc:
         raise RecordingError(
             f"cannot store the recording's calibration in {str(path.parent)!r} "
