@@ -18,7 +18,8 @@ import numpy as np
 from rtsid.benchmarks.table import print_table
 from rtsid.errors import RtsidError
 from rtsid.ident.excitation import filtered_noise, prbs
-from rtsid.ident.window import EstimatorOptions, estimate_window, sliding_estimates
+from rtsid.ident.stream import sliding_estimates
+from rtsid.ident.window import EstimatorOptions, estimate_window
 from rtsid.sim.joint import JointParameters, StiffnessProfile, robot_servo, simulate_impedance
 
 FS_HZ = 2500.0

@@ -17,7 +17,7 @@ import numpy as np
 
 from rtsid.benchmarks.table import print_table
 from rtsid.ident.excitation import filtered_noise
-from rtsid.ident.window import sliding_estimates
+from rtsid.ident.stream import sliding_estimates
 from rtsid.io.convert import ImportedSamples, read_sample_file, write_recording
 from rtsid.replay import replay_file
 from rtsid.runtime.daemon import DaemonConfig

@@ -202,7 +202,8 @@ def _windowed_track(
     position: np.ndarray, torque: np.ndarray, fs_hz: float, window_s: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int, float]:
     """Window-centre times, K and I of :func:`sliding_estimates` (hop 1 s), counts, seconds."""
-    from rtsid.ident.window import EstimatorOptions, sliding_estimates
+    from rtsid.ident.stream import sliding_estimates
+    from rtsid.ident.window import EstimatorOptions
 
     # Options for this slow plant (f_n 0.7–2.8 Hz, 200 Hz sampling) instead of the 2500 Hz
     # ankle defaults: low-pass 20 Hz, no decimation, fit band 0.5–10 Hz, IRF lags ±0.1 s.

@@ -20,6 +20,7 @@ from rtsid.benchmarks.table import median_p99, print_table
 from rtsid.ident.correlation import auto_correlation, cross_correlation
 from rtsid.ident.excitation import filtered_noise
 from rtsid.ident.irf import IRF, estimate_irf
+from rtsid.ident.analysis import AnalysisPlan
 from rtsid.ident.window import (
     EstimatorOptions,
     back_end,
@@ -28,6 +29,7 @@ from rtsid.ident.window import (
     front_end,
     predict_torque,
     prepare_window,
+    resolve_plan,
     standard_errors,
 )
 from rtsid.sim.joint import JointParameters, simulate_impedance
@@ -49,14 +51,17 @@ def _windows(count: int) -> list[tuple[np.ndarray, np.ndarray]]:
 
 
 STAGES = (
+    "plan the analysis (once per stream)",
     "front end, compiled (detrend, FIR, correlations, EUREKA ×4)",
     "  same in numpy: prepare (detrend, FIR, decimate)",
     "  same in numpy: IRF (correlations + EUREKA ×4)",
-    "back end, compiled (fit, predictions, VAFs, SEs)",
-    "  same in numpy: fit I, B, K",
+    "back end: output-error fit, VAFs, SEs (default)",
+    "back end: relative fit, compiled (fit, predictions, VAFs, SEs)",
+    "  same in numpy: relative fit I, B, K",
     "  same in numpy: predictions",
     "  same in numpy: standard errors",
 )
+RELATIVE = EstimatorOptions(fit_method="relative")
 
 
 def _staged(
@@ -68,30 +73,38 @@ def _staged(
         clock[name].append(time.perf_counter() - start)
         return out
 
-    u, y, irf = timed(STAGES[0], functools.partial(front_end, p, t, FS_HZ, opts))
-    u_np, y_np, fs_a = timed(STAGES[1], functools.partial(prepare_window, p, t, FS_HZ, opts))
-    lag = round(opts.lag_s * fs_a)
+    plan = timed(STAGES[0], functools.partial(resolve_plan, p, FS_HZ, opts))
+    u, y, irf = timed(STAGES[1], functools.partial(front_end, p, t, FS_HZ, opts, plan))
+    u_np, y_np = timed(STAGES[2], functools.partial(prepare_window, p, t, opts, plan))
     timed(
-        STAGES[2],
+        STAGES[3],
         functools.partial(
-            estimate_irf, u_np, y_np, fs_a, lag, ridge=opts.ridge, refine=opts.refine
+            estimate_irf,
+            u_np,
+            y_np,
+            plan.analysis_fs_hz,
+            plan.lag,
+            ridge=opts.ridge,
+            refine=opts.refine,
         ),
     )
-    timed(STAGES[3], functools.partial(back_end, irf, u, y, opts))
-    fit = timed(STAGES[4], functools.partial(fit_parameters, irf, u, opts))
-    pred = timed(STAGES[5], functools.partial(predict_torque, irf, u, y, fit))
-    timed(STAGES[6], functools.partial(standard_errors, irf, u, pred, fit))
+    timed(STAGES[4], functools.partial(back_end, irf, u, y, opts, plan))
+    timed(STAGES[5], functools.partial(back_end, irf, u, y, RELATIVE, plan))
+    fit = timed(STAGES[6], functools.partial(fit_parameters, irf, u, RELATIVE, plan))
+    pred = timed(STAGES[7], functools.partial(predict_torque, irf, u, y, fit.params))
+    timed(STAGES[8], functools.partial(standard_errors, irf, u, pred, fit))
 
 
-def _baseline(p: np.ndarray, t: np.ndarray, opts: EstimatorOptions) -> None:
+def _baseline(p: np.ndarray, t: np.ndarray, plan: AnalysisPlan) -> None:
     """The source's pipeline: IRF by dense inversion, log-magnitude Nelder–Mead fit."""
-    u, y, fs_a = prepare_window(p, t, FS_HZ, opts)
-    lag = round(opts.lag_s * fs_a)
+    opts = EstimatorOptions(fit_method="logmag")
+    u, y = prepare_window(p, t, opts, plan)
+    fs_a, lag = plan.analysis_fs_hz, plan.lag
     phi_uu = auto_correlation(u, 2 * lag)
     h = np.linalg.inv(toeplitz(phi_uu)) @ cross_correlation(u, y, lag) * fs_a
     irf = IRF(h=h, fs_hz=fs_a, phi_uu=phi_uu)
-    fit = fit_parameters(irf, u, EstimatorOptions(fit_method="logmag"))
-    predict_torque(irf, u, y, fit)
+    fit = fit_parameters(irf, u, opts, plan)
+    predict_torque(irf, u, y, fit.params)
 
 
 def _timed(func: Callable[[], Any]) -> float:
@@ -105,23 +118,28 @@ def run(args: argparse.Namespace) -> int:
     windows = _windows(count)
     opts = EstimatorOptions()
     no_se = EstimatorOptions(uncertainty=False)
+    plan = resolve_plan(windows[0][0], FS_HZ, opts)  # a stream plans once
     for p, t in windows[:20]:
         estimate_window(p, t, FS_HZ, opts)  # warm caches (filter taps, DFT grids)
     clock: dict[str, list[float]] = {k: [] for k in STAGES}
-    total, without_se, baseline = [], [], []
+    total, planned, without_se, baseline = [], [], [], []
     every_baseline = max(1, count // max(20, count // 10))
     # Interleaved: every variant sees each window under the same conditions.
     for k, (p, t) in enumerate(windows):
-        total.append(_timed(functools.partial(estimate_window, p, t, FS_HZ, opts)))
-        without_se.append(_timed(functools.partial(estimate_window, p, t, FS_HZ, no_se)))
+        total.append(_timed(functools.partial(estimate_window, p, t, FS_HZ, opts, plan=plan)))
+        planned.append(_timed(functools.partial(estimate_window, p, t, FS_HZ, opts)))
+        without_se.append(
+            _timed(functools.partial(estimate_window, p, t, FS_HZ, no_se, plan=plan))
+        )
         _staged(p, t, opts, clock)
         if k % every_baseline == 0:
-            baseline.append(_timed(functools.partial(_baseline, p, t, opts)))
+            baseline.append(_timed(functools.partial(_baseline, p, t, plan)))
     base_median = median_p99(baseline)[0]
     rows = []
     for name, times in [
         *clock.items(),
-        ("estimate_window (all)", total),
+        ("estimate_window (all, stream's plan)", total),
+        ("estimate_window, planning its own window", planned),
         ("estimate_window, no SE", without_se),
         ("baseline: source method", baseline),
     ]:
@@ -134,9 +152,9 @@ def run(args: argparse.Namespace) -> int:
         note=(
             "Simulated ankle (I 0.015, B 0.8, K 150), 30 Hz filtered-noise perturbation, "
             "10 % noise. "
-            "Defaults: decimate to 500 Hz, ±20 ms IRF (21 lags), 3 refinement sweeps, linear fit; "
-            "estimate_window runs the compiled front and back ends (the numpy rows are their "
-            "reference, tested equal to 1e-9). "
+            f"Defaults: {plan.describe()}; 3 refinement sweeps, output-error fit. "
+            "The compiled front end's numpy reference is tested equal to 1e-9, as is the "
+            "relative fit's compiled back end. "
             "Baseline = dense inversion IRF + Nelder–Mead log-magnitude fit (the source's method)."
         ),
     )

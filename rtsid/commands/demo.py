@@ -8,7 +8,8 @@ import numpy as np
 
 from rtsid.benchmarks.table import print_table
 from rtsid.ident.excitation import filtered_noise
-from rtsid.ident.window import EstimatorOptions, sliding_estimates
+from rtsid.ident.stream import sliding_estimates
+from rtsid.ident.window import EstimatorOptions
 from rtsid.sim.joint import JointParameters, StiffnessProfile, simulate_impedance
 
 

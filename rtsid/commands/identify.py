@@ -10,7 +10,8 @@ import numpy as np
 
 from rtsid.config import load_toml, section_from_mapping
 from rtsid.errors import InputDataError
-from rtsid.ident.window import EstimatorOptions, WindowResult, sliding_estimates
+from rtsid.ident.stream import WindowResult, sliding_estimates
+from rtsid.ident.window import EstimatorOptions
 from rtsid.io.estimate_csv import open_output, write_estimates
 from rtsid.io.sample_files import load_samples, nonfinite_report
 

@@ -17,6 +17,7 @@ from scipy import signal
 from rtsid.errors import InputDataError
 
 __all__ = [
+    "band_limit_taps",
     "decimation_factor",
     "derivatives",
     "lowpass_decimate",
@@ -54,6 +55,48 @@ def lowpass_taps(fs_hz: float, cutoff_hz: float, factor: int) -> FloatArray:
     transition_hz = nyq_after - cutoff_hz
     numtaps = int(np.ceil(3.3 * fs_hz / transition_hz)) | 1
     taps = signal.firwin(numtaps, (cutoff_hz + nyq_after) / 2, fs=fs_hz, window="hamming")
+    taps.setflags(write=False)
+    return taps
+
+
+@lru_cache(maxsize=64)
+def band_limit_taps(fs_hz: float, cutoff_hz: float, factor: int) -> FloatArray:
+    """Short linear-phase FIR (Hamming) with its −6 dB point at ``cutoff_hz``.
+
+    The estimator's band-limiting filter, applied to position and torque alike: a gentle
+    roll-off (transition about ``4·cutoff_hz`` wide, narrowed so that the stop band starts
+    below the decimated Nyquist rate ``fs_hz / (2·factor)``) keeps the filter short, so
+    that it costs few samples of a short window, while it removes the band where the
+    position's derivatives are mostly noise and the joint is no longer second-order.
+
+    Parameters
+    ----------
+    fs_hz : float
+        Sampling rate, Hz.
+    cutoff_hz : float
+        −6 dB frequency, Hz.
+    factor : int
+        Decimation that follows (>= 1).
+
+    Returns
+    -------
+    numpy.ndarray, shape (numtaps,)
+        Odd-length, unit-DC-gain taps (read-only).
+
+    Raises
+    ------
+    InputDataError
+        ``cutoff_hz`` is not below the decimated Nyquist rate.
+    """
+    nyq_after = fs_hz / (2 * factor)
+    if not 0 < cutoff_hz < nyq_after:
+        raise InputDataError(
+            f"low-pass cut-off {cutoff_hz:g} Hz must be between 0 and the analysis Nyquist "
+            f"rate {nyq_after:g} Hz; lower lowpass_hz or raise analysis_fs_hz"
+        )
+    transition_hz = min(4.0 * cutoff_hz, 2.0 * (nyq_after - cutoff_hz))
+    numtaps = int(np.ceil(3.3 * fs_hz / transition_hz)) | 1
+    taps = signal.firwin(numtaps, cutoff_hz, fs=fs_hz, window="hamming")
     taps.setflags(write=False)
     return taps
 

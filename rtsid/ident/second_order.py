@@ -1,16 +1,35 @@
 """Fit inertia, damping and stiffness to an IRF's frequency response.
 
 The intrinsic model ``τ = I·θ̈ + B·θ̇ + K·θ`` has the frequency response
-``Z(jω) = K − I·ω² + j·B·ω``, linear in ``(I, B, K)``. Two fits are offered:
+``Z(jω) = K − I·ω² + j·B·ω``, linear in ``(I, B, K)``. Three fits are offered:
 
-* ``"linear"`` (default): closed-form weighted least squares on the real and imaginary
-  parts, re-weighted once by ``1/|Z|`` so every frequency counts by its relative error —
-  no initial guess, no iterations, a few microseconds;
+* ``"output_error"`` (default, :func:`fit_output_error`): the ``(I, B, K)`` that minimise the
+  window's torque prediction error — least squares of the torque on the position's
+  derivative stencils, with an offset and a trend as nuisance terms. For the Wiener–Hopf IRF
+  ``h`` on the same samples this is the fit of the model's IRF ``h_θ`` to ``h`` in the metric
+  of the IRF's own normal-equation matrix ``UᵀU``; formed directly from the samples it needs
+  no IRF and no frequency grid;
+* ``"relative"`` (:func:`fit_linear`): closed-form weighted least squares on the real and
+  imaginary parts of the IRF's response, re-weighted once by ``1/|Z|`` so every frequency
+  counts by its relative error;
 * ``"logmag"``: the source's fit of ``log|Z|`` by Nelder–Mead (MATLAB's fminsearch), started
-  from the linear fit so that the initial guess no longer decides the answer.
+  from the relative fit so that the initial guess no longer decides the answer.
 
-Both return the sensitivity ``M = ∂(I, B, K)/∂h`` of the estimate to the IRF values, so that
-the IRF's covariance maps to the parameters' covariance.
+The frequency-domain fits return the sensitivity ``M = ∂(I, B, K)/∂h`` of the estimate to the
+IRF values, so that the IRF's covariance maps to the parameters' covariance; the output-error
+fit carries its own (sandwich) covariance.
+
+Notes
+-----
+Why output error is the default: the relative criterion weights each frequency by
+``1/|Z|``, which is largest near the joint's resonance (``K ≈ I·ω²``), where ``|Z|`` is
+smallest and worst determined. Measured on simulated ankles it gave 2–19× the errors of
+per-window least squares, and on the real recording 5–10 VAF points less
+(``rtsid bench accuracy``, ``rtsid bench real``). The fit in the metric of the *Toeplitz*
+``R_uu`` (correlations of the whole window, as if the signals were zero outside it) is not a
+substitute: the IRF is poorly determined outside the excited band, where the model's IRF
+(derivative stencils) has most of its energy, and the Toeplitz approximation's edge terms
+then dominate (a noise-free 300 ms window gave K = 33 instead of 150).
 """
 
 from __future__ import annotations
@@ -22,9 +41,13 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import optimize
 
 from rtsid.errors import InputDataError, NumericalError
+from rtsid.ident.correlation import auto_correlation
+from rtsid.ident.filters import stencil_derivatives
 
 __all__ = [
+    "OutputErrorFit",
     "ParameterFit",
+    "fit_output_error",
     "fit_linear",
     "fit_logmag",
     "impedance_response",
@@ -273,3 +296,114 @@ def _logmag_sensitivity(
     )
     d_log_h = (np.conj(response)[:, None] * e).real / np.abs(response)[:, None] ** 2
     return np.asarray(np.linalg.pinv(jac) @ d_log_h, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class OutputErrorFit:
+    """The output-error fit of one window.
+
+    Attributes
+    ----------
+    params : numpy.ndarray, shape (3,)
+        Inertia kg·m², damping N·m·s/rad, stiffness N·m/rad (held values included).
+    se : numpy.ndarray, shape (3,)
+        Standard errors; NaN for held parameters and when not computed.
+    measured, model : numpy.ndarray, shape (n − 8,)
+        Measured and predicted torque (N·m) on the samples the stencils support.
+    """
+
+    params: FloatArray
+    se: FloatArray
+    measured: FloatArray
+    model: FloatArray
+
+
+def _without_trend(rows: FloatArray) -> FloatArray:
+    """Each row minus its least-squares offset and slope (the nuisance terms)."""
+    n = rows.shape[1]
+    t = np.arange(n, dtype=np.float64) - (n - 1) / 2.0
+    centred = rows - rows.mean(axis=1, keepdims=True)
+    return np.asarray(centred - np.outer(centred @ t / float(t @ t), t), dtype=np.float64)
+
+
+def fit_output_error(
+    u: ArrayLike,
+    y: ArrayLike,
+    fs_hz: float,
+    *,
+    inertia: float | None = None,
+    damping: float | None = None,
+    uncertainty: bool = True,
+    noise_lags: int = 0,
+) -> OutputErrorFit:
+    """``(I, B, K)`` minimising the torque prediction error of one window.
+
+    Least squares of ``y`` on ``(ü, u̇, u)`` — 8th-order central-difference stencils at
+    ``fs_hz`` — with an offset and a linear trend as nuisance terms, over the samples the
+    stencils support (4 … n−5). Held parameters (``inertia``, ``damping``) are subtracted
+    with their regressors and not fitted.
+
+    Parameters
+    ----------
+    u, y : array_like, shape (n,)
+        Band-limited position (rad) and torque (N·m) at the analysis rate.
+    fs_hz : float
+        Analysis rate, Hz.
+    inertia, damping : float, optional
+        Held values (kg·m², N·m·s/rad); damping may be held only with inertia.
+    uncertainty : bool
+        Compute standard errors.
+    noise_lags : int
+        Lags of the residual's autocorrelation in the sandwich covariance (at least the
+        band-limiting filter's length in analysis samples: filtered noise is correlated).
+
+    Returns
+    -------
+    OutputErrorFit
+
+    Raises
+    ------
+    NumericalError
+        The regressors are collinear (no perturbation in the window) or the torque is zero.
+    """
+    u_arr = np.asarray(u, dtype=np.float64)
+    y_arr = np.asarray(y, dtype=np.float64)
+    d1, d2 = stencil_derivatives(u_arr, fs_hz)
+    regressors = np.vstack((d2, d1, u_arr[4:-4]))
+    measured = y_arr[4:-4]
+    held = np.array([inertia, damping], dtype=object)
+    n_held = 0 if inertia is None else (2 if damping is not None else 1)
+    target = measured.copy()
+    for k in range(n_held):
+        target -= float(held[k]) * regressors[k]
+    free = _without_trend(np.vstack((regressors[n_held:], target)))
+    x, z = free[:-1], free[-1]
+    gram = x @ x.T
+    scale = np.sqrt(np.diag(gram))
+    if not np.all(scale > 0) or not np.any(z):
+        raise zero_response() if not np.any(z) else inseparable_fit()
+    normalised = gram / np.outer(scale, scale)
+    if np.linalg.cond(normalised) > 1e12:
+        raise inseparable_fit()
+    estimate = np.linalg.solve(normalised, (x @ z) / scale) / scale
+    params = np.array([float(v) for v in held[:n_held]] + estimate.tolist())
+    model = params @ regressors
+    se = np.full(3, np.nan)
+    if uncertainty:
+        residual = z - estimate @ x
+        cov = _sandwich(x, residual, gram, max(1, noise_lags))
+        se[n_held:] = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return OutputErrorFit(params=params, se=se, measured=measured, model=model)
+
+
+def _sandwich(x: FloatArray, residual: FloatArray, gram: FloatArray, lags: int) -> FloatArray:
+    """``G⁻¹·S·G⁻¹`` with ``S = Σ_l r_ee(l)·Σ_t x_t·x_{t+l}ᵀ`` (noise independent of the
+    regressors), ``r_ee`` the residual's Bartlett-tapered autocorrelation up to ``lags``."""
+    lags = min(lags, residual.size - 1)
+    r = auto_correlation(residual, lags) * (1.0 - np.arange(lags + 1) / (lags + 1))
+    kernel = np.concatenate((r[:0:-1], r))
+    smoothed = np.vstack([np.convolve(row, kernel, mode="same") for row in x])
+    middle = x @ smoothed.T
+    inverse = np.linalg.inv(gram)
+    cov = inverse @ ((middle + middle.T) / 2) @ inverse
+    return np.asarray((cov + cov.T) / 2, dtype=np.float64)

@@ -4,19 +4,23 @@ Pipeline (each stage is a pure function of the previous one):
 
 1. check the window (finite, long enough, excited) — or raise :class:`WindowError` with a
    reason, so a bad window is withheld, never estimated;
-2. apply the torque sign, remove a linear trend from both signals;
-3. low-pass both signals with the same zero-phase FIR and decimate to the analysis rate;
-4. two-sided IRF by Wiener–Hopf deconvolution solved with EUREKA;
-5. ``(I, B, K)`` fitted to the IRF's frequency response in the fit band;
-6. VAF of the IRF's and of the parametric model's torque prediction, and between the two;
-7. standard errors of ``(I, B, K)`` propagated from the IRF's covariance (sandwich
-   estimate with the residual's own autocorrelation).
+2. plan the analysis from the perturbation's spectrum (:mod:`rtsid.ident.analysis`), unless
+   the caller passes a stream's plan or explicit options;
+3. apply the torque sign, remove a linear trend from both signals, band-limit both with the
+   same zero-phase FIR and decimate to the analysis rate;
+4. two-sided IRF by Wiener–Hopf deconvolution solved with EUREKA (the nonparametric core:
+   ``vaf_irf`` and the model check ``vaf_fit``);
+5. ``(I, B, K)`` by the output-error fit (default), or fitted to the IRF's frequency
+   response (``relative``, ``logmag``); inertia (and damping) optionally held at a value
+   learned over a longer horizon (:class:`rtsid.ident.timescales.HeldParameters`);
+6. VAF of the model's torque prediction against the band-limited measured torque, of the
+   IRF's, and between the two;
+7. standard errors (sandwich estimates with the residual's own autocorrelation) and flags.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from typing import Any
@@ -27,18 +31,15 @@ from numpy.typing import ArrayLike, NDArray
 from rtsid.config import invalid, require_choice, require_range
 from rtsid.errors import InputDataError, NumericalError, WindowError
 from rtsid.ident.correlation import auto_correlation, detrend
-from rtsid.ident.filters import (
-    decimation_factor,
-    lowpass_decimate,
-    lowpass_taps,
-    stencil_derivatives,
-)
+from rtsid.ident.analysis import AnalysisPlan, plan_analysis
+from rtsid.ident.filters import stencil_derivatives
 from rtsid.ident.irf import IRF, estimate_irf
 from rtsid.ident.levinson import compiled_kernel, eureka_unchecked, not_positive_definite
 from rtsid.ident.second_order import (
     ParameterFit,
     fit_linear,
     fit_logmag,
+    fit_output_error,
     inseparable_fit,
     zero_response,
 )
@@ -48,68 +49,93 @@ _eureka = compiled_kernel()
 __all__ = [
     "EstimatorOptions",
     "WindowEstimate",
-    "WindowResult",
     "estimate_window",
-    "sliding_estimates",
 ]
 
 FloatArray = NDArray[np.float64]
+
+
+FIT_METHODS = ("output_error", "relative", "logmag")
+HOLD_CHOICES = ("none", "inertia", "inertia_damping")
 
 
 @dataclass(frozen=True)
 class EstimatorOptions:
     """Options of :func:`estimate_window` (the ``[estimator]`` config section).
 
-    The defaults suit a 300 ms window at 2500 Hz on a human ankle
-    (I ≈ 0.01–0.03 kg·m², B ≈ 0.3–2 N·m·s/rad, K ≈ 30–400 N·m/rad) perturbed with
-    ≥ 40 Hz of bandwidth.
+    The defaults need no preset: the analysis is planned from the perturbation's spectrum
+    (:mod:`rtsid.ident.analysis`), so a 1 kHz PRBS recording and a 2500 Hz robot with a
+    40 Hz band both work as they are. Set a value to override the choice.
 
     Attributes
     ----------
     lag_s : float
         IRF lag span: lags ``−lag_s … +lag_s``.
     lowpass_hz : float or None
-        Zero-phase low-pass applied to both signals (the source used 100 Hz on the output).
+        −6 dB cut-off of the band-limiting FIR applied to both signals, Hz
+        (None: 1.5 × the perturbation's band edge).
     analysis_fs_hz : float or None
-        Decimate to about this rate before correlating (None: keep the input rate).
+        Decimate to about this rate (None: at least 10 × the cut-off).
     ridge : float
         Relative diagonal loading of ``R_uu`` (stabilises the recursion where the
         perturbation has little power).
     refine : int
         Refinement sweeps removing the Toeplitz approximation's edge bias
         (see :func:`rtsid.ident.irf.estimate_irf`).
-    fit_method : {"linear", "logmag"}
-        Closed-form weighted linear fit, or the source's log-magnitude Nelder–Mead.
-    fit_band_hz : (float, float)
-        Frequencies used by the fit; keep them inside the perturbation's band.
+    fit_method : {"output_error", "relative", "logmag"}
+        Output error (minimum torque prediction error; default), the closed-form fit of the
+        IRF's response weighted by ``1/|Z|``, or the source's log-magnitude Nelder–Mead.
+    fit_band_hz : (float, float) or None
+        Frequencies of the relative and log-magnitude fits (None: 1 Hz to the cut-off).
     fit_points : int
-        Frequencies in the fit grid.
+        Frequencies in their grid.
+    weight_power : float
+        Their weights: the input's amplitude spectrum to this power.
     torque_sign : float
         +1, or −1 for rigs that report torque inverted.
     detrend : {"linear", "mean", "none"}
-        Trend removed from both signals.
+        Trend removed from both signals before filtering (the output-error fit also carries
+        an offset and a trend as nuisance terms, so what is left cannot bias it).
     uncertainty : bool
-        Compute standard errors (adds a few Toeplitz solves).
+        Compute standard errors.
     min_excitation_rad : float
         Windows whose position standard deviation is below this are withheld
         (``reason="no_excitation"``).
+    hold : {"none", "inertia", "inertia_damping"}
+        Parameters held at a value learned over ``hold_horizon_s`` (or at ``hold_inertia``)
+        instead of fitted per window; K always stays per window. Streams (the worker,
+        ``rtsid identify``, replay) learn the value; a lone ``estimate_window`` call holds
+        only what it is given.
+    hold_horizon_s : float
+        Horizon of the learned values (median of the full fits over the last this many
+        seconds of windows).
+    hold_inertia : float or None
+        A fixed inertia to hold, kg·m² (e.g. from a calibration); None: learned.
+    low_vaf_percent : float
+        An estimate whose ``vaf`` is below this carries the ``low_vaf`` flag.
     """
 
     lag_s: float = 0.02
-    lowpass_hz: float | None = 100.0
-    analysis_fs_hz: float | None = 500.0
+    lowpass_hz: float | None = None
+    analysis_fs_hz: float | None = None
     ridge: float = 1e-3
     refine: int = 3
-    fit_method: str = "linear"
-    fit_band_hz: tuple[float, float] = (1.0, 80.0)
+    fit_method: str = "output_error"
+    fit_band_hz: tuple[float, float] | None = None
     fit_points: int = 30
     weight_power: float = 0.5
     torque_sign: float = 1.0
     detrend: str = "linear"
     uncertainty: bool = True
     min_excitation_rad: float = 1e-5
+    hold: str = "inertia_damping"
+    hold_horizon_s: float = 20.0
+    hold_inertia: float | None = None
+    low_vaf_percent: float = 50.0
 
     def __post_init__(self) -> None:
+        if self.fit_method == "linear":  # the name before output error (recordings keep it)
+            object.__setattr__(self, "fit_method", "relative")
         require_range("lag_s", self.lag_s, 0.0, low_inclusive=False)
         if self.lowpass_hz is not None:
             require_range("lowpass_hz", self.lowpass_hz, 0.0, low_inclusive=False)
@@ -117,18 +143,26 @@ class EstimatorOptions:
             require_range("analysis_fs_hz", self.analysis_fs_hz, 0.0, low_inclusive=False)
         require_range("ridge", self.ridge, 0.0)
         require_range("refine", self.refine, 0)
-        require_choice("fit_method", self.fit_method, ("linear", "logmag"))
+        require_choice("fit_method", self.fit_method, FIT_METHODS)
         require_choice("torque_sign", self.torque_sign, (1.0, -1.0))
         require_choice("detrend", self.detrend, ("linear", "mean", "none"))
+        require_choice("hold", self.hold, HOLD_CHOICES)
+        require_range("hold_horizon_s", self.hold_horizon_s, 0.0, 3600.0, low_inclusive=False)
+        if self.hold_inertia is not None:
+            require_range("hold_inertia", self.hold_inertia, 0.0, low_inclusive=False)
+        require_range("low_vaf_percent", self.low_vaf_percent, 0.0, 100.0)
         require_range("fit_points", self.fit_points, 3)
         require_range("min_excitation_rad", self.min_excitation_rad, 0.0)
-        lo, hi = self.fit_band_hz
+        if self.fit_band_hz is not None:
+            object.__setattr__(self, "fit_band_hz", tuple(self.fit_band_hz))
+            self._check_fit_band(self.fit_band_hz)
+
+    def _check_fit_band(self, band: tuple[float, float]) -> None:
+        lo, hi = band
         if not 0 <= lo < hi:
-            raise invalid("fit_band_hz", self.fit_band_hz, "(low, high) with 0 <= low < high")
+            raise invalid("fit_band_hz", band, "(low, high) with 0 <= low < high")
         if self.lowpass_hz is not None and hi > self.lowpass_hz:
-            raise invalid(
-                "fit_band_hz", self.fit_band_hz, f"a band below lowpass_hz = {self.lowpass_hz} Hz"
-            )
+            raise invalid("fit_band_hz", band, f"a band below lowpass_hz = {self.lowpass_hz} Hz")
 
 
 @dataclass(frozen=True)
@@ -189,11 +223,17 @@ class WindowEstimate:
         return out
 
 
-def _check_window(position: FloatArray, torque: FloatArray, options: EstimatorOptions) -> None:
+def check_window(position: FloatArray, torque: FloatArray, options: EstimatorOptions) -> None:
+    """Stage 1: withhold (raise :class:`WindowError`) a window that must not be estimated."""
     if position.ndim != 1 or position.shape != torque.shape:
         raise InputDataError(
             f"position and torque must be 1-D and equally long, got {position.shape} and "
             f"{torque.shape}"
+        )
+    if position.size < 16:
+        raise WindowError(
+            f"a window of {position.size} samples is too short to identify; lengthen it",
+            "too_short",
         )
     # One pass each: a sum is finite only if every term is (rad and N·m never overflow).
     if not (math.isfinite(position.sum()) and math.isfinite(torque.sum())):
@@ -241,14 +281,22 @@ def _dft(max_lag: int, fs_hz: float, grid_key: tuple[float, float, int, float]) 
 
 
 def _preprocess(
-    position: FloatArray, torque: FloatArray, fs_hz: float, options: EstimatorOptions
-) -> tuple[FloatArray, FloatArray, float]:
-    factor = decimation_factor(fs_hz, options.analysis_fs_hz)
+    position: FloatArray, torque: FloatArray, plan: AnalysisPlan, options: EstimatorOptions
+) -> tuple[FloatArray, FloatArray]:
     u = detrend(position, options.detrend)
     y = detrend(torque * options.torque_sign, options.detrend)
-    u = lowpass_decimate(u, fs_hz, options.lowpass_hz, factor)
-    y = lowpass_decimate(y, fs_hz, options.lowpass_hz, factor)
-    return u, y, fs_hz / factor
+    return _band_limit(u, plan), _band_limit(y, plan)
+
+
+def _band_limit(x: FloatArray, plan: AnalysisPlan) -> FloatArray:
+    """The plan's FIR over the fully supported samples, every ``factor``-th kept."""
+    if x.size < plan.taps.size:
+        raise WindowError(
+            f"window of {x.size} samples is shorter than the {plan.taps.size}-tap low-pass; "
+            "lengthen the window or raise lowpass_hz",
+            "too_short",
+        )
+    return np.convolve(x, plan.taps, mode="valid")[:: plan.factor]
 
 
 _THIRDS = np.full(3, 1.0 / 3.0)
@@ -322,10 +370,16 @@ def _parameter_covariance(
 
 
 def _flags(
-    params: tuple[float, float, float], se: tuple[float, float, float], vaf_fit: float
+    params: tuple[float, float, float],
+    se: tuple[float, float, float],
+    vafs: tuple[float, float, float],
+    options: EstimatorOptions,
 ) -> tuple[str, ...]:
     inertia, damping, stiffness = params
+    vaf, _, vaf_fit = vafs
     flags = []
+    if vaf < options.low_vaf_percent:
+        flags.append("low_vaf")
     if vaf_fit < 50.0:
         flags.append("model_mismatch")
     if stiffness <= 0:
@@ -341,11 +395,45 @@ def _flags(
     return tuple(flags)
 
 
+@dataclass(frozen=True)
+class Held:
+    """Values held instead of fitted in one window (None: fitted)."""
+
+    inertia: float | None = None
+    damping: float | None = None
+
+
+NOT_HELD = Held()
+
+
+def resolve_plan(
+    position: ArrayLike, fs: float, options: EstimatorOptions
+) -> AnalysisPlan:
+    """The analysis plan for ``position`` (a window or a longer stretch of a stream).
+
+    Raises
+    ------
+    WindowError
+        ``"no_excitation"``: nothing in the position to plan from.
+    """
+    return plan_analysis(
+        np.asarray(position, dtype=np.float64),
+        float(fs),
+        lowpass_hz=options.lowpass_hz,
+        analysis_fs_hz=options.analysis_fs_hz,
+        lag_s=options.lag_s,
+        fit_band_hz=options.fit_band_hz,
+    )
+
+
 def estimate_window(
     position: ArrayLike,
     torque: ArrayLike,
     fs: float,
     options: EstimatorOptions | None = None,
+    *,
+    plan: AnalysisPlan | None = None,
+    held: Held = NOT_HELD,
     **overrides: Any,
 ) -> WindowEstimate:
     """Identify joint impedance ``(I, B, K)`` from one window of position and torque.
@@ -361,6 +449,11 @@ def estimate_window(
     options : EstimatorOptions, optional
         Estimator settings; keyword ``overrides`` replace single fields
         (``estimate_window(p, t, 2500, torque_sign=-1)``).
+    plan : AnalysisPlan, optional
+        The stream's analysis plan (:func:`resolve_plan`); default: planned from this window.
+    held : Held, optional
+        Inertia (and damping) to hold instead of fitting (``options.hold_inertia``, when set,
+        is held without being passed here).
 
     Returns
     -------
@@ -391,21 +484,52 @@ def estimate_window(
     options = options or EstimatorOptions()
     if overrides:
         options = replace(options, **overrides)
-    u, y, irf = front_end(position, torque, fs, options)
-    return back_end(irf, u, y, options)
+    pos = np.ascontiguousarray(position, dtype=np.float64)
+    tor = np.ascontiguousarray(torque, dtype=np.float64)
+    check_window(pos, tor, options)
+    plan = plan or resolve_plan(pos, fs, options)
+    u, y, irf = front_end(pos, tor, fs, options, plan)
+    return back_end(irf, u, y, options, plan, held_values(options, held))
 
 
-def back_end(irf: IRF, u: FloatArray, y: FloatArray, options: EstimatorOptions) -> WindowEstimate:
-    """Stages 5–7: fit, VAFs and standard errors of one window's IRF.
+def held_values(options: EstimatorOptions, learned: Held = NOT_HELD) -> Held:
+    """What a window holds under ``options.hold``.
 
-    One call into the compiled kernel for the linear fit when it was built;
-    :func:`numpy_back_end` otherwise (and for the log-magnitude fit), the reference it is
-    tested against.
+    With ``hold = "none"``, ``learned`` as given (a caller's explicit values). Otherwise the
+    fixed ``hold_inertia`` when set, else the learned inertia; and with ``"inertia_damping"``
+    the learned damping. Nothing is held before an inertia is known.
     """
-    if _eureka is None or options.fit_method != "linear":
-        return numpy_back_end(irf, u, y, options)
+    if options.hold == "none":
+        return learned
+    inertia = options.hold_inertia if options.hold_inertia is not None else learned.inertia
+    if inertia is None:
+        return NOT_HELD
+    damping = learned.damping if options.hold == "inertia_damping" else None
+    return Held(inertia, damping)
+
+
+def back_end(
+    irf: IRF,
+    u: FloatArray,
+    y: FloatArray,
+    options: EstimatorOptions,
+    plan: AnalysisPlan,
+    held: Held = NOT_HELD,
+) -> WindowEstimate:
+    """Stages 5–7: fit, VAFs, standard errors and flags of one window.
+
+    The output-error fit runs in numpy (a 3 × 3 solve; see
+    :func:`rtsid.ident.second_order.fit_output_error`). The relative fit makes one call into
+    the compiled kernel when it was built; :func:`numpy_back_end` otherwise (and for the
+    log-magnitude fit), the reference it is tested against.
+    """
+    if options.fit_method == "output_error":
+        return output_error_back_end(irf, u, y, options, plan, held)
+    if _eureka is None or options.fit_method != "relative":
+        return numpy_back_end(irf, u, y, options, plan)
     fs_a = irf.fs_hz
-    grid_key = (*options.fit_band_hz, options.fit_points, fs_a / 2)
+    band = plan.fit_band_hz
+    grid_key = (*band, options.fit_points, fs_a / 2)
     u = np.ascontiguousarray(u, dtype=np.float64)
     params, sensitivity, out = np.empty(3), np.empty((3, irf.h.size)), np.empty(6)
     status = _eureka.window_fit(
@@ -414,7 +538,7 @@ def back_end(irf: IRF, u: FloatArray, y: FloatArray, options: EstimatorOptions) 
         irf.h,
         irf.phi_uu,
         _stacked_dft(irf.max_lag, fs_a, grid_key),
-        _fit_grid(options.fit_band_hz, options.fit_points, fs_a / 2),
+        _fit_grid(band, options.fit_points, fs_a / 2),
         _hann(u.size),
         fs_a,
         options.weight_power,
@@ -430,73 +554,93 @@ def back_end(irf: IRF, u: FloatArray, y: FloatArray, options: EstimatorOptions) 
     if status >= 0:
         raise not_positive_definite(status, float("nan"))
     se_i, se_b, se_k, vaf, vaf_irf, vaf_fit = out.tolist()
-    fit = ParameterFit(params=params, sensitivity=sensitivity, method="linear")
     vafs = (round(vaf, 12), round(vaf_irf, 12), round(vaf_fit, 12))
-    return _assemble(irf, fit, (se_i, se_b, se_k), vafs)
+    return _assemble(irf, params, (se_i, se_b, se_k), vafs, "relative", options)
 
 
 # window_fit's status codes (see _eureka.c)
 _FIRST_FIT_SINGULAR, _FINAL_FIT_SINGULAR, _ZERO_RESPONSE = 1, 2, 4
 
 
-def numpy_back_end(
-    irf: IRF, u: FloatArray, y: FloatArray, options: EstimatorOptions
+def output_error_back_end(
+    irf: IRF,
+    u: FloatArray,
+    y: FloatArray,
+    options: EstimatorOptions,
+    plan: AnalysisPlan,
+    held: Held = NOT_HELD,
 ) -> WindowEstimate:
-    """Stages 5–7 in numpy: :func:`fit_parameters`, :func:`predict_torque`, the VAFs and
-    :func:`standard_errors`."""
-    fit = fit_parameters(irf, u, options)
-    predictions = predict_torque(irf, u, y, fit)
+    """Stages 5–7 with the output-error fit (the default criterion)."""
+    fit = fit_output_error(
+        u,
+        y,
+        irf.fs_hz,
+        inertia=held.inertia,
+        damping=held.damping if held.inertia is not None else None,
+        uncertainty=options.uncertainty,
+        noise_lags=_noise_lags(irf, plan),
+    )
+    _, vaf_irf, vaf_fit = _three_vafs(predict_torque(irf, u, y, fit.params))
+    vaf = _percent_explained(fit.measured, fit.model)
+    se_i, se_b, se_k = fit.se.tolist()
+    return _assemble(irf, fit.params, (se_i, se_b, se_k), (vaf, vaf_irf, vaf_fit), "output_error", options)
+
+
+def _noise_lags(irf: IRF, plan: AnalysisPlan) -> int:
+    """Residual autocorrelation lags for the sandwich: the FIR's span at the analysis rate
+    (filtered noise is correlated over it) plus the stencils', and at least the IRF's."""
+    return max(irf.h.size, -(-plan.taps.size // plan.factor) + 8)
+
+
+def numpy_back_end(
+    irf: IRF, u: FloatArray, y: FloatArray, options: EstimatorOptions, plan: AnalysisPlan
+) -> WindowEstimate:
+    """Stages 5–7 of the frequency-domain fits in numpy: :func:`fit_parameters`,
+    :func:`predict_torque`, the VAFs and :func:`standard_errors`."""
+    fit = fit_parameters(irf, u, options, plan)
+    predictions = predict_torque(irf, u, y, fit.params)
     se = standard_errors(irf, u, predictions, fit) if options.uncertainty else np.full(3, np.nan)
     se_i, se_b, se_k = se.tolist()
-    return _assemble(irf, fit, (se_i, se_b, se_k), _three_vafs(predictions))
+    return _assemble(irf, fit.params, (se_i, se_b, se_k), _three_vafs(predictions), fit.method, options)
 
 
 _DETREND_CODES = {"none": 0, "mean": 1, "linear": 2}
-_NO_FILTER = np.ones(1)
 
 
 def front_end(
-    position: ArrayLike, torque: ArrayLike, fs: float, options: EstimatorOptions
+    position: ArrayLike,
+    torque: ArrayLike,
+    fs: float,
+    options: EstimatorOptions,
+    plan: AnalysisPlan,
 ) -> tuple[FloatArray, FloatArray, IRF]:
-    """Stages 1–4: the analysis-rate signals ``(u, y)`` and the refined IRF.
+    """Stages 3–4: the analysis-rate signals ``(u, y)`` and the refined IRF.
 
     One call into the compiled kernel when it was built (detrend, FIR decimation,
     correlations, EUREKA and refinement in C); otherwise :func:`prepare_window` and
     :func:`rtsid.ident.irf.estimate_irf` in numpy, the reference it is tested against.
     """
     if _eureka is None:
-        u, y, fs_a = prepare_window(position, torque, fs, options)
-        max_lag = max(1, round(options.lag_s * fs_a))
-        return u, y, estimate_irf(u, y, fs_a, max_lag, ridge=options.ridge, refine=options.refine)
+        u, y = prepare_window(position, torque, options, plan)
+        irf = estimate_irf(
+            u, y, plan.analysis_fs_hz, plan.lag, ridge=options.ridge, refine=options.refine
+        )
+        return u, y, irf
     pos = np.ascontiguousarray(position, dtype=np.float64)
     tor = np.ascontiguousarray(torque, dtype=np.float64)
-    _check_window(pos, tor, options)
-    fs = float(fs)
-    factor = decimation_factor(fs, options.analysis_fs_hz)
-    if options.lowpass_hz is None and factor != 1:
-        raise InputDataError("decimation needs a low-pass cut-off to avoid aliasing")
-    try:
-        taps = (
-            _NO_FILTER
-            if options.lowpass_hz is None
-            else lowpass_taps(fs, float(options.lowpass_hz), factor)
-        )
-    except InputDataError as exc:
-        raise WindowError(str(exc), "too_short") from None
-    fs_a = fs / factor
-    max_lag = max(1, round(options.lag_s * fs_a))
+    taps, factor, lag, fs_a = plan.taps, plan.factor, plan.lag, plan.analysis_fs_hz
     m = (pos.size - taps.size) // factor + 1 if pos.size >= taps.size else 0
-    _check_analysis_length(m, fs_a, max_lag)
+    _check_analysis_length(m, fs_a, lag)
     u, y = np.empty(m), np.empty(m)
-    h, phi = np.empty(2 * max_lag + 1), np.empty(2 * max_lag + 1)
+    h, phi = np.empty(2 * lag + 1), np.empty(2 * lag + 1)
     status, alpha = _eureka.window_irf(
         pos,
         tor,
-        taps,
+        np.ascontiguousarray(taps),
         factor,
         options.torque_sign,
         _DETREND_CODES[options.detrend],
-        max_lag,
+        lag,
         options.refine,
         options.ridge,
         fs_a,
@@ -507,38 +651,51 @@ def front_end(
     )
     if status >= 0:
         raise not_positive_definite(status, alpha)
+    _check_band_limited_excitation(u, options)
     return u, y, IRF(h=h, fs_hz=fs_a, phi_uu=phi)
 
 
 def _check_analysis_length(m: int, fs_a: float, max_lag: int) -> None:
-    if m <= 4 * max_lag + 1:
+    if m <= max(4 * max_lag + 1, 16):
         raise WindowError(
-            f"window gives {m} samples at {fs_a:g} Hz, too few for a ±{max_lag}-lag IRF; "
-            "lengthen the window or shorten lag_s",
+            f"window gives {m} samples at {fs_a:g} Hz after the low-pass, too few for a "
+            f"±{max_lag}-lag IRF and the derivative stencils; lengthen the window, shorten "
+            "lag_s or raise lowpass_hz",
             "too_short",
         )
 
 
+def _check_band_limited_excitation(u: FloatArray, options: EstimatorOptions) -> None:
+    """Withhold a window whose perturbation has no power left in the analysed band."""
+    if float(np.std(u)) < options.min_excitation_rad:
+        raise WindowError(
+            f"the position varies by less than {options.min_excitation_rad} rad in the "
+            "analysed band: no usable perturbation, nothing to identify",
+            "no_excitation",
+        )
+
+
 def prepare_window(
-    position: ArrayLike, torque: ArrayLike, fs: float, options: EstimatorOptions
-) -> tuple[FloatArray, FloatArray, float]:
-    """Stage 1–3: check, sign, detrend, low-pass and decimate; ``(u, y, analysis_fs_hz)``."""
+    position: ArrayLike, torque: ArrayLike, options: EstimatorOptions, plan: AnalysisPlan
+) -> tuple[FloatArray, FloatArray]:
+    """Stage 3: sign, detrend, band-limit and decimate a checked window; ``(u, y)``."""
     pos = np.asarray(position, dtype=np.float64)
     tor = np.asarray(torque, dtype=np.float64)
-    _check_window(pos, tor, options)
-    try:
-        u, y, fs_a = _preprocess(pos, tor, float(fs), options)
-    except InputDataError as exc:
-        raise WindowError(str(exc), "too_short") from None
-    _check_analysis_length(u.size, fs_a, max(1, round(options.lag_s * fs_a)))
-    return u, y, fs_a
+    u, y = _preprocess(pos, tor, plan, options)
+    _check_analysis_length(u.size, plan.analysis_fs_hz, plan.lag)
+    _check_band_limited_excitation(u, options)
+    return u, y
 
 
-def fit_parameters(irf: IRF, u: FloatArray, options: EstimatorOptions) -> ParameterFit:
-    """Stage 5: ``(I, B, K)`` fitted to the IRF's response, weighted by the excitation."""
+def fit_parameters(
+    irf: IRF, u: FloatArray, options: EstimatorOptions, plan: AnalysisPlan
+) -> ParameterFit:
+    """Stage 5 (frequency domain): ``(I, B, K)`` fitted to the IRF's response, weighted by
+    the excitation (``relative``), then refined on log magnitude (``logmag``)."""
     fs_a = irf.fs_hz
-    grid_key = (*options.fit_band_hz, options.fit_points, fs_a / 2)
-    f = _fit_grid(options.fit_band_hz, options.fit_points, fs_a / 2)
+    band = plan.fit_band_hz
+    grid_key = (*band, options.fit_points, fs_a / 2)
+    f = _fit_grid(band, options.fit_points, fs_a / 2)
     e = _dft(irf.max_lag, fs_a, grid_key)
     weights = _excitation_weights(u, fs_a, f, options.weight_power)
     fit = fit_linear(
@@ -558,10 +715,12 @@ class TorquePredictions:
     model: FloatArray
 
 
-def predict_torque(irf: IRF, u: FloatArray, y: FloatArray, fit: ParameterFit) -> TorquePredictions:
-    """Stage 6: torque predicted by the IRF and by the parametric model."""
+def predict_torque(
+    irf: IRF, u: FloatArray, y: FloatArray, params: FloatArray
+) -> TorquePredictions:
+    """Stage 6: torque predicted by the IRF and by the parametric model ``(I, B, K)``."""
     edge = _supported_edge(irf)
-    inertia, damping, stiffness = fit.params
+    inertia, damping, stiffness = params
     d1, d2 = stencil_derivatives(u, irf.fs_hz)
     model_torque = inertia * d2 + damping * d1 + stiffness * u[4:-4]  # samples 4 … n−5
     inner = slice(edge, u.size - edge)
@@ -589,32 +748,34 @@ def standard_errors(
     return np.asarray(np.sqrt(np.clip(np.diag(cov), 0.0, None)), dtype=np.float64)
 
 
+def _percent_explained(target: FloatArray, prediction: FloatArray) -> float:
+    """VAF (%) of ``prediction`` against ``target``, both mean-removed, floored at 0."""
+    n = target.size
+    centred = target - target.sum() / n
+    error = centred - (prediction - prediction.sum() / n)
+    total = float(centred @ centred)
+    return 0.0 if total <= 0 else round(max(0.0, 1.0 - float(error @ error) / total) * 100, 12)
+
+
 def _three_vafs(p: TorquePredictions) -> tuple[float, float, float]:
     """VAF of the model and of the IRF against the measurement, and of the model against
-    the IRF — :func:`rtsid.ident.vaf.vaf` three times, sharing the centred signals."""
-    n = p.measured.size
-    measured = p.measured - p.measured.sum() / n
-    irf = p.irf - p.irf.sum() / n
-    model = p.model - p.model.sum() / n
-
-    def percent(target: FloatArray, error: FloatArray) -> float:
-        total = float(target @ target)
-        return 0.0 if total <= 0 else round(max(0.0, 1.0 - float(error @ error) / total) * 100, 12)
-
+    the IRF."""
     return (
-        percent(measured, measured - model),
-        percent(measured, measured - irf),
-        percent(irf, irf - model),
+        _percent_explained(p.measured, p.model),
+        _percent_explained(p.measured, p.irf),
+        _percent_explained(p.irf, p.model),
     )
 
 
 def _assemble(
     irf: IRF,
-    fit: ParameterFit,
+    params: FloatArray,
     se: tuple[float, float, float],
     vafs: tuple[float, float, float],
+    method: str,
+    options: EstimatorOptions,
 ) -> WindowEstimate:
-    inertia, damping, stiffness = fit.params.tolist()
+    inertia, damping, stiffness = (float(v) for v in params)
     vaf_model, vaf_irf, vaf_fit = vafs
     return WindowEstimate(
         I=inertia,
@@ -629,87 +790,6 @@ def _assemble(
         irf=irf.h,
         lags_s=irf.lags_s,
         fs_hz=irf.fs_hz,
-        flags=_flags((inertia, damping, stiffness), se, vaf_fit),
-        method=fit.method,
+        flags=_flags((inertia, damping, stiffness), se, vafs, options),
+        method=method,
     )
-
-
-@dataclass(frozen=True)
-class WindowResult:
-    """One slide of :func:`sliding_estimates`: an estimate, or the reason it was withheld.
-
-    Attributes
-    ----------
-    start : int
-        Index of the window's first sample.
-    stop : int
-        One past the window's last sample.
-    t_end_s : float
-        Time of the window's last sample, s (sample time, first sample at 0).
-    estimate : WindowEstimate or None
-        The estimate; None when withheld.
-    reason : str or None
-        Why it was withheld (``"nan"``, ``"no_excitation"``, ``"numerical"``, …).
-    """
-
-    start: int
-    stop: int
-    t_end_s: float
-    estimate: WindowEstimate | None
-    reason: str | None
-
-
-def sliding_estimates(
-    position: ArrayLike,
-    torque: ArrayLike,
-    fs: float,
-    window_s: float = 0.3,
-    hop_s: float = 0.1,
-    options: EstimatorOptions | None = None,
-) -> Iterator[WindowResult]:
-    """Estimate every window of ``window_s`` seconds, ``hop_s`` apart, oldest first.
-
-    Windows that must not be estimated (NaN, no excitation, numerically unsound) are
-    yielded with their reason instead of an estimate, so the caller sees every window.
-
-    Parameters
-    ----------
-    position, torque : array_like, shape (n,)
-        Joint angle (rad) and torque (N·m).
-    fs : float
-        Sampling rate, Hz.
-    window_s, hop_s : float
-        Window length and hop, s.
-    options : EstimatorOptions, optional
-        Estimator settings.
-
-    Yields
-    ------
-    WindowResult
-        One per window.
-    """
-    pos = np.asarray(position, dtype=np.float64)
-    tor = np.asarray(torque, dtype=np.float64)
-    n_win = round(window_s * fs)
-    n_hop = round(hop_s * fs)
-    if n_win < 2 or n_hop < 1:
-        raise InputDataError(
-            f"window_s={window_s} and hop_s={hop_s} at {fs:g} Hz give {n_win}-sample windows "
-            f"every {n_hop} samples; both must be at least one sample"
-        )
-    if n_win > pos.size:
-        raise InputDataError(
-            f"the record has {pos.size} samples ({pos.size / fs:g} s), shorter than one "
-            f"{window_s} s window; use a shorter --window"
-        )
-    for start in range(0, pos.size - n_win + 1, n_hop):
-        stop = start + n_win
-        t_end = (stop - 1) / fs
-        try:
-            est = estimate_window(pos[start:stop], tor[start:stop], fs, options)
-        except WindowError as exc:
-            yield WindowResult(start, stop, t_end, None, exc.reason)
-        except NumericalError:
-            yield WindowResult(start, stop, t_end, None, "numerical")
-        else:
-            yield WindowResult(start, stop, t_end, est, None)

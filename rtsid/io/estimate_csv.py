@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from rtsid.errors import RecordingError
-from rtsid.ident.window import WindowResult
+from rtsid.ident.stream import WindowResult
 
 __all__ = ["COLUMNS", "estimate_row", "open_output", "write_estimates"]
 

@@ -27,7 +27,8 @@ import numpy as np
 
 from rtsid.config import require_range, section_from_mapping
 from rtsid.errors import ConfigError, InputDataError, NumericalError, WindowError
-from rtsid.ident.window import EstimatorOptions, WindowEstimate, estimate_window
+from rtsid.ident.stream import WindowStream
+from rtsid.ident.window import EstimatorOptions, WindowEstimate
 from rtsid.link.protocol import (
     STATUS_DISCONTINUITY,
     STATUS_POSITION_SATURATED,
@@ -177,6 +178,9 @@ class WindowWorker:
         self.robot = robot
         self.joint = joint
         self.torque_offset = torque_offset
+        # The analysis plan and the held parameters: deterministic state carried from window
+        # to window, so a replay of the same windows reproduces every number.
+        self.stream = WindowStream(fs_hz, options, config.hop_s)
         self.window_samples = round(config.window_s * fs_hz)
         self.hop_samples = max(1, round(config.hop_s * fs_hz))
         self._stop = threading.Event()
@@ -348,7 +352,7 @@ class WindowWorker:
         if self.torque_offset is not None:
             torque = torque - self.torque_offset(snap.position_rad)
         try:
-            estimate = estimate_window(snap.position_rad, torque, self.fs_hz, self.options)
+            estimate = self.stream.estimate(snap.position_rad, torque)
         except WindowError as exc:
             self._withheld[exc.reason] += 1
             return None, exc.reason
@@ -368,7 +372,8 @@ class WindowWorker:
         last_arrival_s: float | None,
     ) -> dict[str, Any]:
         keys = ("I", "B", "K", "I_se", "B_se", "K_se", "vaf", "vaf_irf", "vaf_fit")
-        values = {k: getattr(estimate, k) if estimate else None for k in keys}
+        # NaN (a held parameter's standard error) is null, as it is once encoded.
+        values = {k: _finite_or_none(getattr(estimate, k)) if estimate else None for k in keys}
         overrun = compute_s > self.config.effective_budget_s
         flags = [*(estimate.flags if estimate else ()), *(("over_budget",) if overrun else ())]
         latency = None if last_arrival_s is None else (time.monotonic() - last_arrival_s) * 1e3
@@ -390,3 +395,7 @@ class WindowWorker:
             "flags": flags,
             "host_time_ns": time.time_ns(),
         }
+
+
+def _finite_or_none(value: float) -> float | None:
+    return value if math.isfinite(value) else None

@@ -1,0 +1,82 @@
+"""The honest references every accuracy figure is set against, measured in the same run.
+
+* :func:`least_squares_window` — per-window least squares of the same three parameters on
+  the same window: torque on ``(θ̈, θ̇, θ)`` with an offset and a trend, the derivatives by
+  Savitzky–Golay (11 samples, cubic) inside the window (no sample outside it), or exact
+  derivatives where a simulation has them.
+* :class:`WindowVafBasis` — how well a window's ``(I, B, K)`` explain the torque a user
+  sees: the prediction ``I·θ̈ + B·θ̇ + K·θ`` (Savitzky–Golay derivatives of the whole
+  record) and the measured torque, both low-passed at 40 Hz (4th-order Butterworth, zero
+  phase, over the whole record), each window's mean removed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import signal
+
+__all__ = ["WindowVafBasis", "least_squares_window", "savgol_derivatives"]
+
+FloatArray = NDArray[np.float64]
+SAVGOL_POINTS, SAVGOL_ORDER = 11, 3
+BASIS_LOWPASS_HZ = 40.0
+
+
+def savgol_derivatives(x: FloatArray, fs_hz: float) -> tuple[FloatArray, FloatArray]:
+    """First and second derivative by Savitzky–Golay (11 points, cubic)."""
+    d1 = signal.savgol_filter(x, SAVGOL_POINTS, SAVGOL_ORDER, deriv=1, delta=1 / fs_hz)
+    d2 = signal.savgol_filter(x, SAVGOL_POINTS, SAVGOL_ORDER, deriv=2, delta=1 / fs_hz)
+    return np.asarray(d1), np.asarray(d2)
+
+
+def least_squares_window(
+    position: FloatArray,
+    torque: FloatArray,
+    fs_hz: float,
+    derivatives: tuple[FloatArray, FloatArray] | None = None,
+) -> FloatArray:
+    """``(I, B, K)`` by least squares on one window (offset and trend as nuisance terms).
+
+    Parameters
+    ----------
+    position, torque : numpy.ndarray, shape (n,)
+        The window (rad, N·m; torque already sign-corrected).
+    fs_hz : float
+        Sampling rate, Hz.
+    derivatives : (numpy.ndarray, numpy.ndarray), optional
+        ``(θ̇, θ̈)`` to use (e.g. a simulation's exact ones); default Savitzky–Golay of the
+        window.
+    """
+    d1, d2 = derivatives if derivatives is not None else savgol_derivatives(position, fs_hz)
+    n = position.size
+    x = np.column_stack((d2, d1, position, np.ones(n), np.linspace(-1.0, 1.0, n)))
+    return np.asarray(np.linalg.lstsq(x, torque, rcond=None)[0][:3], dtype=np.float64)
+
+
+class WindowVafBasis:
+    """The window VAF basis over one whole record (see the module notes).
+
+    Parameters
+    ----------
+    position, torque : numpy.ndarray, shape (N,)
+        The record (rad, N·m; torque sign-corrected).
+    fs_hz : float
+        Sampling rate, Hz.
+    """
+
+    def __init__(self, position: FloatArray, torque: FloatArray, fs_hz: float) -> None:
+        sos = signal.butter(4, BASIS_LOWPASS_HZ, fs=fs_hz, output="sos")
+        d1, d2 = savgol_derivatives(position, fs_hz)
+        self.torque = signal.sosfiltfilt(sos, torque)
+        self.regressors = np.vstack([signal.sosfiltfilt(sos, x) for x in (d2, d1, position)])
+
+    def vaf(self, params: FloatArray, start: int, stop: int) -> float:
+        """VAF (%) of ``(I, B, K)`` on samples ``start … stop − 1`` (NaN params: NaN)."""
+        if not np.all(np.isfinite(params)):
+            return float("nan")
+        measured = self.torque[start:stop] - self.torque[start:stop].mean()
+        predicted = np.asarray(params) @ self.regressors[:, start:stop]
+        predicted = predicted - predicted.mean()
+        error = measured - predicted
+        return float(100.0 * (1.0 - (error @ error) / (measured @ measured)))

@@ -1,0 +1,216 @@
+"""A stream of windows: one analysis plan, and two time scales.
+
+:class:`WindowStream` is what the daemon's worker, ``rtsid identify`` and replay share to
+estimate a stream's windows in order: the analysis is planned once, from the stream's first
+estimable window (:func:`rtsid.ident.window.resolve_plan`), and reused for every window, so
+all are analysed alike; and the held parameters are learned as the windows go by.
+
+Two time scales: inertia (and damping) learned over a long horizon, stiffness per window.
+
+A joint's inertia does not change within an experiment and its damping changes slowly, but a
+300 ms window determines them worst of the three (inertia shows only at the top of the
+perturbation's band). Holding them at a value learned over tens of seconds leaves the window
+to determine K alone, with less spread. :class:`HeldParameters` is the learning state a
+stream carries from window to window: the median of the last windows' full (unheld) fits.
+It is plain data updated in window order, so a replay of the same windows reproduces it —
+and every estimate after it — exactly.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from numpy.typing import ArrayLike
+
+from rtsid.errors import InputDataError, NumericalError, WindowError
+from rtsid.ident.analysis import AnalysisPlan
+from rtsid.ident.window import (
+    EstimatorOptions,
+    Held,
+    WindowEstimate,
+    back_end,
+    check_window,
+    front_end,
+    held_values,
+    resolve_plan,
+)
+
+__all__ = ["HeldParameters", "WindowResult", "WindowStream", "sliding_estimates"]
+
+
+class HeldParameters:
+    """Running medians of I and B over the last ``horizon`` windows.
+
+    Parameters
+    ----------
+    hold : {"none", "inertia", "inertia_damping"}
+        What is held (``EstimatorOptions.hold``).
+    horizon_windows : int
+        Windows in the horizon (``hold_horizon_s / hop_s``).
+    min_windows : int
+        Windows needed before anything is held (until then every parameter is fitted).
+    """
+
+    def __init__(self, hold: str, horizon_windows: int, min_windows: int = 5) -> None:
+        self.hold = hold
+        self._inertia: deque[float] = deque(maxlen=max(1, horizon_windows))
+        self._damping: deque[float] = deque(maxlen=max(1, horizon_windows))
+        self.min_windows = max(1, min(min_windows, horizon_windows))
+
+    def current(self) -> Held:
+        """What the next window holds."""
+        if self.hold == "none" or len(self._inertia) < self.min_windows:
+            return Held()
+        inertia = float(np.median(self._inertia))
+        damping = float(np.median(self._damping)) if self.hold == "inertia_damping" else None
+        return Held(inertia, damping)
+
+    def learn(self, full_fit: WindowEstimate) -> None:
+        """Add one window's full fit (I, B and K all fitted) to the horizon.
+
+        Fits flagged ``negative_inertia``/``negative_damping`` or with ``low_vaf`` are not
+        learned from: they say the window could not determine the parameter.
+        """
+        if self.hold == "none" or {"negative_inertia", "low_vaf"} & set(full_fit.flags):
+            return
+        self._inertia.append(full_fit.I)
+        if full_fit.B > 0:
+            self._damping.append(full_fit.B)
+
+
+class WindowStream:
+    """Estimate a stream's windows in order with one plan and the held parameters.
+
+    Parameters
+    ----------
+    fs_hz : float
+        Sampling rate, Hz.
+    options : EstimatorOptions
+        Estimator settings.
+    hop_s : float
+        Time between windows, s (sets the hold horizon in windows).
+    plan : AnalysisPlan, optional
+        A plan to use from the start (default: planned from the first estimable window).
+    """
+
+    def __init__(
+        self,
+        fs_hz: float,
+        options: EstimatorOptions,
+        hop_s: float,
+        plan: AnalysisPlan | None = None,
+    ) -> None:
+        self.fs_hz = float(fs_hz)
+        self.options = options
+        self.plan = plan
+        horizon = max(1, round(options.hold_horizon_s / hop_s))
+        self.held = HeldParameters(options.hold, horizon)
+
+    def estimate(self, position: ArrayLike, torque: ArrayLike) -> WindowEstimate:
+        """The next window's estimate (same errors as :func:`estimate_window`).
+
+        With a learned hold, the window is fitted twice from one IRF: in full (learned
+        from) and with the held values (returned).
+        """
+        pos = np.ascontiguousarray(position, dtype=np.float64)
+        tor = np.ascontiguousarray(torque, dtype=np.float64)
+        check_window(pos, tor, self.options)
+        if self.plan is None:
+            self.plan = resolve_plan(pos, self.fs_hz, self.options)
+        u, y, irf = front_end(pos, tor, self.fs_hz, self.options, self.plan)
+        if self.options.hold == "none":
+            return back_end(irf, u, y, self.options, self.plan)
+        held = held_values(self.options, self.held.current())  # from earlier windows only
+        full = back_end(irf, u, y, self.options, self.plan)
+        self.held.learn(full)
+        if held.inertia is None:
+            return full
+        return back_end(irf, u, y, self.options, self.plan, held)
+
+
+@dataclass(frozen=True)
+class WindowResult:
+    """One slide of :func:`sliding_estimates`: an estimate, or the reason it was withheld.
+
+    Attributes
+    ----------
+    start : int
+        Index of the window's first sample.
+    stop : int
+        One past the window's last sample.
+    t_end_s : float
+        Time of the window's last sample, s (sample time, first sample at 0).
+    estimate : WindowEstimate or None
+        The estimate; None when withheld.
+    reason : str or None
+        Why it was withheld (``"nan"``, ``"no_excitation"``, ``"numerical"``, …).
+    """
+
+    start: int
+    stop: int
+    t_end_s: float
+    estimate: WindowEstimate | None
+    reason: str | None
+
+
+def sliding_estimates(
+    position: ArrayLike,
+    torque: ArrayLike,
+    fs: float,
+    window_s: float = 0.3,
+    hop_s: float = 0.1,
+    options: EstimatorOptions | None = None,
+) -> Iterator[WindowResult]:
+    """Estimate every window of ``window_s`` seconds, ``hop_s`` apart, oldest first.
+
+    Windows that must not be estimated (NaN, no excitation, numerically unsound) are
+    yielded with their reason instead of an estimate, so the caller sees every window. The
+    windows are one :class:`WindowStream`: one analysis plan, held parameters learned in
+    order.
+
+    Parameters
+    ----------
+    position, torque : array_like, shape (n,)
+        Joint angle (rad) and torque (N·m).
+    fs : float
+        Sampling rate, Hz.
+    window_s, hop_s : float
+        Window length and hop, s.
+    options : EstimatorOptions, optional
+        Estimator settings.
+
+    Yields
+    ------
+    WindowResult
+        One per window.
+    """
+    pos = np.asarray(position, dtype=np.float64)
+    tor = np.asarray(torque, dtype=np.float64)
+    n_win = round(window_s * fs)
+    n_hop = round(hop_s * fs)
+    if n_win < 2 or n_hop < 1:
+        raise InputDataError(
+            f"window_s={window_s} and hop_s={hop_s} at {fs:g} Hz give {n_win}-sample windows "
+            f"every {n_hop} samples; both must be at least one sample"
+        )
+    if n_win > pos.size:
+        raise InputDataError(
+            f"the record has {pos.size} samples ({pos.size / fs:g} s), shorter than one "
+            f"{window_s} s window; use a shorter --window"
+        )
+    stream = WindowStream(fs, options or EstimatorOptions(), n_hop / fs)
+    for start in range(0, pos.size - n_win + 1, n_hop):
+        stop = start + n_win
+        t_end = (stop - 1) / fs
+        try:
+            est = stream.estimate(pos[start:stop], tor[start:stop])
+        except WindowError as exc:
+            yield WindowResult(start, stop, t_end, None, exc.reason)
+        except NumericalError:
+            yield WindowResult(start, stop, t_end, None, "numerical")
+        else:
+            yield WindowResult(start, stop, t_end, est, None)
