@@ -88,9 +88,7 @@ def run(args: argparse.Namespace) -> int:
             plan_line = resolve_plan(pos[bounds[0][0] : bounds[0][1]], fs, options).describe()
             if args.figures:
                 figures += _plot(results, pos, tor, fs, options, Path(args.figures))
-    reference = [
-        least_squares_window(pos[a:b], TORQUE_SIGN * tor[a:b], fs) for a, b in bounds
-    ]
+    reference = [least_squares_window(pos[a:b], TORQUE_SIGN * tor[a:b], fs) for a, b in bounds]
     columns[REFERENCE] = _column(reference, bounds, basis)
     _print_tables(columns, speed_rows, duration, fs, args.hop, plan_line, figures)
     return 0
@@ -108,10 +106,10 @@ def _print_tables(
     quantities = list(next(iter(columns.values())))
     rows = [[q, *(columns[c][q] for c in columns)] for q in quantities]
     ref = columns[REFERENCE]
-    floors = [
-        ["median window VAF ≥ reference − 3 points", ref["median window VAF %"] - 3.0],
-        ["windows below 50 % ≤ 3 %", 3.0],
-        ["K IQR / median ≤ 20 %", 20.0],
+    floors: list[tuple[str, float]] = [
+        ("median window VAF ≥ reference − 3 points", ref["median window VAF %"] - 3.0),
+        ("windows below 50 % ≤ 3 %", 3.0),
+        ("K IQR / median ≤ 20 %", 20.0),
     ]
     default = columns["output error, hold I+B (default)"]
     verdicts = [

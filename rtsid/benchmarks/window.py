@@ -17,10 +17,10 @@ import numpy as np
 from scipy.linalg import toeplitz
 
 from rtsid.benchmarks.table import median_p99, print_table
+from rtsid.ident.analysis import AnalysisPlan
 from rtsid.ident.correlation import auto_correlation, cross_correlation
 from rtsid.ident.excitation import filtered_noise
 from rtsid.ident.irf import IRF, estimate_irf
-from rtsid.ident.analysis import AnalysisPlan
 from rtsid.ident.window import (
     EstimatorOptions,
     back_end,

@@ -10,7 +10,7 @@ import numpy as np
 
 from rtsid.config import load_toml, section_from_mapping
 from rtsid.errors import InputDataError
-from rtsid.ident.stream import WindowResult, sliding_estimates
+from rtsid.ident.stream import WindowResult, WindowStream, sliding_estimates
 from rtsid.ident.window import EstimatorOptions
 from rtsid.io.estimate_csv import open_output, write_estimates
 from rtsid.io.sample_files import load_samples, nonfinite_report
@@ -28,7 +28,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="-1 for rigs reporting torque inverted",
     )
     parser.add_argument("--fs", type=float, metavar="HZ", help="sampling rate of a CSV without t_s")
-    parser.add_argument("--fit", choices=("linear", "logmag"), help="fit method (linear)")
+    parser.add_argument(
+        "--fit",
+        choices=("output_error", "relative", "logmag"),
+        help="fit criterion (output_error)",
+    )
+    parser.add_argument(
+        "--hold",
+        choices=("none", "inertia", "inertia_damping"),
+        help="parameters held at their running median over 20 s (inertia_damping)",
+    )
     parser.add_argument("--lag", type=float, metavar="S", help="IRF lag span ±S (0.02)")
     parser.add_argument("--config", metavar="TOML", help="take [estimator] options from this file")
     parser.add_argument(
@@ -44,6 +53,7 @@ def _options(args: argparse.Namespace) -> EstimatorOptions:
     overrides = {
         "torque_sign": args.torque_sign,
         "fit_method": args.fit,
+        "hold": args.hold,
         "lag_s": args.lag,
     }
     return replace(options, **{k: v for k, v in overrides.items() if v is not None})
@@ -70,12 +80,21 @@ def run(args: argparse.Namespace) -> int:
             f"{record.source}: {problem}; clean the file, or pass --allow-nan to withhold the "
             "windows that contain them"
         )
+    stream = WindowStream(record.fs_hz, options, args.hop)
     results = list(
         sliding_estimates(
-            record.position_rad, record.torque_nm, record.fs_hz, args.window, args.hop, options
+            record.position_rad,
+            record.torque_nm,
+            record.fs_hz,
+            args.window,
+            args.hop,
+            options,
+            stream=stream,
         )
     )
     with open_output(args.out) as fh:
         write_estimates(results, fh)
+    if stream.plan is not None:
+        print(f"rtsid identify: {stream.plan.describe()}", file=sys.stderr)
     print(f"rtsid identify: {_summary(results)}", file=sys.stderr)
     return 0

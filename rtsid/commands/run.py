@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import signal
 import sys
 from typing import Any
@@ -58,6 +59,8 @@ def run(args: argparse.Namespace) -> int:
     def show(status: dict[str, Any], estimate: dict[str, Any] | None) -> None:
         print(status_line(status, estimate), flush=True)
 
+    if not args.quiet:  # the worker says once which analysis it chose, and so on
+        logging.basicConfig(level=logging.INFO, format="rtsid run: %(message)s")
     daemon = Daemon(config, on_status=None if args.quiet else show)
     previous = {
         sig: signal.signal(sig, lambda *_: daemon.request_stop())

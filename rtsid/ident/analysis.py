@@ -198,4 +198,5 @@ def plan_analysis(
     fs_a = fs / factor
     lag = max(1, round(lag_s * fs_a))
     band = fit_band_hz if fit_band_hz is not None else (1.0, min(lowpass_hz, 0.45 * fs_a))
-    return AnalysisPlan(fs, edge, float(lowpass_hz), factor, lag, tuple(band), taps)
+    lo, hi = band
+    return AnalysisPlan(fs, edge, float(lowpass_hz), factor, lag, (float(lo), float(hi)), taps)

@@ -47,9 +47,9 @@ from rtsid.ident.filters import stencil_derivatives
 __all__ = [
     "OutputErrorFit",
     "ParameterFit",
-    "fit_output_error",
     "fit_linear",
     "fit_logmag",
+    "fit_output_error",
     "impedance_response",
     "inseparable_fit",
     "zero_response",

@@ -23,7 +23,6 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
-
 from numpy.typing import ArrayLike
 
 from rtsid.errors import InputDataError, NumericalError, WindowError
@@ -164,6 +163,8 @@ def sliding_estimates(
     window_s: float = 0.3,
     hop_s: float = 0.1,
     options: EstimatorOptions | None = None,
+    *,
+    stream: WindowStream | None = None,
 ) -> Iterator[WindowResult]:
     """Estimate every window of ``window_s`` seconds, ``hop_s`` apart, oldest first.
 
@@ -182,6 +183,8 @@ def sliding_estimates(
         Window length and hop, s.
     options : EstimatorOptions, optional
         Estimator settings.
+    stream : WindowStream, optional
+        The stream to estimate with (to read its plan afterwards); default a new one.
 
     Yields
     ------
@@ -202,7 +205,7 @@ def sliding_estimates(
             f"the record has {pos.size} samples ({pos.size / fs:g} s), shorter than one "
             f"{window_s} s window; use a shorter --window"
         )
-    stream = WindowStream(fs, options or EstimatorOptions(), n_hop / fs)
+    stream = stream or WindowStream(fs, options or EstimatorOptions(), n_hop / fs)
     for start in range(0, pos.size - n_win + 1, n_hop):
         stop = start + n_win
         t_end = (stop - 1) / fs

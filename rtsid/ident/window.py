@@ -29,9 +29,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from rtsid.config import invalid, require_choice, require_range
-from rtsid.errors import InputDataError, NumericalError, WindowError
-from rtsid.ident.correlation import auto_correlation, detrend
+from rtsid.errors import InputDataError, WindowError
 from rtsid.ident.analysis import AnalysisPlan, plan_analysis
+from rtsid.ident.correlation import auto_correlation, detrend
 from rtsid.ident.filters import stencil_derivatives
 from rtsid.ident.irf import IRF, estimate_irf
 from rtsid.ident.levinson import compiled_kernel, eureka_unchecked, not_positive_definite
@@ -406,9 +406,7 @@ class Held:
 NOT_HELD = Held()
 
 
-def resolve_plan(
-    position: ArrayLike, fs: float, options: EstimatorOptions
-) -> AnalysisPlan:
+def resolve_plan(position: ArrayLike, fs: float, options: EstimatorOptions) -> AnalysisPlan:
     """The analysis plan for ``position`` (a window or a longer stretch of a stream).
 
     Raises
@@ -583,7 +581,9 @@ def output_error_back_end(
     _, vaf_irf, vaf_fit = _three_vafs(predict_torque(irf, u, y, fit.params))
     vaf = _percent_explained(fit.measured, fit.model)
     se_i, se_b, se_k = fit.se.tolist()
-    return _assemble(irf, fit.params, (se_i, se_b, se_k), (vaf, vaf_irf, vaf_fit), "output_error", options)
+    return _assemble(
+        irf, fit.params, (se_i, se_b, se_k), (vaf, vaf_irf, vaf_fit), "output_error", options
+    )
 
 
 def _noise_lags(irf: IRF, plan: AnalysisPlan) -> int:
@@ -601,7 +601,9 @@ def numpy_back_end(
     predictions = predict_torque(irf, u, y, fit.params)
     se = standard_errors(irf, u, predictions, fit) if options.uncertainty else np.full(3, np.nan)
     se_i, se_b, se_k = se.tolist()
-    return _assemble(irf, fit.params, (se_i, se_b, se_k), _three_vafs(predictions), fit.method, options)
+    return _assemble(
+        irf, fit.params, (se_i, se_b, se_k), _three_vafs(predictions), fit.method, options
+    )
 
 
 _DETREND_CODES = {"none": 0, "mean": 1, "linear": 2}
@@ -715,9 +717,7 @@ class TorquePredictions:
     model: FloatArray
 
 
-def predict_torque(
-    irf: IRF, u: FloatArray, y: FloatArray, params: FloatArray
-) -> TorquePredictions:
+def predict_torque(irf: IRF, u: FloatArray, y: FloatArray, params: FloatArray) -> TorquePredictions:
     """Stage 6: torque predicted by the IRF and by the parametric model ``(I, B, K)``."""
     edge = _supported_edge(irf)
     inertia, damping, stiffness = params

@@ -14,6 +14,7 @@ counted as overruns); compute beyond the budget counts a deadline miss.
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import threading
@@ -39,6 +40,7 @@ from rtsid.link.ring import RingBuffer, Snapshot
 __all__ = ["WindowWorker", "WorkerConfig", "WorkerCounters", "assess_window"]
 
 _SATURATED = STATUS_POSITION_SATURATED | STATUS_TORQUE_SATURATED
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -351,6 +353,7 @@ class WindowWorker:
         torque = snap.torque_nm
         if self.torque_offset is not None:
             torque = torque - self.torque_offset(snap.position_rad)
+        planned = self.stream.plan is not None
         try:
             estimate = self.stream.estimate(snap.position_rad, torque)
         except WindowError as exc:
@@ -360,6 +363,8 @@ class WindowWorker:
             self._withheld["numerical"] += 1
             return None, "numerical"
         self._estimates += 1
+        if not planned and self.stream.plan is not None:
+            log.info("%s/%s %s", self.robot, self.joint, self.stream.plan.describe())
         return estimate, None
 
     def _message(

@@ -1,0 +1,77 @@
+import numpy as np
+import pytest
+
+from rtsid.benchmarks.yardstick import least_squares_window
+from rtsid.ident.excitation import filtered_noise
+from rtsid.ident.filters import derivatives
+from rtsid.ident.stream import WindowStream, sliding_estimates
+from rtsid.ident.window import EstimatorOptions, estimate_window
+from rtsid.sim.joint import JointParameters, simulate_impedance
+
+FS = 2500.0
+ANKLE = JointParameters(inertia=0.02, damping=1.0, stiffness=200.0)
+
+
+def record(seconds, seed=0, noise=10.0, bandwidth_hz=30.0):
+    rng = np.random.default_rng(seed)
+    theta = filtered_noise(round(seconds * FS), FS, bandwidth_hz, peak=0.03, seed=rng)
+    tau = simulate_impedance(theta, FS, ANKLE, noise_percent=noise, seed=rng)
+    return theta, tau
+
+
+def test_a_stream_plans_once_and_holds_what_it_learned():
+    theta, tau = record(3.0)
+    options = EstimatorOptions(hold="inertia_damping", hold_horizon_s=1.0)
+    stream = WindowStream(FS, options, 0.1)
+    results = list(sliding_estimates(theta, tau, FS, 0.3, 0.1, options, stream=stream))
+    estimates = [r.estimate for r in results]
+    assert all(e is not None for e in estimates)
+    assert len({e.fs_hz for e in estimates}) == 1  # one plan for the whole stream
+    assert stream.plan is not None and stream.plan.edge_hz is not None
+    first, later = estimates[:5], estimates[5:]
+    assert all(np.isfinite(e.I_se) for e in first)  # nothing learned yet: all fitted
+    assert all(np.isnan(e.I_se) and np.isnan(e.B_se) for e in later)  # held, not fitted
+    assert later[0].I == pytest.approx(np.median([e.I for e in first]))
+    assert all(e.I == pytest.approx(0.02, rel=0.05) for e in later)
+    assert np.median([abs(e.K - 200.0) for e in later]) < 0.02 * 200.0
+
+
+def test_a_replayed_stream_reproduces_every_number():
+    theta, tau = record(2.0, seed=3)
+    runs = [
+        [r.estimate.as_dict() for r in sliding_estimates(theta, tau, FS, 0.3, 0.05)]
+        for _ in range(2)
+    ]
+    assert runs[0] == runs[1]
+
+
+def test_fixed_inertia_is_held_from_the_first_window():
+    theta, tau = record(1.0, seed=4)
+    est = estimate_window(
+        theta[:750], tau[:750], FS, hold="inertia", hold_inertia=0.02
+    )
+    assert est.I == 0.02 and np.isnan(est.I_se)
+    assert est.K == pytest.approx(200.0, rel=0.03)
+
+
+def test_output_error_is_as_good_as_least_squares_on_the_same_windows():
+    errors, reference = [], []
+    truth = np.array([ANKLE.inertia, ANKLE.damping, ANKLE.stiffness])
+    for seed in range(12):
+        theta, tau = record(0.3 + 0.8, seed=10 + seed, bandwidth_hz=40.0)
+        theta, tau = theta[1000:1750], tau[1000:1750]
+        est = estimate_window(theta, tau, FS)
+        errors.append(np.abs([est.I, est.B, est.K] - truth) / truth)
+        ls = least_squares_window(theta, tau, FS, derivatives(theta, FS))
+        reference.append(np.abs(ls - truth) / truth)
+    ratio = np.median(errors, axis=0) / np.median(reference, axis=0)
+    assert np.all(ratio < 1.6), ratio
+
+
+def test_a_window_the_model_does_not_explain_is_flagged_low_vaf():
+    theta, tau = record(0.3, seed=5, noise=1.0)
+    voluntary = 3 * np.std(tau) * np.sin(2 * np.pi * 7.0 * np.arange(tau.size) / FS)
+    est = estimate_window(theta, tau + voluntary, FS)  # torque the joint model cannot explain
+    assert est.vaf < 50.0 and "low_vaf" in est.flags
+    clean = estimate_window(theta, tau, FS)
+    assert "low_vaf" not in clean.flags
