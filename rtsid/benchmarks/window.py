@@ -128,9 +128,7 @@ def run(args: argparse.Namespace) -> int:
     for k, (p, t) in enumerate(windows):
         total.append(_timed(functools.partial(estimate_window, p, t, FS_HZ, opts, plan=plan)))
         planned.append(_timed(functools.partial(estimate_window, p, t, FS_HZ, opts)))
-        without_se.append(
-            _timed(functools.partial(estimate_window, p, t, FS_HZ, no_se, plan=plan))
-        )
+        without_se.append(_timed(functools.partial(estimate_window, p, t, FS_HZ, no_se, plan=plan)))
         _staged(p, t, opts, clock)
         if k % every_baseline == 0:
             baseline.append(_timed(functools.partial(_baseline, p, t, plan)))

@@ -47,9 +47,7 @@ def test_a_replayed_stream_reproduces_every_number():
 
 def test_fixed_inertia_is_held_from_the_first_window():
     theta, tau = record(1.0, seed=4)
-    est = estimate_window(
-        theta[:750], tau[:750], FS, hold="inertia", hold_inertia=0.02
-    )
+    est = estimate_window(theta[:750], tau[:750], FS, hold="inertia", hold_inertia=0.02)
     assert est.I == 0.02 and np.isnan(est.I_se)
     assert est.K == pytest.approx(200.0, rel=0.03)
 
