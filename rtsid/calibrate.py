@@ -23,7 +23,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -36,6 +35,7 @@ from numpy.typing import NDArray
 from rtsid import __version__
 from rtsid.errors import ConfigError, InputDataError, RecordingError
 from rtsid.ident.robot import RobotDynamics, identify_robot
+from rtsid.io.files import atomic_write
 from rtsid.io.mcap_read import iter_sample_batches, read_run_config
 from rtsid.io.sample_files import load_samples
 from rtsid.link.protocol import (
@@ -130,25 +130,11 @@ class Calibration:
 
 
 def save_calibration(calibration: Calibration, path: str | Path) -> Path:
-    """Write the calibration as JSON, atomically (a temporary file renamed into place)."""
+    """Write the calibration as JSON, atomically (:func:`rtsid.io.files.atomic_write`)."""
     out = Path(path)
-    text = json.dumps(calibration.as_dict(), indent=1) + "\n"
-    try:
-        _write_atomically(out, text)
-    except OSError as exc:
-        raise RecordingError(
-            f"cannot write calibration {str(out)!r}: {exc.strerror or exc}"
-        ) from exc
+    with atomic_write(out, what="calibration", make_folder=True) as fh:
+        fh.write(json.dumps(calibration.as_dict(), indent=1) + "\n")
     return out
-
-
-def _write_atomically(path: Path, text: str) -> None:
-    """Write ``text`` to a temporary file beside ``path`` and rename it into place."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
-    with os.fdopen(fd, "w", encoding="utf-8") as fh:
-        fh.write(text)
-    os.replace(tmp, path)
 
 
 def load_calibration(path: str | Path) -> Calibration:
@@ -389,10 +375,10 @@ def _cached_calibration(text: str) -> Path:
     if path.is_file():
         return path
     try:
-        _write_atomically(path, text)
-    except OSError as exc:
+        with atomic_write(path, what="cached calibration", make_folder=True) as fh:
+            fh.write(text)
+    except RecordingError as exc:
         raise RecordingError(
-            f"cannot store the recording's calibration in {str(path.parent)!r} "
-            f"({exc.strerror or exc}); set XDG_CACHE_HOME to a writable folder"
+            f"{exc} (the recording's calibration is cached there: or set XDG_CACHE_HOME)"
         ) from None
     return path

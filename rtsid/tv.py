@@ -21,8 +21,6 @@ Recording formats:
 
 from __future__ import annotations
 
-import io
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -33,6 +31,7 @@ from numpy.typing import NDArray
 from rtsid.config import section_from_mapping
 from rtsid.errors import InputDataError, RecordingError, RtsidError
 from rtsid.ident.skirt import LtvEstimate, SecondOrderTrack, identify_ltv, max_stable_basis
+from rtsid.io.files import atomic_write, read_npz
 from rtsid.io.mcap_read import iter_sample_batches, read_run_config, recording_parts
 from rtsid.link.config import TorqueMultisineConfig, plant_config_from_mapping
 from rtsid.link.signals import PlantTruth
@@ -113,28 +112,25 @@ def load_tv_npz(path: str | Path, *, trim: bool = False) -> TvData:
 
     Raises
     ------
+    InputDataError
+        Missing, empty or unreadable file, or a required array missing.
     RecordingError
-        Missing or unreadable file, or a required array missing.
+        A scalar that is not one finite number.
     """
     p = Path(path)
-    try:
-        with np.load(p, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except FileNotFoundError:
-        raise RecordingError(f"recording {str(p)!r} does not exist; check the path") from None
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise RecordingError(f"recording {str(p)!r} is not a readable .npz file: {exc}") from None
-    missing = [k for k in REQUIRED if k not in arrays]
-    if missing:
-        raise RecordingError(
-            f"recording {str(p)!r} lacks {', '.join(missing)}; a time-varying experiment needs "
-            f"{', '.join(REQUIRED)} (make one with 'rtsid tv --simulate CS3 -o exp.npz')"
-        )
+    arrays = read_npz(
+        p, REQUIRED, hint="make a time-varying experiment with 'rtsid tv --simulate CS3 -o exp.npz'"
+    )
     period = int(_scalar(arrays, "period_samples", p))
     torque = np.asarray(arrays["torque_nm"], dtype=np.float64)
     position = np.asarray(arrays["position_rad"], dtype=np.float64)
     truth = arrays.get("stiffness_nm_per_rad")
     n = torque.size
+    if n == 0 or position.size != n:
+        raise InputDataError(
+            f"recording {str(p)!r}: torque_nm ({n}) and position_rad ({position.size}) must hold "
+            "the same, non-zero number of samples"
+        )
     if trim and period > 0 and n % period:
         n = (n // period) * period
         if n == 0:
@@ -293,16 +289,8 @@ def simulate_to_npz(
     angle (``position_clean_rad``).
     """
     exp = multisine_experiment(case, spacing_hz=spacing_hz, snr_db=snr_db, seed=seed)
-    buffer = io.BytesIO()
-    np.savez_compressed(buffer, **exp.as_npz_dict())  # type: ignore[arg-type]
-    target = Path(path)
-    partial = target.with_name(target.name + ".partial")
-    try:  # never leave a half-written recording under the final name
-        partial.write_bytes(buffer.getvalue())
-        partial.replace(target)
-    except OSError as exc:
-        partial.unlink(missing_ok=True)
-        raise RecordingError(f"cannot write {str(path)!r}: {exc}") from None
+    with atomic_write(path, "wb", what="experiment") as fh:
+        np.savez_compressed(fh, **exp.as_npz_dict())  # type: ignore[arg-type]
     return TvData(
         exp.torque_nm,
         exp.position_rad,

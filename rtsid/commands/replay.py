@@ -14,6 +14,7 @@ import numpy as np
 from rtsid.benchmarks.table import print_table
 from rtsid.errors import InputDataError
 from rtsid.io.estimate_csv import open_output
+from rtsid.io.files import atomic_write
 from rtsid.replay import (
     ReplayResult,
     recording_config,
@@ -62,7 +63,7 @@ def _write(result: ReplayResult, out: Path, config: DaemonConfig) -> None:
         with open_output(out) as fh:
             write_estimates_csv(result.messages, fh)
     elif out.suffix == ".mcap":
-        with out.open("wb") as fh:
+        with atomic_write(out, "wb", what="estimates") as fh:
             write_estimates_mcap(result.messages, fh, source=result.source, config=config)
     else:
         raise InputDataError(f"--out {out}: use a .csv or .mcap file name")

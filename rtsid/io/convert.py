@@ -14,13 +14,12 @@ Sources:
 The output has the live logger's layout (:func:`rtsid.io.mcap_log.register_channels`):
 ``/samples`` batches, ``rtsid`` metadata (with ``converted_from`` and the import counters)
 and ``config`` metadata holding the configuration replay uses. It is written
-synchronously and completely (nothing is dropped), to ``OUT.part`` renamed into place.
+synchronously and completely (nothing is dropped), atomically (:func:`rtsid.io.files.atomic_write`).
 """
 
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,6 +30,7 @@ from numpy.typing import NDArray
 
 from rtsid import __version__
 from rtsid.errors import InputDataError, RecordingError
+from rtsid.io.files import atomic_write
 from rtsid.io.mcap_log import register_channels
 from rtsid.io.sample_files import load_samples
 from rtsid.io.schemas import SampleBatch, encode_json, encode_samples
@@ -328,7 +328,7 @@ def write_recording(
     samples : ImportedSamples
         The rows.
     out : str or Path
-        Output ``.mcap`` (written to ``out.part`` first, then renamed).
+        Output ``.mcap`` (written atomically: :func:`rtsid.io.files.atomic_write`).
     run_config : Mapping
         The configuration stored as ``config`` metadata (what replay uses).
     batch_samples : int
@@ -354,7 +354,6 @@ def write_recording(
         raise RecordingError(f"{str(dst)!r} exists; remove it or pass --overwrite")
     if batch_samples < 1:
         raise InputDataError(f"batch_samples must be >= 1, got {batch_samples}")
-    tmp = dst.with_name(dst.name + ".part")
     metadata = {
         "software": "rtsid",
         "version": __version__,
@@ -366,28 +365,22 @@ def write_recording(
         "schemas": "see docs/io.md",
         **samples.counters.as_metadata(),
     }
-    try:
-        dst.parent.mkdir(parents=True, exist_ok=True)
-        with tmp.open("wb") as fh:
-            writer = Writer(fh, chunk_size=1 << 20, compression=CompressionType.ZSTD)
-            writer.start(profile="", library=f"rtsid {__version__} (convert)")
-            channel = register_channels(writer)["samples"]
-            writer.add_metadata("rtsid", metadata)
-            writer.add_metadata("config", {"json": encode_json(dict(run_config)).decode()})
-            for batch in samples.batches(batch_samples):
-                payload = encode_samples(
-                    batch.first_index,
-                    batch.fs_hz,
-                    batch.position_rad,
-                    batch.torque_nm,
-                    batch.valid,
-                    batch.status,
-                )
-                t = batch.log_time_ns
-                writer.add_message(channel, log_time=t, data=payload, publish_time=t)
-            writer.finish()
-        os.replace(tmp, dst)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise RecordingError(f"cannot write {str(dst)!r}: {exc.strerror or exc}") from exc
+    with atomic_write(dst, "wb", what="recording", make_folder=True) as fh:
+        writer = Writer(fh, chunk_size=1 << 20, compression=CompressionType.ZSTD)
+        writer.start(profile="", library=f"rtsid {__version__} (convert)")
+        channel = register_channels(writer)["samples"]
+        writer.add_metadata("rtsid", metadata)
+        writer.add_metadata("config", {"json": encode_json(dict(run_config)).decode()})
+        for batch in samples.batches(batch_samples):
+            payload = encode_samples(
+                batch.first_index,
+                batch.fs_hz,
+                batch.position_rad,
+                batch.torque_nm,
+                batch.valid,
+                batch.status,
+            )
+            t = batch.log_time_ns
+            writer.add_message(channel, log_time=t, data=payload, publish_time=t)
+        writer.finish()
     return dst

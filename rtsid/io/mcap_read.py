@@ -15,7 +15,7 @@ import itertools
 import json
 import re
 import struct
-from collections.abc import Iterator
+from collections.abc import Generator, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -24,6 +24,7 @@ import numpy as np
 
 from rtsid import __version__
 from rtsid.errors import RecordingError
+from rtsid.io.files import atomic_write
 from rtsid.io.schemas import SCHEMAS, SampleBatch, decode_samples
 
 __all__ = [
@@ -92,7 +93,7 @@ def _open(path: str | Path) -> IO[bytes]:
         raise RecordingError(f"cannot open recording {str(p)!r}: {exc.strerror}") from exc
 
 
-def _iter_records(path: str | Path, report: ReadReport) -> Iterator[Any]:
+def _iter_records(path: str | Path, report: ReadReport) -> Generator[Any, None, None]:
     """Every complete record in file order (chunks opened); stops at the first damaged one."""
     from mcap.exceptions import EndOfFile, InvalidMagic
     from mcap.records import Chunk, Footer
@@ -123,6 +124,11 @@ def _iter_records(path: str | Path, report: ReadReport) -> Iterator[Any]:
                 )
                 return
             except damage as exc:
+                if first:
+                    raise RecordingError(
+                        f"{str(path)!r} is not an MCAP file (its header does not read: {exc}); "
+                        "pass an .mcap recording"
+                    ) from None
                 report.error = f"damaged record after {report.messages} messages: {exc}"
                 return
             first = False
@@ -303,65 +309,68 @@ def recover(
     Raises
     ------
     RecordingError
-        ``src`` unreadable or not MCAP, ``dst`` equal to ``src`` or existing (without
-        ``overwrite``), or ``dst`` not writable.
+        ``src`` missing, empty or not MCAP (checked before ``dst`` is touched), ``dst`` equal
+        to ``src`` or existing (without ``overwrite``), or ``dst`` not writable.
     """
-    from mcap.records import Channel, Message, Metadata, Schema
     from mcap.writer import CompressionType, Writer
 
     src_p, dst_p = Path(src), Path(dst)
     if src_p.resolve() == dst_p.resolve():
         raise RecordingError(f"recover would overwrite its input {str(src_p)!r}; pick another -o")
-    if dst_p.exists() and not overwrite:
-        raise RecordingError(f"{str(dst_p)!r} exists; remove it or pass --overwrite")
     report = ReadReport(src_p)
-    tmp = dst_p.with_name(dst_p.name + ".part")
-    try:
-        with tmp.open("wb") as out:
-            writer = Writer(out, chunk_size=chunk_size, compression=CompressionType.ZSTD)
-            writer.start(profile="", library=f"rtsid {__version__} (recover)")
-            schema_ids: dict[int, int] = {}
-            channel_ids: dict[int, int] = {}
-            topic_of: dict[int, str] = {}
-            for record in _iter_records(src_p, report):
-                if isinstance(record, Schema):
-                    schema_ids[record.id] = writer.register_schema(
-                        record.name, record.encoding, record.data
-                    )
-                elif isinstance(record, Channel):
-                    channel_ids[record.id] = writer.register_channel(
-                        record.topic,
-                        record.message_encoding,
-                        schema_ids.get(record.schema_id, 0),
-                        dict(record.metadata),
-                    )
-                    report.by_topic.setdefault(record.topic, 0)
-                    topic_of[channel_ids[record.id]] = record.topic
-                elif isinstance(record, Message) and record.channel_id in channel_ids:
-                    new_id = channel_ids[record.channel_id]
-                    writer.add_message(
-                        new_id, record.log_time, record.data, record.publish_time, record.sequence
-                    )
-                    report.messages += 1
-                    topic = topic_of[new_id]
-                    report.by_topic[topic] = report.by_topic.get(topic, 0) + 1
-                elif isinstance(record, Metadata):
-                    writer.add_metadata(record.name, dict(record.metadata))
-            writer.add_metadata(
-                "recovery",
-                {
-                    "source": str(src_p),
-                    "source_complete": str(report.complete).lower(),
-                    "messages": str(report.messages),
-                    "stopped_because": report.error or "",
-                },
-            )
-            writer.finish()
-        tmp.replace(dst_p)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise RecordingError(f"cannot write {str(dst_p)!r}: {exc.strerror or exc}") from exc
+    records = _iter_records(src_p, report)
+    header = next(records, None)  # a missing, empty or non-MCAP input fails here, not as output
+    if dst_p.exists() and not overwrite:
+        records.close()
+        raise RecordingError(f"{str(dst_p)!r} exists; remove it or pass --overwrite")
+    with atomic_write(dst_p, "wb", what="the recovered recording") as out:
+        writer = Writer(out, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+        writer.start(profile="", library=f"rtsid {__version__} (recover)")
+        _copy_records(itertools.chain([] if header is None else [header], records), writer, report)
+        writer.add_metadata(
+            "recovery",
+            {
+                "source": str(src_p),
+                "source_complete": str(report.complete).lower(),
+                "messages": str(report.messages),
+                "stopped_because": report.error or "",
+            },
+        )
+        writer.finish()
     return report
+
+
+def _copy_records(records: Iterable[Any], writer: Any, report: ReadReport) -> None:
+    """Schemas, channels, messages and metadata into ``writer`` (ids renumbered)."""
+    from mcap.records import Channel, Message, Metadata, Schema
+
+    schema_ids: dict[int, int] = {}
+    channel_ids: dict[int, int] = {}
+    topic_of: dict[int, str] = {}
+    for record in records:
+        if isinstance(record, Schema):
+            schema_ids[record.id] = writer.register_schema(
+                record.name, record.encoding, record.data
+            )
+        elif isinstance(record, Channel):
+            channel_ids[record.id] = writer.register_channel(
+                record.topic,
+                record.message_encoding,
+                schema_ids.get(record.schema_id, 0),
+                dict(record.metadata),
+            )
+            report.by_topic.setdefault(record.topic, 0)
+            topic_of[channel_ids[record.id]] = record.topic
+        elif isinstance(record, Message) and record.channel_id in channel_ids:
+            new_id = channel_ids[record.channel_id]
+            writer.add_message(
+                new_id, record.log_time, record.data, record.publish_time, record.sequence
+            )
+            report.messages += 1
+            topic = topic_of[new_id]
+            report.by_topic[topic] = report.by_topic.get(topic, 0) + 1
+        elif isinstance(record, Metadata):
+            writer.add_metadata(record.name, dict(record.metadata))
 
 
 def summarize(path: str | Path) -> ReadReport:
