@@ -36,7 +36,7 @@ from rtsid import __version__
 from rtsid.errors import ConfigError, InputDataError, RecordingError
 from rtsid.ident.robot import RobotDynamics, identify_robot
 from rtsid.io.files import atomic_write
-from rtsid.io.mcap_read import iter_sample_batches, read_run_config
+from rtsid.io.recording import read_recording
 from rtsid.io.sample_files import load_samples
 from rtsid.link.protocol import (
     STATUS_DISCONTINUITY,
@@ -204,7 +204,8 @@ def read_samples(path: str | Path, fs_hz: float | None = None) -> SampleRows:
     Parameters
     ----------
     path : str or Path
-        ``.mcap`` (rows lost by the link or the logger become unusable rows), ``.npz`` or
+        ``.mcap`` (read by :func:`rtsid.io.recording.read_recording`: every part of a rotated
+        session; rows lost by the link or the logger become unusable rows), ``.npz`` or
         ``.csv`` (non-finite values are unusable).
     fs_hz : float, optional
         Rate of a CSV without a time column.
@@ -219,33 +220,18 @@ def read_samples(path: str | Path, fs_hz: float | None = None) -> SampleRows:
 
 
 def _read_mcap_rows(path: Path) -> SampleRows:
-    pos: list[FloatArray] = []
-    tq: list[FloatArray] = []
-    ok: list[NDArray[np.bool_]] = []
-    brk: list[NDArray[np.bool_]] = []
-    end = None
-    rate = None
-    for batch in iter_sample_batches(path):
-        rate = batch.fs_hz if rate is None else rate
-        skip = 0 if end is None else max(0, end - batch.first_index)
-        missing = 0 if end is None else max(0, batch.first_index - end)
-        if missing:
-            pos.append(np.full(missing, np.nan))
-            tq.append(np.full(missing, np.nan))
-            ok.append(np.zeros(missing, dtype=bool))
-            brk.append(np.zeros(missing, dtype=bool))
-        status = np.asarray(batch.status[skip:], dtype=np.int64)
-        pos.append(batch.position_rad[skip:])
-        tq.append(batch.torque_nm[skip:])
-        ok.append(batch.valid[skip:] & ((status & _BAD_STATUS) == 0))
-        brk.append((status & STATUS_DISCONTINUITY) != 0)
-        end = max(end or 0, batch.end_index)
-    if rate is None:
-        raise RecordingError(f"{path}: no /samples messages; is it an rtsid recording?")
-    position, torque = np.concatenate(pos), np.concatenate(tq)
-    usable = np.concatenate(ok) & np.isfinite(position) & np.isfinite(torque)
+    recording = read_recording(path)
+    rows = recording.samples.all_rows()
+    status = rows.status
+    usable = (
+        rows.valid
+        & ((status & _BAD_STATUS) == 0)
+        & np.isfinite(rows.position_rad)
+        & np.isfinite(rows.torque_nm)
+    )
+    breaks = (status & STATUS_DISCONTINUITY) != 0
     return SampleRows(
-        position, torque, usable, np.concatenate(brk), float(rate), read_run_config(path)
+        rows.position_rad, rows.torque_nm, usable, breaks, rows.fs_hz, recording.config
     )
 
 

@@ -32,7 +32,8 @@ from rtsid.config import section_from_mapping
 from rtsid.errors import InputDataError, RecordingError, RtsidError
 from rtsid.ident.skirt import LtvEstimate, SecondOrderTrack, identify_ltv, max_stable_basis
 from rtsid.io.files import atomic_write, read_npz
-from rtsid.io.mcap_read import iter_sample_batches, read_run_config, recording_parts
+from rtsid.io.mcap_read import read_run_config
+from rtsid.io.recording import read_recording
 from rtsid.link.config import TorqueMultisineConfig, plant_config_from_mapping
 from rtsid.link.signals import PlantTruth
 from rtsid.sim.ltv import multisine_experiment
@@ -218,24 +219,11 @@ def _declared_multisine(document: dict[str, Any], path: Path) -> TorqueMultisine
 
 
 def _recorded_rows(path: Path) -> tuple[int, float, FloatArray, FloatArray, NDArray[np.bool_]]:
-    """All rows of the recording session (every part of a rotated one, in order) on one
-    index grid: ``(first, fs_hz, position, torque, valid)``; rows no batch carried (logger
-    drops) are invalid."""
-    batches = [b for part in recording_parts(path) for b in iter_sample_batches(part)]
-    if not batches:
-        raise RecordingError(
-            f"recording {str(path)!r} has no /samples messages; it holds no experiment"
-        )
-    first = min(b.first_index for b in batches)
-    end = max(b.end_index for b in batches)
-    position = np.full(end - first, np.nan)
-    torque = np.full(end - first, np.nan)
-    valid = np.zeros(end - first, dtype=bool)
-    for b in batches:
-        rows = slice(b.first_index - first, b.end_index - first)
-        position[rows], torque[rows], valid[rows] = b.position_rad, b.torque_nm, b.valid
-    valid &= np.isfinite(position) & np.isfinite(torque)
-    return first, float(batches[0].fs_hz), position, torque, valid
+    """All rows of the recording session on one index grid (the one recording reader):
+    ``(first, fs_hz, position, torque, valid)``; lost rows and non-finite values are invalid."""
+    rows = read_recording(path).samples.all_rows()
+    valid = rows.valid & np.isfinite(rows.position_rad) & np.isfinite(rows.torque_nm)
+    return rows.first_index, rows.fs_hz, rows.position_rad, rows.torque_nm, valid
 
 
 def _longest_whole_periods(

@@ -20,8 +20,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-import numpy as np
-
 from rtsid import __version__
 from rtsid.errors import RecordingError
 from rtsid.io.files import atomic_write
@@ -43,6 +41,9 @@ __all__ = [
     "summarize",
 ]
 
+_STOPPED = (
+    "the writer stopped before finishing the file: kill -9, a crash, a full disk or a torn copy"
+)
 TOPICS = {name: topic for name, (_schema, topic) in SCHEMAS.items()}
 
 
@@ -59,6 +60,8 @@ class ReadReport:
         Messages per topic.
     complete : bool
         The footer was reached (the file was finished properly).
+    bytes_read : int
+        Bytes of the file up to the end of the last complete record read.
     error : str or None
         Why reading stopped early (truncated record, bad CRC, …); None when complete.
     """
@@ -68,6 +71,7 @@ class ReadReport:
     by_topic: dict[str, int] = field(default_factory=dict)
     complete: bool = False
     error: str | None = None
+    bytes_read: int = 0
 
 
 def _damage_errors() -> tuple[type[BaseException], ...]:
@@ -118,10 +122,7 @@ def _iter_records(path: str | Path, report: ReadReport) -> Generator[Any, None, 
                     raise RecordingError(
                         f"{str(path)!r} is empty or shorter than an MCAP header; nothing to read"
                     ) from None
-                report.error = (
-                    "no footer: the writer stopped before finishing the file "
-                    "(kill -9, crash or full disk)"
-                )
+                report.error = f"without its footer ({_STOPPED})"
                 return
             except damage as exc:
                 if first:
@@ -129,7 +130,11 @@ def _iter_records(path: str | Path, report: ReadReport) -> Generator[Any, None, 
                         f"{str(path)!r} is not an MCAP file (its header does not read: {exc}); "
                         "pass an .mcap recording"
                     ) from None
-                report.error = f"damaged record after {report.messages} messages: {exc}"
+                report.error = (
+                    f"without its footer (cut off inside a record: {_STOPPED})"
+                    if not fh.read(1)
+                    else f"damaged record after {report.messages} messages: {exc}"
+                )
                 return
             first = False
             if isinstance(record, Chunk):
@@ -138,8 +143,10 @@ def _iter_records(path: str | Path, report: ReadReport) -> Generator[Any, None, 
                 except damage as exc:
                     report.error = f"damaged chunk after {report.messages} messages: {exc}"
                     return
+                report.bytes_read = fh.tell()
                 yield from inner
             else:
+                report.bytes_read = fh.tell()
                 if isinstance(record, Footer):
                     report.complete = True
                 yield record
@@ -179,15 +186,18 @@ def iter_messages(
             yield channel.topic, channel, record
 
 
-def _iter_topic(path: str | Path, name: str) -> Iterator[Any]:
+def _iter_topic(path: str | Path, name: str, report: ReadReport | None) -> Iterator[Any]:
     topic = TOPICS[name]
-    for t, _channel, message in iter_messages(path):
+    for t, _channel, message in iter_messages(path, report):
         if t == topic:
             yield message
 
 
-def iter_sample_batches(path: str | Path) -> Iterator[SampleBatch]:
-    """Raw sample batches in recording order, as numpy arrays.
+def iter_sample_batches(
+    path: str | Path, report: ReadReport | None = None
+) -> Iterator[SampleBatch]:
+    """Raw sample batches of one file in recording order, as numpy arrays (``report`` as in
+    :func:`iter_messages`). To read a recording as samples, use :mod:`rtsid.io.recording`.
 
     Yields
     ------
@@ -197,19 +207,19 @@ def iter_sample_batches(path: str | Path) -> Iterator[SampleBatch]:
         contiguous unless samples were dropped by the logger (then ``first_index`` jumps: a
         gap, never bridged).
     """
-    for message in _iter_topic(path, "samples"):
+    for message in _iter_topic(path, "samples", report):
         yield decode_samples(message.data, message.log_time)
 
 
-def iter_estimates(path: str | Path) -> Iterator[dict[str, Any]]:
-    """Estimate messages (dicts following ESTIMATE_SCHEMA; null numbers → NaN-free None)."""
-    for message in _iter_topic(path, "estimate"):
+def iter_estimates(path: str | Path, report: ReadReport | None = None) -> Iterator[dict[str, Any]]:
+    """Estimate messages of one file (dicts following ESTIMATE_SCHEMA; null numbers → None)."""
+    for message in _iter_topic(path, "estimate", report):
         yield json.loads(message.data)
 
 
 def iter_status(path: str | Path) -> Iterator[dict[str, Any]]:
     """Status messages (dicts following STATUS_SCHEMA)."""
-    for message in _iter_topic(path, "status"):
+    for message in _iter_topic(path, "status", None):
         yield json.loads(message.data)
 
 
@@ -217,7 +227,7 @@ def iter_can_frames(path: str | Path) -> Iterator[Any]:
     """Raw CAN frames (``can.Message``) from the optional ``/can_frames`` channel."""
     import can
 
-    for message in _iter_topic(path, "can_frames"):
+    for message in _iter_topic(path, "can_frames", None):
         for f in json.loads(message.data)["frames"]:
             yield can.Message(
                 timestamp=f["timestamp_s"],
@@ -379,24 +389,3 @@ def summarize(path: str | Path) -> ReadReport:
     for _ in iter_messages(path, report):
         pass
     return report
-
-
-def concat_samples(batches: list[SampleBatch]) -> SampleBatch:
-    """Join contiguous batches into one (offline helper; raises if they are not contiguous)."""
-    if not batches:
-        raise RecordingError("no sample batches to join; the recording has no /samples messages")
-    for a, b in itertools.pairwise(batches):
-        if b.first_index != a.end_index:
-            raise RecordingError(
-                f"sample batches are not contiguous ({a.end_index} then {b.first_index}); "
-                "a gap must not be bridged — process the parts separately"
-            )
-    return SampleBatch(
-        first_index=batches[0].first_index,
-        fs_hz=batches[0].fs_hz,
-        position_rad=np.concatenate([b.position_rad for b in batches]),
-        torque_nm=np.concatenate([b.torque_nm for b in batches]),
-        valid=np.concatenate([b.valid for b in batches]),
-        status=np.concatenate([b.status for b in batches]),
-        log_time_ns=batches[0].log_time_ns,
-    )
