@@ -34,10 +34,10 @@ from rtsid.io.files import atomic_write
 from rtsid.io.mcap_log import register_channels
 from rtsid.io.sample_files import load_samples
 from rtsid.io.schemas import SampleBatch, encode_json, encode_samples
+from rtsid.link import protocol
 from rtsid.link.acquisition import unwrap_counter
 from rtsid.link.protocol import (
     COMMAND_ID,
-    COUNTER_MODULO,
     DIAGNOSTICS_ID,
     POSITION_SCALE_RAD,
     STATE_ID,
@@ -266,7 +266,7 @@ def rate_from_timestamps(times_s: NDArray[np.float64], counters: NDArray[np.int6
     InputDataError
         Fewer than 16 timestamped frames, or no time passes between them.
     """
-    modulo = COUNTER_MODULO
+    modulo = protocol.COUNTER_MODULO
     steps = (np.diff(counters) + modulo // 2) % modulo - modulo // 2  # signed: late frames < 0
     elapsed = np.diff(times_s)
     if steps.size < 16 or not np.all(np.isfinite(elapsed)):
