@@ -23,7 +23,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -36,7 +35,8 @@ from numpy.typing import NDArray
 from rtsid import __version__
 from rtsid.errors import ConfigError, InputDataError, RecordingError
 from rtsid.ident.robot import RobotDynamics, identify_robot
-from rtsid.io.mcap_read import iter_sample_batches, read_run_config
+from rtsid.io.files import atomic_write
+from rtsid.io.recording import read_recording
 from rtsid.io.sample_files import load_samples
 from rtsid.link.protocol import (
     STATUS_DISCONTINUITY,
@@ -130,25 +130,11 @@ class Calibration:
 
 
 def save_calibration(calibration: Calibration, path: str | Path) -> Path:
-    """Write the calibration as JSON, atomically (a temporary file renamed into place)."""
+    """Write the calibration as JSON, atomically (:func:`rtsid.io.files.atomic_write`)."""
     out = Path(path)
-    text = json.dumps(calibration.as_dict(), indent=1) + "\n"
-    try:
-        _write_atomically(out, text)
-    except OSError as exc:
-        raise RecordingError(
-            f"cannot write calibration {str(out)!r}: {exc.strerror or exc}"
-        ) from exc
+    with atomic_write(out, what="calibration", make_folder=True) as fh:
+        fh.write(json.dumps(calibration.as_dict(), indent=1) + "\n")
     return out
-
-
-def _write_atomically(path: Path, text: str) -> None:
-    """Write ``text`` to a temporary file beside ``path`` and rename it into place."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
-    with os.fdopen(fd, "w", encoding="utf-8") as fh:
-        fh.write(text)
-    os.replace(tmp, path)
 
 
 def load_calibration(path: str | Path) -> Calibration:
@@ -218,7 +204,8 @@ def read_samples(path: str | Path, fs_hz: float | None = None) -> SampleRows:
     Parameters
     ----------
     path : str or Path
-        ``.mcap`` (rows lost by the link or the logger become unusable rows), ``.npz`` or
+        ``.mcap`` (read by :func:`rtsid.io.recording.read_recording`: every part of a rotated
+        session; rows lost by the link or the logger become unusable rows), ``.npz`` or
         ``.csv`` (non-finite values are unusable).
     fs_hz : float, optional
         Rate of a CSV without a time column.
@@ -233,33 +220,18 @@ def read_samples(path: str | Path, fs_hz: float | None = None) -> SampleRows:
 
 
 def _read_mcap_rows(path: Path) -> SampleRows:
-    pos: list[FloatArray] = []
-    tq: list[FloatArray] = []
-    ok: list[NDArray[np.bool_]] = []
-    brk: list[NDArray[np.bool_]] = []
-    end = None
-    rate = None
-    for batch in iter_sample_batches(path):
-        rate = batch.fs_hz if rate is None else rate
-        skip = 0 if end is None else max(0, end - batch.first_index)
-        missing = 0 if end is None else max(0, batch.first_index - end)
-        if missing:
-            pos.append(np.full(missing, np.nan))
-            tq.append(np.full(missing, np.nan))
-            ok.append(np.zeros(missing, dtype=bool))
-            brk.append(np.zeros(missing, dtype=bool))
-        status = np.asarray(batch.status[skip:], dtype=np.int64)
-        pos.append(batch.position_rad[skip:])
-        tq.append(batch.torque_nm[skip:])
-        ok.append(batch.valid[skip:] & ((status & _BAD_STATUS) == 0))
-        brk.append((status & STATUS_DISCONTINUITY) != 0)
-        end = max(end or 0, batch.end_index)
-    if rate is None:
-        raise RecordingError(f"{path}: no /samples messages; is it an rtsid recording?")
-    position, torque = np.concatenate(pos), np.concatenate(tq)
-    usable = np.concatenate(ok) & np.isfinite(position) & np.isfinite(torque)
+    recording = read_recording(path)
+    rows = recording.samples.all_rows()
+    status = rows.status
+    usable = (
+        rows.valid
+        & ((status & _BAD_STATUS) == 0)
+        & np.isfinite(rows.position_rad)
+        & np.isfinite(rows.torque_nm)
+    )
+    breaks = (status & STATUS_DISCONTINUITY) != 0
     return SampleRows(
-        position, torque, usable, np.concatenate(brk), float(rate), read_run_config(path)
+        rows.position_rad, rows.torque_nm, usable, breaks, rows.fs_hz, recording.config
     )
 
 
@@ -389,10 +361,10 @@ def _cached_calibration(text: str) -> Path:
     if path.is_file():
         return path
     try:
-        _write_atomically(path, text)
-    except OSError as exc:
+        with atomic_write(path, what="cached calibration", make_folder=True) as fh:
+            fh.write(text)
+    except RecordingError as exc:
         raise RecordingError(
-            f"cannot store the recording's calibration in {str(path.parent)!r} "
-            f"({exc.strerror or exc}); set XDG_CACHE_HOME to a writable folder"
+            f"{exc} (the recording's calibration is cached there: or set XDG_CACHE_HOME)"
         ) from None
     return path

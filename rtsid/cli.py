@@ -3,6 +3,12 @@
 Each command module defines ``add_arguments(parser)`` and ``run(args) -> int``. Errors that
 rtsid raises on purpose (:class:`rtsid.errors.RtsidError`) print as one line naming the
 problem and the fix, and exit with status 2; nothing partial is left behind by the command.
+Warnings rtsid issues on purpose (:class:`rtsid.errors.RtsidWarning`) print as one line each.
+
+Exit status: 0 done; 2 an error (nothing written); 3 done, but a recording it read ended
+early (:class:`rtsid.errors.IncompleteRecordingWarning`): the outputs are complete and correct
+for the part that could be read, and the warning says how much that was — a script must not
+take them for the whole recording without looking; 130 interrupted.
 """
 
 from __future__ import annotations
@@ -16,12 +22,14 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import contextlib  # noqa: E402
 import importlib  # noqa: E402
 import sys  # noqa: E402
-from collections.abc import Sequence  # noqa: E402
+import warnings  # noqa: E402
+from collections.abc import Iterator, Sequence  # noqa: E402
 
 from rtsid import __version__  # noqa: E402
-from rtsid.errors import RtsidError  # noqa: E402
+from rtsid.errors import IncompleteRecordingWarning, RtsidError, RtsidWarning  # noqa: E402
 
 # name -> (module, one-line help). Add a command by adding a line here.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -60,6 +68,28 @@ def build_parser(commands: Sequence[str] | None = None) -> argparse.ArgumentPars
     return parser
 
 
+EXIT_INCOMPLETE = 3
+
+
+@contextlib.contextmanager
+def _one_line_warnings(command: str) -> Iterator[list[str]]:
+    """Print rtsid's own warnings as ``rtsid CMD: warning: …`` lines (others as Python does);
+    yields the list of incomplete-recording warnings seen."""
+    incomplete: list[str] = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", RtsidWarning)
+        try:
+            yield incomplete
+        finally:
+            for w in caught:
+                if not issubclass(w.category, RtsidWarning):
+                    warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+                    continue
+                print(f"rtsid {command}: warning: {w.message}", file=sys.stderr)
+                if issubclass(w.category, IncompleteRecordingWarning):
+                    incomplete.append(str(w.message))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``rtsid`` console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -70,7 +100,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 0
     try:
-        return int(args._module.run(args) or 0)
+        with _one_line_warnings(args.command) as incomplete:
+            code = int(args._module.run(args) or 0)
+        return EXIT_INCOMPLETE if code == 0 and incomplete else code
     except RtsidError as exc:
         print(f"rtsid {args.command}: error: {exc}", file=sys.stderr)
         return 2

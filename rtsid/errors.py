@@ -14,6 +14,11 @@
 
 Each class also subclasses the built-in it resembles, so callers that catch ``ValueError``
 or ``OSError`` keep working.
+
+Warnings (work went on, but the user must hear of it; the CLI prints each as one line)::
+
+    RtsidWarning(UserWarning)
+    └── IncompleteRecordingWarning       a recording ended early; says how much was read
 """
 
 from __future__ import annotations
@@ -78,3 +83,11 @@ class RecordingError(RtsidError, OSError):
 
 class ServiceError(RtsidError, RuntimeError):
     """The daemon's threads, zenoh session or scheduling failed."""
+
+
+class RtsidWarning(UserWarning):
+    """Base class of the warnings rtsid issues on purpose."""
+
+
+class IncompleteRecordingWarning(RtsidWarning):
+    """A recording ended before its footer; the message says how much of it was read."""

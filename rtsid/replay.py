@@ -4,8 +4,10 @@ The live worker estimates windows that end on a fixed grid of sample indices, so
 recording's samples with the recording's own configuration gives the same windows and the
 same numbers. Replay is a plain iterator (:func:`iter_windows` over sample batches);
 pacing in real time is a separate wrapper (:func:`paced`). Gaps in a recording — lost samples
-logged as invalid rows, or batches missing from a file cut short — are respected: windows
-across them are withheld with reason ``"gap"``, never bridged.
+logged as invalid rows, or batches the logger dropped — are respected: windows across them
+are withheld with reason ``"gap"``, never bridged. Recordings are read with the one recording
+reader (:mod:`rtsid.io.recording`): the parts of a rotated session replay as one, and a file
+cut short replays to its last complete message with a warning saying how much was read.
 """
 
 from __future__ import annotations
@@ -23,12 +25,8 @@ import numpy as np
 from rtsid import __version__
 from rtsid.calibrate import robot_torque_offset, with_recorded_calibration
 from rtsid.errors import RecordingError
-from rtsid.io.mcap_read import (
-    iter_sample_batches,
-    read_metadata,
-    run_config_from_metadata,
-    sample_count,
-)
+from rtsid.io.mcap_read import read_metadata, run_config_from_metadata, sample_count
+from rtsid.io.recording import SampleGrid, iter_batches, session_parts
 from rtsid.io.schemas import ESTIMATE_FIELDS, SCHEMAS, SampleBatch, encode_estimate, encode_json
 from rtsid.link.ring import Snapshot
 from rtsid.runtime.daemon import DaemonConfig
@@ -57,71 +55,37 @@ def recording_config(path: str | Path) -> DaemonConfig:
     )
 
 
-class _Tail:
-    """The newest rows of a recording, grown per batch and trimmed to what windows need."""
-
-    def __init__(self, keep: int) -> None:
-        self.keep = keep
-        self.first = -1
-        self.position = np.empty(0)
-        self.torque = np.empty(0)
-        self.valid = np.empty(0, dtype=bool)
-        self.status = np.empty(0, dtype=np.uint8)
-
-    @property
-    def end(self) -> int:
-        """Index one past the newest row."""
-        return self.first + self.position.size
-
-    def add(self, batch: SampleBatch) -> None:
-        if self.first < 0:
-            self.first = batch.first_index
-        skip = max(0, self.end - batch.first_index)  # rows already seen (overlap)
-        missing = max(0, batch.first_index - self.end)  # rows no batch carried: a gap
-        gap_nan = np.full(missing, np.nan)
-        rows = slice(skip, None)
-        self.position = np.concatenate((self.position, gap_nan, batch.position_rad[rows]))
-        self.torque = np.concatenate((self.torque, gap_nan, batch.torque_nm[rows]))
-        self.valid = np.concatenate((self.valid, np.zeros(missing, bool), batch.valid[rows]))
-        status = np.asarray(batch.status[rows], dtype=np.uint8)
-        self.status = np.concatenate((self.status, np.zeros(missing, np.uint8), status))
-
-    def window(self, end_index: int, n: int) -> Snapshot:
-        lo = end_index - n + 1 - self.first
-        hi = lo + n
-        return Snapshot(
-            sample_index=np.arange(end_index - n + 1, end_index + 1, dtype=np.int64),
-            position_rad=self.position[lo:hi],
-            torque_nm=self.torque[lo:hi],
-            valid=self.valid[lo:hi],
-            status=self.status[lo:hi],
-            host_time_s=np.zeros(n),
-            bus_time_s=np.full(n, np.nan),
-        )
-
-    def trim(self, oldest_needed: int) -> None:
-        drop = oldest_needed - self.first
-        if drop > self.keep:  # trim in large steps: concatenation stays rare
-            self.first += drop
-            self.position = self.position[drop:]
-            self.torque = self.torque[drop:]
-            self.valid = self.valid[drop:]
-            self.status = self.status[drop:]
-
-
 def iter_windows(batches: Iterable[SampleBatch], worker: WindowWorker) -> Iterator[Snapshot]:
-    """Every grid window the batches complete, oldest first (the live daemon's windows)."""
+    """Every grid window the batches complete, oldest first (the live daemon's windows).
+
+    Rows go onto a :class:`~rtsid.io.recording.SampleGrid` (gaps as invalid rows) that keeps
+    only what the next windows need, so a long recording replays in bounded memory.
+    """
     n = worker.window_samples
-    tail = _Tail(keep=8 * n)
-    next_end: int | None = None
+    grid: SampleGrid | None = None
+    next_end = 0
     for batch in batches:
-        tail.add(batch)
-        if next_end is None:
-            next_end = worker.first_window_end(tail.first)
-        while next_end < tail.end:
-            yield tail.window(next_end, n)
+        if grid is None:
+            grid = SampleGrid(batch.first_index, batch.fs_hz, capacity=8 * n)
+            next_end = worker.first_window_end(grid.first_index)
+        grid.append(batch)
+        while next_end < grid.end_index:
+            yield _snapshot(grid.rows(next_end - n + 1, next_end + 1))
             next_end += worker.hop_samples
-        tail.trim(next_end - n + 1)
+        grid.drop_before(next_end - n + 1)
+
+
+def _snapshot(rows: SampleBatch) -> Snapshot:
+    n = len(rows)
+    return Snapshot(
+        sample_index=np.arange(rows.first_index, rows.end_index, dtype=np.int64),
+        position_rad=rows.position_rad,
+        torque_nm=rows.torque_nm,
+        valid=rows.valid,
+        status=rows.status,
+        host_time_s=np.zeros(n),
+        bus_time_s=np.full(n, np.nan),
+    )
 
 
 def paced(
@@ -145,6 +109,7 @@ class ReplayResult:
     """What a replay produced."""
 
     source: str
+    parts: list[Path] = field(default_factory=list)
     messages: list[dict[str, Any]] = field(default_factory=list)
     samples: int = 0
     duration_s: float = 0.0
@@ -181,7 +146,8 @@ def replay_file(
     Parameters
     ----------
     path : str or Path
-        An rtsid MCAP recording (footer-less or truncated ones too).
+        An rtsid MCAP recording (footer-less or truncated ones too); given any part of a
+        rotated session, every part is replayed, in order, as one recording.
     config : DaemonConfig, optional
         Default: the recording's own configuration (so the estimates equal the logged ones).
     rate : float, optional
@@ -194,9 +160,15 @@ def replay_file(
     Returns
     -------
     ReplayResult
+
+    Warns
+    -----
+    IncompleteRecordingWarning
+        A part ended early (see :mod:`rtsid.io.recording`); its complete messages are replayed.
     """
-    config = config or recording_config(path)
-    result = ReplayResult(source=str(path))
+    parts = session_parts(path)
+    config = config or recording_config(parts[0])
+    result = ReplayResult(source=str(path), parts=parts)
 
     def sink(message: dict[str, Any]) -> None:
         result.messages.append(message)
@@ -213,8 +185,8 @@ def replay_file(
         joint=config.zenoh.joint,
         torque_offset=robot_torque_offset(config.worker.calibration_file, config.link.fs_hz),
     )
-    total = sample_count(path) if progress is not None else 0
-    batches: Iterable[SampleBatch] = _counted(iter_sample_batches(path), result, progress, total)
+    total = sum(sample_count(p) for p in parts) if progress is not None else 0
+    batches: Iterable[SampleBatch] = _counted(iter_batches(parts), result, progress, total)
     if rate is not None:
         batches = paced(batches, rate)
     started = time.perf_counter()

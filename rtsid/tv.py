@@ -21,8 +21,6 @@ Recording formats:
 
 from __future__ import annotations
 
-import io
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -33,7 +31,9 @@ from numpy.typing import NDArray
 from rtsid.config import section_from_mapping
 from rtsid.errors import InputDataError, RecordingError, RtsidError
 from rtsid.ident.skirt import LtvEstimate, SecondOrderTrack, identify_ltv, max_stable_basis
-from rtsid.io.mcap_read import iter_sample_batches, read_run_config, recording_parts
+from rtsid.io.files import atomic_write, read_npz
+from rtsid.io.mcap_read import read_run_config
+from rtsid.io.recording import read_recording
 from rtsid.link.config import TorqueMultisineConfig, plant_config_from_mapping
 from rtsid.link.signals import PlantTruth
 from rtsid.sim.ltv import multisine_experiment
@@ -113,28 +113,25 @@ def load_tv_npz(path: str | Path, *, trim: bool = False) -> TvData:
 
     Raises
     ------
+    InputDataError
+        Missing, empty or unreadable file, or a required array missing.
     RecordingError
-        Missing or unreadable file, or a required array missing.
+        A scalar that is not one finite number.
     """
     p = Path(path)
-    try:
-        with np.load(p, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except FileNotFoundError:
-        raise RecordingError(f"recording {str(p)!r} does not exist; check the path") from None
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise RecordingError(f"recording {str(p)!r} is not a readable .npz file: {exc}") from None
-    missing = [k for k in REQUIRED if k not in arrays]
-    if missing:
-        raise RecordingError(
-            f"recording {str(p)!r} lacks {', '.join(missing)}; a time-varying experiment needs "
-            f"{', '.join(REQUIRED)} (make one with 'rtsid tv --simulate CS3 -o exp.npz')"
-        )
+    arrays = read_npz(
+        p, REQUIRED, hint="make a time-varying experiment with 'rtsid tv --simulate CS3 -o exp.npz'"
+    )
     period = int(_scalar(arrays, "period_samples", p))
     torque = np.asarray(arrays["torque_nm"], dtype=np.float64)
     position = np.asarray(arrays["position_rad"], dtype=np.float64)
     truth = arrays.get("stiffness_nm_per_rad")
     n = torque.size
+    if n == 0 or position.size != n:
+        raise InputDataError(
+            f"recording {str(p)!r}: torque_nm ({n}) and position_rad ({position.size}) must hold "
+            "the same, non-zero number of samples"
+        )
     if trim and period > 0 and n % period:
         n = (n // period) * period
         if n == 0:
@@ -222,24 +219,11 @@ def _declared_multisine(document: dict[str, Any], path: Path) -> TorqueMultisine
 
 
 def _recorded_rows(path: Path) -> tuple[int, float, FloatArray, FloatArray, NDArray[np.bool_]]:
-    """All rows of the recording session (every part of a rotated one, in order) on one
-    index grid: ``(first, fs_hz, position, torque, valid)``; rows no batch carried (logger
-    drops) are invalid."""
-    batches = [b for part in recording_parts(path) for b in iter_sample_batches(part)]
-    if not batches:
-        raise RecordingError(
-            f"recording {str(path)!r} has no /samples messages; it holds no experiment"
-        )
-    first = min(b.first_index for b in batches)
-    end = max(b.end_index for b in batches)
-    position = np.full(end - first, np.nan)
-    torque = np.full(end - first, np.nan)
-    valid = np.zeros(end - first, dtype=bool)
-    for b in batches:
-        rows = slice(b.first_index - first, b.end_index - first)
-        position[rows], torque[rows], valid[rows] = b.position_rad, b.torque_nm, b.valid
-    valid &= np.isfinite(position) & np.isfinite(torque)
-    return first, float(batches[0].fs_hz), position, torque, valid
+    """All rows of the recording session on one index grid (the one recording reader):
+    ``(first, fs_hz, position, torque, valid)``; lost rows and non-finite values are invalid."""
+    rows = read_recording(path).samples.all_rows()
+    valid = rows.valid & np.isfinite(rows.position_rad) & np.isfinite(rows.torque_nm)
+    return rows.first_index, rows.fs_hz, rows.position_rad, rows.torque_nm, valid
 
 
 def _longest_whole_periods(
@@ -293,16 +277,8 @@ def simulate_to_npz(
     angle (``position_clean_rad``).
     """
     exp = multisine_experiment(case, spacing_hz=spacing_hz, snr_db=snr_db, seed=seed)
-    buffer = io.BytesIO()
-    np.savez_compressed(buffer, **exp.as_npz_dict())  # type: ignore[arg-type]
-    target = Path(path)
-    partial = target.with_name(target.name + ".partial")
-    try:  # never leave a half-written recording under the final name
-        partial.write_bytes(buffer.getvalue())
-        partial.replace(target)
-    except OSError as exc:
-        partial.unlink(missing_ok=True)
-        raise RecordingError(f"cannot write {str(path)!r}: {exc}") from None
+    with atomic_write(path, "wb", what="experiment") as fh:
+        np.savez_compressed(fh, **exp.as_npz_dict())  # type: ignore[arg-type]
     return TvData(
         exp.torque_nm,
         exp.position_rad,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import re
 import shutil
 from pathlib import Path
 
@@ -10,7 +11,9 @@ import numpy as np
 import pytest
 
 from rtsid.cli import main
+from rtsid.errors import IncompleteRecordingWarning
 from rtsid.io.mcap_read import iter_estimates
+from rtsid.io.recording import read_estimates, session_parts
 from rtsid.replay import replay_file
 from rtsid.runtime.daemon import Daemon, DaemonConfig
 
@@ -72,8 +75,14 @@ def test_a_recording_cut_short_replays_up_to_the_cut(tmp_path):
     cut = tmp_path / "cut.mcap"
     data = (REFERENCE / "sim_3s.mcap").read_bytes()
     cut.write_bytes(data[: int(len(data) * 0.6)])  # no footer, last chunk torn
-    partial = by_window(replay_file(cut).messages)
-    assert 0 < len(partial) < len(full)
+    with pytest.warns(IncompleteRecordingWarning, match=r"read \d+ samples, [\d.]+ s") as caught:
+        result = replay_file(cut)
+    size_kib = int(len(data) * 0.6) / 1024
+    assert len(caught) == 1 and f"of {size_kib:.1f} KiB" in str(caught[0].message)
+    partial = by_window(result.messages)
+    said = re.search(r"read (\d+) samples", str(caught[0].message))
+    assert said and result.samples == int(said.group(1))
+    assert 0 < len(partial) < len(full) and 0 < result.samples < 7500
     assert_same_estimates(partial, by_window(full))
 
 
@@ -120,3 +129,19 @@ def test_replay_command_outputs_and_directories(tmp_path, capsys):
 def test_replay_errors_are_one_line(argv, message, capsys):
     assert main(argv) == 2
     assert message in capsys.readouterr().err
+
+
+def test_any_part_of_a_rotated_session_replays_the_whole_session_as_live(tmp_path, free_port):
+    config = DaemonConfig.from_mapping(
+        {
+            "zenoh": {"listen": [f"tcp/127.0.0.1:{free_port}"]},
+            "mcap": {"directory": str(tmp_path), "rotate_size_mb": 0.05, "chunk_size": 8192},
+        }
+    )
+    Daemon(config).run(duration_s=2.0)
+    parts = session_parts(next(tmp_path.glob("*.mcap")))
+    assert len(parts) >= 2  # rotated
+    live = by_window(read_estimates(parts))
+    replayed = by_window(replay_file(parts[-1]).messages)
+    assert len(live) > 60 and set(live) <= set(replayed)
+    assert_same_estimates(live, replayed)  # windows across the part boundary too, bit for bit

@@ -7,7 +7,13 @@ from dataclasses import replace
 from pathlib import Path
 
 from rtsid.errors import InputDataError
-from rtsid.io.convert import CAN_LOG_SUFFIXES, SAMPLE_FILE_SUFFIXES, read_source, write_recording
+from rtsid.io.convert import (
+    CAN_LOG_SUFFIXES,
+    SAMPLE_FILE_SUFFIXES,
+    check_estimable,
+    read_source,
+    write_recording,
+)
 from rtsid.runtime.daemon import DaemonConfig
 
 
@@ -20,7 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         metavar="HZ",
         help="sample rate: the robot's state-frame rate for CAN captures (default: the "
-        "--config's [link] fs_hz), or the rate of a CSV without a t_s column",
+        "--config's [link] fs_hz, else derived from the frames' timestamps), or the rate of a "
+        "CSV without a t_s column",
     )
     parser.add_argument(
         "--config",
@@ -65,6 +72,7 @@ def stored_config(config: DaemonConfig, fs_hz: float, torque_sign: float | None)
 def run(args: argparse.Namespace) -> int:
     config = DaemonConfig.load(args.config) if args.config else DaemonConfig()
     samples = read_source(args.input, _rate(args, config))
+    check_estimable(samples, config.worker.window_s, str(args.input))
     config = stored_config(config, samples.fs_hz, args.torque_sign)
     batch = max(1, round(config.daemon.sample_batch_s * samples.fs_hz))
     out = write_recording(
@@ -79,6 +87,8 @@ def run(args: argparse.Namespace) -> int:
     )
     c = samples.counters
     valid = int(samples.valid.sum())
+    if samples.rate_note:
+        print(f"{args.input}: {samples.rate_note}")
     print(
         f"{args.input}: {len(samples)} rows at {samples.fs_hz:g} Hz "
         f"({len(samples) / samples.fs_hz:.1f} s), {valid} valid"

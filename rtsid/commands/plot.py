@@ -20,7 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "recording",
         type=Path,
         nargs="+",
-        help="an .mcap with /estimate messages (several: the parts of a rotated session)",
+        help="an .mcap with /estimate messages (any part of a rotated session reads them all)",
     )
     parser.add_argument("-o", "--output", type=Path, required=True, help="the PNG to write")
     parser.add_argument("--hist", type=Path, metavar="PNG", help="also histograms of K, B, I, VAF")
@@ -53,13 +53,13 @@ def estimate_series(
 
 
 def run(args: argparse.Namespace) -> int:
-    from rtsid.io.mcap_read import iter_estimates
+    from rtsid.io.recording import read_estimates, session_parts
     from rtsid.plots import plot_distributions, plot_impedance_track, require_matplotlib
 
     require_matplotlib()
     messages = []
-    for path in args.recording:
-        found = list(iter_estimates(path))
+    for path in session_parts(args.recording):
+        found = read_estimates(path)
         if not found:
             raise InputDataError(
                 f"{path} has no /estimate messages (raw samples only?); estimate them first "

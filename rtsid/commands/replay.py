@@ -6,14 +6,17 @@ import argparse
 import concurrent.futures as cf
 import multiprocessing as mp
 import sys
+import warnings
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from rtsid.benchmarks.table import print_table
-from rtsid.errors import InputDataError
+from rtsid.errors import IncompleteRecordingWarning, InputDataError
 from rtsid.io.estimate_csv import open_output
+from rtsid.io.files import atomic_write
+from rtsid.io.recording import session_parts
 from rtsid.replay import (
     ReplayResult,
     recording_config,
@@ -62,7 +65,7 @@ def _write(result: ReplayResult, out: Path, config: DaemonConfig) -> None:
         with open_output(out) as fh:
             write_estimates_csv(result.messages, fh)
     elif out.suffix == ".mcap":
-        with out.open("wb") as fh:
+        with atomic_write(out, "wb", what="estimates") as fh:
             write_estimates_mcap(result.messages, fh, source=result.source, config=config)
     else:
         raise InputDataError(f"--out {out}: use a .csv or .mcap file name")
@@ -97,7 +100,21 @@ def _progress(done: int, total: int) -> None:
         sys.stderr.flush()
 
 
-def _replay_one(path: Path, args: argparse.Namespace, out: Path | None) -> list[Any]:
+def _replay_one(
+    path: Path, args: argparse.Namespace, out: Path | None
+) -> tuple[list[Any], list[str]]:
+    """Summary row and the incomplete-recording warnings (returned: a spawned child's
+    warnings would not reach the parent's command line)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", IncompleteRecordingWarning)
+        row = _replay_and_write(path, args, out)
+    for w in caught:
+        if not issubclass(w.category, IncompleteRecordingWarning):
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    return row, [str(w.message) for w in caught if w.category is IncompleteRecordingWarning]
+
+
+def _replay_and_write(path: Path, args: argparse.Namespace, out: Path | None) -> list[Any]:
     config = _config(args, path)
     publish = None
     publisher = None
@@ -120,8 +137,9 @@ def _replay_one(path: Path, args: argparse.Namespace, out: Path | None) -> list[
 
 
 def _replay_directory(folder: Path, args: argparse.Namespace) -> list[list[Any]]:
-    files = sorted(folder.glob("*.mcap"))
-    if not files:
+    """One job per recording: the parts of a rotated session replay together, as one."""
+    sessions = _sessions(sorted(folder.glob("*.mcap")))
+    if not sessions:
         raise InputDataError(f"{folder}: no .mcap recordings in this directory")
     out_dir = Path(args.out) if args.out else None
     if out_dir is not None:
@@ -133,9 +151,25 @@ def _replay_directory(folder: Path, args: argparse.Namespace) -> list[list[Any]]
     with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
         futures = [
             pool.submit(_replay_one, f, quiet, out_dir / f"{f.stem}.csv" if out_dir else None)
-            for f in files
+            for f in sessions
         ]
-        return [f.result() for f in futures]
+        return [_rewarn(*f.result()) for f in futures]
+
+
+def _sessions(files: list[Path]) -> list[Path]:
+    """The first part of each recording among ``files`` (other parts are read with it)."""
+    firsts: list[Path] = []
+    for f in files:
+        first = session_parts(f)[0]
+        if first not in firsts:
+            firsts.append(first)
+    return firsts
+
+
+def _rewarn(row: list[Any], incomplete: list[str]) -> list[Any]:
+    for message in incomplete:
+        warnings.warn(IncompleteRecordingWarning(message), stacklevel=2)
+    return row
 
 
 def run(args: argparse.Namespace) -> int:
@@ -146,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
         rows = _replay_directory(path, args)
     else:
         args.progress = True
-        rows = [_replay_one(path, args, Path(args.out) if args.out else None)]
+        rows = [_rewarn(*_replay_one(path, args, Path(args.out) if args.out else None))]
     print_table(
         "Replay",
         [

@@ -14,15 +14,14 @@ Sources:
 The output has the live logger's layout (:func:`rtsid.io.mcap_log.register_channels`):
 ``/samples`` batches, ``rtsid`` metadata (with ``converted_from`` and the import counters)
 and ``config`` metadata holding the configuration replay uses. It is written
-synchronously and completely (nothing is dropped), to ``OUT.part`` renamed into place.
+synchronously and completely (nothing is dropped), atomically (:func:`rtsid.io.files.atomic_write`).
 """
 
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -31,9 +30,11 @@ from numpy.typing import NDArray
 
 from rtsid import __version__
 from rtsid.errors import InputDataError, RecordingError
+from rtsid.io.files import atomic_write
 from rtsid.io.mcap_log import register_channels
 from rtsid.io.sample_files import load_samples
 from rtsid.io.schemas import SampleBatch, encode_json, encode_samples
+from rtsid.link import protocol
 from rtsid.link.acquisition import unwrap_counter
 from rtsid.link.protocol import (
     COMMAND_ID,
@@ -49,6 +50,9 @@ __all__ = [
     "SAMPLE_FILE_SUFFIXES",
     "ImportCounters",
     "ImportedSamples",
+    "check_estimable",
+    "derive_rate",
+    "rate_from_timestamps",
     "read_can_log",
     "read_sample_file",
     "read_source",
@@ -101,6 +105,8 @@ class ImportedSamples:
     source_format : str
         ``"candump"``, ``"asc"``, ``"blf"``, ``"trc"``, ``"npz"`` or ``"csv"``.
     counters : ImportCounters
+    rate_note : str
+        How ``fs_hz`` was derived when it was not given ("" when given).
     """
 
     first_index: int
@@ -112,6 +118,7 @@ class ImportedSamples:
     start_time_ns: int
     source_format: str
     counters: ImportCounters = field(default_factory=ImportCounters)
+    rate_note: str = ""
 
     def __len__(self) -> int:
         return int(self.position_rad.size)
@@ -241,6 +248,82 @@ def read_can_log(path: str | Path, fs_hz: float, *, reorder_window: int = 64) ->
     )
 
 
+RATE_BLOCK_FRAMES = 64
+
+
+def rate_from_timestamps(times_s: NDArray[np.float64], counters: NDArray[np.int64]) -> float:
+    """The state-frame rate, Hz, from the frames' timestamps and 12-bit counters.
+
+    The frames are cut into blocks of :data:`RATE_BLOCK_FRAMES` consecutive frames; each block
+    gives counter steps / elapsed time, and the rate is the median over blocks. A block
+    averages out timestamp jitter and bursts (USB adapters deliver frames in bunches) and the
+    microsecond quantisation of log files; the median ignores the few blocks a lost burst,
+    a stray frame or a clock step spoils. Within 0.01 % of a whole number of Hz, that number
+    is returned.
+
+    Raises
+    ------
+    InputDataError
+        Fewer than 16 timestamped frames, or no time passes between them.
+    """
+    modulo = protocol.COUNTER_MODULO
+    steps = (np.diff(counters) + modulo // 2) % modulo - modulo // 2  # signed: late frames < 0
+    elapsed = np.diff(times_s)
+    if steps.size < 16 or not np.all(np.isfinite(elapsed)):
+        raise InputDataError("too few timestamped state frames to derive the rate")
+    blocks = max(1, steps.size // RATE_BLOCK_FRAMES)
+    cut = blocks * (steps.size // blocks)
+    step_sums = steps[:cut].reshape(blocks, -1).sum(axis=1)
+    time_sums = elapsed[:cut].reshape(blocks, -1).sum(axis=1)
+    usable = (time_sums > 0) & (step_sums > 0)
+    if not usable.any():
+        raise InputDataError("the state frames' timestamps do not advance")
+    rate = float(np.median(step_sums[usable] / time_sums[usable]))
+    return float(round(rate)) if abs(rate - round(rate)) <= 1e-4 * rate else rate
+
+
+def _state_frame_times(path: Path) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Timestamps and counters of the decodable state frames, in file order."""
+    import can
+
+    times: list[float] = []
+    counters: list[int] = []
+    ignored = ImportCounters()
+    with can.LogReader(path) as reader:
+        for msg in reader:
+            state = _classify(msg, ignored)
+            if state is not None and msg.timestamp:
+                times.append(float(msg.timestamp))
+                counters.append(state[2])
+    return np.asarray(times, dtype=np.float64), np.asarray(counters, dtype=np.int64)
+
+
+def derive_rate(path: str | Path) -> tuple[float, str]:
+    """The state-frame rate of a CAN capture from its timestamps, and a sentence saying so.
+
+    Raises
+    ------
+    InputDataError
+        Unreadable file, or timestamps that give no rate (the message asks for ``--fs``).
+    """
+    p = Path(path)
+    try:
+        times, counters = _state_frame_times(p)
+        rate = rate_from_timestamps(times, counters)
+    except InputDataError as exc:
+        raise InputDataError(
+            f"{p}: {exc}; pass the robot's state-frame rate with --fs HZ"
+        ) from None
+    except (OSError, ValueError, EOFError) as exc:
+        raise InputDataError(f"{p}: cannot read it as a CAN log ({exc})") from None
+    blocks = max(1, (times.size - 1) // RATE_BLOCK_FRAMES)
+    note = (
+        f"rate {rate:g} Hz derived from the frames' timestamps (median over {blocks} blocks of "
+        f"{RATE_BLOCK_FRAMES} frames); pass --fs HZ if the robot's rate is another"
+    )
+    return rate, note
+
+
 def _classify(msg: Any, counters: ImportCounters) -> tuple[int, int, int, int] | None:
     """Decoded state frame, or None after counting what else the frame was."""
     counters.frames += 1
@@ -294,20 +377,44 @@ def read_sample_file(path: str | Path, fs_hz: float | None = None) -> ImportedSa
 
 
 def read_source(path: str | Path, fs_hz: float | None = None) -> ImportedSamples:
-    """Any importable file, by suffix (CAN logs need ``fs_hz``)."""
+    """Any importable file, by suffix. Without ``fs_hz`` a CAN log's rate comes from its
+    frames' timestamps (:func:`derive_rate`; ``rate_note`` of the result says so)."""
     p = Path(path)
     suffix = p.suffix.lower()
     if suffix in CAN_LOG_SUFFIXES:
+        note = ""
         if fs_hz is None:
-            raise InputDataError(
-                f"{p}: a CAN capture carries sample counters, not the rate; pass --fs HZ "
-                "(or a --config whose [link] fs_hz is the robot's rate)"
-            )
-        return read_can_log(p, fs_hz)
+            if not p.is_file():
+                raise InputDataError(f"{p}: no such file")
+            fs_hz, note = derive_rate(p)
+        return replace(read_can_log(p, fs_hz), rate_note=note)
     if suffix in SAMPLE_FILE_SUFFIXES:
         return read_sample_file(p, fs_hz)
     accepted = ", ".join(CAN_LOG_SUFFIXES + SAMPLE_FILE_SUFFIXES)
     raise InputDataError(f"{p}: unknown file type {suffix!r}; rtsid convert reads {accepted}")
+
+
+def check_estimable(samples: ImportedSamples, window_s: float, source: str) -> None:
+    """Refuse rows that can never give an estimate: none valid, or fewer than one window.
+
+    Raises
+    ------
+    InputDataError
+        Names what is wrong with ``source`` and what to do.
+    """
+    rows, fs = len(samples), samples.fs_hz
+    if not samples.valid.any():
+        raise InputDataError(
+            f"{source}: none of its {rows} rows has a finite position and torque (all NaN, inf "
+            "or lost); check that the file holds the recording's values"
+        )
+    window = round(window_s * fs)
+    if rows < window:
+        raise InputDataError(
+            f"{source}: {rows} rows at {fs:g} Hz ({rows / fs:.3g} s) are shorter than one "
+            f"{window_s:g} s analysis window ({window} rows); convert a longer recording, or "
+            "store a shorter [worker] window_s with --config"
+        )
 
 
 def write_recording(
@@ -328,7 +435,7 @@ def write_recording(
     samples : ImportedSamples
         The rows.
     out : str or Path
-        Output ``.mcap`` (written to ``out.part`` first, then renamed).
+        Output ``.mcap`` (written atomically: :func:`rtsid.io.files.atomic_write`).
     run_config : Mapping
         The configuration stored as ``config`` metadata (what replay uses).
     batch_samples : int
@@ -354,7 +461,6 @@ def write_recording(
         raise RecordingError(f"{str(dst)!r} exists; remove it or pass --overwrite")
     if batch_samples < 1:
         raise InputDataError(f"batch_samples must be >= 1, got {batch_samples}")
-    tmp = dst.with_name(dst.name + ".part")
     metadata = {
         "software": "rtsid",
         "version": __version__,
@@ -366,28 +472,22 @@ def write_recording(
         "schemas": "see docs/io.md",
         **samples.counters.as_metadata(),
     }
-    try:
-        dst.parent.mkdir(parents=True, exist_ok=True)
-        with tmp.open("wb") as fh:
-            writer = Writer(fh, chunk_size=1 << 20, compression=CompressionType.ZSTD)
-            writer.start(profile="", library=f"rtsid {__version__} (convert)")
-            channel = register_channels(writer)["samples"]
-            writer.add_metadata("rtsid", metadata)
-            writer.add_metadata("config", {"json": encode_json(dict(run_config)).decode()})
-            for batch in samples.batches(batch_samples):
-                payload = encode_samples(
-                    batch.first_index,
-                    batch.fs_hz,
-                    batch.position_rad,
-                    batch.torque_nm,
-                    batch.valid,
-                    batch.status,
-                )
-                t = batch.log_time_ns
-                writer.add_message(channel, log_time=t, data=payload, publish_time=t)
-            writer.finish()
-        os.replace(tmp, dst)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise RecordingError(f"cannot write {str(dst)!r}: {exc.strerror or exc}") from exc
+    with atomic_write(dst, "wb", what="recording", make_folder=True) as fh:
+        writer = Writer(fh, chunk_size=1 << 20, compression=CompressionType.ZSTD)
+        writer.start(profile="", library=f"rtsid {__version__} (convert)")
+        channel = register_channels(writer)["samples"]
+        writer.add_metadata("rtsid", metadata)
+        writer.add_metadata("config", {"json": encode_json(dict(run_config)).decode()})
+        for batch in samples.batches(batch_samples):
+            payload = encode_samples(
+                batch.first_index,
+                batch.fs_hz,
+                batch.position_rad,
+                batch.torque_nm,
+                batch.valid,
+                batch.status,
+            )
+            t = batch.log_time_ns
+            writer.add_message(channel, log_time=t, data=payload, publish_time=t)
+        writer.finish()
     return dst

@@ -4,15 +4,13 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import os
 import sys
-import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
-from rtsid.errors import RecordingError
 from rtsid.ident.stream import WindowResult
+from rtsid.io.files import atomic_write
 
 __all__ = ["COLUMNS", "estimate_row", "open_output", "write_estimates"]
 
@@ -64,7 +62,7 @@ def write_estimates(results: Iterable[WindowResult], fh: IO[str]) -> int:
 
 @contextlib.contextmanager
 def open_output(path: str | Path | None) -> Iterator[IO[str]]:
-    """Standard output, or a file written atomically (a temporary file renamed on success).
+    """Standard output, or a file written atomically (:func:`rtsid.io.files.atomic_write`).
 
     If the body raises, the temporary file is removed and the destination is untouched, so
     nothing partial is ever left under the requested name.
@@ -72,16 +70,5 @@ def open_output(path: str | Path | None) -> Iterator[IO[str]]:
     if path is None or str(path) == "-":
         yield sys.stdout
         return
-    dest = Path(path)
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=".part", dir=dest.parent or ".")
-    except OSError as exc:
-        raise RecordingError(f"cannot write to {dest.parent or '.'}: {exc.strerror}") from None
-    try:
-        with os.fdopen(fd, "w", newline="") as fh:
-            yield fh
-        os.replace(tmp, dest)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+    with atomic_write(path, what="estimates") as fh:
+        yield fh

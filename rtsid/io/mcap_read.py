@@ -15,15 +15,14 @@ import itertools
 import json
 import re
 import struct
-from collections.abc import Iterator
+from collections.abc import Generator, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-import numpy as np
-
 from rtsid import __version__
 from rtsid.errors import RecordingError
+from rtsid.io.files import atomic_write
 from rtsid.io.schemas import SCHEMAS, SampleBatch, decode_samples
 
 __all__ = [
@@ -42,6 +41,9 @@ __all__ = [
     "summarize",
 ]
 
+_STOPPED = (
+    "the writer stopped before finishing the file: kill -9, a crash, a full disk or a torn copy"
+)
 TOPICS = {name: topic for name, (_schema, topic) in SCHEMAS.items()}
 
 
@@ -58,6 +60,8 @@ class ReadReport:
         Messages per topic.
     complete : bool
         The footer was reached (the file was finished properly).
+    bytes_read : int
+        Bytes of the file up to the end of the last complete record read.
     error : str or None
         Why reading stopped early (truncated record, bad CRC, …); None when complete.
     """
@@ -67,6 +71,7 @@ class ReadReport:
     by_topic: dict[str, int] = field(default_factory=dict)
     complete: bool = False
     error: str | None = None
+    bytes_read: int = 0
 
 
 def _damage_errors() -> tuple[type[BaseException], ...]:
@@ -92,7 +97,7 @@ def _open(path: str | Path) -> IO[bytes]:
         raise RecordingError(f"cannot open recording {str(p)!r}: {exc.strerror}") from exc
 
 
-def _iter_records(path: str | Path, report: ReadReport) -> Iterator[Any]:
+def _iter_records(path: str | Path, report: ReadReport) -> Generator[Any, None, None]:
     """Every complete record in file order (chunks opened); stops at the first damaged one."""
     from mcap.exceptions import EndOfFile, InvalidMagic
     from mcap.records import Chunk, Footer
@@ -117,13 +122,19 @@ def _iter_records(path: str | Path, report: ReadReport) -> Iterator[Any]:
                     raise RecordingError(
                         f"{str(path)!r} is empty or shorter than an MCAP header; nothing to read"
                     ) from None
-                report.error = (
-                    "no footer: the writer stopped before finishing the file "
-                    "(kill -9, crash or full disk)"
-                )
+                report.error = f"without its footer ({_STOPPED})"
                 return
             except damage as exc:
-                report.error = f"damaged record after {report.messages} messages: {exc}"
+                if first:
+                    raise RecordingError(
+                        f"{str(path)!r} is not an MCAP file (its header does not read: {exc}); "
+                        "pass an .mcap recording"
+                    ) from None
+                report.error = (
+                    f"without its footer (cut off inside a record: {_STOPPED})"
+                    if not fh.read(1)
+                    else f"damaged record after {report.messages} messages: {exc}"
+                )
                 return
             first = False
             if isinstance(record, Chunk):
@@ -132,8 +143,10 @@ def _iter_records(path: str | Path, report: ReadReport) -> Iterator[Any]:
                 except damage as exc:
                     report.error = f"damaged chunk after {report.messages} messages: {exc}"
                     return
+                report.bytes_read = fh.tell()
                 yield from inner
             else:
+                report.bytes_read = fh.tell()
                 if isinstance(record, Footer):
                     report.complete = True
                 yield record
@@ -173,15 +186,18 @@ def iter_messages(
             yield channel.topic, channel, record
 
 
-def _iter_topic(path: str | Path, name: str) -> Iterator[Any]:
+def _iter_topic(path: str | Path, name: str, report: ReadReport | None) -> Iterator[Any]:
     topic = TOPICS[name]
-    for t, _channel, message in iter_messages(path):
+    for t, _channel, message in iter_messages(path, report):
         if t == topic:
             yield message
 
 
-def iter_sample_batches(path: str | Path) -> Iterator[SampleBatch]:
-    """Raw sample batches in recording order, as numpy arrays.
+def iter_sample_batches(
+    path: str | Path, report: ReadReport | None = None
+) -> Iterator[SampleBatch]:
+    """Raw sample batches of one file in recording order, as numpy arrays (``report`` as in
+    :func:`iter_messages`). To read a recording as samples, use :mod:`rtsid.io.recording`.
 
     Yields
     ------
@@ -191,19 +207,19 @@ def iter_sample_batches(path: str | Path) -> Iterator[SampleBatch]:
         contiguous unless samples were dropped by the logger (then ``first_index`` jumps: a
         gap, never bridged).
     """
-    for message in _iter_topic(path, "samples"):
+    for message in _iter_topic(path, "samples", report):
         yield decode_samples(message.data, message.log_time)
 
 
-def iter_estimates(path: str | Path) -> Iterator[dict[str, Any]]:
-    """Estimate messages (dicts following ESTIMATE_SCHEMA; null numbers → NaN-free None)."""
-    for message in _iter_topic(path, "estimate"):
+def iter_estimates(path: str | Path, report: ReadReport | None = None) -> Iterator[dict[str, Any]]:
+    """Estimate messages of one file (dicts following ESTIMATE_SCHEMA; null numbers → None)."""
+    for message in _iter_topic(path, "estimate", report):
         yield json.loads(message.data)
 
 
 def iter_status(path: str | Path) -> Iterator[dict[str, Any]]:
     """Status messages (dicts following STATUS_SCHEMA)."""
-    for message in _iter_topic(path, "status"):
+    for message in _iter_topic(path, "status", None):
         yield json.loads(message.data)
 
 
@@ -211,7 +227,7 @@ def iter_can_frames(path: str | Path) -> Iterator[Any]:
     """Raw CAN frames (``can.Message``) from the optional ``/can_frames`` channel."""
     import can
 
-    for message in _iter_topic(path, "can_frames"):
+    for message in _iter_topic(path, "can_frames", None):
         for f in json.loads(message.data)["frames"]:
             yield can.Message(
                 timestamp=f["timestamp_s"],
@@ -303,65 +319,68 @@ def recover(
     Raises
     ------
     RecordingError
-        ``src`` unreadable or not MCAP, ``dst`` equal to ``src`` or existing (without
-        ``overwrite``), or ``dst`` not writable.
+        ``src`` missing, empty or not MCAP (checked before ``dst`` is touched), ``dst`` equal
+        to ``src`` or existing (without ``overwrite``), or ``dst`` not writable.
     """
-    from mcap.records import Channel, Message, Metadata, Schema
     from mcap.writer import CompressionType, Writer
 
     src_p, dst_p = Path(src), Path(dst)
     if src_p.resolve() == dst_p.resolve():
         raise RecordingError(f"recover would overwrite its input {str(src_p)!r}; pick another -o")
-    if dst_p.exists() and not overwrite:
-        raise RecordingError(f"{str(dst_p)!r} exists; remove it or pass --overwrite")
     report = ReadReport(src_p)
-    tmp = dst_p.with_name(dst_p.name + ".part")
-    try:
-        with tmp.open("wb") as out:
-            writer = Writer(out, chunk_size=chunk_size, compression=CompressionType.ZSTD)
-            writer.start(profile="", library=f"rtsid {__version__} (recover)")
-            schema_ids: dict[int, int] = {}
-            channel_ids: dict[int, int] = {}
-            topic_of: dict[int, str] = {}
-            for record in _iter_records(src_p, report):
-                if isinstance(record, Schema):
-                    schema_ids[record.id] = writer.register_schema(
-                        record.name, record.encoding, record.data
-                    )
-                elif isinstance(record, Channel):
-                    channel_ids[record.id] = writer.register_channel(
-                        record.topic,
-                        record.message_encoding,
-                        schema_ids.get(record.schema_id, 0),
-                        dict(record.metadata),
-                    )
-                    report.by_topic.setdefault(record.topic, 0)
-                    topic_of[channel_ids[record.id]] = record.topic
-                elif isinstance(record, Message) and record.channel_id in channel_ids:
-                    new_id = channel_ids[record.channel_id]
-                    writer.add_message(
-                        new_id, record.log_time, record.data, record.publish_time, record.sequence
-                    )
-                    report.messages += 1
-                    topic = topic_of[new_id]
-                    report.by_topic[topic] = report.by_topic.get(topic, 0) + 1
-                elif isinstance(record, Metadata):
-                    writer.add_metadata(record.name, dict(record.metadata))
-            writer.add_metadata(
-                "recovery",
-                {
-                    "source": str(src_p),
-                    "source_complete": str(report.complete).lower(),
-                    "messages": str(report.messages),
-                    "stopped_because": report.error or "",
-                },
-            )
-            writer.finish()
-        tmp.replace(dst_p)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise RecordingError(f"cannot write {str(dst_p)!r}: {exc.strerror or exc}") from exc
+    records = _iter_records(src_p, report)
+    header = next(records, None)  # a missing, empty or non-MCAP input fails here, not as output
+    if dst_p.exists() and not overwrite:
+        records.close()
+        raise RecordingError(f"{str(dst_p)!r} exists; remove it or pass --overwrite")
+    with atomic_write(dst_p, "wb", what="the recovered recording") as out:
+        writer = Writer(out, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+        writer.start(profile="", library=f"rtsid {__version__} (recover)")
+        _copy_records(itertools.chain([] if header is None else [header], records), writer, report)
+        writer.add_metadata(
+            "recovery",
+            {
+                "source": str(src_p),
+                "source_complete": str(report.complete).lower(),
+                "messages": str(report.messages),
+                "stopped_because": report.error or "",
+            },
+        )
+        writer.finish()
     return report
+
+
+def _copy_records(records: Iterable[Any], writer: Any, report: ReadReport) -> None:
+    """Schemas, channels, messages and metadata into ``writer`` (ids renumbered)."""
+    from mcap.records import Channel, Message, Metadata, Schema
+
+    schema_ids: dict[int, int] = {}
+    channel_ids: dict[int, int] = {}
+    topic_of: dict[int, str] = {}
+    for record in records:
+        if isinstance(record, Schema):
+            schema_ids[record.id] = writer.register_schema(
+                record.name, record.encoding, record.data
+            )
+        elif isinstance(record, Channel):
+            channel_ids[record.id] = writer.register_channel(
+                record.topic,
+                record.message_encoding,
+                schema_ids.get(record.schema_id, 0),
+                dict(record.metadata),
+            )
+            report.by_topic.setdefault(record.topic, 0)
+            topic_of[channel_ids[record.id]] = record.topic
+        elif isinstance(record, Message) and record.channel_id in channel_ids:
+            new_id = channel_ids[record.channel_id]
+            writer.add_message(
+                new_id, record.log_time, record.data, record.publish_time, record.sequence
+            )
+            report.messages += 1
+            topic = topic_of[new_id]
+            report.by_topic[topic] = report.by_topic.get(topic, 0) + 1
+        elif isinstance(record, Metadata):
+            writer.add_metadata(record.name, dict(record.metadata))
 
 
 def summarize(path: str | Path) -> ReadReport:
@@ -370,24 +389,3 @@ def summarize(path: str | Path) -> ReadReport:
     for _ in iter_messages(path, report):
         pass
     return report
-
-
-def concat_samples(batches: list[SampleBatch]) -> SampleBatch:
-    """Join contiguous batches into one (offline helper; raises if they are not contiguous)."""
-    if not batches:
-        raise RecordingError("no sample batches to join; the recording has no /samples messages")
-    for a, b in itertools.pairwise(batches):
-        if b.first_index != a.end_index:
-            raise RecordingError(
-                f"sample batches are not contiguous ({a.end_index} then {b.first_index}); "
-                "a gap must not be bridged — process the parts separately"
-            )
-    return SampleBatch(
-        first_index=batches[0].first_index,
-        fs_hz=batches[0].fs_hz,
-        position_rad=np.concatenate([b.position_rad for b in batches]),
-        torque_nm=np.concatenate([b.torque_nm for b in batches]),
-        valid=np.concatenate([b.valid for b in batches]),
-        status=np.concatenate([b.status for b in batches]),
-        log_time_ns=batches[0].log_time_ns,
-    )

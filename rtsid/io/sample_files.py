@@ -12,7 +12,6 @@ what to do about it.
 from __future__ import annotations
 
 import csv
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,11 +19,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rtsid.errors import InputDataError
+from rtsid.io.files import read_npz
 
 __all__ = ["SampleRecord", "load_samples", "nonfinite_report"]
 
 FloatArray = NDArray[np.float64]
 TIME_COLUMNS = ("t_s", "time_s")
+SAMPLE_ARRAYS = ("position_rad", "torque_nm", "fs_hz")
 
 
 @dataclass(frozen=True)
@@ -79,23 +80,14 @@ def _checked(position: FloatArray, torque: FloatArray, fs_hz: float, source: str
 
 
 def _load_npz(path: Path) -> SampleRecord:
-    try:
-        with path.open("rb") as fh, np.load(fh, allow_pickle=False) as data:
-            missing = [k for k in ("position_rad", "torque_nm", "fs_hz") if k not in data.files]
-            if missing:
-                raise InputDataError(
-                    f"{path}: missing array(s) {', '.join(missing)}; an .npz recording needs "
-                    f"position_rad, torque_nm and fs_hz (found: {', '.join(data.files) or 'none'})"
-                )
-            position = np.asarray(data["position_rad"], dtype=np.float64)
-            torque = np.asarray(data["torque_nm"], dtype=np.float64)
-            fs_arr = np.asarray(data["fs_hz"], dtype=np.float64)
-    except (zipfile.BadZipFile, EOFError, ValueError, OSError) as exc:
-        if isinstance(exc, InputDataError):
-            raise
-        raise InputDataError(
-            f"{path}: not a readable .npz file ({exc}); is it truncated or of another format?"
-        ) from None
+    data = read_npz(
+        path,
+        SAMPLE_ARRAYS,
+        hint="an .npz recording needs position_rad, torque_nm and fs_hz",
+    )
+    position = np.asarray(data["position_rad"], dtype=np.float64)
+    torque = np.asarray(data["torque_nm"], dtype=np.float64)
+    fs_arr = np.asarray(data["fs_hz"], dtype=np.float64)
     if fs_arr.size != 1:
         raise InputDataError(f"{path}: fs_hz must be a scalar, got shape {fs_arr.shape}")
     return _checked(position, torque, float(fs_arr.reshape(())), str(path))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -13,7 +14,7 @@ import pytest
 
 from rtsid.cli import main
 from rtsid.errors import InputDataError
-from rtsid.io.convert import read_can_log, read_source
+from rtsid.io.convert import rate_from_timestamps, read_can_log, read_source
 from rtsid.io.mcap_read import iter_sample_batches, read_metadata, read_run_config, summarize
 from rtsid.link.config import PlantConfig
 from rtsid.link.protocol import (
@@ -186,3 +187,61 @@ def test_real_recording_converts_and_replays_with_its_preset(tmp_path, reklab_pa
     assert main(["calibrate", str(out), "-o", str(cal)]) == 0
     document = json.loads(cal.read_text())
     assert document["fs_hz"] == 1000.0 and document["lowpass_hz"] == 100.0
+
+
+def test_a_candump_without_fs_takes_the_rate_from_its_timestamps(tmp_path, capsys):
+    capture = tmp_path / "capture.log"
+    write_capture(capture)
+    out = tmp_path / "capture.mcap"
+    assert main(["convert", str(capture), "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "rate 2500 Hz derived from the frames' timestamps" in printed and "--fs" in printed
+    assert read_run_config(out)["link"]["fs_hz"] == FS
+    assert rows(out)[1]["valid"].size == N
+
+
+@pytest.mark.parametrize("fs", [2500.0, 2048.0, 1000.0])
+def test_the_derived_rate_survives_jitter_bursts_gaps_and_a_clock_step(fs):
+    rng = np.random.default_rng(7)
+    k = np.arange(20_000)
+    k = k[(k < 3000) | (k >= 3300)]  # 300 frames lost
+    times = T0 + k / fs + rng.normal(0, 50e-6, k.size)
+    times = np.maximum.accumulate(np.floor(times / 8e-3) * 8e-3 if fs == 1000.0 else times)
+    times[k >= 12_000] += 3600.0  # the sender's clock steps by an hour
+    times = np.round(times, 6)  # candump writes microseconds
+    counters = k % COUNTER_MODULO
+    counters[500] = 17  # a stray frame
+    assert rate_from_timestamps(times, counters) == fs
+
+
+def test_too_few_timestamps_ask_for_fs():
+    with pytest.raises(InputDataError, match="too few"):
+        rate_from_timestamps(np.arange(5.0), np.arange(5))
+    with pytest.raises(InputDataError, match="do not advance"):
+        rate_from_timestamps(np.zeros(100), np.arange(100))
+
+
+@pytest.mark.parametrize(
+    "name,content,problem",
+    [
+        ("nan.npz", None, "none of its 1000 rows has a finite position and torque"),
+        (
+            "three.csv",
+            "position_rad,torque_nm,t_s\n1,2,0\n1,2,0.001\n1,2,0.002\n",
+            r"3 rows at 1000 Hz .* shorter than one 0.3 s analysis window \(300 rows\)",
+        ),
+    ],
+)
+def test_files_that_can_never_give_an_estimate_are_refused(
+    tmp_path, capsys, name, content, problem
+):
+    source = tmp_path / name
+    if content is None:
+        nan = np.full(1000, np.nan)
+        np.savez(source, position_rad=nan, torque_nm=nan, fs_hz=1000.0)
+    else:
+        source.write_text(content)
+    out = tmp_path / "out.mcap"
+    assert main(["convert", str(source), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and re.search(problem, err) and not out.exists()

@@ -11,6 +11,7 @@ from mcap.reader import make_reader
 from rtsid.errors import RecordingError
 from rtsid.io import mcap_read
 from rtsid.io.mcap_log import McapConfig, McapLogger
+from rtsid.io.recording import read_recording
 
 FS_HZ = 2500.0
 
@@ -32,7 +33,7 @@ def recording(tmp_path: Path) -> Path:
 def test_complete_file_reads_fully(recording: Path) -> None:
     report = mcap_read.summarize(recording)
     assert report.complete and report.error is None and report.by_topic == {"/samples": 40}
-    batch = mcap_read.concat_samples(list(mcap_read.iter_sample_batches(recording)))
+    batch = read_recording(recording).samples.all_rows()
     assert batch.first_index == 0 and len(batch) == 10_000
     assert np.isnan(batch.position_rad[~batch.valid]).all()
     np.testing.assert_array_equal(

@@ -21,7 +21,7 @@ def test_npz_round_trip(tmp_path):
 
 def test_npz_missing_array_names_what_is_needed(tmp_path):
     p = write_npz(tmp_path / "r.npz", position=np.arange(5.0), torque_nm=np.ones(5), fs_hz=100.0)
-    with pytest.raises(InputDataError, match=r"missing array\(s\) position_rad.*found: "):
+    with pytest.raises(InputDataError, match=r"lacks position_rad.*found: "):
         load_samples(p)
 
 

@@ -1,0 +1,317 @@
+"""The one recording reader: an rtsid MCAP session as rows on one sample-index grid.
+
+Every command that turns a recording into samples or estimates reads it here — replay
+streams it (:func:`iter_batches` into a :class:`SampleGrid` it trims), calibrate and tv read it
+whole (:func:`read_recording`), plot reads its estimates (:func:`read_estimates`). The rules
+are therefore the same everywhere:
+
+* **Parts.** A daemon rotates a session into ``…Z.mcap``, ``…Z-001.mcap``, …; given any part,
+  :func:`session_parts` lists them all in order and they are read as one recording.
+* **Gaps.** Rows no batch carried (the logger dropped them, or a part is missing) become
+  invalid rows (NaN, ``valid`` False, status 0) on the grid — never bridged. Rows already
+  seen (an overlap) are dropped.
+* **Truncated files.** A file cut short (kill -9, full disk, a copy torn in half) is read to
+  its last complete message; then an :class:`~rtsid.errors.IncompleteRecordingWarning` says
+  how much was read (samples, seconds, bytes of the file) and how to rewrite the file.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rtsid.errors import IncompleteRecordingWarning, RecordingError
+from rtsid.io.mcap_read import (
+    ReadReport,
+    iter_estimates,
+    iter_sample_batches,
+    read_run_config,
+    recording_parts,
+)
+from rtsid.io.schemas import SampleBatch
+
+__all__ = [
+    "Recording",
+    "SampleGrid",
+    "iter_batches",
+    "read_estimates",
+    "read_recording",
+    "session_parts",
+]
+
+Paths = str | Path | Sequence[str | Path]
+
+
+def session_parts(paths: Paths) -> list[Path]:
+    """Every part of the sessions ``paths`` belong to, in order, each once.
+
+    A file not named like a daemon's part (``rtsid-<robot>-<joint>-<UTC>[-NNN].mcap``)
+    stands alone.
+    """
+    given = [paths] if isinstance(paths, str | Path) else list(paths)
+    parts: list[Path] = []
+    for path in given:
+        parts += [p for p in recording_parts(path) if p not in parts]
+    return parts
+
+
+class SampleGrid:
+    """Rows of a recording on one sample-index grid, appended in place.
+
+    The columns are preallocated and grow geometrically; :meth:`drop_before` forgets old rows
+    (replay keeps only what its windows still need), and their room is reused by moving the
+    kept rows to the front when the buffer fills — no allocation per batch.
+
+    Parameters
+    ----------
+    first_index : int
+        Sample index of row 0.
+    fs_hz : float
+        Sample rate, Hz.
+    capacity : int
+        Rows to allocate at first.
+    """
+
+    def __init__(self, first_index: int, fs_hz: float, capacity: int = 4096) -> None:
+        self.fs_hz = float(fs_hz)
+        self._first = int(first_index)  # sample index of buffer row self._lo
+        self._lo = 0  # buffer rows before this are forgotten
+        self._hi = 0  # buffer rows from here are free
+        self._position = np.empty(max(1, capacity))
+        self._torque = np.empty_like(self._position)
+        self._valid = np.zeros(self._position.size, dtype=bool)
+        self._status = np.zeros(self._position.size, dtype=np.uint8)
+
+    @property
+    def first_index(self) -> int:
+        """Sample index of the oldest row kept."""
+        return self._first
+
+    @property
+    def end_index(self) -> int:
+        """Sample index one past the newest row."""
+        return self._first + self._hi - self._lo
+
+    def __len__(self) -> int:
+        return self._hi - self._lo
+
+    def append(self, batch: SampleBatch) -> None:
+        """Add ``batch``'s new rows; rows between the newest row and it become invalid."""
+        missing = max(0, batch.first_index - self.end_index)
+        skip = min(len(batch), max(0, self.end_index - batch.first_index))
+        new = len(batch) - skip
+        self._make_room(missing + new)
+        gap = slice(self._hi, self._hi + missing)
+        self._position[gap] = np.nan
+        self._torque[gap] = np.nan
+        self._valid[gap] = False
+        self._status[gap] = 0
+        rows = slice(self._hi + missing, self._hi + missing + new)
+        self._position[rows] = batch.position_rad[skip:]
+        self._torque[rows] = batch.torque_nm[skip:]
+        self._valid[rows] = batch.valid[skip:]
+        self._status[rows] = batch.status[skip:]
+        self._hi += missing + new
+
+    def drop_before(self, index: int) -> None:
+        """Forget the rows before sample ``index``."""
+        drop = min(max(0, index - self._first), len(self))
+        self._lo += drop
+        self._first += drop
+
+    def rows(self, start_index: int, stop_index: int) -> SampleBatch:
+        """Rows ``start_index .. stop_index − 1`` as views (valid until the next append).
+
+        Raises
+        ------
+        IndexError
+            Rows outside what the grid holds.
+        """
+        if not self.first_index <= start_index <= stop_index <= self.end_index:
+            raise IndexError(
+                f"rows {start_index}..{stop_index} are outside {self.first_index}..{self.end_index}"
+            )
+        sl = slice(self._lo + start_index - self._first, self._lo + stop_index - self._first)
+        return SampleBatch(
+            start_index,
+            self.fs_hz,
+            self._position[sl],
+            self._torque[sl],
+            self._valid[sl],
+            self._status[sl],
+        )
+
+    def all_rows(self) -> SampleBatch:
+        """Every row kept, as views."""
+        return self.rows(self.first_index, self.end_index)
+
+    def _make_room(self, extra: int) -> None:
+        kept = len(self)
+        if self._hi + extra <= self._position.size:
+            return
+        size = self._position.size
+        if kept + extra > size // 2:  # grow geometrically, or move the kept rows to the front
+            size = max(2 * size, kept + extra)
+        for name in ("_position", "_torque", "_valid", "_status"):
+            old = getattr(self, name)
+            new = old if size == old.size else np.empty(size, dtype=old.dtype)
+            new[:kept] = old[self._lo : self._hi]  # overlapping move: numpy copies safely
+            setattr(self, name, new)
+        self._lo, self._hi = 0, kept
+
+
+@dataclass
+class _Tally:
+    """What was read from one part, to say how much when it ends early."""
+
+    path: Path
+    report: ReadReport = field(init=False)
+    rows: int = 0
+    first_index: int | None = None
+    end_index: int = 0
+    fs_hz: float = 0.0
+    estimates: int = 0
+    last_t_s: float | None = None
+
+    def __post_init__(self) -> None:
+        self.report = ReadReport(self.path)
+
+    def add_batch(self, batch: SampleBatch) -> None:
+        self.rows += len(batch)
+        self.first_index = batch.first_index if self.first_index is None else self.first_index
+        self.end_index = max(self.end_index, batch.end_index)
+        self.fs_hz = batch.fs_hz
+
+    def add_estimate(self, message: dict[str, Any]) -> None:
+        self.estimates += 1
+        self.last_t_s = message.get("t_end_s", self.last_t_s)
+
+    def what_was_read(self) -> str:
+        if self.first_index is not None and self.fs_hz > 0:
+            t0, t1 = self.first_index / self.fs_hz, self.end_index / self.fs_hz
+            return f"{self.rows} samples, {self.rows / self.fs_hz:.2f} s (t = {t0:.2f}–{t1:.2f} s)"
+        if self.estimates:
+            return f"{self.estimates} estimates (up to t = {self.last_t_s} s)"
+        return "no samples or estimates"
+
+    def warn_if_incomplete(self) -> None:
+        """Say how much of the part was read when it ended before its footer."""
+        if self.report.complete:
+            return
+        size = self.path.stat().st_size if self.path.exists() else 0
+        warnings.warn(
+            IncompleteRecordingWarning(
+                f"{self.path} ends early, {self.report.error}; read {self.what_was_read()} "
+                f"from the first {_kib(self.report.bytes_read)} of {_kib(size)}, up to its last "
+                f"complete message ('rtsid recover {self.path}' rewrites that part as a "
+                "complete file)"
+            ),
+            stacklevel=3,
+        )
+
+
+def _kib(n: int) -> str:
+    return f"{n / 1024:.1f} KiB"
+
+
+def iter_batches(paths: Paths) -> Iterator[SampleBatch]:
+    """Every ``/samples`` batch of the recording, in file order, part after part.
+
+    Parameters
+    ----------
+    paths : path or sequence of paths
+        One file, or the parts of a session in order (see :func:`session_parts`).
+
+    Yields
+    ------
+    SampleBatch
+        As logged; a jump of ``first_index`` is a gap (:class:`SampleGrid` makes it invalid rows).
+
+    Warns
+    -----
+    IncompleteRecordingWarning
+        A part ended before its footer (after its last complete message was yielded).
+
+    Raises
+    ------
+    RecordingError
+        A part is missing, empty or not MCAP.
+    """
+    for part in _as_list(paths):
+        tally = _Tally(part)
+        for batch in iter_sample_batches(part, tally.report):
+            tally.add_batch(batch)
+            yield batch
+        tally.warn_if_incomplete()
+
+
+def read_estimates(paths: Paths) -> list[dict[str, Any]]:
+    """The ``/estimate`` messages of every part, in file order (warns like :func:`iter_batches`)."""
+    estimates: list[dict[str, Any]] = []
+    for part in _as_list(paths):
+        tally = _Tally(part)
+        for estimate in iter_estimates(part, tally.report):
+            tally.add_estimate(estimate)
+            estimates.append(estimate)
+        tally.warn_if_incomplete()
+    return estimates
+
+
+@dataclass(frozen=True)
+class Recording:
+    """A whole recording on one grid.
+
+    Attributes
+    ----------
+    samples : SampleGrid
+        Every row from the first to the last sample read, gaps as invalid rows.
+    config : dict
+        The run configuration stored in the first part (``{}`` when none).
+    parts : list of Path
+        The files read, in order.
+    """
+
+    samples: SampleGrid
+    config: dict[str, Any]
+    parts: list[Path]
+
+
+def read_recording(paths: Paths) -> Recording:
+    """Read every sample of a recording (all parts of its session) onto one grid.
+
+    Parameters
+    ----------
+    paths : path or sequence of paths
+        Any part of a session, or several files; :func:`session_parts` completes the list.
+
+    Warns
+    -----
+    IncompleteRecordingWarning
+        A part ended before its footer.
+
+    Raises
+    ------
+    RecordingError
+        Missing, empty or non-MCAP file, or no ``/samples`` messages at all.
+    """
+    parts = session_parts(paths)
+    grid: SampleGrid | None = None
+    for batch in iter_batches(parts):
+        if grid is None:
+            grid = SampleGrid(batch.first_index, batch.fs_hz, capacity=1 << 16)
+        grid.append(batch)
+    if grid is None:
+        raise RecordingError(
+            f"{str(parts[0])!r} has no /samples messages, so no samples to read; give a "
+            "recording made by 'rtsid run' or 'rtsid convert'"
+        )
+    return Recording(grid, read_run_config(parts[0]), parts)
+
+
+def _as_list(paths: Paths) -> list[Path]:
+    return [Path(paths)] if isinstance(paths, str | Path) else [Path(p) for p in paths]

@@ -1,0 +1,132 @@
+"""The one recording reader: one grid, rotated parts as one, gaps as invalid rows, truncated
+files read to the last complete message with a warning that says how much was read."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rtsid.cli import main
+from rtsid.errors import IncompleteRecordingWarning, RecordingError
+from rtsid.io.mcap_log import McapConfig, McapLogger
+from rtsid.io.recording import (
+    SampleGrid,
+    iter_batches,
+    read_estimates,
+    read_recording,
+    session_parts,
+)
+from rtsid.io.schemas import SampleBatch
+
+FS_HZ = 2500.0
+REFERENCE = Path(__file__).resolve().parents[2] / "replay" / "reference" / "sim_3s.mcap"
+
+
+def batch(first: int, n: int) -> SampleBatch:
+    idx = np.arange(first, first + n)
+    return SampleBatch(
+        first, FS_HZ, idx * 1.0, idx * 2.0, np.ones(n, bool), np.full(n, 4, np.int64)
+    )
+
+
+def test_gaps_become_invalid_rows_and_overlaps_are_dropped():
+    grid = SampleGrid(10, FS_HZ, capacity=4)
+    for b in (batch(10, 5), batch(18, 4), batch(20, 5), batch(12, 3)):  # gap 15..17, overlaps
+        grid.append(b)
+    rows = grid.all_rows()
+    assert (rows.first_index, rows.end_index) == (10, 25)
+    assert np.flatnonzero(~rows.valid).tolist() == [5, 6, 7]
+    assert np.isnan(rows.position_rad[5:8]).all() and (rows.status[5:8] == 0).all()
+    ok = rows.valid
+    np.testing.assert_array_equal(rows.position_rad[ok], np.arange(10, 25)[ok])
+    np.testing.assert_array_equal(rows.torque_nm[ok], 2.0 * np.arange(10, 25)[ok])
+
+
+def test_a_trimmed_grid_keeps_the_rows_and_reuses_its_buffer(rng):
+    grid = SampleGrid(0, FS_HZ, capacity=1000)
+    buffers = {id(grid._position)}
+    end = 0
+    for _ in range(2000):  # the replay pattern: append a batch, keep the last 750 rows
+        n = int(rng.integers(1, 300))
+        grid.append(batch(end, n))
+        end += n
+        np.testing.assert_array_equal(grid.rows(end - n, end).position_rad, np.arange(end - n, end))
+        grid.drop_before(end - 750)
+        buffers.add(id(grid._position))
+    assert len(grid) <= 750 and grid.end_index == end
+    assert len(buffers) <= 3  # grown geometrically to twice the need, then reused
+    with pytest.raises(IndexError):
+        grid.rows(end - 800, end)
+
+
+def rotated_session(folder: Path) -> list[Path]:
+    cfg = McapConfig(
+        directory=str(folder), flush_interval_s=0.01, rotate_size_mb=0.02, chunk_size=4096
+    )
+    with McapLogger(cfg, robot="r", joint="j", fs_hz=FS_HZ, run_config={"k": 1}) as logger:
+        for k in range(200):  # bounded
+            if k != 7:  # batch 7 never logged: a gap
+                b = batch(250 * k, 250)
+                logger.log_samples(b.first_index, b.position_rad, b.torque_nm, b.valid, b.status)
+            time.sleep(0.003)
+            if len(logger.files) >= 3:
+                break
+    return logger.files
+
+
+def test_any_part_reads_the_whole_session_as_one_grid(tmp_path):
+    parts = rotated_session(tmp_path)
+    assert session_parts(parts[1]) == parts == session_parts(parts)
+    recording = read_recording(parts[-1])
+    rows = recording.samples.all_rows()
+    assert recording.parts == parts and recording.config == {"k": 1}
+    assert rows.first_index == 0 and rows.end_index % 250 == 0 and rows.end_index > 2000
+    assert np.flatnonzero(~rows.valid).tolist() == list(range(1750, 2000))
+    np.testing.assert_array_equal(rows.position_rad[rows.valid], np.flatnonzero(rows.valid))
+
+
+def test_a_truncated_part_is_read_to_its_last_message_with_a_warning(tmp_path):
+    parts = rotated_session(tmp_path)
+    whole_end = read_recording(parts).samples.end_index
+    data = parts[0].read_bytes()
+    parts[0].write_bytes(data[: len(data) // 2])
+    with pytest.warns(IncompleteRecordingWarning) as caught:
+        first_part = list(iter_batches(parts[0]))
+    (warning,) = caught
+    rows, end_s = sum(len(b) for b in first_part), first_part[-1].end_index / FS_HZ
+    assert rows > 0
+    text = str(warning.message)
+    assert text.startswith(f"{parts[0]} ends early, without its footer (")  # torn or not
+    assert f"read {rows} samples, {rows / FS_HZ:.2f} s (t = 0.00–{end_s:.2f} s)" in text
+    assert f"of {len(data) // 2 / 1024:.1f} KiB" in text and f"rtsid recover {parts[0]}" in text
+    with pytest.warns(IncompleteRecordingWarning):
+        grid = read_recording(parts).samples  # later parts are still read, after a gap
+    assert grid.end_index == whole_end and not grid.all_rows().valid[rows:1750].any()
+
+
+def test_a_recording_of_estimates_only_has_no_samples_to_read(tmp_path):
+    from rtsid.replay import recording_config, replay_file, write_estimates_mcap
+
+    estimates = tmp_path / "estimates.mcap"
+    with estimates.open("wb") as fh:
+        messages = replay_file(REFERENCE).messages
+        write_estimates_mcap(messages, fh, source="x", config=recording_config(REFERENCE))
+    with pytest.raises(RecordingError, match="no /samples messages"):
+        read_recording(estimates)
+    assert len(read_estimates(estimates)) == len(messages)
+
+
+@pytest.mark.parametrize("command", ["replay", "plot"])
+def test_replay_and_plot_of_a_file_cut_in_half_say_how_much_was_read(tmp_path, capsys, command):
+    half = tmp_path / "half.mcap"
+    data = REFERENCE.read_bytes()
+    half.write_bytes(data[: len(data) // 2])
+    argv = [command, str(half)] + (["-o", str(tmp_path / "k.png")] if command == "plot" else [])
+    assert main(argv) == 3  # done, but on an incomplete recording
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"rtsid {command}: warning: {half} ends early")
+    assert ("samples, " if command == "replay" else "estimates (up to t =") in (lines[0])
+    assert main([command, str(REFERENCE), *argv[2:]]) == 0
