@@ -23,7 +23,7 @@ from typing import Any
 
 from rtsid import __version__
 from rtsid.calibrate import calibration_record, robot_torque_offset
-from rtsid.config import load_toml, require_range, section_from_mapping
+from rtsid.config import invalid, load_toml, require_range, section_from_mapping
 from rtsid.errors import ConfigError
 from rtsid.ident.window import EstimatorOptions
 from rtsid.io.mcap_log import McapConfig, McapLogger
@@ -93,6 +93,18 @@ class DaemonConfig:
     worker: WorkerConfig = field(default_factory=WorkerConfig)
     mcap: McapConfig = field(default_factory=McapConfig)
     zenoh: ZenohConfig = field(default_factory=ZenohConfig)
+
+    def __post_init__(self) -> None:
+        """Checks across sections (each section checked its own keys already)."""
+        room_s = self.link.ring_capacity_s - self.worker.hop_s
+        if self.worker.window_s > room_s:
+            raise invalid(
+                "worker.window_s",
+                self.worker.window_s,
+                f"a window that fits the ring with a hop to spare (<= link.ring_capacity_s - "
+                f"worker.hop_s = {room_s:g} s); shorten worker.window_s or lengthen "
+                "link.ring_capacity_s",
+            )
 
     @classmethod
     def from_mapping(

@@ -223,3 +223,37 @@ def test_unwritable_recordings_folder_keeps_estimating_and_says_why(tmp_path, fr
     assert not summary.clean_shutdown  # …but the run reports that logging failed
     mcap_state = statuses[-1]["mcap"]
     assert mcap_state["errors"] >= 1 and "not-a-folder" in mcap_state["last_error"]
+
+
+def _numeric_keys(table: dict, prefix: tuple[str, ...] = ()) -> list[tuple[str, ...]]:
+    """Every float-valued key of a config document, as paths (section, [sub,] key)."""
+    keys = []
+    for key, value in table.items():
+        if isinstance(value, dict):
+            keys += _numeric_keys(value, (*prefix, key))
+        elif isinstance(value, float):
+            keys.append((*prefix, key))
+    return keys
+
+
+@pytest.mark.parametrize("path", _numeric_keys(DaemonConfig().as_dict()), ids=".".join)
+def test_nan_in_any_numeric_key_is_one_line_naming_the_key(path):
+    document: dict = {}
+    table = document
+    for part in path[:-1]:
+        table = table.setdefault(part, {})
+    table[path[-1]] = float("nan")
+    with pytest.raises(ConfigError) as info:
+        DaemonConfig.from_mapping(document)
+    message = str(info.value)
+    assert ".".join(path) in message and "finite" in message and "\n" not in message
+
+
+def test_window_longer_than_the_ring_is_refused_with_the_fix():
+    document = {"link": {"ring_capacity_s": 1.0}, "worker": {"window_s": 2.0}}
+    with pytest.raises(ConfigError) as info:
+        DaemonConfig.from_mapping(document)
+    message = str(info.value)
+    assert "worker.window_s" in message and "link.ring_capacity_s" in message
+    assert "\n" not in message
+    DaemonConfig.from_mapping({"link": {"ring_capacity_s": 1.0}, "worker": {"window_s": 0.5}})
