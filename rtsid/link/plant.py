@@ -106,7 +106,8 @@ class BusSink:
 @dataclass(frozen=True)
 class PlantCounters:
     """What the plant did (snapshot). Lost samples = ``dropped + corrupted + shortened +
-    silenced + skipped + tx_overflows``; reordered frames arrive late and are lost too.
+    silenced + skipped + tx_overflows``; reordered frames arrive late and are put back in
+    place by the acquisition (it holds a jump until a later frame confirms it).
     ``samples`` counts samples whose turn to be sent has come (sent or destroyed by a fault)."""
 
     samples: int
@@ -198,7 +199,7 @@ class _FaultInjector:
         self._count(
             silenced, dropped, corrupt, short, duplicate, reorder, error_after, unknown_after
         )
-        self._record_lost(index[silenced | dropped | corrupt | short | reorder])
+        self._record_lost(index[silenced | dropped | corrupt | short])
         out: list[can.Message] = []
         for k in range(n):
             if reorder[k]:  # frame k goes out after frame k + 1 (it arrives late)
@@ -370,7 +371,7 @@ class VirtualPlant:
         )
 
     def lost_indices(self) -> NDArray[np.int64]:
-        """Sample indices the faults destroyed (dropped, corrupt, short, silenced, reordered)."""
+        """Sample indices the faults destroyed (dropped, corrupt, short, silenced)."""
         return np.sort(self._faults.lost_indices[: self._faults.lost_count])
 
     def recorded(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
