@@ -16,7 +16,7 @@ nobody acts on); whoever owns the component sees it through :attr:`ThreadOwner.f
 ``failure`` of every component and exits non-zero when one is set.
 
 Subclasses implement :meth:`ThreadOwner._run` (loop ``while not self._stop.is_set()``, each
-wait bounded) and may override the hooks :meth:`_before_start`, :meth:`_wake` and
+wait bounded) and may override the hooks :meth:`_before_start`, :meth:`_interrupt` and
 :meth:`_after_stop`.
 """
 
@@ -60,7 +60,7 @@ class ThreadOwner:
     def _before_start(self) -> None:
         """Open what the thread needs (on the caller's thread; may raise)."""
 
-    def _wake(self) -> None:
+    def _interrupt(self) -> None:
         """Wake the thread from a wait :attr:`_stop` does not interrupt."""
 
     def _after_stop(self, ended: bool) -> None:
@@ -92,7 +92,7 @@ class ThreadOwner:
             True when the thread has ended and no error ended it (a clean stop).
         """
         self._stop.set()
-        self._wake()
+        self._interrupt()
         ended = True
         if self._thread is not None:
             if self._thread is not threading.current_thread():
