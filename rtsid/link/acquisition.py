@@ -296,23 +296,23 @@ class Acquisition(ThreadOwner):
         Parameters
         ----------
         require_bus : bool
-            Raise :class:`~rtsid.errors.LinkError` if the first opening fails (False:
-            keep retrying with back-off in the thread).
+            Open the bus here and raise :class:`~rtsid.errors.LinkError` if that fails.
+            False: the thread opens it (so a server that never answers cannot block the
+            caller, e.g. the daemon's main thread and its signal handling) and keeps
+            retrying with back-off.
         """
         self._require_bus = require_bus
         return super().start()
 
     def _before_start(self) -> None:
-        if self._bus is None and self._factory is not None:
+        if self._bus is None and self._factory is not None and self._require_bus:
             try:
                 self._bus = self._factory()
             except Exception as exc:
-                if self._require_bus:
-                    raise LinkError(
-                        f"cannot open the CAN bus: {exc}; check [link] interface, channel, "
-                        "host and port, and that the adapter or server is up"
-                    ) from exc
-                self._note_error(exc)
+                raise LinkError(
+                    f"cannot open the CAN bus: {exc}; check [link] interface, channel, "
+                    "host and port, and that the adapter or server is up"
+                ) from exc
         self._started = self._last_frame_host = self._last_reopen = time.monotonic()
 
     def _after_stop(self, ended: bool) -> None:
@@ -369,6 +369,8 @@ class Acquisition(ThreadOwner):
         timeout = self.receive_timeout_s
         handle = self._handle
         frames_since_cpu = 0
+        if self._bus is None and self._factory is not None:
+            self._open_bus()  # start(require_bus=False): the first try is at once, here
         while not stop.is_set():
             bus = self._bus
             if bus is None:
@@ -553,6 +555,11 @@ class Acquisition(ThreadOwner):
     def _reopen(self) -> None:
         if self._factory is None or self._stop.wait(self._next_backoff()):
             return
+        self._open_bus(reconnect=True)
+
+    def _open_bus(self, *, reconnect: bool = False) -> None:
+        """Open a bus from the factory on this thread; count a failure (retried later)."""
+        assert self._factory is not None
         try:
             bus = self._factory()
         except Exception as exc:
@@ -561,7 +568,7 @@ class Acquisition(ThreadOwner):
             return
         with self._send_lock:
             self._bus = bus
-        self._c["reconnects"] += 1
+        self._c["reconnects"] += reconnect
         self._last_reopen = time.monotonic()
 
     def _next_backoff(self) -> float:

@@ -244,7 +244,10 @@ class Daemon:
             with mcap, ZenohPublisher(cfg.zenoh, run_config=run_config) as zenoh:
                 acquisition = handle.make_acquisition(ring)
                 self.acquisition = acquisition
-                acquisition.start(require_bus=False)
+                # The embedded plant's in-process bus opens at once, before the plant sends;
+                # any other bus opens on the acquisition thread (retried with back-off), so
+                # a server that never answers cannot block this thread and its signals.
+                acquisition.start(require_bus=handle.plant is not None)
                 if handle.plant is not None:
                     handle.plant.start()
                 worker = WindowWorker(

@@ -288,3 +288,21 @@ def test_an_unwritable_recordings_folder_stops_start_up_naming_the_key(tmp_path,
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "mcap.directory" in err[0] and "mcap.enabled = false" in err[0]
     assert not (blocker.parent / "rec").exists()
+
+
+def test_a_mute_socketcand_server_neither_hangs_start_up_nor_stop(tmp_path, free_port):
+    import socket
+
+    with socket.create_server(("127.0.0.1", 0)) as mute:  # accepts, never greets
+        extra = f'[link]\ninterface = "socketcand"\nport = {mute.getsockname()[1]}\n'
+        config = DaemonConfig.load(write_config(tmp_path, free_port, extra))
+        daemon = Daemon(config)
+
+        def stop_once_the_open_failed(status: dict, _estimate: object) -> None:
+            if status["acquisition"]["bus_errors"] >= 1:
+                daemon.request_stop()
+
+        daemon.on_status = stop_once_the_open_failed
+        summary = daemon.run(duration_s=60.0)  # returns through request_stop, not the duration
+    assert daemon.acquisition is not None and "did not greet" in daemon.acquisition.last_error
+    assert summary.samples == 0 and summary.failure is None
