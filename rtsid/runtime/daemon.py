@@ -305,7 +305,9 @@ class Daemon:
                 self._publish_status(mcap, zenoh)
             self.failure = self._first_failure()
             if self.failure is not None:
-                log.error("%s; stopping (exit status 1, so a supervisor restarts rtsid)", self.failure)
+                log.error(
+                    "%s; stopping (exit status 1, so a supervisor restarts rtsid)", self.failure
+                )
                 break
             if end is not None and time.monotonic() >= end:
                 break
