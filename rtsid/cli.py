@@ -62,7 +62,8 @@ def build_parser(commands: Sequence[str] | None = None) -> argparse.ArgumentPars
         if commands is not None and name not in commands:
             continue
         module = importlib.import_module(module_name)
-        cmd = sub.add_parser(name, help=help_text, description=help_text)
+        # argparse %-formats help strings ("95 % bands" would crash it); descriptions are not.
+        cmd = sub.add_parser(name, help=help_text.replace("%", "%%"), description=help_text)
         module.add_arguments(cmd)
         cmd.set_defaults(_module=module)
     return parser

@@ -10,6 +10,7 @@ names the key, the value and what is accepted. Range checks live in each datacla
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
 import types
 import typing
@@ -19,7 +20,14 @@ from typing import Any, TypeVar
 
 from rtsid.errors import ConfigError
 
-__all__ = ["invalid", "load_toml", "require_choice", "require_range", "section_from_mapping"]
+__all__ = [
+    "invalid",
+    "load_toml",
+    "require_choice",
+    "require_finite",
+    "require_range",
+    "section_from_mapping",
+]
 
 T = TypeVar("T")
 
@@ -44,13 +52,26 @@ def require_range(
     *,
     low_inclusive: bool = True,
 ) -> None:
-    """Raise unless ``low <= value <= high`` (``low < value`` when not ``low_inclusive``)."""
+    """Raise unless ``value`` is finite and ``low <= value <= high`` (``low < value`` when
+    not ``low_inclusive``). NaN compares false with everything, so it is refused first."""
     too_low = low is not None and (value < low if low_inclusive else value <= low)
     too_high = high is not None and value > high
-    if too_low or too_high:
+    if too_low or too_high or not math.isfinite(value):
         lo = "" if low is None else f"{'>=' if low_inclusive else '>'} {low}"
         hi = "" if high is None else f"<= {high}"
-        raise invalid(key, value, "a number " + " and ".join(p for p in (lo, hi) if p))
+        raise invalid(key, value, "a finite number " + " and ".join(p for p in (lo, hi) if p))
+
+
+def require_finite(key: str, value: object) -> None:
+    """Raise if ``value`` is, or (in a list/tuple) holds, a NaN or infinite float.
+
+    TOML accepts ``nan`` and ``inf``; no rtsid setting means anything with them (NaN even
+    passes every range check, e.g. ``max_sample_age_s = nan`` would turn staleness off).
+    """
+    values = value if isinstance(value, list | tuple) else (value,)
+    for v in values:
+        if isinstance(v, float) and not math.isfinite(v):
+            raise invalid(key, value, "a finite number")
 
 
 def load_toml(path: str | Path) -> dict[str, Any]:
@@ -117,8 +138,8 @@ def section_from_mapping(cls: type[T], mapping: Mapping[str, Any] | None, sectio
     Raises
     ------
     ConfigError
-        An unknown key (with the accepted keys), a value of the wrong type, or a value the
-        dataclass's own ``__post_init__`` rejects.
+        An unknown key (with the accepted keys), a value of the wrong type, a NaN or
+        infinite number, or a value the dataclass's own ``__post_init__`` rejects.
     """
     if not dataclasses.is_dataclass(cls):
         raise TypeError(f"{cls!r} is not a dataclass")
@@ -136,6 +157,7 @@ def section_from_mapping(cls: type[T], mapping: Mapping[str, Any] | None, sectio
         annotation = hints[name]
         if not _type_matches(value, annotation):
             raise invalid(f"{section}.{name}", value, f"a value of type {_type_name(annotation)}")
+        require_finite(f"{section}.{name}", value)
         if isinstance(value, list) and typing.get_origin(annotation) is tuple:
             value = tuple(value)
         if annotation is float and isinstance(value, int):

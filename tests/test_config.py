@@ -76,3 +76,11 @@ def test_print_config_is_the_full_default_configuration(tmp_path, capsys):
     assert {"daemon", "link", "plant", "estimator", "worker", "mcap", "zenoh"} <= set(
         load_toml(path)
     )
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), float("-inf")])
+def test_non_finite_numbers_are_refused_with_the_key(value):
+    with pytest.raises(ConfigError, match=r"'worker\.hop_s' = .*finite"):
+        section_from_mapping(Section, {"hop_s": value}, "worker")
+    with pytest.raises(ConfigError, match=r"'hop_s' = .*finite"):
+        require_range("hop_s", value, None, None)

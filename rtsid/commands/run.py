@@ -87,4 +87,6 @@ def run(args: argparse.Namespace) -> int:
         f"{'' if summary.clean_shutdown else ' (shutdown was not clean)'}",
         file=sys.stderr,
     )
+    if summary.failure is not None:
+        print(f"rtsid run: error: {summary.failure}", file=sys.stderr)
     return 0 if summary.clean_shutdown else 1

@@ -36,7 +36,7 @@ import numpy as np
 
 from rtsid import __version__
 from rtsid.config import invalid, require_range, section_from_mapping
-from rtsid.errors import InputDataError
+from rtsid.errors import InputDataError, RecordingError
 from rtsid.io.schemas import (
     SCHEMAS,
     encode_can_frames,
@@ -45,6 +45,7 @@ from rtsid.io.schemas import (
     encode_samples,
     encode_status,
 )
+from rtsid.lifecycle import ThreadOwner
 
 __all__ = ["McapConfig", "McapLogger", "recording_name", "register_channels"]
 
@@ -167,8 +168,10 @@ class _Counters:
         self.state = "starting"
 
 
-class McapLogger:
+class McapLogger(ThreadOwner):
     """Write rtsid messages to MCAP from a dedicated thread (a context manager).
+
+    A :class:`~rtsid.lifecycle.ThreadOwner`: ``start()``, ``stop(timeout_s)``, ``failure``.
 
     Parameters
     ----------
@@ -216,10 +219,11 @@ class McapLogger:
         self._extra_metadata = {str(k): str(v) for k, v in (metadata or {}).items()}
         self._records = {name: dict(record) for name, record in (records or {}).items()}
         self._open_file = open_file
+        super().__init__("rtsid-mcap")
         self._queue: queue.Queue[tuple[str, int, Any]] = queue.Queue(maxsize=config.queue_size)
-        self._stop = threading.Event()
         self._accepting = False
-        self._thread: threading.Thread | None = None
+        self._require_file = False
+        self._last_cause = ""
         self._c = _Counters()
         self._session_start = datetime.now(UTC)
         self._part = 0
@@ -233,14 +237,30 @@ class McapLogger:
             self._c.state = "disabled"
 
     # ------------------------------------------------------------------ life cycle
-    def start(self) -> McapLogger:
-        """Start the writer thread (idempotent). The first file is opened by that thread."""
+    def start(self, *, require_file: bool = False) -> McapLogger:
+        """Start the writer thread (idempotent).
+
+        Parameters
+        ----------
+        require_file : bool
+            Open the first file here and raise :class:`~rtsid.errors.RecordingError` if
+            that fails (the daemon: a run that cannot be recorded must not start). False:
+            the writer thread opens it, and failures are counted and retried.
+        """
         if not self.config.enabled or self._thread is not None:
             return self
+        self._require_file = require_file
+        return super().start()
+
+    def _before_start(self) -> None:
+        if self._require_file:
+            self._try_open()
+            if self._writer is None:
+                raise RecordingError(
+                    f"cannot record: {self._last_cause}, or set mcap.enabled = false to run "
+                    "without recording"
+                )
         self._accepting = True
-        self._thread = threading.Thread(target=self._run, name="rtsid-mcap", daemon=True)
-        self._thread.start()
-        return self
 
     def stop(self, timeout_s: float = 5.0) -> bool:
         """Stop accepting, write what is queued, finish the file (footer), join the thread.
@@ -253,28 +273,17 @@ class McapLogger:
         Returns
         -------
         bool
-            True when the thread finished in time (the file is then complete).
+            True when the thread finished in time and cleanly (the file is then complete).
         """
         self._accepting = False
-        self._stop.set()
-        thread, self._thread = self._thread, None
-        if thread is None:
-            return True
-        thread.join(timeout_s)
-        if thread.is_alive():
+        return super().stop(timeout_s)
+
+    def _after_stop(self, ended: bool) -> None:
+        if not ended:
             log.error(
-                "MCAP writer did not finish within %.1f s; the file may lack its footer "
-                "(rtsid recover FILE rewrites it)",
-                timeout_s,
+                "MCAP writer did not finish; the file may lack its footer "
+                "(rtsid recover FILE rewrites it)"
             )
-            return False
-        return True
-
-    def __enter__(self) -> McapLogger:
-        return self.start()
-
-    def __exit__(self, *exc_info: object) -> None:
-        self.stop()
 
     # ------------------------------------------------------------------ caller side
     def log_samples(
@@ -395,8 +404,21 @@ class McapLogger:
 
     # ------------------------------------------------------------------ writer thread
     def _run(self) -> None:
+        try:
+            self._loop()
+        except BaseException:  # ThreadOwner keeps the error; leave no file open behind it
+            stream, self._writer, self._stream = self._stream, None, None
+            if stream is not None:
+                try:
+                    stream.close()  # without a footer: `rtsid recover` rewrites it
+                except OSError:
+                    pass
+            raise
+
+    def _loop(self) -> None:
         cfg = self.config
-        self._try_open()
+        if self._writer is None:  # not opened by start(require_file=True)
+            self._try_open()
         next_flush = time.monotonic() + cfg.flush_interval_s
         while not self._stop.is_set():
             timeout = min(_STOP_POLL_S, max(0.0, next_flush - time.monotonic()))
@@ -562,7 +584,11 @@ class McapLogger:
 
     def _fail(self, exc: OSError, action: str, path: Path | None = None) -> None:
         target = path or (self._c.file and Path(self._c.file)) or Path(self.config.directory)
-        message = _describe_os_error(exc, action, target)
+        self._last_cause = _describe_os_error(exc, action, target)
+        message = (
+            f"{self._last_cause}. Estimates are still published; messages are counted as lost "
+            "until a new file opens"
+        )
         first = self._c.state != "error"
         # Abandon the file without writing more into it (its footer is missing: recoverable).
         writer_had_file = self._writer is not None
@@ -595,11 +621,10 @@ def _describe_os_error(exc: OSError, action: str, path: Path) -> str:
         fix = "free disk space or set mcap.directory to another disk"
     elif exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
         fix = "make the directory writable or set mcap.directory to a writable one"
+    elif exc.errno == errno.ENOTDIR:
+        fix = "part of the path is a file; set mcap.directory to a directory"
     elif exc.errno == errno.ENOENT:
         fix = "the directory vanished; recreate it or set mcap.directory"
     else:
         fix = "check the disk and mcap.directory"
-    return (
-        f"MCAP {action} {os.fspath(path)} failed: {reason}{f' ({code})' if code else ''}; {fix}. "
-        "Estimates are still published; messages are counted as lost until a new file opens"
-    )
+    return f"MCAP {action} {os.fspath(path)} failed: {reason}{f' ({code})' if code else ''}; {fix}"

@@ -235,18 +235,27 @@ class ZenohPublisher:
             self._retry_thread.start()
         return self
 
-    def stop(self, timeout_s: float = 5.0) -> None:
-        """Stop retrying, undeclare everything and close the session."""
+    def stop(self, timeout_s: float = 5.0) -> bool:
+        """Stop retrying, undeclare everything and close the session.
+
+        Returns
+        -------
+        bool
+            Whether the retry thread (if any) ended within ``timeout_s``.
+        """
         self._stop.set()
+        ended = True
         thread, self._retry_thread = self._retry_thread, None
         if thread is not None:
             thread.join(timeout_s)
+            ended = not thread.is_alive()
         with self._lock:
             entities, self._entities = self._entities, None
             if self._state != "disabled":
                 self._state = "closed"
         if entities is not None:
             self._close(entities)
+        return ended
 
     def __enter__(self) -> ZenohPublisher:
         return self.start()

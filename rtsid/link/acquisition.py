@@ -37,6 +37,7 @@ from typing import Any
 import can
 
 from rtsid.errors import LinkError
+from rtsid.lifecycle import ThreadOwner
 from rtsid.link.protocol import (
     COMMAND_ID,
     COUNTER_MODULO,
@@ -57,6 +58,16 @@ BusFactory = Callable[[], can.BusABC]
 CAN_ERR_BUSOFF = 0x40
 _CPU_EVERY = 512  # frames between thread CPU readings
 _WRAP_TOLERANCE = 0.1  # of a wrap period: how much earlier than expected a frame may arrive
+_HOST_SLACK_WRAPS = 0.3  # of a wrap period: how much longer than the host saw a silence may be
+_CONFIRM_FRAMES = 3  # frames continuing from the newest sample that unmask a held jump as stray
+_MAX_REJECTS_IN_ROW = 256  # rejected state frames in a row: a broken link, fatal to the thread
+
+_Sample = tuple[float, float, int, float, float]  # position rad, torque N·m, status, host s, bus s
+
+
+def _usable_time(stamp: Any) -> bool:
+    """Whether a frame's bus timestamp is a finite, non-negative number (0: not stamped)."""
+    return isinstance(stamp, int | float) and not isinstance(stamp, bool) and 0 <= stamp < math.inf
 
 
 def unwrap_counter(
@@ -132,6 +143,12 @@ class LinkCounters:
         No state frame for longer than ``stale_after_s``.
     stale_events : int
         Times the link became stale.
+    rejected : int
+        State frames that could not be used (a bus timestamp that is not a finite number,
+        or any error handling the frame): counted and dropped, never fatal one by one.
+    strays : int
+        State frames whose counter jumped ahead and that no later frame confirmed (a
+        foreign frame with a valid checksum): dropped, so they invent no lost samples.
     last_frame_age_s : float
         Seconds since the last state frame (since start if none).
     connected : bool
@@ -159,14 +176,18 @@ class LinkCounters:
     commands_seen: int
     stale: bool
     stale_events: int
+    rejected: int
+    strays: int
     last_frame_age_s: float
     connected: bool
     thread_cpu_s: float
     newest_index: int
 
 
-class Acquisition:
+class Acquisition(ThreadOwner):
     """Receive state frames on a thread and write one ring row per sample.
+
+    A :class:`~rtsid.lifecycle.ThreadOwner`: ``start()``, ``stop(timeout_s)``, ``failure``.
 
     Parameters
     ----------
@@ -211,6 +232,7 @@ class Acquisition:
         reorder_window: int = 64,
         name: str = "rtsid-acquisition",
     ) -> None:
+        super().__init__(name)
         if isinstance(bus, can.BusABC):
             self._factory: BusFactory | None = None
             self._bus: can.BusABC | None = bus
@@ -226,9 +248,8 @@ class Acquisition:
         self.backoff_max_s = backoff_max_s
         self.reorder_window = reorder_window
         self.name = name
-        self._stop = threading.Event()
+        self._require_bus = True
         self._send_lock = threading.Lock()
-        self._thread: threading.Thread | None = None
         self._c = dict.fromkeys(
             (
                 "frames",
@@ -246,6 +267,8 @@ class Acquisition:
                 "diagnostics",
                 "commands_seen",
                 "stale_events",
+                "rejected",
+                "strays",
             ),
             0,
         )
@@ -255,6 +278,9 @@ class Acquisition:
         self._last_frame_host = self._started
         self._last_bus_time = 0.0
         self._last_index = -1
+        self._pending: tuple[int, _Sample] | None = None  # a jump waiting for confirmation
+        self._pending_strikes = 0
+        self._rejects_in_row = 0
         self._backoff = backoff_min_s
         self._last_reopen = self._started
         self._command_counter = 0
@@ -264,59 +290,36 @@ class Acquisition:
         self.last_error: str = ""
 
     # ------------------------------------------------------------------ life cycle
-    def __enter__(self) -> Acquisition:
-        self.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    def start(self, *, require_bus: bool = True) -> None:
+    def start(self, *, require_bus: bool = True) -> Acquisition:
         """Open the bus (when given a factory) and start the thread.
 
         Parameters
         ----------
         require_bus : bool
-            Raise :class:`~rtsid.errors.LinkError` if the first opening fails (False:
-            keep retrying with back-off in the thread).
+            Open the bus here and raise :class:`~rtsid.errors.LinkError` if that fails.
+            False: the thread opens it (so a server that never answers cannot block the
+            caller, e.g. the daemon's main thread and its signal handling) and keeps
+            retrying with back-off.
         """
-        if self._thread is not None:
-            return
-        if self._bus is None and self._factory is not None:
+        self._require_bus = require_bus
+        return super().start()
+
+    def _before_start(self) -> None:
+        if self._bus is None and self._factory is not None and self._require_bus:
             try:
                 self._bus = self._factory()
             except Exception as exc:
-                if require_bus:
-                    raise LinkError(
-                        f"cannot open the CAN bus: {exc}; check [link] interface, channel, "
-                        "host and port, and that the adapter or server is up"
-                    ) from exc
-                self._note_error(exc)
+                raise LinkError(
+                    f"cannot open the CAN bus: {exc}; check [link] interface, channel, "
+                    "host and port, and that the adapter or server is up"
+                ) from exc
         self._started = self._last_frame_host = self._last_reopen = time.monotonic()
-        self._thread = threading.Thread(target=self._run, name=self.name, daemon=True)
-        self._thread.start()
 
-    def stop(self, timeout: float = 2.0) -> bool:
-        """Stop the thread (within about ``receive_timeout_s``) and close an owned bus.
-
-        Returns
-        -------
-        bool
-            Whether the thread ended within ``timeout`` seconds.
-        """
-        self._stop.set()
-        ended = True
-        if self._thread is not None:
-            self._thread.join(timeout)
-            ended = not self._thread.is_alive()
+    def _after_stop(self, ended: bool) -> None:
+        """Close an owned bus once the thread is gone (``stop`` returns within about
+        ``receive_timeout_s``)."""
         if ended:
             self._close_bus()
-        return ended
-
-    @property
-    def running(self) -> bool:
-        """Whether the thread is alive."""
-        return self._thread is not None and self._thread.is_alive()
 
     # ------------------------------------------------------------------ public API
     def counters(self) -> LinkCounters:
@@ -366,6 +369,8 @@ class Acquisition:
         timeout = self.receive_timeout_s
         handle = self._handle
         frames_since_cpu = 0
+        if self._bus is None and self._factory is not None:
+            self._open_bus()  # start(require_bus=False): the first try is at once, here
         while not stop.is_set():
             bus = self._bus
             if bus is None:
@@ -380,7 +385,10 @@ class Acquisition:
             if msg is None:
                 self._idle(now)
                 continue
-            handle(msg, now)
+            try:
+                handle(msg, now)
+            except Exception as exc:  # a frame must never end the thread; many in a row do
+                self._reject(exc)
             frames_since_cpu += 1
             if frames_since_cpu >= _CPU_EVERY:
                 frames_since_cpu = 0
@@ -418,43 +426,100 @@ class Acquisition:
         else:
             c["unknown_id"] += 1
 
-    def _on_state(self, data: bytearray, bus_time: float, now: float) -> None:
+    def _on_state(self, data: bytearray, bus_time: Any, now: float) -> None:
         decoded = decode_state(data)
-        c = self._c
         if decoded is None:
-            c["malformed"] += 1
+            self._c["malformed"] += 1
+            return
+        if not _usable_time(bus_time):
+            self._reject(LinkError(f"state frame with bus timestamp {bus_time!r}"))
             return
         position, torque, counter, status = decoded
-        last = self._last_index
-        ring = self.ring
-        if last < 0:
-            ring.start_at(counter)
+        sample = (position * POSITION_SCALE_RAD, torque * TORQUE_SCALE_NM, status, now, bus_time)
+        if self._last_index < 0:
+            self.ring.start_at(counter)
             self.anchor_index, self.anchor_host_time_s = counter, now
+            self._last_index = counter - 1
+            self._write(counter, sample)
         else:
-            index = self._unwrap(counter, last, bus_time, now)
-            if index <= last:
-                self._late(index)
-                return
-            if index > last + 1:
-                c["gaps"] += 1
-                c["lost_samples"] += index - last - 1
-                ring.append_gap(index - last - 1, now)
-        self._last_index = ring.append(
-            position * POSITION_SCALE_RAD, torque * TORQUE_SCALE_NM, status, now, bus_time
-        )
-        c["samples"] += 1
+            self._place(counter, sample)
+
+    def _place(self, counter: int, sample: _Sample) -> None:
+        """Write the sample a frame carries, holding a jump until a later frame confirms it.
+
+        A frame that jumps ahead is held (``_pending``). The next frame that lands past it
+        confirms the jump (the gap is written, then the held sample); frames landing in the
+        gap fill it (reordering). When ``_CONFIRM_FRAMES`` frames continue from the newest
+        sample instead, the held frame was a stray (a foreign or corrupt frame whose checksum
+        happened to pass): it is dropped and counted, and invents no lost samples.
+        """
+        last = self._last_index
+        index = self._unwrap(counter, last, sample[4], sample[3])
+        pending = self._pending
+        if index <= last:
+            self._late(index)
+        elif pending is None:
+            if index == last + 1:
+                self._write(index, sample)
+            else:
+                self._pending, self._pending_strikes = (index, sample), 0
+        elif index == pending[0]:
+            self._c["duplicates"] += 1
+        elif index > pending[0]:  # continues past the held frame: the jump was real
+            self._pending = None
+            self._write(*pending)
+            self._place(counter, sample)
+        else:  # lands between the newest sample and the held frame
+            self._write(index, sample)
+            if pending[0] == self._last_index + 1:
+                self._pending = None
+                self._write(*pending)
+            else:
+                self._pending_strikes += 1
+                if self._pending_strikes >= _CONFIRM_FRAMES:
+                    self._pending = None
+                    self._c["strays"] += 1
+
+    def _write(self, index: int, sample: _Sample) -> None:
+        """Write sample ``index`` after the newest one, the skipped indices as a gap."""
+        position, torque, status, now, bus_time = sample
+        lost = index - self._last_index - 1
+        if lost > 0:
+            self._c["gaps"] += 1
+            self._c["lost_samples"] += lost
+            self.ring.append_gap(lost, now)
+        self._last_index = self.ring.append(position, torque, status, now, bus_time)
+        self._c["samples"] += 1
         self._last_frame_host = now
         self._last_bus_time = bus_time
         self._stale = False
         self._backoff = self.backoff_min_s
+        self._rejects_in_row = 0
+
+    def _reject(self, exc: BaseException) -> None:
+        """Count a frame that could not be used; many in a row mean a fault, not a frame."""
+        self._c["rejected"] += 1
+        self._note_error(exc)
+        self._rejects_in_row += 1
+        if self._rejects_in_row >= _MAX_REJECTS_IN_ROW:
+            raise LinkError(
+                f"{self._rejects_in_row} state frames in a row were rejected (last: "
+                f"{self.last_error}); the link or this code is broken, not one frame"
+            ) from exc
 
     def _unwrap(self, counter: int, last: int, bus_time: float, now: float) -> int:
-        """Unwrapped index of ``counter`` given the newest index ``last`` (bus time when
-        the interface stamps frames, else the host clock)."""
+        """Unwrapped index of ``counter`` given the newest index ``last``.
+
+        The silence since the newest sample is measured on the bus clock when the interface
+        stamps frames, but never taken longer than the host clock saw (plus a slack for
+        queueing): a sender whose clock steps forward must not make whole counter wraps
+        (4096 phantom lost samples each) out of nothing.
+        """
+        host_elapsed = now - self._last_frame_host
+        elapsed = host_elapsed
         if bus_time > 0 and self._last_bus_time > 0 and bus_time >= self._last_bus_time:
-            elapsed = bus_time - self._last_bus_time
-        else:
-            elapsed = now - self._last_frame_host
+            slack_s = _HOST_SLACK_WRAPS * COUNTER_MODULO / self.fs_hz
+            elapsed = min(bus_time - self._last_bus_time, host_elapsed + slack_s)
         return unwrap_counter(counter, last, elapsed, self.fs_hz, self.reorder_window)
 
     def _late(self, index: int) -> None:
@@ -490,6 +555,11 @@ class Acquisition:
     def _reopen(self) -> None:
         if self._factory is None or self._stop.wait(self._next_backoff()):
             return
+        self._open_bus(reconnect=True)
+
+    def _open_bus(self, *, reconnect: bool = False) -> None:
+        """Open a bus from the factory on this thread; count a failure (retried later)."""
+        assert self._factory is not None
         try:
             bus = self._factory()
         except Exception as exc:
@@ -498,7 +568,7 @@ class Acquisition:
             return
         with self._send_lock:
             self._bus = bus
-        self._c["reconnects"] += 1
+        self._c["reconnects"] += reconnect
         self._last_reopen = time.monotonic()
 
     def _next_backoff(self) -> float:

@@ -95,15 +95,9 @@ def bus_factory(cfg: LinkConfig, channel: str | int | None = None) -> Callable[[
 
 def _open_socketcand(cfg: LinkConfig, channel: str) -> can.BusABC:
     # python-can's client retries connect() in a busy loop for 10 s and then blocks on the
-    # handshake without a timeout; probe first so a missing server fails fast.
-    try:
-        with socket.create_connection((cfg.host, cfg.port), timeout=_PROBE_TIMEOUT_S):
-            pass
-    except OSError as exc:
-        raise LinkError(
-            f"no socketcand server at {cfg.host}:{cfg.port} ({exc}); start it (e.g. "
-            f"'rtsid plant --port {cfg.port}') or fix [link] host/port"
-        ) from exc
+    # handshake without a timeout; probe first (connect and wait for the greeting, both
+    # bounded) so a missing or mute server fails fast instead of hanging the caller.
+    _probe_socketcand(cfg.host, cfg.port)
     # python-can's client logs a warning each time a TCP read ends inside a frame, which at
     # 2500 frames/s is most reads; nothing is lost, so keep only its errors.
     logging.getLogger("can.interfaces.socketcand").setLevel(logging.ERROR)
@@ -115,6 +109,29 @@ def _open_socketcand(cfg: LinkConfig, channel: str) -> can.BusABC:
         tcp_tune=cfg.tcp_tune,
         **dict(cfg.options),
     )
+
+
+def _probe_socketcand(host: str, port: int) -> None:
+    """Connect to a socketcand server and wait for its ``< hi >``; LinkError if either fails."""
+    try:
+        with socket.create_connection((host, port), timeout=_PROBE_TIMEOUT_S) as probe:
+            greeting = b""
+            while b"< hi >" not in greeting:
+                chunk = probe.recv(64)
+                if not chunk:
+                    raise ConnectionResetError("closed the connection before greeting")
+                greeting += chunk
+    except TimeoutError as exc:
+        raise LinkError(
+            f"the socketcand server at {host}:{port} accepted the connection but did not greet "
+            f"('< hi >') within {_PROBE_TIMEOUT_S:g} s; restart it, or fix [link] host/port if "
+            "something else listens there"
+        ) from exc
+    except OSError as exc:
+        raise LinkError(
+            f"no socketcand server at {host}:{port} ({exc}); start it (e.g. "
+            f"'rtsid plant --port {port}') or fix [link] host/port"
+        ) from exc
 
 
 @contextlib.contextmanager

@@ -23,6 +23,7 @@ import can
 import numpy as np
 from numpy.typing import NDArray
 
+from rtsid.lifecycle import ThreadOwner
 from rtsid.link.config import FaultConfig, PlantConfig
 from rtsid.link.protocol import (
     COMMAND_ID,
@@ -106,7 +107,8 @@ class BusSink:
 @dataclass(frozen=True)
 class PlantCounters:
     """What the plant did (snapshot). Lost samples = ``dropped + corrupted + shortened +
-    silenced + skipped + tx_overflows``; reordered frames arrive late and are lost too.
+    silenced + skipped + tx_overflows``; reordered frames arrive late and are put back in
+    place by the acquisition (it holds a jump until a later frame confirms it).
     ``samples`` counts samples whose turn to be sent has come (sent or destroyed by a fault)."""
 
     samples: int
@@ -198,7 +200,7 @@ class _FaultInjector:
         self._count(
             silenced, dropped, corrupt, short, duplicate, reorder, error_after, unknown_after
         )
-        self._record_lost(index[silenced | dropped | corrupt | short | reorder])
+        self._record_lost(index[silenced | dropped | corrupt | short])
         out: list[can.Message] = []
         for k in range(n):
             if reorder[k]:  # frame k goes out after frame k + 1 (it arrives late)
@@ -250,7 +252,7 @@ def _state_frame(data: bytes) -> can.Message:
     return can.Message(arbitration_id=STATE_ID, data=data, is_extended_id=False, check=False)
 
 
-class VirtualPlant:
+class VirtualPlant(ThreadOwner):
     """A simulated ankle robot on a CAN bus (context manager owning the "rtsid-plant" thread).
 
     Parameters
@@ -286,9 +288,7 @@ class VirtualPlant:
         else:
             self._source = PlayerSource(cfg)
         self._faults = _FaultInjector(cfg.faults, cfg.fs_hz)
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._error: BaseException | None = None
+        super().__init__("rtsid-plant", ends_by_itself=True)  # a player reaches its end
         self._c = dict.fromkeys(
             (
                 "samples",
@@ -311,34 +311,9 @@ class VirtualPlant:
         database()  # parse the DBC now, not in the middle of the first block
 
     # ------------------------------------------------------------------ life cycle
-    def __enter__(self) -> VirtualPlant:
-        self.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    def start(self) -> None:
-        """Start the plant thread (idempotent)."""
-        if self._thread is not None:
-            return
-        self._thread = threading.Thread(target=self._run, name="rtsid-plant", daemon=True)
-        self._thread.start()
-
-    def stop(self, timeout: float = 2.0) -> bool:
-        """Stop the thread within ``timeout`` seconds; returns whether it ended."""
-        self._stop.set()
+    def _interrupt(self) -> None:
         if isinstance(self._sink, BusSink):
             self._sink.stop.set()
-        if self._thread is None:
-            return True
-        self._thread.join(timeout)
-        return not self._thread.is_alive()
-
-    @property
-    def error(self) -> BaseException | None:
-        """The exception that ended the plant thread, if any."""
-        return self._error
 
     # ------------------------------------------------------------------ accessors
     @property
@@ -370,7 +345,7 @@ class VirtualPlant:
         )
 
     def lost_indices(self) -> NDArray[np.int64]:
-        """Sample indices the faults destroyed (dropped, corrupt, short, silenced, reordered)."""
+        """Sample indices the faults destroyed (dropped, corrupt, short, silenced)."""
         return np.sort(self._faults.lost_indices[: self._faults.lost_count])
 
     def recorded(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -380,11 +355,9 @@ class VirtualPlant:
         return position, np.asarray(self._record[:n, 1] * TORQUE_SCALE_NM, dtype=np.float64)
 
     # ------------------------------------------------------------------ the thread
-    def _run(self) -> None:
+    def _run(self) -> None:  # an error is kept in .error by ThreadOwner
         try:
             self._loop()
-        except BaseException as exc:  # reported through .error; the thread must not die silently
-            self._error = exc
         finally:
             self.done.set()
 

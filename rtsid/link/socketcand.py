@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import can
 
 from rtsid.errors import ConfigError, LinkError
+from rtsid.lifecycle import ThreadOwner
 
 __all__ = ["ServerCounters", "SocketcandServer", "format_frame", "parse_send"]
 
@@ -104,7 +105,7 @@ class _Client:
         self.closed = False
 
 
-class SocketcandServer:
+class SocketcandServer(ThreadOwner):
     """socketcand server for one CAN channel on 127.0.0.1 (a frame sink for the plant).
 
     Parameters
@@ -138,6 +139,7 @@ class SocketcandServer:
                 f"socketcand server host {host!r} is not accepted; rtsid serves on loopback "
                 "only ('127.0.0.1' or '::1') — run a real socketcand for remote access"
             )
+        super().__init__("rtsid-socketcand")
         self.host = host
         self.channel = channel
         self.handshake_pause_s = handshake_pause_s
@@ -149,8 +151,6 @@ class SocketcandServer:
         self._clients: list[_Client] = []
         self._clients_lock = threading.Lock()
         self._inbox: collections.deque[can.Message] = collections.deque(maxlen=max_inbox)
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
         self._c = dict.fromkeys(
             (
                 "clients_total",
@@ -164,17 +164,8 @@ class SocketcandServer:
         )
 
     # ------------------------------------------------------------------ life cycle
-    def __enter__(self) -> SocketcandServer:
-        self.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    def start(self) -> None:
-        """Bind, listen and start the I/O thread."""
-        if self._thread is not None:
-            return
+    def _before_start(self) -> None:
+        """Bind and listen (the I/O thread then accepts and serves)."""
         family = socket.AF_INET6 if ":" in self.host else socket.AF_INET
         listener = socket.socket(family, socket.SOCK_STREAM)
         listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -191,16 +182,9 @@ class SocketcandServer:
         self.port = listener.getsockname()[1]
         self._listener = listener
         self._selector.register(listener, selectors.EVENT_READ, None)
-        self._thread = threading.Thread(target=self._run, name="rtsid-socketcand", daemon=True)
-        self._thread.start()
 
-    def stop(self, timeout: float = 2.0) -> bool:
-        """Stop the I/O thread (it wakes every 20 ms) and close every socket."""
-        self._stop.set()
-        ended = True
-        if self._thread is not None:
-            self._thread.join(timeout)
-            ended = not self._thread.is_alive()
+    def _after_stop(self, ended: bool) -> None:
+        """Close every socket (the I/O thread wakes every 20 ms to see the stop)."""
         with self._clients_lock:
             clients, self._clients = self._clients, []
         for client in clients:
@@ -212,7 +196,6 @@ class SocketcandServer:
             self._listener = None
         if ended:
             self._selector.close()
-        return ended
 
     @property
     def address(self) -> tuple[str, int]:

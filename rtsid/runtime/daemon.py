@@ -6,6 +6,12 @@ zenoh) and publishing status — on absolute deadlines until asked to stop.
 
 Shutdown order keeps every sample: worker, then acquisition, then a last forward of the ring,
 then the MCAP file is finished, zenoh closed and the embedded plant stopped.
+
+Every thread owner (:class:`rtsid.lifecycle.ThreadOwner`) is watched each housekeeping tick:
+when the acquisition, the worker, the MCAP writer or the embedded plant dies, the daemon shuts
+down and :attr:`RunSummary.failure` says which and why (``rtsid run`` then exits 1, so a
+supervisor such as systemd's ``Restart=on-failure`` restarts it). A run whose recordings
+folder cannot be written does not start (:class:`~rtsid.errors.RecordingError`).
 """
 
 from __future__ import annotations
@@ -23,13 +29,14 @@ from typing import Any
 
 from rtsid import __version__
 from rtsid.calibrate import calibration_record, robot_torque_offset
-from rtsid.config import load_toml, require_range, section_from_mapping
+from rtsid.config import invalid, load_toml, require_range, section_from_mapping
 from rtsid.errors import ConfigError
 from rtsid.ident.window import EstimatorOptions
 from rtsid.io.mcap_log import McapConfig, McapLogger
 from rtsid.io.procstats import ProcessMeter
 from rtsid.io.schemas import encode_estimate, encode_status
 from rtsid.io.zenoh_link import ZenohConfig, ZenohPublisher
+from rtsid.lifecycle import ThreadOwner
 from rtsid.link.acquisition import Acquisition
 from rtsid.link.config import LinkConfig, PlantConfig, link_configs_from_mapping
 from rtsid.link.open import open_link
@@ -94,6 +101,18 @@ class DaemonConfig:
     mcap: McapConfig = field(default_factory=McapConfig)
     zenoh: ZenohConfig = field(default_factory=ZenohConfig)
 
+    def __post_init__(self) -> None:
+        """Checks across sections (each section checked its own keys already)."""
+        room_s = self.link.ring_capacity_s - self.worker.hop_s
+        if self.worker.window_s > room_s:
+            raise invalid(
+                "worker.window_s",
+                self.worker.window_s,
+                f"a window that fits the ring with a hop to spare (<= link.ring_capacity_s - "
+                f"worker.hop_s = {room_s:g} s); shorten worker.window_s or lengthen "
+                "link.ring_capacity_s",
+            )
+
     @classmethod
     def from_mapping(
         cls, document: Mapping[str, Any], base_dir: str | Path | None = None
@@ -157,6 +176,7 @@ class RunSummary:
     mcap_files: list[str]
     mcap_dropped: int
     clean_shutdown: bool
+    failure: str | None = None
 
 
 class Daemon:
@@ -185,6 +205,8 @@ class Daemon:
         self._overwritten = 0
         self.worker: WindowWorker | None = None
         self.acquisition: Acquisition | None = None
+        self._components: list[ThreadOwner | None] = []
+        self.failure: str | None = None
 
     def request_stop(self) -> None:
         """Ask :meth:`run` to shut down (safe from a signal handler)."""
@@ -218,10 +240,14 @@ class Daemon:
                 metadata={"software": f"rtsid {__version__}"},
                 records=calibration_record(cfg.worker.calibration_file),
             )
+            mcap.start(require_file=True)  # a run that cannot be recorded must not start
             with mcap, ZenohPublisher(cfg.zenoh, run_config=run_config) as zenoh:
                 acquisition = handle.make_acquisition(ring)
                 self.acquisition = acquisition
-                acquisition.start(require_bus=False)
+                # The embedded plant's in-process bus opens at once, before the plant sends;
+                # any other bus opens on the acquisition thread (retried with back-off), so
+                # a server that never answers cannot block this thread and its signals.
+                acquisition.start(require_bus=handle.plant is not None)
                 if handle.plant is not None:
                     handle.plant.start()
                 worker = WindowWorker(
@@ -240,6 +266,7 @@ class Daemon:
                 gc.collect()
                 gc.freeze()
                 worker.start()
+                self._components = [acquisition, worker, mcap, handle.plant]
                 clean = True
                 try:
                     self._housekeeping(ring, mcap, zenoh, duration_s)
@@ -249,8 +276,18 @@ class Daemon:
                     clean &= acquisition.stop(timeout)
                     self._forward_samples(ring, mcap, zenoh)
                     self._publish_status(mcap, zenoh)
+            clean &= mcap.stop(cfg.daemon.shutdown_timeout_s)
             clean &= not mcap.stats().get("errors", 0)
-        return self._summary(mcap, clean)
+        self.failure = self.failure or self._first_failure()
+        return self._summary(mcap, clean and self.failure is None)
+
+    def _first_failure(self) -> str | None:
+        """The first component (acquisition, worker, MCAP writer, plant) whose thread died."""
+        for component in self._components:
+            failure = component.failure if component is not None else None
+            if failure is not None:
+                return failure
+        return None
 
     # ------------------------------------------------------------------ housekeeping
     def _housekeeping(
@@ -266,8 +303,11 @@ class Daemon:
             tick += 1
             if tick % status_every == 0:
                 self._publish_status(mcap, zenoh)
-            if self.worker is not None and self.worker.error is not None:
-                log.error("window worker failed: %r; stopping", self.worker.error)
+            self.failure = self._first_failure()
+            if self.failure is not None:
+                log.error(
+                    "%s; stopping (exit status 1, so a supervisor restarts rtsid)", self.failure
+                )
                 break
             if end is not None and time.monotonic() >= end:
                 break
@@ -335,4 +375,5 @@ class Daemon:
             mcap_files=[str(p) for p in mcap.files],
             mcap_dropped=int(stats.get("dropped", 0)),
             clean_shutdown=clean,
+            failure=self.failure,
         )

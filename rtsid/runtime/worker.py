@@ -30,6 +30,7 @@ from rtsid.config import require_range, section_from_mapping
 from rtsid.errors import ConfigError, InputDataError, NumericalError, WindowError
 from rtsid.ident.stream import WindowStream
 from rtsid.ident.window import EstimatorOptions, WindowEstimate
+from rtsid.lifecycle import ThreadOwner
 from rtsid.link.protocol import (
     STATUS_DISCONTINUITY,
     STATUS_POSITION_SATURATED,
@@ -136,8 +137,10 @@ def assess_window(snap: Snapshot, now_s: float, max_age_s: float) -> str | None:
     return None
 
 
-class WindowWorker:
+class WindowWorker(ThreadOwner):
     """Estimate the latest window every hop on a named thread (a context manager).
+
+    A :class:`~rtsid.lifecycle.ThreadOwner`: ``start()``, ``stop(timeout_s)``, ``failure``.
 
     Parameters
     ----------
@@ -172,6 +175,7 @@ class WindowWorker:
         joint: str = "ankle",
         torque_offset: Callable[[np.ndarray], np.ndarray] | None = None,
     ) -> None:
+        super().__init__("rtsid-worker")
         self.ring = ring
         self.fs_hz = float(fs_hz)
         self.config = config
@@ -185,41 +189,21 @@ class WindowWorker:
         self.stream = WindowStream(fs_hz, options, config.hop_s)
         self.window_samples = round(config.window_s * fs_hz)
         self.hop_samples = max(1, round(config.hop_s * fs_hz))
-        self._stop = threading.Event()
         self._wake = threading.Event()  # set by the ring's writer, or by stop()
-        self._thread: threading.Thread | None = None
         self._seq = 0
         self._withheld: Counter[str] = Counter()
         self._estimates = 0
         self._misses = 0
         self._overruns = 0
         self._compute_ms = 0.0
-        self.error: BaseException | None = None
 
     # ------------------------------------------------------------------ life cycle
-    def start(self) -> WindowWorker:
-        """Start the worker thread (needs a ring)."""
+    def _before_start(self) -> None:
         if self.ring is None:
             raise ValueError("WindowWorker.start() needs a ring; replay calls evaluate()")
-        if self._thread is None:
-            self._thread = threading.Thread(target=self._run, name="rtsid-worker", daemon=True)
-            self._thread.start()
-        return self
 
-    def stop(self, timeout_s: float = 2.0) -> bool:
-        """Stop and join; True if the thread ended within ``timeout_s``."""
-        self._stop.set()
+    def _interrupt(self) -> None:
         self._wake.set()
-        if self._thread is None:
-            return True
-        self._thread.join(timeout_s)
-        return not self._thread.is_alive()
-
-    def __enter__(self) -> WindowWorker:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     def counters(self) -> WorkerCounters:
         """Totals since start."""
@@ -247,12 +231,8 @@ class WindowWorker:
         return max(first, newest_end)
 
     # ------------------------------------------------------------------ the loop
-    def _run(self) -> None:
-        try:
-            self._loop()
-        except BaseException as exc:  # reported in status; the daemon decides what to do
-            self.error = exc
-            raise
+    def _run(self) -> None:  # errors are kept by ThreadOwner; the daemon decides what to do
+        self._loop()
 
     def _loop(self) -> None:
         assert self.ring is not None

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from rtsid.errors import ConfigError, LinkError
+from rtsid.link.acquisition import Acquisition
 from rtsid.link.config import LinkConfig, PlantConfig
 from rtsid.link.open import open_link
 from rtsid.link.plant import VirtualPlant
@@ -111,6 +112,36 @@ def test_a_missing_server_is_a_fast_clear_link_error():
     with open_link(link) as handle:
         with pytest.raises(LinkError, match=f"no socketcand server at 127.0.0.1:{port}"):
             handle.make_acquisition(RingBuffer(1000)).start()
+
+
+def test_a_server_that_never_greets_is_a_clear_link_error_not_a_hang():
+    with socket.create_server(("127.0.0.1", 0)) as mute:  # accepts (backlog), never says hi
+        port = mute.getsockname()[1]
+        link = LinkConfig(interface="socketcand", port=port)
+        with open_link(link) as handle:
+            with pytest.raises(LinkError, match=f"127.0.0.1:{port}.*did not greet") as info:
+                handle.bus_factory()
+    assert "\n" not in str(info.value)
+
+
+def test_the_daemons_acquisition_opens_the_bus_off_the_calling_thread(channel):
+    import threading
+
+    opened_on: list[str] = []
+
+    def factory() -> can.BusABC:
+        opened_on.append(threading.current_thread().name)
+        return can.Bus(interface="virtual", channel=channel)
+
+    acq = Acquisition(factory, RingBuffer(1000), backoff_min_s=0.01)
+    acq.start(require_bus=False)  # returns at once even if opening would block
+    try:
+        deadline = time.monotonic() + 10.0
+        while not opened_on and time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        assert acq.stop(timeout_s=2.0)
+    assert opened_on == ["rtsid-acquisition"]
 
 
 def read_line(proc: subprocess.Popen, timeout: float) -> str:

@@ -210,16 +210,99 @@ def test_zenoh_unavailable_does_not_stop_acquisition_or_logging(tmp_path, free_p
     assert zenoh_state["state"] != "up" and zenoh_state["errors"] >= 1
 
 
-def test_unwritable_recordings_folder_keeps_estimating_and_says_why(tmp_path, free_port):
-    blocked = tmp_path / "not-a-folder"
-    blocked.write_text("a file where the recordings folder should be")
-    config_path = write_config(tmp_path, free_port)
-    text = config_path.read_text().replace(str(tmp_path / "rec"), str(blocked / "rec"))
-    config_path.write_text(text)
-    statuses = []
-    daemon = Daemon(DaemonConfig.load(config_path), on_status=lambda s, e: statuses.append(s))
-    summary = daemon.run(duration_s=1.5)
-    assert summary.estimates > 20  # identification and publishing went on
-    assert not summary.clean_shutdown  # …but the run reports that logging failed
-    mcap_state = statuses[-1]["mcap"]
-    assert mcap_state["errors"] >= 1 and "not-a-folder" in mcap_state["last_error"]
+def _numeric_keys(table: dict, prefix: tuple[str, ...] = ()) -> list[tuple[str, ...]]:
+    """Every float-valued key of a config document, as paths (section, [sub,] key)."""
+    keys = []
+    for key, value in table.items():
+        if isinstance(value, dict):
+            keys += _numeric_keys(value, (*prefix, key))
+        elif isinstance(value, float):
+            keys.append((*prefix, key))
+    return keys
+
+
+@pytest.mark.parametrize("path", _numeric_keys(DaemonConfig().as_dict()), ids=".".join)
+def test_nan_in_any_numeric_key_is_one_line_naming_the_key(path):
+    document: dict = {}
+    table = document
+    for part in path[:-1]:
+        table = table.setdefault(part, {})
+    table[path[-1]] = float("nan")
+    with pytest.raises(ConfigError) as info:
+        DaemonConfig.from_mapping(document)
+    message = str(info.value)
+    assert ".".join(path) in message and "finite" in message and "\n" not in message
+
+
+def test_window_longer_than_the_ring_is_refused_with_the_fix():
+    document = {"link": {"ring_capacity_s": 1.0}, "worker": {"window_s": 2.0}}
+    with pytest.raises(ConfigError) as info:
+        DaemonConfig.from_mapping(document)
+    message = str(info.value)
+    assert "worker.window_s" in message and "link.ring_capacity_s" in message
+    assert "\n" not in message
+    DaemonConfig.from_mapping({"link": {"ring_capacity_s": 1.0}, "worker": {"window_s": 0.5}})
+
+
+def _injected(*_args: object, **_kwargs: object) -> None:
+    raise RuntimeError("injected failure")
+
+
+@pytest.mark.parametrize(
+    ("thread", "owner", "method"),
+    [
+        ("rtsid-acquisition", "rtsid.link.acquisition.Acquisition", "_handle"),
+        ("rtsid-worker", "rtsid.runtime.worker.WindowWorker", "process_window"),
+        ("rtsid-mcap", "rtsid.io.mcap_log.McapLogger", "_write"),
+    ],
+)
+def test_a_dying_thread_stops_the_daemon_with_a_failure(
+    tmp_path, free_port, monkeypatch, thread, owner, method
+):
+    monkeypatch.setattr(f"{owner}.{method}", _injected)
+    config = DaemonConfig.load(write_config(tmp_path, free_port))
+    summary = Daemon(config).run(duration_s=60.0)  # only the failure can end it before that
+    assert not summary.clean_shutdown
+    assert summary.failure is not None
+    assert thread in summary.failure and "injected failure" in summary.failure
+
+
+def test_rtsid_run_exits_1_naming_the_dead_thread(tmp_path, free_port, monkeypatch, capsys):
+    from rtsid.cli import main
+
+    monkeypatch.setattr("rtsid.runtime.worker.WindowWorker.process_window", _injected)
+    config = write_config(tmp_path, free_port)
+    assert main(["run", "--config", str(config), "--quiet", "--duration", "60"]) == 1
+    err = capsys.readouterr().err
+    assert "rtsid run: error: thread rtsid-worker failed: RuntimeError: injected failure" in err
+
+
+def test_an_unwritable_recordings_folder_stops_start_up_naming_the_key(tmp_path, free_port, capsys):
+    from rtsid.cli import main
+
+    blocker = tmp_path / "a-file"
+    blocker.write_text("x")
+    config = write_config(tmp_path, free_port)
+    config.write_text(config.read_text().replace(str(tmp_path / "rec"), str(blocker / "rec")))
+    assert main(["run", "--config", str(config), "--quiet", "--duration", "60"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "mcap.directory" in err[0] and "mcap.enabled = false" in err[0]
+    assert not (blocker.parent / "rec").exists()
+
+
+def test_a_mute_socketcand_server_neither_hangs_start_up_nor_stop(tmp_path, free_port):
+    import socket
+
+    with socket.create_server(("127.0.0.1", 0)) as mute:  # accepts, never greets
+        extra = f'[link]\ninterface = "socketcand"\nport = {mute.getsockname()[1]}\n'
+        config = DaemonConfig.load(write_config(tmp_path, free_port, extra))
+        daemon = Daemon(config)
+
+        def stop_once_the_open_failed(status: dict, _estimate: object) -> None:
+            if status["acquisition"]["bus_errors"] >= 1:
+                daemon.request_stop()
+
+        daemon.on_status = stop_once_the_open_failed
+        summary = daemon.run(duration_s=60.0)  # returns through request_stop, not the duration
+    assert daemon.acquisition is not None and "did not greet" in daemon.acquisition.last_error
+    assert summary.samples == 0 and summary.failure is None
