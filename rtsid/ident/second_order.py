@@ -45,6 +45,7 @@ from rtsid.ident.correlation import auto_correlation
 from rtsid.ident.filters import stencil_derivatives
 
 __all__ = [
+    "OutputErrorDesign",
     "OutputErrorFit",
     "ParameterFit",
     "fit_linear",
@@ -326,6 +327,86 @@ def _without_trend(rows: FloatArray) -> FloatArray:
     return np.asarray(centred - np.outer(centred @ t / float(t @ t), t), dtype=np.float64)
 
 
+class OutputErrorDesign:
+    """One window's output-error least-squares problem, formed once and fitted as needed.
+
+    Least squares of ``y`` on ``(ü, u̇, u)`` — 8th-order central-difference stencils at
+    ``fs_hz`` — with an offset and a linear trend as nuisance terms, over the samples the
+    stencils support (4 … n−5). Projecting the nuisance terms out is linear, so one
+    4 × 4 Gram matrix of the projected regressors and torque serves the full fit and every
+    fit with held parameters (a held parameter's row moves to the right-hand side).
+
+    Parameters
+    ----------
+    u, y : array_like, shape (n,)
+        Band-limited position (rad) and torque (N·m) at the analysis rate.
+    fs_hz : float
+        Analysis rate, Hz.
+
+    Raises
+    ------
+    NumericalError
+        The torque is zero (it does not follow position).
+    """
+
+    def __init__(self, u: ArrayLike, y: ArrayLike, fs_hz: float) -> None:
+        u_arr = np.asarray(u, dtype=np.float64)
+        y_arr = np.asarray(y, dtype=np.float64)
+        d1, d2 = stencil_derivatives(u_arr, fs_hz)
+        self.measured = y_arr[4:-4]
+        self.regressors = np.vstack((d2, d1, u_arr[4:-4]))
+        self.projected = _without_trend(np.vstack((self.regressors, self.measured)))
+        self.gram = self.projected @ self.projected.T
+        if not self.gram[3, 3] > 0:
+            raise zero_response()
+
+    def fit(
+        self,
+        *,
+        inertia: float | None = None,
+        damping: float | None = None,
+        uncertainty: bool = False,
+        noise_lags: int = 0,
+    ) -> OutputErrorFit:
+        """``(I, B, K)`` minimising the torque prediction error; held values not fitted.
+
+        Parameters
+        ----------
+        inertia, damping : float, optional
+            Held values (kg·m², N·m·s/rad); damping is held only with inertia.
+        uncertainty : bool
+            Compute standard errors.
+        noise_lags : int
+            Lags of the residual's autocorrelation in the sandwich covariance (at least the
+            band-limiting filter's length in analysis samples: filtered noise is correlated).
+
+        Raises
+        ------
+        NumericalError
+            The free regressors are collinear (no perturbation in the window).
+        """
+        held = [] if inertia is None else ([inertia] if damping is None else [inertia, damping])
+        k = len(held)
+        gram = self.gram[k:3, k:3]
+        rhs = self.gram[k:3, 3] - self.gram[k:3, :k] @ np.asarray(held, dtype=np.float64)
+        scale = np.sqrt(np.diag(gram))
+        if not np.all(scale > 0):
+            raise inseparable_fit()
+        normalised = gram / np.outer(scale, scale)
+        if not np.linalg.det(normalised) > 1e-12:
+            raise inseparable_fit()
+        estimate = np.linalg.solve(normalised, rhs / scale) / scale
+        params = np.concatenate((np.asarray(held, dtype=np.float64), estimate))
+        se = np.full(3, np.nan)
+        if uncertainty:
+            residual = self.projected[3] - params @ self.projected[:3]
+            cov = _sandwich(self.projected[k:3], residual, gram, max(1, noise_lags))
+            se[k:] = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        return OutputErrorFit(
+            params=params, se=se, measured=self.measured, model=params @ self.regressors
+        )
+
+
 def fit_output_error(
     u: ArrayLike,
     y: ArrayLike,
@@ -338,24 +419,7 @@ def fit_output_error(
 ) -> OutputErrorFit:
     """``(I, B, K)`` minimising the torque prediction error of one window.
 
-    Least squares of ``y`` on ``(ü, u̇, u)`` — 8th-order central-difference stencils at
-    ``fs_hz`` — with an offset and a linear trend as nuisance terms, over the samples the
-    stencils support (4 … n−5). Held parameters (``inertia``, ``damping``) are subtracted
-    with their regressors and not fitted.
-
-    Parameters
-    ----------
-    u, y : array_like, shape (n,)
-        Band-limited position (rad) and torque (N·m) at the analysis rate.
-    fs_hz : float
-        Analysis rate, Hz.
-    inertia, damping : float, optional
-        Held values (kg·m², N·m·s/rad); damping may be held only with inertia.
-    uncertainty : bool
-        Compute standard errors.
-    noise_lags : int
-        Lags of the residual's autocorrelation in the sandwich covariance (at least the
-        band-limiting filter's length in analysis samples: filtered noise is correlated).
+    :class:`OutputErrorDesign` formed and fitted once (see there for the parameters).
 
     Returns
     -------
@@ -366,34 +430,9 @@ def fit_output_error(
     NumericalError
         The regressors are collinear (no perturbation in the window) or the torque is zero.
     """
-    u_arr = np.asarray(u, dtype=np.float64)
-    y_arr = np.asarray(y, dtype=np.float64)
-    d1, d2 = stencil_derivatives(u_arr, fs_hz)
-    regressors = np.vstack((d2, d1, u_arr[4:-4]))
-    measured = y_arr[4:-4]
-    held = np.array([inertia, damping], dtype=object)
-    n_held = 0 if inertia is None else (2 if damping is not None else 1)
-    target = measured.copy()
-    for k in range(n_held):
-        target -= float(held[k]) * regressors[k]
-    free = _without_trend(np.vstack((regressors[n_held:], target)))
-    x, z = free[:-1], free[-1]
-    gram = x @ x.T
-    scale = np.sqrt(np.diag(gram))
-    if not np.all(scale > 0) or not np.any(z):
-        raise zero_response() if not np.any(z) else inseparable_fit()
-    normalised = gram / np.outer(scale, scale)
-    if np.linalg.cond(normalised) > 1e12:
-        raise inseparable_fit()
-    estimate = np.linalg.solve(normalised, (x @ z) / scale) / scale
-    params = np.array([float(v) for v in held[:n_held]] + estimate.tolist())
-    model = params @ regressors
-    se = np.full(3, np.nan)
-    if uncertainty:
-        residual = z - estimate @ x
-        cov = _sandwich(x, residual, gram, max(1, noise_lags))
-        se[n_held:] = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    return OutputErrorFit(params=params, se=se, measured=measured, model=model)
+    return OutputErrorDesign(u, y, fs_hz).fit(
+        inertia=inertia, damping=damping, uncertainty=uncertainty, noise_lags=noise_lags
+    )
 
 
 def _sandwich(x: FloatArray, residual: FloatArray, gram: FloatArray, lags: int) -> FloatArray:

@@ -27,6 +27,9 @@ from numpy.typing import ArrayLike
 
 from rtsid.errors import InputDataError, NumericalError, WindowError
 from rtsid.ident.analysis import AnalysisPlan
+from rtsid.ident.irf import IRF
+from rtsid.ident.second_order import OutputErrorDesign
+from rtsid.ident.vaf import vaf
 from rtsid.ident.window import (
     EstimatorOptions,
     Held,
@@ -35,6 +38,7 @@ from rtsid.ident.window import (
     check_window,
     front_end,
     held_values,
+    output_error_back_end,
     resolve_plan,
 )
 
@@ -68,17 +72,18 @@ class HeldParameters:
         damping = float(np.median(self._damping)) if self.hold == "inertia_damping" else None
         return Held(inertia, damping)
 
-    def learn(self, full_fit: WindowEstimate) -> None:
+    def learn(self, inertia: float, damping: float, explained: bool) -> None:
         """Add one window's full fit (I, B and K all fitted) to the horizon.
 
-        Fits flagged ``negative_inertia``/``negative_damping`` or with ``low_vaf`` are not
-        learned from: they say the window could not determine the parameter.
+        A fit with a non-positive inertia, or that explains too little of the torque
+        (``explained`` false: below ``low_vaf_percent``), is not learned from: the window
+        could not determine the parameters. A non-positive damping is not learned either.
         """
-        if self.hold == "none" or {"negative_inertia", "low_vaf"} & set(full_fit.flags):
+        if self.hold == "none" or not explained or not inertia > 0:
             return
-        self._inertia.append(full_fit.I)
-        if full_fit.B > 0:
-            self._damping.append(full_fit.B)
+        self._inertia.append(inertia)
+        if damping > 0:
+            self._damping.append(damping)
 
 
 class WindowStream:
@@ -112,8 +117,8 @@ class WindowStream:
     def estimate(self, position: ArrayLike, torque: ArrayLike) -> WindowEstimate:
         """The next window's estimate (same errors as :func:`estimate_window`).
 
-        With a learned hold, the window is fitted twice from one IRF: in full (learned
-        from) and with the held values (returned).
+        With a learned hold, the window is fitted twice from one IRF and one least-squares
+        design: in full (learned from) and with the held values (returned).
         """
         pos = np.ascontiguousarray(position, dtype=np.float64)
         tor = np.ascontiguousarray(torque, dtype=np.float64)
@@ -124,11 +129,21 @@ class WindowStream:
         if self.options.hold == "none":
             return back_end(irf, u, y, self.options, self.plan)
         held = held_values(self.options, self.held.current())  # from earlier windows only
-        full = back_end(irf, u, y, self.options, self.plan)
-        self.held.learn(full)
-        if held.inertia is None:
-            return full
-        return back_end(irf, u, y, self.options, self.plan, held)
+        if self.options.fit_method != "output_error":
+            full = back_end(irf, u, y, self.options, self.plan)
+            self.held.learn(full.I, full.B, "low_vaf" not in full.flags)
+            return full if held.inertia is None else back_end(*self._args(irf, u, y), held)
+        design = OutputErrorDesign(u, y, irf.fs_hz)
+        whole = design.fit()
+        explained = vaf(whole.measured, whole.model) >= self.options.low_vaf_percent
+        self.held.learn(float(whole.params[0]), float(whole.params[1]), explained)
+        return output_error_back_end(*self._args(irf, u, y), held, design)
+
+    def _args(
+        self, irf: IRF, u: np.ndarray, y: np.ndarray
+    ) -> tuple[IRF, np.ndarray, np.ndarray, EstimatorOptions, AnalysisPlan]:
+        assert self.plan is not None
+        return irf, u, y, self.options, self.plan
 
 
 @dataclass(frozen=True)

@@ -36,13 +36,14 @@ from rtsid.ident.filters import stencil_derivatives
 from rtsid.ident.irf import IRF, estimate_irf
 from rtsid.ident.levinson import compiled_kernel, eureka_unchecked, not_positive_definite
 from rtsid.ident.second_order import (
+    OutputErrorDesign,
     ParameterFit,
     fit_linear,
     fit_logmag,
-    fit_output_error,
     inseparable_fit,
     zero_response,
 )
+from rtsid.ident.vaf import vaf
 
 _eureka = compiled_kernel()
 
@@ -376,9 +377,9 @@ def _flags(
     options: EstimatorOptions,
 ) -> tuple[str, ...]:
     inertia, damping, stiffness = params
-    vaf, _, vaf_fit = vafs
+    vaf_model, _, vaf_fit = vafs
     flags = []
-    if vaf < options.low_vaf_percent:
+    if vaf_model < options.low_vaf_percent:
         flags.append("low_vaf")
     if vaf_fit < 50.0:
         flags.append("model_mismatch")
@@ -567,23 +568,21 @@ def output_error_back_end(
     options: EstimatorOptions,
     plan: AnalysisPlan,
     held: Held = NOT_HELD,
+    design: OutputErrorDesign | None = None,
 ) -> WindowEstimate:
-    """Stages 5–7 with the output-error fit (the default criterion)."""
-    fit = fit_output_error(
-        u,
-        y,
-        irf.fs_hz,
+    """Stages 5–7 with the output-error fit (the default criterion); ``design`` when the
+    caller has already formed this window's (:class:`WindowStream` fits it twice)."""
+    design = design or OutputErrorDesign(u, y, irf.fs_hz)
+    fit = design.fit(
         inertia=held.inertia,
         damping=held.damping if held.inertia is not None else None,
         uncertainty=options.uncertainty,
         noise_lags=_noise_lags(irf, plan),
     )
     _, vaf_irf, vaf_fit = _three_vafs(predict_torque(irf, u, y, fit.params))
-    vaf = _percent_explained(fit.measured, fit.model)
+    vafs = (vaf(fit.measured, fit.model), vaf_irf, vaf_fit)
     se_i, se_b, se_k = fit.se.tolist()
-    return _assemble(
-        irf, fit.params, (se_i, se_b, se_k), (vaf, vaf_irf, vaf_fit), "output_error", options
-    )
+    return _assemble(irf, fit.params, (se_i, se_b, se_k), vafs, "output_error", options)
 
 
 def _noise_lags(irf: IRF, plan: AnalysisPlan) -> int:
@@ -748,22 +747,13 @@ def standard_errors(
     return np.asarray(np.sqrt(np.clip(np.diag(cov), 0.0, None)), dtype=np.float64)
 
 
-def _percent_explained(target: FloatArray, prediction: FloatArray) -> float:
-    """VAF (%) of ``prediction`` against ``target``, both mean-removed, floored at 0."""
-    n = target.size
-    centred = target - target.sum() / n
-    error = centred - (prediction - prediction.sum() / n)
-    total = float(centred @ centred)
-    return 0.0 if total <= 0 else round(max(0.0, 1.0 - float(error @ error) / total) * 100, 12)
-
-
 def _three_vafs(p: TorquePredictions) -> tuple[float, float, float]:
     """VAF of the model and of the IRF against the measurement, and of the model against
     the IRF."""
     return (
-        _percent_explained(p.measured, p.model),
-        _percent_explained(p.measured, p.irf),
-        _percent_explained(p.irf, p.model),
+        vaf(p.measured, p.model),
+        vaf(p.measured, p.irf),
+        vaf(p.irf, p.model),
     )
 
 
