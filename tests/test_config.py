@@ -84,3 +84,15 @@ def test_non_finite_numbers_are_refused_with_the_key(value):
         section_from_mapping(Section, {"hop_s": value}, "worker")
     with pytest.raises(ConfigError, match=r"'hop_s' = .*finite"):
         require_range("hop_s", value, None, None)
+
+
+def test_the_shipped_full_config_is_the_printed_defaults(capsys):
+    from pathlib import Path
+
+    from rtsid.cli import main
+
+    assert main(["run", "--print-config"]) == 0
+    printed = capsys.readouterr().out
+    shipped = (Path(__file__).resolve().parents[1] / "hw" / "rtsid.toml").read_text()
+    body = "\n".join(line for line in shipped.splitlines()[5:]) + "\n"
+    assert body == printed, "hw/rtsid.toml is stale: regenerate it with rtsid run --print-config"

@@ -28,15 +28,23 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from rtsid.errors import InputDataError, WindowError
+from rtsid.ident.correlation import detrend
 from rtsid.ident.filters import band_limit_taps, decimation_factor
 
-__all__ = ["AnalysisPlan", "perturbation_edge_hz", "plan_analysis"]
+__all__ = [
+    "AnalysisPlan",
+    "hann_periodogram",
+    "hann_taper",
+    "perturbation_edge_hz",
+    "plan_analysis",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -125,10 +133,7 @@ def perturbation_edge_hz(position: FloatArray, fs_hz: float) -> float:
         all of it lies in the two lowest frequency bins (a drift, not a perturbation).
     """
     n = position.size
-    t = np.linspace(-1.0, 1.0, n)
-    x = position - position.mean()
-    x = x - t * (float(t @ x) / float(t @ t))
-    spectrum = np.abs(np.fft.rfft(x * np.hanning(n))) ** 2
+    spectrum = hann_periodogram(detrend(position, "linear"))
     total = float(spectrum.sum())
     if not total > 0:
         raise _no_usable_power(n, fs_hz)
@@ -137,6 +142,19 @@ def perturbation_edge_hz(position: FloatArray, fs_hz: float) -> float:
     if bin_index <= 2:
         raise _no_usable_power(n, fs_hz)
     return bin_index * fs_hz / n
+
+
+@lru_cache(maxsize=32)
+def hann_taper(n: int) -> FloatArray:
+    """The Hann window of ``n`` samples (read-only, cached)."""
+    window = np.hanning(n)
+    window.setflags(write=False)
+    return window
+
+
+def hann_periodogram(x: FloatArray) -> FloatArray:
+    """``|FFT(x · Hann)|²`` on the bins ``0 … n/2`` (unscaled)."""
+    return np.asarray(np.abs(np.fft.rfft(x * hann_taper(x.size))) ** 2, dtype=np.float64)
 
 
 def _no_usable_power(n: int, fs_hz: float) -> WindowError:

@@ -20,7 +20,6 @@ __all__ = [
     "band_limit_taps",
     "decimation_factor",
     "derivatives",
-    "lowpass_decimate",
     "lowpass_taps",
     "stencil_derivatives",
 ]
@@ -99,42 +98,6 @@ def band_limit_taps(fs_hz: float, cutoff_hz: float, factor: int) -> FloatArray:
     taps = signal.firwin(numtaps, cutoff_hz, fs=fs_hz, window="hamming")
     taps.setflags(write=False)
     return taps
-
-
-def lowpass_decimate(
-    x: ArrayLike, fs_hz: float, cutoff_hz: float | None, factor: int
-) -> FloatArray:
-    """Low-pass (zero phase) and keep every ``factor``-th sample, edges excluded.
-
-    Parameters
-    ----------
-    x : array_like, shape (n,)
-        Signal at ``fs_hz``.
-    fs_hz : float
-        Sampling rate, Hz.
-    cutoff_hz : float or None
-        Pass-band edge, Hz; None skips filtering (then ``factor`` must be 1).
-    factor : int
-        Decimation factor (>= 1).
-
-    Returns
-    -------
-    numpy.ndarray, shape (m,)
-        ``m = ceil((n − numtaps + 1) / factor)`` samples, the first centred on input
-        sample ``(numtaps − 1) / 2``.
-    """
-    arr = np.asarray(x, dtype=np.float64)
-    if cutoff_hz is None:
-        if factor != 1:
-            raise InputDataError("decimation needs a low-pass cut-off to avoid aliasing")
-        return arr.copy()
-    taps = lowpass_taps(float(fs_hz), float(cutoff_hz), int(factor))
-    if arr.size < taps.size:
-        raise InputDataError(
-            f"window of {arr.size} samples is shorter than the {taps.size}-tap low-pass; "
-            "lengthen the window or raise the cut-off"
-        )
-    return np.convolve(arr, taps, mode="valid")[::factor]
 
 
 def derivatives(x: ArrayLike, fs_hz: float) -> tuple[FloatArray, FloatArray]:

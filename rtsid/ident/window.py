@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from rtsid.config import invalid, require_choice, require_range
 from rtsid.errors import InputDataError, WindowError
-from rtsid.ident.analysis import AnalysisPlan, plan_analysis
+from rtsid.ident.analysis import AnalysisPlan, hann_periodogram, hann_taper, plan_analysis
 from rtsid.ident.correlation import auto_correlation, detrend
 from rtsid.ident.filters import stencil_derivatives
 from rtsid.ident.irf import IRF, estimate_irf
@@ -151,6 +151,12 @@ class EstimatorOptions:
         require_range("hold_horizon_s", self.hold_horizon_s, 0.0, 3600.0, low_inclusive=False)
         if self.hold_inertia is not None:
             require_range("hold_inertia", self.hold_inertia, 0.0, low_inclusive=False)
+            if self.hold == "none":
+                raise invalid(
+                    "hold_inertia",
+                    self.hold_inertia,
+                    "no value while hold = 'none' (set hold = 'inertia' to hold it)",
+                )
         require_range("low_vaf_percent", self.low_vaf_percent, 0.0, 100.0)
         require_range("fit_points", self.fit_points, 3)
         require_range("min_excitation_rad", self.min_excitation_rad, 0.0)
@@ -310,13 +316,6 @@ def _bin_frequencies(n: int, fs_hz: float) -> FloatArray:
     return bins
 
 
-@lru_cache(maxsize=32)
-def _hann(n: int) -> FloatArray:
-    window = np.hanning(n)
-    window.setflags(write=False)
-    return window
-
-
 def _excitation_weights(u: FloatArray, fs_hz: float, f_hz: FloatArray, power: float) -> FloatArray:
     """``(S_uu(f) / max S_uu)^power`` on the fit grid, from the window's own periodogram.
 
@@ -324,7 +323,7 @@ def _excitation_weights(u: FloatArray, fs_hz: float, f_hz: FloatArray, power: fl
     periodogram (Hann taper, FFT) is averaged over three neighbouring bins and interpolated
     onto the grid — no dense matrix products, so no BLAS threads on the hot path.
     """
-    spectrum = np.abs(np.fft.rfft(u * _hann(u.size))) ** 2
+    spectrum = hann_periodogram(u)
     smoothed = np.convolve(spectrum, _THIRDS, mode="same")
     on_grid = np.interp(f_hz, _bin_frequencies(u.size, fs_hz), smoothed)
     top = float(on_grid.max())
@@ -538,7 +537,7 @@ def back_end(
         irf.phi_uu,
         _stacked_dft(irf.max_lag, fs_a, grid_key),
         _fit_grid(band, options.fit_points, fs_a / 2),
-        _hann(u.size),
+        hann_taper(u.size),
         fs_a,
         options.weight_power,
         options.uncertainty,
