@@ -46,6 +46,7 @@ def test_real_benchmark_tables_and_figures(reklab_path, tmp_path, capsys):
     assert main(argv) == 0
     out = capsys.readouterr().out
     assert "least squares (reference)" in out and "Floors" in out and "× real time" in out
+    assert "parallel cascade" in out and "intrinsic IRF alone" in out
     pngs = sorted(p.name for p in figures.glob("*.png"))
     assert pngs == [
         "real_defaults.png",
