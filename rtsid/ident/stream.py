@@ -27,7 +27,6 @@ from numpy.typing import ArrayLike
 
 from rtsid.errors import InputDataError, NumericalError, WindowError
 from rtsid.ident.analysis import AnalysisPlan
-from rtsid.ident.irf import IRF
 from rtsid.ident.second_order import OutputErrorDesign
 from rtsid.ident.vaf import vaf
 from rtsid.ident.window import (
@@ -125,25 +124,20 @@ class WindowStream:
         check_window(pos, tor, self.options)
         if self.plan is None:
             self.plan = resolve_plan(pos, self.fs_hz, self.options)
-        u, y, irf = front_end(pos, tor, self.fs_hz, self.options, self.plan)
-        if self.options.hold == "none":
-            return back_end(irf, u, y, self.options, self.plan)
-        held = held_values(self.options, self.held.current())  # from earlier windows only
-        if self.options.fit_method != "output_error":
-            full = back_end(irf, u, y, self.options, self.plan)
+        plan, options = self.plan, self.options
+        u, y, irf = front_end(pos, tor, self.fs_hz, options, plan)
+        if options.hold == "none":
+            return back_end(irf, u, y, options, plan)
+        held = held_values(options, self.held.current())  # from earlier windows only
+        if options.fit_method != "output_error":
+            full = back_end(irf, u, y, options, plan)
             self.held.learn(full.I, full.B, "low_vaf" not in full.flags)
-            return full if held.inertia is None else back_end(*self._args(irf, u, y), held)
+            return full if held.inertia is None else back_end(irf, u, y, options, plan, held)
         design = OutputErrorDesign(u, y, irf.fs_hz)
         whole = design.fit()
-        explained = vaf(whole.measured, whole.model) >= self.options.low_vaf_percent
+        explained = vaf(whole.measured, whole.model) >= options.low_vaf_percent
         self.held.learn(float(whole.params[0]), float(whole.params[1]), explained)
-        return output_error_back_end(*self._args(irf, u, y), held, design)
-
-    def _args(
-        self, irf: IRF, u: np.ndarray, y: np.ndarray
-    ) -> tuple[IRF, np.ndarray, np.ndarray, EstimatorOptions, AnalysisPlan]:
-        assert self.plan is not None
-        return irf, u, y, self.options, self.plan
+        return output_error_back_end(irf, u, y, options, plan, held, design)
 
 
 @dataclass(frozen=True)

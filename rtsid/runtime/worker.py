@@ -358,7 +358,8 @@ class WindowWorker(ThreadOwner):
     ) -> dict[str, Any]:
         keys = ("I", "B", "K", "I_se", "B_se", "K_se", "vaf", "vaf_irf", "vaf_fit")
         # NaN (a held parameter's standard error) is null, as it is once encoded.
-        values = {k: _finite_or_none(getattr(estimate, k)) if estimate else None for k in keys}
+        scalars = estimate.as_dict() if estimate else {}
+        values = {k: scalars.get(k) for k in keys}
         overrun = compute_s > self.config.effective_budget_s
         flags = [*(estimate.flags if estimate else ()), *(("over_budget",) if overrun else ())]
         latency = None if last_arrival_s is None else (time.monotonic() - last_arrival_s) * 1e3
@@ -380,7 +381,3 @@ class WindowWorker(ThreadOwner):
             "flags": flags,
             "host_time_ns": time.time_ns(),
         }
-
-
-def _finite_or_none(value: float) -> float | None:
-    return value if math.isfinite(value) else None
