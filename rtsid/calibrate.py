@@ -23,7 +23,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -51,7 +51,7 @@ __all__ = [
     "contiguous_segments",
     "load_calibration",
     "read_samples",
-    "robot_torque_offset",
+    "robot_calibration",
     "save_calibration",
     "with_recorded_calibration",
 ]
@@ -283,10 +283,10 @@ def calibrate_file(
     return Calibration(robot=robot, source=str(path))
 
 
-def robot_torque_offset(
-    calibration_file: str, fs_hz: float
-) -> Callable[[NDArray[np.float64]], NDArray[np.float64]] | None:
-    """The window worker's ``torque_offset`` for ``[worker] calibration_file`` (None if "").
+def robot_calibration(calibration_file: str, fs_hz: float) -> Calibration | None:
+    """The calibration of ``[worker] calibration_file`` (None if ""), checked for ``fs_hz``:
+    the window worker subtracts its ``torque_offset`` and analyses no higher than its
+    ``robot.analysis_cutoff_hz``.
 
     Raises
     ------
@@ -299,7 +299,7 @@ def robot_torque_offset(
         calibration = load_calibration(calibration_file)
     except InputDataError as exc:
         raise ConfigError(f"config key 'worker.calibration_file': {exc}") from None
-    return calibration.check_rate(fs_hz).torque_offset
+    return calibration.check_rate(fs_hz)
 
 
 def calibration_record(calibration_file: str) -> dict[str, dict[str, str]]:

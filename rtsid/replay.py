@@ -23,7 +23,7 @@ from typing import IO, Any
 import numpy as np
 
 from rtsid import __version__
-from rtsid.calibrate import robot_torque_offset, with_recorded_calibration
+from rtsid.calibrate import robot_calibration, with_recorded_calibration
 from rtsid.errors import RecordingError
 from rtsid.io.mcap_read import read_metadata, run_config_from_metadata, sample_count
 from rtsid.io.recording import SampleGrid, iter_batches, session_parts
@@ -183,7 +183,7 @@ def replay_file(
         publish=sink,
         robot=config.zenoh.robot,
         joint=config.zenoh.joint,
-        torque_offset=robot_torque_offset(config.worker.calibration_file, config.link.fs_hz),
+        calibration=robot_calibration(config.worker.calibration_file, config.link.fs_hz),
     )
     total = sum(sample_count(p) for p in parts) if progress is not None else 0
     batches: Iterable[SampleBatch] = _counted(iter_batches(parts), result, progress, total)

@@ -20,13 +20,13 @@ from rtsid.calibrate import (
 from rtsid.cli import main
 from rtsid.errors import ConfigError, InputDataError
 from rtsid.ident.robot import identify_robot
-from rtsid.ident.window import estimate_window
+from rtsid.ident.window import EstimatorOptions, estimate_window
 from rtsid.io.mcap_read import iter_estimates, read_metadata
 from rtsid.link.config import PlantConfig
 from rtsid.link.signals import SimSource
 from rtsid.replay import recording_config, replay_file
 from rtsid.runtime.daemon import Daemon, DaemonConfig
-from rtsid.runtime.worker import WorkerConfig
+from rtsid.runtime.worker import WindowWorker, WorkerConfig
 
 FS = 2500.0
 ROBOT_INERTIA = 0.05  # kg·m²: a footplate about three times the ankle's own inertia
@@ -79,6 +79,33 @@ def test_subtracting_the_calibration_brings_the_ankle_back_to_the_truth():
     assert corrected["I"] == pytest.approx(ANKLE["I"], rel=0.1)
     assert corrected["B"] == pytest.approx(ANKLE["B"], rel=0.1)
     assert corrected["K"] == pytest.approx(ANKLE["K"], rel=0.05)
+
+
+def test_a_calibrated_worker_analyses_within_the_calibrations_band():
+    # A servoed PRBS excites the robot far above the calibration's 100 Hz band, where its
+    # torque is not predicted. Analysed up to the PRBS's own edge (~200 Hz) the ankle's K
+    # erred by 48 %; the worker keeps its analysis within the calibration's band.
+    prbs = replace(PLANT, perturbation="prbs", bandwidth_hz=40.0)
+    position, torque = simulate(replace(prbs, inertia=0.0, damping=0.0, stiffness=0.0), 4.0)
+    calibration = Calibration(identify_robot([(position, torque)], FS))
+    p, t = simulate(prbs, 3.0)
+    published = []
+    worker = WindowWorker(
+        None,
+        FS,
+        WorkerConfig(hop_s=0.15),
+        EstimatorOptions(),
+        published.append,
+        calibration=calibration,
+    )
+    n = round(0.3 * FS)
+    ks = []
+    for start in range(0, p.size - n, n // 2):
+        window = p[start : start + n]
+        corrected = t[start : start + n] - calibration.torque_offset(window)
+        ks.append(worker.stream.estimate(window, corrected).K)
+    assert worker.stream.plan.lowpass_hz <= calibration.robot.analysis_cutoff_hz
+    assert np.median(ks) == pytest.approx(ANKLE["K"], rel=0.03)
 
 
 def test_prediction_is_as_long_as_the_window_and_exact_for_a_pure_inertia():

@@ -26,8 +26,9 @@ from rtsid.benchmarks.table import print_table
 from rtsid.ident.correlation import detrend
 from rtsid.ident.irf import estimate_irf
 from rtsid.ident.robot import identify_robot, robot_filter_taps
+from rtsid.ident.stream import WindowStream
 from rtsid.ident.vaf import vaf
-from rtsid.ident.window import estimate_window
+from rtsid.ident.window import EstimatorOptions
 from rtsid.link.config import PlantConfig
 from rtsid.link.protocol import POSITION_SCALE_RAD, TORQUE_SCALE_NM
 from rtsid.link.signals import SimSource
@@ -81,14 +82,18 @@ def _ankle_errors(
     fs: float,
     truth: PlantConfig,
     offset: Predictor | None,
+    band_hz: float,
 ) -> list[float]:
+    """Median I/B/K errors (%) of the worker's stream, analysed within the calibration's band
+    (as the daemon does with a calibration)."""
     n = round(0.3 * fs)
+    stream = WindowStream(fs, EstimatorOptions(), (n // 2) / fs, max_lowpass_hz=band_hz)
     rows = []
     for start in range(0, position.size - n, n // 2):
         p, t = position[start : start + n], torque[start : start + n]
         if offset is not None:
             t = t - offset(p)
-        e = estimate_window(p, t, fs)
+        e = stream.estimate(p, t)
         rows.append((e.I, e.B, e.K))
     med = np.median(rows, axis=0)
     true = np.array([truth.inertia, truth.damping, truth.stiffness])
@@ -129,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
         for name, predict, gain in methods:
             nan = float("nan")
             fit_vaf = (nan, nan) if predict is None else _vafs(predict, p0, t0, fs)
-            errors = _ankle_errors(p1, t1, fs, person, predict)
+            errors = _ankle_errors(p1, t1, fs, person, predict, robot.analysis_cutoff_hz)
             rows.append([label, name, *fit_vaf, gain, *errors])
     print_table(
         f"Robot calibration (robot inertia {ROBOT_INERTIA} kg·m², ankle I 0.015, B 0.8, K 150; "

@@ -174,6 +174,7 @@ def plan_analysis(
     analysis_fs_hz: float | None,
     lag_s: float,
     fit_band_hz: tuple[float, float] | None,
+    max_lowpass_hz: float | None = None,
 ) -> AnalysisPlan:
     """Plan the analysis of ``position``'s stream (explicit values override choices).
 
@@ -189,6 +190,9 @@ def plan_analysis(
         IRF lag span, s.
     fit_band_hz : (float, float) or None
         Band of the frequency-domain fits; None: 1 Hz to the cut-off.
+    max_lowpass_hz : float, optional
+        Highest cut-off to choose, Hz (a robot calibration models its torque only below its
+        own band; above it the residual robot torque would bias inertia).
 
     Returns
     -------
@@ -204,7 +208,7 @@ def plan_analysis(
     edge = None
     if lowpass_hz is None:
         edge = perturbation_edge_hz(position, fs)
-        lowpass_hz = min(CUTOFF_PER_EDGE * edge, 0.4 * fs)
+        lowpass_hz = min(CUTOFF_PER_EDGE * edge, 0.4 * fs, max_lowpass_hz or math.inf)
     if analysis_fs_hz is None:
         factor = max(1, math.floor(fs / (RATE_PER_CUTOFF * lowpass_hz)))
     else:

@@ -98,6 +98,8 @@ class WindowStream:
         Time between windows, s (sets the hold horizon in windows).
     plan : AnalysisPlan, optional
         A plan to use from the start (default: planned from the first estimable window).
+    max_lowpass_hz : float, optional
+        Highest cut-off the plan may choose, Hz (e.g. the band a robot calibration models).
     """
 
     def __init__(
@@ -106,10 +108,12 @@ class WindowStream:
         options: EstimatorOptions,
         hop_s: float,
         plan: AnalysisPlan | None = None,
+        max_lowpass_hz: float | None = None,
     ) -> None:
         self.fs_hz = float(fs_hz)
         self.options = options
         self.plan = plan
+        self.max_lowpass_hz = max_lowpass_hz
         horizon = max(1, round(options.hold_horizon_s / hop_s))
         self.held = HeldParameters(options.hold, horizon)
 
@@ -123,7 +127,7 @@ class WindowStream:
         tor = np.ascontiguousarray(torque, dtype=np.float64)
         check_window(pos, tor, self.options)
         if self.plan is None:
-            self.plan = resolve_plan(pos, self.fs_hz, self.options)
+            self.plan = resolve_plan(pos, self.fs_hz, self.options, self.max_lowpass_hz)
         plan, options = self.plan, self.options
         u, y, irf = front_end(pos, tor, self.fs_hz, options, plan)
         if options.hold == "none":

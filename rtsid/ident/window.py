@@ -406,8 +406,14 @@ class Held:
 NOT_HELD = Held()
 
 
-def resolve_plan(position: ArrayLike, fs: float, options: EstimatorOptions) -> AnalysisPlan:
-    """The analysis plan for ``position`` (a window or a longer stretch of a stream).
+def resolve_plan(
+    position: ArrayLike,
+    fs: float,
+    options: EstimatorOptions,
+    max_lowpass_hz: float | None = None,
+) -> AnalysisPlan:
+    """The analysis plan for ``position`` (a window or a longer stretch of a stream), its
+    chosen cut-off no higher than ``max_lowpass_hz`` (e.g. a robot calibration's band).
 
     Raises
     ------
@@ -421,6 +427,7 @@ def resolve_plan(position: ArrayLike, fs: float, options: EstimatorOptions) -> A
         analysis_fs_hz=options.analysis_fs_hz,
         lag_s=options.lag_s,
         fit_band_hz=options.fit_band_hz,
+        max_lowpass_hz=max_lowpass_hz,
     )
 
 

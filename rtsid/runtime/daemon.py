@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from rtsid import __version__
-from rtsid.calibrate import calibration_record, robot_torque_offset
+from rtsid.calibrate import calibration_record, robot_calibration
 from rtsid.config import invalid, load_toml, require_range, section_from_mapping
 from rtsid.errors import ConfigError
 from rtsid.ident.window import EstimatorOptions
@@ -258,7 +258,7 @@ class Daemon:
                     lambda msg: self._publish_estimate(msg, mcap, zenoh),
                     robot=robot,
                     joint=joint,
-                    torque_offset=robot_torque_offset(cfg.worker.calibration_file, cfg.link.fs_hz),
+                    calibration=robot_calibration(cfg.worker.calibration_file, cfg.link.fs_hz),
                 )
                 self.worker = worker
                 # Everything built so far lives for the whole run: move it out of the cyclic

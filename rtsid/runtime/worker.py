@@ -22,9 +22,7 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from rtsid.config import require_range, section_from_mapping
 from rtsid.errors import ConfigError, InputDataError, NumericalError, WindowError
@@ -37,6 +35,9 @@ from rtsid.link.protocol import (
     STATUS_TORQUE_SATURATED,
 )
 from rtsid.link.ring import RingBuffer, Snapshot
+
+if TYPE_CHECKING:
+    from rtsid.calibrate import Calibration
 
 __all__ = ["WindowWorker", "WorkerConfig", "WorkerCounters", "assess_window"]
 
@@ -158,9 +159,10 @@ class WindowWorker(ThreadOwner):
         worker thread; it must not block (the MCAP logger and zenoh publisher do not).
     robot, joint : str
         Names written into every message.
-    torque_offset : callable, optional
-        ``torque_offset(position_rad) -> torque_nm`` subtracted from the measured torque
-        before identification (the robot's own dynamics from a calibration).
+    calibration : Calibration, optional
+        The robot's own dynamics (``rtsid calibrate``): its predicted torque is subtracted
+        from the measured torque before identification, and the analysis stays within the
+        band the calibration models (``robot.analysis_cutoff_hz``).
     """
 
     def __init__(
@@ -173,7 +175,7 @@ class WindowWorker(ThreadOwner):
         *,
         robot: str = "robot",
         joint: str = "ankle",
-        torque_offset: Callable[[np.ndarray], np.ndarray] | None = None,
+        calibration: Calibration | None = None,
     ) -> None:
         super().__init__("rtsid-worker")
         self.ring = ring
@@ -183,10 +185,11 @@ class WindowWorker(ThreadOwner):
         self.publish = publish
         self.robot = robot
         self.joint = joint
-        self.torque_offset = torque_offset
+        self.calibration = calibration
         # The analysis plan and the held parameters: deterministic state carried from window
         # to window, so a replay of the same windows reproduces every number.
-        self.stream = WindowStream(fs_hz, options, config.hop_s)
+        band = calibration.robot.analysis_cutoff_hz if calibration is not None else None
+        self.stream = WindowStream(fs_hz, options, config.hop_s, max_lowpass_hz=band)
         self.window_samples = round(config.window_s * fs_hz)
         self.hop_samples = max(1, round(config.hop_s * fs_hz))
         self._wake = threading.Event()  # set by the ring's writer, or by stop()
@@ -331,8 +334,8 @@ class WindowWorker(ThreadOwner):
             self._withheld[reason] += 1
             return None, reason
         torque = snap.torque_nm
-        if self.torque_offset is not None:
-            torque = torque - self.torque_offset(snap.position_rad)
+        if self.calibration is not None:
+            torque = torque - self.calibration.torque_offset(snap.position_rad)
         planned = self.stream.plan is not None
         try:
             estimate = self.stream.estimate(snap.position_rad, torque)
