@@ -441,7 +441,8 @@ def _sandwich(x: FloatArray, residual: FloatArray, gram: FloatArray, lags: int) 
     lags = min(lags, residual.size - 1)
     r = auto_correlation(residual, lags) * (1.0 - np.arange(lags + 1) / (lags + 1))
     kernel = np.concatenate((r[:0:-1], r))
-    smoothed = np.vstack([np.convolve(row, kernel, mode="same") for row in x])
+    n = residual.size
+    smoothed = np.vstack([np.convolve(row, kernel)[lags : lags + n] for row in x])
     middle = x @ smoothed.T
     inverse = np.linalg.inv(gram)
     cov = inverse @ ((middle + middle.T) / 2) @ inverse

@@ -73,3 +73,11 @@ def test_a_window_the_model_does_not_explain_is_flagged_low_vaf():
     assert est.vaf < 50.0 and "low_vaf" in est.flags
     clean = estimate_window(theta, tau, FS)
     assert "low_vaf" not in clean.flags
+
+
+def test_a_narrow_perturbation_in_a_short_window_still_gets_standard_errors():
+    # 5 Hz of perturbation: the plan decimates to ~160 Hz, leaving ~30 samples, fewer than
+    # the residual autocorrelation's lags; the sandwich once failed on the shapes.
+    theta, tau = record(0.3, seed=6, bandwidth_hz=5.0)
+    est = estimate_window(theta, tau, FS, hold="none")
+    assert np.all(np.isfinite([est.I_se, est.B_se, est.K_se]))
