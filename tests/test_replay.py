@@ -86,7 +86,7 @@ def test_a_recording_cut_short_replays_up_to_the_cut(tmp_path):
     assert_same_estimates(partial, by_window(full))
 
 
-def test_lost_samples_are_gaps_never_bridged(tmp_path, free_port):
+def test_lost_samples_are_bridged_alike_live_and_in_replay(tmp_path, free_port):
     config = DaemonConfig.from_mapping(
         {
             "zenoh": {"listen": [f"tcp/127.0.0.1:{free_port}"]},
@@ -100,8 +100,13 @@ def test_lost_samples_are_gaps_never_bridged(tmp_path, free_port):
     live = by_window(iter_estimates(recording))
     replayed = by_window(replay_file(recording).messages)
     assert_same_estimates(live, replayed)
-    gaps = [m for m in replayed.values() if m["reason"] == "gap"]
-    assert len(gaps) >= 15  # each lost sample withholds every window across it
+    bridged = [m for m in replayed.values() if m["ok"] and m["lost_samples"]]
+    assert len(bridged) >= 15  # every window across a lost sample, estimated from the rest
+    assert all(
+        live[end]["lost_samples"] == m["lost_samples"]
+        for end, m in replayed.items()
+        if end in live and m["ok"]
+    )
 
 
 def test_replay_command_outputs_and_directories(tmp_path, capsys):

@@ -90,6 +90,7 @@ def estimate_irf(
     *,
     ridge: float = 0.0,
     refine: int = 0,
+    rows: NDArray[np.bool_] | None = None,
 ) -> IRF:
     """Wiener–Hopf IRF from ``u`` to ``y`` over lags ``−max_lag..max_lag`` by EUREKA.
 
@@ -111,6 +112,10 @@ def estimate_irf(
         Each sweep adds ``R⁻¹·φ_ue`` — the cross-correlation of the input with the current
         prediction error over the fully supported samples, solved again by EUREKA — and
         converges to the exact (ridge-regularised) least-squares IRF on those samples.
+    rows : numpy.ndarray of bool, shape (N − 2L,), optional
+        The fully supported samples to fit (default all): a window with lost samples passes
+        the rows whose lags hold none (:mod:`rtsid.ident.gaps`), with the lost samples' own
+        values zeroed in ``u`` and ``y`` so that the correlations run over valid pairs only.
 
     Returns
     -------
@@ -148,8 +153,9 @@ def estimate_irf(
     # Rows: fully supported samples t = L … N−L−1; columns: u(t − k) for k = −L … L.
     lagged = np.ascontiguousarray(sliding_window_view(u_arr, n_lags)[:, ::-1])
     y_inner = y_arr[max_lag : u_arr.size - max_lag]
+    weight = np.ones(y_inner.size) if rows is None else rows.astype(np.float64)
     for _ in range(refine):
-        error = y_inner - lagged @ (h / fs_hz)
-        gradient = (error @ lagged) / y_inner.size - loading * h / fs_hz
+        error = (y_inner - lagged @ (h / fs_hz)) * weight
+        gradient = (error @ lagged) / weight.sum() - loading * h / fs_hz
         h = h + eureka_unchecked(phi_uu, gradient) * fs_hz
     return IRF(h=h, fs_hz=float(fs_hz), phi_uu=phi_uu)

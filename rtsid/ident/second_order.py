@@ -319,11 +319,17 @@ class OutputErrorFit:
     model: FloatArray
 
 
-def _without_trend(rows: FloatArray) -> FloatArray:
-    """Each row minus its least-squares offset and slope (the nuisance terms)."""
+def _without_trend(rows: FloatArray, keep: NDArray[np.bool_] | None = None) -> FloatArray:
+    """Each row minus its least-squares offset and slope (the nuisance terms), fitted over
+    the kept columns only; the other columns come out as zero."""
     n = rows.shape[1]
     t = np.arange(n, dtype=np.float64) - (n - 1) / 2.0
-    centred = rows - rows.mean(axis=1, keepdims=True)
+    if keep is None:
+        centred = rows - rows.mean(axis=1, keepdims=True)
+        return np.asarray(centred - np.outer(centred @ t / float(t @ t), t), dtype=np.float64)
+    w = keep.astype(np.float64)
+    t = (t - float(w @ t) / float(w.sum())) * w
+    centred = (rows - (rows @ w / float(w.sum()))[:, None]) * w
     return np.asarray(centred - np.outer(centred @ t / float(t @ t), t), dtype=np.float64)
 
 
@@ -342,6 +348,9 @@ class OutputErrorDesign:
         Band-limited position (rad) and torque (N·m) at the analysis rate.
     fs_hz : float
         Analysis rate, Hz.
+    keep : numpy.ndarray of bool, shape (n − 8,), optional
+        Rows (samples 4 … n−5) to fit: those whose filter and stencil support holds no lost
+        sample. Sums run over these rows only — nothing is interpolated.
 
     Raises
     ------
@@ -349,13 +358,16 @@ class OutputErrorDesign:
         The torque is zero (it does not follow position).
     """
 
-    def __init__(self, u: ArrayLike, y: ArrayLike, fs_hz: float) -> None:
+    def __init__(
+        self, u: ArrayLike, y: ArrayLike, fs_hz: float, keep: NDArray[np.bool_] | None = None
+    ) -> None:
         u_arr = np.asarray(u, dtype=np.float64)
         y_arr = np.asarray(y, dtype=np.float64)
         d1, d2 = stencil_derivatives(u_arr, fs_hz)
+        self.keep = keep
         self.measured = y_arr[4:-4]
         self.regressors = np.vstack((d2, d1, u_arr[4:-4]))
-        self.projected = _without_trend(np.vstack((self.regressors, self.measured)))
+        self.projected = _without_trend(np.vstack((self.regressors, self.measured)), keep)
         self.gram = self.projected @ self.projected.T
         if not self.gram[3, 3] > 0:
             raise zero_response()
@@ -400,11 +412,14 @@ class OutputErrorDesign:
         se = np.full(3, np.nan)
         if uncertainty:
             residual = self.projected[3] - params @ self.projected[:3]
-            cov = _sandwich(self.projected[k:3], residual, gram, max(1, noise_lags))
+            kept = 1.0 if self.keep is None else float(self.keep.mean())
+            cov = _sandwich(self.projected[k:3], residual, gram, max(1, noise_lags), kept)
             se[k:] = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-        return OutputErrorFit(
-            params=params, se=se, measured=self.measured, model=params @ self.regressors
-        )
+        model = params @ self.regressors
+        if self.keep is None:
+            return OutputErrorFit(params=params, se=se, measured=self.measured, model=model)
+        keep = self.keep
+        return OutputErrorFit(params=params, se=se, measured=self.measured[keep], model=model[keep])
 
 
 def fit_output_error(
@@ -435,11 +450,15 @@ def fit_output_error(
     )
 
 
-def _sandwich(x: FloatArray, residual: FloatArray, gram: FloatArray, lags: int) -> FloatArray:
+def _sandwich(
+    x: FloatArray, residual: FloatArray, gram: FloatArray, lags: int, kept: float = 1.0
+) -> FloatArray:
     """``G⁻¹·S·G⁻¹`` with ``S = Σ_l r_ee(l)·Σ_t x_t·x_{t+l}ᵀ`` (noise independent of the
-    regressors), ``r_ee`` the residual's Bartlett-tapered autocorrelation up to ``lags``."""
+    regressors), ``r_ee`` the residual's Bartlett-tapered autocorrelation up to ``lags``.
+    Dropped rows are zero in ``x`` and ``residual``; ``kept`` (their complement's share)
+    rescales ``r_ee`` to the rows it was formed from."""
     lags = min(lags, residual.size - 1)
-    r = auto_correlation(residual, lags) * (1.0 - np.arange(lags + 1) / (lags + 1))
+    r = auto_correlation(residual, lags) * (1.0 - np.arange(lags + 1) / (lags + 1)) / kept
     kernel = np.concatenate((r[:0:-1], r))
     n = residual.size
     smoothed = np.vstack([np.convolve(row, kernel)[lags : lags + n] for row in x])

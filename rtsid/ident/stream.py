@@ -27,18 +27,20 @@ from numpy.typing import ArrayLike
 
 from rtsid.errors import InputDataError, NumericalError, WindowError
 from rtsid.ident.analysis import AnalysisPlan
-from rtsid.ident.second_order import OutputErrorDesign
 from rtsid.ident.vaf import vaf
 from rtsid.ident.window import (
     EstimatorOptions,
     Held,
     WindowEstimate,
+    analyse,
     back_end,
     check_window,
-    front_end,
     held_values,
     output_error_back_end,
+    output_error_design,
+    plan_source,
     resolve_plan,
+    without_lost,
 )
 
 __all__ = ["HeldParameters", "WindowResult", "WindowStream", "sliding_estimates"]
@@ -117,31 +119,38 @@ class WindowStream:
         horizon = max(1, round(options.hold_horizon_s / hop_s))
         self.held = HeldParameters(options.hold, horizon)
 
-    def estimate(self, position: ArrayLike, torque: ArrayLike) -> WindowEstimate:
-        """The next window's estimate (same errors as :func:`estimate_window`).
+    def estimate(
+        self, position: ArrayLike, torque: ArrayLike, valid: ArrayLike | None = None
+    ) -> WindowEstimate:
+        """The next window's estimate (same errors and ``valid`` as :func:`estimate_window`).
 
         With a learned hold, the window is fitted twice from one IRF and one least-squares
         design: in full (learned from) and with the held values (returned).
         """
         pos = np.ascontiguousarray(position, dtype=np.float64)
         tor = np.ascontiguousarray(torque, dtype=np.float64)
-        check_window(pos, tor, self.options)
+        mask = None if valid is None else np.asarray(valid, dtype=bool)
+        lost = check_window(pos, tor, self.options, mask, self.fs_hz)
+        pos, tor = without_lost(pos, tor, lost)
         if self.plan is None:
-            self.plan = resolve_plan(pos, self.fs_hz, self.options, self.max_lowpass_hz)
+            source = plan_source(pos, lost)
+            self.plan = resolve_plan(source, self.fs_hz, self.options, self.max_lowpass_hz)
         plan, options = self.plan, self.options
-        u, y, irf = front_end(pos, tor, self.fs_hz, options, plan)
+        u, y, irf, gaps = analyse(pos, tor, self.fs_hz, options, plan, lost)
         if options.hold == "none":
-            return back_end(irf, u, y, options, plan)
+            return back_end(irf, u, y, options, plan, gaps=gaps)
         held = held_values(options, self.held.current())  # from earlier windows only
         if options.fit_method != "output_error":
-            full = back_end(irf, u, y, options, plan)
+            full = back_end(irf, u, y, options, plan, gaps=gaps)
             self.held.learn(full.I, full.B, "low_vaf" not in full.flags)
-            return full if held.inertia is None else back_end(irf, u, y, options, plan, held)
-        design = OutputErrorDesign(u, y, irf.fs_hz)
+            if held.inertia is None:
+                return full
+            return back_end(irf, u, y, options, plan, held, gaps)
+        design = output_error_design(u, y, irf, gaps)
         whole = design.fit()
         explained = vaf(whole.measured, whole.model) >= options.low_vaf_percent
         self.held.learn(float(whole.params[0]), float(whole.params[1]), explained)
-        return output_error_back_end(irf, u, y, options, plan, held, design)
+        return output_error_back_end(irf, u, y, options, plan, held, design, gaps)
 
 
 @dataclass(frozen=True)

@@ -33,6 +33,7 @@ from rtsid.errors import InputDataError, WindowError
 from rtsid.ident.analysis import AnalysisPlan, hann_periodogram, hann_taper, plan_analysis
 from rtsid.ident.correlation import auto_correlation, detrend
 from rtsid.ident.filters import stencil_derivatives
+from rtsid.ident.gaps import LostSamples, clean_rows, contaminated, count_lost, require_rows
 from rtsid.ident.irf import IRF, estimate_irf
 from rtsid.ident.levinson import compiled_kernel, eureka_unchecked, not_positive_definite
 from rtsid.ident.second_order import (
@@ -102,6 +103,11 @@ class EstimatorOptions:
     min_excitation_rad : float
         Windows whose position standard deviation is below this are withheld
         (``reason="no_excitation"``).
+    max_lost_percent : float
+        A window may have up to this share of lost samples, bridged by sums over valid
+        samples only (:mod:`rtsid.ident.gaps`); more withholds it (``reason="gap"``).
+    max_gap_s : float
+        Longest run of lost samples that is bridged, s.
     hold : {"none", "inertia", "inertia_damping"}
         Parameters held at a value learned over ``hold_horizon_s`` (or at ``hold_inertia``)
         instead of fitted per window; K always stays per window. Streams (the worker,
@@ -129,6 +135,8 @@ class EstimatorOptions:
     detrend: str = "linear"
     uncertainty: bool = True
     min_excitation_rad: float = 1e-5
+    max_lost_percent: float = 2.0
+    max_gap_s: float = 0.004
     hold: str = "inertia_damping"
     hold_horizon_s: float = 20.0
     hold_inertia: float | None = None
@@ -160,6 +168,8 @@ class EstimatorOptions:
         require_range("low_vaf_percent", self.low_vaf_percent, 0.0, 100.0)
         require_range("fit_points", self.fit_points, 3)
         require_range("min_excitation_rad", self.min_excitation_rad, 0.0)
+        require_range("max_lost_percent", self.max_lost_percent, 0.0, 100.0)
+        require_range("max_gap_s", self.max_gap_s, 0.0, 1.0)
         if self.fit_band_hz is not None:
             object.__setattr__(self, "fit_band_hz", tuple(self.fit_band_hz))
             self._check_fit_band(self.fit_band_hz)
@@ -202,6 +212,8 @@ class WindowEstimate:
         analysed band — lower ``lowpass_hz`` and ``fit_band_hz``).
     method : str
         Fit method used.
+    lost_samples : int
+        Lost samples in the window, bridged by sums over valid samples only.
     """
 
     I: float  # noqa: E741 - the physical symbol
@@ -218,6 +230,7 @@ class WindowEstimate:
     fs_hz: float
     flags: tuple[str, ...]
     method: str
+    lost_samples: int = 0
 
     def as_dict(self) -> dict[str, Any]:
         """The scalar fields, JSON-friendly (NaN becomes None)."""
@@ -227,11 +240,24 @@ class WindowEstimate:
             out[key] = value if np.isfinite(value) else None
         out["flags"] = list(self.flags)
         out["method"] = self.method
+        out["lost_samples"] = self.lost_samples
         return out
 
 
-def check_window(position: FloatArray, torque: FloatArray, options: EstimatorOptions) -> None:
-    """Stage 1: withhold (raise :class:`WindowError`) a window that must not be estimated."""
+def check_window(
+    position: FloatArray,
+    torque: FloatArray,
+    options: EstimatorOptions,
+    valid: NDArray[np.bool_] | None = None,
+    fs: float = 0.0,
+) -> LostSamples | None:
+    """Stage 1: withhold (raise :class:`WindowError`) a window that must not be estimated.
+
+    Returns
+    -------
+    LostSamples or None
+        The window's lost samples (``valid`` False) when it has any within the limits.
+    """
     if position.ndim != 1 or position.shape != torque.shape:
         raise InputDataError(
             f"position and torque must be 1-D and equally long, got {position.shape} and "
@@ -242,6 +268,10 @@ def check_window(position: FloatArray, torque: FloatArray, options: EstimatorOpt
             f"a window of {position.size} samples is too short to identify; lengthen it",
             "too_short",
         )
+    lost = None
+    if valid is not None and not valid.all():
+        lost = count_lost(valid, fs, options.max_lost_percent, options.max_gap_s)
+        position, torque = position[valid], torque[valid]
     # One pass each: a sum is finite only if every term is (rad and N·m never overflow).
     if not (math.isfinite(position.sum()) and math.isfinite(torque.sum())):
         raise WindowError("window contains NaN or inf samples; it is withheld", "nan")
@@ -253,6 +283,21 @@ def check_window(position: FloatArray, torque: FloatArray, options: EstimatorOpt
             "no perturbation, nothing to identify (is the perturbation enabled?)",
             "no_excitation",
         )
+    return lost
+
+
+def without_lost(
+    position: FloatArray, torque: FloatArray, lost: LostSamples | None
+) -> tuple[FloatArray, FloatArray]:
+    """Copies with the lost samples' (unknown) values set to zero — they enter no sum."""
+    if lost is None:
+        return position, torque
+    return np.where(lost.valid, position, 0.0), np.where(lost.valid, torque, 0.0)
+
+
+def plan_source(position: FloatArray, lost: LostSamples | None) -> FloatArray:
+    """What to plan an analysis from: the window, or its longest stretch of valid samples."""
+    return position if lost is None else position[lost.longest_valid_stretch()]
 
 
 @lru_cache(maxsize=32)
@@ -406,6 +451,30 @@ class Held:
 NOT_HELD = Held()
 
 
+@dataclass(frozen=True)
+class WindowGaps:
+    """Where a window's lost samples reach after band-limiting (:mod:`rtsid.ident.gaps`).
+
+    Attributes
+    ----------
+    bad : numpy.ndarray of bool, shape (m,)
+        Analysis samples whose FIR support held a lost sample (zeroed in ``u`` and ``y``).
+    lost : int
+        Lost input samples.
+    """
+
+    bad: NDArray[np.bool_]
+    lost: int
+
+    def rows(self, half_width: int) -> NDArray[np.bool_]:
+        """Rows ``half_width … m − half_width − 1`` whose ``±half_width`` support is clean."""
+        return clean_rows(self.bad, half_width)
+
+    def irf_checkable(self, lag: int) -> bool:
+        """Enough clean rows over the IRF's lag span to fit and check it (2L + 11)."""
+        return int(self.rows(lag).sum()) >= 2 * lag + 11
+
+
 def resolve_plan(
     position: ArrayLike,
     fs: float,
@@ -439,6 +508,7 @@ def estimate_window(
     *,
     plan: AnalysisPlan | None = None,
     held: Held = NOT_HELD,
+    valid: ArrayLike | None = None,
     **overrides: Any,
 ) -> WindowEstimate:
     """Identify joint impedance ``(I, B, K)`` from one window of position and torque.
@@ -459,6 +529,9 @@ def estimate_window(
     held : Held, optional
         Inertia (and damping) to hold instead of fitting (``options.hold_inertia``, when set,
         is held without being passed here).
+    valid : array_like of bool, shape (n,), optional
+        False for lost samples (their values are ignored): bridged by sums over valid samples
+        only, up to ``max_lost_percent`` and ``max_gap_s`` (:mod:`rtsid.ident.gaps`).
 
     Returns
     -------
@@ -468,8 +541,8 @@ def estimate_window(
     Raises
     ------
     WindowError
-        The window must not be estimated: ``reason`` is ``"nan"``, ``"too_short"`` or
-        ``"no_excitation"``.
+        The window must not be estimated: ``reason`` is ``"nan"``, ``"too_short"``,
+        ``"no_excitation"`` or ``"gap"``.
     NotPositiveDefiniteError
         The perturbation does not excite enough bandwidth for the lag span.
     InputDataError
@@ -491,10 +564,39 @@ def estimate_window(
         options = replace(options, **overrides)
     pos = np.ascontiguousarray(position, dtype=np.float64)
     tor = np.ascontiguousarray(torque, dtype=np.float64)
-    check_window(pos, tor, options)
-    plan = plan or resolve_plan(pos, fs, options)
-    u, y, irf = front_end(pos, tor, fs, options, plan)
-    return back_end(irf, u, y, options, plan, held_values(options, held))
+    mask = None if valid is None else np.asarray(valid, dtype=bool)
+    lost = check_window(pos, tor, options, mask, fs)
+    pos, tor = without_lost(pos, tor, lost)
+    plan = plan or resolve_plan(plan_source(pos, lost), fs, options)
+    u, y, irf, gaps = analyse(pos, tor, fs, options, plan, lost)
+    return back_end(irf, u, y, options, plan, held_values(options, held), gaps)
+
+
+def analyse(
+    position: FloatArray,
+    torque: FloatArray,
+    fs: float,
+    options: EstimatorOptions,
+    plan: AnalysisPlan,
+    lost: LostSamples | None,
+) -> tuple[FloatArray, FloatArray, IRF, WindowGaps | None]:
+    """Stages 3–4 of a checked window: :func:`front_end`, or for a window with lost samples
+    the numpy path with the lost samples' reach zeroed and the IRF fitted on clean rows."""
+    if lost is None:
+        return (*front_end(position, torque, fs, options, plan), None)
+    u, y = prepare_window(position, torque, options, plan)
+    bad = contaminated(lost.valid, plan.taps.size, plan.factor)
+    u[bad], y[bad] = 0.0, 0.0
+    gaps = WindowGaps(bad=bad, lost=lost.count)
+    rows = gaps.rows(plan.lag)
+    # Refinement needs rows whose whole lag span is clean; without enough of them the IRF is
+    # the plain Wiener–Hopf solution from correlations over valid pairs, and the checks that
+    # compare against it (vaf_irf, vaf_fit) are left out (null).
+    refine = options.refine if gaps.irf_checkable(plan.lag) else 0
+    irf = estimate_irf(
+        u, y, plan.analysis_fs_hz, plan.lag, ridge=options.ridge, refine=refine, rows=rows
+    )
+    return u, y, irf, gaps
 
 
 def held_values(options: EstimatorOptions, learned: Held = NOT_HELD) -> Held:
@@ -520,6 +622,7 @@ def back_end(
     options: EstimatorOptions,
     plan: AnalysisPlan,
     held: Held = NOT_HELD,
+    gaps: WindowGaps | None = None,
 ) -> WindowEstimate:
     """Stages 5–7: fit, VAFs, standard errors and flags of one window.
 
@@ -529,9 +632,9 @@ def back_end(
     log-magnitude fit), the reference it is tested against.
     """
     if options.fit_method == "output_error":
-        return output_error_back_end(irf, u, y, options, plan, held)
-    if _eureka is None or options.fit_method != "relative":
-        return numpy_back_end(irf, u, y, options, plan)
+        return output_error_back_end(irf, u, y, options, plan, held, gaps=gaps)
+    if _eureka is None or options.fit_method != "relative" or gaps is not None:
+        return numpy_back_end(irf, u, y, options, plan, gaps)
     fs_a = irf.fs_hz
     band = plan.fit_band_hz
     grid_key = (*band, options.fit_points, fs_a / 2)
@@ -558,8 +661,8 @@ def back_end(
         raise zero_response()
     if status >= 0:
         raise not_positive_definite(status, float("nan"))
-    se_i, se_b, se_k, vaf, vaf_irf, vaf_fit = out.tolist()
-    vafs = (round(vaf, 12), round(vaf_irf, 12), round(vaf_fit, 12))
+    se_i, se_b, se_k, vaf_model, vaf_irf, vaf_fit = out.tolist()
+    vafs = (round(vaf_model, 12), round(vaf_irf, 12), round(vaf_fit, 12))
     return _assemble(irf, params, (se_i, se_b, se_k), vafs, "relative", options)
 
 
@@ -575,20 +678,33 @@ def output_error_back_end(
     plan: AnalysisPlan,
     held: Held = NOT_HELD,
     design: OutputErrorDesign | None = None,
+    gaps: WindowGaps | None = None,
 ) -> WindowEstimate:
     """Stages 5–7 with the output-error fit (the default criterion); ``design`` when the
     caller has already formed this window's (:class:`WindowStream` fits it twice)."""
-    design = design or OutputErrorDesign(u, y, irf.fs_hz)
+    design = design or output_error_design(u, y, irf, gaps)
     fit = design.fit(
         inertia=held.inertia,
         damping=held.damping if held.inertia is not None else None,
         uncertainty=options.uncertainty,
         noise_lags=_noise_lags(irf, plan),
     )
-    _, vaf_irf, vaf_fit = _three_vafs(predict_torque(irf, u, y, fit.params))
+    _, vaf_irf, vaf_fit = _three_vafs(predict_torque(irf, u, y, fit.params, gaps))
     vafs = (vaf(fit.measured, fit.model), vaf_irf, vaf_fit)
     se_i, se_b, se_k = fit.se.tolist()
-    return _assemble(irf, fit.params, (se_i, se_b, se_k), vafs, "output_error", options)
+    lost = 0 if gaps is None else gaps.lost
+    return _assemble(irf, fit.params, (se_i, se_b, se_k), vafs, "output_error", options, lost)
+
+
+def output_error_design(
+    u: FloatArray, y: FloatArray, irf: IRF, gaps: WindowGaps | None = None
+) -> OutputErrorDesign:
+    """The window's output-error least-squares problem, over the rows the lost samples left."""
+    if gaps is None:
+        return OutputErrorDesign(u, y, irf.fs_hz)
+    rows = gaps.rows(4)
+    require_rows(rows, max(24, rows.size // 10), "derivative rows")
+    return OutputErrorDesign(u, y, irf.fs_hz, rows)
 
 
 def _noise_lags(irf: IRF, plan: AnalysisPlan) -> int:
@@ -598,16 +714,22 @@ def _noise_lags(irf: IRF, plan: AnalysisPlan) -> int:
 
 
 def numpy_back_end(
-    irf: IRF, u: FloatArray, y: FloatArray, options: EstimatorOptions, plan: AnalysisPlan
+    irf: IRF,
+    u: FloatArray,
+    y: FloatArray,
+    options: EstimatorOptions,
+    plan: AnalysisPlan,
+    gaps: WindowGaps | None = None,
 ) -> WindowEstimate:
     """Stages 5–7 of the frequency-domain fits in numpy: :func:`fit_parameters`,
     :func:`predict_torque`, the VAFs and :func:`standard_errors`."""
     fit = fit_parameters(irf, u, options, plan)
-    predictions = predict_torque(irf, u, y, fit.params)
+    predictions = predict_torque(irf, u, y, fit.params, gaps)
     se = standard_errors(irf, u, predictions, fit) if options.uncertainty else np.full(3, np.nan)
     se_i, se_b, se_k = se.tolist()
+    lost = 0 if gaps is None else gaps.lost
     return _assemble(
-        irf, fit.params, (se_i, se_b, se_k), _three_vafs(predictions), fit.method, options
+        irf, fit.params, (se_i, se_b, se_k), _three_vafs(predictions), fit.method, options, lost
     )
 
 
@@ -720,9 +842,12 @@ class TorquePredictions:
     measured: FloatArray
     irf: FloatArray
     model: FloatArray
+    rows: NDArray[np.bool_] | None = None  # the clean ones, when samples were lost
 
 
-def predict_torque(irf: IRF, u: FloatArray, y: FloatArray, params: FloatArray) -> TorquePredictions:
+def predict_torque(
+    irf: IRF, u: FloatArray, y: FloatArray, params: FloatArray, gaps: WindowGaps | None = None
+) -> TorquePredictions:
     """Stage 6: torque predicted by the IRF and by the parametric model ``(I, B, K)``."""
     edge = _supported_edge(irf)
     inertia, damping, stiffness = params
@@ -733,7 +858,14 @@ def predict_torque(irf: IRF, u: FloatArray, y: FloatArray, params: FloatArray) -
         measured=y[inner],
         irf=irf.predict(u)[inner],
         model=model_torque[edge - 4 : u.size - edge - 4],
+        rows=None if gaps is None else _checkable_rows(gaps, irf, edge),
     )
+
+
+def _checkable_rows(gaps: WindowGaps, irf: IRF, edge: int) -> NDArray[np.bool_]:
+    """The clean rows the IRF's checks may use: none when too few remain to check it."""
+    rows = gaps.rows(edge)
+    return rows if gaps.irf_checkable(irf.max_lag) else np.zeros_like(rows)
 
 
 def _supported_edge(irf: IRF) -> int:
@@ -749,18 +881,20 @@ def standard_errors(
     edge = _supported_edge(irf)
     inner_u = u[edge : u.size - edge]
     residual = predictions.measured - predictions.irf
+    if predictions.rows is not None:
+        residual = residual * predictions.rows
     cov = _parameter_covariance(irf, inner_u, residual, fit.sensitivity)
     return np.asarray(np.sqrt(np.clip(np.diag(cov), 0.0, None)), dtype=np.float64)
 
 
 def _three_vafs(p: TorquePredictions) -> tuple[float, float, float]:
     """VAF of the model and of the IRF against the measurement, and of the model against
-    the IRF."""
-    return (
-        vaf(p.measured, p.model),
-        vaf(p.measured, p.irf),
-        vaf(p.irf, p.model),
-    )
+    the IRF (over the clean rows when samples were lost)."""
+    rows = slice(None) if p.rows is None else p.rows
+    measured, irf, model = p.measured[rows], p.irf[rows], p.model[rows]
+    if measured.size < 2:  # lost samples left no row over the IRF's whole lag span
+        return vaf(p.measured, p.model), math.nan, math.nan
+    return vaf(measured, model), vaf(measured, irf), vaf(irf, model)
 
 
 def _assemble(
@@ -770,6 +904,7 @@ def _assemble(
     vafs: tuple[float, float, float],
     method: str,
     options: EstimatorOptions,
+    lost: int = 0,
 ) -> WindowEstimate:
     inertia, damping, stiffness = (float(v) for v in params)
     vaf_model, vaf_irf, vaf_fit = vafs
@@ -788,4 +923,5 @@ def _assemble(
         fs_hz=irf.fs_hz,
         flags=_flags((inertia, damping, stiffness), se, vafs, options),
         method=method,
+        lost_samples=lost,
     )

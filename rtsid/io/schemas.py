@@ -94,6 +94,12 @@ ESTIMATE_SCHEMA: dict[str, Any] = {
         "vaf": _num("variance accounted for by the I, B, K model's torque, %"),
         "vaf_irf": _num("variance accounted for by the IRF's torque, %"),
         "vaf_fit": _num("variance of the IRF's torque accounted for by the I, B, K model, %"),
+        "lost_samples": {
+            "type": ["integer", "null"],
+            "minimum": 0,
+            "description": "lost samples in the window, bridged by sums over valid samples only "
+            "(never interpolated); null when withheld",
+        },
         "compute_ms": _num("time spent identifying the window, ms"),
         "latency_ms": _num("time from the window's last sample to publication, ms"),
         "ok": {"type": "boolean", "description": "true: I, B, K are usable"},

@@ -6,8 +6,10 @@ reproduces them exactly (same windows, same numbers). The worker thread sleeps u
 acquisition thread publishes the window's last sample (the ring wakes it), so the time from
 that sample to the estimate is the wake-up plus the compute time.
 
-A window is estimated only from contiguous, valid, unsaturated, fresh samples; otherwise the
-message says why (``ok: false`` and a ``reason``) — never a silent number. When the worker
+A window is estimated only from valid, unsaturated, fresh samples without a discontinuity —
+a few lost samples are bridged by sums over the valid ones (never interpolated) and counted in
+``lost_samples``; otherwise the message says why (``ok: false`` and a ``reason``) — never a
+silent number. When the worker
 falls behind by a hop or more it skips to the newest window (stale work is dropped and
 counted as overruns); compute beyond the budget counts a deadline miss.
 """
@@ -124,16 +126,27 @@ def assess_window(snap: Snapshot, now_s: float, max_age_s: float) -> str | None:
     Returns
     -------
     str or None
-        ``"stale"``, ``"gap"`` (lost samples or a discontinuity in the signal),
-        ``"saturated"`` or ``"nan"``; None when the window is usable.
+        ``"stale"``, ``"gap"`` (a discontinuity in the signal), ``"saturated"`` or
+        ``"nan"``; None when the window may be estimated. Lost samples are not judged here:
+        the estimator bridges a few (sums over valid samples only) and withholds the window
+        with ``"gap"`` past its limits (``max_lost_percent``, ``max_gap_s``).
     """
     if now_s - float(snap.host_time_s[-1]) > max_age_s:
         return "stale"
-    if not snap.valid.all() or (snap.status & STATUS_DISCONTINUITY).any():
-        return "gap"
+    if (snap.status & STATUS_DISCONTINUITY).any():
+        return "gap"  # the signal itself jumps: no sum over valid samples bridges that
     if (snap.status & _SATURATED).any():
         return "saturated"
-    if not (math.isfinite(snap.position_rad.sum()) and math.isfinite(snap.torque_nm.sum())):
+    valid = snap.valid  # lost rows hold no value (a recording stores NaN there)
+    position, torque = (
+        (snap.position_rad, snap.torque_nm)
+        if valid.all()
+        else (
+            snap.position_rad[valid],
+            snap.torque_nm[valid],
+        )
+    )
+    if not (math.isfinite(position.sum()) and math.isfinite(torque.sum())):
         return "nan"
     return None
 
@@ -338,7 +351,8 @@ class WindowWorker(ThreadOwner):
             torque = torque - self.calibration.torque_offset(snap.position_rad)
         planned = self.stream.plan is not None
         try:
-            estimate = self.stream.estimate(snap.position_rad, torque)
+            valid = None if snap.valid.all() else snap.valid
+            estimate = self.stream.estimate(snap.position_rad, torque, valid)
         except WindowError as exc:
             self._withheld[exc.reason] += 1
             return None, exc.reason
@@ -362,7 +376,7 @@ class WindowWorker(ThreadOwner):
         keys = ("I", "B", "K", "I_se", "B_se", "K_se", "vaf", "vaf_irf", "vaf_fit")
         # NaN (a held parameter's standard error) is null, as it is once encoded.
         scalars = estimate.as_dict() if estimate else {}
-        values = {k: scalars.get(k) for k in keys}
+        values = {k: scalars.get(k) for k in (*keys, "lost_samples")}
         overrun = compute_s > self.config.effective_budget_s
         flags = [*(estimate.flags if estimate else ()), *(("over_budget",) if overrun else ())]
         latency = None if last_arrival_s is None else (time.monotonic() - last_arrival_s) * 1e3

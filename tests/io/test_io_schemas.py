@@ -43,6 +43,7 @@ def make_estimate(**overrides: object) -> dict[str, object]:
         "vaf": 95.5,
         "vaf_irf": 97.0,
         "vaf_fit": 98.0,
+        "lost_samples": 0,
         "compute_ms": 3.2,
         "latency_ms": 4.1,
         "ok": True,

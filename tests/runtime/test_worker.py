@@ -14,7 +14,7 @@ from rtsid.sim.joint import JointParameters, simulate_impedance
 FS = 2500.0
 
 
-def filled_ring(n=1500, *, gap_at=None, saturate_at=None, age_s=0.0, seed=0):
+def filled_ring(n=1500, *, gap_at=None, gap_len=3, saturate_at=None, age_s=0.0, seed=0):
     theta = filtered_noise(n, FS, 30.0, peak=0.03, seed=seed)
     tau = simulate_impedance(
         theta, FS, JointParameters(0.015, 0.8, 150.0), noise_percent=5.0, seed=seed
@@ -23,7 +23,7 @@ def filled_ring(n=1500, *, gap_at=None, saturate_at=None, age_s=0.0, seed=0):
     now = time.monotonic() - age_s
     for k in range(n):
         if gap_at is not None and k == gap_at:
-            ring.append_gap(3, now)
+            ring.append_gap(gap_len, now)
             continue
         status = STATUS_TORQUE_SATURATED if k == saturate_at else 0
         ring.append(theta[k], tau[k], status, now - (n - k) / FS, k / FS)
@@ -63,10 +63,19 @@ def test_process_window_publishes_a_complete_estimate_message():
     assert msg["compute_ms"] > 0 and msg["latency_ms"] >= 0
 
 
+def test_a_few_lost_samples_are_bridged_and_counted_never_interpolated():
+    published = []
+    msg = make_worker(filled_ring(gap_at=1400, gap_len=3), published).process_window(1449)
+    assert msg["ok"] and msg["lost_samples"] == 3
+    assert msg["K"] == pytest.approx(150.0, rel=0.1)
+    clean = make_worker(filled_ring(), []).process_window(1449)
+    assert clean["lost_samples"] == 0
+
+
 @pytest.mark.parametrize(
     "ring_kwargs,reason",
     [
-        ({"gap_at": 1400}, "gap"),
+        ({"gap_at": 1400, "gap_len": 30}, "gap"),  # 12 ms lost: beyond max_gap_s
         ({"saturate_at": 1200}, "saturated"),
         ({"age_s": 1.0}, "stale"),
     ],
