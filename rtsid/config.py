@@ -14,11 +14,11 @@ import math
 import tomllib
 import types
 import typing
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
-from rtsid.errors import ConfigError
+from rtsid.errors import ConfigError, invalid, require_choice, require_range
 
 __all__ = [
     "invalid",
@@ -30,36 +30,6 @@ __all__ = [
 ]
 
 T = TypeVar("T")
-
-
-def invalid(key: str, value: object, accepted: str) -> ConfigError:
-    """Error for ``key = value`` naming what is accepted instead."""
-    return ConfigError(f"config key {key!r} = {value!r} is not accepted; expected {accepted}")
-
-
-def require_choice(key: str, value: object, choices: Iterable[object]) -> None:
-    """Raise unless ``value`` is one of ``choices``."""
-    options = tuple(choices)
-    if value not in options:
-        raise invalid(key, value, "one of " + ", ".join(repr(c) for c in options))
-
-
-def require_range(
-    key: str,
-    value: float,
-    low: float | None = None,
-    high: float | None = None,
-    *,
-    low_inclusive: bool = True,
-) -> None:
-    """Raise unless ``value`` is finite and ``low <= value <= high`` (``low < value`` when
-    not ``low_inclusive``). NaN compares false with everything, so it is refused first."""
-    too_low = low is not None and (value < low if low_inclusive else value <= low)
-    too_high = high is not None and value > high
-    if too_low or too_high or not math.isfinite(value):
-        lo = "" if low is None else f"{'>=' if low_inclusive else '>'} {low}"
-        hi = "" if high is None else f"<= {high}"
-        raise invalid(key, value, "a finite number " + " and ".join(p for p in (lo, hi) if p))
 
 
 def require_finite(key: str, value: object) -> None:

@@ -23,6 +23,9 @@ Warnings (work went on, but the user must hear of it; the CLI prints each as one
 
 from __future__ import annotations
 
+import math
+from collections.abc import Iterable
+
 
 class RtsidError(Exception):
     """Base class of every error rtsid raises on purpose."""
@@ -91,3 +94,38 @@ class RtsidWarning(UserWarning):
 
 class IncompleteRecordingWarning(RtsidWarning):
     """A recording ended before its footer; the message says how much of it was read."""
+
+
+# The checks every frozen settings class runs in ``__post_init__``; here, at the bottom of the
+# package, so that the pure numerics (``rtsid.ident``) validate their options without
+# importing the config loader. ``rtsid.config`` re-exports them.
+
+
+def invalid(key: str, value: object, accepted: str) -> ConfigError:
+    """Error for ``key = value`` naming what is accepted instead."""
+    return ConfigError(f"config key {key!r} = {value!r} is not accepted; expected {accepted}")
+
+
+def require_choice(key: str, value: object, choices: Iterable[object]) -> None:
+    """Raise unless ``value`` is one of ``choices``."""
+    options = tuple(choices)
+    if value not in options:
+        raise invalid(key, value, "one of " + ", ".join(repr(c) for c in options))
+
+
+def require_range(
+    key: str,
+    value: float,
+    low: float | None = None,
+    high: float | None = None,
+    *,
+    low_inclusive: bool = True,
+) -> None:
+    """Raise unless ``value`` is finite and ``low <= value <= high`` (``low < value`` when
+    not ``low_inclusive``). NaN compares false with everything, so it is refused first."""
+    too_low = low is not None and (value < low if low_inclusive else value <= low)
+    too_high = high is not None and value > high
+    if too_low or too_high or not math.isfinite(value):
+        lo = "" if low is None else f"{'>=' if low_inclusive else '>'} {low}"
+        hi = "" if high is None else f"<= {high}"
+        raise invalid(key, value, "a finite number " + " and ".join(p for p in (lo, hi) if p))

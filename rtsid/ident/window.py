@@ -28,8 +28,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from rtsid.config import invalid, require_choice, require_range
-from rtsid.errors import InputDataError, WindowError
+from rtsid.errors import InputDataError, WindowError, invalid, require_choice, require_range
 from rtsid.ident.analysis import AnalysisPlan, hann_periodogram, hann_taper, plan_analysis
 from rtsid.ident.correlation import auto_correlation, detrend
 from rtsid.ident.filters import stencil_derivatives
