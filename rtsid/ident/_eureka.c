@@ -631,7 +631,18 @@ static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, "_eureka", "Compiled EUREKA / Levinson kernel.", -1, methods,
 };
 
+/* window_fit's status codes, exported so that Python reads them from here (one source). */
 PyMODINIT_FUNC PyInit__eureka(void)
 {
-    return PyModule_Create(&module);
+    PyObject *m = PyModule_Create(&module);
+    if (m == NULL) return NULL;
+    if (PyModule_AddIntConstant(m, "FIT_OK", FIT_OK) < 0 ||
+        PyModule_AddIntConstant(m, "FIT_FIRST_SINGULAR", FIT_FIRST_SINGULAR) < 0 ||
+        PyModule_AddIntConstant(m, "FIT_FINAL_SINGULAR", FIT_FINAL_SINGULAR) < 0 ||
+        PyModule_AddIntConstant(m, "FIT_NOT_PD", FIT_NOT_PD) < 0 ||
+        PyModule_AddIntConstant(m, "FIT_ZERO_RESPONSE", FIT_ZERO_RESPONSE) < 0) {
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
 }

@@ -28,7 +28,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from rtsid.errors import InputDataError, WindowError, invalid, require_choice, require_range
+from rtsid.errors import (
+    InputDataError,
+    NotPositiveDefiniteError,
+    NumericalError,
+    WindowError,
+    invalid,
+    require_choice,
+    require_range,
+)
 from rtsid.ident.analysis import AnalysisPlan, hann_periodogram, hann_taper, plan_analysis
 from rtsid.ident.correlation import auto_correlation, detrend
 from rtsid.ident.filters import stencil_derivatives
@@ -654,19 +662,28 @@ def back_end(
         sensitivity,
         out,
     )
-    if status in (_FIRST_FIT_SINGULAR, _FINAL_FIT_SINGULAR):
-        raise inseparable_fit()
-    if status == _ZERO_RESPONSE:
-        raise zero_response()
-    if status >= 0:
-        raise not_positive_definite(status, float("nan"))
+    _raise_for_fit_status(status)
     se_i, se_b, se_k, vaf_model, vaf_irf, vaf_fit = out.tolist()
     vafs = (round(vaf_model, 12), round(vaf_irf, 12), round(vaf_fit, 12))
     return _assemble(irf, params, (se_i, se_b, se_k), vafs, "relative", options)
 
 
-# window_fit's status codes (see _eureka.c)
-_FIRST_FIT_SINGULAR, _FINAL_FIT_SINGULAR, _ZERO_RESPONSE = 1, 2, 4
+def _raise_for_fit_status(status: int) -> None:
+    """The error for a ``window_fit`` status (the codes are the kernel's own constants)."""
+    if status == _eureka.FIT_OK:
+        return
+    if status in (_eureka.FIT_FIRST_SINGULAR, _eureka.FIT_FINAL_SINGULAR):
+        raise inseparable_fit()
+    if status == _eureka.FIT_ZERO_RESPONSE:
+        raise zero_response()
+    if status == _eureka.FIT_NOT_PD:
+        raise NotPositiveDefiniteError(
+            "the input autocorrelation is not positive definite in the standard errors' "
+            "Toeplitz solves: the perturbation has too little bandwidth for the lag span; "
+            "shorten lag_s or widen the perturbation",
+            step=-1,
+        )
+    raise NumericalError(f"window_fit returned the unknown status {status}")
 
 
 def output_error_back_end(

@@ -251,3 +251,24 @@ def test_back_end_rejects_a_window_whose_torque_does_not_respond():
             window.back_end(irf, u, y, options, plan)
     with pytest.raises(NumericalError, match="torque does not follow position"):
         window.numpy_back_end(irf, u, y, EstimatorOptions(fit_method="relative"), plan)
+
+
+def test_every_status_of_the_compiled_fit_names_its_problem():
+    from rtsid.errors import NotPositiveDefiniteError, NumericalError
+    from rtsid.ident import window
+
+    kernel = window._eureka
+    if kernel is None:
+        pytest.skip("compiled kernel not built")
+    window._raise_for_fit_status(kernel.FIT_OK)  # no error
+    expected = {
+        kernel.FIT_FIRST_SINGULAR: "cannot separate inertia from stiffness",
+        kernel.FIT_FINAL_SINGULAR: "cannot separate inertia from stiffness",
+        kernel.FIT_ZERO_RESPONSE: "torque does not follow position",
+        kernel.FIT_NOT_PD: "not positive definite",
+    }
+    for status, message in expected.items():
+        with pytest.raises(NumericalError, match=message):
+            window._raise_for_fit_status(status)
+    with pytest.raises(NotPositiveDefiniteError):
+        window._raise_for_fit_status(kernel.FIT_NOT_PD)
