@@ -43,7 +43,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--allow-nan",
         action="store_true",
-        help="withhold windows containing NaN/inf (reason 'nan') instead of refusing the file",
+        help="take NaN/inf rows as lost samples (bridged as live, or the window withheld as "
+        "'gap') instead of refusing the file",
     )
 
 
@@ -81,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
             "windows that contain them"
         )
     stream = WindowStream(record.fs_hz, options, args.hop)
+    valid = np.isfinite(record.position_rad) & np.isfinite(record.torque_nm) if problem else None
     results = list(
         sliding_estimates(
             record.position_rad,
@@ -90,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
             args.hop,
             options,
             stream=stream,
+            valid=valid,
         )
     )
     with open_output(args.out) as fh:

@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike
 
 from rtsid.errors import InputDataError, NumericalError, WindowError
 from rtsid.ident.analysis import AnalysisPlan
+from rtsid.ident.grid import window_ends
 from rtsid.ident.vaf import vaf
 from rtsid.ident.window import (
     EstimatorOptions,
@@ -187,13 +188,15 @@ def sliding_estimates(
     options: EstimatorOptions | None = None,
     *,
     stream: WindowStream | None = None,
+    valid: ArrayLike | None = None,
 ) -> Iterator[WindowResult]:
     """Estimate every window of ``window_s`` seconds, ``hop_s`` apart, oldest first.
 
     Windows that must not be estimated (NaN, no excitation, numerically unsound) are
     yielded with their reason instead of an estimate, so the caller sees every window. The
     windows are one :class:`WindowStream`: one analysis plan, held parameters learned in
-    order.
+    order. The windows are the live worker's (:mod:`rtsid.ident.grid`): a recording and
+    its replay give the same ones.
 
     Parameters
     ----------
@@ -207,6 +210,8 @@ def sliding_estimates(
         Estimator settings.
     stream : WindowStream, optional
         The stream to estimate with (to read its plan afterwards); default a new one.
+    valid : array_like of bool, shape (n,), optional
+        False for lost samples (bridged by sums over valid samples, as live).
 
     Yields
     ------
@@ -228,11 +233,13 @@ def sliding_estimates(
             f"{window_s} s window; use a shorter --window"
         )
     stream = stream or WindowStream(fs, options or EstimatorOptions(), n_hop / fs)
-    for start in range(0, pos.size - n_win + 1, n_hop):
-        stop = start + n_win
-        t_end = (stop - 1) / fs
+    mask = None if valid is None else np.asarray(valid, dtype=bool)
+    for end in window_ends(0, pos.size - 1, n_win, n_hop):
+        start, stop = end - n_win + 1, end + 1
+        t_end = end / fs
+        window_valid = None if mask is None else mask[start:stop]
         try:
-            est = stream.estimate(pos[start:stop], tor[start:stop])
+            est = stream.estimate(pos[start:stop], tor[start:stop], window_valid)
         except WindowError as exc:
             yield WindowResult(start, stop, t_end, None, exc.reason)
         except NumericalError:

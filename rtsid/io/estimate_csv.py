@@ -28,6 +28,7 @@ COLUMNS = (
     "ok",
     "reason",
     "flags",
+    "lost_samples",
 )
 
 
@@ -45,7 +46,7 @@ def estimate_row(result: WindowResult) -> dict[str, Any]:
         return row
     for key in ("K", "B", "I", "vaf", "K_se", "B_se", "I_se", "vaf_irf", "vaf_fit"):
         row[key] = _fmt(float(getattr(est, key)))
-    row.update(ok=1, reason="", flags=";".join(est.flags))
+    row.update(ok=1, reason="", flags=";".join(est.flags), lost_samples=est.lost_samples)
     return row
 
 

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 from rtsid.config import require_range, section_from_mapping
 from rtsid.errors import ConfigError, InputDataError, NumericalError, WindowError
+from rtsid.ident.grid import first_window_end
 from rtsid.ident.stream import WindowStream
 from rtsid.ident.window import EstimatorOptions, WindowEstimate
 from rtsid.lifecycle import ThreadOwner
@@ -234,9 +235,7 @@ class WindowWorker(ThreadOwner):
     # ------------------------------------------------------------------ the grid
     def first_window_end(self, first_index: int) -> int:
         """The first grid window end whose window starts at or after ``first_index``."""
-        hop = self.hop_samples
-        earliest = first_index + self.window_samples - 1
-        return -(-(earliest + 1) // hop) * hop - 1
+        return first_window_end(first_index, self.window_samples, self.hop_samples)
 
     def _starting_window_end(self, newest: int) -> int:
         """At start, the newest complete grid window (earlier ones are history, not overruns)."""
