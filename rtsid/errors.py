@@ -26,6 +26,8 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 
+from rtsid.verdicts import Reason
+
 
 class RtsidError(Exception):
     """Base class of every error rtsid raises on purpose."""
@@ -46,12 +48,11 @@ class WindowError(InputDataError):
     ----------
     message : str
         Human-readable explanation, with the fix where there is one.
-    reason : str
-        Short flag such as ``"gap"``, ``"nan"``, ``"too_short"``, ``"saturated"``,
-        ``"no_excitation"`` or ``"stale"``.
+    reason : Reason
+        Why, from the closed vocabulary :class:`rtsid.verdicts.Reason`.
     """
 
-    def __init__(self, message: str, reason: str) -> None:
+    def __init__(self, message: str, reason: Reason) -> None:
         super().__init__(message)
         self.reason = reason
 

@@ -37,6 +37,7 @@ from numpy.typing import NDArray
 from rtsid.errors import InputDataError, WindowError
 from rtsid.ident.correlation import detrend
 from rtsid.ident.filters import band_limit_taps, decimation_factor
+from rtsid.verdicts import Reason
 
 __all__ = [
     "AnalysisPlan",
@@ -162,7 +163,7 @@ def _no_usable_power(n: int, fs_hz: float) -> WindowError:
         f"the position has no usable power above {2 * fs_hz / n:.3g} Hz in these {n} samples "
         "(a drift or a constant, not a perturbation); nothing to identify — is the "
         "perturbation enabled?",
-        "no_excitation",
+        Reason.NO_EXCITATION,
     )
 
 
@@ -216,7 +217,7 @@ def plan_analysis(
     try:
         taps = band_limit_taps(fs, float(lowpass_hz), factor)
     except InputDataError as exc:
-        raise WindowError(str(exc), "too_short") from None
+        raise WindowError(str(exc), Reason.TOO_SHORT) from None
     fs_a = fs / factor
     lag = max(1, round(lag_s * fs_a))
     band = fit_band_hz if fit_band_hz is not None else (1.0, min(lowpass_hz, 0.45 * fs_a))

@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rtsid.errors import WindowError
+from rtsid.verdicts import Reason
 
 __all__ = ["LostSamples", "clean_rows", "contaminated", "count_lost", "require_rows"]
 
@@ -72,13 +73,13 @@ def count_lost(
         raise WindowError(
             f"{count} of {valid.size} samples lost ({100.0 * count / valid.size:.1f} %), more "
             f"than max_lost_percent = {max_percent:g}: the window is withheld",
-            "gap",
+            Reason.GAP,
         )
     if longest > max(1, round(max_gap_s * fs_hz)):
         raise WindowError(
             f"{longest} consecutive samples lost ({longest / fs_hz * 1e3:.3g} ms), longer than "
             f"max_gap_s = {max_gap_s:g}: the window is withheld",
-            "gap",
+            Reason.GAP,
         )
     return LostSamples(valid=valid, count=count, longest_run=longest)
 
@@ -105,5 +106,5 @@ def require_rows(rows: BoolArray, needed: int, what: str) -> None:
         raise WindowError(
             f"lost samples leave {kept} of {rows.size} {what} usable, fewer than {needed}: "
             "the window is withheld",
-            "gap",
+            Reason.GAP,
         )

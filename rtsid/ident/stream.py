@@ -43,6 +43,7 @@ from rtsid.ident.window import (
     resolve_plan,
     without_lost,
 )
+from rtsid.verdicts import Reason
 
 __all__ = ["HeldParameters", "WindowResult", "WindowStream", "sliding_estimates"]
 
@@ -243,6 +244,6 @@ def sliding_estimates(
         except WindowError as exc:
             yield WindowResult(start, stop, t_end, None, exc.reason)
         except NumericalError:
-            yield WindowResult(start, stop, t_end, None, "numerical")
+            yield WindowResult(start, stop, t_end, None, Reason.NUMERICAL)
         else:
             yield WindowResult(start, stop, t_end, est, None)

@@ -52,6 +52,7 @@ from rtsid.ident.second_order import (
     zero_response,
 )
 from rtsid.ident.vaf import vaf
+from rtsid.verdicts import Flag, Reason
 
 _eureka = compiled_kernel()
 
@@ -235,7 +236,7 @@ class WindowEstimate:
     irf: FloatArray = field(repr=False)
     lags_s: FloatArray = field(repr=False)
     fs_hz: float
-    flags: tuple[str, ...]
+    flags: tuple[Flag, ...]
     method: str
     lost_samples: int = 0
 
@@ -273,7 +274,7 @@ def check_window(
     if position.size < 16:
         raise WindowError(
             f"a window of {position.size} samples is too short to identify; lengthen it",
-            "too_short",
+            Reason.TOO_SHORT,
         )
     lost = None
     if valid is not None and not valid.all():
@@ -281,14 +282,14 @@ def check_window(
         position, torque = position[valid], torque[valid]
     # One pass each: a sum is finite only if every term is (rad and N·m never overflow).
     if not (math.isfinite(position.sum()) and math.isfinite(torque.sum())):
-        raise WindowError("window contains NaN or inf samples; it is withheld", "nan")
+        raise WindowError("window contains NaN or inf samples; it is withheld", Reason.NAN)
     mean = position.sum() / position.size
     variance = max(0.0, float(position @ position) / position.size - mean * mean)
     if math.sqrt(variance) < options.min_excitation_rad:
         raise WindowError(
             f"position varies by less than {options.min_excitation_rad} rad in this window: "
             "no perturbation, nothing to identify (is the perturbation enabled?)",
-            "no_excitation",
+            Reason.NO_EXCITATION,
         )
     return lost
 
@@ -353,7 +354,7 @@ def _band_limit(x: FloatArray, plan: AnalysisPlan) -> FloatArray:
         raise WindowError(
             f"window of {x.size} samples is shorter than the {plan.taps.size}-tap low-pass; "
             "lengthen the window or raise lowpass_hz",
-            "too_short",
+            Reason.TOO_SHORT,
         )
     return np.convolve(x, plan.taps, mode="valid")[:: plan.factor]
 
@@ -426,25 +427,19 @@ def _flags(
     se: tuple[float, float, float],
     vafs: tuple[float, float, float],
     options: EstimatorOptions,
-) -> tuple[str, ...]:
+) -> tuple[Flag, ...]:
     inertia, damping, stiffness = params
     vaf_model, _, vaf_fit = vafs
-    flags = []
-    if vaf_model < options.low_vaf_percent:
-        flags.append("low_vaf")
-    if vaf_fit < 50.0:
-        flags.append("model_mismatch")
-    if stiffness <= 0:
-        flags.append("negative_stiffness")
-    if damping <= 0:
-        flags.append("negative_damping")
-    if inertia <= 0:
-        flags.append("negative_inertia")
-    if math.isfinite(se[0]) and se[0] > 0.25 * abs(inertia):
-        flags.append("inertia_uncertain")
-    if math.isfinite(se[2]) and se[2] > 0.1 * abs(stiffness):
-        flags.append("stiffness_uncertain")
-    return tuple(flags)
+    checks = (
+        (vaf_model < options.low_vaf_percent, Flag.LOW_VAF),
+        (vaf_fit < 50.0, Flag.MODEL_MISMATCH),  # NaN (not checkable): no flag
+        (stiffness <= 0, Flag.NEGATIVE_STIFFNESS),
+        (damping <= 0, Flag.NEGATIVE_DAMPING),
+        (inertia <= 0, Flag.NEGATIVE_INERTIA),
+        (math.isfinite(se[0]) and se[0] > 0.25 * abs(inertia), Flag.INERTIA_UNCERTAIN),
+        (math.isfinite(se[2]) and se[2] > 0.1 * abs(stiffness), Flag.STIFFNESS_UNCERTAIN),
+    )
+    return tuple(flag for raised, flag in checks if raised)
 
 
 @dataclass(frozen=True)
@@ -806,7 +801,7 @@ def _check_analysis_length(m: int, fs_a: float, max_lag: int) -> None:
             f"window gives {m} samples at {fs_a:g} Hz after the low-pass, too few for a "
             f"±{max_lag}-lag IRF and the derivative stencils; lengthen the window, shorten "
             "lag_s or raise lowpass_hz",
-            "too_short",
+            Reason.TOO_SHORT,
         )
 
 
@@ -816,7 +811,7 @@ def _check_band_limited_excitation(u: FloatArray, options: EstimatorOptions) -> 
         raise WindowError(
             f"the position varies by less than {options.min_excitation_rad} rad in the "
             "analysed band: no usable perturbation, nothing to identify",
-            "no_excitation",
+            Reason.NO_EXCITATION,
         )
 
 

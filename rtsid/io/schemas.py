@@ -31,6 +31,8 @@ from typing import Any
 import numpy as np
 
 from rtsid.errors import InputDataError
+from rtsid.io.messages import ESTIMATE_SCHEMA
+from rtsid.verdicts import Reason
 
 __all__ = [
     "CAN_FRAMES_SCHEMA",
@@ -53,16 +55,7 @@ __all__ = [
 DRAFT = "https://json-schema.org/draft/2020-12/schema"
 
 #: Short machine-readable reasons for a withheld (``ok: false``) estimate.
-WITHHELD_REASONS: tuple[str, ...] = (
-    "gap",
-    "nan",
-    "saturated",
-    "stale",
-    "overrun",
-    "no_excitation",
-    "numerical",
-    "too_short",
-)
+WITHHELD_REASONS: tuple[str, ...] = tuple(Reason)
 
 _NUMBER_OR_NULL = {"type": ["number", "null"]}
 
@@ -70,54 +63,6 @@ _NUMBER_OR_NULL = {"type": ["number", "null"]}
 def _num(description: str) -> dict[str, Any]:
     return {**_NUMBER_OR_NULL, "description": description}
 
-
-ESTIMATE_SCHEMA: dict[str, Any] = {
-    "$schema": DRAFT,
-    "$id": "rtsid.Estimate",
-    "title": "rtsid.Estimate",
-    "description": "One identification window: I, B, K of tau = I*ddq + B*dq + K*q, or why not.",
-    "type": "object",
-    "properties": {
-        "robot": {"type": "string", "description": "robot name from the config"},
-        "joint": {"type": "string", "description": "joint name from the config"},
-        "seq": {"type": "integer", "minimum": 0, "description": "estimate counter (0, 1, …)"},
-        "window_start_index": {"type": "integer", "description": "first sample index"},
-        "window_end_index": {"type": "integer", "description": "last sample index (inclusive)"},
-        "t_start_s": _num("sample time of the first sample, s (index / fs)"),
-        "t_end_s": _num("sample time of the last sample, s"),
-        "I": _num("inertia, kg·m² (N·m·s²/rad)"),
-        "B": _num("damping, N·m·s/rad"),
-        "K": _num("stiffness, N·m/rad"),
-        "I_se": _num("standard error of I, kg·m²"),
-        "B_se": _num("standard error of B, N·m·s/rad"),
-        "K_se": _num("standard error of K, N·m/rad"),
-        "vaf": _num("variance accounted for by the I, B, K model's torque, %"),
-        "vaf_irf": _num("variance accounted for by the IRF's torque, %"),
-        "vaf_fit": _num("variance of the IRF's torque accounted for by the I, B, K model, %"),
-        "lost_samples": {
-            "type": ["integer", "null"],
-            "minimum": 0,
-            "description": "lost samples in the window, bridged by sums over valid samples only "
-            "(never interpolated); null when withheld",
-        },
-        "compute_ms": _num("time spent identifying the window, ms"),
-        "latency_ms": _num("time from the window's last sample to publication, ms"),
-        "ok": {"type": "boolean", "description": "true: I, B, K are usable"},
-        "reason": {
-            "type": ["string", "null"],
-            "description": "why the estimate is withheld (null when ok): "
-            + ", ".join(WITHHELD_REASONS),
-        },
-        "flags": {
-            "type": "array",
-            "items": {"type": "string"},
-            "description": "warnings on an estimate (e.g. low_vaf)",
-        },
-        "host_time_ns": {"type": "integer", "description": "host UNIX time at publication, ns"},
-    },
-    "additionalProperties": False,
-}
-ESTIMATE_SCHEMA["required"] = list(ESTIMATE_SCHEMA["properties"])
 
 #: Keys of an estimate message, in schema order.
 ESTIMATE_FIELDS: tuple[str, ...] = tuple(ESTIMATE_SCHEMA["properties"])

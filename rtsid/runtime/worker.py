@@ -31,6 +31,7 @@ from rtsid.errors import ConfigError, InputDataError, NumericalError, WindowErro
 from rtsid.ident.grid import first_window_end
 from rtsid.ident.stream import WindowStream
 from rtsid.ident.window import EstimatorOptions, WindowEstimate
+from rtsid.io.messages import EstimateMessage
 from rtsid.lifecycle import ThreadOwner
 from rtsid.link.protocol import (
     STATUS_DISCONTINUITY,
@@ -38,6 +39,7 @@ from rtsid.link.protocol import (
     STATUS_TORQUE_SATURATED,
 )
 from rtsid.link.ring import RingBuffer, Snapshot
+from rtsid.verdicts import Flag, Reason
 
 if TYPE_CHECKING:
     from rtsid.calibrate import Calibration
@@ -46,6 +48,19 @@ __all__ = ["WindowWorker", "WorkerConfig", "WorkerCounters", "assess_window"]
 
 _SATURATED = STATUS_POSITION_SATURATED | STATUS_TORQUE_SATURATED
 log = logging.getLogger(__name__)
+#: What an estimate message takes from the window's estimate (None when withheld).
+_ESTIMATE_NUMBERS = (
+    "I",
+    "B",
+    "K",
+    "I_se",
+    "B_se",
+    "K_se",
+    "vaf",
+    "vaf_irf",
+    "vaf_fit",
+    "lost_samples",
+)
 
 
 @dataclass(frozen=True)
@@ -112,7 +127,7 @@ class WorkerCounters:
     compute_ms_last: float
 
 
-def assess_window(snap: Snapshot, now_s: float, max_age_s: float) -> str | None:
+def assess_window(snap: Snapshot, now_s: float, max_age_s: float) -> Reason | None:
     """Why this window must not be estimated, or None when it may be.
 
     Parameters
@@ -133,11 +148,11 @@ def assess_window(snap: Snapshot, now_s: float, max_age_s: float) -> str | None:
         with ``"gap"`` past its limits (``max_lost_percent``, ``max_gap_s``).
     """
     if now_s - float(snap.host_time_s[-1]) > max_age_s:
-        return "stale"
+        return Reason.STALE
     if (snap.status & STATUS_DISCONTINUITY).any():
-        return "gap"  # the signal itself jumps: no sum over valid samples bridges that
+        return Reason.GAP  # the signal itself jumps: no sum over valid samples bridges that
     if (snap.status & _SATURATED).any():
-        return "saturated"
+        return Reason.SATURATED
     valid = snap.valid  # lost rows hold no value (a recording stores NaN there)
     position, torque = (
         (snap.position_rad, snap.torque_nm)
@@ -148,7 +163,7 @@ def assess_window(snap: Snapshot, now_s: float, max_age_s: float) -> str | None:
         )
     )
     if not (math.isfinite(position.sum()) and math.isfinite(torque.sum())):
-        return "nan"
+        return Reason.NAN
     return None
 
 
@@ -335,13 +350,13 @@ class WindowWorker(ThreadOwner):
 
     def _publish_stale(self, end_index: int) -> None:
         """No samples are arriving: say so once per hop for the window that is due."""
-        self._withheld["stale"] += 1
+        self._withheld[Reason.STALE] += 1
         start = end_index - self.window_samples + 1
-        self.publish(self._message(start, end_index, None, "stale", 0.0, None))
+        self.publish(self._message(start, end_index, None, Reason.STALE, 0.0, None))
 
     def _estimate(
-        self, snap: Snapshot, reason: str | None
-    ) -> tuple[WindowEstimate | None, str | None]:
+        self, snap: Snapshot, reason: Reason | None
+    ) -> tuple[WindowEstimate | None, Reason | None]:
         if reason is not None:
             self._withheld[reason] += 1
             return None, reason
@@ -356,8 +371,8 @@ class WindowWorker(ThreadOwner):
             self._withheld[exc.reason] += 1
             return None, exc.reason
         except NumericalError:
-            self._withheld["numerical"] += 1
-            return None, "numerical"
+            self._withheld[Reason.NUMERICAL] += 1
+            return None, Reason.NUMERICAL
         self._estimates += 1
         if not planned and self.stream.plan is not None:
             log.info("%s/%s %s", self.robot, self.joint, self.stream.plan.describe())
@@ -368,32 +383,29 @@ class WindowWorker(ThreadOwner):
         first: int,
         last: int,
         estimate: WindowEstimate | None,
-        reason: str | None,
+        reason: Reason | None,
         compute_s: float,
         last_arrival_s: float | None,
     ) -> dict[str, Any]:
-        keys = ("I", "B", "K", "I_se", "B_se", "K_se", "vaf", "vaf_irf", "vaf_fit")
-        # NaN (a held parameter's standard error) is null, as it is once encoded.
-        scalars = estimate.as_dict() if estimate else {}
-        values = {k: scalars.get(k) for k in (*keys, "lost_samples")}
         overrun = compute_s > self.config.effective_budget_s
-        flags = [*(estimate.flags if estimate else ()), *(("over_budget",) if overrun else ())]
+        flags = (*(estimate.flags if estimate else ()), *((Flag.OVER_BUDGET,) if overrun else ()))
         latency = None if last_arrival_s is None else (time.monotonic() - last_arrival_s) * 1e3
         seq = self._seq
         self._seq += 1
-        return {
-            "robot": self.robot,
-            "joint": self.joint,
-            "seq": seq,
-            "window_start_index": first,
-            "window_end_index": last,
-            "t_start_s": first / self.fs_hz,
-            "t_end_s": last / self.fs_hz,
-            **values,
-            "compute_ms": compute_s * 1e3,
-            "latency_ms": latency,
-            "ok": estimate is not None,
-            "reason": reason,
-            "flags": flags,
-            "host_time_ns": time.time_ns(),
-        }
+        numbers = {k: getattr(estimate, k) if estimate else None for k in _ESTIMATE_NUMBERS}
+        return EstimateMessage(
+            robot=self.robot,
+            joint=self.joint,
+            seq=seq,
+            window_start_index=first,
+            window_end_index=last,
+            t_start_s=first / self.fs_hz,
+            t_end_s=last / self.fs_hz,
+            **numbers,
+            compute_ms=compute_s * 1e3,
+            latency_ms=latency,
+            ok=estimate is not None,
+            reason=reason,
+            flags=flags,
+            host_time_ns=time.time_ns(),
+        ).as_dict()
