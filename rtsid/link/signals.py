@@ -21,6 +21,7 @@ from scipy import signal
 
 from rtsid.errors import InputDataError
 from rtsid.ident.excitation import multisine, prbs
+from rtsid.io.files import read_npz
 from rtsid.link.config import PlantConfig, StiffnessConfig
 from rtsid.link.protocol import Command
 from rtsid.sim.joint import JointParameters, StiffnessProfile, add_noise, simulate_impedance
@@ -378,23 +379,14 @@ def load_recording(path: Path, fs_hz: float) -> tuple[FloatArray, FloatArray]:
     InputDataError
         The file is missing, lacks an array, or the arrays disagree.
     """
-    try:
-        with np.load(path) as data:
-            missing = {"position_rad", "torque_nm", "fs_hz"} - set(data.files)
-            if missing:
-                raise InputDataError(
-                    f"player file {str(path)!r} lacks {sorted(missing)}; it needs position_rad, "
-                    "torque_nm and fs_hz arrays"
-                )
-            position = np.asarray(data["position_rad"], dtype=float).ravel()
-            torque = np.asarray(data["torque_nm"], dtype=float).ravel()
-            fs_file = float(data["fs_hz"])
-    except (OSError, ValueError) as exc:
-        if isinstance(exc, InputDataError):
-            raise
-        raise InputDataError(
-            f"player file {str(path)!r} cannot be read as .npz ({exc}); check [plant] player_file"
-        ) from None
+    data = read_npz(
+        path,
+        ("position_rad", "torque_nm", "fs_hz"),
+        hint="a player file needs position_rad, torque_nm and fs_hz arrays ([plant] player_file)",
+    )
+    position = np.asarray(data["position_rad"], dtype=float).ravel()
+    torque = np.asarray(data["torque_nm"], dtype=float).ravel()
+    fs_file = float(data["fs_hz"])
     if position.size != torque.size or position.size < 16:
         raise InputDataError(
             f"player file {str(path)!r}: position ({position.size}) and torque ({torque.size}) "

@@ -80,9 +80,11 @@ def test_player_resamples_to_the_bus_rate_and_flags_each_loop(tmp_path):
 def test_player_errors_name_the_file_and_the_fix(tmp_path):
     bad = tmp_path / "bad.npz"
     np.savez(bad, position_rad=np.zeros(100))
-    with pytest.raises(InputDataError, match=r"bad\.npz.*lacks \['fs_hz', 'torque_nm'\]"):
+    with pytest.raises(
+        InputDataError, match=r"bad\.npz.*lacks torque_nm, fs_hz.*\[plant\] player_file"
+    ):
         load_recording(bad, 2500.0)
-    with pytest.raises(InputDataError, match="cannot be read"):
+    with pytest.raises(InputDataError, match="missing.npz.*does not exist"):
         load_recording(tmp_path / "missing.npz", 2500.0)
 
 
