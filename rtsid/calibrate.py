@@ -109,6 +109,10 @@ class Calibration:
             )
         return self
 
+    def as_text(self) -> str:
+        """The file's text: :meth:`as_dict` as indented JSON (what ``rtsid calibrate`` writes)."""
+        return json.dumps(self.as_dict(), indent=1) + "\n"
+
     def as_dict(self) -> dict[str, Any]:
         """The JSON document (see the module docstring)."""
         r = self.robot
@@ -133,7 +137,7 @@ def save_calibration(calibration: Calibration, path: str | Path) -> Path:
     """Write the calibration as JSON, atomically (:func:`rtsid.io.files.atomic_write`)."""
     out = Path(path)
     with atomic_write(out, what="calibration", make_folder=True) as fh:
-        fh.write(json.dumps(calibration.as_dict(), indent=1) + "\n")
+        fh.write(calibration.as_text())
     return out
 
 
@@ -302,25 +306,15 @@ def robot_calibration(calibration_file: str, fs_hz: float) -> Calibration | None
     return calibration.check_rate(fs_hz)
 
 
-def calibration_record(calibration_file: str) -> dict[str, dict[str, str]]:
+def calibration_record(
+    calibration: Calibration | None, calibration_file: str
+) -> dict[str, dict[str, str]]:
     """The ``calibration`` metadata record the daemon writes into every recording file: the
-    calibration file's text, so a replay needs no file of its own ({} without one).
-
-    Raises
-    ------
-    ConfigError
-        The file cannot be read.
-    """
-    if not calibration_file:
+    calibration it loaded, as its file's text, so a replay needs no file of its own ({}
+    without one)."""
+    if calibration is None:
         return {}
-    try:
-        text = Path(calibration_file).read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(
-            f"config key 'worker.calibration_file': cannot read {calibration_file!r} "
-            f"({exc.strerror or exc})"
-        ) from None
-    return {"calibration": {"json": text, "file": calibration_file}}
+    return {"calibration": {"json": calibration.as_text(), "file": calibration_file}}
 
 
 def with_recorded_calibration(

@@ -229,6 +229,8 @@ class Daemon:
         cfg = self.config
         robot, joint = cfg.zenoh.robot, cfg.zenoh.joint
         run_config = self.config.as_dict()
+        # Loaded once: the worker subtracts it, the recording carries it.
+        calibration = robot_calibration(cfg.worker.calibration_file, cfg.link.fs_hz)
         with open_link(cfg.link, cfg.plant, start_plant=False) as handle:
             ring = handle.make_ring()
             mcap = McapLogger(
@@ -238,7 +240,7 @@ class Daemon:
                 fs_hz=cfg.link.fs_hz,
                 run_config=run_config,
                 metadata={"software": f"rtsid {__version__}"},
-                records=calibration_record(cfg.worker.calibration_file),
+                records=calibration_record(calibration, cfg.worker.calibration_file),
             )
             mcap.start(require_file=True)  # a run that cannot be recorded must not start
             with mcap, ZenohPublisher(cfg.zenoh, run_config=run_config) as zenoh:
@@ -258,7 +260,7 @@ class Daemon:
                     lambda msg: self._publish_estimate(msg, mcap, zenoh),
                     robot=robot,
                     joint=joint,
-                    calibration=robot_calibration(cfg.worker.calibration_file, cfg.link.fs_hz),
+                    calibration=calibration,
                 )
                 self.worker = worker
                 # Everything built so far lives for the whole run: move it out of the cyclic
