@@ -22,6 +22,7 @@ plot ``/estimate.K`` against time).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from collections.abc import Iterable, Mapping, Sequence
@@ -32,6 +33,7 @@ import numpy as np
 
 from rtsid.errors import InputDataError
 from rtsid.io.messages import ESTIMATE_SCHEMA
+from rtsid.link.acquisition import LinkCounters
 from rtsid.verdicts import Reason
 
 __all__ = [
@@ -96,22 +98,16 @@ def _counters(description: str, names: Sequence[str]) -> dict[str, Any]:
     return {
         "type": "object",
         "description": description,
-        "properties": {n: {"type": ["integer", "number", "null"]} for n in names},
+        "properties": {n: {"type": ["integer", "number", "boolean", "null"]} for n in names},
         "additionalProperties": True,
     }
 
 
+#: The acquisition's counters, from the type that holds them (so the schema cannot drift),
+#: plus the logger's own count of sample rows the ring overwrote before it read them.
 ACQUISITION_COUNTERS = (
-    "frames",
-    "samples",
-    "gaps",
-    "lost_samples",
-    "malformed",
-    "unknown_id",
-    "bus_errors",
-    "reconnects",
-    "ring_overwrites",
-    "stale",
+    *(f.name for f in dataclasses.fields(LinkCounters)),
+    "logger_overwritten",
 )
 WORKER_COUNTERS = ("estimates", "withheld", "overruns", "deadline_misses")
 

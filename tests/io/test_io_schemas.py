@@ -175,3 +175,24 @@ def test_process_meter_reports_busy_cpu_and_memory() -> None:
     stats = meter.sample()
     assert stats["cpu_percent"] > 0 and stats["rss_mb"] > 10 and stats["uptime_s"] > 0
     assert x > 0
+
+
+def test_a_live_daemons_status_validates_and_declares_every_acquisition_counter(
+    tmp_path, free_port
+) -> None:
+    from rtsid.runtime.daemon import Daemon, DaemonConfig
+
+    statuses = []
+    config = DaemonConfig.from_mapping(
+        {
+            "zenoh": {"listen": [f"tcp/127.0.0.1:{free_port}"]},
+            "mcap": {"directory": str(tmp_path)},
+        }
+    )
+    Daemon(config, on_status=lambda status, _estimate: statuses.append(status)).run(duration_s=1.0)
+    assert statuses
+    for status in statuses:
+        msg = json.loads(encode_status(status))
+        jsonschema.validate(msg, STATUS_SCHEMA)
+        declared = set(STATUS_SCHEMA["properties"]["acquisition"]["properties"])
+        assert set(msg["acquisition"]) <= declared
