@@ -171,6 +171,7 @@ def daemon_config(
     return replace(config, plant=plant, worker=replace(config.worker, **worker))
 
 
+@pytest.mark.slow  # a real-time daemon run of seconds
 def test_daemon_end_to_end_baseline_calibrate_and_subtract(tmp_path, free_port, monkeypatch):
     baseline = daemon_config(tmp_path, free_port, NO_PERSON, "baseline")
     Daemon(baseline).run(duration_s=2.0)

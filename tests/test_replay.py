@@ -38,6 +38,7 @@ def assert_same_estimates(expected, got, rtol=0.0):
             )
 
 
+@pytest.mark.slow  # a real-time daemon run of seconds
 def test_replay_gives_the_live_daemons_windows_and_numbers_exactly(tmp_path, free_port):
     config = DaemonConfig.from_mapping(
         {
@@ -86,6 +87,7 @@ def test_a_recording_cut_short_replays_up_to_the_cut(tmp_path):
     assert_same_estimates(partial, by_window(full))
 
 
+@pytest.mark.slow  # a real-time daemon run of seconds
 def test_lost_samples_are_bridged_alike_live_and_in_replay(tmp_path, free_port):
     config = DaemonConfig.from_mapping(
         {
@@ -136,6 +138,7 @@ def test_replay_errors_are_one_line(argv, message, capsys):
     assert message in capsys.readouterr().err
 
 
+@pytest.mark.slow  # a real-time daemon run of seconds
 def test_any_part_of_a_rotated_session_replays_the_whole_session_as_live(tmp_path, free_port):
     config = DaemonConfig.from_mapping(
         {

@@ -42,6 +42,7 @@ def plant_table(realtime: bool = True, **extra) -> dict:
     }
 
 
+@pytest.mark.slow  # a real-time daemon run of seconds
 def test_virtual_plant_recording_to_stiffness_track(tmp_path, free_port, capsys):
     n = round(N_PERIODS * PERIOD_S * FS)
     config = DaemonConfig.from_mapping(

@@ -272,6 +272,7 @@ def test_disabled_logger_writes_nothing(tmp_path: Path) -> None:
     assert logger.stats()["state"] == "disabled" and not (tmp_path / "rec").exists()
 
 
+@pytest.mark.slow  # a real-time daemon run of seconds
 @pytest.mark.parametrize("flush_interval_s", [0.5])
 def test_sigkill_loses_at_most_about_one_second(tmp_path: Path, flush_interval_s: float) -> None:
     proc = subprocess.Popen(

@@ -12,6 +12,8 @@ import sys
 import time
 from typing import Any
 
+import pytest
+
 from rtsid.io.schemas import ESTIMATE_FIELDS, encode_estimate
 from rtsid.io.watch import WatchState, format_estimate_line, render_view, watch
 
@@ -203,6 +205,7 @@ def test_render_marks_a_daemon_whose_liveliness_token_is_gone() -> None:
     assert "DAEMON GONE" not in render_view(state, title="t", now_s=0.0)
 
 
+@pytest.mark.slow  # a real-time daemon run of seconds
 def test_watch_reports_a_daemon_that_goes_away(tmp_path: Any, free_port: int) -> None:
     port = free_port
     ctx = mp.get_context("spawn")

@@ -60,6 +60,7 @@ def sample_rows(path: Path) -> tuple[int, int]:
     return valid, invalid
 
 
+@pytest.mark.slow  # a real-time daemon run of seconds
 def test_daemon_logs_every_sample_and_every_estimate(tmp_path, free_port):
     config = DaemonConfig.load(write_config(tmp_path, free_port))
     summary = Daemon(config).run(duration_s=2.0)
@@ -177,6 +178,7 @@ def test_separate_process_publishes_to_a_subscriber_and_sigterm_leaves_a_valid_f
         assert logged[e["seq"]]["K"] == e["K"]
 
 
+@pytest.mark.slow  # a real-time daemon run of seconds
 def test_sigkill_leaves_a_recoverable_file_missing_at_most_about_a_second(tmp_path, free_port):
     proc = start_daemon(write_config(tmp_path, free_port))
     try:
@@ -290,6 +292,7 @@ def test_an_unwritable_recordings_folder_stops_start_up_naming_the_key(tmp_path,
     assert not (blocker.parent / "rec").exists()
 
 
+@pytest.mark.slow  # a real-time daemon run of seconds
 def test_a_mute_socketcand_server_neither_hangs_start_up_nor_stop(tmp_path, free_port):
     import socket
 
