@@ -96,3 +96,20 @@ def test_the_shipped_full_config_is_the_printed_defaults(capsys):
     shipped = (Path(__file__).resolve().parents[1] / "hw" / "rtsid.toml").read_text()
     body = "\n".join(line for line in shipped.splitlines()[5:]) + "\n"
     assert body == printed, "hw/rtsid.toml is stale: regenerate it with rtsid run --print-config"
+
+
+@pytest.mark.parametrize(
+    "estimator,key,fix",
+    [
+        ({"lag_s": 0.15}, "estimator.lag_s", "shorten estimator.lag_s"),
+        ({"lowpass_hz": 400.0, "analysis_fs_hz": 500.0}, "estimator.lowpass_hz", "Nyquist"),
+        ({"lowpass_hz": 2.0}, "estimator.lowpass_hz", "lengthen worker.window_s"),
+    ],
+)
+def test_an_analysis_no_window_can_hold_is_refused_naming_key_and_fix(estimator, key, fix):
+    # Accepted before, these withheld every window as 'too_short' at run time.
+    from rtsid.runtime.daemon import DaemonConfig
+
+    with pytest.raises(ConfigError, match=key) as info:
+        DaemonConfig.from_mapping({"estimator": estimator})
+    assert fix in str(info.value) and "\n" not in str(info.value)

@@ -27,10 +27,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from rtsid import __version__
 from rtsid.calibrate import calibration_record, robot_calibration
 from rtsid.config import invalid, load_toml, require_range, section_from_mapping
-from rtsid.errors import ConfigError
+from rtsid.errors import ConfigError, WindowError
+from rtsid.ident.analysis import plan_analysis
 from rtsid.ident.window import EstimatorOptions
 from rtsid.io.mcap_log import McapConfig, McapLogger
 from rtsid.io.procstats import ProcessMeter
@@ -111,6 +114,43 @@ class DaemonConfig:
                 f"a window that fits the ring with a hop to spare (<= link.ring_capacity_s - "
                 f"worker.hop_s = {room_s:g} s); shorten worker.window_s or lengthen "
                 "link.ring_capacity_s",
+            )
+        self._check_analysis_fits_the_window()
+
+    def _check_analysis_fits_the_window(self) -> None:
+        """A window must hold the estimator's lags, filter and stencils, or every window would
+        be withheld (as ``too_short``) for a reason the config, not the data, decides."""
+        est, fs = self.estimator, self.link.fs_hz
+        window = round(self.worker.window_s * fs)
+        if est.lag_s >= self.worker.window_s / 4:
+            raise invalid(
+                "estimator.lag_s",
+                est.lag_s,
+                f"less than a quarter of worker.window_s = {self.worker.window_s:g} s (the IRF "
+                "needs more than 4 lag spans of samples); shorten estimator.lag_s or lengthen "
+                "worker.window_s",
+            )
+        if est.lowpass_hz is None:
+            return  # chosen from the data: always below the analysis Nyquist rate
+        try:
+            plan = plan_analysis(
+                np.zeros(window),
+                fs,
+                lowpass_hz=est.lowpass_hz,
+                analysis_fs_hz=est.analysis_fs_hz,
+                lag_s=est.lag_s,
+                fit_band_hz=est.fit_band_hz,
+            )
+        except WindowError as exc:
+            raise invalid("estimator.lowpass_hz", est.lowpass_hz, str(exc)) from None
+        analysed = (window - plan.taps.size) // plan.factor + 1
+        if analysed <= max(4 * plan.lag + 1, 16):
+            raise invalid(
+                "estimator.lowpass_hz",
+                est.lowpass_hz,
+                f"a cut-off whose {plan.taps.size}-tap filter leaves a {window}-sample window "
+                "enough samples for the lags and stencils; raise estimator.lowpass_hz or "
+                "lengthen worker.window_s",
             )
 
     @classmethod
