@@ -30,7 +30,7 @@ from rtsid.io.recording import SampleGrid, iter_batches, session_parts
 from rtsid.io.schemas import ESTIMATE_FIELDS, SCHEMAS, SampleBatch, encode_estimate, encode_json
 from rtsid.link.ring import Snapshot
 from rtsid.runtime.daemon import DaemonConfig
-from rtsid.runtime.worker import WindowWorker
+from rtsid.runtime.worker import WindowEvaluator
 
 __all__ = [
     "ReplayResult",
@@ -55,23 +55,23 @@ def recording_config(path: str | Path) -> DaemonConfig:
     )
 
 
-def iter_windows(batches: Iterable[SampleBatch], worker: WindowWorker) -> Iterator[Snapshot]:
+def iter_windows(batches: Iterable[SampleBatch], evaluator: WindowEvaluator) -> Iterator[Snapshot]:
     """Every grid window the batches complete, oldest first (the live daemon's windows).
 
     Rows go onto a :class:`~rtsid.io.recording.SampleGrid` (gaps as invalid rows) that keeps
     only what the next windows need, so a long recording replays in bounded memory.
     """
-    n = worker.window_samples
+    n = evaluator.window_samples
     grid: SampleGrid | None = None
     next_end = 0
     for batch in batches:
         if grid is None:
             grid = SampleGrid(batch.first_index, batch.fs_hz, capacity=8 * n)
-            next_end = worker.first_window_end(grid.first_index)
+            next_end = evaluator.first_window_end(grid.first_index)
         grid.append(batch)
         while next_end < grid.end_index:
             yield _snapshot(grid.rows(next_end - n + 1, next_end + 1))
-            next_end += worker.hop_samples
+            next_end += evaluator.hop_samples
         grid.drop_before(next_end - n + 1)
 
 
@@ -175,23 +175,23 @@ def replay_file(
         if publish is not None:
             publish(message)
 
-    worker = WindowWorker(
-        ring=None,  # replay hands windows to evaluate()
-        fs_hz=config.link.fs_hz,
-        config=config.worker,
-        options=config.estimator,
-        publish=sink,
+    evaluator = WindowEvaluator(
+        config.link.fs_hz,
+        config.worker,
+        config.estimator,
+        sink,
         robot=config.zenoh.robot,
         joint=config.zenoh.joint,
         calibration=robot_calibration(config.worker.calibration_file, config.link.fs_hz),
+        live=False,  # recorded samples: never stale, no latency
     )
     total = sum(sample_count(p) for p in parts) if progress is not None else 0
     batches: Iterable[SampleBatch] = _counted(iter_batches(parts), result, progress, total)
     if rate is not None:
         batches = paced(batches, rate)
     started = time.perf_counter()
-    for snap in iter_windows(batches, worker):
-        worker.evaluate(snap, replay=True)
+    for snap in iter_windows(batches, evaluator):
+        evaluator.evaluate(snap)
     result.elapsed_s = time.perf_counter() - started
     result.duration_s = result.samples / config.link.fs_hz
     if result.samples == 0:

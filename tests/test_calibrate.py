@@ -26,7 +26,7 @@ from rtsid.link.config import PlantConfig
 from rtsid.link.signals import SimSource
 from rtsid.replay import recording_config, replay_file
 from rtsid.runtime.daemon import Daemon, DaemonConfig
-from rtsid.runtime.worker import WindowWorker, WorkerConfig
+from rtsid.runtime.worker import WindowEvaluator, WorkerConfig
 
 FS = 2500.0
 ROBOT_INERTIA = 0.05  # kg·m²: a footplate about three times the ankle's own inertia
@@ -90,13 +90,8 @@ def test_a_calibrated_worker_analyses_within_the_calibrations_band():
     calibration = Calibration(identify_robot([(position, torque)], FS))
     p, t = simulate(prbs, 3.0)
     published = []
-    worker = WindowWorker(
-        None,
-        FS,
-        WorkerConfig(hop_s=0.15),
-        EstimatorOptions(),
-        published.append,
-        calibration=calibration,
+    worker = WindowEvaluator(
+        FS, WorkerConfig(hop_s=0.15), EstimatorOptions(), published.append, calibration=calibration
     )
     n = round(0.3 * FS)
     ks = []

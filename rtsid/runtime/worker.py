@@ -167,16 +167,15 @@ def assess_window(snap: Snapshot, now_s: float, max_age_s: float) -> Reason | No
     return None
 
 
-class WindowWorker(ThreadOwner):
-    """Estimate the latest window every hop on a named thread (a context manager).
+class WindowEvaluator:
+    """Windows in, estimate messages out: the one message builder of live runs and replay.
 
-    A :class:`~rtsid.lifecycle.ThreadOwner`: ``start()``, ``stop(timeout_s)``, ``failure``.
+    It owns what a stream carries from window to window (the analysis plan, the held
+    parameters, the message counter) and the window counters; the :class:`WindowWorker`
+    thread feeds it from the ring, :func:`rtsid.replay.replay_file` from a recording.
 
     Parameters
     ----------
-    ring : RingBuffer or None
-        Samples written by the acquisition thread; None when windows are handed to
-        :meth:`evaluate` directly (replay), in which case :meth:`start` is not used.
     fs_hz : float
         Sample rate, Hz.
     config : WorkerConfig
@@ -184,19 +183,21 @@ class WindowWorker(ThreadOwner):
     options : EstimatorOptions
         Identification settings.
     publish : callable
-        Called with each message (dict following ``rtsid.io.schemas.ESTIMATE_SCHEMA``) on the
-        worker thread; it must not block (the MCAP logger and zenoh publisher do not).
+        Called with each message (dict following ``rtsid.io.messages.ESTIMATE_SCHEMA``); it
+        must not block (the MCAP logger and zenoh publisher do not).
     robot, joint : str
         Names written into every message.
     calibration : Calibration, optional
         The robot's own dynamics (``rtsid calibrate``): its predicted torque is subtracted
         from the measured torque before identification, and the analysis stays within the
         band the calibration models (``robot.analysis_cutoff_hz``).
+    live : bool
+        Samples arriving now (staleness judged, latency measured), or from a recording (never
+        stale, ``latency_ms`` null).
     """
 
     def __init__(
         self,
-        ring: RingBuffer | None,
         fs_hz: float,
         config: WorkerConfig,
         options: EstimatorOptions,
@@ -205,9 +206,8 @@ class WindowWorker(ThreadOwner):
         robot: str = "robot",
         joint: str = "ankle",
         calibration: Calibration | None = None,
+        live: bool = True,
     ) -> None:
-        super().__init__("rtsid-worker")
-        self.ring = ring
         self.fs_hz = float(fs_hz)
         self.config = config
         self.options = options
@@ -215,142 +215,51 @@ class WindowWorker(ThreadOwner):
         self.robot = robot
         self.joint = joint
         self.calibration = calibration
+        self.live = live
         # The analysis plan and the held parameters: deterministic state carried from window
         # to window, so a replay of the same windows reproduces every number.
         band = calibration.robot.analysis_cutoff_hz if calibration is not None else None
         self.stream = WindowStream(fs_hz, options, config.hop_s, max_lowpass_hz=band)
         self.window_samples = round(config.window_s * fs_hz)
         self.hop_samples = max(1, round(config.hop_s * fs_hz))
-        self._wake = threading.Event()  # set by the ring's writer, or by stop()
         self._seq = 0
-        self._withheld: Counter[str] = Counter()
-        self._estimates = 0
-        self._misses = 0
-        self._overruns = 0
-        self._compute_ms = 0.0
+        self.withheld: Counter[str] = Counter()
+        self.estimates = 0
+        self.misses = 0
+        self.compute_ms = 0.0
 
-    # ------------------------------------------------------------------ life cycle
-    def _before_start(self) -> None:
-        if self.ring is None:
-            raise ValueError("WindowWorker.start() needs a ring; replay calls evaluate()")
-
-    def _interrupt(self) -> None:
-        self._wake.set()
-
-    def counters(self) -> WorkerCounters:
-        """Totals since start."""
-        return WorkerCounters(
-            estimates=self._estimates,
-            withheld=dict(self._withheld),
-            overruns=self._overruns,
-            deadline_misses=self._misses,
-            compute_ms_last=self._compute_ms,
-        )
-
-    # ------------------------------------------------------------------ the grid
     def first_window_end(self, first_index: int) -> int:
         """The first grid window end whose window starts at or after ``first_index``."""
         return first_window_end(first_index, self.window_samples, self.hop_samples)
 
-    def _starting_window_end(self, newest: int) -> int:
-        """At start, the newest complete grid window (earlier ones are history, not overruns)."""
-        assert self.ring is not None
-        first = self.first_window_end(self.ring.oldest_index)
-        hop = self.hop_samples
-        newest_end = (newest + 1) // hop * hop - 1
-        return max(first, newest_end)
-
-    # ------------------------------------------------------------------ the loop
-    def _run(self) -> None:  # errors are kept by ThreadOwner; the daemon decides what to do
-        self._loop()
-
-    def _loop(self) -> None:
-        assert self.ring is not None
-        hop_s = self.config.hop_s
-        next_end: int | None = None
-        next_stale_s = 0.0
-        while not self._stop.is_set():
-            newest = self.ring.newest_index
-            if newest < 0:
-                self._stop.wait(hop_s)
-                continue
-            if next_end is None:
-                next_end = self._starting_window_end(newest)
-            if newest >= next_end:
-                behind = (newest - next_end) // self.hop_samples
-                if behind:
-                    self._overruns += behind
-                    next_end += behind * self.hop_samples
-                self.process_window(next_end)
-                next_end += self.hop_samples
-                continue
-            last = self.ring.latest(1)
-            now = time.monotonic()
-            arrived_s = float(last.host_time_s[-1]) if last is not None else now
-            if now - arrived_s > self.config.max_sample_age_s and now >= next_stale_s:
-                self._publish_stale(next_end)
-                next_stale_s = now + hop_s
-            self._wait_for_sample(next_end, hop_s)
-
-    def _wait_for_sample(self, index: int, timeout_s: float) -> None:
-        """Sleep until the ring publishes row ``index`` (or ``timeout_s``, or stop())."""
-        assert self.ring is not None
-        self._wake.clear()
-        if self._stop.is_set():
-            return
-        self.ring.wake_at(index, self._wake)
-        self._wake.wait(timeout_s)
-
-    def process_window(self, end_index: int) -> dict[str, Any] | None:
-        """Estimate the window ending at ``end_index`` from the ring and publish its message.
-
-        Returns
-        -------
-        dict or None
-            The message, or None when those samples are no longer (or not yet) in the ring.
-        """
-        assert self.ring is not None
-        started = time.perf_counter()
-        start = end_index - self.window_samples + 1
-        snap = self.ring.read_since(start, self.window_samples)
-        if len(snap) != self.window_samples or int(snap.sample_index[0]) != start:
-            self._overruns += 1  # overwritten before we got to it
-            return None
-        return self.evaluate(snap, started_s=started)
-
-    def evaluate(
-        self, snap: Snapshot, *, replay: bool = False, started_s: float | None = None
-    ) -> dict[str, Any]:
-        """Estimate one window of samples and publish its message (also used by replay).
+    def evaluate(self, snap: Snapshot, *, started_s: float | None = None) -> dict[str, Any]:
+        """Estimate one window of samples and publish its message.
 
         Parameters
         ----------
         snap : Snapshot
             The window's rows, oldest first.
-        replay : bool
-            The samples come from a recording: they are never stale, and the message's
-            ``latency_ms`` is null (there was no live arrival).
         started_s : float, optional
             ``perf_counter()`` when work on the window began (default: now).
         """
         started = time.perf_counter() if started_s is None else started_s
-        arrival = None if replay else float(snap.host_time_s[-1])
+        arrival = float(snap.host_time_s[-1]) if self.live else None
         now = time.monotonic() if arrival is not None else math.inf
-        max_age = math.inf if replay else self.config.max_sample_age_s
+        max_age = self.config.max_sample_age_s if self.live else math.inf
         reason = assess_window(snap, now, max_age)
         estimate, reason = self._estimate(snap, reason)
         compute_s = time.perf_counter() - started
-        self._compute_ms = compute_s * 1e3
+        self.compute_ms = compute_s * 1e3
         if compute_s > self.config.effective_budget_s:
-            self._misses += 1
+            self.misses += 1
         first, last = int(snap.sample_index[0]), int(snap.sample_index[-1])
         message = self._message(first, last, estimate, reason, compute_s, arrival)
         self.publish(message)
         return message
 
-    def _publish_stale(self, end_index: int) -> None:
+    def publish_stale(self, end_index: int) -> None:
         """No samples are arriving: say so once per hop for the window that is due."""
-        self._withheld[Reason.STALE] += 1
+        self.withheld[Reason.STALE] += 1
         start = end_index - self.window_samples + 1
         self.publish(self._message(start, end_index, None, Reason.STALE, 0.0, None))
 
@@ -358,7 +267,7 @@ class WindowWorker(ThreadOwner):
         self, snap: Snapshot, reason: Reason | None
     ) -> tuple[WindowEstimate | None, Reason | None]:
         if reason is not None:
-            self._withheld[reason] += 1
+            self.withheld[reason] += 1
             return None, reason
         torque = snap.torque_nm
         if self.calibration is not None:
@@ -368,12 +277,12 @@ class WindowWorker(ThreadOwner):
             valid = None if snap.valid.all() else snap.valid
             estimate = self.stream.estimate(snap.position_rad, torque, valid)
         except WindowError as exc:
-            self._withheld[exc.reason] += 1
+            self.withheld[exc.reason] += 1
             return None, exc.reason
         except NumericalError:
-            self._withheld[Reason.NUMERICAL] += 1
+            self.withheld[Reason.NUMERICAL] += 1
             return None, Reason.NUMERICAL
-        self._estimates += 1
+        self.estimates += 1
         if not planned and self.stream.plan is not None:
             log.info("%s/%s %s", self.robot, self.joint, self.stream.plan.describe())
         return estimate, None
@@ -409,3 +318,129 @@ class WindowWorker(ThreadOwner):
             flags=flags,
             host_time_ns=time.time_ns(),
         ).as_dict()
+
+
+class WindowWorker(ThreadOwner):
+    """Estimate the latest window every hop on a named thread (a context manager).
+
+    A :class:`~rtsid.lifecycle.ThreadOwner`: ``start()``, ``stop(timeout_s)``, ``failure``.
+    It cuts the ring's newest grid window every hop and hands it to its
+    :class:`WindowEvaluator` (``evaluator``), which builds and publishes the message.
+
+    Parameters
+    ----------
+    ring : RingBuffer
+        Samples written by the acquisition thread.
+    fs_hz, config, options, publish, robot, joint, calibration
+        As :class:`WindowEvaluator`'s (live).
+    """
+
+    def __init__(
+        self,
+        ring: RingBuffer,
+        fs_hz: float,
+        config: WorkerConfig,
+        options: EstimatorOptions,
+        publish: Callable[[dict[str, Any]], None],
+        *,
+        robot: str = "robot",
+        joint: str = "ankle",
+        calibration: Calibration | None = None,
+    ) -> None:
+        super().__init__("rtsid-worker")
+        self.ring = ring
+        self.config = config
+        self.evaluator = WindowEvaluator(
+            fs_hz, config, options, publish, robot=robot, joint=joint, calibration=calibration
+        )
+        self.window_samples = self.evaluator.window_samples
+        self.hop_samples = self.evaluator.hop_samples
+        self._wake = threading.Event()  # set by the ring's writer, or by stop()
+        self._overruns = 0
+
+    @property
+    def stream(self) -> WindowStream:
+        """The evaluator's stream (plan and held parameters)."""
+        return self.evaluator.stream
+
+    # ------------------------------------------------------------------ life cycle
+    def _interrupt(self) -> None:
+        self._wake.set()
+
+    def counters(self) -> WorkerCounters:
+        """Totals since start."""
+        e = self.evaluator
+        return WorkerCounters(
+            estimates=e.estimates,
+            withheld=dict(e.withheld),
+            overruns=self._overruns,
+            deadline_misses=e.misses,
+            compute_ms_last=e.compute_ms,
+        )
+
+    # ------------------------------------------------------------------ the grid
+    def first_window_end(self, first_index: int) -> int:
+        """The first grid window end whose window starts at or after ``first_index``."""
+        return self.evaluator.first_window_end(first_index)
+
+    def _starting_window_end(self, newest: int) -> int:
+        """At start, the newest complete grid window (earlier ones are history, not overruns)."""
+        first = self.first_window_end(self.ring.oldest_index)
+        hop = self.hop_samples
+        newest_end = (newest + 1) // hop * hop - 1
+        return max(first, newest_end)
+
+    # ------------------------------------------------------------------ the loop
+    def _run(self) -> None:  # errors are kept by ThreadOwner; the daemon decides what to do
+        self._loop()
+
+    def _loop(self) -> None:
+        hop_s = self.config.hop_s
+        next_end: int | None = None
+        next_stale_s = 0.0
+        while not self._stop.is_set():
+            newest = self.ring.newest_index
+            if newest < 0:
+                self._stop.wait(hop_s)
+                continue
+            if next_end is None:
+                next_end = self._starting_window_end(newest)
+            if newest >= next_end:
+                behind = (newest - next_end) // self.hop_samples
+                if behind:
+                    self._overruns += behind
+                    next_end += behind * self.hop_samples
+                self.process_window(next_end)
+                next_end += self.hop_samples
+                continue
+            last = self.ring.latest(1)
+            now = time.monotonic()
+            arrived_s = float(last.host_time_s[-1]) if last is not None else now
+            if now - arrived_s > self.config.max_sample_age_s and now >= next_stale_s:
+                self.evaluator.publish_stale(next_end)
+                next_stale_s = now + hop_s
+            self._wait_for_sample(next_end, hop_s)
+
+    def _wait_for_sample(self, index: int, timeout_s: float) -> None:
+        """Sleep until the ring publishes row ``index`` (or ``timeout_s``, or stop())."""
+        self._wake.clear()
+        if self._stop.is_set():
+            return
+        self.ring.wake_at(index, self._wake)
+        self._wake.wait(timeout_s)
+
+    def process_window(self, end_index: int) -> dict[str, Any] | None:
+        """Estimate the window ending at ``end_index`` from the ring and publish its message.
+
+        Returns
+        -------
+        dict or None
+            The message, or None when those samples are no longer (or not yet) in the ring.
+        """
+        started = time.perf_counter()
+        start = end_index - self.window_samples + 1
+        snap = self.ring.read_since(start, self.window_samples)
+        if len(snap) != self.window_samples or int(snap.sample_index[0]) != start:
+            self._overruns += 1  # overwritten before we got to it
+            return None
+        return self.evaluator.evaluate(snap, started_s=started)
