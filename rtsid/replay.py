@@ -23,8 +23,8 @@ from typing import IO, Any
 import numpy as np
 
 from rtsid import __version__
-from rtsid.calibrate import robot_calibration, with_recorded_calibration
 from rtsid.errors import RecordingError
+from rtsid.io.calibration import robot_calibration, with_recorded_calibration
 from rtsid.io.mcap_read import read_metadata, run_config_from_metadata, sample_count
 from rtsid.io.recording import SampleGrid, iter_batches, session_parts
 from rtsid.io.schemas import ESTIMATE_FIELDS, SCHEMAS, SampleBatch, encode_estimate, encode_json
@@ -45,7 +45,7 @@ __all__ = [
 
 def recording_config(path: str | Path) -> DaemonConfig:
     """The configuration a recording was made with (defaults where it has none), with the
-    robot calibration the recording carries (:func:`rtsid.calibrate.with_recorded_calibration`)."""
+    robot calibration the recording carries (:func:`rtsid.io.calibration.with_recorded_calibration`)."""
     metadata = read_metadata(path)
     document = run_config_from_metadata(metadata)
     if not document:

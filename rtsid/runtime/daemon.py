@@ -30,11 +30,11 @@ from typing import Any
 import numpy as np
 
 from rtsid import __version__
-from rtsid.calibrate import calibration_record, robot_calibration
 from rtsid.config import invalid, load_toml, require_range, section_from_mapping
 from rtsid.errors import ConfigError, WindowError
 from rtsid.ident.analysis import plan_analysis
 from rtsid.ident.window import EstimatorOptions
+from rtsid.io.calibration import calibration_record, robot_calibration
 from rtsid.io.mcap_log import McapConfig, McapLogger
 from rtsid.io.procstats import ProcessMeter
 from rtsid.io.schemas import encode_estimate, encode_status

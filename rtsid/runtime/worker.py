@@ -24,13 +24,14 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from rtsid.config import require_range, section_from_mapping
 from rtsid.errors import ConfigError, InputDataError, NumericalError, WindowError
 from rtsid.ident.grid import first_window_end
 from rtsid.ident.stream import WindowStream
 from rtsid.ident.window import EstimatorOptions, WindowEstimate
+from rtsid.io.calibration import Calibration, load_calibration
 from rtsid.io.messages import EstimateMessage
 from rtsid.lifecycle import ThreadOwner
 from rtsid.link.protocol import (
@@ -40,9 +41,6 @@ from rtsid.link.protocol import (
 )
 from rtsid.link.ring import RingBuffer, Snapshot
 from rtsid.verdicts import Flag, Reason
-
-if TYPE_CHECKING:
-    from rtsid.calibrate import Calibration
 
 __all__ = ["WindowWorker", "WorkerConfig", "WorkerCounters", "assess_window"]
 
@@ -96,8 +94,6 @@ class WorkerConfig:
         require_range("budget_s", self.budget_s, 0.0, 60.0)
         require_range("max_sample_age_s", self.max_sample_age_s, 0.0, 60.0, low_inclusive=False)
         if self.calibration_file:
-            from rtsid.calibrate import load_calibration
-
             path = os.path.abspath(os.path.expanduser(self.calibration_file))
             object.__setattr__(self, "calibration_file", path)
             try:
