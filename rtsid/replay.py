@@ -45,7 +45,8 @@ __all__ = [
 
 def recording_config(path: str | Path) -> DaemonConfig:
     """The configuration a recording was made with (defaults where it has none), with the
-    robot calibration the recording carries (:func:`rtsid.io.calibration.with_recorded_calibration`)."""
+    robot calibration the recording carries
+    (:func:`rtsid.io.calibration.with_recorded_calibration`)."""
     metadata = read_metadata(path)
     document = run_config_from_metadata(metadata)
     if not document:
