@@ -1,9 +1,9 @@
 """Typed messages: one dataclass per channel, its JSON schema generated from the type.
 
-The estimate message is built as an :class:`EstimateMessage` (the worker, replay) and goes out
-as its :meth:`EstimateMessage.as_dict` — the JSON object described by
-:data:`ESTIMATE_SCHEMA`, which is generated here from the fields, their types and
-descriptions, and the closed vocabularies of :mod:`rtsid.verdicts` (a reason outside
+The estimate message is built as an :class:`EstimateMessage` (the worker, replay), the status
+as a :class:`StatusMessage` (the daemon); each goes out as its ``as_dict()`` — the JSON object
+described by :data:`ESTIMATE_SCHEMA` / :data:`STATUS_SCHEMA`, generated here from the fields,
+their types and descriptions, and the closed vocabularies of :mod:`rtsid.verdicts` (a reason outside
 :class:`~rtsid.verdicts.Reason` or a flag outside :class:`~rtsid.verdicts.Flag` cannot be
 declared without being emitted, or emitted without being declared).
 """
@@ -14,56 +14,66 @@ import dataclasses
 import math
 import types
 import typing
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from rtsid.link.acquisition import LinkCounters
 from rtsid.verdicts import Flag, Reason
 
-__all__ = ["ESTIMATE_SCHEMA", "EstimateMessage", "schema_of"]
+__all__ = ["ESTIMATE_SCHEMA", "STATUS_SCHEMA", "EstimateMessage", "StatusMessage", "schema_of"]
 
 DRAFT = "https://json-schema.org/draft/2020-12/schema"
 
 
-def _doc(text: str, **schema: Any) -> Any:
-    """A field's description (and any extra schema keywords) as dataclass metadata."""
-    return field(metadata={"description": text, **schema})
+def _meta(text: str, **schema: Any) -> dict[str, Any]:
+    """A field's description (and any extra schema keywords), its dataclass metadata."""
+    return {"description": text, **schema}
 
 
 @dataclass(frozen=True, slots=True)
 class EstimateMessage:
     """One identification window: I, B, K of tau = I*ddq + B*dq + K*q, or why not."""
 
-    robot: str = _doc("robot name from the config")
-    joint: str = _doc("joint name from the config")
-    seq: int = _doc("estimate counter (0, 1, …)", minimum=0)
-    window_start_index: int = _doc("first sample index")
-    window_end_index: int = _doc("last sample index (inclusive)")
-    t_start_s: float = _doc("sample time of the first sample, s (index / fs)")
-    t_end_s: float = _doc("sample time of the last sample, s")
-    I: float | None = _doc("inertia, kg·m² (N·m·s²/rad)")  # noqa: E741 - the physical symbol
-    B: float | None = _doc("damping, N·m·s/rad")
-    K: float | None = _doc("stiffness, N·m/rad")
-    I_se: float | None = _doc("standard error of I, kg·m² (null when held or not computed)")
-    B_se: float | None = _doc("standard error of B, N·m·s/rad (null when held)")
-    K_se: float | None = _doc("standard error of K, N·m/rad")
-    vaf: float | None = _doc(
-        "variance of the measured torque (analysed band) accounted for by the I, B, K model, %"
+    robot: str = field(metadata=_meta("robot name from the config"))
+    joint: str = field(metadata=_meta("joint name from the config"))
+    seq: int = field(metadata=_meta("estimate counter (0, 1, …)", minimum=0))
+    window_start_index: int = field(metadata=_meta("first sample index"))
+    window_end_index: int = field(metadata=_meta("last sample index (inclusive)"))
+    t_start_s: float = field(metadata=_meta("sample time of the first sample, s (index / fs)"))
+    t_end_s: float = field(metadata=_meta("sample time of the last sample, s"))
+    I: float | None = field(metadata=_meta("inertia, kg·m² (N·m·s²/rad)"))  # noqa: E741 - the physical symbol
+    B: float | None = field(metadata=_meta("damping, N·m·s/rad"))
+    K: float | None = field(metadata=_meta("stiffness, N·m/rad"))
+    I_se: float | None = field(
+        metadata=_meta("standard error of I, kg·m² (null when held or not computed)")
     )
-    vaf_irf: float | None = _doc("variance accounted for by the IRF's torque, %")
-    vaf_fit: float | None = _doc(
-        "variance of the IRF's torque accounted for by the I, B, K model, %"
+    B_se: float | None = field(metadata=_meta("standard error of B, N·m·s/rad (null when held)"))
+    K_se: float | None = field(metadata=_meta("standard error of K, N·m/rad"))
+    vaf: float | None = field(
+        metadata=_meta(
+            "variance of the measured torque (analysed band) accounted for by the I, B, K model, %"
+        )
     )
-    lost_samples: int | None = _doc(
-        "lost samples in the window, bridged by sums over valid samples only (never "
-        "interpolated); null when withheld",
-        minimum=0,
+    vaf_irf: float | None = field(metadata=_meta("variance accounted for by the IRF's torque, %"))
+    vaf_fit: float | None = field(
+        metadata=_meta("variance of the IRF's torque accounted for by the I, B, K model, %")
     )
-    compute_ms: float | None = _doc("time spent identifying the window, ms")
-    latency_ms: float | None = _doc("time from the window's last sample to publication, ms")
-    ok: bool = _doc("true: I, B, K are usable")
-    reason: Reason | None = _doc("why the estimate is withheld (null when ok)")  # noqa: RUF009
-    flags: tuple[Flag, ...] = _doc("warnings on a published estimate")
-    host_time_ns: int = _doc("host UNIX time at publication, ns")
+    lost_samples: int | None = field(
+        metadata=_meta(
+            "lost samples in the window, bridged by sums over valid samples only (never "
+            "interpolated); null when withheld",
+            minimum=0,
+        )
+    )
+    compute_ms: float | None = field(metadata=_meta("time spent identifying the window, ms"))
+    latency_ms: float | None = field(
+        metadata=_meta("time from the window's last sample to publication, ms")
+    )
+    ok: bool = field(metadata=_meta("true: I, B, K are usable"))
+    reason: Reason | None = field(metadata=_meta("why the estimate is withheld (null when ok)"))
+    flags: tuple[Flag, ...] = field(metadata=_meta("warnings on a published estimate"))
+    host_time_ns: int = field(metadata=_meta("host UNIX time at publication, ns"))
 
     def as_dict(self) -> dict[str, Any]:
         """The JSON object: non-finite numbers as ``None``, flags as a list."""
@@ -90,12 +100,20 @@ def _json_type(annotation: Any) -> dict[str, Any]:
         return {"type": "array", "items": _json_type(args[0])}
     if isinstance(annotation, type) and issubclass(annotation, Reason | Flag):
         return {"type": "string", "enum": [m.value for m in annotation]}
+    if typing.get_origin(annotation) is dict:
+        return {"type": "object"}
     names = {str: "string", int: "integer", float: "number", bool: "boolean"}
     return {"type": names[annotation]}
 
 
-def schema_of(cls: type, schema_id: str) -> dict[str, Any]:
-    """The JSON schema of a message dataclass: every field required, no other keys.
+def schema_of(
+    cls: type,
+    schema_id: str,
+    *,
+    required: Sequence[str] | None = None,
+    additional: bool = False,
+) -> dict[str, Any]:
+    """The JSON schema of a message dataclass (default: every field required, no other keys).
 
     Enum-valued fields list their members, each described in the field's description.
     """
@@ -115,8 +133,8 @@ def schema_of(cls: type, schema_id: str) -> dict[str, Any]:
         "description": (cls.__doc__ or "").strip(),
         "type": "object",
         "properties": properties,
-        "required": list(properties),
-        "additionalProperties": False,
+        "required": list(properties) if required is None else list(required),
+        "additionalProperties": additional,
     }
 
 
@@ -129,3 +147,94 @@ def _vocabulary(annotation: Any) -> list[Any]:
 
 #: The estimate message's schema, generated from :class:`EstimateMessage`.
 ESTIMATE_SCHEMA: dict[str, Any] = schema_of(EstimateMessage, "rtsid.Estimate")
+
+
+def _counters(description: str, names: Sequence[str]) -> dict[str, Any]:
+    return {
+        "description": description,
+        "properties": {n: {"type": ["integer", "number", "boolean", "null"]} for n in names},
+        "additionalProperties": True,
+    }
+
+
+#: The acquisition's counters, from the type that holds them (so the schema cannot drift),
+#: plus the logger's own count of sample rows the ring overwrote before it read them.
+ACQUISITION_COUNTERS = (
+    *(f.name for f in dataclasses.fields(LinkCounters)),
+    "logger_overwritten",
+)
+_WORKER = {
+    "description": "window worker counters (WorkerCounters)",
+    "properties": {
+        **{n: {"type": "integer"} for n in ("estimates", "overruns", "deadline_misses")},
+        "withheld": {
+            "type": "object",
+            "description": "withheld windows by reason",
+            "additionalProperties": {"type": "integer"},
+        },
+    },
+    "additionalProperties": True,
+}
+_MCAP = {
+    "description": "MCAP logger: McapLogger.stats()",
+    "properties": {
+        "state": {"type": "string"},
+        "file": {"type": ["string", "null"]},
+        "bytes": {"type": "integer"},
+        "written": {"type": "integer"},
+        "dropped": {"type": "integer"},
+        "lost": {"type": "integer"},
+        "errors": {"type": "integer"},
+        "last_error": {"type": ["string", "null"]},
+    },
+    "additionalProperties": True,
+}
+_ZENOH = {
+    "description": "zenoh publisher: ZenohPublisher.stats()",
+    "properties": {
+        "state": {"type": "string"},
+        "published": {"type": "integer"},
+        "errors": {"type": "integer"},
+        "last_error": {"type": ["string", "null"]},
+    },
+    "additionalProperties": True,
+}
+
+
+@dataclass(frozen=True, slots=True)
+class StatusMessage:
+    """Health of the daemon, 1–2 Hz. Counters are totals since start."""
+
+    robot: str = field(metadata=_meta("robot name from the config"))
+    joint: str = field(metadata=_meta("joint name from the config"))
+    host_time_ns: int = field(metadata=_meta("host UNIX time, ns"))
+    uptime_s: float = field(metadata=_meta("s since the daemon started"))
+    cpu_percent: float | None = field(
+        metadata=_meta("daemon CPU over the last status period, % of one core")
+    )
+    rss_mb: float | None = field(metadata=_meta("resident memory, MiB"))
+    # nested objects: their schema (description included) is the field's metadata
+    acquisition: dict[str, Any] = field(
+        metadata=_counters("link / acquisition counters (LinkCounters)", ACQUISITION_COUNTERS)
+    )
+    worker: dict[str, Any] = field(metadata=_WORKER)
+    mcap: dict[str, Any] = field(metadata=_MCAP)
+    zenoh: dict[str, Any] = field(metadata=_ZENOH)
+
+    def as_dict(self) -> dict[str, Any]:
+        """The JSON object (non-finite top-level numbers as ``None``)."""
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            out[f.name] = None if isinstance(value, float) and not math.isfinite(value) else value
+        return out
+
+
+#: The status message's schema, generated from :class:`StatusMessage`. Readers of older
+#: recordings may meet statuses with fewer parts: only the identity keys are required.
+STATUS_SCHEMA: dict[str, Any] = schema_of(
+    StatusMessage,
+    "rtsid.Status",
+    required=("robot", "joint", "host_time_ns", "uptime_s"),
+    additional=True,
+)

@@ -22,18 +22,16 @@ plot ``/estimate.K`` against time).
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from rtsid.errors import InputDataError
-from rtsid.io.messages import ESTIMATE_SCHEMA
-from rtsid.link.acquisition import LinkCounters
+from rtsid.io.messages import ESTIMATE_SCHEMA, STATUS_SCHEMA
 from rtsid.verdicts import Reason
 
 __all__ = [
@@ -93,79 +91,6 @@ SAMPLES_SCHEMA: dict[str, Any] = {
 }
 SAMPLES_SCHEMA["required"] = list(SAMPLES_SCHEMA["properties"])
 
-
-def _counters(description: str, names: Sequence[str]) -> dict[str, Any]:
-    return {
-        "type": "object",
-        "description": description,
-        "properties": {n: {"type": ["integer", "number", "boolean", "null"]} for n in names},
-        "additionalProperties": True,
-    }
-
-
-#: The acquisition's counters, from the type that holds them (so the schema cannot drift),
-#: plus the logger's own count of sample rows the ring overwrote before it read them.
-ACQUISITION_COUNTERS = (
-    *(f.name for f in dataclasses.fields(LinkCounters)),
-    "logger_overwritten",
-)
-WORKER_COUNTERS = ("estimates", "withheld", "overruns", "deadline_misses")
-
-STATUS_SCHEMA: dict[str, Any] = {
-    "$schema": DRAFT,
-    "$id": "rtsid.Status",
-    "title": "rtsid.Status",
-    "description": "Health of the daemon, 1–2 Hz. Counters are totals since start.",
-    "type": "object",
-    "properties": {
-        "robot": {"type": "string"},
-        "joint": {"type": "string"},
-        "host_time_ns": {"type": "integer", "description": "host UNIX time, ns"},
-        "uptime_s": {"type": "number", "description": "s since the daemon started"},
-        "cpu_percent": _num("daemon CPU over the last status period, % of one core"),
-        "rss_mb": _num("resident memory, MiB"),
-        "acquisition": _counters("link / acquisition counters", ACQUISITION_COUNTERS),
-        "worker": {
-            **_counters("window worker counters", WORKER_COUNTERS),
-            "properties": {
-                **{n: {"type": "integer"} for n in ("estimates", "overruns", "deadline_misses")},
-                "withheld": {
-                    "type": "object",
-                    "description": "withheld windows by reason",
-                    "additionalProperties": {"type": "integer"},
-                },
-            },
-        },
-        "mcap": {
-            "type": "object",
-            "description": "MCAP logger: McapLogger.stats()",
-            "properties": {
-                "state": {"type": "string"},
-                "file": {"type": ["string", "null"]},
-                "bytes": {"type": "integer"},
-                "written": {"type": "integer"},
-                "dropped": {"type": "integer"},
-                "lost": {"type": "integer"},
-                "errors": {"type": "integer"},
-                "last_error": {"type": ["string", "null"]},
-            },
-            "additionalProperties": True,
-        },
-        "zenoh": {
-            "type": "object",
-            "description": "zenoh publisher: ZenohPublisher.stats()",
-            "properties": {
-                "state": {"type": "string"},
-                "published": {"type": "integer"},
-                "errors": {"type": "integer"},
-                "last_error": {"type": ["string", "null"]},
-            },
-            "additionalProperties": True,
-        },
-    },
-    "required": ["robot", "joint", "host_time_ns", "uptime_s"],
-    "additionalProperties": True,
-}
 
 CAN_FRAMES_SCHEMA: dict[str, Any] = {
     "$schema": DRAFT,

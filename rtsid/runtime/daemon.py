@@ -36,6 +36,7 @@ from rtsid.ident.analysis import plan_analysis
 from rtsid.ident.window import EstimatorOptions
 from rtsid.io.calibration import calibration_record, robot_calibration
 from rtsid.io.mcap_log import McapConfig, McapLogger
+from rtsid.io.messages import StatusMessage
 from rtsid.io.procstats import ProcessMeter
 from rtsid.io.schemas import encode_estimate, encode_status
 from rtsid.io.zenoh_link import ZenohConfig, ZenohPublisher
@@ -384,16 +385,16 @@ class Daemon:
         acq = dataclasses.asdict(self.acquisition.counters()) if self.acquisition else {}
         acq["logger_overwritten"] = self._overwritten
         worker = dataclasses.asdict(self.worker.counters()) if self.worker else {}
-        return {
-            "robot": self.config.zenoh.robot,
-            "joint": self.config.zenoh.joint,
-            "host_time_ns": time.time_ns(),
+        return StatusMessage(
+            robot=self.config.zenoh.robot,
+            joint=self.config.zenoh.joint,
+            host_time_ns=time.time_ns(),
             **self.meter.sample(),
-            "acquisition": acq,
-            "worker": worker,
-            "mcap": mcap.stats(),
-            "zenoh": zenoh.stats(),
-        }
+            acquisition=acq,
+            worker=worker,
+            mcap=mcap.stats(),
+            zenoh=zenoh.stats(),
+        ).as_dict()
 
     def _publish_status(self, mcap: McapLogger, zenoh: ZenohPublisher) -> None:
         status = self._status(mcap, zenoh)
