@@ -33,15 +33,11 @@ from rtsid.ident.window import (
     EstimatorOptions,
     Held,
     WindowEstimate,
-    analyse,
+    analyse_window,
     back_end,
-    check_window,
     held_values,
     output_error_back_end,
     output_error_design,
-    plan_source,
-    resolve_plan,
-    without_lost,
 )
 from rtsid.verdicts import Reason
 
@@ -129,16 +125,13 @@ class WindowStream:
         With a learned hold, the window is fitted twice from one IRF and one least-squares
         design: in full (learned from) and with the held values (returned).
         """
-        pos = np.ascontiguousarray(position, dtype=np.float64)
-        tor = np.ascontiguousarray(torque, dtype=np.float64)
-        mask = None if valid is None else np.asarray(valid, dtype=bool)
-        lost = check_window(pos, tor, self.options, mask, self.fs_hz)
-        pos, tor = without_lost(pos, tor, lost)
-        if self.plan is None:
-            source = plan_source(pos, lost)
-            self.plan = resolve_plan(source, self.fs_hz, self.options, self.max_lowpass_hz)
-        plan, options = self.plan, self.options
-        u, y, irf, gaps = analyse(pos, tor, self.fs_hz, options, plan, lost)
+        options = self.options
+        window = analyse_window(
+            position, torque, self.fs_hz, options, self.plan, valid, self.max_lowpass_hz
+        )
+        self.plan = plan = window.plan  # the first window's plan serves the whole stream
+        irf, u, y = window.signals
+        gaps = window.gaps
         if options.hold == "none":
             return back_end(irf, u, y, options, plan, gaps=gaps)
         held = held_values(options, self.held.current())  # from earlier windows only

@@ -564,14 +564,52 @@ def estimate_window(
     options = options or EstimatorOptions()
     if overrides:
         options = replace(options, **overrides)
+    window = analyse_window(position, torque, fs, options, plan, valid)
+    return back_end(*window.signals, options, window.plan, held_values(options, held), window.gaps)
+
+
+@dataclass(frozen=True)
+class AnalysedWindow:
+    """Stages 1–4 of one window: its plan, analysis-rate signals, IRF and lost samples."""
+
+    plan: AnalysisPlan
+    u: FloatArray
+    y: FloatArray
+    irf: IRF
+    gaps: WindowGaps | None
+
+    @property
+    def signals(self) -> tuple[IRF, FloatArray, FloatArray]:
+        """``(irf, u, y)``, the back ends' first arguments."""
+        return self.irf, self.u, self.y
+
+
+def analyse_window(
+    position: ArrayLike,
+    torque: ArrayLike,
+    fs: float,
+    options: EstimatorOptions,
+    plan: AnalysisPlan | None = None,
+    valid: ArrayLike | None = None,
+    max_lowpass_hz: float | None = None,
+) -> AnalysedWindow:
+    """Check a window (stage 1), plan it unless ``plan`` is given (stage 2), band-limit it
+    and identify its IRF (stages 3–4) — what :func:`estimate_window` and
+    :class:`rtsid.ident.stream.WindowStream` share before their fits.
+
+    Raises
+    ------
+    WindowError, NumericalError
+        As :func:`estimate_window`.
+    """
     pos = np.ascontiguousarray(position, dtype=np.float64)
     tor = np.ascontiguousarray(torque, dtype=np.float64)
     mask = None if valid is None else np.asarray(valid, dtype=bool)
     lost = check_window(pos, tor, options, mask, fs)
     pos, tor = without_lost(pos, tor, lost)
-    plan = plan or resolve_plan(plan_source(pos, lost), fs, options)
+    plan = plan or resolve_plan(plan_source(pos, lost), fs, options, max_lowpass_hz)
     u, y, irf, gaps = analyse(pos, tor, fs, options, plan, lost)
-    return back_end(irf, u, y, options, plan, held_values(options, held), gaps)
+    return AnalysedWindow(plan, u, y, irf, gaps)
 
 
 def analyse(
