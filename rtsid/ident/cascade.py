@@ -75,6 +75,25 @@ class CascadeFit:
     factor: int
     first_scored: int
 
+    @property
+    def reflex_gain(self) -> float:
+        """Static gain of the reflex pathway, N·m per rad/s of (rectified) velocity."""
+        return float(np.sum(self.reflex_irf) / self.fs_hz)
+
+    def reflex_torque_at(self, position: ArrayLike, fs_hz: float) -> FloatArray:
+        """The reflex pathway's torque for ``position`` at its own rate ``fs_hz`` (N·m):
+        predicted at the model's rate and brought back up, for a record or the slow lane's
+        prediction that a per-window intrinsic estimate subtracts."""
+        pos = np.asarray(position, dtype=np.float64)
+        u = detrend(_decimated(pos, self.factor), "linear")
+        velocity, _ = derivatives(u, self.fs_hz)
+        rectified = detrend(np.maximum(velocity, 0.0), "mean")
+        low = _convolve_causal(rectified, self.reflex_irf, self.fs_hz)
+        if self.factor == 1:
+            return low[: pos.size]
+        up = signal.resample_poly(low, self.factor, 1)
+        return np.asarray(np.resize(up, pos.size) if up.size < pos.size else up[: pos.size])
+
 
 def _decimated(x: FloatArray, factor: int) -> FloatArray:
     if factor == 1:
@@ -154,8 +173,8 @@ def fit_parallel_cascade(
     alone = estimate_irf(u, y, fs, lag, ridge=ridge)
     intrinsic_torque = alone.predict(u)
     vaf_alone = vaf(y[scored], intrinsic_torque[scored])
-    best, intrinsic, reflex = vaf_alone, alone, np.zeros(reflex_lags + 1)
-    reflex_torque = np.zeros_like(y)
+    best = (vaf_alone, alone, np.zeros(reflex_lags + 1), intrinsic_torque, np.zeros_like(y))
+    intrinsic = alone
     iterations = 0
     for iterations in range(1, max_iterations + 1):  # noqa: B007 - reported below
         reflex = _causal_irf(rectified, y - intrinsic_torque, reflex_lags, fs, ridge)
@@ -163,9 +182,12 @@ def fit_parallel_cascade(
         intrinsic = estimate_irf(u, y - reflex_torque, fs, lag, ridge=ridge)
         intrinsic_torque = intrinsic.predict(u)
         total = vaf(y[scored], (intrinsic_torque + reflex_torque)[scored])
-        gained, best = total - best, max(best, total)
+        gained = total - best[0]
+        if gained > 0:
+            best = (total, intrinsic, reflex, intrinsic_torque, reflex_torque)
         if gained < tolerance_percent:
             break
+    vaf_total, intrinsic, reflex, intrinsic_torque, reflex_torque = best
     return CascadeFit(
         fs_hz=fs,
         intrinsic=intrinsic,
@@ -173,7 +195,7 @@ def fit_parallel_cascade(
         measured=y[scored],
         intrinsic_torque=intrinsic_torque[scored],
         reflex_torque=reflex_torque[scored],
-        vaf_total=best,
+        vaf_total=vaf_total,
         vaf_intrinsic_only=vaf_alone,
         iterations=iterations,
         factor=factor,
