@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -188,7 +188,7 @@ def plot_cascade(cascade: Any, out_png: str | Path, *, title: str, excerpt_s: fl
 
 
 def plot_cascade_windows(
-    rows: list[Mapping[str, float]], out_png: str | Path, *, title: str
+    rows: Sequence[Mapping[str, float]], out_png: str | Path, *, title: str
 ) -> Path:
     """Window-by-window cascades: intrinsic K (with ±1.96·SE) beside the K of a fit without a
     reflex model, the reflex gain and delay, and the cascade's VAF."""

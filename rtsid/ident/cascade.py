@@ -47,10 +47,10 @@ from rtsid.ident.window import EstimatorOptions, WindowEstimate, estimate_window
 __all__ = [
     "CascadeFit",
     "CascadeSettings",
+    "CascadeWindow",
     "cascade_minimum_s",
     "fit_parallel_cascade",
     "intrinsic_parameters",
-    "CascadeWindow",
     "sliding_cascades",
 ]
 

@@ -387,7 +387,7 @@ def _hammerstein(
     compares with the ``rect`` variant's."""
     rectified = inputs.rectified
     powers = np.stack(inputs.powers, axis=1)
-    coefficients = np.zeros(POLYNOMIAL_DEGREE)
+    coefficients: NDArray[np.floating] = np.zeros(POLYNOMIAL_DEGREE)
     shaped = rectified
     rank = 0
     for _ in range(HAMMERSTEIN_SWEEPS):

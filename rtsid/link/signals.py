@@ -31,8 +31,8 @@ from rtsid.sim.joint import (
     derivatives,
     simulate_impedance,
 )
-from rtsid.sim.reflex import ReflexParameters, StretchReflex
 from rtsid.sim.ltv import simulate_ltv_block
+from rtsid.sim.reflex import ReflexParameters, StretchReflex
 
 __all__ = [
     "Block",
