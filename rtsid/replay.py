@@ -38,6 +38,7 @@ __all__ = [
     "iter_windows",
     "paced",
     "recording_config",
+    "replay_batches",
     "replay_file",
     "write_estimates_csv",
     "write_estimates_mcap",
@@ -238,6 +239,39 @@ def replay_file(
     parts = session_parts(path)
     config = config or recording_config(parts[0])
     result = ReplayResult(source=str(path), parts=parts)
+    total = sum(sample_count(p) for p in parts) if progress is not None else 0
+    batches: Iterable[SampleBatch] = _counted(iter_batches(parts), result, progress, total)
+    if rate is not None:
+        batches = paced(batches, rate)
+    replay_batches(batches, config, result, publish=publish)
+    if result.samples == 0:
+        raise RecordingError(f"{path}: no samples to replay (is it an rtsid recording?)")
+    return result
+
+
+def replay_batches(
+    batches: Iterable[SampleBatch],
+    config: DaemonConfig,
+    result: ReplayResult,
+    *,
+    publish: Callable[[dict[str, Any]], object] | None = None,
+    evaluated: Callable[[WindowEvaluator], None] | None = None,
+) -> ReplayResult:
+    """Run the live daemon's window worker (and slow lane) over batches of samples.
+
+    Parameters
+    ----------
+    batches : iterable of SampleBatch
+        Samples in order (from a recording, or arrays wrapped as one batch).
+    config : DaemonConfig
+        The settings, as the daemon takes them.
+    result : ReplayResult
+        Filled in: messages, reflex fits, samples, duration, elapsed time.
+    publish : callable, optional
+        Also called with every estimate message.
+    evaluated : callable, optional
+        Called with the evaluator after each window (e.g. to read ``last_reflex``).
+    """
 
     def sink(message: dict[str, Any]) -> None:
         result.messages.append(message)
@@ -258,17 +292,13 @@ def replay_file(
         else None,
     )
     slow_lane = ReplayedSlowLane(evaluator, result.reflex.append) if evaluator.reflex else None
-    total = sum(sample_count(p) for p in parts) if progress is not None else 0
-    batches: Iterable[SampleBatch] = _counted(iter_batches(parts), result, progress, total)
-    if rate is not None:
-        batches = paced(batches, rate)
     started = time.perf_counter()
     for snap in iter_windows(batches, evaluator, slow_lane):
         evaluator.evaluate(snap)
+        if evaluated is not None:
+            evaluated(evaluator)
     result.elapsed_s = time.perf_counter() - started
     result.duration_s = result.samples / config.link.fs_hz
-    if result.samples == 0:
-        raise RecordingError(f"{path}: no samples to replay (is it an rtsid recording?)")
     return result
 
 

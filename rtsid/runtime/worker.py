@@ -241,6 +241,7 @@ class WindowEvaluator:
         self.reflex = reflex
         self.history_samples = reflex.history_samples if reflex is not None else 0
         self.reflex_flagged: Counter[str] = Counter()
+        self.last_reflex = _NO_REFLEX  # the slow lane's part in the latest window
         self._seq = 0
         self.withheld: Counter[str] = Counter()
         self.estimates = 0
@@ -291,6 +292,7 @@ class WindowEvaluator:
         reflex = _NO_REFLEX
         if reason is None and self.reflex is not None:
             reflex = self._reflex_torque(snap)
+        self.last_reflex = reflex
         estimate, reason = self._estimate(window, reason, reflex.torque)
         compute_s = time.perf_counter() - started
         self.compute_ms = compute_s * 1e3

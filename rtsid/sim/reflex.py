@@ -21,8 +21,10 @@ from numpy.typing import NDArray
 from scipy import signal
 
 from rtsid.errors import InputDataError
+from rtsid.ident.excitation import prbs
+from rtsid.sim.joint import JointParameters, add_noise, derivatives, robot_servo, simulate_impedance
 
-__all__ = ["ReflexParameters", "StretchReflex", "reflex_torque"]
+__all__ = ["ReflexParameters", "StretchReflex", "prbs_ankle_with_reflex", "reflex_torque"]
 
 FloatArray = NDArray[np.float64]
 
@@ -87,3 +89,27 @@ class StretchReflex:
 def reflex_torque(velocity: FloatArray, fs_hz: float, params: ReflexParameters) -> FloatArray:
     """Reflex torque of a whole record of joint velocity, from rest."""
     return StretchReflex(params, fs_hz).torque(velocity)
+
+
+def prbs_ankle_with_reflex(
+    seconds: float,
+    fs_hz: float,
+    joint: JointParameters,
+    reflex: ReflexParameters | None,
+    *,
+    noise_percent: float = 10.0,
+    bandwidth_hz: float = 40.0,
+    amplitude_rad: float = 0.03,
+    seed: int = 1,
+) -> tuple[FloatArray, FloatArray]:
+    """A PRBS-perturbed ankle (the virtual plant's default perturbation through a 60 Hz servo)
+    with intrinsic ``joint`` dynamics and a stretch ``reflex`` (None: none), torque noise
+    ``noise_percent`` % of the clean torque's std. Returns ``(θ, τ)``."""
+    rng = np.random.default_rng(seed)
+    hold = max(1, round(fs_hz / (2 * bandwidth_hz)))
+    theta = robot_servo(prbs(round(seconds * fs_hz), amplitude_rad, min_hold=hold, seed=rng), fs_hz)
+    torque = simulate_impedance(theta, fs_hz, joint)
+    if reflex is not None:
+        velocity, _ = derivatives(theta, fs_hz)
+        torque = torque + reflex_torque(velocity, fs_hz, reflex)
+    return theta, add_noise(torque, noise_percent, seed=rng)

@@ -8,9 +8,8 @@ from rtsid.ident.cascade import (
     intrinsic_parameters,
     sliding_cascades,
 )
-from rtsid.ident.excitation import prbs
-from rtsid.sim.joint import JointParameters, add_noise, derivatives, robot_servo, simulate_impedance
-from rtsid.sim.reflex import ReflexParameters, reflex_torque
+from rtsid.sim.joint import JointParameters, derivatives
+from rtsid.sim.reflex import ReflexParameters, prbs_ankle_with_reflex, reflex_torque
 
 FS = 2500.0
 JOINT = JointParameters(0.015, 0.8, 150.0)
@@ -19,14 +18,9 @@ REFLEX = ReflexParameters(gain=10.0, delay_s=0.04, corner_hz=3.0, damping_ratio=
 
 def joint_with_reflex(seconds=20.0, reflex=REFLEX, noise_percent=10.0, seed=1):
     """A PRBS-perturbed ankle (40 Hz band, 0.03 rad, 60 Hz servo) with a stretch reflex."""
-    rng = np.random.default_rng(seed)
-    command = prbs(round(seconds * FS), 0.03, min_hold=round(FS / 80), seed=rng)
-    theta = robot_servo(command, FS, 60.0)
-    velocity, _ = derivatives(theta, FS)
-    torque = simulate_impedance(theta, FS, JOINT)
-    if reflex is not None:
-        torque = torque + reflex_torque(velocity, FS, reflex)
-    return theta, add_noise(torque, noise_percent, seed=rng)
+    return prbs_ankle_with_reflex(
+        seconds, FS, JOINT, reflex, noise_percent=noise_percent, seed=seed
+    )
 
 
 @pytest.mark.parametrize("variant", ["rect", "hammerstein"])
