@@ -185,6 +185,7 @@ def replay_file(
         joint=config.zenoh.joint,
         calibration=robot_calibration(config.worker.calibration_file, config.link.fs_hz),
         live=False,  # recorded samples: never stale, no latency
+        tracker=config.tracker,
     )
     total = sum(sample_count(p) for p in parts) if progress is not None else 0
     batches: Iterable[SampleBatch] = _counted(iter_batches(parts), result, progress, total)

@@ -33,6 +33,7 @@ from rtsid import __version__
 from rtsid.config import invalid, load_toml, require_range, section_from_mapping
 from rtsid.errors import ConfigError, WindowError
 from rtsid.ident.analysis import plan_analysis
+from rtsid.ident.tracker import TrackerOptions
 from rtsid.ident.window import EstimatorOptions
 from rtsid.io.calibration import calibration_record, robot_calibration
 from rtsid.io.mcap_log import McapConfig, McapLogger
@@ -53,7 +54,7 @@ __all__ = ["Daemon", "DaemonConfig", "DaemonSettings", "RunSummary"]
 
 log = logging.getLogger(__name__)
 
-SECTIONS = ("daemon", "link", "plant", "estimator", "worker", "mcap", "zenoh")
+SECTIONS = ("daemon", "link", "plant", "estimator", "worker", "tracker", "mcap", "zenoh")
 
 
 @dataclass(frozen=True)
@@ -102,6 +103,7 @@ class DaemonConfig:
     plant: PlantConfig = field(default_factory=PlantConfig)
     estimator: EstimatorOptions = field(default_factory=EstimatorOptions)
     worker: WorkerConfig = field(default_factory=WorkerConfig)
+    tracker: TrackerOptions = field(default_factory=TrackerOptions)
     mcap: McapConfig = field(default_factory=McapConfig)
     zenoh: ZenohConfig = field(default_factory=ZenohConfig)
 
@@ -177,6 +179,7 @@ class DaemonConfig:
                 EstimatorOptions, document.get("estimator"), "estimator"
             ),
             worker=WorkerConfig.from_mapping(document.get("worker")),
+            tracker=section_from_mapping(TrackerOptions, document.get("tracker"), "tracker"),
             mcap=McapConfig.from_mapping(document.get("mcap")),
             zenoh=ZenohConfig.from_mapping(document.get("zenoh")),
         )
@@ -302,6 +305,7 @@ class Daemon:
                     robot=robot,
                     joint=joint,
                     calibration=calibration,
+                    tracker=cfg.tracker,
                 )
                 self.worker = worker
                 # Everything built so far lives for the whole run: move it out of the cyclic

@@ -30,6 +30,7 @@ from rtsid.config import require_range, section_from_mapping
 from rtsid.errors import ConfigError, InputDataError, NumericalError, WindowError
 from rtsid.ident.grid import first_window_end
 from rtsid.ident.stream import WindowStream
+from rtsid.ident.tracker import TrackerOptions
 from rtsid.ident.window import EstimatorOptions, WindowEstimate
 from rtsid.io.calibration import Calibration, load_calibration
 from rtsid.io.messages import EstimateMessage
@@ -190,6 +191,8 @@ class WindowEvaluator:
     live : bool
         Samples arriving now (staleness judged, latency measured), or from a recording (never
         stale, ``latency_ms`` null).
+    tracker : TrackerOptions, optional
+        The K(t)/B(t) tracker's settings (every message carries ``K_track`` …).
     """
 
     def __init__(
@@ -203,6 +206,7 @@ class WindowEvaluator:
         joint: str = "ankle",
         calibration: Calibration | None = None,
         live: bool = True,
+        tracker: TrackerOptions | None = None,
     ) -> None:
         self.fs_hz = float(fs_hz)
         self.config = config
@@ -215,7 +219,14 @@ class WindowEvaluator:
         # The analysis plan and the held parameters: deterministic state carried from window
         # to window, so a replay of the same windows reproduces every number.
         band = calibration.robot.analysis_cutoff_hz if calibration is not None else None
-        self.stream = WindowStream(fs_hz, options, config.hop_s, max_lowpass_hz=band)
+        self.stream = WindowStream(
+            fs_hz,
+            options,
+            config.hop_s,
+            max_lowpass_hz=band,
+            window_s=config.window_s,
+            tracker=tracker,
+        )
         self.window_samples = round(config.window_s * fs_hz)
         self.hop_samples = max(1, round(config.hop_s * fs_hz))
         self._seq = 0
@@ -298,6 +309,7 @@ class WindowEvaluator:
         seq = self._seq
         self._seq += 1
         numbers = {k: getattr(estimate, k) if estimate else None for k in _ESTIMATE_NUMBERS}
+        track = self.stream.track(last / self.fs_hz, estimate)  # every window steps it
         return EstimateMessage(
             robot=self.robot,
             joint=self.joint,
@@ -307,6 +319,10 @@ class WindowEvaluator:
             t_start_s=first / self.fs_hz,
             t_end_s=last / self.fs_hz,
             **numbers,
+            K_track=track.K,
+            K_track_se=track.K_se,
+            B_track=track.B,
+            B_track_se=track.B_se,
             compute_ms=compute_s * 1e3,
             latency_ms=latency,
             ok=estimate is not None,
@@ -327,7 +343,7 @@ class WindowWorker(ThreadOwner):
     ----------
     ring : RingBuffer
         Samples written by the acquisition thread.
-    fs_hz, config, options, publish, robot, joint, calibration
+    fs_hz, config, options, publish, robot, joint, calibration, tracker
         As :class:`WindowEvaluator`'s (live).
     """
 
@@ -342,12 +358,20 @@ class WindowWorker(ThreadOwner):
         robot: str = "robot",
         joint: str = "ankle",
         calibration: Calibration | None = None,
+        tracker: TrackerOptions | None = None,
     ) -> None:
         super().__init__("rtsid-worker")
         self.ring = ring
         self.config = config
         self.evaluator = WindowEvaluator(
-            fs_hz, config, options, publish, robot=robot, joint=joint, calibration=calibration
+            fs_hz,
+            config,
+            options,
+            publish,
+            robot=robot,
+            joint=joint,
+            calibration=calibration,
+            tracker=tracker,
         )
         self.window_samples = self.evaluator.window_samples
         self.hop_samples = self.evaluator.hop_samples
