@@ -29,7 +29,7 @@ from numpy.typing import ArrayLike
 from rtsid.errors import InputDataError, NumericalError, WindowError
 from rtsid.ident.analysis import AnalysisPlan
 from rtsid.ident.grid import window_ends
-from rtsid.ident.tracker import ParameterTracker, TrackEstimate, TrackerOptions
+from rtsid.ident.tracker import ParameterTracker, TrackerOptions, TrackEstimate
 from rtsid.ident.vaf import vaf
 from rtsid.ident.window import (
     EstimatorOptions,
@@ -139,17 +139,20 @@ class StreamTracker:
         """Advance to ``t_end_s`` (s) and take ``estimate`` if it is a measurement."""
         if not self.options.enabled:
             return Tracked(*(float("nan"),) * 4)
-        measured = estimate is not None and not _NOT_MEASURED.intersection(estimate.flags)
+        if estimate is not None and _NOT_MEASURED.intersection(estimate.flags):
+            estimate = None  # not a measurement: the prediction only advances
         k = self.stiffness.step(
-            t_end_s, estimate.K if measured else None, estimate.K_se if measured else None
+            t_end_s,
+            None if estimate is None else estimate.K,
+            None if estimate is None else estimate.K_se,
         )
         b = _UNTRACKED
-        b_measured = measured and math.isfinite(estimate.B_se)  # type: ignore[union-attr]
+        b_measured = estimate is not None and math.isfinite(estimate.B_se)
         if b_measured or self.damping.started:
             b = self.damping.step(
                 t_end_s,
-                estimate.B if b_measured else None,  # type: ignore[union-attr]
-                estimate.B_se if b_measured else None,  # type: ignore[union-attr]
+                estimate.B if b_measured and estimate is not None else None,
+                estimate.B_se if b_measured and estimate is not None else None,
             )
         return Tracked(k.value, k.se, b.value, b.se)
 

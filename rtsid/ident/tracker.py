@@ -122,9 +122,7 @@ class TrackerOptions:
             "rate_time_constant_s", self.rate_time_constant_s, 0.0, 600.0, low_inclusive=False
         )
         require_range("change_gate", self.change_gate, 1.0, 100.0)
-        require_range(
-            "scale_horizon_s", self.scale_horizon_s, 0.0, 3600.0, low_inclusive=False
-        )
+        require_range("scale_horizon_s", self.scale_horizon_s, 0.0, 3600.0, low_inclusive=False)
 
 
 @dataclass(frozen=True)
