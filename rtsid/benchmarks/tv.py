@@ -227,9 +227,12 @@ def run(args: argparse.Namespace) -> int:
             skirt = _skirt_tracks(profile, seconds, t) if band == 40.0 else {}
             for name in (*methods, *skirt):
                 runs = [tr[name] for tr in tracks] if name in methods else [skirt[name]]
-                bias, random, total = _metrics(t, runs, truth)
-                rise = _rise_time(t, np.nanmean(runs, axis=0), truth)
-                vaf = _vaf(validation, t, np.nanmean(runs, axis=0))
+                with warnings.catch_warnings():  # times no realisation estimated (a long
+                    warnings.simplefilter("ignore", RuntimeWarning)  # window's start): NaN
+                    bias, random, total = _metrics(t, runs, truth)
+                    mean_track = np.nanmean(runs, axis=0)
+                rise = _rise_time(t, mean_track, truth)
+                vaf = _vaf(validation, t, mean_track)
                 rows.append([profile.name, f"{band:g}", name, bias, random, total, rise, vaf])
             if band == 40.0:
                 figures[profile.name] = {"t": t, "truth": truth, **tracks[0], **skirt}
