@@ -290,6 +290,7 @@ def replay_batches(
         reflex=ReflexModels(config.link.fs_hz, config.slow_lane)
         if config.slow_lane.enabled
         else None,
+        tracker=config.tracker,
     )
     slow_lane = ReplayedSlowLane(evaluator, result.reflex.append) if evaluator.reflex else None
     started = time.perf_counter()

@@ -60,6 +60,18 @@ class EstimateMessage:
     )
     B_se: float | None = field(metadata=_meta("standard error of B, N·m·s/rad (null when held)"))
     K_se: float | None = field(metadata=_meta("standard error of K, N·m/rad"))
+    K_track: float | None = field(
+        metadata=_meta(
+            "tracked stiffness now (causal Kalman filter over the windows, rtsid.ident.tracker;"
+            " a withheld window advances the prediction), N·m/rad; null before the first "
+            "estimate or with the tracker off"
+        )
+    )
+    K_track_se: float | None = field(metadata=_meta("standard error of K_track, N·m/rad"))
+    B_track: float | None = field(
+        metadata=_meta("tracked damping, N·m·s/rad; null while B is held (hold = inertia_damping)")
+    )
+    B_track_se: float | None = field(metadata=_meta("standard error of B_track, N·m·s/rad"))
     vaf: float | None = field(
         metadata=_meta(
             "variance of the measured torque (analysed band) accounted for by the I, B, K model, %"

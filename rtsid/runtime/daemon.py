@@ -34,6 +34,7 @@ from rtsid.config import invalid, load_toml, require_range, section_from_mapping
 from rtsid.errors import ConfigError, WindowError
 from rtsid.ident.analysis import plan_analysis
 from rtsid.ident.reflex_lane import ReflexModels, ReflexUpdate, SlowLaneSettings
+from rtsid.ident.tracker import TrackerOptions
 from rtsid.ident.window import EstimatorOptions
 from rtsid.io.calibration import calibration_record, robot_calibration
 from rtsid.io.mcap_log import McapConfig, McapLogger
@@ -55,7 +56,17 @@ __all__ = ["Daemon", "DaemonConfig", "DaemonSettings", "RunSummary"]
 
 log = logging.getLogger(__name__)
 
-SECTIONS = ("daemon", "link", "plant", "estimator", "worker", "slow_lane", "mcap", "zenoh")
+SECTIONS = (
+    "daemon",
+    "link",
+    "plant",
+    "estimator",
+    "worker",
+    "slow_lane",
+    "tracker",
+    "mcap",
+    "zenoh",
+)
 
 
 @dataclass(frozen=True)
@@ -105,6 +116,7 @@ class DaemonConfig:
     estimator: EstimatorOptions = field(default_factory=EstimatorOptions)
     worker: WorkerConfig = field(default_factory=WorkerConfig)
     slow_lane: SlowLaneSettings = field(default_factory=SlowLaneSettings)
+    tracker: TrackerOptions = field(default_factory=TrackerOptions)
     mcap: McapConfig = field(default_factory=McapConfig)
     zenoh: ZenohConfig = field(default_factory=ZenohConfig)
 
@@ -196,6 +208,7 @@ class DaemonConfig:
             slow_lane=section_from_mapping(
                 SlowLaneSettings, document.get("slow_lane"), "slow_lane"
             ),
+            tracker=section_from_mapping(TrackerOptions, document.get("tracker"), "tracker"),
             mcap=McapConfig.from_mapping(document.get("mcap")),
             zenoh=ZenohConfig.from_mapping(document.get("zenoh")),
         )
@@ -326,6 +339,7 @@ class Daemon:
                     joint=joint,
                     calibration=calibration,
                     reflex=models,
+                    tracker=cfg.tracker,
                 )
                 self.worker = worker
                 slow_lane = self._slow_lane(ring, worker, models, mcap, zenoh)

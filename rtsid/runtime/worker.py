@@ -31,6 +31,7 @@ from rtsid.errors import ConfigError, InputDataError, NumericalError, WindowErro
 from rtsid.ident.grid import first_window_end
 from rtsid.ident.reflex_lane import ReflexModels, ReflexUpdate, predict_reflex_torque
 from rtsid.ident.stream import WindowStream
+from rtsid.ident.tracker import TrackerOptions
 from rtsid.ident.window import EstimatorOptions, WindowEstimate
 from rtsid.io.calibration import Calibration, load_calibration
 from rtsid.io.messages import EstimateMessage, ReflexMessage
@@ -209,6 +210,8 @@ class WindowEvaluator:
         The slow lane's reflex models: the due model's reflex torque is subtracted before
         the intrinsic estimate; snapshots then carry :attr:`history_samples` rows before
         the window (the reflex pathway's memory).
+    tracker : TrackerOptions, optional
+        The K(t)/B(t) tracker's settings (every message carries ``K_track`` …).
     """
 
     def __init__(
@@ -223,6 +226,7 @@ class WindowEvaluator:
         calibration: Calibration | None = None,
         live: bool = True,
         reflex: ReflexModels | None = None,
+        tracker: TrackerOptions | None = None,
     ) -> None:
         self.fs_hz = float(fs_hz)
         self.config = config
@@ -235,7 +239,14 @@ class WindowEvaluator:
         # The analysis plan and the held parameters: deterministic state carried from window
         # to window, so a replay of the same windows reproduces every number.
         band = calibration.robot.analysis_cutoff_hz if calibration is not None else None
-        self.stream = WindowStream(fs_hz, options, config.hop_s, max_lowpass_hz=band)
+        self.stream = WindowStream(
+            fs_hz,
+            options,
+            config.hop_s,
+            max_lowpass_hz=band,
+            window_s=config.window_s,
+            tracker=tracker,
+        )
         self.window_samples = round(config.window_s * fs_hz)
         self.hop_samples = max(1, round(config.hop_s * fs_hz))
         self.reflex = reflex
@@ -381,6 +392,7 @@ class WindowEvaluator:
         seq = self._seq
         self._seq += 1
         numbers = {k: getattr(estimate, k) if estimate else None for k in _ESTIMATE_NUMBERS}
+        track = self.stream.track(last / self.fs_hz, estimate)  # every window steps it
         return EstimateMessage(
             robot=self.robot,
             joint=self.joint,
@@ -390,6 +402,10 @@ class WindowEvaluator:
             t_start_s=first / self.fs_hz,
             t_end_s=last / self.fs_hz,
             **numbers,
+            K_track=track.K,
+            K_track_se=track.K_se,
+            B_track=track.B,
+            B_track_se=track.B_se,
             compute_ms=compute_s * 1e3,
             latency_ms=latency,
             ok=estimate is not None,
@@ -411,7 +427,7 @@ class WindowWorker(ThreadOwner):
     ----------
     ring : RingBuffer
         Samples written by the acquisition thread.
-    fs_hz, config, options, publish, robot, joint, calibration
+    fs_hz, config, options, publish, robot, joint, calibration, tracker
         As :class:`WindowEvaluator`'s (live).
     """
 
@@ -427,6 +443,7 @@ class WindowWorker(ThreadOwner):
         joint: str = "ankle",
         calibration: Calibration | None = None,
         reflex: ReflexModels | None = None,
+        tracker: TrackerOptions | None = None,
     ) -> None:
         super().__init__("rtsid-worker")
         self.ring = ring
@@ -440,6 +457,7 @@ class WindowWorker(ThreadOwner):
             joint=joint,
             calibration=calibration,
             reflex=reflex,
+            tracker=tracker,
         )
         self.window_samples = self.evaluator.window_samples
         self.hop_samples = self.evaluator.hop_samples
