@@ -311,9 +311,10 @@ def _cost_table() -> None:
     settings = SlowLaneSettings(enabled=True)
     theta, torque = prbs_ankle_with_reflex(20.0, SIM_FS, SIM_JOINT, SIM_REFLEX, seed=0)
     update = fit_reflex_update(0, 0, theta, torque, None, SIM_FS, settings)
-    assert update.pathway is not None
+    pathway = update.pathway
+    assert pathway is not None
     n = round(0.3 * SIM_FS)
-    history = round(update.pathway.history_s * SIM_FS)
+    history = round(pathway.history_s * SIM_FS)
     segment = theta[-(n + history) :]
     options = EstimatorOptions(hold="none")
     window = (theta[-n:], torque[-n:])
@@ -322,7 +323,7 @@ def _cost_table() -> None:
             lambda: estimate_window(*window, SIM_FS, options), min_calls=50
         ),
         "reflex prediction per window (fast lane)": time_calls(
-            lambda: predict_reflex_torque(update.pathway, segment, None, SIM_FS, n, settings),
+            lambda: predict_reflex_torque(pathway, segment, None, SIM_FS, n, settings),
             min_calls=50,
         ),
         "one slow-lane update (20 s at 2500 Hz)": time_calls(
