@@ -331,25 +331,45 @@ def write_estimates_csv(messages: Iterable[dict[str, Any]], fh: IO[str]) -> int:
 
 
 def write_estimates_mcap(
-    messages: Iterable[dict[str, Any]], fh: IO[bytes], *, source: str, config: DaemonConfig
+    messages: Iterable[dict[str, Any]],
+    fh: IO[bytes],
+    *,
+    source: str,
+    config: DaemonConfig,
+    reflex: Iterable[dict[str, Any]] = (),
 ) -> int:
-    """Estimate messages as an MCAP file with the daemon's ``/estimate`` layout."""
+    """Estimate messages (and the slow lane's fits, on ``/reflex``) as an MCAP file with the
+    daemon's layout; returns the number of estimates written."""
     from mcap.writer import CompressionType, Writer
 
     writer = Writer(fh, compression=CompressionType.ZSTD)
     writer.start(profile="", library=f"rtsid {__version__}")
-    schema, topic = SCHEMAS["estimate"]
-    schema_id = writer.register_schema(
-        name=schema["title"], encoding="jsonschema", data=encode_json(schema)
-    )
-    channel = writer.register_channel(topic=topic, message_encoding="json", schema_id=schema_id)
+    channels = {}
+    for kind in ("estimate", "reflex"):
+        schema, topic = SCHEMAS[kind]
+        schema_id = writer.register_schema(
+            name=schema["title"], encoding="jsonschema", data=encode_json(schema)
+        )
+        channels[kind] = writer.register_channel(
+            topic=topic, message_encoding="json", schema_id=schema_id
+        )
     writer.add_metadata("rtsid", {"software": "rtsid", "version": __version__, "replay_of": source})
     writer.add_metadata("config", {"json": encode_json(config.as_dict()).decode()})
+    fs = config.link.fs_hz
+    for fit in reflex:  # logged at the sample time from which it applies
+        t = int(fit["applies_from_index"] / fs * 1e9)
+        writer.add_message(
+            channels["reflex"],
+            log_time=t,
+            publish_time=t,
+            data=encode_json(fit),
+            sequence=fit["seq"],
+        )
     count = 0
     for message in messages:
         t = int(message["t_end_s"] * 1e9)
         writer.add_message(
-            channel,
+            channels["estimate"],
             log_time=t,
             publish_time=t,
             data=encode_estimate(message),

@@ -100,3 +100,26 @@ def test_a_ring_too_short_for_the_horizon_is_refused_with_the_fix():
         DaemonConfig.from_mapping(
             {"link": {"ring_capacity_s": 10.0}, "slow_lane": {"enabled": True}}
         )
+
+
+def test_replay_with_the_slow_lane_on_a_recording_made_without_it(reklab_path, tmp_path):
+    from rtsid.cli import main
+
+    recording, out = tmp_path / "reklab.mcap", tmp_path / "replayed.mcap"
+    assert main(["convert", str(reklab_path), "-o", str(recording)]) == 0
+    config = tmp_path / "lane.toml"
+    config.write_text(
+        "[link]\nfs_hz = 1000.0\nring_capacity_s = 30.0\n[plant]\nfs_hz = 1000.0\n"
+        "[estimator]\ntorque_sign = -1.0\n[worker]\nhop_s = 0.1\n"
+        "[slow_lane]\nenabled = true\n"
+    )
+    assert main(["replay", str(recording), "--config", str(config), "-o", str(out)]) == 0
+    fits = reflex_messages(out)
+    assert len(fits) == 28  # fits 2 … 29: data from 3 s, one every 2 s, due by the end
+    assert all(f["ok"] and f["applied"] for f in fits)
+    assert all(f["vaf_total"] > f["vaf_intrinsic_only"] + 3.0 for f in fits)
+    estimates = list(iter_estimates(out))
+    used = [m for m in estimates if m["ok"] and m["reflex_seq"] is not None]
+    assert len(used) > 500
+    # the reflex torque no longer inflates K (shared/data: intrinsic ≈ 80, plain ≈ 105)
+    assert np.median([m["K"] for m in used]) < 95.0
