@@ -63,9 +63,11 @@ from numpy.typing import ArrayLike, NDArray
 from rtsid.errors import InputDataError, NumericalError
 
 __all__ = [
+    "AUTO_MAX_BASIS",
     "BASIS_FAMILIES",
     "MAX_VARIANCE_INFLATION",
     "WARN_VARIANCE_INFLATION",
+    "BasisSelection",
     "LtvEstimate",
     "SecondOrderTrack",
     "SkirtConditioning",
@@ -77,6 +79,8 @@ __all__ = [
     "identify_ltv",
     "legendre_basis",
     "max_stable_basis",
+    "predicted_validation_vaf",
+    "select_basis_size",
     "skirt_conditioning",
 ]
 
@@ -520,21 +524,25 @@ def max_stable_basis(
 ) -> int:
     """Largest ``N_p`` (≤ ``n_max``) whose variance inflation stays ≤ ``limit`` (0: none).
 
-    Counted up from ``N_p = 1`` to the first ``N_p`` above the limit. For the nested
-    families (Legendre, Fourier: a smaller basis is a prefix) the skirts are computed once;
-    B-splines change with ``N_p``, so each step computes its own.
+    Found by bisection: for the nested families (Legendre, Fourier: a smaller basis is a
+    prefix) adding a function never lowers the inflation of the others, so the worst
+    inflation grows with ``N_p`` and the bisection is exact; B-splines change with ``N_p``
+    and follow the same trend (their inflation is measured on the orthonormalised basis).
     """
     family = check_basis_family(basis_family)
     nested = _skirts(family, n_samples, n_max) if _nested(family) else None
-    best = 0
-    for n_basis in range(1, n_max + 1):
+
+    def inflation(n_basis: int) -> float:
         skirts = nested[:n_basis] if nested is not None else _skirts(family, n_samples, n_basis)
         whiten = _whitener(family, n_samples, n_basis)
         cond = _conditioning(skirts, spacing_bins, n_transient, window_lines, neighbours, whiten)
-        if cond.max_variance_inflation > limit:
-            break
-        best = n_basis
-    return best
+        return cond.max_variance_inflation
+
+    lo, hi = 0, n_max + 1  # inflation(lo) <= limit (or lo = 0); inflation(hi) > limit
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (mid, hi) if inflation(mid) <= limit else (lo, mid)
+    return lo
 
 
 # --------------------------------------------------------------------------------------
@@ -592,6 +600,12 @@ class LtvEstimate:
     basis_family : str
         The family of ``b_p`` (one of :data:`BASIS_FAMILIES`); :meth:`basis`,
         :meth:`G`, :meth:`simulate` evaluate that family.
+    output_noise_variance : float
+        Expected variance per sample that the estimation noise adds to the model's output
+        (:meth:`simulate`), output unit²: ``(2/N²)·Σ_e σ_e²·Σ_p ι_p`` with ``σ_e²`` the
+        residual variance per bin of line ``e``'s local problem and ``ι_p`` the skirt
+        inflation (``σ_t²·2·N_p·n_lines/N`` for orthogonal skirts and white noise of
+        variance ``σ_t²``). NaN when unknown.
     """
 
     G_p: ComplexArray
@@ -604,6 +618,7 @@ class LtvEstimate:
     n_transient: int | None
     variance_inflation: float
     basis_family: str = "legendre"
+    output_noise_variance: float = float("nan")
 
     def __post_init__(self) -> None:
         check_basis_family(self.basis_family)
@@ -1181,6 +1196,7 @@ def identify_ltv(
     g_p = np.empty((n_basis, bins.size), dtype=complex)
     se = np.empty((n_basis, bins.size))
     u_lines = spectrum_u[record_bins]
+    absorbed = 0.0  # Σ_e σ_e²·Σ_p (skirt inflation): the noise the own G_p take up
     for layout, solver in solvers.items():
         idx = np.array([i for i, lay in enumerate(layouts) if lay == layout])
         windows = record_bins[idx][None, :] + layout.offsets[:, None]  # (rows, lines)
@@ -1194,6 +1210,7 @@ def identify_ltv(
         scale = solver.column_norms[:, None] * u_lines[None, idx]
         g_p[:, idx] = theta / scale
         se[:, idx] = sigma[None, :] * np.sqrt(solver.variance_inflation[:, None]) / np.abs(scale)
+        absorbed += float(np.sum(sigma**2) * np.sum(solver.skirt_inflation))
     return LtvEstimate(
         G_p=g_p,
         G_p_se=se,
@@ -1205,4 +1222,172 @@ def identify_ltv(
         n_transient=n_transient,
         variance_inflation=worst,
         basis_family=family,
+        output_noise_variance=2.0 * absorbed / n**2,
     )
+
+
+# --------------------------------------------------------------------------------------
+# choosing N_p from the data
+# --------------------------------------------------------------------------------------
+
+#: Largest ``N_p`` :func:`select_basis_size` tries per family (Legendre: as ``--basis auto``
+#: always has; Fourier 101 = harmonics up to 50 of the record; B-splines 80).
+AUTO_MAX_BASIS = {"legendre": 20, "fourier": 101, "bspline": 80}
+
+
+@dataclass(frozen=True)
+class BasisSelection:
+    """``N_p`` chosen by :func:`select_basis_size`, with what it was chosen from.
+
+    Attributes
+    ----------
+    basis_family : str
+        The family.
+    n_basis : int
+        The chosen ``N_p``.
+    n_stable : int
+        Largest ``N_p`` (≤ the family's cap) whose skirt inflation stays ≤
+        :data:`WARN_VARIANCE_INFLATION`: the candidates end there.
+    candidates : tuple of int
+        The ``N_p`` tried.
+    predicted_vaf : tuple of float
+        Predicted validation VAF (%, of a noisy validation output) per candidate.
+    estimate : LtvEstimate
+        The estimate at the chosen ``N_p``.
+    """
+
+    basis_family: str
+    n_basis: int
+    n_stable: int
+    candidates: tuple[int, ...]
+    predicted_vaf: tuple[float, ...]
+    estimate: LtvEstimate = field(repr=False)
+
+    @property
+    def chosen_vaf(self) -> float:
+        """Predicted validation VAF at the chosen ``N_p``, %."""
+        return self.predicted_vaf[self.candidates.index(self.n_basis)]
+
+
+def predicted_validation_vaf(estimate: LtvEstimate, u: ArrayLike, y: ArrayLike) -> float:
+    """Validation VAF (%) the estimate should reach on another realisation, from its own record.
+
+    Mallows' ``C_p`` in the time domain: on another realisation with the same noise the
+    model's error is its error on the estimation record plus twice the noise the estimate
+    took up (``estimate.output_noise_variance``: once it is missing from the estimation
+    residual, once it is added to the prediction). So
+    ``100·(1 − (mean(e²) + 2·v_noise)/var(y))`` with ``e = y − estimate.simulate(u)``
+    predicts the VAF of the *noisy* validation output; the model with the highest value is
+    expected to predict best.
+    """
+    u_arr, y_arr = _as_signal("u", u), _as_signal("y", y)
+    residual = y_arr - estimate.simulate(u_arr)
+    error = float(np.mean(residual**2)) + 2.0 * estimate.output_noise_variance
+    return float(100.0 * (1.0 - error / np.var(y_arr)))
+
+
+def _candidates(family: str, n_stable: int) -> tuple[int, ...]:
+    """``N_p`` to try up to ``n_stable``: every value to 12, then steps of ≈ 20 %.
+
+    Fourier takes whole harmonics only (odd ``N_p = 2H + 1``); Legendre every value (its
+    cap is 20).
+    """
+    if family == "legendre":
+        values = set(range(1, n_stable + 1))
+    else:
+        values = set(range(1, min(12, n_stable) + 1))
+        n = 12
+        while n < n_stable:
+            n = max(n + 1, round(n * 1.2))
+            values.add(min(n, n_stable))
+        values.add(n_stable)
+    if family == "fourier":
+        values = {v - (1 - v % 2) for v in values}
+    return tuple(sorted(v for v in values if v >= 1))
+
+
+def select_basis_size(
+    u: ArrayLike,
+    y: ArrayLike,
+    fs_hz: float,
+    excited_bins: ArrayLike,
+    period_samples: int,
+    n_periods: int | None = None,
+    *,
+    basis_family: str = "legendre",
+    n_max: int | None = None,
+    n_transient: int | None = None,
+    window_lines: float = 1.25,
+    neighbours: int = 1,
+    input_tolerance: float = DEFAULT_INPUT_TOLERANCE,
+) -> BasisSelection:
+    """Choose ``N_p`` for a basis family from the record: conditioning, then predicted VAF.
+
+    The candidates run up to the largest ``N_p`` whose local problems stay well conditioned
+    (:func:`max_stable_basis`, skirt inflation ≤ :data:`WARN_VARIANCE_INFLATION`, at most
+    ``n_max``: :data:`AUTO_MAX_BASIS` by default); each is estimated and scored by
+    :func:`predicted_validation_vaf`; the best score wins. Arguments as in
+    :func:`identify_ltv`.
+
+    Returns
+    -------
+    BasisSelection
+
+    Raises
+    ------
+    InputDataError
+        As :func:`identify_ltv`; or lines so close that not even ``N_p = 1`` is well
+        conditioned.
+    """
+    family = check_basis_family(basis_family)
+    cap = AUTO_MAX_BASIS[family] if n_max is None else int(n_max)
+    if cap < 1:
+        raise InputDataError(f"n_max must be >= 1, got {n_max!r}")
+    u_arr, y_arr = _as_signal("u", u), _as_signal("y", y)
+    n = u_arr.size
+    periods = _record_periods(n, int(period_samples), n_periods)
+    record_bins = _check_bins(excited_bins, int(period_samples)) * periods
+    if record_bins.size < 2:
+        raise InputDataError("choosing N_p needs at least two excited lines; excite more lines")
+    spacing = int(np.min(np.diff(record_bins)))
+    if family == "fourier":  # harmonics a line owns alone (beyond them: refused)
+        cap = min(cap, 2 * max(min((spacing - 1) // 2, int(record_bins[0]) - 1), 0) + 1)
+    stable = max_stable_basis(
+        n,
+        spacing,
+        n_transient,
+        n_max=cap,
+        window_lines=window_lines,
+        neighbours=neighbours,
+        basis_family=family,
+    )
+    if stable < 1:
+        raise InputDataError(
+            f"excited lines {spacing} record bins apart leave no room for time variation; "
+            "excite lines further apart or record more periods"
+        )
+    candidates = _candidates(family, stable)
+    scores: list[float] = []
+    best: LtvEstimate | None = None
+    for n_basis in candidates:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SkirtConditioningWarning)  # edge lines only
+            est = identify_ltv(
+                u_arr,
+                y_arr,
+                fs_hz,
+                excited_bins,
+                period_samples,
+                periods,
+                n_basis,
+                n_transient=n_transient,
+                window_lines=window_lines,
+                neighbours=neighbours,
+                input_tolerance=input_tolerance,
+                basis_family=family,
+            )
+        scores.append(predicted_validation_vaf(est, u_arr, y_arr))
+        if best is None or scores[-1] > max(scores[:-1]):
+            best = est
+    assert best is not None
+    return BasisSelection(family, best.n_basis, stable, candidates, tuple(scores), best)
