@@ -96,8 +96,7 @@ def run(args: argparse.Namespace) -> int:
             return 0
     if not args.recording:
         raise InputDataError(
-            "give a recording (.npz or .mcap), or --simulate "
-            f"{'|'.join(STUDY_CASES)} -o FILE.npz"
+            f"give a recording (.npz or .mcap), or --simulate {'|'.join(STUDY_CASES)} -o FILE.npz"
         )
     if args.plot:
         tv.require_matplotlib()  # fail before the work, not after

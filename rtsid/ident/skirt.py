@@ -320,9 +320,7 @@ class _Solver:
     dof: int
 
     @classmethod
-    def build(
-        cls, design: ComplexArray, n_own: int, whiten: FloatArray | None = None
-    ) -> _Solver:
+    def build(cls, design: ComplexArray, n_own: int, whiten: FloatArray | None = None) -> _Solver:
         rows = design.shape[0]
         own, nuisance = design[:, :n_own], design[:, n_own:]
         norms = _unit_norms(own)

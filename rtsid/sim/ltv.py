@@ -59,7 +59,10 @@ STUDY_CASES: dict[str, tuple[str, str]] = {
     "CS1": ("linear", "K(t) linear from 0.4 to 6 N·m/rad"),
     "CS2": ("hyperbolic", "1/K(t) linear from 1/0.4 to 1/6 rad/(N·m)"),
     "CS3": ("raised_cosine", "K(t) one raised-cosine cycle, 0.4 → 6 → 0.4 N·m/rad"),
-    "SIN2": ("sinusoidal", "K(t) = 3.2 + 2.8·sin(2π·2t/T): two cycles per record (not in the paper)"),
+    "SIN2": (
+        "sinusoidal",
+        "K(t) = 3.2 + 2.8·sin(2π·2t/T): two cycles per record (not in the paper)",
+    ),
 }
 
 
