@@ -49,6 +49,7 @@ __all__ = [
     "TvData",
     "TvResult",
     "auto_basis",
+    "choose_basis",
     "format_report",
     "identify_recording",
     "load_tv",
@@ -327,8 +328,19 @@ def auto_basis(
     *,
     basis_family: str = "legendre",
     n_transient: int | None = None,
+) -> int:
+    """``N_p`` that ``rtsid tv -p auto`` uses for ``basis_family`` (see :func:`choose_basis`)."""
+    return choose_basis(data, n_max, basis_family=basis_family, n_transient=n_transient).n_basis
+
+
+def choose_basis(
+    data: TvData,
+    n_max: int | None = None,
+    *,
+    basis_family: str = "legendre",
+    n_transient: int | None = None,
 ) -> BasisSelection:
-    """``N_p`` for ``basis_family`` chosen from the record
+    """``N_p`` for ``basis_family`` chosen from the record, with the candidates and scores
     (:func:`rtsid.ident.skirt.select_basis_size`).
 
     The candidates run up to the largest well-conditioned ``N_p`` (at most ``n_max``,

@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"used {data.selection}")
     family = args.basis_family
     if args.basis == "auto":
-        chosen = tv.auto_basis(data, basis_family=family, n_transient=args.transient)
+        chosen = tv.choose_basis(data, basis_family=family, n_transient=args.transient)
         n_basis = chosen.n_basis
         print(
             f"N_p = {n_basis} (auto, {family}: best predicted validation VAF "
