@@ -5,6 +5,7 @@ Key expressions (``<prefix>`` defaults to ``rtsid``)::
     <prefix>/<robot>/<joint>/estimate   JSON, one message per window (express, drop when congested)
     <prefix>/<robot>/<joint>/status     JSON, 1–2 Hz
     <prefix>/<robot>/<joint>/samples    JSON batches of raw samples (when publish_samples is on)
+    <prefix>/<robot>/<joint>/reflex     JSON, one message per slow-lane fit (when [slow_lane] is on)
     <prefix>/<robot>/<joint>/alive      liveliness token while the daemon runs
     <prefix>/<robot>/<joint>/config     queryable: the daemon's configuration (JSON)
     <prefix>/<robot>/<joint>/status     queryable: the latest status (JSON)
@@ -129,7 +130,8 @@ class ZenohConfig:
 def key_expressions(cfg: ZenohConfig) -> dict[str, str]:
     """The key expressions of one daemon: estimate, status, samples, alive, config."""
     base = f"{cfg.key_prefix}/{cfg.robot}/{cfg.joint}"
-    return {name: f"{base}/{name}" for name in ("estimate", "status", "samples", "alive", "config")}
+    names = ("estimate", "status", "samples", "reflex", "alive", "config")
+    return {name: f"{base}/{name}" for name in names}
 
 
 def _base_config(mode: str, listen: tuple[str, ...], connect: tuple[str, ...], scout: bool) -> Any:
@@ -286,6 +288,11 @@ class ZenohPublisher:
         self._status_bytes = payload
         return self._put("status", payload)
 
+    def publish_reflex(self, message: Mapping[str, Any] | bytes) -> bool:
+        """Publish one slow-lane fit (REFLEX_SCHEMA)."""
+        payload = message if isinstance(message, bytes) else encode_json(message)
+        return self._put("reflex", payload)
+
     def publish_samples(
         self,
         first_index: int,
@@ -400,6 +407,9 @@ class ZenohPublisher:
             ),
             "samples": session.declare_publisher(
                 self.keys["samples"], encoding=json_enc, congestion_control=drop
+            ),
+            "reflex": session.declare_publisher(
+                self.keys["reflex"], encoding=json_enc, congestion_control=drop
             ),
         }
         others = [
