@@ -1055,6 +1055,9 @@ def _skirt_width(family: str, n_basis: int, n_samples: int, fs_hz: float) -> str
 def _check_fourier_room(n_basis: int, record_bins: NDArray[np.int64], fs_hz: float, n: int) -> None:
     """Refuse Fourier harmonics that reach the bins of another line (or DC) in one line.
 
+    A :class:`~rtsid.errors.NumericalError`, like any ``N_p`` too large for the line
+    spacing, only known here before building the local problems.
+
     Harmonic ``h`` of the record puts line ``k_e``'s skirt on bins ``k_e ± h``; with lines
     ``D`` bins apart two lines share a bin once ``2h >= D``, and the lowest line's skirt
     reaches DC once ``h >= k_1``: ``G_p`` is then not determined.
@@ -1071,7 +1074,7 @@ def _check_fourier_room(n_basis: int, record_bins: NDArray[np.int64], fs_hz: flo
         else f"the lowest line is only {int(record_bins[0])} record bins above DC"
     )
     fix = f"use N_p <= {2 * room + 1}" if room > 0 else "use another basis family"
-    raise InputDataError(
+    raise NumericalError(
         f"N_p = {n_basis} Fourier terms reach harmonic {harmonic} of the record "
         f"({harmonic * fs_hz / n:.3g} Hz) but {why}; {fix}, or record more periods"
     )
@@ -1139,9 +1142,10 @@ def identify_ltv(
     InputDataError
         Inputs of different lengths, a record that is not a whole number of periods, an
         input that is not a multisine on ``excited_bins``, non-finite samples, an unknown
-        basis family, Fourier harmonics that reach another line's bins.
+        basis family.
     NumericalError
-        ``N_p`` far too large for the line spacing (the local problems are singular).
+        ``N_p`` far too large for the line spacing (the local problems are singular; for
+        Fourier terms: harmonics that reach another line's bins).
 
     Warns
     -----

@@ -407,7 +407,7 @@ def test_a_family_that_cannot_fit_the_line_spacing_is_refused_in_one_line(ms):
         u, y, FS, ms.excited_bins, ms.period_samples, n_basis=19, basis_family="fourier"
     )
     assert est.variance_inflation == pytest.approx(1.0)
-    with pytest.raises(InputDataError) as info:
+    with pytest.raises(NumericalError) as info:
         identify_ltv(
             u, y, FS, ms.excited_bins, ms.period_samples, n_basis=21, basis_family="fourier"
         )
