@@ -8,7 +8,10 @@ Lataire, Pintelon & Louarroudi (Automatica 48(4), 2012) estimate the system func
     G(jω, t) = \\sum_{p=0}^{N_p-1} G_p(jω)\\, b_p(t), \\qquad
     y(t) = \\sum_p b_p(t)\\,(g_p * u)(t),
 
-with ``b_p`` the Legendre polynomials shifted and scaled to the record. Multiplying by
+with ``b_p`` a time basis over the record: the Legendre polynomials shifted and scaled to it
+(the paper's choice, the default), or — the paper's "tailored basis functions" for faster
+variation — Fourier terms periodic over the record (cyclic change) or cubic B-splines (local
+change); see :data:`BASIS_FAMILIES` and :func:`basis_functions`. Multiplying by
 ``b_p(t)`` spreads each excited line of the (periodic) response over a *skirt* ``B_p`` (the DFT
 of ``b_p``), so the output DFT over the whole record of ``N`` samples is
 
@@ -45,6 +48,14 @@ variance inflation of the line's own ``G_p`` against orthogonal skirts) from the
 alone; :func:`identify_ltv` warns (:class:`SkirtConditioningWarning`) above
 :data:`WARN_VARIANCE_INFLATION` and refuses (:class:`~rtsid.errors.NumericalError`) when
 the problem is under-determined or above :data:`MAX_VARIANCE_INFLATION`.
+
+The family sets how compact the skirts are and so how many ``b_p`` fit between lines: a
+Fourier term's skirt is exactly two bins (``±h``), so ``N_p = 2H + 1`` is limited only by
+``2H < Δk`` (refused beyond) and the local problems are exact per bin; B-splines' main lobe is
+``±(N_p − 3)`` bins. B-splines are not orthogonal, so their conditioning is measured on the
+basis orthonormalised over the record (:func:`_whitener`). :func:`select_basis_size` chooses
+``N_p`` per family from the record: the well-conditioned candidates, scored by
+:func:`predicted_validation_vaf` (Mallows' C_p).
 
 Beyond the paper, :meth:`LtvEstimate.fit_second_order` fits the frozen admittance
 ``1/(K − Iω² + jBω)`` to ``G(jω, t)`` at each time, which tracks ``K(t)`` and the natural
