@@ -17,4 +17,8 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "link": ("rtsid.benchmarks.link", "2500 Hz CAN acquisition: loss, latency, CPU, highest rate"),
     "tv": ("rtsid.benchmarks.tv", "K(t) tracker vs windows vs skirt: bias, error, rise, VAF"),
     "calibrate": ("rtsid.benchmarks.calibrate", "robot calibration vs the source's method"),
+    "cascade": (
+        "rtsid.benchmarks.cascade",
+        "intrinsic vs reflex: cascade, slow lane, known reflex",
+    ),
 }

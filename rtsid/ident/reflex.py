@@ -59,12 +59,19 @@ CORNER_GRID_HZ = np.geomspace(0.3, 20.0, 24)
 DAMPING_GRID = np.geomspace(0.3, 2.5, 10)
 
 
+@lru_cache(maxsize=8)
+def _decimator(factor: int) -> FloatArray:
+    return np.asarray(signal.cheby1(8, 0.05, 0.8 / factor, output="sos"), dtype=np.float64)
+
+
 def decimated(x: FloatArray, factor: int) -> FloatArray:
     """``x`` at ``1/factor`` of its rate: MATLAB's and scipy's default decimator (8th-order
-    Chebyshev I at 0.8 × the new Nyquist rate, run forwards and backwards)."""
+    Chebyshev I at 0.8 × the new Nyquist rate, run forwards and backwards; the same numbers as
+    ``scipy.signal.decimate(x, factor)``, its filter designed once per factor)."""
     if factor == 1:
         return np.array(x, dtype=np.float64)
-    return np.asarray(signal.decimate(x, factor, ftype="iir", zero_phase=True), dtype=np.float64)
+    sos = _decimator(factor).copy()  # scipy's filter wants a writable buffer; 4×6 numbers
+    return np.asarray(signal.sosfiltfilt(sos, x)[::factor], dtype=np.float64)
 
 
 def stretch_velocity(position: FloatArray, fs_hz: float) -> FloatArray:
@@ -315,10 +322,9 @@ class ReflexPathway:
         low = convolve_causal(pathway_input, self.irf, self.fs_hz)
         if factor == 1:
             return low
-        up = signal.resample_poly(low, factor, 1)
-        if up.size < pos.size:
-            up = np.concatenate([up, np.full(pos.size - up.size, up[-1])])
-        return np.asarray(up[: pos.size], dtype=np.float64)
+        # back to the data's rate by linear interpolation between the model's samples (the
+        # reflex torque is smooth at 100 Hz); after the last one it is held
+        return np.interp(np.arange(pos.size), np.arange(low.size) * factor, low)
 
 
 class ReflexInputs:

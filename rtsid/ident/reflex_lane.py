@@ -299,6 +299,11 @@ class ReflexModels:
         too_old = window_end + 1 - update.end_index > self.stale_after
         return update, failed_since or too_old
 
+    def update_of(self, seq: int) -> ReflexUpdate | None:
+        """Fit ``seq``, if kept."""
+        with self._lock:
+            return self._updates.get(seq)
+
     @property
     def history_samples(self) -> int:
         """Samples before a window its reflex prediction needs."""

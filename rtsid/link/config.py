@@ -89,7 +89,8 @@ class LinkConfig:
     fs_hz : float
         The robot's state-frame rate, Hz (sample time = counter / fs_hz).
     ring_capacity_s : float
-        Seconds of samples the ring buffer holds.
+        Seconds of samples the ring buffer holds (30: the slow lane's 20 s horizon and its
+        next fit, with room).
     receive_timeout_s : float
         Longest ``bus.recv`` wait; bounds how long ``stop()`` takes.
     stale_after_s : float
@@ -113,7 +114,7 @@ class LinkConfig:
     host: str = "127.0.0.1"
     port: int = 29536
     fs_hz: float = 2500.0
-    ring_capacity_s: float = 10.0
+    ring_capacity_s: float = 30.0
     receive_timeout_s: float = 0.05
     stale_after_s: float = 0.1
     reconnect_after_stale_s: float = 2.0
