@@ -18,11 +18,12 @@ Methods, all at the 20 ms hop grid of window ends (what a user has at each momen
   ``K_old + a_j·(z − K_old) + b_j·(z − z_prev)`` with ``(a_j, b_j)`` least-squares fitted to
   the true K over every step of every realisation (hindsight, in sample); nothing at the
   window ending at the step (it holds no sample after it); the mean of the windows since the
-  last ramp (≤ 1 s) elsewhere. A causal tracker has to detect the step first;
-* ``skirt <basis>`` — skirt decomposition (offline) of a torque-driven multisine experiment
-  on the same plant and K(t) (500 Hz, 2 Hz line spacing to 40 Hz, 20 dB output SNR, the
-  largest N_p ≤ 12 the spacing allows), its frozen second-order K at the same times, one
-  row per basis family.
+  last ramp (≤ 1 s) elsewhere. A causal tracker has to detect the step first.
+* ``skirt <family> N_p=…`` — skirt decomposition (offline) of a torque-driven multisine
+  experiment on the same plant and K(t) (500 Hz, 2 Hz line spacing to 40 Hz, 20 dB output
+  SNR), one row per basis family of :data:`~rtsid.ident.skirt.BASIS_FAMILIES` at the N_p
+  :func:`~rtsid.ident.skirt.select_basis_size` chooses from the record (as
+  ``rtsid tv -p auto --basis-family F``), its frozen second-order K at the same times.
 
 Metrics over realisations r and times t after the first 2 s (van de Ruit et al. 2021):
 bias = RMS over t of the mean error over r; random = RMS over t of the SD over r; total =
@@ -47,7 +48,7 @@ from rtsid.benchmarks.table import format_table, median_p99
 from rtsid.errors import NumericalError
 from rtsid.ident.excitation import filtered_noise
 from rtsid.ident.filters import derivatives
-from rtsid.ident.skirt import SkirtConditioningWarning, identify_ltv
+from rtsid.ident.skirt import BASIS_FAMILIES, SkirtConditioningWarning, select_basis_size
 from rtsid.ident.stream import WindowStream, sliding_estimates
 from rtsid.ident.tracker import ParameterTracker, TrackerOptions
 from rtsid.ident.window import EstimatorOptions
@@ -61,8 +62,7 @@ DAMPING = 0.8
 SETTLE_S = 2.0
 WINDOWS_S = (0.15, 0.3, 0.6)
 #: Skirt basis families benchmarked (one column each).
-SKIRT_FAMILIES: tuple[str, ...] = ("legendre",)
-SKIRT_BASIS = 12
+SKIRT_FAMILIES: tuple[str, ...] = BASIS_FAMILIES
 SINE_HZ = (0.1, 0.25, 0.5, 1.0, 2.0)
 
 
@@ -190,26 +190,23 @@ def _skirt_tracks(profile: Profile, seconds: float, t_s: np.ndarray) -> dict[str
     )
     out = {}
     for family in SKIRT_FAMILIES:
-        kw: dict[str, Any] = {} if family == "legendre" else {"basis_family": family}
-        k, n_basis = np.full(t_s.size, np.nan), SKIRT_BASIS
-        for n_basis in range(SKIRT_BASIS, 0, -1):  # the largest N_p the line spacing allows
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", SkirtConditioningWarning)
-                try:
-                    est = identify_ltv(
-                        exp.torque_nm,
-                        exp.position_rad,
-                        exp.fs_hz,
-                        exp.excited_bins,
-                        exp.period_samples,
-                        n_basis=n_basis,
-                        **kw,
-                    )
-                except NumericalError:
-                    continue
-            k = est.fit_second_order(np.clip(t_s, 0, est.duration_s)).stiffness
-            break
-        out[f"skirt {family} N_p={n_basis}"] = np.asarray(k)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SkirtConditioningWarning)
+            try:
+                chosen = select_basis_size(
+                    exp.torque_nm,
+                    exp.position_rad,
+                    exp.fs_hz,
+                    exp.excited_bins,
+                    exp.period_samples,
+                    basis_family=family,
+                )
+            except NumericalError:
+                out[f"skirt {family} (no fit)"] = np.full(t_s.size, np.nan)
+                continue
+        est = chosen.estimate
+        k = est.fit_second_order(np.clip(t_s, 0, est.duration_s)).stiffness
+        out[f"skirt {family} N_p={chosen.n_basis}"] = np.asarray(k)
     return out
 
 
