@@ -7,11 +7,16 @@ Key expressions (``<prefix>`` defaults to ``rtsid``)::
     <prefix>/<robot>/<joint>/samples    JSON batches of raw samples (when publish_samples is on)
     <prefix>/<robot>/<joint>/alive      liveliness token while the daemon runs
     <prefix>/<robot>/<joint>/config     queryable: the daemon's configuration (JSON)
+    <prefix>/<robot>/<joint>/estimate   queryable: the latest estimate (a late joiner's first value)
     <prefix>/<robot>/<joint>/status     queryable: the latest status (JSON)
+    <prefix>/<robot>/<joint>/history    queryable: estimates and status over the last
+                                        ``history_s`` (parameters in :mod:`rtsid.io.history`)
 
 The default session is a peer listening on ``tcp/127.0.0.1:7447`` with multicast and gossip
 scouting off, so any zenoh client on this machine connects there; a lab names endpoints or a
-router in ``[zenoh]``, or hands over a whole zenoh json5 file (``config_file``).
+router in ``[zenoh]`` (``mode = "client"``, ``connect = [the router]``), or hands over a whole
+zenoh json5 file (``config_file``). :func:`router_config` builds the configuration of
+``rtsid router`` (eclipse-zenoh's own router mode, loopback by default).
 
 :class:`ZenohPublisher` never raises into its caller: when the session cannot open (port
 taken, bad endpoint) the error is logged, counted and kept in :meth:`~ZenohPublisher.stats`,
@@ -33,9 +38,20 @@ from typing import Any
 
 from rtsid.config import invalid, require_choice, require_range, section_from_mapping
 from rtsid.errors import ConfigError
+from rtsid.io.history import HistoryStore, QueryError, parse_history_query
 from rtsid.io.schemas import encode_estimate, encode_json, encode_samples, encode_status
 
-__all__ = ["ZenohConfig", "ZenohPublisher", "key_expressions", "subscriber_config", "zenoh_config"]
+__all__ = [
+    "QueryAnswer",
+    "RouterConfig",
+    "ZenohConfig",
+    "ZenohPublisher",
+    "key_expressions",
+    "query",
+    "router_config",
+    "subscriber_config",
+    "zenoh_config",
+]
 
 log = logging.getLogger("rtsid.io.zenoh")
 
@@ -71,6 +87,10 @@ class ZenohConfig:
         those keys at their defaults when using it). Empty: not used.
     retry_interval_s : float
         While the session is down, try to open it again this often, s.
+    history_s : float
+        Estimates and status kept in memory for the ``history`` queryable, s (0: no
+        history; the ``estimate`` and ``status`` queryables still answer the latest).
+        About 1 KiB per estimate: 10 min at 50 Hz is ≈ 25 MiB.
     """
 
     enabled: bool = True
@@ -85,9 +105,11 @@ class ZenohConfig:
     publish_samples: bool = False
     config_file: str = ""
     retry_interval_s: float = 5.0
+    history_s: float = 600.0
 
     def __post_init__(self) -> None:
         require_choice("mode", self.mode, ("peer", "client"))
+        require_range("history_s", self.history_s, 0.0, 86400.0)
         for name in ("robot", "joint"):
             value = getattr(self, name)
             if not _CHUNK.match(value):
@@ -126,10 +148,13 @@ class ZenohConfig:
         return section_from_mapping(cls, mapping, "zenoh")
 
 
+_KEYS = ("estimate", "status", "samples", "alive", "config", "history")
+
+
 def key_expressions(cfg: ZenohConfig) -> dict[str, str]:
-    """The key expressions of one daemon: estimate, status, samples, alive, config."""
+    """The key expressions of one daemon: estimate, status, samples, alive, config, history."""
     base = f"{cfg.key_prefix}/{cfg.robot}/{cfg.joint}"
-    return {name: f"{base}/{name}" for name in ("estimate", "status", "samples", "alive", "config")}
+    return {name: f"{base}/{name}" for name in _KEYS}
 
 
 def _base_config(mode: str, listen: tuple[str, ...], connect: tuple[str, ...], scout: bool) -> Any:
@@ -151,22 +176,8 @@ def zenoh_config(cfg: ZenohConfig) -> Any:
     ConfigError
         ``config_file`` missing or not a valid zenoh json5 config.
     """
-    import zenoh
-
     if cfg.config_file:
-        path = Path(cfg.config_file)
-        if not path.is_file():
-            raise ConfigError(
-                f"config key 'zenoh.config_file' = {cfg.config_file!r}: no such file; "
-                "give the path of a zenoh json5 config"
-            )
-        try:
-            return zenoh.Config.from_file(str(path))
-        except zenoh.ZError as exc:
-            raise ConfigError(
-                f"config key 'zenoh.config_file' = {cfg.config_file!r} is not a valid zenoh "
-                f"config: {exc}"
-            ) from None
+        return _config_from_file(cfg.config_file, "zenoh.config_file")
     conf = _base_config(cfg.mode, cfg.listen, cfg.connect, cfg.multicast_scouting)
     conf.insert_json5("scouting/gossip/enabled", json.dumps(cfg.gossip_scouting))
     return conf
@@ -177,6 +188,83 @@ def subscriber_config(connect: tuple[str, ...], mode: str = "peer") -> Any:
     conf = _base_config(mode, (), connect, False)
     conf.insert_json5("scouting/gossip/enabled", "false")
     return conf
+
+
+@dataclass(frozen=True)
+class RouterConfig:
+    """The ``[router]`` section of ``rtsid router``'s config file.
+
+    Attributes
+    ----------
+    listen : tuple of str
+        Endpoints the router listens on (default loopback only; a lab opens e.g.
+        ``"tcp/0.0.0.0:7447"`` or one interface's address explicitly).
+    config_file : str
+        A zenoh json5 file (the one a ``zenohd`` would use) that replaces ``listen`` and
+        the scouting settings. Empty: not used.
+    """
+
+    listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
+    config_file: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.listen and not self.config_file:
+            raise invalid("listen", [], "at least one endpoint, e.g. 'tcp/127.0.0.1:7447'")
+        for endpoint in self.listen:
+            if not _ENDPOINT.match(endpoint):
+                raise invalid("listen", endpoint, "endpoints like 'tcp/127.0.0.1:7447'")
+        if self.config_file and self.listen != RouterConfig().listen:
+            raise invalid(
+                "listen",
+                list(self.listen),
+                "its default when config_file is set (the json5 file names the endpoints)",
+            )
+
+    @classmethod
+    def from_mapping(cls, mapping: Mapping[str, Any] | None) -> RouterConfig:
+        """Build from the ``[router]`` TOML table (unknown keys and bad values rejected)."""
+        return section_from_mapping(cls, mapping, "router")
+
+
+def router_config(cfg: RouterConfig) -> Any:
+    """The ``zenoh.Config`` of a router (eclipse-zenoh's router mode) for ``cfg``.
+
+    Without ``config_file``: router mode, ``listen`` endpoints, no connect endpoints,
+    multicast and gossip scouting off (nothing leaves the listed endpoints).
+
+    Raises
+    ------
+    ConfigError
+        ``config_file`` missing, not valid json5 or not in router mode.
+    """
+    if cfg.config_file:
+        conf = _config_from_file(cfg.config_file, "router.config_file")
+        if json.loads(conf.get_json("mode")) != "router":
+            raise ConfigError(
+                f"config key 'router.config_file' = {cfg.config_file!r} is not in router mode; "
+                'set mode: "router" in it'
+            )
+        return conf
+    conf = _base_config("router", cfg.listen, (), False)
+    conf.insert_json5("scouting/gossip/enabled", "false")
+    return conf
+
+
+def _config_from_file(path_text: str, key: str) -> Any:
+    import zenoh
+
+    path = Path(path_text)
+    if not path.is_file():
+        raise ConfigError(
+            f"config key {key!r} = {path_text!r}: no such file; give the path of a zenoh json5 "
+            "config"
+        )
+    try:
+        return zenoh.Config.from_file(str(path))
+    except zenoh.ZError as exc:
+        raise ConfigError(
+            f"config key {key!r} = {path_text!r} is not a valid zenoh config: {exc}"
+        ) from None
 
 
 class _Entities:
@@ -197,6 +285,9 @@ class ZenohPublisher:
         The ``[zenoh]`` section.
     run_config : Mapping, optional
         What the ``config`` queryable answers (the daemon's configuration).
+    rates_hz : Mapping[str, float], optional
+        Expected rate of each published channel, Hz (sizes the history rings; e.g.
+        ``{"estimate": 50, "status": 2}``).
 
     Examples
     --------
@@ -205,21 +296,30 @@ class ZenohPublisher:
     ...     z.publish_status(status_dict)
     """
 
-    def __init__(self, cfg: ZenohConfig, *, run_config: Mapping[str, Any] | None = None) -> None:
+    def __init__(
+        self,
+        cfg: ZenohConfig,
+        *,
+        run_config: Mapping[str, Any] | None = None,
+        rates_hz: Mapping[str, float] | None = None,
+    ) -> None:
         self.cfg = cfg
         self.keys = key_expressions(cfg)
+        #: Every published message but samples, kept for the ``history`` queryable.
+        self.history = HistoryStore(cfg.history_s, rates_hz) if cfg.history_s > 0 else None
+        self._latest: dict[str, bytes] = {}  # newest payload per channel (written before put)
         self._lock = threading.Lock()  # session swaps
         self._count_lock = threading.Lock()  # counters touched by callers and zenoh threads
         self._entities: _Entities | None = None
         self._stop = threading.Event()
         self._retry_thread: threading.Thread | None = None
         self._config_bytes = encode_json(run_config or {})
-        self._status_bytes = b"{}"
         self._published = 0
         self._not_published = 0
         self._errors = 0
         self._open_attempts = 0
         self._queries = 0
+        self._query_errors = 0
         self._last_error: str | None = None
         self._state = "disabled" if not cfg.enabled else "starting"
 
@@ -283,7 +383,6 @@ class ZenohPublisher:
     def publish_status(self, message: Mapping[str, Any] | bytes) -> bool:
         """Publish a status message; it also becomes the ``status`` queryable's answer."""
         payload = message if isinstance(message, bytes) else encode_status(message)
-        self._status_bytes = payload
         return self._put("status", payload)
 
     def publish_samples(
@@ -311,6 +410,10 @@ class ZenohPublisher:
         self._config_bytes = encode_json(run_config)
 
     def _put(self, name: str, payload: bytes) -> bool:
+        if name != "samples":  # kept even while the session is down: it answers once up
+            self._latest[name] = payload
+            if self.history is not None:
+                self.history.append(name, payload)
         entities = self._entities
         if entities is None:
             with self._count_lock:
@@ -333,7 +436,8 @@ class ZenohPublisher:
         dict
             ``state`` (disabled, starting, up, down, closed), ``mode``, ``listen``,
             ``connect``, ``published``, ``not_published`` (session down), ``errors``,
-            ``last_error``, ``open_attempts``, ``queries``.
+            ``last_error``, ``open_attempts``, ``queries`` (answered), ``query_errors``
+            (malformed queries answered with an error reply), ``history_s``.
         """
         return {
             "state": self._state,
@@ -346,6 +450,8 @@ class ZenohPublisher:
             "last_error": self._last_error,
             "open_attempts": self._open_attempts,
             "queries": self._queries,
+            "query_errors": self._query_errors,
+            "history_s": self.cfg.history_s,
         }
 
     # ------------------------------------------------------------------ session
@@ -405,27 +511,64 @@ class ZenohPublisher:
         others = [
             session.liveliness().declare_token(self.keys["alive"]),
             session.declare_queryable(self.keys["config"], self._answer_config),
-            session.declare_queryable(self.keys["status"], self._answer_status),
+            session.declare_queryable(self.keys["status"], self._answer_latest_status),
+            session.declare_queryable(self.keys["estimate"], self._answer_latest_estimate),
+            session.declare_queryable(self.keys["history"], self._answer_history),
         ]
         return _Entities(session, publishers, others)
 
+    def _answer_latest_estimate(self, query: Any) -> None:
+        self._answer_latest(query, "estimate")
+
+    def _answer_latest_status(self, query: Any) -> None:
+        self._answer_latest(query, "status")
+
+    def _answer_latest(self, query: Any, name: str) -> None:
+        """The newest message of a channel; no reply at all while none was published."""
+        latest = self._latest.get(name)
+        self._answer(query, name, [] if latest is None else [latest])
+
     def _answer_config(self, query: Any) -> None:
-        self._answer(query, "config", self._config_bytes)
+        self._answer(query, "config", [self._config_bytes])
 
-    def _answer_status(self, query: Any) -> None:
-        self._answer(query, "status", self._status_bytes)
+    def _answer_history(self, query: Any) -> None:
+        """Estimates and status in the asked range, from a lock-free copy of the ring, built
+        and sent here on zenoh's callback thread (never on the worker's)."""
+        try:
+            if self.history is None:
+                raise QueryError("this daemon keeps no history (zenoh.history_s = 0)")
+            request = parse_history_query(dict(query.parameters))
+            parts = list(self.history.answer(request, robot=self.cfg.robot, joint=self.cfg.joint))
+        except QueryError as exc:
+            self._answer_error(query, f"{self.keys['history']}: {exc}")
+            return
+        self._answer(query, "history", parts)
 
-    def _answer(self, query: Any, name: str, snapshot: bytes) -> None:
-        """Queryable callback: reply with a prepared snapshot and drop the query."""
+    def _answer(self, query: Any, name: str, payloads: list[bytes]) -> None:
+        """Queryable callback: reply with prepared payloads and drop the query."""
         import zenoh
 
         try:
             with query:  # dropping the query finalizes it for the caller
-                query.reply(self.keys[name], snapshot, encoding=zenoh.Encoding.APPLICATION_JSON)
+                for payload in payloads:
+                    query.reply(self.keys[name], payload, encoding=zenoh.Encoding.APPLICATION_JSON)
                 with self._count_lock:
                     self._queries += 1
         except Exception as exc:  # never let an exception escape into zenoh's thread
             self._record_error(f"zenoh reply on {self.keys[name]} failed: {exc}")
+
+    def _answer_error(self, query: Any, message: str) -> None:
+        import zenoh
+
+        try:
+            with query:
+                query.reply_err(
+                    encode_json({"error": message}), encoding=zenoh.Encoding.APPLICATION_JSON
+                )
+            with self._count_lock:
+                self._query_errors += 1
+        except Exception as exc:
+            self._record_error(f"zenoh error reply failed: {exc}")
 
     def _retry_loop(self) -> None:
         while not self._stop.wait(self.cfg.retry_interval_s):
@@ -450,3 +593,45 @@ class ZenohPublisher:
             entities.session.close()
         except Exception as exc:
             log.debug("zenoh session close: %s", exc)
+
+
+# ---------------------------------------------------------------------- the querying side
+@dataclass(frozen=True)
+class QueryAnswer:
+    """What the daemons matching a key answered to a query.
+
+    Attributes
+    ----------
+    replies : list of (str, bytes)
+        Key expression and payload of each reply, in arrival order.
+    errors : list of str
+        Error replies (a malformed query), as text.
+    """
+
+    replies: list[tuple[str, bytes]]
+    errors: list[str]
+
+
+def query(session: Any, selector: str, *, timeout_s: float = 2.0) -> QueryAnswer:
+    """Ask every queryable matching ``selector`` (``key?param=value;...``) and collect the
+    replies, with consolidation off (a history answer comes in several parts).
+
+    Returns when every matching daemon has finished answering, or after ``timeout_s``.
+    """
+    import zenoh
+
+    replies: list[tuple[str, bytes]] = []
+    errors: list[str] = []
+    handler = session.get(
+        selector,
+        zenoh.handlers.FifoChannel(4096),
+        consolidation=zenoh.ConsolidationMode.NONE,
+        target=zenoh.QueryTarget.ALL,
+        timeout=timeout_s,
+    )
+    for reply in handler:
+        if reply.ok is not None:
+            replies.append((str(reply.ok.key_expr), reply.ok.payload.to_bytes()))
+        else:
+            errors.append(reply.err.payload.to_bytes().decode("utf-8", "replace"))
+    return QueryAnswer(replies, errors)
