@@ -71,7 +71,8 @@ class ZenohConfig:
     mode : str
         ``"peer"`` (default) or ``"client"`` (connect to a router / peer given in ``connect``).
     listen : tuple of str
-        Endpoints to listen on, e.g. ``"tcp/127.0.0.1:7447"``.
+        Endpoints to listen on, e.g. ``"tcp/127.0.0.1:7447"`` (peer mode only: a client
+        does not listen, and the default is ignored in client mode).
     connect : tuple of str
         Endpoints to connect to (a ``zenohd`` router for a lab).
     multicast_scouting, gossip_scouting : bool
@@ -126,6 +127,13 @@ class ZenohConfig:
                     raise invalid(name, endpoint, "endpoints like 'tcp/127.0.0.1:7447'")
         if self.mode == "client" and not self.connect and not self.config_file:
             raise invalid("connect", list(self.connect), "at least one endpoint in client mode")
+        if self.mode == "client" and self.listen not in ((), ZenohConfig.listen):
+            raise invalid(
+                "listen",
+                list(self.listen),
+                "no endpoints in client mode (a client only connects, to the router in "
+                "zenoh.connect); remove zenoh.listen or use mode = 'peer'",
+            )
         require_range("retry_interval_s", self.retry_interval_s, 0.0, 3600.0, low_inclusive=False)
         if self.config_file:
             defaults = ZenohConfig()
@@ -178,7 +186,8 @@ def zenoh_config(cfg: ZenohConfig) -> Any:
     """
     if cfg.config_file:
         return _config_from_file(cfg.config_file, "zenoh.config_file")
-    conf = _base_config(cfg.mode, cfg.listen, cfg.connect, cfg.multicast_scouting)
+    listen = cfg.listen if cfg.mode == "peer" else ()  # a client only connects
+    conf = _base_config(cfg.mode, listen, cfg.connect, cfg.multicast_scouting)
     conf.insert_json5("scouting/gossip/enabled", json.dumps(cfg.gossip_scouting))
     return conf
 
@@ -320,6 +329,7 @@ class ZenohPublisher:
         self._open_attempts = 0
         self._queries = 0
         self._query_errors = 0
+        self._router_lost = False
         self._last_error: str | None = None
         self._state = "disabled" if not cfg.enabled else "starting"
 
@@ -434,15 +444,15 @@ class ZenohPublisher:
         Returns
         -------
         dict
-            ``state`` (disabled, starting, up, down, closed), ``mode``, ``listen``,
+            ``state`` (disabled, starting, up, down, router_lost, closed), ``mode``, ``listen``,
             ``connect``, ``published``, ``not_published`` (session down), ``errors``,
             ``last_error``, ``open_attempts``, ``queries`` (answered), ``query_errors``
             (malformed queries answered with an error reply), ``history_s``.
         """
         return {
-            "state": self._state,
+            "state": self._link_state(),
             "mode": self.cfg.mode,
-            "listen": list(self.cfg.listen),
+            "listen": list(self.cfg.listen) if self.cfg.mode == "peer" else [],
             "connect": list(self.cfg.connect),
             "published": self._published,
             "not_published": self._not_published,
@@ -453,6 +463,28 @@ class ZenohPublisher:
             "query_errors": self._query_errors,
             "history_s": self.cfg.history_s,
         }
+
+    def _link_state(self) -> str:
+        """``state``, with ``router_lost`` while a client's session has no router (zenoh
+        reconnects by itself; said once when it goes and once when it is back)."""
+        entities = self._entities
+        if self._state != "up" or entities is None or self.cfg.mode != "client":
+            return self._state
+        try:
+            connected = bool(list(entities.session.info.routers_zid()))
+        except Exception:  # a closing session: report what we knew
+            return self._state
+        if connected == self._router_lost:  # a transition
+            self._router_lost = not connected
+            if connected:
+                log.warning("zenoh router at %s is back", ", ".join(self.cfg.connect))
+            else:
+                log.warning(
+                    "zenoh router at %s lost; estimates are still logged and zenoh reconnects "
+                    "by itself",
+                    ", ".join(self.cfg.connect),
+                )
+        return "router_lost" if self._router_lost else "up"
 
     # ------------------------------------------------------------------ session
     def _try_open(self) -> bool:
@@ -469,12 +501,7 @@ class ZenohPublisher:
                     session.close()
                 except Exception:
                     pass
-            where = ", ".join(self.cfg.listen + self.cfg.connect) or self.cfg.config_file
-            self._record_error(
-                f"zenoh session on {where} could not open: {exc}; estimates are still logged, "
-                f"retrying every {self.cfg.retry_interval_s:g} s (is another rtsid on this "
-                "port? set zenoh.listen to a free one)"
-            )
+            self._record_error(self._open_failure(exc))
             with self._lock:
                 if self._state not in ("closed",):
                     self._state = "down"
@@ -487,6 +514,21 @@ class ZenohPublisher:
             self._state = "up"
         log.info("zenoh %s session up; publishing under %s", self.cfg.mode, self.keys["estimate"])
         return True
+
+    def _open_failure(self, exc: Exception) -> str:
+        retry = f"estimates are still logged, retrying every {self.cfg.retry_interval_s:g} s"
+        if self.cfg.config_file:
+            return f"zenoh session from {self.cfg.config_file} could not open: {exc}; {retry}"
+        if self.cfg.mode == "client":
+            return (
+                f"zenoh router at {', '.join(self.cfg.connect)} is unreachable: {exc}; {retry} "
+                "(is `rtsid router` or zenohd running there? check zenoh.connect)"
+            )
+        where = ", ".join(self.cfg.listen + self.cfg.connect)
+        return (
+            f"zenoh session on {where} could not open: {exc}; {retry} (is another rtsid on "
+            "this port? set zenoh.listen to a free one)"
+        )
 
     def _declare(self, session: Any) -> _Entities:
         import zenoh

@@ -19,7 +19,7 @@ from typing import Any
 import pytest
 
 from rtsid.errors import ServiceError
-from rtsid.io.schemas import encode_estimate, encode_status
+from rtsid.io.schemas import encode_status
 from rtsid.io.watch import FeedEvent
 from rtsid.io.web.server import WINDOW_S, LabBoard, WebView
 from rtsid.runtime.daemon import Daemon, DaemonConfig
