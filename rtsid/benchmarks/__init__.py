@@ -16,4 +16,5 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "io": ("rtsid.benchmarks.io", "MCAP logger cost at daemon rates and zenoh one-way latency"),
     "link": ("rtsid.benchmarks.link", "2500 Hz CAN acquisition: loss, latency, CPU, highest rate"),
     "calibrate": ("rtsid.benchmarks.calibrate", "robot calibration vs the source's method"),
+    "lab": ("rtsid.benchmarks.lab", "router + 4 daemons + subscriber: e2e, rates, queries, CPU"),
 }
