@@ -276,3 +276,17 @@ def test_a_flood_of_queries_never_reaches_the_worker(
     assert after.estimates > before.estimates  # the worker kept going meanwhile
     assert after.deadline_misses == before.deadline_misses == 0
     assert after.overruns == before.overruns == 0
+
+
+@pytest.mark.slow  # real processes for tens of seconds
+def test_bench_lab_prints_its_tables(capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["bench", "lab", "--joints", "2", "--duration", "3", "--late-trials", "2"]
+    assert main([*argv, "--query-rate", "2", "--cpu-latency-us", "-1"]) == 0
+    out = capsys.readouterr().out
+    for title in ("### Lab: 2 daemons", "### Per joint", "### Late joiner", "### History queries"):
+        assert title in out
+    rows = [line for line in out.splitlines() if line.startswith("|")]
+    for phase in ("router", "router + queries", "peer-to-peer"):
+        assert any(line.split("|")[1].strip() == phase for line in rows), phase
+    late = [r for r in rows if r.split("|")[1].strip() in ("router", "peer-to-peer")]
+    assert any(r.split("|")[2].strip() == "2" for r in late)  # trials done in each topology
