@@ -261,7 +261,8 @@ class FeedEvent:
 
 
 class LabFeed:
-    """Estimates, status and liveliness of every daemon under ``key`` (a context manager).
+    """Every channel (but raw samples) and the liveliness of each daemon under ``key``
+    (a context manager).
 
     Parameters
     ----------
@@ -272,17 +273,21 @@ class LabFeed:
     mode : str
         ``"peer"`` or ``"client"`` (through a router).
 
-    Subscriptions are channels polled by :meth:`poll` (no Python callbacks on zenoh's
-    threads: a callback subscriber showed a 4 ms p99 one-way latency against < 1 ms for a
-    channel, docs/io.md).
+    One subscription to ``<key>/*`` — estimates, status and whatever channel a daemon adds —
+    read as a channel polled by :meth:`poll` (no Python callbacks on zenoh's threads: a
+    callback subscriber showed a 4 ms p99 one-way latency against < 1 ms for a channel,
+    docs/io.md). Raw sample batches (``publish_samples``) are left out.
     """
+
+    #: Samples taken per :meth:`poll` at most (the rest wait for the next call).
+    POLL_BATCH = 256
 
     def __init__(self, key: str, connect: tuple[str, ...], mode: str = "peer") -> None:
         self.key = key.rstrip("/")
         self.connect = connect
         self.mode = mode
         self._session: Any = None
-        self._subscribers: list[tuple[str, Any]] = []
+        self._channels: Any = None
         self._alive: Any = None
 
     def __enter__(self) -> LabFeed:
@@ -291,40 +296,35 @@ class LabFeed:
         from rtsid.io.zenoh_link import subscriber_config
 
         self._session = zenoh.open(subscriber_config(self.connect, self.mode))
-        self._subscribers = [
-            (
-                name,
-                self._session.declare_subscriber(
-                    f"{self.key}/{name}", zenoh.handlers.RingChannel(1024)
-                ),
-            )
-            for name in ("estimate", "status")
-        ]
+        self._channels = self._session.declare_subscriber(
+            f"{self.key}/*", zenoh.handlers.RingChannel(4096)
+        )
         self._alive = self._session.liveliness().declare_subscriber(
             f"{self.key}/alive", zenoh.handlers.RingChannel(64), history=True
         )
         return self
 
     def __exit__(self, *exc_info: object) -> None:
-        for _, sub in self._subscribers:
-            sub.undeclare()
-        if self._alive is not None:
-            self._alive.undeclare()
+        for entity in (self._channels, self._alive):
+            if entity is not None:
+                entity.undeclare()
         if self._session is not None:
             self._session.close()
-        self._session, self._subscribers, self._alive = None, [], None
+        self._session, self._channels, self._alive = None, None, None
 
     def poll(self) -> list[FeedEvent]:
-        """What arrived since the last call (at most one sample per channel; never blocks)."""
+        """What arrived since the last call (at most :attr:`POLL_BATCH`; never blocks)."""
         import zenoh
 
         events = []
-        for name, sub in self._subscribers:
-            sample = sub.try_recv()
-            if sample is not None:
-                events.append(
-                    FeedEvent(name, str(sample.key_expr), sample.payload.to_bytes(), time.time_ns())
-                )
+        for _ in range(self.POLL_BATCH):
+            sample = self._channels.try_recv() if self._channels is not None else None
+            if sample is None:
+                break
+            key = str(sample.key_expr)
+            kind = key.rsplit("/", 1)[-1]
+            if kind != "samples":
+                events.append(FeedEvent(kind, key, sample.payload.to_bytes(), time.time_ns()))
         token = self._alive.try_recv() if self._alive is not None else None
         if token is not None:
             kind = "alive" if token.kind == zenoh.SampleKind.PUT else "gone"
@@ -429,6 +429,8 @@ def watch(
                     flush=True,
                 )
             return
+        if event.kind not in ("estimate", "status"):
+            return  # another channel (the table shows estimates and status)
         est = state.update(event.key, event.payload, event.received_ns)
         if est is not None:
             seen += 1

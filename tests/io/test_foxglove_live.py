@@ -83,6 +83,21 @@ def test_channels_are_the_recordings_and_bind_to_loopback() -> None:
             assert channel.message_encoding == "json"
 
 
+def test_a_channel_added_to_the_recording_is_served_too(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Channels come from the recording's list and SCHEMAS: a new one (a reflex model, say)
+    is created the first time the logger hands one of its messages over."""
+    import rtsid.io.foxglove_live as live_module
+
+    schema = {"title": "rtsid.Reflex", "type": "object"}
+    monkeypatch.setitem(live_module.SCHEMAS, "reflex", (schema, "/reflex"))
+    with FoxgloveLive(["estimate"], port=0) as live:
+        live.tap("reflex", 1, b'{"gain": 1}')
+        live.tap("not_a_channel", 1, b"{}")  # unknown to SCHEMAS: ignored
+        assert set(live._channels) == {"estimate", "reflex"}
+        assert live._channels["reflex"].topic() == "/reflex"
+        assert live.sent == 1 and live.errors == 0
+
+
 @pytest.mark.slow  # a real-time daemon run of seconds
 def test_an_independent_client_receives_estimates_with_the_declared_schema(
     tmp_path: Path,

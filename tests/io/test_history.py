@@ -151,3 +151,12 @@ def test_copies_stay_consistent_while_the_writer_appends() -> None:
     finally:
         stop.set()
         writer.join(10)
+
+
+def test_a_channel_first_seen_gets_its_own_ring() -> None:
+    store = HistoryStore(60.0)
+    store.append("reflex", b'{"gain": 1}', NOW - S)
+    assert "reflex" in store.kinds
+    parts = [json.loads(p) for p in store.answer(HistoryQuery(None, 0, NOW), robot="r", joint="j")]
+    assert {p["kind"] for p in parts} == {"estimate", "status", "reflex"}
+    assert next(p for p in parts if p["kind"] == "reflex")["messages"] == [{"gain": 1}]

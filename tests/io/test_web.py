@@ -317,3 +317,24 @@ def test_the_page_shows_live_values_in_chromium(running_daemon: int, tmp_path: P
     assert state["plots"] >= 4  # K, B, I, VAF
     assert later["K"] != "" and later["counters"] != state["counters"]  # live: it moves
     assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and shot.stat().st_size > 10_000
+
+
+def test_any_other_channel_shows_its_latest_message() -> None:
+    """A channel the board does not know (a daemon's reflex model, say) is kept as its latest
+    message and pushed to the pages, so a new channel needs no change to the web view."""
+    board = LabBoard()
+    board.take(event("estimate", estimate(0, 10**12)))
+    last_id, _ = board.snapshot()
+    reflex = {"robot": "rig", "joint": "ankle", "gain": 0.4, "host_time_ns": 10**12}
+    board.take(FeedEvent("reflex", "rtsid/rig/ankle/reflex", json.dumps(reflex).encode(), 0))
+    _, snap = board.snapshot()
+    assert snap["joints"]["rig/ankle"]["channels"] == {"reflex": reflex}
+    events = board.events_after(last_id, 0.0)
+    assert events is not None
+    (pushed,) = [json.loads(e) for _, e in events]
+    assert pushed == {
+        "type": "channel",
+        "joint": "rig/ankle",
+        "channel": "reflex",
+        "message": reflex,
+    }

@@ -152,6 +152,17 @@ def test_watch_through_the_router_shows_every_joint_and_drops_one_that_leaves(
                     "rtsid/rig/j0/estimate",
                     "rtsid/rig/j1/estimate",
                 ]
+                # Any other channel a daemon publishes reaches the feed; raw samples do not.
+                session = pubs["j0"]._entities.session  # type: ignore[union-attr]
+                session.put("rtsid/rig/j0/samples", b"{}")  # first: it would arrive first
+                session.put("rtsid/rig/j0/reflex", b'{"gain": 1}')
+                deadline = time.monotonic() + 10
+                kinds: set[str] = set()
+                while "reflex" not in kinds:
+                    assert time.monotonic() < deadline, kinds
+                    kinds |= {e.kind for e in feed.poll()}
+                    time.sleep(0.01)
+                assert "samples" not in kinds
                 pubs.pop("j1").stop()
                 pump(pubs, feed, state, lambda: "rig/j1" not in state.joints)
                 view = render_view(state, title="t", now_s=0.0)

@@ -10,10 +10,11 @@
 
 The page (``static/index.html`` + ``app.js``) draws, for each ``robot/joint``: K, B and I with
 their 95 % bands over the last 30 s, VAF, withheld windows with their reason, and the link and
-deadline counters of the status message. On start the board asks the daemons for their last
-30 s (the ``history`` queryable), so the plots are full at once. Everything is standard
-library (``http.server``) and the plotting library (uPlot, MIT) ships inside the package:
-labs are often offline.
+deadline counters of the status message; the latest message of any other channel a daemon
+publishes (e.g. a reflex model) is shown as its fields, so a new channel needs no change here.
+On start the board asks the daemons for their last 30 s (the ``history`` queryable), so the
+plots are full at once. Everything is standard library (``http.server``) and the plotting
+library (uPlot, MIT) ships inside the package: labs are often offline.
 
 Nothing binds beyond loopback unless ``host`` says so (``--host 0.0.0.0`` opens the page to
 the lab network: there is no authentication, so only on a trusted network).
@@ -98,6 +99,12 @@ class LabBoard:
                 joint["status"] = message
                 self._emit({"type": "status", "joint": name, "status": message})
                 return
+            if event.kind != "estimate":  # any other channel a daemon publishes: its latest
+                joint["channels"][event.kind] = message
+                self._emit(
+                    {"type": "channel", "joint": name, "channel": event.kind, "message": message}
+                )
+                return
             point = _point(message)
             points = joint["points"]
             if points and point["seq"] is not None and points[-1]["seq"] is not None:
@@ -121,7 +128,11 @@ class LabBoard:
 
     @staticmethod
     def _new_joint() -> dict[str, Any]:
-        return {"points": deque(maxlen=int(WINDOW_S * _MAX_RATE_HZ)), "status": None}
+        return {
+            "points": deque(maxlen=int(WINDOW_S * _MAX_RATE_HZ)),
+            "status": None,
+            "channels": {},
+        }
 
     @staticmethod
     def _trim(points: deque[dict[str, Any]], newest_t: float) -> None:
@@ -145,7 +156,11 @@ class LabBoard:
         """(id of the newest event included, the whole board as plain data)."""
         with self._cond:
             joints = {
-                name: {"points": list(j["points"]), "status": j["status"]}
+                name: {
+                    "points": list(j["points"]),
+                    "status": j["status"],
+                    "channels": dict(j["channels"]),
+                }
                 for name, j in sorted(self._joints.items())
             }
             return self._next_id - 1, {

@@ -34,7 +34,8 @@ function card(name) {
     </div>
     <div class="counters" data-field="counters">no status yet</div>
     <div class="plots"></div>
-    <ul class="withheld-list" data-field="withheld"></ul>`;
+    <ul class="withheld-list" data-field="withheld"></ul>
+    <div class="channels" data-field="channels"></div>`;
   return el;
 }
 
@@ -74,7 +75,7 @@ function joint(name) {
     holder.appendChild(div);
     return { spec, plot: makePlot(div, spec) };
   });
-  j = { points: [], status: null, el, plots, dirty: true };
+  j = { points: [], status: null, channels: {}, el, plots, dirty: true };
   joints.set(name, j);
   return j;
 }
@@ -145,7 +146,27 @@ function render(name, j) {
     .map((p) => `<li>${new Date(p.t * 1000).toLocaleTimeString()} seq ${p.seq}: ${p.reason}</li>`)
     .join("");
   if (j.status) setText(j.el, "counters", counters(j.status));
+  renderChannels(j);
   j.dirty = false;
+}
+
+function renderChannels(j) {
+  // Any other channel the daemon publishes: its latest message's scalar fields.
+  const holder = j.el.querySelector('[data-field="channels"]');
+  for (const [channel, message] of Object.entries(j.channels)) {
+    let div = holder.querySelector(`[data-channel="${channel}"]`);
+    if (!div) {
+      div = document.createElement("div");
+      div.className = "channel";
+      div.dataset.channel = channel;
+      holder.appendChild(div);
+    }
+    const skip = new Set(["robot", "joint", "host_time_ns"]);
+    const fields = Object.entries(message)
+      .filter(([k, v]) => !skip.has(k) && (v === null || typeof v !== "object"))
+      .map(([k, v]) => `${k} ${typeof v === "number" ? +v.toPrecision(4) : v}`);
+    div.textContent = `/${channel}: ${fields.join(", ")}`;
+  }
 }
 
 function note(text) {
@@ -163,6 +184,7 @@ function handle(msg) {
       j.points = [];
       for (const p of data.points) addPoint(j, p);
       j.status = data.status;
+      j.channels = data.channels || {};
       j.dirty = true;
     }
     document.getElementById("notes").innerHTML = "";
@@ -172,6 +194,10 @@ function handle(msg) {
   } else if (msg.type === "status") {
     const j = joint(msg.joint);
     j.status = msg.status;
+    j.dirty = true;
+  } else if (msg.type === "channel") {
+    const j = joint(msg.joint);
+    j.channels[msg.channel] = msg.message;
     j.dirty = true;
   } else if (msg.type === "gone") {
     const j = joints.get(msg.joint);
