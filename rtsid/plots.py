@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -11,7 +11,13 @@ from numpy.typing import ArrayLike
 
 from rtsid.errors import InputDataError
 
-__all__ = ["plot_distributions", "plot_impedance_track", "require_matplotlib"]
+__all__ = [
+    "plot_cascade",
+    "plot_cascade_windows",
+    "plot_distributions",
+    "plot_impedance_track",
+    "require_matplotlib",
+]
 
 PANELS = (
     ("K", "K_se", "stiffness K\n(N·m/rad)"),
@@ -141,5 +147,70 @@ def plot_distributions(
         ax.set_xlabel(label.replace("\n", " "))
     axes[0].set_ylabel("windows")
     axes[0].legend(fontsize=8)
+    fig.suptitle(title)
+    return _save(plt, fig, out_png)
+
+
+def plot_cascade(cascade: Any, out_png: str | Path, *, title: str, excerpt_s: float = 10.0) -> Path:
+    """A parallel cascade's two pathways: measured torque with the intrinsic and reflex
+    predictions over the first ``excerpt_s`` scored seconds, and the reflex IRF with the
+    delayed low-pass fitted to it. ``cascade`` is a :class:`rtsid.ident.cascade.CascadeFit`."""
+    plt = require_matplotlib()
+    fs = cascade.fs_hz
+    n = min(cascade.measured.size, round(excerpt_s * fs))
+    t = (cascade.first_scored + np.arange(n)) / fs
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(10, 7))
+    top.plot(t, cascade.measured[:n], color="0.6", lw=1.0, label="measured")
+    top.plot(t, cascade.intrinsic_torque[:n], lw=0.9, label="intrinsic pathway")
+    top.plot(t, cascade.reflex_torque[:n], lw=0.9, label="reflex pathway")
+    top.set(xlabel="time (s)", ylabel="torque (N·m)")
+    top.set_title(
+        f"VAF: cascade {cascade.vaf_total:.1f} %, intrinsic IRF alone "
+        f"{cascade.vaf_intrinsic_only:.1f} %",
+        fontsize=9,
+    )
+    top.legend(loc="upper right", fontsize=8)
+    reflex = cascade.reflex
+    lags = np.arange(reflex.irf.size) / fs
+    bottom.plot(lags * 1e3, reflex.irf, lw=1.0, label=f"reflex IRF (MDL rank {reflex.rank})")
+    fine = np.linspace(0, lags[-1], 1000)
+    bottom.plot(
+        fine * 1e3,
+        reflex.dynamics.response(fine),
+        lw=1.0,
+        label=f"delayed low-pass: gain {reflex.gain:.3g} N·m·s/rad, "
+        f"delay {reflex.delay_s * 1e3:.0f} ms",
+    )
+    bottom.set(xlabel="lag (ms)", ylabel="N·m per rad/s per s")
+    bottom.legend(loc="upper right", fontsize=8)
+    fig.suptitle(title)
+    return _save(plt, fig, out_png)
+
+
+def plot_cascade_windows(
+    rows: Sequence[Mapping[str, float]], out_png: str | Path, *, title: str
+) -> Path:
+    """Window-by-window cascades: intrinsic K (with ±1.96·SE) beside the K of a fit without a
+    reflex model, the reflex gain and delay, and the cascade's VAF."""
+    plt = require_matplotlib()
+    t = np.array([r["t_end_s"] for r in rows])
+    k, se = np.array([r["K"] for r in rows]), np.array([r["K_se"] for r in rows])
+    fig, axes = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
+    axes[0].fill_between(t, k - 1.96 * se, k + 1.96 * se, alpha=0.25)
+    axes[0].plot(t, k, "o-", ms=3, label="intrinsic K")
+    axes[0].plot(t, [r["K_no_reflex_model"] for r in rows], "s--", ms=3, label="K, no reflex model")
+    axes[0].set_ylabel("K (N·m/rad)")
+    axes[0].legend(fontsize=8)
+    axes[1].plot(t, [r["reflex_gain_nm_s_per_rad"] for r in rows], "o-", ms=3, label="gain")
+    axes[1].set_ylabel("reflex gain\n(N·m·s/rad)")
+    delay = axes[1].twinx()
+    delay.plot(t, [r["reflex_delay_ms"] for r in rows], "x:", color="C3", label="delay")
+    delay.set_ylabel("delay (ms)")
+    axes[2].plot(t, [r["vaf_cascade"] for r in rows], "o-", ms=3, label="cascade")
+    axes[2].plot(
+        t, [r["vaf_intrinsic_irf"] for r in rows], "s--", ms=3, label="intrinsic IRF alone"
+    )
+    axes[2].set(xlabel="window end (s)", ylabel="VAF (%)")
+    axes[2].legend(fontsize=8)
     fig.suptitle(title)
     return _save(plt, fig, out_png)

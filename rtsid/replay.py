@@ -24,6 +24,7 @@ import numpy as np
 
 from rtsid import __version__
 from rtsid.errors import RecordingError
+from rtsid.ident.reflex_lane import ReflexModels, fit_reflex_update
 from rtsid.io.calibration import robot_calibration, with_recorded_calibration
 from rtsid.io.mcap_read import read_metadata, run_config_from_metadata, sample_count
 from rtsid.io.recording import SampleGrid, iter_batches, session_parts
@@ -37,6 +38,7 @@ __all__ = [
     "iter_windows",
     "paced",
     "recording_config",
+    "replay_batches",
     "replay_file",
     "write_estimates_csv",
     "write_estimates_mcap",
@@ -56,24 +58,90 @@ def recording_config(path: str | Path) -> DaemonConfig:
     )
 
 
-def iter_windows(batches: Iterable[SampleBatch], evaluator: WindowEvaluator) -> Iterator[Snapshot]:
-    """Every grid window the batches complete, oldest first (the live daemon's windows).
+def iter_windows(
+    batches: Iterable[SampleBatch],
+    evaluator: WindowEvaluator,
+    slow_lane: ReplayedSlowLane | None = None,
+) -> Iterator[Snapshot]:
+    """Every grid window the batches complete, oldest first (the live daemon's windows), with
+    the evaluator's history rows before each (never before the recording's first sample).
 
     Rows go onto a :class:`~rtsid.io.recording.SampleGrid` (gaps as invalid rows) that keeps
-    only what the next windows need, so a long recording replays in bounded memory.
+    only what the next windows (and the slow lane's next fit) need, so a long recording
+    replays in bounded memory. A slow lane runs its fits in line, each when its first window
+    is due: the same samples, so the same models, as live.
     """
     n = evaluator.window_samples
+    reach = n + evaluator.history_samples
     grid: SampleGrid | None = None
-    next_end = 0
+    first = next_end = 0
     for batch in batches:
         if grid is None:
-            grid = SampleGrid(batch.first_index, batch.fs_hz, capacity=8 * n)
-            next_end = evaluator.first_window_end(grid.first_index)
+            grid = SampleGrid(batch.first_index, batch.fs_hz, capacity=8 * reach)
+            first = grid.first_index
+            next_end = evaluator.first_window_end(first)
         grid.append(batch)
         while next_end < grid.end_index:
-            yield _snapshot(grid.rows(next_end - n + 1, next_end + 1))
+            if slow_lane is not None:
+                slow_lane.catch_up(grid, first, next_end)
+            yield _snapshot(grid.rows(max(next_end - reach + 1, first), next_end + 1))
             next_end += evaluator.hop_samples
-        grid.drop_before(next_end - n + 1)
+        keep = next_end - reach + 1
+        if slow_lane is not None:
+            keep = min(keep, slow_lane.oldest_needed(first))
+        grid.drop_before(keep)
+
+
+class ReplayedSlowLane:
+    """The slow lane of a replay: its fits run in line, on the live schedule.
+
+    Parameters
+    ----------
+    evaluator : WindowEvaluator
+        The replay's evaluator (its reflex models are filled; its torque conversion is used).
+    publish : callable
+        Called with each fit's message (REFLEX_SCHEMA dict).
+    """
+
+    def __init__(
+        self, evaluator: WindowEvaluator, publish: Callable[[dict[str, Any]], None]
+    ) -> None:
+        if evaluator.reflex is None:
+            raise ValueError("the evaluator has no reflex models (slow lane off)")
+        self.evaluator = evaluator
+        self.models = evaluator.reflex
+        self.publish = publish
+        self._next: int | None = None
+
+    def oldest_needed(self, first: int) -> int:
+        """The first sample the next fit uses."""
+        span = self.models.fit_span(self._next_seq(first), first)
+        return span[0] if span is not None else first
+
+    def _next_seq(self, first: int) -> int:
+        if self._next is None:
+            self._next = self.models.first_seq(first)
+        return self._next
+
+    def catch_up(self, grid: SampleGrid, first: int, window_end: int) -> None:
+        """Run every fit due by the window ending at ``window_end``."""
+        due = self.models.due_seq(window_end)
+        while (seq := self._next_seq(first)) <= due:
+            span = self.models.fit_span(seq, first)
+            assert span is not None  # first_seq leaves enough data
+            rows = grid.rows(*span)
+            update = fit_reflex_update(
+                seq,
+                span[0],
+                rows.position_rad,
+                self.evaluator.model_torque(rows.position_rad, rows.torque_nm),
+                None if rows.valid.all() else rows.valid,
+                grid.fs_hz,
+                self.models.settings,
+            )
+            self.models.add(update)
+            self.publish(self.evaluator.reflex_message(update, None))
+            self._next = seq + 1
 
 
 def _snapshot(rows: SampleBatch) -> Snapshot:
@@ -112,6 +180,7 @@ class ReplayResult:
     source: str
     parts: list[Path] = field(default_factory=list)
     messages: list[dict[str, Any]] = field(default_factory=list)
+    reflex: list[dict[str, Any]] = field(default_factory=list)
     samples: int = 0
     duration_s: float = 0.0
     elapsed_s: float = 0.0
@@ -170,6 +239,39 @@ def replay_file(
     parts = session_parts(path)
     config = config or recording_config(parts[0])
     result = ReplayResult(source=str(path), parts=parts)
+    total = sum(sample_count(p) for p in parts) if progress is not None else 0
+    batches: Iterable[SampleBatch] = _counted(iter_batches(parts), result, progress, total)
+    if rate is not None:
+        batches = paced(batches, rate)
+    replay_batches(batches, config, result, publish=publish)
+    if result.samples == 0:
+        raise RecordingError(f"{path}: no samples to replay (is it an rtsid recording?)")
+    return result
+
+
+def replay_batches(
+    batches: Iterable[SampleBatch],
+    config: DaemonConfig,
+    result: ReplayResult,
+    *,
+    publish: Callable[[dict[str, Any]], object] | None = None,
+    evaluated: Callable[[WindowEvaluator], None] | None = None,
+) -> ReplayResult:
+    """Run the live daemon's window worker (and slow lane) over batches of samples.
+
+    Parameters
+    ----------
+    batches : iterable of SampleBatch
+        Samples in order (from a recording, or arrays wrapped as one batch).
+    config : DaemonConfig
+        The settings, as the daemon takes them.
+    result : ReplayResult
+        Filled in: messages, reflex fits, samples, duration, elapsed time.
+    publish : callable, optional
+        Also called with every estimate message.
+    evaluated : callable, optional
+        Called with the evaluator after each window (e.g. to read ``last_reflex``).
+    """
 
     def sink(message: dict[str, Any]) -> None:
         result.messages.append(message)
@@ -185,18 +287,19 @@ def replay_file(
         joint=config.zenoh.joint,
         calibration=robot_calibration(config.worker.calibration_file, config.link.fs_hz),
         live=False,  # recorded samples: never stale, no latency
+        reflex=ReflexModels(config.link.fs_hz, config.slow_lane)
+        if config.slow_lane.enabled
+        else None,
+        tracker=config.tracker,
     )
-    total = sum(sample_count(p) for p in parts) if progress is not None else 0
-    batches: Iterable[SampleBatch] = _counted(iter_batches(parts), result, progress, total)
-    if rate is not None:
-        batches = paced(batches, rate)
+    slow_lane = ReplayedSlowLane(evaluator, result.reflex.append) if evaluator.reflex else None
     started = time.perf_counter()
-    for snap in iter_windows(batches, evaluator):
+    for snap in iter_windows(batches, evaluator, slow_lane):
         evaluator.evaluate(snap)
+        if evaluated is not None:
+            evaluated(evaluator)
     result.elapsed_s = time.perf_counter() - started
     result.duration_s = result.samples / config.link.fs_hz
-    if result.samples == 0:
-        raise RecordingError(f"{path}: no samples to replay (is it an rtsid recording?)")
     return result
 
 
@@ -228,25 +331,45 @@ def write_estimates_csv(messages: Iterable[dict[str, Any]], fh: IO[str]) -> int:
 
 
 def write_estimates_mcap(
-    messages: Iterable[dict[str, Any]], fh: IO[bytes], *, source: str, config: DaemonConfig
+    messages: Iterable[dict[str, Any]],
+    fh: IO[bytes],
+    *,
+    source: str,
+    config: DaemonConfig,
+    reflex: Iterable[dict[str, Any]] = (),
 ) -> int:
-    """Estimate messages as an MCAP file with the daemon's ``/estimate`` layout."""
+    """Estimate messages (and the slow lane's fits, on ``/reflex``) as an MCAP file with the
+    daemon's layout; returns the number of estimates written."""
     from mcap.writer import CompressionType, Writer
 
     writer = Writer(fh, compression=CompressionType.ZSTD)
     writer.start(profile="", library=f"rtsid {__version__}")
-    schema, topic = SCHEMAS["estimate"]
-    schema_id = writer.register_schema(
-        name=schema["title"], encoding="jsonschema", data=encode_json(schema)
-    )
-    channel = writer.register_channel(topic=topic, message_encoding="json", schema_id=schema_id)
+    channels = {}
+    for kind in ("estimate", "reflex"):
+        schema, topic = SCHEMAS[kind]
+        schema_id = writer.register_schema(
+            name=schema["title"], encoding="jsonschema", data=encode_json(schema)
+        )
+        channels[kind] = writer.register_channel(
+            topic=topic, message_encoding="json", schema_id=schema_id
+        )
     writer.add_metadata("rtsid", {"software": "rtsid", "version": __version__, "replay_of": source})
     writer.add_metadata("config", {"json": encode_json(config.as_dict()).decode()})
+    fs = config.link.fs_hz
+    for fit in reflex:  # logged at the sample time from which it applies
+        t = int(fit["applies_from_index"] / fs * 1e9)
+        writer.add_message(
+            channels["reflex"],
+            log_time=t,
+            publish_time=t,
+            data=encode_json(fit),
+            sequence=fit["seq"],
+        )
     count = 0
     for message in messages:
         t = int(message["t_end_s"] * 1e9)
         writer.add_message(
-            channel,
+            channels["estimate"],
             log_time=t,
             publish_time=t,
             data=encode_estimate(message),

@@ -30,7 +30,14 @@ from numpy.typing import NDArray
 
 from rtsid.config import section_from_mapping
 from rtsid.errors import InputDataError, RecordingError, RtsidError
-from rtsid.ident.skirt import LtvEstimate, SecondOrderTrack, identify_ltv, max_stable_basis
+from rtsid.ident.skirt import (
+    BasisSelection,
+    LtvEstimate,
+    SecondOrderTrack,
+    fourier_harmonics,
+    identify_ltv,
+    select_basis_size,
+)
 from rtsid.io.files import atomic_write, read_npz
 from rtsid.io.mcap_read import read_run_config
 from rtsid.io.recording import read_recording
@@ -42,6 +49,7 @@ __all__ = [
     "TvData",
     "TvResult",
     "auto_basis",
+    "choose_basis",
     "format_report",
     "identify_recording",
     "load_tv",
@@ -271,7 +279,8 @@ def _scalar(arrays: dict[str, Any], key: str, path: Path) -> float:
 def simulate_to_npz(
     case: str, path: str | Path, *, spacing_hz: float = 0.8, snr_db: float = 22.0, seed: int = 1
 ) -> TvData:
-    """Simulate one realisation of the published study (case CS1/CS2/CS3) and save it.
+    """Simulate one realisation of a study case (CS1/CS2/CS3 of the published study, or
+    SIN2: two sinusoidal cycles of K(t) per record) and save it.
 
     The file holds the arrays :func:`load_tv_npz` reads plus the truth and the noiseless
     angle (``position_clean_rad``).
@@ -313,24 +322,45 @@ class TvResult:
     natural_frequency_true_hz: FloatArray | None
 
 
-def auto_basis(data: TvData, n_max: int = 20) -> int:
-    """Largest ``N_p ≤ n_max`` whose local problems stay well conditioned for this record.
+def auto_basis(
+    data: TvData,
+    n_max: int | None = None,
+    *,
+    basis_family: str = "legendre",
+    n_transient: int | None = None,
+) -> int:
+    """``N_p`` that ``rtsid tv -p auto`` uses for ``basis_family`` (see :func:`choose_basis`)."""
+    return choose_basis(data, n_max, basis_family=basis_family, n_transient=n_transient).n_basis
 
-    On the published study this picks N_p = 20 for lines 0.8 or 1.4 Hz apart (validation
-    VAF 98–99.9 %) and N_p = 9 for 0.2 Hz (within 3 % of the best N_p), see docs/skirt.md.
+
+def choose_basis(
+    data: TvData,
+    n_max: int | None = None,
+    *,
+    basis_family: str = "legendre",
+    n_transient: int | None = None,
+) -> BasisSelection:
+    """``N_p`` for ``basis_family`` chosen from the record, with the candidates and scores
+    (:func:`rtsid.ident.skirt.select_basis_size`).
+
+    The candidates run up to the largest well-conditioned ``N_p`` (at most ``n_max``,
+    default per family :data:`rtsid.ident.skirt.AUTO_MAX_BASIS`: Legendre 20); the one with
+    the best predicted validation VAF (Mallows' C_p on the record) is chosen. On the
+    published study with Legendre polynomials this picks N_p = 20 for lines 0.8 Hz apart
+    and the best N_p of the grid for 0.2 Hz, see docs/skirt.md.
     """
-    n_periods = data.torque_nm.size // max(data.period_samples, 1)
-    bins = np.asarray(data.excited_bins, dtype=np.int64)
-    if bins.size < 2 or n_periods < 1:
-        raise InputDataError("choosing N_p needs at least two excited lines and one period")
-    spacing = int(np.min(np.diff(bins))) * n_periods
-    best = max_stable_basis(data.torque_nm.size, spacing, n_max=n_max)
-    if best < 1:
-        raise InputDataError(
-            f"excited lines {spacing} record bins apart leave no room for time variation; "
-            "excite lines further apart or record more periods"
-        )
-    return best
+    if data.period_samples < 1 or data.torque_nm.size < data.period_samples:
+        raise InputDataError("choosing N_p needs at least one whole multisine period")
+    return select_basis_size(
+        data.torque_nm,
+        data.position_rad,
+        data.fs_hz,
+        data.excited_bins,
+        data.period_samples,
+        basis_family=basis_family,
+        n_max=n_max,
+        n_transient=n_transient,
+    )
 
 
 def identify_recording(
@@ -340,6 +370,7 @@ def identify_recording(
     n_transient: int | None = None,
     n_times: int = 401,
     common: tuple[str, ...] = (),
+    basis_family: str = "legendre",
 ) -> TvResult:
     """Skirt decomposition of ``data`` and the second-order track at ``n_times`` times.
 
@@ -354,6 +385,7 @@ def identify_recording(
         data.period_samples,
         n_basis=n_basis,
         n_transient=n_transient,
+        basis_family=basis_family,
     )
     t = est.default_times(n_times)
     track = est.fit_second_order(t, common=common)
@@ -373,6 +405,16 @@ def _rmse(a: FloatArray, b: FloatArray) -> str:
     return text if ok.all() else f"{text} ({np.sum(~ok)} of {a.size} times without resonance)"
 
 
+def _basis_detail(est: LtvEstimate) -> str:
+    """What the basis resolves in time, for the report."""
+    if est.basis_family == "fourier":
+        h = fourier_harmonics(est.n_basis)
+        return f" (harmonics up to {h} of the {est.n_samples / est.fs_hz:g} s record)"
+    if est.basis_family == "bspline" and est.n_basis > 3:
+        return f" (knots {est.duration_s / (est.n_basis - 3):.3g} s apart)"
+    return ""
+
+
 def format_report(result: TvResult, rows: int = 11) -> str:
     """Summary and a table of the tracks at ``rows`` times (with the truth when known)."""
     est, tr = result.estimate, result.track
@@ -381,7 +423,7 @@ def format_report(result: TvResult, rows: int = 11) -> str:
         f"record: {est.n_samples} samples at {est.fs_hz:g} Hz ({est.n_periods} periods of "
         f"{est.period_samples}); {f.size} excited lines {f[0]:g}…{f[-1]:g} Hz"
         + (f", {f[1] - f[0]:g} Hz apart" if f.size > 1 else ""),
-        f"model: N_p = {est.n_basis} Legendre polynomials, transient polynomial "
+        f"model: N_p = {est.n_basis} {est.basis_name}{_basis_detail(est)}, transient polynomial "
         f"{'off' if est.n_transient is None else f'degree {est.n_transient}'}, worst variance "
         f"inflation {est.variance_inflation:.2f}",
     ]

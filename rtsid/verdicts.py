@@ -41,6 +41,8 @@ class Flag(StrEnum):
     INERTIA_UNCERTAIN = "inertia_uncertain"
     STIFFNESS_UNCERTAIN = "stiffness_uncertain"
     OVER_BUDGET = "over_budget"
+    REFLEX_ABSENT = "reflex_absent"
+    REFLEX_STALE = "reflex_stale"
 
     @property
     def description(self) -> str:
@@ -69,4 +71,8 @@ _FLAGS = {
     Flag.INERTIA_UNCERTAIN: "the standard error of I exceeds 25 % of |I|",
     Flag.STIFFNESS_UNCERTAIN: "the standard error of K exceeds 10 % of |K|",
     Flag.OVER_BUDGET: "computing the window took longer than the worker's budget",
+    Flag.REFLEX_ABSENT: "the slow lane is on but no reflex model could be used: the intrinsic "
+    "estimate includes any reflex torque",
+    Flag.REFLEX_STALE: "the reflex model used is not the one due (the slow lane was late or "
+    "failed) or older than stale_after_s",
 }

@@ -18,7 +18,20 @@ from rtsid.replay import replay_file
 from rtsid.runtime.daemon import Daemon, DaemonConfig
 
 REFERENCE = Path(__file__).resolve().parents[1] / "replay" / "reference"
-NUMBERS = ("I", "B", "K", "I_se", "B_se", "K_se", "vaf", "vaf_irf")
+NUMBERS = (
+    "I",
+    "B",
+    "K",
+    "I_se",
+    "B_se",
+    "K_se",
+    "K_track",
+    "K_track_se",
+    "B_track",
+    "B_track_se",
+    "vaf",
+    "vaf_irf",
+)
 
 
 def by_window(messages):

@@ -101,3 +101,45 @@ def test_missing_matplotlib_is_a_one_line_error(monkeypatch):
     monkeypatch.setitem(sys.modules, "matplotlib", None)
     with pytest.raises(RtsidError, match=r"pip install 'rtsid\[plot\]'"):
         require_matplotlib()
+
+
+@pytest.fixture
+def cyclic_experiment(tmp_path):
+    """Two sinusoidal cycles of K(t) per 200 s record (SIN2), 0.8 Hz lines, 22 dB, at 25 Hz."""
+    exp = multisine_experiment(
+        "SIN2", fs_hz=25.0, f_max_hz=8.0, spacing_hz=0.8, snr_db=22.0, seed=3
+    )
+    path = tmp_path / "sin2.npz"
+    np.savez(path, **exp.as_npz_dict())
+    return path
+
+
+def _fn_rmse(csv, inertia=0.02):
+    table = np.genfromtxt(csv, delimiter=",", names=True)
+    fn_true = np.sqrt(table["stiffness_true_nm_per_rad"] / inertia) / (2 * np.pi)
+    return float(np.sqrt(np.nanmean((table["natural_frequency_hz"] - fn_true) ** 2)))
+
+
+def test_fourier_family_tracks_a_cyclic_stiffness_that_legendre_cannot(
+    cyclic_experiment, tmp_path, capsys
+):
+    rmse = {}
+    for family in ("legendre", "fourier"):
+        csv = tmp_path / f"{family}.csv"
+        args = ["tv", str(cyclic_experiment), "-p", "auto", "--basis-family", family]
+        assert main([*args, "--times", "2", "--csv", str(csv)]) == 0
+        rmse[family] = _fn_rmse(csv)
+    out = capsys.readouterr().out
+    assert "(auto, fourier: best predicted validation VAF" in out
+    assert "Fourier terms (harmonics up to" in out
+    assert rmse["fourier"] < 0.05 < 0.1 < rmse["legendre"]
+
+
+def test_bad_basis_family_or_size_is_a_one_line_error(cyclic_experiment, capsys):
+    with pytest.raises(SystemExit):
+        main(["tv", str(cyclic_experiment), "--basis-family", "wavelet"])
+    assert "invalid choice: 'wavelet'" in capsys.readouterr().err
+    assert main(["tv", str(cyclic_experiment), "-p", "201", "--basis-family", "fourier"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err
+    assert "reach harmonic 100 of the record" in err and "use N_p <= 159" in err

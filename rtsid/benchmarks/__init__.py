@@ -15,6 +15,11 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "skirt": ("rtsid.benchmarks.skirt", "LTV skirt decomposition study: VAF, resonance RMSE, time"),
     "io": ("rtsid.benchmarks.io", "MCAP logger cost at daemon rates and zenoh one-way latency"),
     "link": ("rtsid.benchmarks.link", "2500 Hz CAN acquisition: loss, latency, CPU, highest rate"),
+    "tv": ("rtsid.benchmarks.tv", "K(t) tracker vs windows vs skirt: bias, error, rise, VAF"),
     "calibrate": ("rtsid.benchmarks.calibrate", "robot calibration vs the source's method"),
+    "cascade": (
+        "rtsid.benchmarks.cascade",
+        "intrinsic vs reflex: cascade, slow lane, known reflex",
+    ),
     "lab": ("rtsid.benchmarks.lab", "router + 4 daemons + subscriber: e2e, rates, queries, CPU"),
 }

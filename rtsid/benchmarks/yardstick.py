@@ -71,12 +71,17 @@ class WindowVafBasis:
         self.torque = signal.sosfiltfilt(sos, torque)
         self.regressors = np.vstack([signal.sosfiltfilt(sos, x) for x in (d2, d1, position)])
 
-    def vaf(self, params: FloatArray, start: int, stop: int) -> float:
-        """VAF (%) of ``(I, B, K)`` on samples ``start … stop − 1`` (NaN params: NaN)."""
+    def vaf(
+        self, params: FloatArray, start: int, stop: int, extra: FloatArray | None = None
+    ) -> float:
+        """VAF (%) of ``(I, B, K)`` on samples ``start … stop − 1`` (NaN params: NaN), with
+        ``extra`` torque (e.g. the slow lane's reflex prediction) added to the model's."""
         if not np.all(np.isfinite(params)):
             return float("nan")
         measured = self.torque[start:stop] - self.torque[start:stop].mean()
         predicted = np.asarray(params) @ self.regressors[:, start:stop]
+        if extra is not None:
+            predicted = predicted + extra
         predicted = predicted - predicted.mean()
         error = measured - predicted
         return float(100.0 * (1.0 - (error @ error) / (measured @ measured)))

@@ -11,17 +11,30 @@ import numpy as np
 
 from rtsid.config import load_toml, section_from_mapping
 from rtsid.errors import InputDataError
-from rtsid.ident.cascade import fit_parallel_cascade
+from rtsid.ident.cascade import (
+    CascadeFit,
+    CascadeSettings,
+    fit_parallel_cascade,
+    intrinsic_parameters,
+    sliding_cascades,
+)
+from rtsid.ident.reflex import REFLEX_VARIANTS
 from rtsid.ident.stream import WindowResult, WindowStream, sliding_estimates
-from rtsid.ident.window import EstimatorOptions, estimate_window
+from rtsid.ident.window import EstimatorOptions, WindowEstimate, estimate_window
 from rtsid.io.estimate_csv import open_output, write_estimates
 from rtsid.io.sample_files import SampleRecord, load_samples, nonfinite_report
+from rtsid.plots import plot_cascade, plot_cascade_windows
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", help="recording: .npz (position_rad, torque_nm, fs_hz) or .csv")
-    parser.add_argument("--window", type=float, default=0.3, metavar="S", help="window, s (0.3)")
-    parser.add_argument("--hop", type=float, default=0.1, metavar="S", help="hop, s (0.1)")
+    parser.add_argument(
+        "--window",
+        type=float,
+        metavar="S",
+        help="window, s (0.3; with --model cascade: the whole record unless given)",
+    )
+    parser.add_argument("--hop", type=float, metavar="S", help="hop, s (0.1; cascade: --window/4)")
     parser.add_argument("--out", "-o", metavar="PATH", help="CSV output (default: stdout)")
     parser.add_argument(
         "--torque-sign",
@@ -48,6 +61,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="window: I/B/K per sliding window (default); cascade: the parallel-cascade model "
         "of the whole record (intrinsic I/B/K with the reflex pathway's torque removed, "
         "reflex gain, VAFs)",
+    )
+    parser.add_argument(
+        "--reflex",
+        choices=REFLEX_VARIANTS,
+        default="rect",
+        help="cascade reflex pathway: rect (rectified velocity → IRF, default) or hammerstein "
+        "(polynomial of velocity → IRF)",
+    )
+    parser.add_argument(
+        "--plot",
+        metavar="PNG",
+        help="cascade: draw both pathways' torque and the reflex IRF (whole record), or the "
+        "intrinsic K and the reflex gain window by window",
     )
     parser.add_argument("--config", metavar="TOML", help="take [estimator] options from this file")
     parser.add_argument(
@@ -92,16 +118,18 @@ def run(args: argparse.Namespace) -> int:
             "windows that contain them"
         )
     if args.model == "cascade":
-        return _identify_cascade(record, options, args.out)
-    stream = WindowStream(record.fs_hz, options, args.hop)
+        return _identify_cascade(record, options, args)
+    window = args.window if args.window is not None else 0.3
+    hop = args.hop if args.hop is not None else 0.1
+    stream = WindowStream(record.fs_hz, options, hop)
     valid = np.isfinite(record.position_rad) & np.isfinite(record.torque_nm) if problem else None
     results = list(
         sliding_estimates(
             record.position_rad,
             record.torque_nm,
             record.fs_hz,
-            args.window,
-            args.hop,
+            window,
+            hop,
             options,
             stream=stream,
             valid=valid,
@@ -116,57 +144,134 @@ def run(args: argparse.Namespace) -> int:
 
 
 CASCADE_COLUMNS = (
+    "t_start_s",
+    "t_end_s",
     "vaf_cascade",
+    "vaf_intrinsic_path",
+    "vaf_reflex_path",
     "vaf_intrinsic_irf",
     "K",
     "B",
     "I",
     "K_se",
+    "B_se",
+    "I_se",
     "vaf",
     "K_no_reflex_model",
     "reflex_gain_nm_s_per_rad",
+    "reflex_delay_ms",
+    "reflex_irf_gain_nm_s_per_rad",
+    "reflex_dynamics_vaf",
+    "reflex_rank",
+    "alternations",
 )
 
 
-def _identify_cascade(record: SampleRecord, options: EstimatorOptions, out: str | None) -> int:
-    """The whole record's parallel cascade; the intrinsic I/B/K by the window estimator on
-    the torque with the reflex pathway's prediction removed."""
-    if problem := nonfinite_report(record):
-        raise InputDataError(f"{record.source}: {problem}; the cascade needs a clean record")
-    torque = options.torque_sign * record.torque_nm
-    cascade = fit_parallel_cascade(record.position_rad, torque, record.fs_hz)
-    reflex = cascade.reflex_torque_at(record.position_rad, record.fs_hz)
-    whole = replace(options, torque_sign=1.0, hold="none")
-    intrinsic = estimate_window(record.position_rad, torque - reflex, record.fs_hz, whole)
-    plain = estimate_window(record.position_rad, torque, record.fs_hz, whole)
-    row = dict(
-        zip(
-            CASCADE_COLUMNS,
-            (
-                cascade.vaf_total,
-                cascade.vaf_intrinsic_only,
-                intrinsic.K,
-                intrinsic.B,
-                intrinsic.I,
-                intrinsic.K_se,
-                intrinsic.vaf,
-                plain.K,
-                cascade.reflex_gain,
-            ),
-            strict=True,
-        )
+def _cascade_row(
+    start: int,
+    end: int,
+    fs_hz: float,
+    cascade: CascadeFit,
+    intrinsic: WindowEstimate,
+    plain_k: float,
+) -> dict[str, float]:
+    reflex = cascade.reflex
+    values = (
+        start / fs_hz,
+        end / fs_hz,
+        cascade.vaf_total,
+        cascade.vaf_intrinsic_path,
+        cascade.vaf_reflex_path,
+        cascade.vaf_intrinsic_only,
+        intrinsic.K,
+        intrinsic.B,
+        intrinsic.I,
+        intrinsic.K_se,
+        intrinsic.B_se,
+        intrinsic.I_se,
+        intrinsic.vaf,
+        plain_k,
+        reflex.gain,
+        reflex.delay_s * 1e3,
+        reflex.irf_gain,
+        reflex.dynamics.vaf,
+        reflex.rank,
+        cascade.iterations,
     )
+    return dict(zip(CASCADE_COLUMNS, values, strict=True))
+
+
+def _write_cascade_rows(rows: list[dict[str, float]], out: str | None) -> None:
     with open_output(out) as fh:
         writer = csv.DictWriter(fh, fieldnames=CASCADE_COLUMNS, lineterminator="\n")
         writer.writeheader()
-        writer.writerow({k: f"{v:.6g}" for k, v in row.items()})
+        for row in rows:
+            writer.writerow({k: f"{v:.6g}" for k, v in row.items()})
+
+
+def _identify_cascade(
+    record: SampleRecord, options: EstimatorOptions, args: argparse.Namespace
+) -> int:
+    """The parallel cascade of the whole record, or of sliding windows (``--window``); the
+    intrinsic I/B/K by the window estimator's output-error fit to the torque with the
+    reflex pathway's prediction removed."""
+    if problem := nonfinite_report(record):
+        raise InputDataError(f"{record.source}: {problem}; the cascade needs a clean record")
+    torque = options.torque_sign * record.torque_nm
+    settings = CascadeSettings(variant=args.reflex)
+    if args.window is None:
+        return _whole_record_cascade(record, torque, options, settings, args)
+    hop = args.hop if args.hop is not None else args.window / 4
+    fs = record.fs_hz
+    whole = replace(options, torque_sign=1.0, hold="none")
+    rows = []
+    for w in sliding_cascades(record.position_rad, torque, fs, args.window, hop, settings, options):
+        span = slice(w.start_index, w.end_index + 1)
+        plain = estimate_window(record.position_rad[span], torque[span], fs, whole)
+        rows.append(_cascade_row(w.start_index, w.end_index, fs, w.cascade, w.intrinsic, plain.K))
+    _write_cascade_rows(rows, args.out)
+    if args.plot:
+        plot_cascade_windows(rows, args.plot, title=f"{record.source}: {args.reflex} cascade")
+    k = np.array([r["K"] for r in rows])
+    gain = np.array([r["reflex_gain_nm_s_per_rad"] for r in rows])
     print(
-        f"rtsid identify: parallel cascade of {record.duration_s:g} s at 100 Hz: VAF "
-        f"{cascade.vaf_total:.1f} % (intrinsic IRF alone {cascade.vaf_intrinsic_only:.1f} %), "
+        f"rtsid identify: {len(rows)} cascade windows of {args.window:g} s every {hop:g} s: "
+        f"median VAF {np.median([r['vaf_cascade'] for r in rows]):.1f} %, intrinsic K "
+        f"{np.median(k):.1f} N·m/rad (IQR {np.subtract(*np.percentile(k, [75, 25])):.1f}), "
+        f"reflex gain {np.median(gain):.3g} N·m·s/rad",
+        file=sys.stderr,
+    )
+    return 0
+
+
+def _whole_record_cascade(
+    record: SampleRecord,
+    torque: np.ndarray,
+    options: EstimatorOptions,
+    settings: CascadeSettings,
+    args: argparse.Namespace,
+) -> int:
+    fs = record.fs_hz
+    cascade = fit_parallel_cascade(record.position_rad, torque, fs, settings)
+    intrinsic = intrinsic_parameters(record.position_rad, torque, fs, cascade.reflex, options)
+    plain = estimate_window(
+        record.position_rad, torque, fs, replace(options, torque_sign=1.0, hold="none")
+    )
+    row = _cascade_row(0, record.position_rad.size - 1, fs, cascade, intrinsic, plain.K)
+    _write_cascade_rows([row], args.out)
+    if args.plot:
+        plot_cascade(cascade, args.plot, title=f"{record.source}: {settings.variant} cascade")
+    reflex = cascade.reflex
+    print(
+        f"rtsid identify: parallel cascade ({settings.variant}) of {record.duration_s:g} s at "
+        f"{cascade.fs_hz:g} Hz: VAF {cascade.vaf_total:.1f} % (intrinsic IRF alone "
+        f"{cascade.vaf_intrinsic_only:.1f} %; pathways alone: intrinsic "
+        f"{cascade.vaf_intrinsic_path:.1f} %, reflex {cascade.vaf_reflex_path:.1f} %), "
         f"{cascade.iterations} alternations; intrinsic K = {intrinsic.K:.1f} ± "
         f"{intrinsic.K_se:.1f} N·m/rad, B = {intrinsic.B:.3f}, I = {intrinsic.I:.4f} "
-        f"(without the reflex model K = {plain.K:.1f}); reflex gain "
-        f"{cascade.reflex_gain:.3g} N·m·s/rad",
+        f"(without the reflex model K = {plain.K:.1f}); reflex gain {reflex.gain:.3g} "
+        f"N·m·s/rad, delay {reflex.delay_s * 1e3:.1f} ms (the delayed low-pass explains "
+        f"{reflex.dynamics.vaf:.0f} % of the reflex IRF; IRF rank {reflex.rank} by MDL)",
         file=sys.stderr,
     )
     return 0

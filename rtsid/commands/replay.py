@@ -66,7 +66,13 @@ def _write(result: ReplayResult, out: Path, config: DaemonConfig) -> None:
             write_estimates_csv(result.messages, fh)
     elif out.suffix == ".mcap":
         with atomic_write(out, "wb", what="estimates") as fh:
-            write_estimates_mcap(result.messages, fh, source=result.source, config=config)
+            write_estimates_mcap(
+                result.messages,
+                fh,
+                source=result.source,
+                config=config,
+                reflex=result.reflex,
+            )
     else:
         raise InputDataError(f"--out {out}: use a .csv or .mcap file name")
 

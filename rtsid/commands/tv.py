@@ -8,8 +8,9 @@ import sys
 import warnings
 
 from rtsid.errors import InputDataError
+from rtsid.ident.skirt import BASIS_FAMILIES, SkirtConditioningWarning
 from rtsid.ident.skirt import WARN_VARIANCE_INFLATION as WARN
-from rtsid.ident.skirt import SkirtConditioningWarning
+from rtsid.sim.ltv import STUDY_CASES
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,7 +25,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "-p",
         default="8",
         metavar="N_P",
-        help="Legendre polynomials N_p (8), or 'auto': the largest well-conditioned N_p ≤ 20",
+        help="basis functions N_p (8), or 'auto': among the well-conditioned N_p (Legendre "
+        "≤ 20, Fourier ≤ 101, B-splines ≤ 80) the one of best predicted validation VAF",
+    )
+    parser.add_argument(
+        "--basis-family",
+        choices=BASIS_FAMILIES,
+        default=BASIS_FAMILIES[0],
+        help="time basis: legendre (default; smooth, slow change), fourier (periodic change "
+        "with whole cycles in the record: cyclic tasks, gait), bspline (local changes)",
     )
     parser.add_argument(
         "--transient",
@@ -54,8 +63,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sim = parser.add_argument_group("simulated experiment (the published study)")
     sim.add_argument(
         "--simulate",
-        choices=("CS1", "CS2", "CS3"),
-        help="simulate this case and write it to -o instead of reading a file",
+        choices=tuple(STUDY_CASES),
+        help="simulate this case and write it to -o instead of reading a file (CS1–CS3: the "
+        "published study; SIN2: K(t) sinusoidal, two cycles per record)",
     )
     sim.add_argument("-o", "--output", metavar="NPZ", help="where --simulate writes")
     sim.add_argument(
@@ -86,16 +96,22 @@ def run(args: argparse.Namespace) -> int:
             return 0
     if not args.recording:
         raise InputDataError(
-            "give a recording (.npz or .mcap), or --simulate CS1|CS2|CS3 -o FILE.npz"
+            f"give a recording (.npz or .mcap), or --simulate {'|'.join(STUDY_CASES)} -o FILE.npz"
         )
     if args.plot:
         tv.require_matplotlib()  # fail before the work, not after
     data = tv.load_tv(args.recording, trim=args.trim)
     if data.selection:
         print(f"used {data.selection}")
+    family = args.basis_family
     if args.basis == "auto":
-        n_basis = tv.auto_basis(data)
-        print(f"N_p = {n_basis} (auto: largest ≤ 20 with variance inflation ≤ {WARN:g})")
+        chosen = tv.choose_basis(data, basis_family=family, n_transient=args.transient)
+        n_basis = chosen.n_basis
+        print(
+            f"N_p = {n_basis} (auto, {family}: best predicted validation VAF "
+            f"{chosen.chosen_vaf:.1f} % among {len(chosen.candidates)} N_p up to "
+            f"{chosen.n_stable}, all well conditioned: variance inflation ≤ {WARN:g})"
+        )
     elif args.basis.isdigit() and int(args.basis) >= 1:
         n_basis = int(args.basis)
     else:
@@ -104,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
         warnings.simplefilter("always", SkirtConditioningWarning)
         common = ("inertia",) * args.common_inertia + ("damping",) * args.common_damping
         result = tv.identify_recording(
-            data, n_basis=n_basis, n_transient=args.transient, common=common
+            data, n_basis=n_basis, n_transient=args.transient, common=common, basis_family=family
         )
     for w in caught:
         print(f"rtsid tv: warning: {w.message}", file=sys.stderr)

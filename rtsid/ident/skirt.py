@@ -8,7 +8,10 @@ Lataire, Pintelon & Louarroudi (Automatica 48(4), 2012) estimate the system func
     G(jω, t) = \\sum_{p=0}^{N_p-1} G_p(jω)\\, b_p(t), \\qquad
     y(t) = \\sum_p b_p(t)\\,(g_p * u)(t),
 
-with ``b_p`` the Legendre polynomials shifted and scaled to the record. Multiplying by
+with ``b_p`` a time basis over the record: the Legendre polynomials shifted and scaled to it
+(the paper's choice, the default), or — the paper's "tailored basis functions" for faster
+variation — Fourier terms periodic over the record (cyclic change) or cubic B-splines (local
+change); see :data:`BASIS_FAMILIES` and :func:`basis_functions`. Multiplying by
 ``b_p(t)`` spreads each excited line of the (periodic) response over a *skirt* ``B_p`` (the DFT
 of ``b_p``), so the output DFT over the whole record of ``N`` samples is
 
@@ -46,6 +49,14 @@ alone; :func:`identify_ltv` warns (:class:`SkirtConditioningWarning`) above
 :data:`WARN_VARIANCE_INFLATION` and refuses (:class:`~rtsid.errors.NumericalError`) when
 the problem is under-determined or above :data:`MAX_VARIANCE_INFLATION`.
 
+The family sets how compact the skirts are and so how many ``b_p`` fit between lines: a
+Fourier term's skirt is exactly two bins (``±h``), so ``N_p = 2H + 1`` is limited only by
+``2H < Δk`` (refused beyond) and the local problems are exact per bin; B-splines' main lobe is
+``±(N_p − 3)`` bins. B-splines are not orthogonal, so their conditioning is measured on the
+basis orthonormalised over the record (:func:`_whitener`). :func:`select_basis_size` chooses
+``N_p`` per family from the record: the well-conditioned candidates, scored by
+:func:`predicted_validation_vaf` (Mallows' C_p).
+
 Beyond the paper, :meth:`LtvEstimate.fit_second_order` fits the frozen admittance
 ``1/(K − Iω² + jBω)`` to ``G(jω, t)`` at each time, which tracks ``K(t)`` and the natural
 frequency ``f_n(t)`` with sub-line resolution (the paper's peak-picking resonance,
@@ -63,16 +74,24 @@ from numpy.typing import ArrayLike, NDArray
 from rtsid.errors import InputDataError, NumericalError
 
 __all__ = [
+    "AUTO_MAX_BASIS",
+    "BASIS_FAMILIES",
     "MAX_VARIANCE_INFLATION",
     "WARN_VARIANCE_INFLATION",
+    "BasisSelection",
     "LtvEstimate",
     "SecondOrderTrack",
     "SkirtConditioning",
     "SkirtConditioningWarning",
+    "basis_functions",
+    "check_basis_family",
     "fit_admittance",
+    "fourier_harmonics",
     "identify_ltv",
     "legendre_basis",
     "max_stable_basis",
+    "predicted_validation_vaf",
+    "select_basis_size",
     "skirt_conditioning",
 ]
 
@@ -96,9 +115,23 @@ class SkirtConditioningWarning(RuntimeWarning):
 # --------------------------------------------------------------------------------------
 
 
-def _record_coordinate(t_s: FloatArray, fs_hz: float, n_samples: int) -> FloatArray:
-    """Map times to ``[-1, 1]``: sample 0 to −1, sample ``N−1`` to +1."""
-    return 2.0 * np.asarray(t_s, dtype=float) * fs_hz / (n_samples - 1) - 1.0
+#: The time-basis families :func:`identify_ltv` accepts (the first is the default).
+BASIS_FAMILIES = ("legendre", "fourier", "bspline")
+
+_FAMILY_NAMES = {
+    "legendre": "Legendre polynomials",
+    "fourier": "Fourier terms",
+    "bspline": "cubic B-splines",
+}
+
+
+def check_basis_family(family: str) -> str:
+    """``family`` if it is one of :data:`BASIS_FAMILIES`, else a one-line InputDataError."""
+    if family not in BASIS_FAMILIES:
+        raise InputDataError(
+            f"unknown basis family {family!r}; choose one of {', '.join(BASIS_FAMILIES)}"
+        )
+    return family
 
 
 def _legendre(x: FloatArray, n_basis: int) -> FloatArray:
@@ -111,6 +144,88 @@ def _legendre(x: FloatArray, n_basis: int) -> FloatArray:
     return out
 
 
+def _fourier(theta: FloatArray, n_basis: int) -> FloatArray:
+    """``1, cos θ, sin θ, cos 2θ, sin 2θ, …`` (``n_basis`` rows)."""
+    out = np.empty((n_basis, theta.size))
+    out[0] = 1.0
+    for p in range(1, n_basis):
+        harmonic = (p + 1) // 2
+        out[p] = np.cos(harmonic * theta) if p % 2 else np.sin(harmonic * theta)
+    return out
+
+
+def fourier_harmonics(n_basis: int) -> int:
+    """Highest harmonic of the record reached by ``n_basis`` Fourier terms."""
+    return n_basis // 2
+
+
+def _bspline_knots(n_basis: int, end: float) -> tuple[int, FloatArray]:
+    """Degree (3, or less for ``n_basis < 4``) and clamped uniform knots over ``[0, end]``."""
+    degree = min(3, n_basis - 1)
+    breaks = np.linspace(0.0, end, n_basis - degree + 1)
+    return degree, np.concatenate([np.zeros(degree), breaks, np.full(degree, end)])
+
+
+def _bspline(s: FloatArray, n_basis: int, end: float) -> FloatArray:
+    """Clamped uniform B-splines (Cox–de Boor) at positions ``s`` clipped to ``[0, end]``."""
+    degree, knots = _bspline_knots(n_basis, end)
+    x = np.clip(s, 0.0, end)
+    n_intervals = n_basis - degree
+    span = np.clip(np.floor(x / end * n_intervals).astype(np.int64), 0, n_intervals - 1) + degree
+    out = np.zeros((knots.size - 1, x.size))
+    out[span, np.arange(x.size)] = 1.0
+    for k in range(1, degree + 1):
+        nxt = np.zeros((knots.size - 1 - k, x.size))
+        for i in range(knots.size - 1 - k):
+            left, right = knots[i + k] - knots[i], knots[i + k + 1] - knots[i + 1]
+            if left > 0:
+                nxt[i] += (x - knots[i]) / left * out[i]
+            if right > 0:
+                nxt[i] += (knots[i + k + 1] - x) / right * out[i + 1]
+        out = nxt
+    return out[:n_basis]
+
+
+def _basis_at(family: str, s: FloatArray, n_samples: int, n_basis: int) -> FloatArray:
+    """``b_p`` of ``family`` at (fractional) sample positions ``s`` of an N-sample record.
+
+    Legendre: ``x = 2s/(N−1) − 1`` runs over ``[-1, 1]`` across the record. Fourier:
+    ``θ = 2πs/N``, so every term is periodic over exactly ``N`` samples and its DFT lies on
+    bins ``±h``. B-splines: clamped, uniform knots from sample 0 to ``N−1`` (held at the end
+    values outside the record).
+    """
+    if family == "legendre":
+        return _legendre(2.0 * s / (n_samples - 1) - 1.0, n_basis)
+    if family == "fourier":
+        return _fourier(2.0 * np.pi * s / n_samples, n_basis)
+    return _bspline(s, n_basis, float(n_samples - 1))
+
+
+def basis_functions(n_samples: int, n_basis: int, family: str = "legendre") -> FloatArray:
+    """The first ``n_basis`` functions of a basis ``family`` over a record of ``n_samples``.
+
+    Parameters
+    ----------
+    n_samples : int
+        Samples in the record ``N``.
+    n_basis : int
+        ``N_p``.
+    family : str
+        ``"legendre"``: Legendre polynomials ``P_0 … P_{N_p−1}`` on ``[-1, 1]`` across the
+        record. ``"fourier"``: ``1, cos θ, sin θ, cos 2θ, …`` with ``θ = 2πn/N`` (the
+        record is one period; ``N_p = 2H + 1`` reaches harmonic ``H``). ``"bspline"``: cubic
+        B-splines on uniform knots clamped at both ends (lower degree for ``N_p < 4``).
+
+    Returns
+    -------
+    numpy.ndarray, shape (n_basis, n_samples)
+    """
+    check_basis_family(family)
+    if n_samples < 2 or n_basis < 1:
+        raise InputDataError(f"need n_samples >= 2 and n_basis >= 1, got {n_samples}, {n_basis}")
+    return _basis_at(family, np.arange(n_samples, dtype=float), n_samples, n_basis)
+
+
 def legendre_basis(n_samples: int, n_basis: int) -> FloatArray:
     """Legendre polynomials ``P_0 … P_{n_basis−1}`` over a record of ``n_samples``.
 
@@ -121,10 +236,17 @@ def legendre_basis(n_samples: int, n_basis: int) -> FloatArray:
     -------
     numpy.ndarray, shape (n_basis, n_samples)
     """
-    if n_samples < 2 or n_basis < 1:
-        raise InputDataError(f"need n_samples >= 2 and n_basis >= 1, got {n_samples}, {n_basis}")
-    x = 2.0 * np.arange(n_samples) / (n_samples - 1) - 1.0
-    return _legendre(x, n_basis)
+    return basis_functions(n_samples, n_basis, "legendre")
+
+
+def _skirts(family: str, n_samples: int, n_basis: int) -> ComplexArray:
+    """DFT of each basis function over the record, shape (n_basis, n_samples)."""
+    return np.fft.fft(basis_functions(n_samples, n_basis, family), axis=1)
+
+
+def _nested(family: str) -> bool:
+    """Whether the first ``q`` functions of ``N_p`` are the basis of ``N_p = q``."""
+    return family != "bspline"
 
 
 # --------------------------------------------------------------------------------------
@@ -154,23 +276,31 @@ def _design(
 ) -> tuple[ComplexArray, int]:
     """Columns ``B_p(k − k_e')/N`` of the line, its neighbours and the polynomial.
 
-    A neighbour's ``p = 0`` skirt is a single bin at the neighbour's line, so it enters
-    only when that line lies inside the window (otherwise the column is round-off).
+    A neighbour's skirt enters only where it reaches into the window: a column holding less
+    than :data:`_NEGLIGIBLE_SKIRT` of the skirt's energy there is round-off and is dropped
+    (Legendre ``p = 0`` is a single bin at the neighbour's line; a Fourier term's skirt is
+    two bins, ``±h`` from it).
     Returns the design (rows = window bins) and the number of the line's own columns
     (the first ``n_basis``).
     """
     n_basis = skirts.shape[0]
     m = layout.offsets
     cols = [skirts[:, m % n_samples].T]
+    energy = np.sum(np.abs(skirts) ** 2, axis=1)
     for d in layout.neighbours:
-        first = 0 if -layout.left <= d <= layout.right else 1
-        cols.append(skirts[first:, (m - d) % n_samples].T)
+        block = skirts[:, (m - d) % n_samples]
+        seen = np.sum(np.abs(block) ** 2, axis=1) > _NEGLIGIBLE_SKIRT * energy
+        cols.append(block[seen].T)
     design = np.concatenate(cols, axis=1) / n_samples
     if n_transient is not None:
         scale = max(layout.left, layout.right, 1)
         powers = (m[:, None] / scale) ** np.arange(n_transient + 1)
         design = np.concatenate([design, powers.astype(complex)], axis=1)
     return design, n_basis
+
+
+#: Fraction of a skirt's energy below which its part inside a window is round-off.
+_NEGLIGIBLE_SKIRT = 1e-20
 
 
 @dataclass(frozen=True)
@@ -184,33 +314,67 @@ class _Solver:
     nuisance span projected out, are then solved by SVD; their variance inflation is the
     diagonal of ``(A_⊥^H A_⊥)^{-1}`` for unit-norm columns (1 when the own skirts are
     orthogonal to each other and to the nuisance).
+
+    That is the variance of each ``G_p`` (``variance_inflation``, used for the standard
+    errors). For a basis that is not orthogonal over the record (B-splines) it includes the
+    basis's own correlation, which does not make ``G(jω, t)`` any noisier; the conditioning
+    checks use ``skirt_inflation`` instead: the same measure for the own columns of the
+    basis orthonormalised over the record (``whiten``, see :func:`_whitener`), i.e. only
+    what the window and the neighbours cost. For orthogonal bases the two are equal.
     """
 
     own_pinv: ComplexArray  # (n_own, rows), maps the window spectrum to normalised unknowns
     residual_projector: ComplexArray  # (rows, rows)
     column_norms: FloatArray  # (n_own,)
     variance_inflation: FloatArray  # (n_own,)
+    skirt_inflation: FloatArray  # (n_own,)
     dof: int
 
     @classmethod
-    def build(cls, design: ComplexArray, n_own: int) -> _Solver:
+    def build(cls, design: ComplexArray, n_own: int, whiten: FloatArray | None = None) -> _Solver:
         rows = design.shape[0]
         own, nuisance = design[:, :n_own], design[:, n_own:]
-        norms = np.linalg.norm(own, axis=0)
-        norms[norms == 0] = 1.0
-        own = own / norms
+        norms = _unit_norms(own)
         q = _range_basis(nuisance)
-        own_perp = own - q @ (q.conj().T @ own)
+        own_perp = (own - q @ (q.conj().T @ own)) / norms
         u, s, vh = np.linalg.svd(own_perp, full_matrices=False)
-        if s.size < n_own or s[-1] <= 1e-12 * max(s[0], 1.0):
-            inflation = np.full(n_own, np.inf)
-            pinv = np.full((n_own, rows), np.nan, dtype=complex)
-        else:
+        inflation = _inflation(s, vh, n_own)
+        if np.isfinite(inflation).all():
             pinv = (vh.conj().T / s) @ u.conj().T
-            inflation = (np.abs(vh.T) ** 2) @ (1.0 / s**2)
+        else:
+            pinv = np.full((n_own, rows), np.nan, dtype=complex)
+        skirt_inflation = inflation
+        if whiten is not None:
+            white = own @ whiten
+            white_perp = (white - q @ (q.conj().T @ white)) / _unit_norms(white)
+            _, s_w, vh_w = np.linalg.svd(white_perp, full_matrices=False)
+            skirt_inflation = _inflation(s_w, vh_w, n_own)
         basis = np.concatenate([q, u], axis=1)
         projector = np.eye(rows) - basis @ basis.conj().T
-        return cls(pinv, projector, norms, np.asarray(inflation, float), rows - basis.shape[1])
+        return cls(pinv, projector, norms, inflation, skirt_inflation, rows - basis.shape[1])
+
+
+def _unit_norms(columns: ComplexArray) -> FloatArray:
+    norms = np.linalg.norm(columns, axis=0)
+    norms[norms == 0] = 1.0
+    return np.asarray(norms, dtype=float)
+
+
+def _inflation(s: FloatArray, vh: ComplexArray, n_own: int) -> FloatArray:
+    """Diagonal of ``(A^H A)^{-1}`` from the SVD of unit-norm ``A`` (inf when singular)."""
+    if s.size < n_own or s[-1] <= 1e-12 * max(s[0], 1.0):
+        return np.full(n_own, np.inf)
+    return np.asarray((np.abs(vh.T) ** 2) @ (1.0 / s**2), dtype=float)
+
+
+def _whitener(family: str, n_samples: int, n_basis: int) -> FloatArray | None:
+    """``L^{-T}`` with ``L L^T`` the Gram matrix of the basis over the record, for the
+    families that are not orthogonal there (B-splines); None for Legendre and Fourier."""
+    if family != "bspline" or n_basis == 1:
+        return None
+    basis = basis_functions(n_samples, n_basis, family)
+    chol = np.linalg.cholesky(basis @ basis.T / n_samples)
+    return np.asarray(np.linalg.inv(chol).T, dtype=float)
 
 
 #: Relative singular value below which directions of the nuisance span are dropped.
@@ -305,6 +469,7 @@ def skirt_conditioning(
     *,
     window_lines: float = 1.25,
     neighbours: int = 1,
+    basis_family: str = "legendre",
 ) -> SkirtConditioning:
     """Conditioning of an interior line's local problem (depends on the design only).
 
@@ -321,13 +486,17 @@ def skirt_conditioning(
         Degree of the transient polynomial (None: no polynomial).
     window_lines, neighbours : float, int
         Local window and modelled neighbours, as in :func:`identify_ltv`.
+    basis_family : str
+        One of :data:`BASIS_FAMILIES`.
 
     Returns
     -------
     SkirtConditioning
     """
-    skirts = np.fft.fft(legendre_basis(n_samples, n_basis), axis=1)
-    return _conditioning(skirts, spacing_bins, n_transient, window_lines, neighbours)
+    family = check_basis_family(basis_family)
+    skirts = _skirts(family, n_samples, n_basis)
+    whiten = _whitener(family, n_samples, n_basis)
+    return _conditioning(skirts, spacing_bins, n_transient, window_lines, neighbours, whiten)
 
 
 def _conditioning(
@@ -336,6 +505,7 @@ def _conditioning(
     n_transient: int | None,
     window_lines: float,
     neighbours: int,
+    whiten: FloatArray | None = None,
 ) -> SkirtConditioning:
     if spacing_bins < 2:
         raise InputDataError(
@@ -346,7 +516,7 @@ def _conditioning(
     layout = _interior_layout(spacing_bins, window_lines, neighbours)
     design, n_own = _design(layout, skirts, n_samples, n_transient)
     rows, unknowns = design.shape
-    inflation = _Solver.build(design, n_own).variance_inflation
+    inflation = _Solver.build(design, n_own, whiten).skirt_inflation
     return SkirtConditioning(n_basis, spacing_bins, rows, unknowns, inflation)
 
 
@@ -359,16 +529,29 @@ def max_stable_basis(
     *,
     window_lines: float = 1.25,
     neighbours: int = 1,
+    basis_family: str = "legendre",
 ) -> int:
-    """Largest ``N_p`` (≤ ``n_max``) whose variance inflation stays ≤ ``limit`` (0: none)."""
-    skirts = np.fft.fft(legendre_basis(n_samples, n_max), axis=1)
-    best = 0
-    for n_basis in range(1, n_max + 1):
-        cond = _conditioning(skirts[:n_basis], spacing_bins, n_transient, window_lines, neighbours)
-        if cond.max_variance_inflation > limit:
-            break
-        best = n_basis
-    return best
+    """Largest ``N_p`` (≤ ``n_max``) whose variance inflation stays ≤ ``limit`` (0: none).
+
+    Found by bisection: for the nested families (Legendre, Fourier: a smaller basis is a
+    prefix) adding a function never lowers the inflation of the others, so the worst
+    inflation grows with ``N_p`` and the bisection is exact; B-splines change with ``N_p``
+    and follow the same trend (their inflation is measured on the orthonormalised basis).
+    """
+    family = check_basis_family(basis_family)
+    nested = _skirts(family, n_samples, n_max) if _nested(family) else None
+
+    def inflation(n_basis: int) -> float:
+        skirts = nested[:n_basis] if nested is not None else _skirts(family, n_samples, n_basis)
+        whiten = _whitener(family, n_samples, n_basis)
+        cond = _conditioning(skirts, spacing_bins, n_transient, window_lines, neighbours, whiten)
+        return cond.max_variance_inflation
+
+    lo, hi = 0, n_max + 1  # inflation(lo) <= limit (or lo = 0); inflation(hi) > limit
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (mid, hi) if inflation(mid) <= limit else (lo, mid)
+    return lo
 
 
 # --------------------------------------------------------------------------------------
@@ -407,8 +590,8 @@ class LtvEstimate:
     Attributes
     ----------
     G_p : numpy.ndarray of complex, shape (n_basis, n_lines)
-        Coefficient of Legendre polynomial ``p`` at each excited line (output unit per
-        input unit, e.g. rad/(N·m)).
+        Coefficient of basis function ``p`` at each excited line (output unit per input
+        unit, e.g. rad/(N·m)).
     G_p_se : numpy.ndarray, shape (n_basis, n_lines)
         Standard error of ``G_p`` from each local problem's residual.
     frequencies_hz : numpy.ndarray, shape (n_lines,)
@@ -423,6 +606,15 @@ class LtvEstimate:
         Degree of the transient polynomial used.
     variance_inflation : float
         Worst variance inflation of the line's own ``G_p`` over all local problems.
+    basis_family : str
+        The family of ``b_p`` (one of :data:`BASIS_FAMILIES`); :meth:`basis`,
+        :meth:`G`, :meth:`simulate` evaluate that family.
+    output_noise_variance : float
+        Expected variance per sample that the estimation noise adds to the model's output
+        (:meth:`simulate`), output unit²: ``(2/N²)·Σ_e σ_e²·Σ_p ι_p`` with ``σ_e²`` the
+        residual variance per bin of line ``e``'s local problem and ``ι_p`` the skirt
+        inflation (``σ_t²·2·N_p·n_lines/N`` for orthogonal skirts and white noise of
+        variance ``σ_t²``). NaN when unknown.
     """
 
     G_p: ComplexArray
@@ -434,6 +626,16 @@ class LtvEstimate:
     n_periods: int
     n_transient: int | None
     variance_inflation: float
+    basis_family: str = "legendre"
+    output_noise_variance: float = float("nan")
+
+    def __post_init__(self) -> None:
+        check_basis_family(self.basis_family)
+
+    @property
+    def basis_name(self) -> str:
+        """What ``b_p`` are, for reports: e.g. ``"Fourier terms"``."""
+        return _FAMILY_NAMES[self.basis_family]
 
     @property
     def n_basis(self) -> int:
@@ -457,7 +659,7 @@ class LtvEstimate:
     def basis(self, t_s: ArrayLike) -> FloatArray:
         """``b_p(t)`` at times ``t_s`` (s), shape (n_basis, n_times)."""
         t = np.atleast_1d(np.asarray(t_s, dtype=float))
-        return _legendre(_record_coordinate(t, self.fs_hz, self.n_samples), self.n_basis)
+        return _basis_at(self.basis_family, t * self.fs_hz, self.n_samples, self.n_basis)
 
     def G(self, t_s: ArrayLike | None = None) -> ComplexArray:
         """``G(jω_e, t)`` at the excited lines, shape (n_times, n_lines).
@@ -495,7 +697,8 @@ class LtvEstimate:
         x = np.zeros((self.n_basis, n // 2 + 1), dtype=complex)
         x[:, record_bins] = spectrum[record_bins] * self.G_p
         responses = np.fft.irfft(x, n, axis=1)
-        return np.asarray(np.sum(legendre_basis(n, self.n_basis) * responses, axis=0))
+        basis = basis_functions(n, self.n_basis, self.basis_family)
+        return np.asarray(np.sum(basis * responses, axis=0))
 
     def resonance_from_peak(self, t_s: ArrayLike | None = None) -> FloatArray:
         """Excited frequency of largest ``|G(jω, t)|`` at each time, Hz (the paper's metric).
@@ -771,33 +974,58 @@ def _record_periods(n: int, period_samples: int, n_periods: int | None) -> int:
 # --------------------------------------------------------------------------------------
 
 
-def _worst_inflation(skirts: ComplexArray, layouts: set[_Layout], n_transient: int | None) -> float:
-    n_samples = skirts.shape[1]
+def _worst_inflation(
+    family: str, skirts: ComplexArray, layouts: set[_Layout], n_transient: int | None
+) -> float:
+    n_basis, n_samples = skirts.shape
+    whiten = _whitener(family, n_samples, n_basis)
     return max(
         float(
-            np.max(_Solver.build(*_design(lay, skirts, n_samples, n_transient)).variance_inflation)
+            np.max(
+                _Solver.build(*_design(lay, skirts, n_samples, n_transient), whiten).skirt_inflation
+            )
         )
         for lay in layouts
     )
 
 
+def _largest_stable(
+    family: str, skirts: ComplexArray, layouts: set[_Layout], n_transient: int | None
+) -> int:
+    """Largest ``q < N_p`` whose skirt inflation is ≤ the warning level (0: none).
+
+    Nested families take prefixes of ``skirts``, counting down; B-splines change with
+    ``N_p``, so their ``q`` is found by bisection (inflation grows with ``N_p``).
+    """
+    n_basis, n_samples = skirts.shape
+
+    def stable(q: int) -> bool:
+        smaller = skirts[:q] if _nested(family) else _skirts(family, n_samples, q)
+        return _worst_inflation(family, smaller, layouts, n_transient) <= WARN_VARIANCE_INFLATION
+
+    if _nested(family):
+        return next((q for q in range(n_basis - 1, 0, -1) if stable(q)), 0)
+    lo, hi = 0, n_basis  # stable(lo) (or lo = 0), not stable(hi)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (mid, hi) if stable(mid) else (lo, mid)
+    return lo
+
+
 def _check_conditioning(
     solvers: dict[_Layout, _Solver],
+    family: str,
     skirts: ComplexArray,
     n_transient: int | None,
     spacing: int,
     fs_hz: float,
 ) -> float:
-    """Worst variance inflation; warn above the warning level, refuse above the maximum."""
-    worst = max(float(np.max(s.variance_inflation)) for s in solvers.values())
+    """Worst skirt inflation; warn above the warning level, refuse above the maximum."""
+    worst = max(float(np.max(s.skirt_inflation)) for s in solvers.values())
     if worst <= WARN_VARIANCE_INFLATION:
         return worst
     n_basis, n_samples = skirts.shape
-    stable = 0
-    for q in range(n_basis - 1, 0, -1):  # the skirts of a smaller N_p are a prefix
-        if _worst_inflation(skirts[:q], set(solvers), n_transient) <= WARN_VARIANCE_INFLATION:
-            stable = q
-            break
+    stable = _largest_stable(family, skirts, set(solvers), n_transient)
     df = spacing * fs_hz / n_samples
     advice = (
         f"use N_p <= {stable} for lines {df:g} Hz apart, or excite lines further apart"
@@ -805,8 +1033,8 @@ def _check_conditioning(
         else f"excite lines further apart than {df:g} Hz"
     )
     what = (
-        f"N_p = {n_basis} is too large for Δf_exc = {df:g} Hz: the Legendre skirts (width ≈ "
-        f"p²/π ≈ {(n_basis - 1) ** 2 / np.pi:.0f} bins) spill past the {spacing} bins "
+        f"N_p = {n_basis} is too large for Δf_exc = {df:g} Hz: the "
+        f"{_skirt_width(family, n_basis, n_samples, fs_hz)} spill past the {spacing} bins "
         f"between excited lines"
     )
     if not np.isfinite(worst) or worst > MAX_VARIANCE_INFLATION:
@@ -822,6 +1050,47 @@ def _check_conditioning(
     return worst
 
 
+def _skirt_width(family: str, n_basis: int, n_samples: int, fs_hz: float) -> str:
+    """How wide the skirts of ``N_p`` functions of ``family`` are, for messages."""
+    if family == "legendre":
+        return f"Legendre skirts (width ≈ p²/π ≈ {(n_basis - 1) ** 2 / np.pi:.0f} bins)"
+    if family == "fourier":
+        return f"Fourier skirts (bins ±{fourier_harmonics(n_basis)} around each line)"
+    knots_s = (n_samples - 1) / fs_hz / max(n_basis - 3, 1)
+    return (
+        f"cubic B-spline skirts (knots {knots_s:.3g} s apart: main lobe ≈ ±{max(n_basis - 3, 1)} "
+        "bins)"
+    )
+
+
+def _check_fourier_room(n_basis: int, record_bins: NDArray[np.int64], fs_hz: float, n: int) -> None:
+    """Refuse Fourier harmonics that reach the bins of another line (or DC) in one line.
+
+    A :class:`~rtsid.errors.NumericalError`, like any ``N_p`` too large for the line
+    spacing, only known here before building the local problems.
+
+    Harmonic ``h`` of the record puts line ``k_e``'s skirt on bins ``k_e ± h``; with lines
+    ``D`` bins apart two lines share a bin once ``2h >= D``, and the lowest line's skirt
+    reaches DC once ``h >= k_1``: ``G_p`` is then not determined.
+    """
+    harmonic = fourier_harmonics(n_basis)
+    spacing = int(np.min(np.diff(record_bins))) if record_bins.size > 1 else 2 * n
+    room = min((spacing - 1) // 2, int(record_bins[0]) - 1)
+    if harmonic <= room:
+        return
+    why = (
+        f"excited lines are only {spacing} record bins apart, so neighbouring lines' skirts "
+        "share bins"
+        if (spacing - 1) // 2 <= int(record_bins[0]) - 1
+        else f"the lowest line is only {int(record_bins[0])} record bins above DC"
+    )
+    fix = f"use N_p <= {2 * room + 1}" if room > 0 else "use another basis family"
+    raise NumericalError(
+        f"N_p = {n_basis} Fourier terms reach harmonic {harmonic} of the record "
+        f"({harmonic * fs_hz / n:.3g} Hz) but {why}; {fix}, or record more periods"
+    )
+
+
 def identify_ltv(
     u: ArrayLike,
     y: ArrayLike,
@@ -835,6 +1104,7 @@ def identify_ltv(
     window_lines: float = 1.25,
     neighbours: int = 1,
     input_tolerance: float = DEFAULT_INPUT_TOLERANCE,
+    basis_family: str = "legendre",
 ) -> LtvEstimate:
     """Estimate ``G(jω, t) = Σ_p G_p(jω)·b_p(t)`` from one multisine-excited record.
 
@@ -853,7 +1123,7 @@ def identify_ltv(
     n_periods : int, optional
         Periods in the record (default: inferred; the record must hold whole periods).
     n_basis : int
-        ``N_p``, the number of Legendre polynomials.
+        ``N_p``, the number of basis functions ``b_p``.
     n_transient : int or None
         Degree of the polynomial in ``k`` that absorbs transients and far leakage in each
         window (None, the default: no polynomial; see the module notes).
@@ -866,6 +1136,13 @@ def identify_ltv(
         window).
     input_tolerance : float
         Largest fraction of the input's power allowed outside the excited bins.
+    basis_family : str
+        The time basis, one of :data:`BASIS_FAMILIES` (see :func:`basis_functions`):
+        ``"legendre"`` (default; smooth, slow variation), ``"fourier"`` (variation periodic
+        with a period that divides the record: each term's skirt is two bins, so ``N_p``
+        is limited by the line spacing only, ``2H < Δk``), ``"bspline"`` (local changes;
+        skirts ≈ ``±(N_p − 3)`` bins, much narrower than Legendre's ``p²/π`` at large
+        ``N_p``).
 
     Returns
     -------
@@ -875,9 +1152,11 @@ def identify_ltv(
     ------
     InputDataError
         Inputs of different lengths, a record that is not a whole number of periods, an
-        input that is not a multisine on ``excited_bins``, non-finite samples.
+        input that is not a multisine on ``excited_bins``, non-finite samples, an unknown
+        basis family.
     NumericalError
-        ``N_p`` far too large for the line spacing (the local problems are singular).
+        ``N_p`` far too large for the line spacing (the local problems are singular; for
+        Fourier terms: harmonics that reach another line's bins).
 
     Warns
     -----
@@ -893,8 +1172,10 @@ def identify_ltv(
         )
     if not np.isfinite(fs_hz) or fs_hz <= 0:
         raise InputDataError(f"fs_hz must be a positive number, got {fs_hz!r}")
+    family = check_basis_family(basis_family)
     if int(n_basis) != n_basis or n_basis < 1:
         raise InputDataError(f"n_basis must be a positive integer, got {n_basis!r}")
+    n_basis = int(n_basis)
     if not window_lines > 0 or neighbours < 0:
         raise InputDataError(
             f"window_lines must be > 0 and neighbours >= 0, got {window_lines}, {neighbours}"
@@ -905,20 +1186,30 @@ def identify_ltv(
     n_periods = _record_periods(n, int(period_samples), n_periods)
     bins = _check_bins(excited_bins, int(period_samples))
     record_bins = bins * n_periods
+    if family == "fourier":
+        _check_fourier_room(n_basis, record_bins, fs_hz, n)
+    if family == "bspline" and n_basis > n // 2:
+        raise InputDataError(
+            f"N_p = {n_basis} B-splines over {n} samples leave under 2 samples per knot "
+            f"interval; use N_p <= {n // 2}"
+        )
     spectrum_u = _check_multisine(u_arr, record_bins, input_tolerance, fs_hz)
     spectrum_y = np.fft.fft(y_arr)
 
-    skirts = np.fft.fft(legendre_basis(n, n_basis), axis=1)
+    skirts = _skirts(family, n, n_basis)
     layouts = _layouts(record_bins, n, window_lines, neighbours)
+    whiten = _whitener(family, n, n_basis)
     solvers = {
-        layout: _Solver.build(*_design(layout, skirts, n, n_transient)) for layout in set(layouts)
+        layout: _Solver.build(*_design(layout, skirts, n, n_transient), whiten)
+        for layout in set(layouts)
     }
     spacing = int(np.min(np.diff(record_bins))) if bins.size > 1 else 2 * layouts[0].left
-    worst = _check_conditioning(solvers, skirts, n_transient, spacing, fs_hz)
+    worst = _check_conditioning(solvers, family, skirts, n_transient, spacing, fs_hz)
 
     g_p = np.empty((n_basis, bins.size), dtype=complex)
     se = np.empty((n_basis, bins.size))
     u_lines = spectrum_u[record_bins]
+    absorbed = 0.0  # Σ_e σ_e²·Σ_p (skirt inflation): the noise the own G_p take up
     for layout, solver in solvers.items():
         idx = np.array([i for i, lay in enumerate(layouts) if lay == layout])
         windows = record_bins[idx][None, :] + layout.offsets[:, None]  # (rows, lines)
@@ -932,6 +1223,7 @@ def identify_ltv(
         scale = solver.column_norms[:, None] * u_lines[None, idx]
         g_p[:, idx] = theta / scale
         se[:, idx] = sigma[None, :] * np.sqrt(solver.variance_inflation[:, None]) / np.abs(scale)
+        absorbed += float(np.sum(sigma**2) * np.sum(solver.skirt_inflation))
     return LtvEstimate(
         G_p=g_p,
         G_p_se=se,
@@ -942,4 +1234,173 @@ def identify_ltv(
         n_periods=int(n_periods),
         n_transient=n_transient,
         variance_inflation=worst,
+        basis_family=family,
+        output_noise_variance=2.0 * absorbed / n**2,
     )
+
+
+# --------------------------------------------------------------------------------------
+# choosing N_p from the data
+# --------------------------------------------------------------------------------------
+
+#: Largest ``N_p`` :func:`select_basis_size` tries per family (Legendre: as ``--basis auto``
+#: always has; Fourier 101 = harmonics up to 50 of the record; B-splines 80).
+AUTO_MAX_BASIS = {"legendre": 20, "fourier": 101, "bspline": 80}
+
+
+@dataclass(frozen=True)
+class BasisSelection:
+    """``N_p`` chosen by :func:`select_basis_size`, with what it was chosen from.
+
+    Attributes
+    ----------
+    basis_family : str
+        The family.
+    n_basis : int
+        The chosen ``N_p``.
+    n_stable : int
+        Largest ``N_p`` (≤ the family's cap) whose skirt inflation stays ≤
+        :data:`WARN_VARIANCE_INFLATION`: the candidates end there.
+    candidates : tuple of int
+        The ``N_p`` tried.
+    predicted_vaf : tuple of float
+        Predicted validation VAF (%, of a noisy validation output) per candidate.
+    estimate : LtvEstimate
+        The estimate at the chosen ``N_p``.
+    """
+
+    basis_family: str
+    n_basis: int
+    n_stable: int
+    candidates: tuple[int, ...]
+    predicted_vaf: tuple[float, ...]
+    estimate: LtvEstimate = field(repr=False)
+
+    @property
+    def chosen_vaf(self) -> float:
+        """Predicted validation VAF at the chosen ``N_p``, %."""
+        return self.predicted_vaf[self.candidates.index(self.n_basis)]
+
+
+def predicted_validation_vaf(estimate: LtvEstimate, u: ArrayLike, y: ArrayLike) -> float:
+    """Validation VAF (%) the estimate should reach on another realisation, from its own record.
+
+    Mallows' ``C_p`` in the time domain: on another realisation with the same noise the
+    model's error is its error on the estimation record plus twice the noise the estimate
+    took up (``estimate.output_noise_variance``: once it is missing from the estimation
+    residual, once it is added to the prediction). So
+    ``100·(1 − (mean(e²) + 2·v_noise)/var(y))`` with ``e = y − estimate.simulate(u)``
+    predicts the VAF of the *noisy* validation output; the model with the highest value is
+    expected to predict best.
+    """
+    u_arr, y_arr = _as_signal("u", u), _as_signal("y", y)
+    residual = y_arr - estimate.simulate(u_arr)
+    error = float(np.mean(residual**2)) + 2.0 * estimate.output_noise_variance
+    return float(100.0 * (1.0 - error / np.var(y_arr)))
+
+
+def _candidates(family: str, n_stable: int) -> tuple[int, ...]:
+    """``N_p`` to try up to ``n_stable``: every value to 12, then steps of ≈ 20 %.
+
+    Fourier takes whole harmonics only (odd ``N_p = 2H + 1``); Legendre every value (its
+    cap is 20).
+    """
+    if family == "legendre":
+        values = set(range(1, n_stable + 1))
+    else:
+        values = set(range(1, min(12, n_stable) + 1))
+        n = 12
+        while n < n_stable:
+            n = max(n + 1, round(n * 1.2))
+            values.add(min(n, n_stable))
+        values.add(n_stable)
+    if family == "fourier":
+        values = {v - (1 - v % 2) for v in values}
+    return tuple(sorted(v for v in values if v >= 1))
+
+
+def select_basis_size(
+    u: ArrayLike,
+    y: ArrayLike,
+    fs_hz: float,
+    excited_bins: ArrayLike,
+    period_samples: int,
+    n_periods: int | None = None,
+    *,
+    basis_family: str = "legendre",
+    n_max: int | None = None,
+    n_transient: int | None = None,
+    window_lines: float = 1.25,
+    neighbours: int = 1,
+    input_tolerance: float = DEFAULT_INPUT_TOLERANCE,
+) -> BasisSelection:
+    """Choose ``N_p`` for a basis family from the record: conditioning, then predicted VAF.
+
+    The candidates run up to the largest ``N_p`` whose local problems stay well conditioned
+    (:func:`max_stable_basis`, skirt inflation ≤ :data:`WARN_VARIANCE_INFLATION`, at most
+    ``n_max``: :data:`AUTO_MAX_BASIS` by default); each is estimated and scored by
+    :func:`predicted_validation_vaf`; the best score wins. Arguments as in
+    :func:`identify_ltv`.
+
+    Returns
+    -------
+    BasisSelection
+
+    Raises
+    ------
+    InputDataError
+        As :func:`identify_ltv`; or lines so close that not even ``N_p = 1`` is well
+        conditioned.
+    """
+    family = check_basis_family(basis_family)
+    cap = AUTO_MAX_BASIS[family] if n_max is None else int(n_max)
+    if cap < 1:
+        raise InputDataError(f"n_max must be >= 1, got {n_max!r}")
+    u_arr, y_arr = _as_signal("u", u), _as_signal("y", y)
+    n = u_arr.size
+    periods = _record_periods(n, int(period_samples), n_periods)
+    record_bins = _check_bins(excited_bins, int(period_samples)) * periods
+    if record_bins.size < 2:
+        raise InputDataError("choosing N_p needs at least two excited lines; excite more lines")
+    spacing = int(np.min(np.diff(record_bins)))
+    if family == "fourier":  # harmonics a line owns alone (beyond them: refused)
+        cap = min(cap, 2 * max(min((spacing - 1) // 2, int(record_bins[0]) - 1), 0) + 1)
+    stable = max_stable_basis(
+        n,
+        spacing,
+        n_transient,
+        n_max=cap,
+        window_lines=window_lines,
+        neighbours=neighbours,
+        basis_family=family,
+    )
+    if stable < 1:
+        raise InputDataError(
+            f"excited lines {spacing} record bins apart leave no room for time variation; "
+            "excite lines further apart or record more periods"
+        )
+    candidates = _candidates(family, stable)
+    scores: list[float] = []
+    best: LtvEstimate | None = None
+    for n_basis in candidates:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SkirtConditioningWarning)  # edge lines only
+            est = identify_ltv(
+                u_arr,
+                y_arr,
+                fs_hz,
+                excited_bins,
+                period_samples,
+                periods,
+                n_basis,
+                n_transient=n_transient,
+                window_lines=window_lines,
+                neighbours=neighbours,
+                input_tolerance=input_tolerance,
+                basis_family=family,
+            )
+        scores.append(predicted_validation_vaf(est, u_arr, y_arr))
+        if best is None or scores[-1] > max(scores[:-1]):
+            best = est
+    assert best is not None
+    return BasisSelection(family, best.n_basis, stable, candidates, tuple(scores), best)

@@ -18,6 +18,7 @@ and every estimate after it — exactly.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -28,6 +29,7 @@ from numpy.typing import ArrayLike
 from rtsid.errors import InputDataError, NumericalError, WindowError
 from rtsid.ident.analysis import AnalysisPlan
 from rtsid.ident.grid import window_ends
+from rtsid.ident.tracker import ParameterTracker, TrackerOptions, TrackEstimate
 from rtsid.ident.vaf import vaf
 from rtsid.ident.window import (
     EstimatorOptions,
@@ -41,7 +43,14 @@ from rtsid.ident.window import (
 )
 from rtsid.verdicts import Reason
 
-__all__ = ["HeldParameters", "WindowResult", "WindowStream", "sliding_estimates"]
+__all__ = [
+    "HeldParameters",
+    "StreamTracker",
+    "Tracked",
+    "WindowResult",
+    "WindowStream",
+    "sliding_estimates",
+]
 
 
 class HeldParameters:
@@ -85,6 +94,69 @@ class HeldParameters:
             self._damping.append(damping)
 
 
+@dataclass(frozen=True)
+class Tracked:
+    """The tracked stiffness and damping at one window's end (NaN: not tracked yet / not
+    tracked, e.g. B while it is held)."""
+
+    K: float
+    K_se: float
+    B: float
+    B_se: float
+
+
+_UNTRACKED = TrackEstimate(float("nan"), float("nan"), float("nan"), False, False)
+#: An estimate carrying one of these flags is not a measurement for the tracker.
+_NOT_MEASURED = frozenset({"low_vaf", "model_mismatch"})
+
+
+class StreamTracker:
+    """K(t) and B(t) of a stream: one :class:`~rtsid.ident.tracker.ParameterTracker` each.
+
+    Every window of the stream, estimated or withheld, steps it once (at the window's last
+    sample time): an estimate is taken as a measurement unless flagged ``low_vaf`` or
+    ``model_mismatch``; anything else only advances the prediction. B is tracked only
+    while it is fitted per window (its standard error finite); held, it stays NaN.
+
+    Parameters
+    ----------
+    window_s, hop_s : float
+        The stream's window and hop, s.
+    options : TrackerOptions
+        The ``[tracker]`` settings.
+    """
+
+    def __init__(self, window_s: float, hop_s: float, options: TrackerOptions) -> None:
+        self.options = options
+        self.stiffness = ParameterTracker(
+            window_s, hop_s, options.stiffness_noise, options.stiffness_rate_noise, options
+        )
+        self.damping = ParameterTracker(
+            window_s, hop_s, options.damping_noise, options.damping_rate_noise, options
+        )
+
+    def step(self, t_end_s: float, estimate: WindowEstimate | None) -> Tracked:
+        """Advance to ``t_end_s`` (s) and take ``estimate`` if it is a measurement."""
+        if not self.options.enabled:
+            return Tracked(*(float("nan"),) * 4)
+        if estimate is not None and _NOT_MEASURED.intersection(estimate.flags):
+            estimate = None  # not a measurement: the prediction only advances
+        k = self.stiffness.step(
+            t_end_s,
+            None if estimate is None else estimate.K,
+            None if estimate is None else estimate.K_se,
+        )
+        b = _UNTRACKED
+        b_measured = estimate is not None and math.isfinite(estimate.B_se)
+        if b_measured or self.damping.started:
+            b = self.damping.step(
+                t_end_s,
+                estimate.B if b_measured and estimate is not None else None,
+                estimate.B_se if b_measured and estimate is not None else None,
+            )
+        return Tracked(k.value, k.se, b.value, b.se)
+
+
 class WindowStream:
     """Estimate a stream's windows in order with one plan and the held parameters.
 
@@ -100,6 +172,10 @@ class WindowStream:
         A plan to use from the start (default: planned from the first estimable window).
     max_lowpass_hz : float, optional
         Highest cut-off the plan may choose, Hz (e.g. the band a robot calibration models).
+    window_s : float, optional
+        Window length, s (the tracker's measurement model; default 0.3).
+    tracker : TrackerOptions, optional
+        Settings of the K(t)/B(t) tracker (:attr:`tracker`, stepped by :meth:`track`).
     """
 
     def __init__(
@@ -109,6 +185,9 @@ class WindowStream:
         hop_s: float,
         plan: AnalysisPlan | None = None,
         max_lowpass_hz: float | None = None,
+        *,
+        window_s: float = 0.3,
+        tracker: TrackerOptions | None = None,
     ) -> None:
         self.fs_hz = float(fs_hz)
         self.options = options
@@ -116,6 +195,11 @@ class WindowStream:
         self.max_lowpass_hz = max_lowpass_hz
         horizon = max(1, round(options.hold_horizon_s / hop_s))
         self.held = HeldParameters(options.hold, horizon)
+        self.tracker = StreamTracker(window_s, hop_s, tracker or TrackerOptions())
+
+    def track(self, t_end_s: float, estimate: WindowEstimate | None) -> Tracked:
+        """Step the tracker with this window (its end time, s; None: withheld)."""
+        return self.tracker.step(t_end_s, estimate)
 
     def estimate(
         self, position: ArrayLike, torque: ArrayLike, valid: ArrayLike | None = None
@@ -164,6 +248,8 @@ class WindowResult:
         The estimate; None when withheld.
     reason : str or None
         Why it was withheld (``"nan"``, ``"no_excitation"``, ``"numerical"``, …).
+    track : Tracked or None
+        The stream's tracked K and B after this window.
     """
 
     start: int
@@ -171,6 +257,7 @@ class WindowResult:
     t_end_s: float
     estimate: WindowEstimate | None
     reason: str | None
+    track: Tracked | None = None
 
 
 def sliding_estimates(
@@ -226,17 +313,20 @@ def sliding_estimates(
             f"the record has {pos.size} samples ({pos.size / fs:g} s), shorter than one "
             f"{window_s} s window; use a shorter --window"
         )
-    stream = stream or WindowStream(fs, options or EstimatorOptions(), n_hop / fs)
+    stream = stream or WindowStream(
+        fs, options or EstimatorOptions(), n_hop / fs, window_s=n_win / fs
+    )
     mask = None if valid is None else np.asarray(valid, dtype=bool)
     for end in window_ends(0, pos.size - 1, n_win, n_hop):
         start, stop = end - n_win + 1, end + 1
         t_end = end / fs
         window_valid = None if mask is None else mask[start:stop]
+        est: WindowEstimate | None = None
+        reason: str | None = None
         try:
             est = stream.estimate(pos[start:stop], tor[start:stop], window_valid)
         except WindowError as exc:
-            yield WindowResult(start, stop, t_end, None, exc.reason)
+            reason = exc.reason
         except NumericalError:
-            yield WindowResult(start, stop, t_end, None, Reason.NUMERICAL)
-        else:
-            yield WindowResult(start, stop, t_end, est, None)
+            reason = Reason.NUMERICAL
+        yield WindowResult(start, stop, t_end, est, reason, stream.track(t_end, est))

@@ -51,7 +51,7 @@ __all__ = ["McapConfig", "McapLogger", "channel_kinds", "recording_name", "regis
 
 log = logging.getLogger("rtsid.io.mcap")
 
-_KINDS = ("samples", "estimate", "status", "can_frames")
+_KINDS = ("samples", "estimate", "status", "reflex", "can_frames")
 _STOP_POLL_S = 0.1
 
 
@@ -134,13 +134,14 @@ def register_channels(writer: Any, *, can_frames: bool = False) -> dict[str, int
     """Register rtsid's schemas and channels on a started ``mcap.writer.Writer``.
 
     Every rtsid recording (the live logger's, and files written by ``rtsid convert``) has
-    the same channels: ``/samples``, ``/estimate``, ``/status`` and optionally
+    the same channels: ``/samples``, ``/estimate``, ``/status``, ``/reflex`` and optionally
     ``/can_frames``, JSON messages with JSON-schema schemas.
 
     Returns
     -------
     dict[str, int]
-        Channel id by kind (``"samples"``, ``"estimate"``, ``"status"``, ``"can_frames"``).
+        Channel id by kind (``"samples"``, ``"estimate"``, ``"status"``, ``"reflex"``,
+        ``"can_frames"``).
     """
     channels = {}
     for kind in channel_kinds(can_frames=can_frames):
@@ -361,6 +362,13 @@ class McapLogger(ThreadOwner):
         """Queue one status message (dict following STATUS_SCHEMA, or its encoded bytes)."""
         payload = message if isinstance(message, bytes) else encode_status(message)
         return self._put("status", log_time_ns, payload)
+
+    def log_reflex(
+        self, message: Mapping[str, Any] | bytes, *, log_time_ns: int | None = None
+    ) -> bool:
+        """Queue one slow-lane fit (dict following REFLEX_SCHEMA, or its JSON bytes)."""
+        payload = message if isinstance(message, bytes) else encode_json(message)
+        return self._put("reflex", log_time_ns, payload)
 
     def log_can_frames(self, frames: Iterable[Any], *, log_time_ns: int | None = None) -> bool:
         """Queue a batch of raw CAN frames (``can.Message``-like); ignored unless

@@ -12,16 +12,26 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 import types
 import typing
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from rtsid.ident.reflex_lane import ReflexUpdate
 from rtsid.link.acquisition import LinkCounters
 from rtsid.verdicts import Flag, Reason
 
-__all__ = ["ESTIMATE_SCHEMA", "STATUS_SCHEMA", "EstimateMessage", "StatusMessage", "schema_of"]
+__all__ = [
+    "ESTIMATE_SCHEMA",
+    "REFLEX_SCHEMA",
+    "STATUS_SCHEMA",
+    "EstimateMessage",
+    "ReflexMessage",
+    "StatusMessage",
+    "schema_of",
+]
 
 DRAFT = "https://json-schema.org/draft/2020-12/schema"
 
@@ -50,6 +60,18 @@ class EstimateMessage:
     )
     B_se: float | None = field(metadata=_meta("standard error of B, N·m·s/rad (null when held)"))
     K_se: float | None = field(metadata=_meta("standard error of K, N·m/rad"))
+    K_track: float | None = field(
+        metadata=_meta(
+            "tracked stiffness now (causal Kalman filter over the windows, rtsid.ident.tracker;"
+            " a withheld window advances the prediction), N·m/rad; null before the first "
+            "estimate or with the tracker off"
+        )
+    )
+    K_track_se: float | None = field(metadata=_meta("standard error of K_track, N·m/rad"))
+    B_track: float | None = field(
+        metadata=_meta("tracked damping, N·m·s/rad; null while B is held (hold = inertia_damping)")
+    )
+    B_track_se: float | None = field(metadata=_meta("standard error of B_track, N·m·s/rad"))
     vaf: float | None = field(
         metadata=_meta(
             "variance of the measured torque (analysed band) accounted for by the I, B, K model, %"
@@ -74,6 +96,13 @@ class EstimateMessage:
     reason: Reason | None = field(metadata=_meta("why the estimate is withheld (null when ok)"))
     flags: tuple[Flag, ...] = field(metadata=_meta("warnings on a published estimate"))
     host_time_ns: int = field(metadata=_meta("host UNIX time at publication, ns"))
+    reflex_seq: int | None = field(
+        default=None,
+        metadata=_meta(
+            "the slow lane's reflex model whose torque was subtracted before the estimate "
+            "(its seq on /reflex); null: none (slow lane off, no model yet, or withheld)"
+        ),
+    )
 
     def as_dict(self) -> dict[str, Any]:
         """The JSON object: non-finite numbers as ``None``, flags as a list."""
@@ -100,6 +129,8 @@ def _json_type(annotation: Any) -> dict[str, Any]:
         return {"type": "array", "items": _json_type(args[0])}
     if isinstance(annotation, type) and issubclass(annotation, Reason | Flag):
         return {"type": "string", "enum": [m.value for m in annotation]}
+    if typing.get_origin(annotation) is list:
+        return {"type": "array", "items": _json_type(args[0])}
     if typing.get_origin(annotation) is dict:
         return {"type": "object"}
     names = {str: "string", int: "integer", float: "number", bool: "boolean"}
@@ -113,7 +144,8 @@ def schema_of(
     required: Sequence[str] | None = None,
     additional: bool = False,
 ) -> dict[str, Any]:
-    """The JSON schema of a message dataclass (default: every field required, no other keys).
+    """The JSON schema of a message dataclass (default: every field without a default
+    required, no other keys).
 
     Enum-valued fields list their members, each described in the field's description.
     """
@@ -133,9 +165,19 @@ def schema_of(
         "description": (cls.__doc__ or "").strip(),
         "type": "object",
         "properties": properties,
-        "required": list(properties) if required is None else list(required),
+        "required": _without_default(cls) if required is None else list(required),
         "additionalProperties": additional,
     }
+
+
+def _without_default(cls: type) -> list[str]:
+    """Fields a message must carry: those without a default (added later ones have one, so
+    messages of older recordings stay valid)."""
+    return [
+        f.name
+        for f in dataclasses.fields(cls)
+        if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+    ]
 
 
 def _vocabulary(annotation: Any) -> list[Any]:
@@ -201,6 +243,19 @@ _ZENOH = {
 }
 
 
+_SLOW_LANE = {
+    "description": "slow lane (reflex model) counters, SlowLaneCounters; null when it is off",
+    "properties": {
+        "mode": {"type": "string"},
+        **{n: {"type": "integer"} for n in ("fits", "applied", "failed", "worker_restarts")},
+        "last_seq": {"type": ["integer", "null"]},
+        "last_fit_ms": {"type": ["number", "null"]},
+        "last_error": {"type": ["string", "null"]},
+    },
+    "additionalProperties": True,
+}
+
+
 @dataclass(frozen=True, slots=True)
 class StatusMessage:
     """Health of the daemon, 1–2 Hz. Counters are totals since start."""
@@ -220,6 +275,7 @@ class StatusMessage:
     worker: dict[str, Any] = field(metadata=_WORKER)
     mcap: dict[str, Any] = field(metadata=_MCAP)
     zenoh: dict[str, Any] = field(metadata=_ZENOH)
+    slow_lane: dict[str, Any] | None = field(default=None, metadata=_SLOW_LANE)
 
     def as_dict(self) -> dict[str, Any]:
         """The JSON object (non-finite top-level numbers as ``None``)."""
@@ -238,3 +294,105 @@ STATUS_SCHEMA: dict[str, Any] = schema_of(
     required=("robot", "joint", "host_time_ns", "uptime_s"),
     additional=True,
 )
+
+
+@dataclass(frozen=True, slots=True)
+class ReflexMessage:
+    """One slow-lane fit: the reflex pathway over the last horizon, and whether the fast lane
+    subtracts it."""
+
+    robot: str = field(metadata=_meta("robot name from the config"))
+    joint: str = field(metadata=_meta("joint name from the config"))
+    seq: int = field(metadata=_meta("fit number on the schedule (data end / update)"))
+    start_index: int = field(metadata=_meta("first sample index of the data fitted"))
+    end_index: int = field(metadata=_meta("sample index after the last sample fitted"))
+    applies_from_index: int = field(
+        metadata=_meta("windows ending at or after this sample index use this fit")
+    )
+    ok: bool = field(metadata=_meta("true: a reflex pathway was fitted"))
+    applied: bool = field(
+        metadata=_meta(
+            "true: the fast lane subtracts it (its pathway adds at least min_vaf_gain_percent)"
+        )
+    )
+    variant: str = field(metadata=_meta("reflex pathway: rect or hammerstein"))
+    gain: float | None = field(
+        metadata=_meta("reflex gain of the delayed low-pass fitted to the IRF, N·m·s/rad")
+    )
+    delay_ms: float | None = field(metadata=_meta("reflex delay, ms"))
+    corner_hz: float | None = field(metadata=_meta("corner of the reflex low-pass, Hz"))
+    damping_ratio: float | None = field(metadata=_meta("damping ratio of the reflex low-pass"))
+    dynamics_vaf: float | None = field(
+        metadata=_meta("VAF of the IRF by the delayed low-pass, % (low: gain/delay unreliable)")
+    )
+    irf_gain: float | None = field(metadata=_meta("area of the reflex IRF, N·m·s/rad"))
+    rank: int | None = field(metadata=_meta("IRF components kept by the MDL criterion"))
+    vaf_total: float | None = field(metadata=_meta("VAF of the cascade, %"))
+    vaf_intrinsic_only: float | None = field(
+        metadata=_meta("VAF of an intrinsic IRF fitted alone, %")
+    )
+    vaf_intrinsic_path: float | None = field(metadata=_meta("VAF by the intrinsic pathway, %"))
+    vaf_reflex_path: float | None = field(metadata=_meta("VAF by the reflex pathway, %"))
+    iterations: int = field(metadata=_meta("alternations of the cascade"))
+    irf_fs_hz: float | None = field(metadata=_meta("rate of the IRF lags, Hz"))
+    irf: list[float] = field(
+        metadata=_meta("reflex IRF, lags 0, 1/irf_fs_hz, …, N·m per rad/s per s")
+    )
+    fit_ms: float | None = field(metadata=_meta("time the fit took, ms (null in a replay)"))
+    error: str | None = field(metadata=_meta("why there is no reflex pathway (null when ok)"))
+    host_time_ns: int = field(metadata=_meta("host UNIX time at publication, ns"))
+
+    @classmethod
+    def of(
+        cls,
+        update: ReflexUpdate,
+        *,
+        robot: str,
+        joint: str,
+        variant: str,
+        applies_from_index: int,
+        fit_ms: float | None,
+    ) -> ReflexMessage:
+        """The message of one slow-lane fit."""
+        p = update.pathway
+        d = p.dynamics if p is not None else None
+        return cls(
+            robot=robot,
+            joint=joint,
+            seq=update.seq,
+            start_index=update.start_index,
+            end_index=update.end_index,
+            applies_from_index=applies_from_index,
+            ok=p is not None,
+            applied=update.applied,
+            variant=variant,
+            gain=d.gain if d else None,
+            delay_ms=d.delay_s * 1e3 if d else None,
+            corner_hz=d.corner_hz if d else None,
+            damping_ratio=d.damping_ratio if d else None,
+            dynamics_vaf=d.vaf if d else None,
+            irf_gain=p.irf_gain if p else None,
+            rank=p.rank if p else None,
+            vaf_total=update.vaf_total,
+            vaf_intrinsic_only=update.vaf_intrinsic_only,
+            vaf_intrinsic_path=update.vaf_intrinsic_path,
+            vaf_reflex_path=update.vaf_reflex_path,
+            iterations=update.iterations,
+            irf_fs_hz=p.fs_hz if p else None,
+            irf=[float(v) for v in p.irf] if p else [],
+            fit_ms=fit_ms,
+            error=update.error,
+            host_time_ns=time.time_ns(),
+        )
+
+    def as_dict(self) -> dict[str, Any]:
+        """The JSON object (non-finite numbers as ``None``)."""
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            out[f.name] = None if isinstance(value, float) and not math.isfinite(value) else value
+        return out
+
+
+#: The reflex message's schema, generated from :class:`ReflexMessage`.
+REFLEX_SCHEMA: dict[str, Any] = schema_of(ReflexMessage, "rtsid.Reflex")

@@ -31,13 +31,14 @@ from typing import Any
 import numpy as np
 
 from rtsid.errors import InputDataError
-from rtsid.io.messages import ESTIMATE_SCHEMA, STATUS_SCHEMA
+from rtsid.io.messages import ESTIMATE_SCHEMA, REFLEX_SCHEMA, STATUS_SCHEMA
 from rtsid.verdicts import Reason
 
 __all__ = [
     "CAN_FRAMES_SCHEMA",
     "ESTIMATE_FIELDS",
     "ESTIMATE_SCHEMA",
+    "REFLEX_SCHEMA",
     "SAMPLES_SCHEMA",
     "SCHEMAS",
     "STATUS_SCHEMA",
@@ -66,6 +67,8 @@ def _num(description: str) -> dict[str, Any]:
 
 #: Keys of an estimate message, in schema order.
 ESTIMATE_FIELDS: tuple[str, ...] = tuple(ESTIMATE_SCHEMA["properties"])
+#: Keys an estimate message must have (later additions default to null).
+_REQUIRED: tuple[str, ...] = tuple(ESTIMATE_SCHEMA["required"])
 
 SAMPLES_SCHEMA: dict[str, Any] = {
     "$schema": DRAFT,
@@ -129,6 +132,7 @@ SCHEMAS: dict[str, tuple[dict[str, Any], str]] = {
     "samples": (SAMPLES_SCHEMA, "/samples"),
     "estimate": (ESTIMATE_SCHEMA, "/estimate"),
     "status": (STATUS_SCHEMA, "/status"),
+    "reflex": (REFLEX_SCHEMA, "/reflex"),
     "can_frames": (CAN_FRAMES_SCHEMA, "/can_frames"),
 }
 
@@ -190,7 +194,8 @@ def encode_json(message: Any) -> bytes:
 
 
 def encode_estimate(message: Mapping[str, Any]) -> bytes:
-    """Encode one estimate message (keys exactly :data:`ESTIMATE_FIELDS`).
+    """Encode one estimate message (keys of :data:`ESTIMATE_FIELDS`; the optional ones, added
+    after the first release, may be missing and are written as null).
 
     Parameters
     ----------
@@ -208,8 +213,8 @@ def encode_estimate(message: Mapping[str, Any]) -> bytes:
         A missing or unknown key (names it), or a value that cannot be JSON.
     """
     keys = set(message)
-    if keys != set(ESTIMATE_FIELDS):
-        missing = sorted(set(ESTIMATE_FIELDS) - keys)
+    if keys != set(ESTIMATE_FIELDS) and not set(_REQUIRED) <= keys <= set(ESTIMATE_FIELDS):
+        missing = sorted(set(_REQUIRED) - keys)
         unknown = sorted(keys - set(ESTIMATE_FIELDS))
         raise InputDataError(
             f"estimate message has missing keys {missing} and unknown keys {unknown}; "
@@ -220,7 +225,7 @@ def encode_estimate(message: Mapping[str, Any]) -> bytes:
         raise InputDataError(f"estimate 'reason' = {reason!r}; expected null or a short string")
     out: dict[str, Any] = {}
     for k in ESTIMATE_FIELDS:  # fast path for plain floats; numpy scalars, lists: json_safe
-        v = message[k]
+        v = message.get(k)
         if type(v) is float:
             out[k] = v if math.isfinite(v) else None
         elif v is None or type(v) in (int, bool, str):

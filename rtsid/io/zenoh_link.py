@@ -5,6 +5,7 @@ Key expressions (``<prefix>`` defaults to ``rtsid``)::
     <prefix>/<robot>/<joint>/estimate   JSON, one message per window (express, drop when congested)
     <prefix>/<robot>/<joint>/status     JSON, 1–2 Hz
     <prefix>/<robot>/<joint>/samples    JSON batches of raw samples (when publish_samples is on)
+    <prefix>/<robot>/<joint>/reflex     JSON, one message per slow-lane fit (when [slow_lane] is on)
     <prefix>/<robot>/<joint>/alive      liveliness token while the daemon runs
     <prefix>/<robot>/<joint>/config     queryable: the daemon's configuration (JSON)
     <prefix>/<robot>/<joint>/estimate   queryable: the latest estimate (a late joiner's first value)
@@ -156,11 +157,12 @@ class ZenohConfig:
         return section_from_mapping(cls, mapping, "zenoh")
 
 
-_KEYS = ("estimate", "status", "samples", "alive", "config", "history")
+_KEYS = ("estimate", "status", "samples", "reflex", "alive", "config", "history")
 
 
 def key_expressions(cfg: ZenohConfig) -> dict[str, str]:
-    """The key expressions of one daemon: estimate, status, samples, alive, config, history."""
+    """The key expressions of one daemon: estimate, status, samples, reflex, alive, config,
+    history."""
     base = f"{cfg.key_prefix}/{cfg.robot}/{cfg.joint}"
     return {name: f"{base}/{name}" for name in _KEYS}
 
@@ -395,6 +397,11 @@ class ZenohPublisher:
         payload = message if isinstance(message, bytes) else encode_status(message)
         return self._put("status", payload)
 
+    def publish_reflex(self, message: Mapping[str, Any] | bytes) -> bool:
+        """Publish one slow-lane fit (REFLEX_SCHEMA)."""
+        payload = message if isinstance(message, bytes) else encode_json(message)
+        return self._put("reflex", payload)
+
     def publish_samples(
         self,
         first_index: int,
@@ -548,6 +555,9 @@ class ZenohPublisher:
             ),
             "samples": session.declare_publisher(
                 self.keys["samples"], encoding=json_enc, congestion_control=drop
+            ),
+            "reflex": session.declare_publisher(
+                self.keys["reflex"], encoding=json_enc, congestion_control=drop
             ),
         }
         others = [

@@ -20,6 +20,7 @@ from rtsid.config import invalid, load_toml, require_choice, require_range, sect
 from rtsid.errors import ConfigError, InputDataError
 from rtsid.ident.excitation import Multisine, multisine
 from rtsid.link.protocol import PERTURBATION_KINDS
+from rtsid.sim.reflex import ReflexParameters
 
 __all__ = [
     "FaultConfig",
@@ -88,7 +89,8 @@ class LinkConfig:
     fs_hz : float
         The robot's state-frame rate, Hz (sample time = counter / fs_hz).
     ring_capacity_s : float
-        Seconds of samples the ring buffer holds.
+        Seconds of samples the ring buffer holds (30: the slow lane's 20 s horizon and its
+        next fit, with room).
     receive_timeout_s : float
         Longest ``bus.recv`` wait; bounds how long ``stop()`` takes.
     stale_after_s : float
@@ -112,7 +114,7 @@ class LinkConfig:
     host: str = "127.0.0.1"
     port: int = 29536
     fs_hz: float = 2500.0
-    ring_capacity_s: float = 10.0
+    ring_capacity_s: float = 30.0
     receive_timeout_s: float = 0.05
     stale_after_s: float = 0.1
     reconnect_after_stale_s: float = 2.0
@@ -254,6 +256,32 @@ class StiffnessConfig:
 
 
 @dataclass(frozen=True)
+class ReflexConfig:
+    """``[plant.reflex]``: a stretch reflex added to the simulated ankle's torque (off by
+    default): ``gain·h ∗ max(θ̇(t − delay_s), 0)`` with ``h`` a second-order low-pass of unit
+    static gain (:class:`rtsid.sim.reflex.ReflexParameters`). Only ``mode = "sim"`` uses it.
+    """
+
+    enabled: bool = False
+    gain: float = 10.0
+    delay_s: float = 0.04
+    corner_hz: float = 3.0
+    damping_ratio: float = 0.7
+
+    def __post_init__(self) -> None:
+        require_range("gain", self.gain, 0.0)
+        require_range("delay_s", self.delay_s, 0.0, 0.5)
+        require_range("corner_hz", self.corner_hz, 0.0, 100.0, low_inclusive=False)
+        require_range("damping_ratio", self.damping_ratio, 0.0, 10.0, low_inclusive=False)
+
+    def parameters(self) -> ReflexParameters | None:
+        """The simulated reflex, or None when disabled."""
+        if not self.enabled:
+            return None
+        return ReflexParameters(self.gain, self.delay_s, self.corner_hz, self.damping_ratio)
+
+
+@dataclass(frozen=True)
 class TorqueMultisineConfig:
     """``[plant.torque_multisine]``: a periodic random-phase multisine torque experiment.
 
@@ -382,6 +410,7 @@ class PlantConfig:
     faults : FaultConfig
     stiffness_profile : StiffnessConfig
     torque_multisine : TorqueMultisineConfig
+    reflex : ReflexConfig
     """
 
     mode: str = "sim"
@@ -409,6 +438,7 @@ class PlantConfig:
     faults: FaultConfig = field(default_factory=FaultConfig)
     stiffness_profile: StiffnessConfig = field(default_factory=StiffnessConfig)
     torque_multisine: TorqueMultisineConfig = field(default_factory=TorqueMultisineConfig)
+    reflex: ReflexConfig = field(default_factory=ReflexConfig)
 
     def __post_init__(self) -> None:
         require_choice("mode", self.mode, ("sim", "player", "torque_multisine"))
@@ -487,6 +517,7 @@ def plant_config_from_mapping(
         ("faults", FaultConfig, "faults"),
         ("stiffness_profile", StiffnessConfig, "stiffness_profile"),
         ("torque_multisine", TorqueMultisineConfig, "torque_multisine"),
+        ("reflex", ReflexConfig, "reflex"),
     ):
         table = values.pop(key, None)
         if table is not None and not isinstance(table, Mapping):

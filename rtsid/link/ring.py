@@ -69,6 +69,21 @@ class Snapshot:
         """Cursor to pass to the next :meth:`RingBuffer.read_since` call."""
         return int(self.sample_index[-1]) + 1 if self.sample_index.size else -1
 
+    def tail(self, n: int) -> Snapshot:
+        """The newest ``n`` rows (views, not copies); the whole snapshot when it is shorter."""
+        if n >= len(self):
+            return self
+        cut = slice(len(self) - n, None)
+        return Snapshot(
+            self.sample_index[cut],
+            self.position_rad[cut],
+            self.torque_nm[cut],
+            self.valid[cut],
+            self.status[cut],
+            self.host_time_s[cut],
+            self.bus_time_s[cut],
+        )
+
 
 class RingBuffer:
     """Fixed-capacity ring of samples with one writer and any number of readers.

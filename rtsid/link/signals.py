@@ -24,8 +24,15 @@ from rtsid.ident.excitation import multisine, prbs
 from rtsid.io.files import read_npz
 from rtsid.link.config import PlantConfig, StiffnessConfig
 from rtsid.link.protocol import Command
-from rtsid.sim.joint import JointParameters, StiffnessProfile, add_noise, simulate_impedance
+from rtsid.sim.joint import (
+    JointParameters,
+    StiffnessProfile,
+    add_noise,
+    derivatives,
+    simulate_impedance,
+)
 from rtsid.sim.ltv import simulate_ltv_block
+from rtsid.sim.reflex import ReflexParameters, StretchReflex
 
 __all__ = [
     "Block",
@@ -87,6 +94,7 @@ class PlantTruth:
     fs_hz: float
     profile: StiffnessProfile
     period_s: float = 0.0
+    reflex: ReflexParameters | None = None
 
     @classmethod
     def from_config(cls, cfg: PlantConfig) -> PlantTruth:
@@ -98,6 +106,7 @@ class PlantTruth:
             cfg.fs_hz,
             stiffness_profile(cfg.stiffness_profile, cfg.stiffness),
             cfg.stiffness_profile.period_s,
+            cfg.reflex.parameters() if cfg.mode == "sim" else None,
         )
 
     def stiffness_at(self, t_s: FloatArray | float) -> FloatArray:
@@ -169,7 +178,8 @@ class _Perturbation:
 
 
 class SimSource:
-    """Simulated robot + ankle: perturbation → servo → ``τ = (I+I_r)θ̈ + Bθ̇ + K(t)θ`` + noise.
+    """Simulated robot + ankle: perturbation → servo → ``τ = (I+I_r)θ̈ + Bθ̇ + K(t)θ`` (+ the
+    stretch reflex of ``[plant.reflex]``) + noise.
 
     Parameters
     ----------
@@ -196,6 +206,8 @@ class SimSource:
         # positions of samples [g - 2·half, g + n - 2·half) where g = generated so far
         self._segment = np.zeros(self.n + 2 * _STENCIL_HALF)
         self._next_index = 0
+        reflex = self.truth.reflex
+        self._reflex = StretchReflex(reflex, cfg.fs_hz) if reflex is not None else None
 
     def apply(self, command: Command) -> None:
         """Use ``command`` from the next block on (kind/bandwidth changes restart the signal)."""
@@ -230,6 +242,9 @@ class SimSource:
         theta = seg[_STENCIL_HALF:-_STENCIL_HALF].copy()
         t = (first + np.arange(self.n)) / self.fs_hz
         torque = inertial + self.truth.stiffness_at(t) * theta
+        if self._reflex is not None:
+            velocity, _ = derivatives(seg, self.fs_hz)
+            torque = torque + self._reflex.torque(velocity[_STENCIL_HALF:-_STENCIL_HALF])
         if self.cfg.noise_percent > 0:
             torque = add_noise(torque, self.cfg.noise_percent, seed=self.rng)
         position = theta

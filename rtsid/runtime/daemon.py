@@ -33,27 +33,40 @@ from rtsid import __version__
 from rtsid.config import invalid, load_toml, require_range, section_from_mapping
 from rtsid.errors import ConfigError, WindowError
 from rtsid.ident.analysis import plan_analysis
+from rtsid.ident.reflex_lane import ReflexModels, ReflexUpdate, SlowLaneSettings
+from rtsid.ident.tracker import TrackerOptions
 from rtsid.ident.window import EstimatorOptions
 from rtsid.io.calibration import calibration_record, robot_calibration
 from rtsid.io.mcap_log import McapConfig, McapLogger
 from rtsid.io.messages import StatusMessage
 from rtsid.io.procstats import ProcessMeter
-from rtsid.io.schemas import encode_estimate, encode_status
+from rtsid.io.schemas import encode_estimate, encode_json, encode_status
 from rtsid.io.zenoh_link import ZenohConfig, ZenohPublisher
 from rtsid.lifecycle import ThreadOwner
 from rtsid.link.acquisition import Acquisition
 from rtsid.link.config import LinkConfig, PlantConfig, link_configs_from_mapping
 from rtsid.link.open import open_link
-from rtsid.link.ring import RingBuffer
+from rtsid.link.ring import RingBuffer, Snapshot
 from rtsid.runtime.clock import Deadlines
 from rtsid.runtime.power import cpu_latency_request
+from rtsid.runtime.slow_lane import SlowLane
 from rtsid.runtime.worker import WindowWorker, WorkerConfig
 
 __all__ = ["Daemon", "DaemonConfig", "DaemonSettings", "RunSummary"]
 
 log = logging.getLogger(__name__)
 
-SECTIONS = ("daemon", "link", "plant", "estimator", "worker", "mcap", "zenoh")
+SECTIONS = (
+    "daemon",
+    "link",
+    "plant",
+    "estimator",
+    "worker",
+    "slow_lane",
+    "tracker",
+    "mcap",
+    "zenoh",
+)
 
 
 @dataclass(frozen=True)
@@ -102,6 +115,8 @@ class DaemonConfig:
     plant: PlantConfig = field(default_factory=PlantConfig)
     estimator: EstimatorOptions = field(default_factory=EstimatorOptions)
     worker: WorkerConfig = field(default_factory=WorkerConfig)
+    slow_lane: SlowLaneSettings = field(default_factory=SlowLaneSettings)
+    tracker: TrackerOptions = field(default_factory=TrackerOptions)
     mcap: McapConfig = field(default_factory=McapConfig)
     zenoh: ZenohConfig = field(default_factory=ZenohConfig)
 
@@ -117,6 +132,19 @@ class DaemonConfig:
                 "link.ring_capacity_s",
             )
         self._check_analysis_fits_the_window()
+        self._check_the_ring_holds_the_slow_lane()
+
+    def _check_the_ring_holds_the_slow_lane(self) -> None:
+        lane = self.slow_lane
+        needed = lane.horizon_s + lane.update_s
+        if lane.enabled and self.link.ring_capacity_s < needed:
+            raise invalid(
+                "link.ring_capacity_s",
+                self.link.ring_capacity_s,
+                f"a ring that holds the slow lane's horizon and an update (>= slow_lane."
+                f"horizon_s + slow_lane.update_s = {needed:g} s); lengthen the ring or shorten "
+                "the horizon",
+            )
 
     def _check_analysis_fits_the_window(self) -> None:
         """A window must hold the estimator's lags, filter and stencils, or every window would
@@ -177,6 +205,10 @@ class DaemonConfig:
                 EstimatorOptions, document.get("estimator"), "estimator"
             ),
             worker=WorkerConfig.from_mapping(document.get("worker")),
+            slow_lane=section_from_mapping(
+                SlowLaneSettings, document.get("slow_lane"), "slow_lane"
+            ),
+            tracker=section_from_mapping(TrackerOptions, document.get("tracker"), "tracker"),
             mcap=McapConfig.from_mapping(document.get("mcap")),
             zenoh=ZenohConfig.from_mapping(document.get("zenoh")),
         )
@@ -251,6 +283,7 @@ class Daemon:
         self._overwritten = 0
         self.worker: WindowWorker | None = None
         self.acquisition: Acquisition | None = None
+        self.slow_lane: SlowLane | None = None
         self._components: list[ThreadOwner | None] = []
         self.failure: str | None = None
 
@@ -300,6 +333,9 @@ class Daemon:
                 acquisition.start(require_bus=handle.plant is not None)
                 if handle.plant is not None:
                     handle.plant.start()
+                models = (
+                    ReflexModels(cfg.link.fs_hz, cfg.slow_lane) if cfg.slow_lane.enabled else None
+                )
                 worker = WindowWorker(
                     ring,
                     cfg.link.fs_hz,
@@ -309,19 +345,26 @@ class Daemon:
                     robot=robot,
                     joint=joint,
                     calibration=calibration,
+                    reflex=models,
+                    tracker=cfg.tracker,
                 )
                 self.worker = worker
+                slow_lane = self._slow_lane(ring, worker, models, mcap, zenoh)
                 # Everything built so far lives for the whole run: move it out of the cyclic
                 # collector's view so full collections stay short (no multi-ms pauses).
                 gc.collect()
                 gc.freeze()
                 worker.start()
-                self._components = [acquisition, worker, mcap, handle.plant]
+                if slow_lane is not None:
+                    slow_lane.start()
+                self._components = [acquisition, worker, mcap, handle.plant, slow_lane]
                 clean = True
                 try:
                     self._housekeeping(ring, mcap, zenoh, duration_s)
                 finally:
                     timeout = cfg.daemon.shutdown_timeout_s
+                    if slow_lane is not None:
+                        clean &= slow_lane.stop(timeout)
                     clean &= worker.stop(timeout)
                     clean &= acquisition.stop(timeout)
                     self._forward_samples(ring, mcap, zenoh)
@@ -380,6 +423,32 @@ class Daemon:
             )
             self._cursor = snap.next_index
 
+    def _slow_lane(
+        self,
+        ring: RingBuffer,
+        worker: WindowWorker,
+        models: ReflexModels | None,
+        mcap: McapLogger,
+        zenoh: ZenohPublisher,
+    ) -> SlowLane | None:
+        """The reflex slow lane, publishing each fit on ``/reflex`` (None when it is off)."""
+        if models is None:
+            return None
+        evaluator = worker.evaluator
+
+        def publish(update: ReflexUpdate, fit_ms: float) -> None:
+            message = evaluator.reflex_message(update, fit_ms)
+            payload = encode_json(message)
+            zenoh.publish_reflex(payload)
+            mcap.log_reflex(payload, log_time_ns=message["host_time_ns"])
+
+        def torque_of(snap: Snapshot) -> np.ndarray:
+            return np.asarray(evaluator.model_torque(snap.position_rad, snap.torque_nm))
+
+        lane = SlowLane(ring, models, torque_of, publish)
+        self.slow_lane = lane
+        return lane
+
     def _publish_estimate(
         self, message: dict[str, Any], mcap: McapLogger, zenoh: ZenohPublisher
     ) -> None:
@@ -401,6 +470,7 @@ class Daemon:
             worker=worker,
             mcap=mcap.stats(),
             zenoh=zenoh.stats(),
+            slow_lane=dataclasses.asdict(self.slow_lane.counters()) if self.slow_lane else None,
         ).as_dict()
 
     def _publish_status(self, mcap: McapLogger, zenoh: ZenohPublisher) -> None:

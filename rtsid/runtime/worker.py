@@ -23,16 +23,18 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from rtsid.config import require_range, section_from_mapping
 from rtsid.errors import ConfigError, InputDataError, NumericalError, WindowError
 from rtsid.ident.grid import first_window_end
+from rtsid.ident.reflex_lane import ReflexModels, ReflexUpdate, predict_reflex_torque
 from rtsid.ident.stream import WindowStream
+from rtsid.ident.tracker import TrackerOptions
 from rtsid.ident.window import EstimatorOptions, WindowEstimate
 from rtsid.io.calibration import Calibration, load_calibration
-from rtsid.io.messages import EstimateMessage
+from rtsid.io.messages import EstimateMessage, ReflexMessage
 from rtsid.lifecycle import ThreadOwner
 from rtsid.link.protocol import (
     STATUS_DISCONTINUITY,
@@ -121,6 +123,7 @@ class WorkerCounters:
     overruns: int
     deadline_misses: int
     compute_ms_last: float
+    reflex_flagged: dict[str, int] = field(default_factory=dict)
 
 
 def assess_window(snap: Snapshot, now_s: float, max_age_s: float) -> Reason | None:
@@ -163,6 +166,19 @@ def assess_window(snap: Snapshot, now_s: float, max_age_s: float) -> Reason | No
     return None
 
 
+@dataclass(frozen=True)
+class _ReflexUse:
+    """The slow lane's part in one window: the fit used, its torque over the window (None:
+    nothing subtracted) and its flags."""
+
+    seq: int | None
+    torque: Any
+    flags: tuple[Flag, ...]
+
+
+_NO_REFLEX = _ReflexUse(None, None, ())
+
+
 class WindowEvaluator:
     """Windows in, estimate messages out: the one message builder of live runs and replay.
 
@@ -190,6 +206,12 @@ class WindowEvaluator:
     live : bool
         Samples arriving now (staleness judged, latency measured), or from a recording (never
         stale, ``latency_ms`` null).
+    reflex : ReflexModels, optional
+        The slow lane's reflex models: the due model's reflex torque is subtracted before
+        the intrinsic estimate; snapshots then carry :attr:`history_samples` rows before
+        the window (the reflex pathway's memory).
+    tracker : TrackerOptions, optional
+        The K(t)/B(t) tracker's settings (every message carries ``K_track`` …).
     """
 
     def __init__(
@@ -203,6 +225,8 @@ class WindowEvaluator:
         joint: str = "ankle",
         calibration: Calibration | None = None,
         live: bool = True,
+        reflex: ReflexModels | None = None,
+        tracker: TrackerOptions | None = None,
     ) -> None:
         self.fs_hz = float(fs_hz)
         self.config = config
@@ -215,9 +239,20 @@ class WindowEvaluator:
         # The analysis plan and the held parameters: deterministic state carried from window
         # to window, so a replay of the same windows reproduces every number.
         band = calibration.robot.analysis_cutoff_hz if calibration is not None else None
-        self.stream = WindowStream(fs_hz, options, config.hop_s, max_lowpass_hz=band)
+        self.stream = WindowStream(
+            fs_hz,
+            options,
+            config.hop_s,
+            max_lowpass_hz=band,
+            window_s=config.window_s,
+            tracker=tracker,
+        )
         self.window_samples = round(config.window_s * fs_hz)
         self.hop_samples = max(1, round(config.hop_s * fs_hz))
+        self.reflex = reflex
+        self.history_samples = reflex.history_samples if reflex is not None else 0
+        self.reflex_flagged: Counter[str] = Counter()
+        self.last_reflex = _NO_REFLEX  # the slow lane's part in the latest window
         self._seq = 0
         self.withheld: Counter[str] = Counter()
         self.estimates = 0
@@ -228,28 +263,54 @@ class WindowEvaluator:
         """The first grid window end whose window starts at or after ``first_index``."""
         return first_window_end(first_index, self.window_samples, self.hop_samples)
 
+    def model_torque(self, position: Any, torque: Any) -> Any:
+        """The torque the models explain: sign-corrected, the robot's own dynamics removed
+        (what the slow lane fits)."""
+        if self.calibration is not None:
+            torque = torque - self.calibration.torque_offset(position)
+        return self.options.torque_sign * torque
+
+    def reflex_message(self, update: ReflexUpdate, fit_ms: float | None) -> dict[str, Any]:
+        """The ``/reflex`` message of one slow-lane fit."""
+        assert self.reflex is not None
+        applies_from = update.seq * self.reflex.update + self.reflex.apply_after - 1
+        return ReflexMessage.of(
+            update,
+            robot=self.robot,
+            joint=self.joint,
+            variant=self.reflex.settings.variant,
+            applies_from_index=applies_from,
+            fit_ms=fit_ms,
+        ).as_dict()
+
     def evaluate(self, snap: Snapshot, *, started_s: float | None = None) -> dict[str, Any]:
         """Estimate one window of samples and publish its message.
 
         Parameters
         ----------
         snap : Snapshot
-            The window's rows, oldest first.
+            The window's rows, oldest first, after up to :attr:`history_samples` rows of
+            history (with a slow lane).
         started_s : float, optional
             ``perf_counter()`` when work on the window began (default: now).
         """
         started = time.perf_counter() if started_s is None else started_s
-        arrival = float(snap.host_time_s[-1]) if self.live else None
+        window = snap.tail(self.window_samples)
+        arrival = float(window.host_time_s[-1]) if self.live else None
         now = time.monotonic() if arrival is not None else math.inf
         max_age = self.config.max_sample_age_s if self.live else math.inf
-        reason = assess_window(snap, now, max_age)
-        estimate, reason = self._estimate(snap, reason)
+        reason = assess_window(window, now, max_age)
+        reflex = _NO_REFLEX
+        if reason is None and self.reflex is not None:
+            reflex = self._reflex_torque(snap)
+        self.last_reflex = reflex
+        estimate, reason = self._estimate(window, reason, reflex.torque)
         compute_s = time.perf_counter() - started
         self.compute_ms = compute_s * 1e3
         if compute_s > self.config.effective_budget_s:
             self.misses += 1
-        first, last = int(snap.sample_index[0]), int(snap.sample_index[-1])
-        message = self._message(first, last, estimate, reason, compute_s, arrival)
+        first, last = int(window.sample_index[0]), int(window.sample_index[-1])
+        message = self._message(first, last, estimate, reason, compute_s, arrival, reflex)
         self.publish(message)
         return message
 
@@ -257,10 +318,36 @@ class WindowEvaluator:
         """No samples are arriving: say so once per hop for the window that is due."""
         self.withheld[Reason.STALE] += 1
         start = end_index - self.window_samples + 1
-        self.publish(self._message(start, end_index, None, Reason.STALE, 0.0, None))
+        self.publish(self._message(start, end_index, None, Reason.STALE, 0.0, None, _NO_REFLEX))
+
+    def _reflex_torque(self, snap: Snapshot) -> _ReflexUse:
+        """The due reflex model's torque over the window, in the recorded torque's sign."""
+        assert self.reflex is not None
+        update, stale = self.reflex.model_for(int(snap.sample_index[-1]))
+        if update is None or update.pathway is None:
+            self.reflex_flagged[Flag.REFLEX_ABSENT] += 1
+            return _ReflexUse(None, None, (Flag.REFLEX_ABSENT,))
+        flags = (Flag.REFLEX_STALE,) if stale else ()
+        self.reflex_flagged.update(flags)
+        if not update.applied:  # the reflex pathway is not in the data: nothing to subtract
+            return _ReflexUse(update.seq, None, flags)
+        valid = None if snap.valid.all() else snap.valid
+        try:
+            predicted = predict_reflex_torque(
+                update.pathway,
+                snap.position_rad,
+                valid,
+                self.fs_hz,
+                self.window_samples,
+                self.reflex.settings,
+            )
+        except InputDataError:  # the history has too many lost samples to predict from
+            self.reflex_flagged[Flag.REFLEX_ABSENT] += 1
+            return _ReflexUse(None, None, (Flag.REFLEX_ABSENT,))
+        return _ReflexUse(update.seq, self.options.torque_sign * predicted, flags)
 
     def _estimate(
-        self, snap: Snapshot, reason: Reason | None
+        self, snap: Snapshot, reason: Reason | None, reflex_torque: Any = None
     ) -> tuple[WindowEstimate | None, Reason | None]:
         if reason is not None:
             self.withheld[reason] += 1
@@ -268,6 +355,8 @@ class WindowEvaluator:
         torque = snap.torque_nm
         if self.calibration is not None:
             torque = torque - self.calibration.torque_offset(snap.position_rad)
+        if reflex_torque is not None:
+            torque = torque - reflex_torque
         planned = self.stream.plan is not None
         try:
             valid = None if snap.valid.all() else snap.valid
@@ -291,13 +380,19 @@ class WindowEvaluator:
         reason: Reason | None,
         compute_s: float,
         last_arrival_s: float | None,
+        reflex: _ReflexUse,
     ) -> dict[str, Any]:
         overrun = compute_s > self.config.effective_budget_s
-        flags = (*(estimate.flags if estimate else ()), *((Flag.OVER_BUDGET,) if overrun else ()))
+        flags = (
+            *(estimate.flags if estimate else ()),
+            *((Flag.OVER_BUDGET,) if overrun else ()),
+            *(reflex.flags if estimate else ()),
+        )
         latency = None if last_arrival_s is None else (time.monotonic() - last_arrival_s) * 1e3
         seq = self._seq
         self._seq += 1
         numbers = {k: getattr(estimate, k) if estimate else None for k in _ESTIMATE_NUMBERS}
+        track = self.stream.track(last / self.fs_hz, estimate)  # every window steps it
         return EstimateMessage(
             robot=self.robot,
             joint=self.joint,
@@ -307,11 +402,16 @@ class WindowEvaluator:
             t_start_s=first / self.fs_hz,
             t_end_s=last / self.fs_hz,
             **numbers,
+            K_track=track.K,
+            K_track_se=track.K_se,
+            B_track=track.B,
+            B_track_se=track.B_se,
             compute_ms=compute_s * 1e3,
             latency_ms=latency,
             ok=estimate is not None,
             reason=reason,
             flags=flags,
+            reflex_seq=reflex.seq if estimate else None,
             host_time_ns=time.time_ns(),
         ).as_dict()
 
@@ -327,7 +427,7 @@ class WindowWorker(ThreadOwner):
     ----------
     ring : RingBuffer
         Samples written by the acquisition thread.
-    fs_hz, config, options, publish, robot, joint, calibration
+    fs_hz, config, options, publish, robot, joint, calibration, tracker
         As :class:`WindowEvaluator`'s (live).
     """
 
@@ -342,17 +442,28 @@ class WindowWorker(ThreadOwner):
         robot: str = "robot",
         joint: str = "ankle",
         calibration: Calibration | None = None,
+        reflex: ReflexModels | None = None,
+        tracker: TrackerOptions | None = None,
     ) -> None:
         super().__init__("rtsid-worker")
         self.ring = ring
         self.config = config
         self.evaluator = WindowEvaluator(
-            fs_hz, config, options, publish, robot=robot, joint=joint, calibration=calibration
+            fs_hz,
+            config,
+            options,
+            publish,
+            robot=robot,
+            joint=joint,
+            calibration=calibration,
+            reflex=reflex,
+            tracker=tracker,
         )
         self.window_samples = self.evaluator.window_samples
         self.hop_samples = self.evaluator.hop_samples
         self._wake = threading.Event()  # set by the ring's writer, or by stop()
         self._overruns = 0
+        self._first_index = 0  # the stream's first sample (history is never read before it)
 
     @property
     def stream(self) -> WindowStream:
@@ -372,6 +483,7 @@ class WindowWorker(ThreadOwner):
             overruns=self._overruns,
             deadline_misses=e.misses,
             compute_ms_last=e.compute_ms,
+            reflex_flagged=dict(e.reflex_flagged),
         )
 
     # ------------------------------------------------------------------ the grid
@@ -400,6 +512,7 @@ class WindowWorker(ThreadOwner):
                 self._stop.wait(hop_s)
                 continue
             if next_end is None:
+                self._first_index = self.ring.oldest_index
                 next_end = self._starting_window_end(newest)
             if newest >= next_end:
                 behind = (newest - next_end) // self.hop_samples
@@ -435,8 +548,11 @@ class WindowWorker(ThreadOwner):
         """
         started = time.perf_counter()
         start = end_index - self.window_samples + 1
-        snap = self.ring.read_since(start, self.window_samples)
-        if len(snap) != self.window_samples or int(snap.sample_index[0]) != start:
+        # history before the window, but never before the stream's first sample
+        first = max(start - self.evaluator.history_samples, min(self._first_index, start))
+        count = end_index - first + 1
+        snap = self.ring.read_since(first, count)
+        if len(snap) != count or int(snap.sample_index[0]) != first:
             self._overruns += 1  # overwritten before we got to it
             return None
         return self.evaluator.evaluate(snap, started_s=started)

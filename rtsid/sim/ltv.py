@@ -59,16 +59,29 @@ STUDY_CASES: dict[str, tuple[str, str]] = {
     "CS1": ("linear", "K(t) linear from 0.4 to 6 N·m/rad"),
     "CS2": ("hyperbolic", "1/K(t) linear from 1/0.4 to 1/6 rad/(N·m)"),
     "CS3": ("raised_cosine", "K(t) one raised-cosine cycle, 0.4 → 6 → 0.4 N·m/rad"),
+    "SIN2": (
+        "sinusoidal",
+        "K(t) = 3.2 + 2.8·sin(2π·2t/T): two cycles per record (not in the paper)",
+    ),
 }
 
 
 def study_stiffness(
     case: str, duration_s: float, k_low: float = 0.4, k_high: float = 6.0
 ) -> StiffnessProfile:
-    """Stiffness profile of study case ``"CS1"``, ``"CS2"`` or ``"CS3"`` over ``duration_s``."""
+    """Stiffness profile of study case ``"CS1"``, ``"CS2"``, ``"CS3"`` or ``"SIN2"`` over
+    ``duration_s``.
+
+    ``SIN2`` is not in the published study: a sinusoid between ``k_low`` and ``k_high`` with
+    two whole cycles per record (a cyclic task), the case for the Fourier time basis.
+    """
     if case not in STUDY_CASES:
         raise InputDataError(f"unknown study case {case!r}; choose one of {', '.join(STUDY_CASES)}")
     kind = STUDY_CASES[case][0]
+    if kind == "sinusoidal":
+        return StiffnessProfile.sinusoid(
+            bias=(k_high + k_low) / 2, amplitude=(k_high - k_low) / 2, freq_hz=2.0 / duration_s
+        )
     return StiffnessProfile(kind, k0=k_low, k1=k_high, t0=0.0, t1=float(duration_s))
 
 
@@ -346,7 +359,8 @@ def multisine_experiment(
     Parameters
     ----------
     stiffness : StiffnessProfile or str
-        ``K(t)``, or a study case name (``"CS1"``, ``"CS2"``, ``"CS3"``) over the record.
+        ``K(t)``, or a study case name (``"CS1"``, ``"CS2"``, ``"CS3"``, ``"SIN2"``) over the
+        record.
     joint : JointParameters
         Inertia and damping (default: the published study's plant).
     fs_hz, period_s, n_periods : float, float, int

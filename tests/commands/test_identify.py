@@ -142,3 +142,26 @@ def test_identify_cascade_names_the_minimum_record_length(tmp_path, capsys):
     assert main(["identify", str(path), "--model", "cascade"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "at least 3 s" in err
+
+
+def test_identify_cascade_on_sliding_windows_writes_a_row_per_window_and_a_plot(
+    reklab_path, tmp_path, capsys
+):
+    pytest.importorskip("matplotlib")
+    out, png = tmp_path / "windows.csv", tmp_path / "windows.png"
+    argv = ["identify", str(reklab_path), "--torque-sign", "-1", "--model", "cascade"]
+    argv += ["--window", "20", "--hop", "10", "--reflex", "hammerstein", "--plot", str(png)]
+    assert main([*argv, "-o", str(out)]) == 0
+    rows = read_rows(out)
+    assert [float(r["t_start_s"]) for r in rows] == [0.0, 10.0, 20.0, 30.0, 40.0]
+    for r in rows:
+        assert float(r["vaf_cascade"]) > float(r["vaf_intrinsic_irf"]) + 3.0
+        assert float(r["K"]) < float(r["K_no_reflex_model"])
+    assert png.stat().st_size > 10_000
+    assert "5 cascade windows of 20 s every 10 s" in capsys.readouterr().err
+
+
+def test_identify_cascade_window_longer_than_the_record_is_refused(reklab_path, capsys):
+    argv = ["identify", str(reklab_path), "--model", "cascade", "--window", "90"]
+    assert main(argv) == 2
+    assert "longer than the record" in capsys.readouterr().err

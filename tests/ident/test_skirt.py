@@ -6,15 +6,18 @@ import pytest
 from rtsid.errors import InputDataError, NumericalError
 from rtsid.ident.excitation import multisine
 from rtsid.ident.skirt import (
+    BASIS_FAMILIES,
     WARN_VARIANCE_INFLATION,
     LtvEstimate,
     SkirtConditioningWarning,
     _design,
     _layouts,
+    basis_functions,
     fit_admittance,
     identify_ltv,
     legendre_basis,
     max_stable_basis,
+    select_basis_size,
     skirt_conditioning,
 )
 
@@ -263,3 +266,172 @@ def test_validation_input_must_match_the_record(ms):
         est.simulate(u[:-200])
     with pytest.raises(InputDataError, match="not a periodic multisine"):
         est.simulate(np.random.default_rng(0).standard_normal(u.size))
+
+
+# --------------------------------------------------------------------------------------
+# basis families
+# --------------------------------------------------------------------------------------
+
+
+def family_output(u, bins, g_p, family):
+    """Exact output of y = Σ_p b_p(t)·(g_p * u)(t) with b_p of ``family`` (steady state)."""
+    n = u.size
+    record_bins = bins * (n // (2 * int(FS)))
+    x = np.zeros((g_p.shape[0], n // 2 + 1), dtype=complex)
+    x[:, record_bins] = np.fft.rfft(u)[record_bins] * g_p
+    basis = basis_functions(n, g_p.shape[0], family)
+    return np.sum(basis * np.fft.irfft(x, n, axis=1), axis=0)
+
+
+def test_families_and_their_skirts():
+    assert BASIS_FAMILIES == ("legendre", "fourier", "bspline")
+    n = 1000
+    np.testing.assert_array_equal(basis_functions(n, 5), legendre_basis(n, 5))
+    # Fourier: 1, cos θ, sin θ, cos 2θ, sin 2θ with θ = 2πn/N; each skirt is bins ±h only.
+    skirts = np.fft.fft(basis_functions(n, 5, "fourier"), axis=1) / n
+    for p, h in enumerate((0, 1, 1, 2, 2)):
+        on = np.abs(skirts[p]) > 1e-9
+        assert set(np.flatnonzero(on)) == {h % n, -h % n}
+    # B-splines: clamped (1 at the record's first sample), a partition of unity, local.
+    b = basis_functions(n, 12, "bspline")
+    np.testing.assert_allclose(b.sum(axis=0), 1.0, atol=1e-12)
+    assert b[0, 0] == 1.0 and b[-1, -1] == 1.0 and b.min() >= 0.0
+    assert np.count_nonzero(b[6]) < n * 4 / 9 + 2  # support: 4 of the 9 knot intervals
+    with pytest.raises(InputDataError, match="unknown basis family 'wavelet'; choose one of"):
+        basis_functions(n, 3, "wavelet")
+
+
+@pytest.mark.parametrize("family", ["legendre", "fourier", "bspline"])
+def test_estimate_evaluates_its_own_family(family):
+    """G(t), simulate() and the estimate's basis use the family it was estimated with."""
+    ms = multisine(FS, 2.0, 40.0, every=8, rms=0.1, seed=7)  # lines 80 record bins apart
+    rng = np.random.default_rng(3)
+    n_basis = 5
+    g_p = (rng.standard_normal((n_basis, ms.excited_bins.size)) + 1j) / 4
+    g_p[0] += admittance(2.0, 2 * np.pi * ms.frequencies_hz)
+    u = ms.samples(PERIODS)
+    y = family_output(u, ms.excited_bins, g_p, family)
+    # Lines beyond the neighbours leak into the windows of Legendre and B-spline skirts (see
+    # test_known_ltv_system_is_recovered_and_reproduced): model three each side and the
+    # transient polynomial. Fourier skirts are two bins no other line reaches: exact as is.
+    exact = family == "fourier"
+    est = identify_ltv(
+        u,
+        y,
+        FS,
+        ms.excited_bins,
+        ms.period_samples,
+        n_basis=n_basis,
+        basis_family=family,
+        n_transient=None if exact else 2,
+        neighbours=1 if exact else 3,
+    )
+    assert est.basis_family == family
+    t = np.arange(u.size) / FS
+    np.testing.assert_allclose(est.basis(t), basis_functions(u.size, n_basis, family), atol=1e-12)
+    tolerance = 1e-9 if exact else 1e-3
+    assert np.max(np.abs(est.G_p - g_p)) < tolerance * np.max(np.abs(g_p))
+    assert np.std(est.simulate(u) - y) < tolerance * np.std(y)
+    with pytest.raises(InputDataError, match="unknown basis family"):
+        identify_ltv(u, y, FS, ms.excited_bins, ms.period_samples, basis_family="Fourier")
+
+
+def test_fourier_recovers_a_cyclic_change_that_legendre_cannot(ms):
+    """G(jω, t) = G_0·(1 + 0.3·sin(4θ)): four cycles per record, exactly N_p = 9 Fourier terms."""
+    g0 = admittance(2.0, 2 * np.pi * ms.frequencies_hz)
+    g_p = np.zeros((9, g0.size), dtype=complex)
+    g_p[0], g_p[8] = g0, 0.3 * g0  # row 8: sin 4θ
+    u = ms.samples(PERIODS)
+    y = family_output(u, ms.excited_bins, g_p, "fourier")
+    t = np.arange(u.size) / FS
+    truth = basis_functions(u.size, 9, "fourier").T @ g_p
+    errors = {}
+    for family in ("fourier", "legendre"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SkirtConditioningWarning)
+            est = identify_ltv(
+                u, y, FS, ms.excited_bins, ms.period_samples, n_basis=9, basis_family=family
+            )
+        errors[family] = np.max(np.abs(est.G(t) - truth)) / np.max(np.abs(truth))
+    assert errors["fourier"] < 1e-9
+    assert errors["legendre"] > 0.3
+    # Chosen from noisy data, N_p reaches the 4th harmonic and the model predicts well.
+    rng = np.random.default_rng(5)
+    noisy = y + 0.05 * np.std(y) * rng.standard_normal(y.size)
+    sel = select_basis_size(
+        u, noisy, FS, ms.excited_bins, ms.period_samples, basis_family="fourier"
+    )
+    assert sel.n_basis >= 9 and sel.n_stable == 19  # lines 20 bins apart: harmonics ≤ 9
+    assert all(c % 2 for c in sel.candidates)  # whole harmonics only
+    below = [v for c, v in zip(sel.candidates, sel.predicted_vaf, strict=True) if c < 9]
+    assert sel.chosen_vaf > max(below)
+    assert np.max(np.abs(sel.estimate.G(t) - truth)) < 0.1 * np.max(np.abs(truth))
+
+
+def test_bsplines_follow_a_local_change_that_legendre_cannot():
+    """A 0.8 s bump in G at t = 12 s of 20 s: each family at its largest stable N_p."""
+    wide = multisine(FS, 2.0, 40.0, every=8, rms=0.1, seed=7)  # lines 80 record bins apart
+    u = wide.samples(PERIODS)
+    t = np.arange(u.size) / FS
+    record_bins = wide.excited_bins * PERIODS
+    g0 = 1.0 / (
+        200.0
+        - 0.02 * (2 * np.pi * wide.frequencies_hz) ** 2
+        + 0.5j * 2 * np.pi * wide.frequencies_hz
+    )
+    x = np.zeros(u.size // 2 + 1, dtype=complex)
+    x[record_bins] = np.fft.rfft(u)[record_bins] * g0
+    modulation = 1.0 + 0.5 * np.exp(-0.5 * ((t - 12.0) / 0.8) ** 2)
+    y = modulation * np.fft.irfft(x, u.size)
+    truth = modulation[:, None] * g0[None, :]
+    stable = {
+        f: max_stable_basis(u.size, 80, n_max=60, basis_family=f) for f in ("legendre", "bspline")
+    }
+    assert stable["bspline"] > stable["legendre"]  # narrower skirts: more functions fit
+    errors = {}
+    for family, n_basis in stable.items():
+        est = identify_ltv(
+            u, y, FS, wide.excited_bins, wide.period_samples, n_basis=n_basis, basis_family=family
+        )
+        errors[family] = np.sqrt(
+            np.mean(np.abs(est.G(t) - truth) ** 2) / np.mean(np.abs(truth) ** 2)
+        )
+    assert errors["bspline"] < 0.005 < 0.01 < errors["legendre"]
+
+
+def test_a_family_that_cannot_fit_the_line_spacing_is_refused_in_one_line(ms):
+    u = ms.samples(PERIODS)
+    y = 0.5 * u
+    # Lines 20 record bins apart: harmonic 10 of line k reaches bin k + 10 = (k + 20) − 10.
+    est = identify_ltv(
+        u, y, FS, ms.excited_bins, ms.period_samples, n_basis=19, basis_family="fourier"
+    )
+    assert est.variance_inflation == pytest.approx(1.0)
+    with pytest.raises(NumericalError) as info:
+        identify_ltv(
+            u, y, FS, ms.excited_bins, ms.period_samples, n_basis=21, basis_family="fourier"
+        )
+    message = str(info.value)
+    assert "\n" not in message
+    assert "harmonic 10 of the record" in message and "use N_p <= 19" in message
+    # B-splines far too many for the spacing: the local problems are singular.
+    with pytest.raises(
+        NumericalError, match="cubic B-spline skirts .* use N_p <= 1[0-9] for lines 1 Hz"
+    ):
+        identify_ltv(
+            u, y, FS, ms.excited_bins, ms.period_samples, n_basis=40, basis_family="bspline"
+        )
+    with pytest.warns(SkirtConditioningWarning, match="B-spline"):
+        identify_ltv(
+            u, y, FS, ms.excited_bins, ms.period_samples, n_basis=13, basis_family="bspline"
+        )
+
+
+def test_bspline_conditioning_ignores_the_basis_own_correlation():
+    """B-splines are not orthogonal; what is checked is what the skirts cost, not that."""
+    n = 4000
+    cond = skirt_conditioning(n, 160, 12, basis_family="bspline")
+    assert cond.max_variance_inflation < 1.5
+    assert max_stable_basis(n, 160, n_max=40, basis_family="bspline") > max_stable_basis(
+        n, 160, n_max=40
+    )

@@ -144,3 +144,35 @@ def test_torque_multisine_noise_and_a_later_start():
     # from sample 100 on, the same multisine as the plant started at 0, delayed by 100
     np.testing.assert_allclose(block.torque_nm[100:325], quiet.torque_nm[:225], atol=0.1)
     source.apply(source.command)  # commands are accepted and ignored
+
+
+def test_the_plant_reflex_in_blocks_equals_one_continuous_reflex():
+    from rtsid.link.config import ReflexConfig
+    from rtsid.sim.joint import derivatives
+    from rtsid.sim.reflex import reflex_torque
+
+    reflex = ReflexConfig(enabled=True, gain=12.0, delay_s=0.04)
+    cfg = PlantConfig(noise_percent=0.0, block_s=0.05, reflex=reflex)
+    source = SimSource(cfg)
+    blocks = [source.next_block() for _ in range(20)]
+    position = np.concatenate([b.position_rad for b in blocks])
+    torque = np.concatenate([b.torque_nm for b in blocks])
+    joint = JointParameters(cfg.inertia, cfg.damping, cfg.stiffness)
+    # the plant starts at rest: the samples before 0 are at 0 rad
+    velocity = derivatives(np.concatenate([np.zeros(4), position]), cfg.fs_hz)[0][4:]
+    expected = simulate_impedance(position, cfg.fs_hz, joint) + reflex_torque(
+        velocity, cfg.fs_hz, reflex.parameters()
+    )
+    interior = slice(4, -4)
+    assert np.allclose(torque[interior], expected[interior], rtol=0, atol=1e-6)
+    reflex_part = torque - simulate_impedance(position, cfg.fs_hz, joint)
+    assert np.std(reflex_part[interior]) > 0.05 * np.std(torque)  # the reflex is there
+    assert source.truth.reflex == reflex.parameters()
+
+
+def test_a_plant_reflex_setting_out_of_range_names_the_key():
+    from rtsid.errors import ConfigError
+    from rtsid.link.config import plant_config_from_mapping
+
+    with pytest.raises(ConfigError, match=r"plant\.reflex.*delay_s"):
+        plant_config_from_mapping({"reflex": {"enabled": True, "delay_s": -0.01}})

@@ -1,0 +1,409 @@
+"""The reflex pathway of the parallel-cascade model: velocity → static nonlinearity → dynamics.
+
+Two variants (Kearney, Stein & Parameswaran, IEEE TBME 44(6), 1997; Westwick & Kearney,
+*Identification of Nonlinear Physiological Systems*, 2003):
+
+* ``rect`` — half-wave-rectified velocity ``max(θ̇, 0)`` into a one-sided IRF;
+* ``hammerstein`` — a polynomial ``p(θ̇)`` (degree 3, powers of the velocity over its RMS)
+  into a one-sided IRF, ``p`` and the IRF found alternately (Hunter–Korenberg).
+
+Both work on signals decimated to the model's rate (100 Hz by default). The IRF covers lags
+``0 … L`` (≈ 1 s); its Toeplitz normal equations are solved by EUREKA, and its *effective
+rank* is then chosen by the minimum description length (:func:`mdl_projection`): the
+solution is written in the eigenvectors of the Toeplitz matrix, ordered by the output variance
+each explains, and the first ``M`` are kept where ``V(M)·(1 + M·ln N / N)`` is smallest
+(``V(M)`` the residual variance with ``M`` components, ``N`` the samples) — the
+pseudo-inverse IRF of Westwick & Kearney, ch. 5.
+
+The delay is estimated from the IRF: a delayed second-order low-pass ``G·h(t − δ)`` (unit
+static gain, corner ``f_c``, damping ratio ``ζ``) is fitted to the IRF lags by nonlinear
+least squares (:func:`fit_reflex_dynamics`), which places the onset between lags. ``G`` is the
+reflex gain reported (N·m·s/rad: torque per rad/s of stretch velocity).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import optimize, signal
+
+from rtsid.errors import InputDataError
+from rtsid.ident.correlation import auto_correlation, cross_correlation, detrend
+from rtsid.ident.filters import derivatives
+from rtsid.ident.levinson import eureka
+
+__all__ = [
+    "REFLEX_VARIANTS",
+    "ReflexDynamics",
+    "ReflexInputs",
+    "ReflexPathway",
+    "convolve_causal",
+    "decimated",
+    "fit_reflex_dynamics",
+    "fit_reflex_pathway",
+    "mdl_projection",
+    "stretch_velocity",
+]
+
+FloatArray = NDArray[np.float64]
+
+REFLEX_VARIANTS = ("rect", "hammerstein")
+POLYNOMIAL_DEGREE = 3
+HAMMERSTEIN_SWEEPS = 4
+#: The grid searched before the delayed low-pass is refined (δ is then continuous).
+DELAY_GRID_S = np.arange(0.0, 0.1501, 0.002)
+CORNER_GRID_HZ = np.geomspace(0.3, 20.0, 24)
+DAMPING_GRID = np.geomspace(0.3, 2.5, 10)
+
+
+@lru_cache(maxsize=8)
+def _decimator(factor: int) -> FloatArray:
+    return np.asarray(signal.cheby1(8, 0.05, 0.8 / factor, output="sos"), dtype=np.float64)
+
+
+def decimated(x: FloatArray, factor: int) -> FloatArray:
+    """``x`` at ``1/factor`` of its rate: MATLAB's and scipy's default decimator (8th-order
+    Chebyshev I at 0.8 × the new Nyquist rate, run forwards and backwards; the same numbers as
+    ``scipy.signal.decimate(x, factor)``, its filter designed once per factor)."""
+    if factor == 1:
+        return np.array(x, dtype=np.float64)
+    sos = _decimator(factor).copy()  # scipy's filter wants a writable buffer; 4×6 numbers
+    return np.asarray(signal.sosfiltfilt(sos, x)[::factor], dtype=np.float64)
+
+
+def stretch_velocity(position: FloatArray, fs_hz: float) -> FloatArray:
+    """Joint velocity at the data's own rate (rad/s), the input of the reflex nonlinearity:
+    the muscle spindle sees the velocity before any decimation, so the rectifier (or
+    polynomial) acts at the full rate and its output is decimated afterwards."""
+    velocity, _ = derivatives(detrend(position, "linear"), fs_hz)
+    return velocity
+
+
+def mdl_projection(
+    phi_rr: FloatArray, phi_re: FloatArray, power_e: float, n: int
+) -> tuple[FloatArray, int]:
+    """The minimum-description-length rank of a Toeplitz system and its projected solution.
+
+    Parameters
+    ----------
+    phi_rr : numpy.ndarray, shape (L+1,)
+        First column of the (symmetric Toeplitz) input autocorrelation matrix.
+    phi_re : numpy.ndarray, shape (L+1,)
+        Input–output cross-correlation.
+    power_e : float
+        Mean square of the output (``φ_ee(0)``).
+    n : int
+        Samples behind the correlations.
+
+    Returns
+    -------
+    (numpy.ndarray, int)
+        The solution (in correlation units) projected on the ``M`` leading components, and
+        ``M``.
+    """
+    full = eureka(phi_rr, phi_re)
+    lags = phi_rr.size
+    index = np.abs(np.arange(lags)[:, None] - np.arange(lags)[None, :])
+    eigenvalues, vectors = np.linalg.eigh(phi_rr[index])
+    coefficients = vectors.T @ full
+    explained = np.maximum(eigenvalues, 0.0) * coefficients**2
+    order = np.argsort(explained)[::-1]
+    residual = power_e - np.cumsum(explained[order])
+    ranks = np.arange(1, lags + 1)
+    mdl = np.maximum(residual, 1e-300) * (1.0 + ranks * np.log(n) / n)
+    rank = int(ranks[np.argmin(mdl)])
+    kept = order[:rank]
+    return np.asarray(vectors[:, kept] @ coefficients[kept], dtype=np.float64), rank
+
+
+def _causal_irf(r: FloatArray, e: FloatArray, lags: int, fs_hz: float) -> tuple[FloatArray, int]:
+    """One-sided IRF ``g(0 … lags)`` from ``r`` to ``e`` at its MDL rank, and the rank."""
+    phi_rr = auto_correlation(r, lags)
+    phi_re = cross_correlation(r, e, lags)[lags:]
+    projected, rank = mdl_projection(phi_rr, phi_re, float(e @ e) / e.size, e.size)
+    return projected * fs_hz, rank
+
+
+def convolve_causal(r: FloatArray, g: FloatArray, fs_hz: float) -> FloatArray:
+    """``Σ_k g(k)·r(t−k)·Δt`` on the samples of ``r``."""
+    return np.asarray(np.convolve(r, g / fs_hz)[: r.size], dtype=np.float64)
+
+
+# ----------------------------------------------------------------------------- dynamics
+@dataclass(frozen=True)
+class ReflexDynamics:
+    """A delayed second-order low-pass fitted to the reflex IRF.
+
+    Attributes
+    ----------
+    gain : float
+        Static gain ``G``, N·m·s/rad (torque per rad/s of the pathway's input).
+    delay_s : float
+        Onset ``δ``, s.
+    corner_hz, damping_ratio : float
+        ``f_c`` and ``ζ`` of the low-pass.
+    vaf : float
+        Of the IRF by the fitted response, % (a low value: the IRF is not of this shape, and
+        gain and delay say little).
+    """
+
+    gain: float
+    delay_s: float
+    corner_hz: float
+    damping_ratio: float
+    vaf: float
+
+    def response(self, lags_s: FloatArray) -> FloatArray:
+        """``G·h(t − δ)`` at ``lags_s``."""
+        return self.gain * _low_pass_response(
+            lags_s - self.delay_s, 2 * np.pi * self.corner_hz, self.damping_ratio
+        )
+
+
+#: Placeholder dynamics of a pathway fitted without them (inside the cascade's alternations).
+UNFITTED = ReflexDynamics(float("nan"), float("nan"), float("nan"), float("nan"), 0.0)
+
+
+def _low_pass_response(t: FloatArray, wn: ArrayLike, zeta: ArrayLike) -> FloatArray:
+    """Impulse response of ``ωn²/(s² + 2ζωn·s + ωn²)`` at times ``t`` (0 before 0);
+    ``wn`` and ``zeta`` broadcast against ``t``."""
+    z = np.asarray(zeta, dtype=np.float64)
+    z = np.where(np.abs(z - 1.0) < 1e-6, 1.0 + 1e-6, z)
+    w = np.asarray(wn, dtype=np.float64)
+    root = np.sqrt((z * z - 1.0).astype(np.complex128))
+    p1, p2 = w * (-z + root), w * (-z - root)
+    tt = np.maximum(t, 0.0)
+    h = (w * w / (p1 - p2) * (np.exp(p1 * tt) - np.exp(p2 * tt))).real
+    return np.asarray(np.where(t > 0, h, 0.0), dtype=np.float64)
+
+
+@lru_cache(maxsize=4)
+def _grid(n_lags: int, fs_hz: float) -> tuple[FloatArray, FloatArray]:
+    """The (δ, f_c, ζ) grid, shape (m, 3), and its unit-energy responses on ``n_lags`` lags,
+    shape (m, n_lags): computed once per lag grid."""
+    params = np.stack(
+        [v.ravel() for v in np.meshgrid(DELAY_GRID_S, CORNER_GRID_HZ, DAMPING_GRID, indexing="ij")],
+        axis=1,
+    )
+    lags_s = np.arange(n_lags) / fs_hz
+    shapes = _low_pass_response(
+        lags_s[None, :] - params[:, :1], 2 * np.pi * params[:, 1:2], params[:, 2:3]
+    )
+    shapes /= np.maximum(np.linalg.norm(shapes, axis=1, keepdims=True), 1e-300)
+    params.setflags(write=False)
+    shapes.setflags(write=False)
+    return params, shapes
+
+
+def _best_on_grid(g: FloatArray, fs_hz: float) -> tuple[float, float, float]:
+    """The grid point (δ, f_c, ζ) whose best-scaled response explains most of the IRF."""
+    params, shapes = _grid(g.size, fs_hz)
+    i = int(np.argmax(np.abs(shapes @ g)))
+    return float(params[i, 0]), float(params[i, 1]), float(params[i, 2])
+
+
+def fit_reflex_dynamics(irf: FloatArray, fs_hz: float) -> ReflexDynamics:
+    """Fit ``G·h(t − δ)`` (:class:`ReflexDynamics`) to a one-sided IRF at ``fs_hz``.
+
+    ``G`` is solved linearly for each ``(δ, f_c, ζ)``; these three are first searched on a
+    grid (δ every 2 ms up to 150 ms, f_c 0.3–20 Hz, ζ 0.3–2.5), then refined by bounded
+    nonlinear least squares from the best grid point.
+    """
+    g = np.asarray(irf, dtype=np.float64)
+    lags = np.arange(g.size) / fs_hz
+
+    def residual(x: FloatArray) -> FloatArray:
+        h = _low_pass_response(lags - x[0], 2 * np.pi * x[1], x[2])
+        energy = float(h @ h)
+        gain = float(h @ g) / energy if energy > 0 else 0.0
+        return gain * h - g
+
+    start = _best_on_grid(g, fs_hz)
+    bounds = ([0.0, 0.3, 0.2], [0.2, 20.0, 3.0])
+    fit = optimize.least_squares(residual, start, bounds=bounds, x_scale=[0.01, 1.0, 0.3])
+    delay, corner, zeta = (float(v) for v in fit.x)
+    h = _low_pass_response(lags - delay, 2 * np.pi * corner, zeta)
+    gain = float(h @ g) / max(float(h @ h), 1e-300)
+    power = float(g @ g)
+    explained = 100.0 * (1.0 - 2.0 * float(fit.cost) / power) if power > 0 else 0.0
+    return ReflexDynamics(gain, delay, corner, zeta, max(0.0, explained))
+
+
+# ----------------------------------------------------------------------------- the pathway
+def _powers(velocity: FloatArray, scale: float, degree: int) -> list[FloatArray]:
+    """``s·(θ̇/s)^j`` for ``j = 1 … degree``, at the data's rate."""
+    x = velocity / scale
+    return [scale * x ** (j + 1) for j in range(degree)]
+
+
+def _at_model_rate(x: FloatArray, factor: int) -> FloatArray:
+    return detrend(decimated(x, factor), "mean")
+
+
+@dataclass(frozen=True)
+class ReflexPathway:
+    """A fitted reflex pathway: what turns joint position into reflex torque.
+
+    Attributes
+    ----------
+    variant : str
+        ``"rect"`` or ``"hammerstein"``.
+    fs_hz : float
+        The model's rate, Hz.
+    factor : int
+        Decimation from the rate of the data it was fitted on.
+    irf : numpy.ndarray, shape (L+1,)
+        Lags ``0 … L`` of the IRF from the pathway's input (rectified velocity or ``p(θ̇)``,
+        rad/s, at the model's rate) to torque, N·m per rad/s per s.
+    rank : int
+        Components kept by the MDL criterion (of ``L+1``).
+    polynomial : numpy.ndarray, shape (degree,)
+        ``hammerstein``: ``p(v) = Σ_j c_j·s·(v/s)^j``, ``j = 1 … degree``; empty for ``rect``.
+    velocity_scale : float
+        ``s``, rad/s (the velocity's RMS in the fitted record).
+    dynamics : ReflexDynamics
+        Gain, delay and low-pass fitted to the IRF.
+    """
+
+    variant: str
+    fs_hz: float
+    factor: int
+    irf: FloatArray
+    rank: int
+    polynomial: FloatArray
+    velocity_scale: float
+    dynamics: ReflexDynamics
+
+    @property
+    def gain(self) -> float:
+        """Reflex gain, N·m·s/rad (of the fitted delayed low-pass)."""
+        return self.dynamics.gain
+
+    @property
+    def delay_s(self) -> float:
+        """Reflex delay, s."""
+        return self.dynamics.delay_s
+
+    @property
+    def irf_gain(self) -> float:
+        """Static gain of the IRF itself (its area), N·m·s/rad."""
+        return float(np.sum(self.irf) / self.fs_hz)
+
+    @property
+    def history_s(self) -> float:
+        """Position history a prediction needs before its first sample, s (the IRF's span
+        and the decimator's settling)."""
+        return (self.irf.size + 30) / self.fs_hz
+
+    def nonlinearity(self, velocity: FloatArray) -> FloatArray:
+        """The static nonlinearity at the data's rate: ``max(θ̇, 0)`` or ``p(θ̇)``."""
+        if self.variant == "rect":
+            return np.maximum(velocity, 0.0)
+        powers = _powers(velocity, self.velocity_scale, self.polynomial.size)
+        return np.asarray(self.polynomial @ np.stack(powers), dtype=np.float64)
+
+    def torque(self, position: ArrayLike, fs_hz: float) -> FloatArray:
+        """Reflex torque (N·m) for ``position`` sampled at ``fs_hz``, at that rate.
+
+        The first :attr:`history_s` of the result lack the pathway's full support; a live
+        prediction passes that much history before the samples it needs.
+        """
+        pos = np.asarray(position, dtype=np.float64)
+        factor = max(1, round(fs_hz / self.fs_hz))
+        if abs(fs_hz / factor - self.fs_hz) > 1e-6 * self.fs_hz:
+            raise InputDataError(
+                f"a reflex model at {self.fs_hz:g} Hz cannot predict data at {fs_hz:g} Hz "
+                "(not a whole multiple)"
+            )
+        pathway_input = _at_model_rate(self.nonlinearity(stretch_velocity(pos, fs_hz)), factor)
+        low = convolve_causal(pathway_input, self.irf, self.fs_hz)
+        if factor == 1:
+            return low
+        # back to the data's rate by linear interpolation between the model's samples (the
+        # reflex torque is smooth at 100 Hz); after the last one it is held
+        return np.interp(np.arange(pos.size), np.arange(low.size) * factor, low)
+
+
+class ReflexInputs:
+    """The candidate pathway inputs of one record at the model's rate (computed once per
+    record, reused by every alternation of the cascade)."""
+
+    def __init__(self, position: FloatArray, fs_hz: float, factor: int, variant: str) -> None:
+        velocity = stretch_velocity(position, fs_hz)
+        self.factor = factor
+        self.variant = variant
+        self.scale = float(np.sqrt(np.mean(velocity**2))) or 1.0
+        self.rectified = _at_model_rate(np.maximum(velocity, 0.0), factor)
+        self.powers = (
+            [_at_model_rate(p, factor) for p in _powers(velocity, self.scale, POLYNOMIAL_DEGREE)]
+            if variant == "hammerstein"
+            else []
+        )
+
+
+def fit_reflex_pathway(
+    inputs: ReflexInputs, residual: FloatArray, fs_hz: float, lags: int, *, dynamics: bool = True
+) -> tuple[ReflexPathway, FloatArray]:
+    """Fit the reflex pathway to the torque the intrinsic pathway leaves.
+
+    Parameters
+    ----------
+    inputs : ReflexInputs
+        The record's pathway inputs at the model's rate ``fs_hz``.
+    residual : numpy.ndarray, shape (m,)
+        Torque minus the intrinsic prediction, N·m, at the model's rate.
+    lags : int
+        IRF lags ``0 … lags``.
+    dynamics : bool
+        Fit gain and delay (:func:`fit_reflex_dynamics`); the cascade's alternations skip it
+        and fit them once on the pathway kept.
+
+    Returns
+    -------
+    (ReflexPathway, numpy.ndarray)
+        The pathway, and its torque on the record (N·m, model's rate).
+    """
+    irf, rank = _causal_irf(inputs.rectified, residual, lags, fs_hz)
+    coefficients = np.zeros(0)
+    pathway_input = inputs.rectified
+    if inputs.variant == "hammerstein":
+        irf, rank, coefficients, pathway_input = _hammerstein(inputs, residual, fs_hz, lags, irf)
+    pathway = ReflexPathway(
+        inputs.variant,
+        fs_hz,
+        inputs.factor,
+        irf,
+        rank,
+        coefficients,
+        inputs.scale,
+        fit_reflex_dynamics(irf, fs_hz) if dynamics else UNFITTED,
+    )
+    return pathway, convolve_causal(pathway_input, irf, fs_hz)
+
+
+def _hammerstein(
+    inputs: ReflexInputs, residual: FloatArray, fs_hz: float, lags: int, irf: FloatArray
+) -> tuple[FloatArray, int, FloatArray, FloatArray]:
+    """Alternate the polynomial (least squares on the IRF-filtered powers) and the IRF
+    (EUREKA, MDL rank), starting from the rectifier's IRF. The polynomial is normalised to
+    the rectifier's scale (least-squares slope 1 against ``max(θ̇, 0)``), so the IRF's gain
+    compares with the ``rect`` variant's."""
+    rectified = inputs.rectified
+    powers = np.stack(inputs.powers, axis=1)
+    coefficients: NDArray[np.floating] = np.zeros(POLYNOMIAL_DEGREE)
+    shaped = rectified
+    rank = 0
+    for _ in range(HAMMERSTEIN_SWEEPS):
+        filtered = np.stack([convolve_causal(p, irf, fs_hz) for p in inputs.powers], axis=1)
+        coefficients, *_ = np.linalg.lstsq(filtered, residual, rcond=None)
+        candidate = powers @ coefficients
+        slope = float(candidate @ rectified) / float(rectified @ rectified)
+        if slope == 0 or not np.isfinite(slope):
+            break
+        coefficients = coefficients / slope
+        shaped = candidate / slope
+        irf, rank = _causal_irf(shaped, residual, lags, fs_hz)
+    return irf, rank, np.asarray(coefficients, dtype=np.float64), shaped

@@ -1,0 +1,326 @@
+"""The slow lane's numerics: which reflex model a window uses, and how one is fitted.
+
+The fast lane estimates I, B, K from 300 ms; a stretch reflex needs a reflex-IRF length
+(≈ 1 s) of history and tens of seconds of data to be identified. The slow lane fits the
+parallel cascade (:mod:`rtsid.ident.cascade`) over the last ``horizon_s`` every ``update_s``,
+and the fast lane subtracts that model's reflex torque before its intrinsic estimate.
+
+Deterministic by construction, so a replay reproduces a live run bit for bit:
+
+* fit ``k`` ends at sample index ``E_k = k·U`` (``U`` = ``update_s`` in samples) and uses the
+  samples ``[max(E_k − H, first), E_k)``;
+* it applies to every window whose last sample ``e`` has ``e + 1 ≥ E_k + A`` (``A`` =
+  ``apply_after_s``: time the live slow lane is given to finish), until the next one does.
+
+Which model a window uses therefore depends on sample indices only. Live, a fit that has not
+finished when it is due leaves the window on the previous model, flagged ``reflex_stale``
+(and that window alone can differ from a replay); a window with no model yet is flagged
+``reflex_absent``. A model whose reflex pathway adds less than ``min_vaf_gain_percent`` to the
+intrinsic IRF's VAF is judged absent from the data: it is published, but nothing is
+subtracted.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rtsid.errors import ConfigError, InputDataError, invalid, require_choice, require_range
+from rtsid.ident.cascade import CascadeFit, CascadeSettings, cascade_minimum_s, fit_parallel_cascade
+from rtsid.ident.reflex import REFLEX_VARIANTS, ReflexPathway
+
+__all__ = [
+    "ReflexModels",
+    "ReflexUpdate",
+    "SlowLaneSettings",
+    "fit_reflex_update",
+    "predict_reflex_torque",
+    "warm_up",
+]
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+LANE_MODES = ("process", "thread")
+
+
+@dataclass(frozen=True)
+class SlowLaneSettings:
+    """The ``[slow_lane]`` config section.
+
+    Attributes
+    ----------
+    enabled : bool
+        Fit the reflex pathway and subtract it in the fast lane.
+    mode : str
+        ``"process"`` (a spawned worker process: never competes for the GIL) or ``"thread"``
+        (a low-priority thread in the daemon).
+    horizon_s : float
+        Data each fit uses, s (the last ``horizon_s`` before the fit's end).
+    update_s : float
+        Time between fits, s.
+    apply_after_s : float
+        A fit applies to windows ending this long after its data end, s (its time to run).
+    stale_after_s : float
+        A model older than this (its data end to the window's end) flags ``reflex_stale``.
+    variant : str
+        Reflex pathway: ``"rect"`` or ``"hammerstein"``.
+    min_vaf_gain_percent : float
+        A reflex pathway that adds less VAF than this over the intrinsic IRF alone is not
+        subtracted.
+    max_lost_percent : float
+        Lost samples a fit (or a prediction's history) bridges by linear interpolation; more,
+        or a gap longer than the model's sample period, and it is skipped.
+    """
+
+    enabled: bool = False
+    mode: str = "process"
+    horizon_s: float = 20.0
+    update_s: float = 2.0
+    apply_after_s: float = 1.0
+    stale_after_s: float = 10.0
+    variant: str = "rect"
+    min_vaf_gain_percent: float = 1.0
+    max_lost_percent: float = 2.0
+
+    def __post_init__(self) -> None:
+        require_choice("mode", self.mode, LANE_MODES)
+        require_choice("variant", self.variant, REFLEX_VARIANTS)
+        minimum = cascade_minimum_s(CascadeSettings())
+        require_range("horizon_s", self.horizon_s, minimum, 600.0)
+        require_range("update_s", self.update_s, 0.1, 600.0)
+        require_range("apply_after_s", self.apply_after_s, 0.0, 60.0)
+        require_range("min_vaf_gain_percent", self.min_vaf_gain_percent, 0.0, 100.0)
+        require_range("max_lost_percent", self.max_lost_percent, 0.0, 50.0)
+        if self.stale_after_s < self.update_s + self.apply_after_s:
+            raise invalid(
+                "stale_after_s",
+                self.stale_after_s,
+                f">= update_s + apply_after_s = {self.update_s + self.apply_after_s:g} s (every "
+                "model would be stale before the next one is due)",
+            )
+
+    def cascade(self) -> CascadeSettings:
+        """The cascade each fit runs."""
+        return CascadeSettings(variant=self.variant)
+
+
+@dataclass(frozen=True)
+class ReflexUpdate:
+    """One slow-lane fit.
+
+    Attributes
+    ----------
+    seq : int
+        Fit counter: ``E / U`` (the fit's place on the schedule).
+    start_index, end_index : int
+        The samples used, ``[start_index, end_index)``.
+    pathway : ReflexPathway or None
+        The fitted pathway (None: the fit failed or was skipped, see ``error``).
+    applied : bool
+        The fast lane subtracts it (the pathway adds at least ``min_vaf_gain_percent``).
+    vaf_total, vaf_intrinsic_only, vaf_intrinsic_path, vaf_reflex_path : float
+        The cascade's VAFs, % (NaN without a fit).
+    iterations : int
+        Alternations run.
+    error : str or None
+        Why there is no pathway.
+    """
+
+    seq: int
+    start_index: int
+    end_index: int
+    pathway: ReflexPathway | None
+    applied: bool
+    vaf_total: float
+    vaf_intrinsic_only: float
+    vaf_intrinsic_path: float
+    vaf_reflex_path: float
+    iterations: int
+    error: str | None = None
+
+    @classmethod
+    def failed(cls, seq: int, start: int, end: int, error: str) -> ReflexUpdate:
+        """A fit that gave no model."""
+        nan = float("nan")
+        return cls(seq, start, end, None, False, nan, nan, nan, nan, 0, error)
+
+
+def bridged(
+    x: FloatArray, valid: BoolArray | None, fs_hz: float, settings: SlowLaneSettings
+) -> FloatArray:
+    """``x`` with its lost samples linearly interpolated, if few and short enough.
+
+    Raises
+    ------
+    InputDataError
+        More than ``max_lost_percent`` lost, or a gap longer than the model's sample period.
+    """
+    if valid is None or bool(valid.all()):
+        return x
+    lost = ~valid
+    percent = 100.0 * float(lost.mean())
+    if percent > settings.max_lost_percent:
+        raise InputDataError(
+            f"{percent:.2g} % of the samples are lost (the slow lane bridges up to "
+            f"{settings.max_lost_percent:g} %)"
+        )
+    edges = np.diff(np.concatenate([[0], lost.view(np.int8), [0]]))
+    longest = int(np.max(np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)))
+    limit = fs_hz / settings.cascade().fs_out_hz
+    if longest > limit:
+        raise InputDataError(
+            f"a gap of {longest} samples is longer than the reflex model's sample period "
+            f"({limit:g} samples)"
+        )
+    keep = np.flatnonzero(valid)
+    if keep.size < 2:
+        raise InputDataError("fewer than two valid samples")
+    return np.interp(np.arange(x.size), keep, x[keep])
+
+
+def fit_reflex_update(
+    seq: int,
+    start_index: int,
+    position: FloatArray,
+    torque: FloatArray,
+    valid: BoolArray | None,
+    fs_hz: float,
+    settings: SlowLaneSettings,
+) -> ReflexUpdate:
+    """Fit the parallel cascade to one horizon of samples (torque sign-corrected and with the
+    robot's own dynamics removed). Never raises for bad data: the update carries the error."""
+    end_index = start_index + position.size
+    try:
+        pos = bridged(np.asarray(position, dtype=np.float64), valid, fs_hz, settings)
+        tor = bridged(np.asarray(torque, dtype=np.float64), valid, fs_hz, settings)
+        if not (np.isfinite(pos).all() and np.isfinite(tor).all()):
+            raise InputDataError("a valid sample is NaN or infinite")
+        cascade = fit_parallel_cascade(pos, tor, fs_hz, settings.cascade())
+    except (InputDataError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        return ReflexUpdate.failed(seq, start_index, end_index, str(exc))
+    return _update_from(seq, start_index, end_index, cascade, settings)
+
+
+def warm_up(fs_hz: float, settings: SlowLaneSettings) -> bool:
+    """Run one fit on a synthetic record, so that a fresh slow-lane process has imported and
+    cached everything (e.g. the dynamics grid) before its first scheduled fit is due."""
+    rng = np.random.default_rng(0)
+    n = round(1.05 * cascade_minimum_s(settings.cascade()) * fs_hz)
+    position = np.cumsum(rng.standard_normal(n)) * 1e-3
+    update = fit_reflex_update(
+        0, 0, position, position + rng.standard_normal(n), None, fs_hz, settings
+    )
+    return update.error is None
+
+
+def _update_from(
+    seq: int, start: int, end: int, cascade: CascadeFit, settings: SlowLaneSettings
+) -> ReflexUpdate:
+    gain = cascade.vaf_total - cascade.vaf_intrinsic_only
+    return ReflexUpdate(
+        seq,
+        start,
+        end,
+        cascade.reflex,
+        gain >= settings.min_vaf_gain_percent,
+        cascade.vaf_total,
+        cascade.vaf_intrinsic_only,
+        cascade.vaf_intrinsic_path,
+        cascade.vaf_reflex_path,
+        cascade.iterations,
+    )
+
+
+# ----------------------------------------------------------------------------- the schedule
+class ReflexModels:
+    """The slow lane's fits, and which one each window uses (thread-safe).
+
+    Parameters
+    ----------
+    fs_hz : float
+        Sample rate, Hz.
+    settings : SlowLaneSettings
+    """
+
+    def __init__(self, fs_hz: float, settings: SlowLaneSettings) -> None:
+        if not settings.enabled:
+            raise ConfigError("ReflexModels needs [slow_lane] enabled = true")
+        self.fs_hz = float(fs_hz)
+        self.settings = settings
+        self.horizon = round(settings.horizon_s * fs_hz)
+        self.update = max(1, round(settings.update_s * fs_hz))
+        self.apply_after = round(settings.apply_after_s * fs_hz)
+        self.stale_after = round(settings.stale_after_s * fs_hz)
+        self.minimum = round(cascade_minimum_s(settings.cascade()) * fs_hz)
+        self._updates: dict[int, ReflexUpdate] = {}
+        self._lock = threading.Lock()
+
+    # -------------------------------------------------------------- schedule
+    def fit_span(self, seq: int, first_index: int) -> tuple[int, int] | None:
+        """Samples ``[start, end)`` of fit ``seq`` when data begin at ``first_index``; None
+        when fewer than the cascade's minimum are there."""
+        end = seq * self.update
+        start = max(end - self.horizon, first_index)
+        return (start, end) if end - start >= self.minimum else None
+
+    def first_seq(self, first_index: int) -> int:
+        """The first fit whose span holds enough data."""
+        return -(-(first_index + self.minimum) // self.update)
+
+    def due_seq(self, window_end: int) -> int:
+        """The fit that applies to the window whose last sample is ``window_end``."""
+        return (window_end + 1 - self.apply_after) // self.update
+
+    # -------------------------------------------------------------- store
+    def add(self, update: ReflexUpdate) -> None:
+        """Keep a finished fit (older ones beyond the stale horizon are dropped)."""
+        with self._lock:
+            self._updates[update.seq] = update
+            oldest = update.seq - (self.stale_after // self.update + 2)
+            for seq in [s for s in self._updates if s < oldest]:
+                del self._updates[seq]
+
+    def model_for(self, window_end: int) -> tuple[ReflexUpdate | None, bool]:
+        """The newest usable fit at or before the one due for ``window_end``, and whether it
+        is stale (not the due one, or older than ``stale_after_s``). ``(None, False)``:
+        none yet."""
+        due = self.due_seq(window_end)
+        with self._lock:
+            usable = [s for s, u in self._updates.items() if s <= due and u.pathway is not None]
+            if not usable:
+                return None, False
+            seq = max(usable)
+            update = self._updates[seq]
+        failed_since = seq != due
+        too_old = window_end + 1 - update.end_index > self.stale_after
+        return update, failed_since or too_old
+
+    @property
+    def history_samples(self) -> int:
+        """Samples before a window its reflex prediction needs."""
+        lags = round(self.settings.cascade().reflex_lag_s * self.settings.cascade().fs_out_hz)
+        return round((lags + 1 + 30) / self.settings.cascade().fs_out_hz * self.fs_hz)
+
+
+def predict_reflex_torque(
+    pathway: ReflexPathway,
+    position: FloatArray,
+    valid: BoolArray | None,
+    fs_hz: float,
+    n_last: int,
+    settings: SlowLaneSettings,
+) -> FloatArray:
+    """The reflex torque over the last ``n_last`` samples of ``position`` (the window), from
+    the window and the history before it.
+
+    Raises
+    ------
+    InputDataError
+        The history has more lost samples than the slow lane bridges.
+    """
+    pos = bridged(np.asarray(position, dtype=np.float64), valid, fs_hz, settings)
+    return pathway.torque(pos, fs_hz)[-n_last:]

@@ -1,0 +1,108 @@
+import numpy as np
+import pytest
+
+from rtsid.errors import ConfigError, InputDataError
+from rtsid.ident.reflex_lane import (
+    ReflexModels,
+    ReflexUpdate,
+    SlowLaneSettings,
+    bridged,
+    fit_reflex_update,
+    predict_reflex_torque,
+    warm_up,
+)
+from tests.ident.test_cascade import FS as FS_SIM
+from tests.ident.test_cascade import joint_with_reflex
+
+FS = 1000.0
+SETTINGS = SlowLaneSettings(enabled=True, horizon_s=10.0, update_s=2.0, apply_after_s=1.0)
+
+
+@pytest.fixture(scope="module")
+def pathway():
+    theta, torque = joint_with_reflex(seconds=8.0)
+    update = fit_reflex_update(0, 0, theta, torque, None, FS_SIM, SETTINGS)
+    assert update.error is None
+    return update.pathway
+
+
+def fitted(pathway, seq, start, end):
+    return ReflexUpdate(seq, start, end, pathway, True, 99.0, 80.0, 80.0, 20.0, 2)
+
+
+def test_the_schedule_is_a_function_of_sample_indices_only():
+    models = ReflexModels(FS, SETTINGS)
+    assert (models.update, models.horizon, models.apply_after) == (2000, 10000, 1000)
+    # data from sample 500: the first fit with 3 s (three reflex-IRF lengths) ends at 4000
+    assert models.first_seq(500) == 2
+    assert models.fit_span(2, 500) == (500, 4000)
+    assert models.fit_span(1, 500) is None
+    assert models.fit_span(9, 500) == (8000, 18000)  # the last horizon_s only
+    # fit 2 ends at 4000 and applies to windows ending at 4999 and later
+    assert models.due_seq(4998) == 1 and models.due_seq(4999) == 2
+
+
+def test_a_window_uses_the_due_fit_or_says_why_not(pathway):
+    models = ReflexModels(FS, SETTINGS)
+    assert models.model_for(5000) == (None, False)  # nothing yet: reflex_absent
+    models.add(fitted(pathway, 2, 0, 4000))
+    assert models.model_for(5000) == (models.model_for(5000)[0], False)
+    assert models.model_for(5000)[0].seq == 2
+    # fit 3 is due from 6999 on but has not arrived: the old one, stale
+    update, stale = models.model_for(6999)
+    assert update.seq == 2 and stale
+    models.add(ReflexUpdate.failed(3, 0, 6000, "a gap"))
+    assert models.model_for(6999)[0].seq == 2 and models.model_for(6999)[1]
+    models.add(fitted(pathway, 4, 0, 8000))
+    assert models.model_for(8999) == (models.model_for(8999)[0], False)
+    # too old: more than stale_after_s since its data ended
+    assert models.model_for(8000 + 10_001)[1]
+
+
+def test_settings_are_checked_like_the_rest_of_the_config():
+    with pytest.raises(ConfigError, match="stale_after_s"):
+        SlowLaneSettings(update_s=5.0, apply_after_s=6.0, stale_after_s=10.0)
+    with pytest.raises(ConfigError, match="horizon_s"):
+        SlowLaneSettings(horizon_s=2.0)
+    with pytest.raises(ConfigError, match="mode"):
+        SlowLaneSettings(mode="fork")
+    with pytest.raises(ConfigError, match="enabled"):
+        ReflexModels(FS, SlowLaneSettings())
+
+
+def test_lost_samples_are_bridged_when_few_and_short_and_refused_otherwise():
+    x = np.arange(2000.0)
+    valid = np.ones(2000, bool)
+    valid[[10, 11, 500]] = False
+    out = bridged(np.where(valid, x, np.nan), valid, FS, SETTINGS)
+    assert np.allclose(out, x)
+    valid[100:120] = False  # 20 samples: longer than a 10 ms model sample
+    with pytest.raises(InputDataError, match="gap of 20 samples"):
+        bridged(x, valid, FS, SETTINGS)
+    valid = np.arange(2000) % 10 != 0  # 10 % lost
+    with pytest.raises(InputDataError, match="10 % of the samples are lost"):
+        bridged(x, valid, FS, SETTINGS)
+
+
+def test_a_fit_on_bad_data_carries_the_error_instead_of_raising():
+    short = fit_reflex_update(5, 100, np.zeros(500), np.zeros(500), None, FS, SETTINGS)
+    assert short.pathway is None and "at least 3 s" in short.error
+    assert (short.seq, short.start_index, short.end_index) == (5, 100, 600)
+    nan = np.full(4000, np.nan)
+    assert "NaN" in fit_reflex_update(6, 0, nan, nan, None, FS, SETTINGS).error
+
+
+def test_the_prediction_needs_only_the_window_and_its_history(pathway):
+    theta, _ = joint_with_reflex(seconds=6.0, seed=7)
+    whole = pathway.torque(theta, FS_SIM)
+    n, history = 750, round(pathway.history_s * FS_SIM)
+    segment = theta[-(n + history) :]
+    tail = predict_reflex_torque(pathway, segment, None, FS_SIM, n, SETTINGS)
+    # the pathway's input is mean-removed over what it sees: an offset is free, the rest
+    # agrees with the whole-record prediction except at the decimator's edge
+    diff = (tail - whole[-n:])[: n - 100]
+    assert np.std(diff - diff.mean()) < 0.05 * np.std(whole[-n:])
+
+
+def test_warm_up_runs_a_fit():
+    assert warm_up(2500.0, SETTINGS)
