@@ -83,13 +83,13 @@ def run(args: argparse.Namespace) -> int:
     for error in answer.errors:
         print(f"rtsid query: error reply: {error}", file=sys.stderr)
     messages: list[tuple[int, bytes]] = []
-    for key, payload in answer.replies:
+    for _, payload in answer.replies:
         if "/history" not in wanted:
             messages.append((_time_of(json.loads(payload)), payload))
             continue
         part = json.loads(payload)
         if part["part"] == 0:
-            print(_summary(part, key), file=sys.stderr)
+            print(_summary(part), file=sys.stderr)
         messages += [(_time_of(m), json.dumps(m).encode()) for m in part["messages"]]
     for _, payload in sorted(messages, key=lambda pair: pair[0]):
         sys.stdout.write(payload.decode() + "\n")
@@ -108,7 +108,7 @@ def _time_of(message: Any) -> int:
     return int(message.get("host_time_ns") or 0) if isinstance(message, dict) else 0
 
 
-def _summary(part: dict[str, Any], key: str) -> str:
+def _summary(part: dict[str, Any]) -> str:
     held = part["held_from_ns"]
     where = "nothing held" if held is None else f"held from {held} ns"
     text = f"rtsid query: {part['robot']}/{part['joint']} {part['kind']}: {where}"

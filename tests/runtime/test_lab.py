@@ -226,6 +226,26 @@ def test_malformed_queries_get_an_error_reply(free_port: int) -> None:
         assert pub.stats()["query_errors"] == 4
 
 
+def test_rtsid_query_prints_latest_and_history_as_json_lines(
+    free_port: int, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with Router(free_port) as router, ZenohPublisher(client(router.endpoint, "j0")) as pub:
+        for seq in range(3):
+            pub.publish_estimate(estimate("j0", seq))
+        connect = ["--connect", router.endpoint]
+        assert main(["query", *connect]) == 0
+        (line,) = capsys.readouterr().out.splitlines()
+        assert json.loads(line)["seq"] == 2
+        assert main(["query", "rtsid/rig/j0", *connect, "--since", "1h", "--kind", "estimate"]) == 0
+        captured = capsys.readouterr()
+        assert [json.loads(x)["seq"] for x in captured.out.splitlines()] == [0, 1, 2]
+        assert "rig/j0 estimate: held from" in captured.err and "starts at" in captured.err
+        assert main(["query", *connect, "--since", "soon"]) == 2
+        assert "--since" in capsys.readouterr().err
+        assert main(["query", "rtsid/nobody/here", *connect, "--timeout", "1"]) == 1
+        assert "no daemon answered" in capsys.readouterr().err
+
+
 # ---------------------------------------------------------------------- the fast lane
 
 
