@@ -26,7 +26,12 @@ from rtsid import __version__
 from rtsid.errors import RecordingError
 from rtsid.ident.reflex_lane import ReflexModels, fit_reflex_update
 from rtsid.io.calibration import robot_calibration, with_recorded_calibration
-from rtsid.io.mcap_read import read_metadata, run_config_from_metadata, sample_count
+from rtsid.io.mcap_read import (
+    iter_estimates,
+    read_metadata,
+    run_config_from_metadata,
+    sample_count,
+)
 from rtsid.io.recording import SampleGrid, iter_batches, session_parts
 from rtsid.io.schemas import ESTIMATE_FIELDS, SCHEMAS, SampleBatch, encode_estimate, encode_json
 from rtsid.link.ring import Snapshot
@@ -34,6 +39,7 @@ from rtsid.runtime.daemon import DaemonConfig
 from rtsid.runtime.worker import WindowEvaluator
 
 __all__ = [
+    "LiveDecisions",
     "ReplayResult",
     "iter_windows",
     "paced",
@@ -58,10 +64,42 @@ def recording_config(path: str | Path) -> DaemonConfig:
     )
 
 
+@dataclass(frozen=True)
+class LiveDecisions:
+    """What the live run decided that its samples alone do not say, read from its estimates:
+    which windows it estimated (a worker that fell behind skipped some, and the held I/B
+    medians and the tracker only saw the rest) and which reflex model each one used (a late
+    slow lane leaves a window on an older one). A replay that follows them reproduces the live
+    numbers even then.
+    """
+
+    first_end: int
+    last_end: int
+    reflex: dict[int, tuple[int | None, bool, bool]]  # end -> (reflex_seq, absent, stale)
+
+    def skipped(self, window_end: int) -> bool:
+        """The live worker never estimated this window (inside the live run's span)."""
+        return self.first_end <= window_end <= self.last_end and window_end not in self.reflex
+
+    @classmethod
+    def of(cls, parts: Iterable[Path]) -> LiveDecisions | None:
+        """From the recording's ``/estimate`` messages (None when it has none)."""
+        reflex: dict[int, tuple[int | None, bool, bool]] = {}
+        for part in parts:
+            for m in iter_estimates(part):
+                flags = set(m.get("flags") or ())
+                absent, stale = "reflex_absent" in flags, "reflex_stale" in flags
+                reflex[int(m["window_end_index"])] = (m.get("reflex_seq"), absent, stale)
+        if not reflex:
+            return None
+        return cls(min(reflex), max(reflex), reflex)
+
+
 def iter_windows(
     batches: Iterable[SampleBatch],
     evaluator: WindowEvaluator,
     slow_lane: ReplayedSlowLane | None = None,
+    live: LiveDecisions | None = None,
 ) -> Iterator[Snapshot]:
     """Every grid window the batches complete, oldest first (the live daemon's windows), with
     the evaluator's history rows before each (never before the recording's first sample).
@@ -69,7 +107,8 @@ def iter_windows(
     Rows go onto a :class:`~rtsid.io.recording.SampleGrid` (gaps as invalid rows) that keeps
     only what the next windows (and the slow lane's next fit) need, so a long recording
     replays in bounded memory. A slow lane runs its fits in line, each when its first window
-    is due: the same samples, so the same models, as live.
+    is due: the same samples, so the same models, as live. With ``live``, the windows the live
+    worker skipped are skipped here too.
     """
     n = evaluator.window_samples
     reach = n + evaluator.history_samples
@@ -84,7 +123,8 @@ def iter_windows(
         while next_end < grid.end_index:
             if slow_lane is not None:
                 slow_lane.catch_up(grid, first, next_end)
-            yield _snapshot(grid.rows(max(next_end - reach + 1, first), next_end + 1))
+            if live is None or not live.skipped(next_end):
+                yield _snapshot(grid.rows(max(next_end - reach + 1, first), next_end + 1))
             next_end += evaluator.hop_samples
         keep = next_end - reach + 1
         if slow_lane is not None:
@@ -237,13 +277,14 @@ def replay_file(
         A part ended early (see :mod:`rtsid.io.recording`); its complete messages are replayed.
     """
     parts = session_parts(path)
+    live = LiveDecisions.of(parts) if config is None else None  # a re-analysis decides anew
     config = config or recording_config(parts[0])
     result = ReplayResult(source=str(path), parts=parts)
     total = sum(sample_count(p) for p in parts) if progress is not None else 0
     batches: Iterable[SampleBatch] = _counted(iter_batches(parts), result, progress, total)
     if rate is not None:
         batches = paced(batches, rate)
-    replay_batches(batches, config, result, publish=publish)
+    replay_batches(batches, config, result, publish=publish, live=live)
     if result.samples == 0:
         raise RecordingError(f"{path}: no samples to replay (is it an rtsid recording?)")
     return result
@@ -256,6 +297,7 @@ def replay_batches(
     *,
     publish: Callable[[dict[str, Any]], object] | None = None,
     evaluated: Callable[[WindowEvaluator], None] | None = None,
+    live: LiveDecisions | None = None,
 ) -> ReplayResult:
     """Run the live daemon's window worker (and slow lane) over batches of samples.
 
@@ -271,6 +313,8 @@ def replay_batches(
         Also called with every estimate message.
     evaluated : callable, optional
         Called with the evaluator after each window (e.g. to read ``last_reflex``).
+    live : LiveDecisions, optional
+        Follow the live run's skipped windows and reflex models.
     """
 
     def sink(message: dict[str, Any]) -> None:
@@ -293,8 +337,10 @@ def replay_batches(
         tracker=config.tracker,
     )
     slow_lane = ReplayedSlowLane(evaluator, result.reflex.append) if evaluator.reflex else None
+    if live is not None:
+        evaluator.recorded_reflex = live.reflex
     started = time.perf_counter()
-    for snap in iter_windows(batches, evaluator, slow_lane):
+    for snap in iter_windows(batches, evaluator, slow_lane, live):
         evaluator.evaluate(snap)
         if evaluated is not None:
             evaluated(evaluator)

@@ -14,7 +14,7 @@ from rtsid.cli import main
 from rtsid.errors import IncompleteRecordingWarning
 from rtsid.io.mcap_read import iter_estimates
 from rtsid.io.recording import read_estimates, session_parts
-from rtsid.replay import replay_file
+from rtsid.replay import recording_config, replay_file
 from rtsid.runtime.daemon import Daemon, DaemonConfig
 
 REFERENCE = Path(__file__).resolve().parents[1] / "replay" / "reference"
@@ -166,3 +166,39 @@ def test_any_part_of_a_rotated_session_replays_the_whole_session_as_live(tmp_pat
     replayed = by_window(replay_file(parts[-1]).messages)
     assert len(live) > 60 and set(live) <= set(replayed)
     assert_same_estimates(live, replayed)  # windows across the part boundary too, bit for bit
+
+
+@pytest.mark.slow  # a real-time daemon run of seconds
+def test_replay_follows_the_windows_a_live_worker_skipped(tmp_path, free_port, monkeypatch):
+    from rtsid.runtime.worker import WindowWorker
+
+    process_window = WindowWorker.process_window
+    skipped = []
+
+    def fall_behind(self, end_index):  # as if the worker had been late for these windows
+        if 2000 <= end_index <= 3500 and (end_index // self.hop_samples) % 4 == 0:
+            skipped.append(end_index)
+            return None
+        return process_window(self, end_index)
+
+    monkeypatch.setattr(WindowWorker, "process_window", fall_behind)
+    config = DaemonConfig.from_mapping(
+        {
+            "zenoh": {"listen": [f"tcp/127.0.0.1:{free_port}"]},
+            "mcap": {"directory": str(tmp_path)},
+            "plant": {"stiffness_profile": {"kind": "sinusoidal", "amplitude": 50.0}},
+        }
+    )
+    Daemon(config).run(duration_s=2.0)
+    recording = next(tmp_path.glob("*.mcap"))
+    live = by_window(iter_estimates(recording))
+    assert skipped and not set(skipped) & set(live)
+    followed = by_window(replay_file(recording).messages)
+    assert not set(skipped) & set(followed)
+    # held I/B and the tracker saw the same windows: every number as live, bit for bit
+    assert_same_estimates(live, followed)
+    for end, m in live.items():
+        assert (followed[end]["K_track"], followed[end]["B_track"]) == (m["K_track"], m["B_track"])
+    # a re-analysis with a config given estimates every window
+    again = by_window(replay_file(recording, recording_config(recording)).messages)
+    assert set(skipped) <= set(again)

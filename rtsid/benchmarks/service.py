@@ -170,9 +170,13 @@ def _config_file(
     return path
 
 
-def _start_plant(can_port: int) -> subprocess.Popen[bytes]:
+def _start_plant(can_port: int, config: Path) -> subprocess.Popen[bytes]:
+    """The virtual plant behind socketcand, with the run's [plant] (a reflex, say)."""
     plant = subprocess.Popen(
-        [sys.executable, "-m", "rtsid.cli", "plant", "--port", str(can_port)],
+        [
+            sys.executable,
+            *("-m", "rtsid.cli", "plant", "--config", str(config), "--port", str(can_port)),
+        ],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
@@ -265,8 +269,8 @@ def _run_phase(
     with tempfile.TemporaryDirectory(prefix="rtsid-bench-") as tmp:
         port = _free_port()
         can_port = _free_port() if transport == "socketcand" else None
-        plant = _start_plant(can_port) if can_port is not None else None
         config = _config_file(Path(tmp), port, can_port, cpu_latency_us, slow_lane)
+        plant = _start_plant(can_port, config) if can_port is not None else None
         daemon = subprocess.Popen(
             [sys.executable, "-m", "rtsid.cli", "run", "--config", str(config), "--quiet"],
             stdout=subprocess.DEVNULL,

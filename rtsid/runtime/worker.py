@@ -253,6 +253,8 @@ class WindowEvaluator:
         self.history_samples = reflex.history_samples if reflex is not None else 0
         self.reflex_flagged: Counter[str] = Counter()
         self.last_reflex = _NO_REFLEX  # the slow lane's part in the latest window
+        # a replay following a live run: window end -> (reflex_seq, absent, stale) as live had
+        self.recorded_reflex: dict[int, tuple[int | None, bool, bool]] | None = None
         self._seq = 0
         self.withheld: Counter[str] = Counter()
         self.estimates = 0
@@ -323,7 +325,7 @@ class WindowEvaluator:
     def _reflex_torque(self, snap: Snapshot) -> _ReflexUse:
         """The due reflex model's torque over the window, in the recorded torque's sign."""
         assert self.reflex is not None
-        update, stale = self.reflex.model_for(int(snap.sample_index[-1]))
+        update, stale = self._due_reflex(int(snap.sample_index[-1]))
         if update is None or update.pathway is None:
             self.reflex_flagged[Flag.REFLEX_ABSENT] += 1
             return _ReflexUse(None, None, (Flag.REFLEX_ABSENT,))
@@ -345,6 +347,20 @@ class WindowEvaluator:
             self.reflex_flagged[Flag.REFLEX_ABSENT] += 1
             return _ReflexUse(None, None, (Flag.REFLEX_ABSENT,))
         return _ReflexUse(update.seq, self.options.torque_sign * predicted, flags)
+
+    def _due_reflex(self, end: int) -> tuple[ReflexUpdate | None, bool]:
+        """The model the window uses: the schedule's, or (replaying a live run) the one live
+        used, which differs when the live slow lane was late."""
+        assert self.reflex is not None
+        recorded = self.recorded_reflex.get(end) if self.recorded_reflex else None
+        if recorded is None:
+            return self.reflex.model_for(end)
+        seq, absent, stale = recorded
+        if absent:
+            return None, False
+        if seq is None:
+            return self.reflex.model_for(end)  # judged absent from the data: the same again
+        return self.reflex.update_of(seq), stale
 
     def _estimate(
         self, snap: Snapshot, reason: Reason | None, reflex_torque: Any = None

@@ -22,7 +22,6 @@ def lane_config(tmp_path, port, mode, **lane):
             "zenoh": {"listen": [f"tcp/127.0.0.1:{port}"]},
             "mcap": {"directory": str(tmp_path)},
             "plant": {"noise_percent": 10.0, "reflex": {"enabled": True, "gain": REFLEX_GAIN}},
-            "estimator": {"hold": "none"},  # a live overrun cannot shift later windows
             "slow_lane": {
                 "enabled": True,
                 "mode": mode,
@@ -56,8 +55,8 @@ def test_the_slow_lane_fits_the_plants_reflex_and_replay_reproduces_live(tmp_pat
     assert all(m["window_end_index"] >= fits[0]["applies_from_index"] for m in used)
     status = list(iter_status(recording))[-1]
     assert status["slow_lane"]["mode"] == mode and status["slow_lane"]["fits"] >= 3
-    # replay runs the same fits in line: the same models, and the same numbers for every
-    # window live did not flag as having waited for its model
+    # replay runs the same fits in line: the same models; and it follows what live decided
+    # (a window left on an older model because a fit was late): the same numbers everywhere
     result = replay_file(recording)
     common = min(len(result.reflex), len(fits))  # live may fit once more, before it is due
     assert common >= 3
@@ -65,8 +64,7 @@ def test_the_slow_lane_fits_the_plants_reflex_and_replay_reproduces_live(tmp_pat
     replayed = {m["window_end_index"]: m for m in result.messages}
     compared = 0
     for end, m in live.items():
-        waited = {"reflex_stale", "reflex_absent"} & set(m["flags"])
-        if m["ok"] and not waited:
+        if m["ok"]:
             assert replayed[end]["reflex_seq"] == m["reflex_seq"]
             assert (replayed[end]["K"], replayed[end]["B"]) == (m["K"], m["B"]), end
             compared += 1
