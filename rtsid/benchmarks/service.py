@@ -200,6 +200,17 @@ def _stop(proc: subprocess.Popen[bytes]) -> None:
         proc.communicate(timeout=10)
 
 
+def end_to_end_ms(message: dict[str, Any], received_ns: int) -> tuple[float, float, float]:
+    """(in-daemon, transit, end-to-end) latency of one received estimate, ms.
+
+    In-daemon: the window's last sample arriving → the message built (``latency_ms``, the
+    daemon's monotonic clock); transit: built (``host_time_ns``) → ``received_ns`` (this
+    machine's wall clock, shared by both processes); end to end: their sum.
+    """
+    transit_ms = (received_ns - message["host_time_ns"]) / 1e6
+    return message["latency_ms"], transit_ms, message["latency_ms"] + transit_ms
+
+
 def _subscribe(port: int, seconds: float, phase: Phase) -> None:
     import zenoh
 
@@ -233,10 +244,10 @@ def _subscribe(port: int, seconds: float, phase: Phase) -> None:
             if msg["ok"]:
                 phase.estimates += 1
                 phase.compute_ms.append(msg["compute_ms"])
-                transit_ms = (received_ns - msg["host_time_ns"]) / 1e6
-                phase.daemon_ms.append(msg["latency_ms"])
+                daemon_ms, transit_ms, e2e_ms = end_to_end_ms(msg, received_ns)
+                phase.daemon_ms.append(daemon_ms)
                 phase.transit_ms.append(transit_ms)
-                phase.e2e_ms.append(msg["latency_ms"] + transit_ms)
+                phase.e2e_ms.append(e2e_ms)
             else:
                 phase.withheld += 1
             while (s := stat.try_recv()) is not None:
