@@ -21,4 +21,5 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
         "rtsid.benchmarks.cascade",
         "intrinsic vs reflex: cascade, slow lane, known reflex",
     ),
+    "lab": ("rtsid.benchmarks.lab", "router + 4 daemons + subscriber: e2e, rates, queries, CPU"),
 }

@@ -170,9 +170,13 @@ def _config_file(
     return path
 
 
-def _start_plant(can_port: int) -> subprocess.Popen[bytes]:
+def _start_plant(can_port: int, config: Path) -> subprocess.Popen[bytes]:
+    """The virtual plant behind socketcand, with the run's [plant] (a reflex, say)."""
     plant = subprocess.Popen(
-        [sys.executable, "-m", "rtsid.cli", "plant", "--port", str(can_port)],
+        [
+            sys.executable,
+            *("-m", "rtsid.cli", "plant", "--config", str(config), "--port", str(can_port)),
+        ],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
@@ -194,6 +198,17 @@ def _stop(proc: subprocess.Popen[bytes]) -> None:
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.communicate(timeout=10)
+
+
+def end_to_end_ms(message: dict[str, Any], received_ns: int) -> tuple[float, float, float]:
+    """(in-daemon, transit, end-to-end) latency of one received estimate, ms.
+
+    In-daemon: the window's last sample arriving → the message built (``latency_ms``, the
+    daemon's monotonic clock); transit: built (``host_time_ns``) → ``received_ns`` (this
+    machine's wall clock, shared by both processes); end to end: their sum.
+    """
+    transit_ms = (received_ns - message["host_time_ns"]) / 1e6
+    return message["latency_ms"], transit_ms, message["latency_ms"] + transit_ms
 
 
 def _subscribe(port: int, seconds: float, phase: Phase) -> None:
@@ -229,10 +244,10 @@ def _subscribe(port: int, seconds: float, phase: Phase) -> None:
             if msg["ok"]:
                 phase.estimates += 1
                 phase.compute_ms.append(msg["compute_ms"])
-                transit_ms = (received_ns - msg["host_time_ns"]) / 1e6
-                phase.daemon_ms.append(msg["latency_ms"])
+                daemon_ms, transit_ms, e2e_ms = end_to_end_ms(msg, received_ns)
+                phase.daemon_ms.append(daemon_ms)
                 phase.transit_ms.append(transit_ms)
-                phase.e2e_ms.append(msg["latency_ms"] + transit_ms)
+                phase.e2e_ms.append(e2e_ms)
             else:
                 phase.withheld += 1
             while (s := stat.try_recv()) is not None:
@@ -254,8 +269,8 @@ def _run_phase(
     with tempfile.TemporaryDirectory(prefix="rtsid-bench-") as tmp:
         port = _free_port()
         can_port = _free_port() if transport == "socketcand" else None
-        plant = _start_plant(can_port) if can_port is not None else None
         config = _config_file(Path(tmp), port, can_port, cpu_latency_us, slow_lane)
+        plant = _start_plant(can_port, config) if can_port is not None else None
         daemon = subprocess.Popen(
             [sys.executable, "-m", "rtsid.cli", "run", "--config", str(config), "--quiet"],
             stdout=subprocess.DEVNULL,

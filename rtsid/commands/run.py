@@ -9,6 +9,7 @@ import sys
 from typing import Any
 
 from rtsid.config import to_toml
+from rtsid.errors import ConfigError
 from rtsid.runtime.daemon import Daemon, DaemonConfig
 
 
@@ -16,6 +17,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", metavar="TOML", help="daemon config (default: virtual plant)")
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     parser.add_argument("--quiet", action="store_true", help="no console line per status")
+    parser.add_argument(
+        "--foxglove",
+        nargs="?",
+        const=8765,
+        type=int,
+        metavar="PORT",
+        help="also serve the recording's channels live to Foxglove (WebSocket, default port "
+        "8765; needs pip install 'rtsid[live]')",
+    )
+    parser.add_argument(
+        "--foxglove-host",
+        default="127.0.0.1",
+        help="address the Foxglove server binds to (default 127.0.0.1: this machine only)",
+    )
     parser.add_argument(
         "--print-config",
         action="store_true",
@@ -50,6 +65,34 @@ def status_line(status: dict[str, Any], estimate: dict[str, Any] | None) -> str:
     return f"{head}  {est}  {health}"
 
 
+def _zenoh_where(config: DaemonConfig) -> str:
+    z = config.zenoh
+    if not z.enabled:
+        return "off"
+    if z.config_file:
+        return f"from {z.config_file}"
+    if z.mode == "client":
+        return f"client of {', '.join(z.connect)}"
+    return ", ".join(z.listen + z.connect) or "peer without endpoints"
+
+
+def _foxglove_server(args: argparse.Namespace, config: DaemonConfig) -> Any:
+    """The Foxglove live server ``--foxglove`` asks for (not started), or None."""
+    if args.foxglove is None:
+        return None
+    from rtsid.io.foxglove_live import FoxgloveLive, require_foxglove
+    from rtsid.io.mcap_log import channel_kinds
+
+    require_foxglove()  # before anything starts: a missing extra is a one-line error
+    if not config.mcap.enabled:
+        raise ConfigError(
+            "--foxglove serves the recording's channels live and needs mcap.enabled = true; "
+            "enable [mcap] or drop --foxglove"
+        )
+    kinds = channel_kinds(can_frames=config.mcap.log_can_frames)
+    return FoxgloveLive(kinds, host=args.foxglove_host, port=args.foxglove)
+
+
 def run(args: argparse.Namespace) -> int:
     config = DaemonConfig.load(args.config)
     if args.print_config:
@@ -61,7 +104,12 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.quiet:  # the worker says once which analysis it chose, and so on
         logging.basicConfig(level=logging.INFO, format="rtsid run: %(message)s")
-    daemon = Daemon(config, on_status=None if args.quiet else show)
+    foxglove = _foxglove_server(args, config)
+    daemon = Daemon(
+        config,
+        on_status=None if args.quiet else show,
+        message_tap=None if foxglove is None else foxglove.tap,
+    )
     previous = {
         sig: signal.signal(sig, lambda *_: daemon.request_stop())
         for sig in (signal.SIGINT, signal.SIGTERM)
@@ -71,13 +119,18 @@ def run(args: argparse.Namespace) -> int:
         source = f"embedded virtual plant ({config.plant.mode})"
     print(
         f"rtsid run: {source}, {config.worker.window_s * 1e3:.0f} ms windows every "
-        f"{config.worker.hop_s * 1e3:.0f} ms; zenoh {', '.join(config.zenoh.listen) or 'off'}; "
+        f"{config.worker.hop_s * 1e3:.0f} ms; zenoh {_zenoh_where(config)}; "
         f"MCAP in {config.mcap.directory}. Ctrl-C stops.",
         flush=True,
     )
     try:
+        if foxglove is not None:
+            foxglove.start()
+            print(f"rtsid run: Foxglove live on {foxglove.url}", flush=True)
         summary = daemon.run(duration_s=args.duration)
     finally:
+        if foxglove is not None:
+            foxglove.stop()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     print(

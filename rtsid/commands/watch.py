@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from rtsid.errors import ConfigError
+from rtsid.io.history import QueryError, parse_duration_s
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -25,12 +26,33 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--mode",
         choices=("peer", "client"),
         default="peer",
-        help="peer (default) waits for a daemon that starts later; client needs it up now",
+        help="peer (default) waits for a daemon that starts later; client: through a router "
+        "(or a daemon) that is up now",
     )
     parser.add_argument("--count", type=int, default=None, help="exit after N estimates")
     parser.add_argument("--timeout", type=float, default=None, help="exit after S seconds")
     parser.add_argument(
         "--plain", action="store_true", help="one line per estimate even on a terminal"
+    )
+    parser.add_argument(
+        "--since",
+        metavar="DURATION",
+        help="first show the history the daemons hold for the last 60s, 5m, … (a zenoh query)",
+    )
+    parser.add_argument(
+        "--web",
+        nargs="?",
+        const=8088,
+        type=int,
+        metavar="PORT",
+        help="serve a live page (K, B, I with 95 %% bands, VAF, withheld windows, counters) "
+        "on http://HOST:PORT/ instead of the table (default port 8088)",
+    )
+    parser.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="address the --web page binds to (default 127.0.0.1: this machine only; a lab "
+        "opens it explicitly, e.g. 0.0.0.0)",
     )
 
 
@@ -41,7 +63,24 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--count {args.count} is not accepted; expected an integer >= 1")
     if args.timeout is not None and not args.timeout > 0:
         raise ConfigError(f"--timeout {args.timeout} is not accepted; expected seconds > 0")
+    since_s = None
+    if args.since is not None:
+        try:
+            since_s = parse_duration_s(args.since, "--since")
+        except QueryError as exc:
+            raise ConfigError(str(exc)) from None
     connect = tuple(args.connect or ["tcp/127.0.0.1:7447"])
+    if args.web is not None:
+        from rtsid.io.web.server import serve_web
+
+        return serve_web(
+            args.key,
+            connect,
+            mode=args.mode,
+            host=args.host,
+            port=args.web,
+            timeout_s=args.timeout,
+        )
     return watch(
         args.key,
         connect,
@@ -49,4 +88,5 @@ def run(args: argparse.Namespace) -> int:
         count=args.count,
         timeout_s=args.timeout,
         live=False if args.plain else None,
+        since_s=since_s,
     )

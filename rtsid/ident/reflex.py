@@ -45,6 +45,7 @@ __all__ = [
     "fit_reflex_dynamics",
     "fit_reflex_pathway",
     "mdl_projection",
+    "prediction_history_s",
     "stretch_velocity",
 ]
 
@@ -165,6 +166,16 @@ class ReflexDynamics:
 
 #: Placeholder dynamics of a pathway fitted without them (inside the cascade's alternations).
 UNFITTED = ReflexDynamics(float("nan"), float("nan"), float("nan"), float("nan"), 0.0)
+
+
+#: Model-rate samples the decimator needs to settle at the start of a prediction's history.
+DECIMATOR_SETTLING = 30
+
+
+def prediction_history_s(irf_size: int, fs_model_hz: float) -> float:
+    """Position history a reflex prediction needs before its first sample, s: the IRF's span
+    and the decimator's settling."""
+    return (irf_size + DECIMATOR_SETTLING) / fs_model_hz
 
 
 def _low_pass_response(t: FloatArray, wn: ArrayLike, zeta: ArrayLike) -> FloatArray:
@@ -294,9 +305,8 @@ class ReflexPathway:
 
     @property
     def history_s(self) -> float:
-        """Position history a prediction needs before its first sample, s (the IRF's span
-        and the decimator's settling)."""
-        return (self.irf.size + 30) / self.fs_hz
+        """Position history a prediction needs before its first sample, s."""
+        return prediction_history_s(self.irf.size, self.fs_hz)
 
     def nonlinearity(self, velocity: FloatArray) -> FloatArray:
         """The static nonlinearity at the data's rate: ``max(θ̇, 0)`` or ``p(θ̇)``."""

@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 
 from rtsid.errors import ConfigError, InputDataError, invalid, require_choice, require_range
 from rtsid.ident.cascade import CascadeFit, CascadeSettings, cascade_minimum_s, fit_parallel_cascade
-from rtsid.ident.reflex import REFLEX_VARIANTS, ReflexPathway
+from rtsid.ident.reflex import REFLEX_VARIANTS, ReflexPathway, prediction_history_s
 
 __all__ = [
     "ReflexModels",
@@ -307,8 +307,9 @@ class ReflexModels:
     @property
     def history_samples(self) -> int:
         """Samples before a window its reflex prediction needs."""
-        lags = round(self.settings.cascade().reflex_lag_s * self.settings.cascade().fs_out_hz)
-        return round((lags + 1 + 30) / self.settings.cascade().fs_out_hz * self.fs_hz)
+        cascade = self.settings.cascade()
+        lags = round(cascade.reflex_lag_s * cascade.fs_out_hz)
+        return round(prediction_history_s(lags + 1, cascade.fs_out_hz) * self.fs_hz)
 
 
 def predict_reflex_torque(

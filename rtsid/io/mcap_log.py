@@ -47,7 +47,7 @@ from rtsid.io.schemas import (
 )
 from rtsid.lifecycle import ThreadOwner
 
-__all__ = ["McapConfig", "McapLogger", "recording_name", "register_channels"]
+__all__ = ["McapConfig", "McapLogger", "channel_kinds", "recording_name", "register_channels"]
 
 log = logging.getLogger("rtsid.io.mcap")
 
@@ -121,6 +121,15 @@ def recording_name(robot: str, joint: str, start: datetime, part: int) -> str:
     return f"rtsid-{_SAFE.sub('_', robot)}-{_SAFE.sub('_', joint)}-{stamp}{suffix}.mcap"
 
 
+def channel_kinds(*, can_frames: bool = False) -> tuple[str, ...]:
+    """The channels of an rtsid recording, by kind (keys of :data:`~rtsid.io.schemas.SCHEMAS`).
+
+    Live views (``rtsid run --foxglove``) iterate over this list, so a channel added here
+    appears in them too.
+    """
+    return tuple(k for k in _KINDS if can_frames or k != "can_frames")
+
+
 def register_channels(writer: Any, *, can_frames: bool = False) -> dict[str, int]:
     """Register rtsid's schemas and channels on a started ``mcap.writer.Writer``.
 
@@ -135,9 +144,7 @@ def register_channels(writer: Any, *, can_frames: bool = False) -> dict[str, int
         ``"can_frames"``).
     """
     channels = {}
-    for kind in _KINDS:
-        if kind == "can_frames" and not can_frames:
-            continue
+    for kind in channel_kinds(can_frames=can_frames):
         schema, topic = SCHEMAS[kind]
         schema_id = writer.register_schema(
             name=schema["title"], encoding="jsonschema", data=encode_json(schema)
@@ -190,6 +197,10 @@ class McapLogger(ThreadOwner):
         Further metadata records written into every file (e.g. ``calibration``).
     open_file : callable, optional
         ``open_file(path) -> binary file``; tests inject failing files. Default: exclusive create.
+    tap : callable, optional
+        ``tap(kind, log_time_ns, payload_bytes)``, called on the writer thread with every
+        message as it is written (a live view sees exactly the recording's messages, off the
+        caller's thread). It must not block nor raise.
 
     Examples
     --------
@@ -209,6 +220,7 @@ class McapLogger(ThreadOwner):
         metadata: Mapping[str, str] | None = None,
         records: Mapping[str, Mapping[str, str]] | None = None,
         open_file: Callable[[Path], IO[bytes]] = _open_exclusive,
+        tap: Callable[[str, int, bytes], None] | None = None,
     ) -> None:
         if not fs_hz > 0:
             raise InputDataError(f"McapLogger fs_hz = {fs_hz!r}; expected the sample rate > 0 Hz")
@@ -220,6 +232,7 @@ class McapLogger(ThreadOwner):
         self._extra_metadata = {str(k): str(v) for k, v in (metadata or {}).items()}
         self._records = {name: dict(record) for name, record in (records or {}).items()}
         self._open_file = open_file
+        self._tap = tap
         super().__init__("rtsid-mcap")
         self._queue: queue.Queue[tuple[str, int, Any]] = queue.Queue(maxsize=config.queue_size)
         self._accepting = False
@@ -405,6 +418,11 @@ class McapLogger(ThreadOwner):
             }
 
     @property
+    def channel_kinds(self) -> tuple[str, ...]:
+        """The kinds of the channels this logger records (see :func:`channel_kinds`)."""
+        return channel_kinds(can_frames=self.config.log_can_frames)
+
+    @property
     def files(self) -> list[Path]:
         """Every file this logger has opened, oldest first."""
         with self._c.lock:
@@ -460,14 +478,16 @@ class McapLogger(ThreadOwner):
 
     def _write(self, item: tuple[str, int, Any]) -> None:
         kind, t_ns, payload = item
+        if kind == "samples" and (self._writer is not None or self._tap is not None):
+            first, pos, tq, ok, st = payload
+            payload = encode_samples(first, self.fs_hz, pos, tq, ok, st)
+        if self._tap is not None:
+            self._tap(kind, t_ns, payload)
         if self._writer is None:
             with self._c.lock:
                 self._c.lost += 1
             return
         try:
-            if kind == "samples":
-                first, pos, tq, ok, st = payload
-                payload = encode_samples(first, self.fs_hz, pos, tq, ok, st)
             self._writer.add_message(
                 channel_id=self._channels[kind], log_time=t_ns, data=payload, publish_time=t_ns
             )

@@ -3,6 +3,12 @@
 A live table redrawn in place when stdout is a terminal; one plain line per estimate
 otherwise (pipes, logs, tests). Rendering is pure (:func:`format_estimate_line`,
 :func:`render_view`) so it is tested without a terminal.
+
+:class:`LabFeed` is the subscribing side shared by the table and the web view
+(:mod:`rtsid.io.web`): estimates, status and the daemons' liveliness tokens of every
+``robot/joint`` under a key, straight from a peer or through a router, plus the recent history
+the daemons answer (``--since``). A row leaves the table, with a note, when its daemon's
+liveliness token goes; it comes back when the daemon does.
 """
 
 from __future__ import annotations
@@ -15,7 +21,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, TextIO
 
-__all__ = ["WatchState", "format_estimate_line", "render_view", "watch"]
+__all__ = ["FeedEvent", "LabFeed", "WatchState", "format_estimate_line", "render_view", "watch"]
 
 _CLEAR = "\x1b[H\x1b[J"  # cursor home, clear to the end of the screen
 _REDRAW_S = 0.1
@@ -78,16 +84,28 @@ class JointView:
     alive: bool | None = None  # liveliness token seen (True) / withdrawn (False)
 
 
+def joint_name(key: str) -> str:
+    """``rtsid/rig/ankle/alive`` (or ``…/estimate``) → ``rig/ankle``."""
+    return "/".join(key.rstrip("/").split("/")[-3:-1])
+
+
 @dataclass
 class WatchState:
-    """Latest estimate and status per ``robot/joint`` (fed by :meth:`update`)."""
+    """Latest estimate and status per ``robot/joint`` (fed by :meth:`update`).
+
+    A joint whose liveliness token went is removed (and noted in :attr:`notes`); what it
+    still sends is ignored until its token is back.
+    """
 
     joints: dict[str, JointView] = field(default_factory=dict)
     received: int = 0
     undecodable: int = 0
+    notes: list[str] = field(default_factory=list)
+    gone: set[str] = field(default_factory=set)
 
     def update(self, key: str, payload: bytes, received_ns: int) -> dict[str, Any] | None:
-        """Take one sample (key expression, JSON payload). Returns it if it is an estimate."""
+        """Take one sample (key expression, JSON payload). Returns it if it is a new estimate
+        (not one already seen, e.g. from both the history and the live subscription)."""
         self.received += 1
         try:
             message = json.loads(payload)
@@ -98,9 +116,13 @@ class WatchState:
             self.undecodable += 1
             return None
         name = f"{message.get('robot')}/{message.get('joint')}"
+        if name in self.gone:
+            return None
         view = self.joints.setdefault(name, JointView())
         if key.endswith("/status"):
             view.status = message
+            return None
+        if _seen_before(view.estimate, message):
             return None
         view.estimate = message
         view.estimates += 1
@@ -109,12 +131,32 @@ class WatchState:
             view.last_age_ms = (received_ns - message["host_time_ns"]) / 1e6
         return message
 
-    def set_alive(self, token_key: str, alive: bool) -> str:
+    def set_alive(self, token_key: str, alive: bool, now_s: float | None = None) -> str:
         """Record a liveliness change of ``<prefix>/<robot>/<joint>/alive``; returns the
-        ``robot/joint`` name."""
-        name = "/".join(token_key.rstrip("/").split("/")[-3:-1])
-        self.joints.setdefault(name, JointView()).alive = alive
+        ``robot/joint`` name. A joint whose token went leaves :attr:`joints` with a note."""
+        name = joint_name(token_key)
+        if alive:
+            self.gone.discard(name)
+            self.joints.setdefault(name, JointView()).alive = True
+            return name
+        self.gone.add(name)
+        if self.joints.pop(name, None) is not None:
+            stamp = time.strftime("%H:%M:%S", time.localtime(now_s))
+            self.notes = [*self.notes[-4:], f"{name} left at {stamp} (liveliness token gone)"]
         return name
+
+
+def _seen_before(previous: Mapping[str, Any] | None, message: Mapping[str, Any]) -> bool:
+    """True when ``message`` is not newer than ``previous`` (same daemon run)."""
+    if previous is None:
+        return False
+    try:
+        return bool(
+            message["seq"] <= previous["seq"]
+            and message["host_time_ns"] <= previous["host_time_ns"]
+        )
+    except (KeyError, TypeError):
+        return False
 
 
 def _status_line(name: str, s: Mapping[str, Any]) -> str:
@@ -161,9 +203,8 @@ def render_view(state: WatchState, *, title: str, now_s: float | None = None) ->
         lines.append("  (waiting for estimates…)")
     for name, view in sorted(state.joints.items()):
         e = view.estimate
-        gone = " — DAEMON GONE (liveliness lost)" if view.alive is False else ""
         if e is None:
-            lines.append(f"{name:<18}{'-':>8}{gone}")
+            lines.append(f"{name:<18}{'-':>8}  (alive, no estimate yet)")
             continue
         ok = bool(e.get("ok"))
         state_txt = "ok" if ok else f"withheld: {e.get('reason')}"
@@ -176,8 +217,9 @@ def render_view(state: WatchState, *, title: str, now_s: float | None = None) ->
             f"{_pm(e, 'I', '.5f') if ok else '-':>18}  "
             f"{_num(e.get('vaf'), '.1f') if ok else '-':>6}  "
             f"{_num(e.get('latency_ms'), '.1f'):>7}  {_num(view.last_age_ms, '.1f'):>7}  "
-            f"{state_txt}{gone}"
+            f"{state_txt}"
         )
+    lines += [f"note: {note}" for note in state.notes]
     lines += ["", "status:"]
     shown = False
     for name, view in sorted(state.joints.items()):
@@ -196,6 +238,133 @@ def render_view(state: WatchState, *, title: str, now_s: float | None = None) ->
     return "\n".join(lines)
 
 
+@dataclass(frozen=True)
+class FeedEvent:
+    """One thing a :class:`LabFeed` saw.
+
+    Attributes
+    ----------
+    kind : str
+        ``"estimate"``, ``"status"`` (``payload`` is the message's JSON), ``"alive"`` or
+        ``"gone"`` (a daemon's liveliness token appeared / went; ``payload`` is empty).
+    key : str
+        The key expression (``<prefix>/<robot>/<joint>/<channel>``).
+    payload : bytes
+    received_ns : int
+        Host UNIX time it arrived, ns.
+    """
+
+    kind: str
+    key: str
+    payload: bytes
+    received_ns: int
+
+
+class LabFeed:
+    """Every channel (but raw samples) and the liveliness of each daemon under ``key``
+    (a context manager).
+
+    Parameters
+    ----------
+    key : str
+        ``<prefix>/<robot>/<joint>`` with wildcards, e.g. ``rtsid/*/*``.
+    connect : tuple of str
+        Endpoints: a router's, or the daemons' own (peer to peer).
+    mode : str
+        ``"peer"`` or ``"client"`` (through a router).
+
+    One subscription to ``<key>/*`` — estimates, status and whatever channel a daemon adds —
+    read as a channel polled by :meth:`poll` (no Python callbacks on zenoh's threads: a
+    callback subscriber showed a 4 ms p99 one-way latency against < 1 ms for a channel,
+    docs/io.md). Raw sample batches (``publish_samples``) are left out.
+    """
+
+    #: Samples taken per :meth:`poll` at most (the rest wait for the next call).
+    POLL_BATCH = 256
+
+    def __init__(self, key: str, connect: tuple[str, ...], mode: str = "peer") -> None:
+        self.key = key.rstrip("/")
+        self.connect = connect
+        self.mode = mode
+        self._session: Any = None
+        self._channels: Any = None
+        self._alive: Any = None
+
+    def __enter__(self) -> LabFeed:
+        import zenoh
+
+        from rtsid.io.zenoh_link import subscriber_config
+
+        self._session = zenoh.open(subscriber_config(self.connect, self.mode))
+        self._channels = self._session.declare_subscriber(
+            f"{self.key}/*", zenoh.handlers.RingChannel(4096)
+        )
+        self._alive = self._session.liveliness().declare_subscriber(
+            f"{self.key}/alive", zenoh.handlers.RingChannel(64), history=True
+        )
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        for entity in (self._channels, self._alive):
+            if entity is not None:
+                entity.undeclare()
+        if self._session is not None:
+            self._session.close()
+        self._session, self._channels, self._alive = None, None, None
+
+    def poll(self) -> list[FeedEvent]:
+        """What arrived since the last call (at most :attr:`POLL_BATCH`; never blocks)."""
+        import zenoh
+
+        events = []
+        for _ in range(self.POLL_BATCH):
+            sample = self._channels.try_recv() if self._channels is not None else None
+            if sample is None:
+                break
+            key = str(sample.key_expr)
+            kind = key.rsplit("/", 1)[-1]
+            if kind != "samples":
+                events.append(FeedEvent(kind, key, sample.payload.to_bytes(), time.time_ns()))
+        token = self._alive.try_recv() if self._alive is not None else None
+        if token is not None:
+            kind = "alive" if token.kind == zenoh.SampleKind.PUT else "gone"
+            events.append(FeedEvent(kind, str(token.key_expr), b"", time.time_ns()))
+        return events
+
+    def history(
+        self, since_s: float, *, timeout_s: float = 5.0
+    ) -> tuple[list[FeedEvent], list[str]]:
+        """The estimates and status of the last ``since_s`` that the daemons still hold.
+
+        Returns
+        -------
+        events : list of FeedEvent
+            Oldest first (by publication time), kinds ``estimate`` and ``status``.
+        notes : list of str
+            Where a daemon's history starts later than asked, and error replies.
+        """
+        from rtsid.io.zenoh_link import query
+
+        answer = query(self._session, f"{self.key}/history?since={since_s:g}s", timeout_s=timeout_s)
+        timed: list[tuple[int, FeedEvent]] = []
+        notes = list(answer.errors)
+        for key, payload in answer.replies:
+            part = json.loads(payload)
+            if part.get("note") and part.get("part") == 0:
+                notes.append(f"{part['robot']}/{part['joint']}: {part['note']}")
+            base = key.rsplit("/", 1)[0]
+            for message in part.get("messages", []):
+                event = FeedEvent(
+                    part["kind"],
+                    f"{base}/{part['kind']}",
+                    json.dumps(message).encode(),
+                    time.time_ns(),
+                )
+                timed.append((int(message.get("host_time_ns") or 0), event))
+        timed.sort(key=lambda pair: pair[0])
+        return [event for _, event in timed], notes
+
+
 def watch(
     key: str,
     connect: tuple[str, ...],
@@ -205,6 +374,7 @@ def watch(
     timeout_s: float | None = None,
     out: TextIO | None = None,
     live: bool | None = None,
+    since_s: float | None = None,
 ) -> int:
     """Subscribe to ``<key>/estimate`` and ``<key>/status`` and show what arrives.
 
@@ -213,9 +383,9 @@ def watch(
     key : str
         Key expression of the daemon(s), e.g. ``rtsid/*/*`` or ``rtsid/rig/ankle``.
     connect : tuple of str
-        Endpoints to connect to (the daemon's listen endpoint).
+        Endpoints to connect to (the daemon's listen endpoint, or a router's).
     mode : str
-        ``"peer"`` (tolerates a daemon that starts later) or ``"client"``.
+        ``"peer"`` (tolerates a daemon that starts later) or ``"client"`` (through a router).
     count : int, optional
         Exit after this many estimates.
     timeout_s : float, optional
@@ -224,6 +394,8 @@ def watch(
         Output stream (default ``sys.stdout``).
     live : bool, optional
         Redraw in place (default: when ``out`` is a terminal).
+    since_s : float, optional
+        First show the last ``since_s`` of history the daemons hold (a history query).
 
     Returns
     -------
@@ -231,10 +403,6 @@ def watch(
         0 on Ctrl-C, after ``count`` estimates, or at the timeout with at least one estimate
         (and ``count`` reached if given); 1 otherwise (a message says what was missing).
     """
-    import zenoh
-
-    from rtsid.io.zenoh_link import subscriber_config
-
     out = sys.stdout if out is None else out
     live = out.isatty() if live is None else live
     key = key.rstrip("/")
@@ -244,55 +412,56 @@ def watch(
     deadline = None if timeout_s is None else start + timeout_s
     seen = 0
     next_draw = start
+
+    def take(event: FeedEvent) -> None:
+        nonlocal seen
+        if event.kind in ("alive", "gone"):
+            name = state.set_alive(event.key, event.kind == "alive")
+            if not live:
+                print(
+                    f"rtsid watch: {name} "
+                    + (
+                        "daemon alive"
+                        if event.kind == "alive"
+                        else "daemon gone (liveliness token lost)"
+                    ),
+                    file=sys.stderr,
+                    flush=True,
+                )
+            return
+        if event.kind not in ("estimate", "status"):
+            return  # another channel (the table shows estimates and status)
+        est = state.update(event.key, event.payload, event.received_ns)
+        if est is not None:
+            seen += 1
+            if not live:
+                print(format_estimate_line(est, event.received_ns), file=out, flush=True)
+
     try:
-        with zenoh.open(subscriber_config(connect, mode)) as session:
-            # Channels polled from this thread, not callbacks: a Python callback subscriber
-            # showed a 4 ms p99 one-way latency here against < 1 ms for a channel (docs/io.md).
-            subscribers = [
-                session.declare_subscriber(f"{key}/{name}", zenoh.handlers.RingChannel(1024))
-                for name in ("estimate", "status")
-            ]
-            alive = session.liveliness().declare_subscriber(
-                f"{key}/alive", zenoh.handlers.RingChannel(64), history=True
-            )
+        with LabFeed(key, connect, mode) as feed:
             print(
                 f"rtsid watch: waiting for estimates on {key}/estimate via {', '.join(connect)}",
                 file=sys.stderr,
                 flush=True,
             )
+            if since_s is not None:
+                past, notes = feed.history(since_s)
+                for note in notes:
+                    print(f"rtsid watch: {note}", file=sys.stderr, flush=True)
+                for event in past:
+                    take(event)
             while count is None or seen < count:
                 now = time.monotonic()
                 if deadline is not None and now >= deadline:
                     break
-                got = False
-                for sub in subscribers:
-                    sample = sub.try_recv()
-                    if sample is None:
-                        continue
-                    got = True
-                    rx_ns = time.time_ns()
-                    est = state.update(str(sample.key_expr), sample.payload.to_bytes(), rx_ns)
-                    if est is not None:
-                        seen += 1
-                        if not live:
-                            print(format_estimate_line(est, rx_ns), file=out, flush=True)
-                token = alive.try_recv()
-                if token is not None:
-                    got = True
-                    up = token.kind == zenoh.SampleKind.PUT
-                    name = state.set_alive(str(token.key_expr), up)
-                    if not live:
-                        print(
-                            f"rtsid watch: {name} "
-                            + ("daemon alive" if up else "daemon gone (liveliness token lost)"),
-                            file=sys.stderr,
-                            flush=True,
-                        )
+                events = feed.poll()
+                for event in events:
+                    take(event)
                 if live and now >= next_draw:
                     out.write(_CLEAR + render_view(state, title=title) + "\n")
                     out.flush()
                     next_draw = now + _REDRAW_S
-                if not got:
+                if not events:
                     time.sleep(_POLL_S)
     except KeyboardInterrupt:
         return 0

@@ -8,11 +8,16 @@ Key expressions (``<prefix>`` defaults to ``rtsid``)::
     <prefix>/<robot>/<joint>/reflex     JSON, one message per slow-lane fit (when [slow_lane] is on)
     <prefix>/<robot>/<joint>/alive      liveliness token while the daemon runs
     <prefix>/<robot>/<joint>/config     queryable: the daemon's configuration (JSON)
+    <prefix>/<robot>/<joint>/estimate   queryable: the latest estimate (a late joiner's first value)
     <prefix>/<robot>/<joint>/status     queryable: the latest status (JSON)
+    <prefix>/<robot>/<joint>/history    queryable: estimates and status over the last
+                                        ``history_s`` (parameters in :mod:`rtsid.io.history`)
 
 The default session is a peer listening on ``tcp/127.0.0.1:7447`` with multicast and gossip
 scouting off, so any zenoh client on this machine connects there; a lab names endpoints or a
-router in ``[zenoh]``, or hands over a whole zenoh json5 file (``config_file``).
+router in ``[zenoh]`` (``mode = "client"``, ``connect = [the router]``), or hands over a whole
+zenoh json5 file (``config_file``). :func:`router_config` builds the configuration of
+``rtsid router`` (eclipse-zenoh's own router mode, loopback by default).
 
 :class:`ZenohPublisher` never raises into its caller: when the session cannot open (port
 taken, bad endpoint) the error is logged, counted and kept in :meth:`~ZenohPublisher.stats`,
@@ -34,9 +39,20 @@ from typing import Any
 
 from rtsid.config import invalid, require_choice, require_range, section_from_mapping
 from rtsid.errors import ConfigError
+from rtsid.io.history import HistoryStore, QueryError, parse_history_query
 from rtsid.io.schemas import encode_estimate, encode_json, encode_samples, encode_status
 
-__all__ = ["ZenohConfig", "ZenohPublisher", "key_expressions", "subscriber_config", "zenoh_config"]
+__all__ = [
+    "QueryAnswer",
+    "RouterConfig",
+    "ZenohConfig",
+    "ZenohPublisher",
+    "key_expressions",
+    "query",
+    "router_config",
+    "subscriber_config",
+    "zenoh_config",
+]
 
 log = logging.getLogger("rtsid.io.zenoh")
 
@@ -56,7 +72,8 @@ class ZenohConfig:
     mode : str
         ``"peer"`` (default) or ``"client"`` (connect to a router / peer given in ``connect``).
     listen : tuple of str
-        Endpoints to listen on, e.g. ``"tcp/127.0.0.1:7447"``.
+        Endpoints to listen on, e.g. ``"tcp/127.0.0.1:7447"`` (peer mode only: a client
+        does not listen, and the default is ignored in client mode).
     connect : tuple of str
         Endpoints to connect to (a ``zenohd`` router for a lab).
     multicast_scouting, gossip_scouting : bool
@@ -72,6 +89,10 @@ class ZenohConfig:
         those keys at their defaults when using it). Empty: not used.
     retry_interval_s : float
         While the session is down, try to open it again this often, s.
+    history_s : float
+        Estimates and status kept in memory for the ``history`` queryable, s (0: no
+        history; the ``estimate`` and ``status`` queryables still answer the latest).
+        About 1 KiB per estimate: 10 min at 50 Hz is ≈ 25 MiB.
     """
 
     enabled: bool = True
@@ -86,9 +107,11 @@ class ZenohConfig:
     publish_samples: bool = False
     config_file: str = ""
     retry_interval_s: float = 5.0
+    history_s: float = 600.0
 
     def __post_init__(self) -> None:
         require_choice("mode", self.mode, ("peer", "client"))
+        require_range("history_s", self.history_s, 0.0, 86400.0)
         for name in ("robot", "joint"):
             value = getattr(self, name)
             if not _CHUNK.match(value):
@@ -105,6 +128,13 @@ class ZenohConfig:
                     raise invalid(name, endpoint, "endpoints like 'tcp/127.0.0.1:7447'")
         if self.mode == "client" and not self.connect and not self.config_file:
             raise invalid("connect", list(self.connect), "at least one endpoint in client mode")
+        if self.mode == "client" and self.listen not in ((), ZenohConfig.listen):
+            raise invalid(
+                "listen",
+                list(self.listen),
+                "no endpoints in client mode (a client only connects, to the router in "
+                "zenoh.connect); remove zenoh.listen or use mode = 'peer'",
+            )
         require_range("retry_interval_s", self.retry_interval_s, 0.0, 3600.0, low_inclusive=False)
         if self.config_file:
             defaults = ZenohConfig()
@@ -127,11 +157,14 @@ class ZenohConfig:
         return section_from_mapping(cls, mapping, "zenoh")
 
 
+_KEYS = ("estimate", "status", "samples", "reflex", "alive", "config", "history")
+
+
 def key_expressions(cfg: ZenohConfig) -> dict[str, str]:
-    """The key expressions of one daemon: estimate, status, samples, alive, config."""
+    """The key expressions of one daemon: estimate, status, samples, reflex, alive, config,
+    history."""
     base = f"{cfg.key_prefix}/{cfg.robot}/{cfg.joint}"
-    names = ("estimate", "status", "samples", "reflex", "alive", "config")
-    return {name: f"{base}/{name}" for name in names}
+    return {name: f"{base}/{name}" for name in _KEYS}
 
 
 def _base_config(mode: str, listen: tuple[str, ...], connect: tuple[str, ...], scout: bool) -> Any:
@@ -153,23 +186,10 @@ def zenoh_config(cfg: ZenohConfig) -> Any:
     ConfigError
         ``config_file`` missing or not a valid zenoh json5 config.
     """
-    import zenoh
-
     if cfg.config_file:
-        path = Path(cfg.config_file)
-        if not path.is_file():
-            raise ConfigError(
-                f"config key 'zenoh.config_file' = {cfg.config_file!r}: no such file; "
-                "give the path of a zenoh json5 config"
-            )
-        try:
-            return zenoh.Config.from_file(str(path))
-        except zenoh.ZError as exc:
-            raise ConfigError(
-                f"config key 'zenoh.config_file' = {cfg.config_file!r} is not a valid zenoh "
-                f"config: {exc}"
-            ) from None
-    conf = _base_config(cfg.mode, cfg.listen, cfg.connect, cfg.multicast_scouting)
+        return _config_from_file(cfg.config_file, "zenoh.config_file")
+    listen = cfg.listen if cfg.mode == "peer" else ()  # a client only connects
+    conf = _base_config(cfg.mode, listen, cfg.connect, cfg.multicast_scouting)
     conf.insert_json5("scouting/gossip/enabled", json.dumps(cfg.gossip_scouting))
     return conf
 
@@ -179,6 +199,83 @@ def subscriber_config(connect: tuple[str, ...], mode: str = "peer") -> Any:
     conf = _base_config(mode, (), connect, False)
     conf.insert_json5("scouting/gossip/enabled", "false")
     return conf
+
+
+@dataclass(frozen=True)
+class RouterConfig:
+    """The ``[router]`` section of ``rtsid router``'s config file.
+
+    Attributes
+    ----------
+    listen : tuple of str
+        Endpoints the router listens on (default loopback only; a lab opens e.g.
+        ``"tcp/0.0.0.0:7447"`` or one interface's address explicitly).
+    config_file : str
+        A zenoh json5 file (the one a ``zenohd`` would use) that replaces ``listen`` and
+        the scouting settings. Empty: not used.
+    """
+
+    listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
+    config_file: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.listen and not self.config_file:
+            raise invalid("listen", [], "at least one endpoint, e.g. 'tcp/127.0.0.1:7447'")
+        for endpoint in self.listen:
+            if not _ENDPOINT.match(endpoint):
+                raise invalid("listen", endpoint, "endpoints like 'tcp/127.0.0.1:7447'")
+        if self.config_file and self.listen != RouterConfig().listen:
+            raise invalid(
+                "listen",
+                list(self.listen),
+                "its default when config_file is set (the json5 file names the endpoints)",
+            )
+
+    @classmethod
+    def from_mapping(cls, mapping: Mapping[str, Any] | None) -> RouterConfig:
+        """Build from the ``[router]`` TOML table (unknown keys and bad values rejected)."""
+        return section_from_mapping(cls, mapping, "router")
+
+
+def router_config(cfg: RouterConfig) -> Any:
+    """The ``zenoh.Config`` of a router (eclipse-zenoh's router mode) for ``cfg``.
+
+    Without ``config_file``: router mode, ``listen`` endpoints, no connect endpoints,
+    multicast and gossip scouting off (nothing leaves the listed endpoints).
+
+    Raises
+    ------
+    ConfigError
+        ``config_file`` missing, not valid json5 or not in router mode.
+    """
+    if cfg.config_file:
+        conf = _config_from_file(cfg.config_file, "router.config_file")
+        if json.loads(conf.get_json("mode")) != "router":
+            raise ConfigError(
+                f"config key 'router.config_file' = {cfg.config_file!r} is not in router mode; "
+                'set mode: "router" in it'
+            )
+        return conf
+    conf = _base_config("router", cfg.listen, (), False)
+    conf.insert_json5("scouting/gossip/enabled", "false")
+    return conf
+
+
+def _config_from_file(path_text: str, key: str) -> Any:
+    import zenoh
+
+    path = Path(path_text)
+    if not path.is_file():
+        raise ConfigError(
+            f"config key {key!r} = {path_text!r}: no such file; give the path of a zenoh json5 "
+            "config"
+        )
+    try:
+        return zenoh.Config.from_file(str(path))
+    except zenoh.ZError as exc:
+        raise ConfigError(
+            f"config key {key!r} = {path_text!r} is not a valid zenoh config: {exc}"
+        ) from None
 
 
 class _Entities:
@@ -199,6 +296,9 @@ class ZenohPublisher:
         The ``[zenoh]`` section.
     run_config : Mapping, optional
         What the ``config`` queryable answers (the daemon's configuration).
+    rates_hz : Mapping[str, float], optional
+        Expected rate of each published channel, Hz (sizes the history rings; e.g.
+        ``{"estimate": 50, "status": 2}``).
 
     Examples
     --------
@@ -207,21 +307,31 @@ class ZenohPublisher:
     ...     z.publish_status(status_dict)
     """
 
-    def __init__(self, cfg: ZenohConfig, *, run_config: Mapping[str, Any] | None = None) -> None:
+    def __init__(
+        self,
+        cfg: ZenohConfig,
+        *,
+        run_config: Mapping[str, Any] | None = None,
+        rates_hz: Mapping[str, float] | None = None,
+    ) -> None:
         self.cfg = cfg
         self.keys = key_expressions(cfg)
+        #: Every published message but samples, kept for the ``history`` queryable.
+        self.history = HistoryStore(cfg.history_s, rates_hz) if cfg.history_s > 0 else None
+        self._latest: dict[str, bytes] = {}  # newest payload per channel (written before put)
         self._lock = threading.Lock()  # session swaps
         self._count_lock = threading.Lock()  # counters touched by callers and zenoh threads
         self._entities: _Entities | None = None
         self._stop = threading.Event()
         self._retry_thread: threading.Thread | None = None
         self._config_bytes = encode_json(run_config or {})
-        self._status_bytes = b"{}"
         self._published = 0
         self._not_published = 0
         self._errors = 0
         self._open_attempts = 0
         self._queries = 0
+        self._query_errors = 0
+        self._router_lost = False
         self._last_error: str | None = None
         self._state = "disabled" if not cfg.enabled else "starting"
 
@@ -285,7 +395,6 @@ class ZenohPublisher:
     def publish_status(self, message: Mapping[str, Any] | bytes) -> bool:
         """Publish a status message; it also becomes the ``status`` queryable's answer."""
         payload = message if isinstance(message, bytes) else encode_status(message)
-        self._status_bytes = payload
         return self._put("status", payload)
 
     def publish_reflex(self, message: Mapping[str, Any] | bytes) -> bool:
@@ -318,6 +427,10 @@ class ZenohPublisher:
         self._config_bytes = encode_json(run_config)
 
     def _put(self, name: str, payload: bytes) -> bool:
+        if name != "samples":  # kept even while the session is down: it answers once up
+            self._latest[name] = payload
+            if self.history is not None:
+                self.history.append(name, payload)
         entities = self._entities
         if entities is None:
             with self._count_lock:
@@ -338,14 +451,15 @@ class ZenohPublisher:
         Returns
         -------
         dict
-            ``state`` (disabled, starting, up, down, closed), ``mode``, ``listen``,
+            ``state`` (disabled, starting, up, down, router_lost, closed), ``mode``, ``listen``,
             ``connect``, ``published``, ``not_published`` (session down), ``errors``,
-            ``last_error``, ``open_attempts``, ``queries``.
+            ``last_error``, ``open_attempts``, ``queries`` (answered), ``query_errors``
+            (malformed queries answered with an error reply), ``history_s``.
         """
         return {
-            "state": self._state,
+            "state": self._link_state(),
             "mode": self.cfg.mode,
-            "listen": list(self.cfg.listen),
+            "listen": list(self.cfg.listen) if self.cfg.mode == "peer" else [],
             "connect": list(self.cfg.connect),
             "published": self._published,
             "not_published": self._not_published,
@@ -353,7 +467,31 @@ class ZenohPublisher:
             "last_error": self._last_error,
             "open_attempts": self._open_attempts,
             "queries": self._queries,
+            "query_errors": self._query_errors,
+            "history_s": self.cfg.history_s,
         }
+
+    def _link_state(self) -> str:
+        """``state``, with ``router_lost`` while a client's session has no router (zenoh
+        reconnects by itself; said once when it goes and once when it is back)."""
+        entities = self._entities
+        if self._state != "up" or entities is None or self.cfg.mode != "client":
+            return self._state
+        try:
+            connected = bool(list(entities.session.info.routers_zid()))
+        except Exception:  # a closing session: report what we knew
+            return self._state
+        if connected == self._router_lost:  # a transition
+            self._router_lost = not connected
+            if connected:
+                log.warning("zenoh router at %s is back", ", ".join(self.cfg.connect))
+            else:
+                log.warning(
+                    "zenoh router at %s lost; estimates are still logged and zenoh reconnects "
+                    "by itself",
+                    ", ".join(self.cfg.connect),
+                )
+        return "router_lost" if self._router_lost else "up"
 
     # ------------------------------------------------------------------ session
     def _try_open(self) -> bool:
@@ -370,12 +508,7 @@ class ZenohPublisher:
                     session.close()
                 except Exception:
                     pass
-            where = ", ".join(self.cfg.listen + self.cfg.connect) or self.cfg.config_file
-            self._record_error(
-                f"zenoh session on {where} could not open: {exc}; estimates are still logged, "
-                f"retrying every {self.cfg.retry_interval_s:g} s (is another rtsid on this "
-                "port? set zenoh.listen to a free one)"
-            )
+            self._record_error(self._open_failure(exc))
             with self._lock:
                 if self._state not in ("closed",):
                     self._state = "down"
@@ -388,6 +521,21 @@ class ZenohPublisher:
             self._state = "up"
         log.info("zenoh %s session up; publishing under %s", self.cfg.mode, self.keys["estimate"])
         return True
+
+    def _open_failure(self, exc: Exception) -> str:
+        retry = f"estimates are still logged, retrying every {self.cfg.retry_interval_s:g} s"
+        if self.cfg.config_file:
+            return f"zenoh session from {self.cfg.config_file} could not open: {exc}; {retry}"
+        if self.cfg.mode == "client":
+            return (
+                f"zenoh router at {', '.join(self.cfg.connect)} is unreachable: {exc}; {retry} "
+                "(is `rtsid router` or zenohd running there? check zenoh.connect)"
+            )
+        where = ", ".join(self.cfg.listen + self.cfg.connect)
+        return (
+            f"zenoh session on {where} could not open: {exc}; {retry} (is another rtsid on "
+            "this port? set zenoh.listen to a free one)"
+        )
 
     def _declare(self, session: Any) -> _Entities:
         import zenoh
@@ -415,27 +563,64 @@ class ZenohPublisher:
         others = [
             session.liveliness().declare_token(self.keys["alive"]),
             session.declare_queryable(self.keys["config"], self._answer_config),
-            session.declare_queryable(self.keys["status"], self._answer_status),
+            session.declare_queryable(self.keys["status"], self._answer_latest_status),
+            session.declare_queryable(self.keys["estimate"], self._answer_latest_estimate),
+            session.declare_queryable(self.keys["history"], self._answer_history),
         ]
         return _Entities(session, publishers, others)
 
+    def _answer_latest_estimate(self, query: Any) -> None:
+        self._answer_latest(query, "estimate")
+
+    def _answer_latest_status(self, query: Any) -> None:
+        self._answer_latest(query, "status")
+
+    def _answer_latest(self, query: Any, name: str) -> None:
+        """The newest message of a channel; no reply at all while none was published."""
+        latest = self._latest.get(name)
+        self._answer(query, name, [] if latest is None else [latest])
+
     def _answer_config(self, query: Any) -> None:
-        self._answer(query, "config", self._config_bytes)
+        self._answer(query, "config", [self._config_bytes])
 
-    def _answer_status(self, query: Any) -> None:
-        self._answer(query, "status", self._status_bytes)
+    def _answer_history(self, query: Any) -> None:
+        """Estimates and status in the asked range, from a lock-free copy of the ring, built
+        and sent here on zenoh's callback thread (never on the worker's)."""
+        try:
+            if self.history is None:
+                raise QueryError("this daemon keeps no history (zenoh.history_s = 0)")
+            request = parse_history_query(dict(query.parameters))
+            parts = list(self.history.answer(request, robot=self.cfg.robot, joint=self.cfg.joint))
+        except QueryError as exc:
+            self._answer_error(query, f"{self.keys['history']}: {exc}")
+            return
+        self._answer(query, "history", parts)
 
-    def _answer(self, query: Any, name: str, snapshot: bytes) -> None:
-        """Queryable callback: reply with a prepared snapshot and drop the query."""
+    def _answer(self, query: Any, name: str, payloads: list[bytes]) -> None:
+        """Queryable callback: reply with prepared payloads and drop the query."""
         import zenoh
 
         try:
             with query:  # dropping the query finalizes it for the caller
-                query.reply(self.keys[name], snapshot, encoding=zenoh.Encoding.APPLICATION_JSON)
+                for payload in payloads:
+                    query.reply(self.keys[name], payload, encoding=zenoh.Encoding.APPLICATION_JSON)
                 with self._count_lock:
                     self._queries += 1
         except Exception as exc:  # never let an exception escape into zenoh's thread
             self._record_error(f"zenoh reply on {self.keys[name]} failed: {exc}")
+
+    def _answer_error(self, query: Any, message: str) -> None:
+        import zenoh
+
+        try:
+            with query:
+                query.reply_err(
+                    encode_json({"error": message}), encoding=zenoh.Encoding.APPLICATION_JSON
+                )
+            with self._count_lock:
+                self._query_errors += 1
+        except Exception as exc:
+            self._record_error(f"zenoh error reply failed: {exc}")
 
     def _retry_loop(self) -> None:
         while not self._stop.wait(self.cfg.retry_interval_s):
@@ -460,3 +645,45 @@ class ZenohPublisher:
             entities.session.close()
         except Exception as exc:
             log.debug("zenoh session close: %s", exc)
+
+
+# ---------------------------------------------------------------------- the querying side
+@dataclass(frozen=True)
+class QueryAnswer:
+    """What the daemons matching a key answered to a query.
+
+    Attributes
+    ----------
+    replies : list of (str, bytes)
+        Key expression and payload of each reply, in arrival order.
+    errors : list of str
+        Error replies (a malformed query), as text.
+    """
+
+    replies: list[tuple[str, bytes]]
+    errors: list[str]
+
+
+def query(session: Any, selector: str, *, timeout_s: float = 2.0) -> QueryAnswer:
+    """Ask every queryable matching ``selector`` (``key?param=value;...``) and collect the
+    replies, with consolidation off (a history answer comes in several parts).
+
+    Returns when every matching daemon has finished answering, or after ``timeout_s``.
+    """
+    import zenoh
+
+    replies: list[tuple[str, bytes]] = []
+    errors: list[str] = []
+    handler = session.get(
+        selector,
+        zenoh.handlers.FifoChannel(4096),
+        consolidation=zenoh.ConsolidationMode.NONE,
+        target=zenoh.QueryTarget.ALL,
+        timeout=timeout_s,
+    )
+    for reply in handler:
+        if reply.ok is not None:
+            replies.append((str(reply.ok.key_expr), reply.ok.payload.to_bytes()))
+        else:
+            errors.append(reply.err.payload.to_bytes().decode("utf-8", "replace"))
+    return QueryAnswer(replies, errors)

@@ -262,15 +262,20 @@ class Daemon:
     on_status : callable, optional
         Called on the housekeeping thread with each status message and the newest estimate
         message (or None) — e.g. to print a line to the console.
+    message_tap : callable, optional
+        ``tap(kind, log_time_ns, payload)`` sees every recorded message on the MCAP writer's
+        thread (``rtsid run --foxglove``; see :class:`~rtsid.io.mcap_log.McapLogger`).
     """
 
     def __init__(
         self,
         config: DaemonConfig,
         on_status: Callable[[dict[str, Any], dict[str, Any] | None], None] | None = None,
+        message_tap: Callable[[str, int, bytes], None] | None = None,
     ) -> None:
         self.config = config
         self.on_status = on_status
+        self.message_tap = message_tap
         self.last_estimate: dict[str, Any] | None = None
         self.stop_event = threading.Event()
         self.meter = ProcessMeter()
@@ -315,9 +320,11 @@ class Daemon:
                 run_config=run_config,
                 metadata={"software": f"rtsid {__version__}"},
                 records=calibration_record(calibration, cfg.worker.calibration_file),
+                tap=self.message_tap,
             )
             mcap.start(require_file=True)  # a run that cannot be recorded must not start
-            with mcap, ZenohPublisher(cfg.zenoh, run_config=run_config) as zenoh:
+            rates_hz = {"estimate": 1 / cfg.worker.hop_s, "status": 1 / cfg.daemon.status_period_s}
+            with mcap, ZenohPublisher(cfg.zenoh, run_config=run_config, rates_hz=rates_hz) as zenoh:
                 acquisition = handle.make_acquisition(ring)
                 self.acquisition = acquisition
                 # The embedded plant's in-process bus opens at once, before the plant sends;

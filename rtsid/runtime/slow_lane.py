@@ -69,7 +69,7 @@ class SlowLane(ThreadOwner):
     Parameters
     ----------
     ring : RingBuffer
-        The acquisition's ring (it must hold ``horizon_s`` plus ``apply_after_s``).
+        The acquisition's ring (it must hold ``horizon_s`` plus ``update_s``).
     models : ReflexModels
         Where fits go; the fast lane reads them.
     torque_of : callable

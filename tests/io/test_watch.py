@@ -195,14 +195,30 @@ def test_watch_rejects_bad_arguments(capsys: Any) -> None:
     assert "--count 0" in capsys.readouterr().err
 
 
-def test_render_marks_a_daemon_whose_liveliness_token_is_gone() -> None:
+def test_a_daemon_whose_liveliness_token_goes_leaves_the_table_with_a_note() -> None:
     state = WatchState()
     state.update("rtsid/rig/ankle/estimate", encode_estimate(estimate(3)), 0)
-    assert state.set_alive("rtsid/rig/ankle/alive", False) == "rig/ankle"
+    state.update("rtsid/rig/knee/estimate", encode_estimate(estimate(3, joint="knee")), 0)
+    assert state.set_alive("rtsid/rig/ankle/alive", False, now_s=0.0) == "rig/ankle"
     text = render_view(state, title="t", now_s=0.0)
-    assert "DAEMON GONE" in next(line for line in text.splitlines() if line.startswith("rig/ankle"))
+    rows = [line.split()[0] for line in text.splitlines() if line.startswith("rig/")]
+    assert rows == ["rig/knee"]
+    assert "note: rig/ankle left at" in text and "liveliness token gone" in text
+    # What it still sends after leaving is ignored, until its token is back.
+    assert state.update("rtsid/rig/ankle/estimate", encode_estimate(estimate(4)), 0) is None
     state.set_alive("rtsid/rig/ankle/alive", True)
-    assert "DAEMON GONE" not in render_view(state, title="t", now_s=0.0)
+    assert state.update("rtsid/rig/ankle/estimate", encode_estimate(estimate(0)), 0) is not None
+    assert "rig/ankle" in render_view(state, title="t", now_s=0.0)
+
+
+def test_an_estimate_seen_twice_is_counted_once() -> None:
+    state = WatchState()
+    first = encode_estimate(estimate(3))
+    assert state.update("rtsid/rig/ankle/estimate", first, 0) is not None
+    assert state.update("rtsid/rig/ankle/estimate", first, 0) is None  # history + live
+    later = encode_estimate(estimate(4, host_time_ns=2_000_000_000))
+    assert state.update("rtsid/rig/ankle/estimate", later, 0) is not None
+    assert state.joints["rig/ankle"].estimates == 2
 
 
 @pytest.mark.slow  # a real-time daemon run of seconds

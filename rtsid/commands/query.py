@@ -1,0 +1,115 @@
+"""``rtsid query [KEY]``: the latest estimate of every daemon, or their recent history.
+
+Without a range: one query on ``KEY/estimate`` (each daemon answers its newest estimate; what
+a late-joining controller does first). With ``--since`` or ``--from``/``--to``: one query on
+``KEY/history`` (see :mod:`rtsid.io.history` for the parameters). Messages go to stdout as
+JSON lines, oldest first; a summary per daemon and channel (what it holds, where its history
+starts) goes to stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from rtsid.errors import ConfigError, ServiceError
+from rtsid.io.history import QueryError, parse_duration_s
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "key", nargs="?", default="rtsid/*/*", help="rtsid/<robot>/<joint> (default rtsid/*/*)"
+    )
+    parser.add_argument(
+        "--connect",
+        action="append",
+        default=None,
+        metavar="ENDPOINT",
+        help="a router's or a daemon's endpoint (repeatable; default tcp/127.0.0.1:7447)",
+    )
+    parser.add_argument(
+        "--mode", choices=("peer", "client"), default="client", help="client (default) or peer"
+    )
+    parser.add_argument("--since", metavar="DURATION", help="history of the last 60s, 5m, …")
+    parser.add_argument("--from", dest="from_ns", type=int, metavar="NS", help="UNIX ns")
+    parser.add_argument("--to", dest="to_ns", type=int, metavar="NS", help="UNIX ns")
+    parser.add_argument(
+        "--kind", metavar="K[,K]", help="channels of the history (default: all held)"
+    )
+    parser.add_argument("--timeout", type=float, default=5.0, help="wait at most S s (5)")
+
+
+def selector(args: argparse.Namespace) -> str:
+    """The zenoh selector the arguments ask for (``KEY/estimate`` or ``KEY/history?…``)."""
+    key = args.key.rstrip("/")
+    params = []
+    if args.since is not None:
+        try:
+            params.append(f"since={parse_duration_s(args.since):g}s")
+        except QueryError as exc:
+            raise ConfigError(f"--since: {exc}") from None
+    if args.from_ns is not None:
+        params.append(f"from={args.from_ns}")
+    if args.to_ns is not None:
+        params.append(f"to={args.to_ns}")
+    if args.kind:
+        params.append(f"kind={args.kind}")
+    if not params:
+        return f"{key}/estimate"
+    return f"{key}/history?" + ";".join(params)
+
+
+def run(args: argparse.Namespace) -> int:
+    import zenoh
+
+    from rtsid.io.zenoh_link import query, subscriber_config
+
+    if args.since is not None and args.from_ns is not None:
+        raise ConfigError("give --since or --from, not both")
+    if not args.timeout > 0:
+        raise ConfigError(f"--timeout {args.timeout} is not accepted; expected seconds > 0")
+    connect = tuple(args.connect or ["tcp/127.0.0.1:7447"])
+    wanted = selector(args)
+    try:
+        session = zenoh.open(subscriber_config(connect, args.mode))
+    except zenoh.ZError as exc:
+        raise ServiceError(
+            f"cannot reach {', '.join(connect)}: {exc}; is the router (or daemon) running there?"
+        ) from None
+    with session:
+        answer = query(session, wanted, timeout_s=args.timeout)
+    for error in answer.errors:
+        print(f"rtsid query: error reply: {error}", file=sys.stderr)
+    messages: list[tuple[int, bytes]] = []
+    for _, payload in answer.replies:
+        if "/history" not in wanted:
+            messages.append((_time_of(json.loads(payload)), payload))
+            continue
+        part = json.loads(payload)
+        if part["part"] == 0:
+            print(_summary(part), file=sys.stderr)
+        messages += [(_time_of(m), json.dumps(m).encode()) for m in part["messages"]]
+    for _, payload in sorted(messages, key=lambda pair: pair[0]):
+        sys.stdout.write(payload.decode() + "\n")
+    sys.stdout.flush()
+    if not answer.replies and not answer.errors:
+        print(
+            f"rtsid query: no daemon answered {wanted} within {args.timeout:g} s via "
+            f"{', '.join(connect)}; check the key and that the daemons are connected",
+            file=sys.stderr,
+        )
+        return 1
+    return 1 if answer.errors else 0
+
+
+def _time_of(message: Any) -> int:
+    return int(message.get("host_time_ns") or 0) if isinstance(message, dict) else 0
+
+
+def _summary(part: dict[str, Any]) -> str:
+    held = part["held_from_ns"]
+    where = "nothing held" if held is None else f"held from {held} ns"
+    text = f"rtsid query: {part['robot']}/{part['joint']} {part['kind']}: {where}"
+    return text + (f"; {part['note']}" if part["note"] else "; the whole range is held")

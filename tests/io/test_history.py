@@ -1,0 +1,162 @@
+"""The history ring: parameters, ranges, parts, what is no longer held, and lock-free copies
+that stay consistent while the writer keeps appending."""
+
+from __future__ import annotations
+
+import json
+import threading
+
+import pytest
+
+from rtsid.io.history import (
+    PART_MESSAGES,
+    HistoryQuery,
+    HistoryStore,
+    MessageRing,
+    QueryError,
+    parse_duration_s,
+    parse_history_query,
+)
+
+S = 1_000_000_000  # ns per s
+NOW = 1_800_000_000 * S
+
+
+@pytest.mark.parametrize(
+    ("text", "seconds"),
+    [("60s", 60.0), ("5m", 300.0), ("1.5h", 5400.0), ("250ms", 0.25), ("90", 90)],
+)
+def test_durations(text: str, seconds: float) -> None:
+    assert parse_duration_s(text) == pytest.approx(seconds)
+
+
+@pytest.mark.parametrize("text", ["", "abc", "-5s", "0", "5 parsecs", "nan", "inf"])
+def test_bad_durations_name_the_parameter_and_the_forms(text: str) -> None:
+    with pytest.raises(QueryError, match=r"since=.*60s, 5m"):
+        parse_duration_s(text)
+
+
+def test_query_parameters() -> None:
+    q = parse_history_query({"since": "60s", "kind": "estimate, status"}, now_ns=NOW)
+    assert q == HistoryQuery(("estimate", "status"), NOW - 60 * S, 2**63 - 1)
+    assert parse_history_query({"from": "5", "to": "9"}) == HistoryQuery(None, 5, 9)
+    assert parse_history_query({}).from_ns == 0
+    for params, match in [
+        ({"sincе": "1s"}, "unknown query parameter"),
+        ({"since": "1s", "from": "1"}, "either since= or from="),
+        ({"from": "x"}, "from='x' is not an integer"),
+        ({"to": "-1"}, "negative"),
+        ({"from": "9", "to": "5"}, "before the range's start"),
+    ]:
+        with pytest.raises(QueryError, match=match):
+            parse_history_query(params)
+
+
+def test_ring_returns_a_time_range_and_what_it_still_holds() -> None:
+    ring = MessageRing(10)
+    for i in range(25):  # wraps twice: the last 9 are held (one slot is kept for the writer)
+        ring.append(NOW + i * S, b"%d" % i)
+    messages, held_from, first = ring.snapshot(0, 2**63 - 1)
+    assert messages == [b"%d" % i for i in range(16, 25)]
+    assert held_from == first == NOW + 16 * S
+    messages, _, first = ring.snapshot(NOW + 18 * S, NOW + 20 * S)
+    assert messages == [b"18", b"19", b"20"] and first == NOW + 18 * S
+    assert ring.snapshot(NOW + 30 * S, NOW + 40 * S)[0] == []
+    assert MessageRing(3).snapshot(0, 1) == ([], None, None)
+
+
+def estimate(i: int, t_ns: int) -> bytes:
+    return json.dumps({"seq": i, "host_time_ns": t_ns}).encode()
+
+
+def test_answer_in_parts_and_a_range_no_longer_held_says_where_it_starts() -> None:
+    store = HistoryStore(60.0, {"estimate": 50.0})
+    n = PART_MESSAGES + 10
+    for i in range(n):
+        store.append("estimate", estimate(i, NOW - 5 * S + i), NOW - 5 * S + i)
+    store.append("status", b'{"uptime_s": 1}', NOW - 1 * S)
+    parts = [
+        json.loads(p)
+        for p in store.answer(
+            HistoryQuery(None, NOW - 10 * S, NOW), robot="rig", joint="ankle", now_ns=NOW
+        )
+    ]
+    est = [p for p in parts if p["kind"] == "estimate"]
+    assert [p["part"] for p in est] == [0, 1] and {p["parts"] for p in est} == {2}
+    assert [m["seq"] for p in est for m in p["messages"]] == list(range(n))
+    assert est[0]["held_from_ns"] == NOW - 5 * S and not est[0]["complete"]
+    assert "starts at" in est[0]["note"] and est[0]["robot"] == "rig"
+    status = [p for p in parts if p["kind"] == "status"]
+    assert len(status) == 1 and status[0]["messages"] == [{"uptime_s": 1}]
+    # The status started after the range did: not complete (it was never published).
+    (inside,) = [
+        json.loads(p)
+        for p in store.answer(
+            HistoryQuery(("status",), NOW - 2 * S, NOW), robot="rig", joint="ankle", now_ns=NOW
+        )
+    ]
+    assert inside["messages"] == [{"uptime_s": 1}] and inside["held_from_ns"] == NOW - 1 * S
+    assert not inside["complete"]
+    (whole,) = [
+        json.loads(p)
+        for p in store.answer(
+            HistoryQuery(("estimate",), NOW - 3 * S, NOW - 2 * S),
+            robot="rig",
+            joint="ankle",
+            now_ns=NOW,
+        )
+    ]
+    assert whole["complete"] and whole["note"] == "" and whole["messages"] == []  # held, empty
+    with pytest.raises(QueryError, match="kind='reflexes' is not held here; held: estimate"):
+        list(store.answer(HistoryQuery(("reflexes",), 0, NOW), robot="r", joint="j"))
+    assert store.latest("estimate") == estimate(n - 1, NOW - 5 * S + n - 1)
+    assert store.latest("nothing") is None
+
+
+def test_messages_older_than_the_horizon_are_not_returned() -> None:
+    store = HistoryStore(10.0, {"estimate": 1.0})
+    for i in range(20):
+        store.append("estimate", estimate(i, NOW - (20 - i) * S), NOW - (20 - i) * S)
+    (part,) = [
+        json.loads(p)
+        for p in store.answer(HistoryQuery(("estimate",), 0, NOW), robot="r", joint="j", now_ns=NOW)
+    ]
+    assert [m["seq"] for m in part["messages"]] == list(range(10, 20))
+    assert part["held_from_ns"] == NOW - 10 * S and not part["complete"]
+
+
+def test_copies_stay_consistent_while_the_writer_appends() -> None:
+    """One writer appending as fast as it can, readers copying the whole ring: every copy is
+    a run of consecutive messages whose payload matches its time (no torn or reused slot)."""
+    ring = MessageRing(64)
+    stop = threading.Event()
+
+    def write() -> None:
+        i = 0
+        while not stop.is_set() and i < 2_000_000:  # bounded
+            ring.append(i, b"%d" % i)
+            i += 1
+
+    writer = threading.Thread(target=write)
+    writer.start()
+    try:
+        copies = 0
+        while copies < 3000:
+            messages, held_from, first = ring.snapshot(0, 2**63 - 1)
+            values = [int(m) for m in messages]
+            if values:
+                assert values == list(range(values[0], values[0] + len(values)))
+                assert first == values[0] and held_from is not None and held_from <= first
+                copies += 1
+    finally:
+        stop.set()
+        writer.join(10)
+
+
+def test_a_channel_first_seen_gets_its_own_ring() -> None:
+    store = HistoryStore(60.0)
+    store.append("reflex", b'{"gain": 1}', NOW - S)
+    assert "reflex" in store.kinds
+    parts = [json.loads(p) for p in store.answer(HistoryQuery(None, 0, NOW), robot="r", joint="j")]
+    assert {p["kind"] for p in parts} == {"estimate", "status", "reflex"}
+    assert next(p for p in parts if p["kind"] == "reflex")["messages"] == [{"gain": 1}]
