@@ -36,3 +36,18 @@ def test_bench_tv_quick_prints_the_table_floors_and_cost(capsys, tmp_path):
     for text in ("tracker", "window 300 ms", "oracle 300 ms", "skirt legendre", "floors", "cost"):
         assert text in out
     assert len(list(tmp_path.glob("tv_*.png"))) == len(tv.profiles(8.0))
+
+
+def test_the_step_oracle_reads_the_step_off_noiseless_ramping_windows():
+    t = np.arange(0, 10, tv.HOP_S)
+    truth = np.where((t % 4.0) < 2.0, tv.K0, 2 * tv.K0)
+    boxcar = np.array([truth[max(0, k - 14) : k + 1].mean() for k in range(t.size)])
+    tracks = [{"_t": t, "_truth": truth, "window 300 ms": boxcar} for _ in range(2)]
+    tv._add_step_oracle(tracks)
+    oracle = tracks[0]["oracle step read-out"]
+    steps = np.flatnonzero(np.abs(np.diff(truth)) > 0.5 * tv.K0) + 1
+    for k0 in steps:
+        assert oracle[k0] == pytest.approx(truth[k0 - 1])  # no sample after the step yet
+        # from the next window on, the fitted read-out of a noiseless ramp is exact
+        np.testing.assert_allclose(oracle[k0 + 1 : k0 + 40], truth[k0 + 1 : k0 + 40], atol=1e-6)
+    assert np.abs(boxcar - truth)[steps + 5].min() > 40.0  # while the windows still ramp
