@@ -403,24 +403,24 @@ def write_estimates_mcap(
     writer.add_metadata("config", {"json": encode_json(config.as_dict()).decode()})
     fs = config.link.fs_hz
     for fit in reflex:  # logged at the sample time from which it applies
-        t = int(fit["applies_from_index"] / fs * 1e9)
-        writer.add_message(
-            channels["reflex"],
-            log_time=t,
-            publish_time=t,
-            data=encode_json(fit),
-            sequence=fit["seq"],
+        _add_message(
+            writer, channels["reflex"], fit["applies_from_index"] / fs, encode_json(fit), fit["seq"]
         )
     count = 0
     for message in messages:
-        t = int(message["t_end_s"] * 1e9)
-        writer.add_message(
+        _add_message(
+            writer,
             channels["estimate"],
-            log_time=t,
-            publish_time=t,
-            data=encode_estimate(message),
-            sequence=message["seq"],
+            message["t_end_s"],
+            encode_estimate(message),
+            message["seq"],
         )
         count += 1
     writer.finish()
     return count
+
+
+def _add_message(writer: Any, channel: int, t_s: float, data: bytes, seq: int) -> None:
+    """One message logged and published at sample time ``t_s``."""
+    t = int(t_s * 1e9)
+    writer.add_message(channel, log_time=t, publish_time=t, data=data, sequence=seq)

@@ -88,8 +88,8 @@ def _whole_record_table(pos: np.ndarray, tor: np.ndarray, fs: float) -> None:
                 f"parallel cascade ({variant})",
                 fit.vaf_total,
                 intrinsic.K,
-                fit.reflex_gain,
-                fit.reflex_delay_s * 1e3,
+                fit.reflex.gain,
+                fit.reflex.delay_s * 1e3,
                 fit.reflex.dynamics.vaf,
             ]
         )
@@ -223,8 +223,8 @@ def _simulation_tables(seeds: int, seconds: float) -> None:
                     _percent(e.K, SIM_JOINT.stiffness),
                     _percent(e.B, SIM_JOINT.damping),
                     _percent(e.I, SIM_JOINT.inertia),
-                    _percent(fit.reflex_gain, SIM_REFLEX.gain),
-                    abs(fit.reflex_delay_s - SIM_REFLEX.delay_s) * 1e3,
+                    _percent(fit.reflex.gain, SIM_REFLEX.gain),
+                    abs(fit.reflex.delay_s - SIM_REFLEX.delay_s) * 1e3,
                 ]
             )
         plain = estimate_window(theta, torque, SIM_FS, EstimatorOptions(hold="none"))

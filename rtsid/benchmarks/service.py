@@ -286,7 +286,7 @@ def _run_phase(
             with StealTimeline() as steal:
                 _subscribe(port, seconds, phase)
             steal1, total1 = _cpu_jiffies()
-            phase.stalls_with_steal = _stalls_with_steal(phase.stalls, steal)
+            phase.stalls_with_steal = stalls_with_steal(phase.stalls, steal)
             if total1 > total0:
                 phase.steal_percent = 100.0 * (steal1 - steal0) / (total1 - total0)
         finally:
@@ -299,7 +299,7 @@ def _run_phase(
     return phase
 
 
-def _stalls_with_steal(stalls: list[tuple[int, float]], steal: StealTimeline) -> int:
+def stalls_with_steal(stalls: list[tuple[int, float]], steal: StealTimeline) -> int:
     """Over-budget windows during which the hypervisor took at least the overrun."""
     count = 0
     for built_ns, compute_ms in stalls:

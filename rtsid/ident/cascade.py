@@ -141,16 +141,6 @@ class CascadeFit:
     factor: int
     first_scored: int
 
-    @property
-    def reflex_gain(self) -> float:
-        """Reflex gain, N·m·s/rad."""
-        return self.reflex.gain
-
-    @property
-    def reflex_delay_s(self) -> float:
-        """Reflex delay, s."""
-        return self.reflex.delay_s
-
 
 def _check_length(n: int, fs_hz: float, settings: CascadeSettings) -> None:
     minimum_s = cascade_minimum_s(settings)

@@ -115,6 +115,15 @@ class EstimateMessage:
         return out
 
 
+def _fields_as_json(message: Any) -> dict[str, Any]:
+    """A message dataclass's fields as a dict, non-finite top-level numbers as ``None``."""
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(message):
+        value = getattr(message, f.name)
+        out[f.name] = None if isinstance(value, float) and not math.isfinite(value) else value
+    return out
+
+
 def _json_type(annotation: Any) -> dict[str, Any]:
     """The JSON-schema type of a field annotation (str, int, float, bool, enums, optional)."""
     args = typing.get_args(annotation)
@@ -279,11 +288,7 @@ class StatusMessage:
 
     def as_dict(self) -> dict[str, Any]:
         """The JSON object (non-finite top-level numbers as ``None``)."""
-        out: dict[str, Any] = {}
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            out[f.name] = None if isinstance(value, float) and not math.isfinite(value) else value
-        return out
+        return _fields_as_json(self)
 
 
 #: The status message's schema, generated from :class:`StatusMessage`. Readers of older
@@ -386,12 +391,8 @@ class ReflexMessage:
         )
 
     def as_dict(self) -> dict[str, Any]:
-        """The JSON object (non-finite numbers as ``None``)."""
-        out: dict[str, Any] = {}
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            out[f.name] = None if isinstance(value, float) and not math.isfinite(value) else value
-        return out
+        """The JSON object (non-finite top-level numbers as ``None``)."""
+        return _fields_as_json(self)
 
 
 #: The reflex message's schema, generated from :class:`ReflexMessage`.

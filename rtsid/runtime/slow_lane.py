@@ -63,6 +63,20 @@ def _lower_priority() -> None:
         pass
 
 
+def _exit_with(parent_pid: int) -> None:
+    """End this worker process when the daemon that started it is gone (killed with SIGKILL,
+    say): a worker blocked on its task queue would otherwise outlive it."""
+    while os.getppid() == parent_pid:
+        time.sleep(1.0)
+    os._exit(0)
+
+
+def _init_worker_process(parent_pid: int) -> None:
+    """Initializer of the slow lane's worker process: low priority, gone with its parent."""
+    _lower_priority()
+    threading.Thread(target=_exit_with, args=(parent_pid,), daemon=True).start()
+
+
 class SlowLane(ThreadOwner):
     """Fit the reflex pathway on schedule from the ring (a context manager).
 
@@ -111,7 +125,8 @@ class SlowLane(ThreadOwner):
         return futures.ProcessPoolExecutor(
             max_workers=1,
             mp_context=multiprocessing.get_context("spawn"),
-            initializer=_lower_priority,
+            initializer=_init_worker_process,
+            initargs=(os.getpid(),),
         )
 
     def _after_stop(self, ended: bool) -> None:

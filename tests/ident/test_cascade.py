@@ -30,8 +30,8 @@ def test_the_cascade_recovers_a_known_reflex_and_the_intrinsic_stiffness(variant
     assert fit.fs_hz == 100.0 and fit.reflex.irf.size == 101
     assert fit.vaf_total > fit.vaf_intrinsic_only + 10.0
     assert fit.vaf_total > 98.0
-    assert fit.reflex_gain == pytest.approx(REFLEX.gain, rel=0.15)
-    assert fit.reflex_delay_s == pytest.approx(REFLEX.delay_s, abs=0.005)
+    assert fit.reflex.gain == pytest.approx(REFLEX.gain, rel=0.15)
+    assert fit.reflex.delay_s == pytest.approx(REFLEX.delay_s, abs=0.005)
     assert 1 <= fit.reflex.rank <= fit.reflex.irf.size
     intrinsic = intrinsic_parameters(theta, torque, FS, fit.reflex)
     assert intrinsic.K == pytest.approx(JOINT.stiffness, rel=0.05)
@@ -85,7 +85,7 @@ def test_sliding_cascades_cover_the_record_window_by_window():
         (15000, 29999),
     ]
     for w in windows:
-        assert w.cascade.reflex_gain == pytest.approx(REFLEX.gain, rel=0.3)
+        assert w.cascade.reflex.gain == pytest.approx(REFLEX.gain, rel=0.3)
         assert w.intrinsic.K == pytest.approx(JOINT.stiffness, rel=0.05)
 
 
