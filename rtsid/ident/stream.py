@@ -29,7 +29,9 @@ from numpy.typing import ArrayLike
 from rtsid.errors import InputDataError, NumericalError, WindowError
 from rtsid.ident.analysis import AnalysisPlan
 from rtsid.ident.grid import window_ends
-from rtsid.ident.tracker import ParameterTracker, TrackerOptions, TrackEstimate
+from rtsid.ident.second_order import OutputErrorDesign
+from rtsid.ident.split import SplitScan, split_scan
+from rtsid.ident.tracker import ParameterTracker, SplitSource, TrackerOptions, TrackEstimate
 from rtsid.ident.vaf import vaf
 from rtsid.ident.window import (
     EstimatorOptions,
@@ -135,8 +137,11 @@ class StreamTracker:
             window_s, hop_s, options.damping_noise, options.damping_rate_noise, options
         )
 
-    def step(self, t_end_s: float, estimate: WindowEstimate | None) -> Tracked:
-        """Advance to ``t_end_s`` (s) and take ``estimate`` if it is a measurement."""
+    def step(
+        self, t_end_s: float, estimate: WindowEstimate | None, split: SplitSource | None = None
+    ) -> Tracked:
+        """Advance to ``t_end_s`` (s) and take ``estimate`` if it is a measurement;
+        ``split`` computes its window's splits of K (:mod:`rtsid.ident.split`)."""
         if not self.options.enabled:
             return Tracked(*(float("nan"),) * 4)
         if estimate is not None and _NOT_MEASURED.intersection(estimate.flags):
@@ -145,6 +150,7 @@ class StreamTracker:
             t_end_s,
             None if estimate is None else estimate.K,
             None if estimate is None else estimate.K_se,
+            split if estimate is not None else None,
         )
         b = _UNTRACKED
         b_measured = estimate is not None and math.isfinite(estimate.B_se)
@@ -196,10 +202,14 @@ class WindowStream:
         horizon = max(1, round(options.hold_horizon_s / hop_s))
         self.held = HeldParameters(options.hold, horizon)
         self.tracker = StreamTracker(window_s, hop_s, tracker or TrackerOptions())
+        self._split_source: _SplitSource | None = None
 
     def track(self, t_end_s: float, estimate: WindowEstimate | None) -> Tracked:
-        """Step the tracker with this window (its end time, s; None: withheld)."""
-        return self.tracker.step(t_end_s, estimate)
+        """Step the tracker with this window (its end time, s; None: withheld), and with the
+        splits of its K when ``estimate`` is the stream's latest."""
+        source, self._split_source = self._split_source, None
+        split = source.scan if source is not None and estimate is source.estimate else None
+        return self.tracker.step(t_end_s, estimate, split)
 
     def estimate(
         self, position: ArrayLike, torque: ArrayLike, valid: ArrayLike | None = None
@@ -210,6 +220,7 @@ class WindowStream:
         design: in full (learned from) and with the held values (returned).
         """
         options = self.options
+        self._split_source = None
         window = analyse_window(
             position, torque, self.fs_hz, options, self.plan, valid, self.max_lowpass_hz
         )
@@ -229,7 +240,25 @@ class WindowStream:
         whole = design.fit()
         explained = vaf(whole.measured, whole.model) >= options.low_vaf_percent
         self.held.learn(float(whole.params[0]), float(whole.params[1]), explained)
-        return output_error_back_end(irf, u, y, options, plan, held, design, gaps)
+        result = output_error_back_end(irf, u, y, options, plan, held, design, gaps)
+        window_samples = np.shape(position)[0]
+        self._split_source = _SplitSource(result, design, held, plan, window_samples)
+        return result
+
+
+@dataclass(frozen=True)
+class _SplitSource:
+    """What :meth:`WindowStream.track` needs to scan the splits of an estimate's K."""
+
+    estimate: WindowEstimate
+    design: OutputErrorDesign
+    held: Held
+    plan: AnalysisPlan
+    window_samples: int
+
+    def scan(self) -> SplitScan | None:
+        held = self.held
+        return split_scan(self.design, held.inertia, held.damping, self.plan, self.window_samples)
 
 
 @dataclass(frozen=True)

@@ -79,9 +79,11 @@ change).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from rtsid.errors import invalid, require_range
+from rtsid.ident.split import SplitScan
 
 #: Memory of the filters' likelihood-ratio CUSUM, s.
 SWITCH_MEMORY_S = 1.0
@@ -91,6 +93,13 @@ TREND_OVERLAP = 0.5
 SCALE_CAP = 9.0
 #: Preceding innovations beyond this many ``σ_ref`` (same sign) belong to a detected change.
 CHANGE_ONSET = 1.0
+#: A window's splits are scanned only when it departs from the trend filter's prediction by
+#: more than this many ``σ_ref`` (or during a change read from the samples): a step that a
+#: split reveals beyond ``split_gate`` moves the window's own estimate too.
+SPLIT_PREGATE = 2.0
+
+#: The window's splits of K, computed on demand (:func:`rtsid.ident.split.split_scan`).
+SplitSource = Callable[[], "SplitScan | None"]
 
 __all__ = ["ParameterTracker", "TrackEstimate", "TrackerOptions", "transition"]
 
@@ -120,6 +129,11 @@ class TrackerOptions:
     change_gate : float
         A trend-filter innovation beyond this many of the calm windows' standard deviations
         starts a change mode.
+    split_gate : float
+        A split of a window's K (:mod:`rtsid.ident.split`) whose change is beyond this many
+        of its standard errors — and a step of at least this many calm windows' standard
+        errors from the published value — starts a change mode read from the window's own
+        samples.
     change_spread : float
         κ: the spread of the fraction of a window past a change, relative to
         ``√(F(1 − F))`` (the change mode's shrinkage; 0: the plain inverse of the ramp).
@@ -135,6 +149,7 @@ class TrackerOptions:
     rate_time_constant_s: float = 5.0
     switch_threshold: float = 5.0
     change_gate: float = 6.0
+    split_gate: float = 8.0
     change_spread: float = 0.3
     scale_horizon_s: float = 10.0
 
@@ -149,6 +164,7 @@ class TrackerOptions:
         )
         require_range("switch_threshold", self.switch_threshold, 0.0, 1000.0)
         require_range("change_gate", self.change_gate, 1.0, 100.0)
+        require_range("split_gate", self.split_gate, 1.0, 100.0)
         require_range("change_spread", self.change_spread, 0.0, 10.0)
         require_range("scale_horizon_s", self.scale_horizon_s, 0.0, 3600.0, low_inclusive=False)
 
@@ -280,6 +296,7 @@ class ParameterTracker:
         options: TrackerOptions,
     ) -> None:
         lag = 0.5 * window_s  # the window's centre behind its end
+        self.window_s = window_s
         self.overlap = max(1.0, window_s / hop_s)  # windows per window's worth of information
         self.hop_s = hop_s
         hops = round(window_s / hop_s)
@@ -293,6 +310,7 @@ class ParameterTracker:
         self.switch_threshold = options.switch_threshold
         self.forget = math.exp(-hop_s / SWITCH_MEMORY_S)
         self.gate = options.change_gate
+        self.split_gate = options.split_gate
         self.kappa2 = options.change_spread**2
         self.alpha = min(1.0, hop_s / options.scale_horizon_s)
         self.t_s = math.nan
@@ -304,6 +322,8 @@ class ParameterTracker:
         self.change_hops = 0
         self.k_old = self.change_sign = 0.0
         self.change_value = self.change_se = math.nan
+        # change mode read from the windows' samples: the change's instant (s; NaN: none)
+        self.split_at = self.split_value = self.split_se = math.nan
         self.calm_after = 0  # windows until the scale learns again
         self._recent: tuple[tuple[float, float, float], ...] = ()  # (t, z, se) of the last two
         self._history: list[tuple[float, float]] = []  # (trend innovation / σ_ref, level before)
@@ -313,10 +333,25 @@ class ParameterTracker:
         """A measurement has been taken."""
         return not math.isnan(self.quiet.x0)
 
-    def step(self, t_s: float, z: float | None = None, se: float | None = None) -> TrackEstimate:
+    @property
+    def splitting(self) -> bool:
+        """In a change mode read from the windows' samples."""
+        return not math.isnan(self.split_at)
+
+    def step(
+        self,
+        t_s: float,
+        z: float | None = None,
+        se: float | None = None,
+        split: SplitSource | None = None,
+    ) -> TrackEstimate:
         """Advance to ``t_s`` (the window's end, s) and take its estimate ``z ± se`` if usable.
 
         ``z`` None, or a non-finite ``z`` or ``se``, or ``se <= 0``: prediction only.
+        ``split``: computes the window's :func:`~rtsid.ident.split.split_scan` (called only
+        when the window departs from the prediction, or during a change read from the
+        samples), which detects and reads a change from the window's samples (without it
+        the change mode reads the window estimates' ramp).
         """
         usable = z is not None and se is not None and math.isfinite(z) and se > 0
         usable = usable and math.isfinite(se)  # type: ignore[arg-type]
@@ -331,7 +366,7 @@ class ParameterTracker:
         if not usable:
             self._recent = ()
             return self._withheld(dt)
-        return self._update(float(z), float(se), dt)  # type: ignore[arg-type]
+        return self._update(float(z), float(se), dt, split)  # type: ignore[arg-type]
 
     # -- the steps -----------------------------------------------------------------------
 
@@ -347,6 +382,12 @@ class ParameterTracker:
         return max(1, round(dt / self.hop_s))
 
     def _withheld(self, dt: float) -> TrackEstimate:
+        if self.splitting:
+            self.split_se = math.hypot(self.split_se, self.quiet.level_q * math.sqrt(dt))
+            if self.t_s - self.window_s < self.split_at:
+                return TrackEstimate(self.split_value, self.split_se, 0.0, False, False, "change")
+            self.split_at = math.nan  # the windows are past the change
+            self._end_change(self.split_value, self.split_se**2)
         if self.change_hops:
             self.change_hops += self._hops(dt)
             self.change_se = math.hypot(self.change_se, self.quiet.level_q * math.sqrt(dt))
@@ -356,9 +397,21 @@ class ParameterTracker:
                 return TrackEstimate(self.change_value, self.change_se, 0.0, False, False, "change")
         return self._published(False, False)
 
-    def _update(self, z: float, se: float, dt: float) -> TrackEstimate:
+    def _update(self, z: float, se: float, dt: float, split: SplitSource | None) -> TrackEstimate:
         self._learn_scale(z, se)
         sigma2 = self.scale2 * se * se
+        if self.splitting and self.t_s - self.window_s >= self.split_at:  # past the change
+            self.split_at = math.nan
+            self._end_change(z, sigma2 * self.overlap)
+            return self._published(True, False)
+        worth = self.splitting or self._departs(z) or se > 1.25 * self.se_ref
+        scan = split() if split is not None and worth else None
+        if scan is not None:
+            read = self._split_update(scan)
+            if read is not None:
+                return read
+        elif self.splitting:  # no samples to read the change from: hold its read
+            return self._withheld(dt)
         if self.change_hops:
             during = self._continue_change(z, sigma2, dt)
             if during is not None:
@@ -385,6 +438,35 @@ class ParameterTracker:
         self.trending = self.cusum > self.switch_threshold
         if self.trending:
             self.quiet.reset(self.trend.x0, self.trend.p00)
+
+    def _departs(self, z: float) -> bool:
+        """The window departs from the trend filter's prediction by more than
+        :data:`SPLIT_PREGATE` calm windows' standard errors (worth scanning its splits)."""
+        ref = math.sqrt(self.scale2) * self.se_ref
+        return abs(z - self.trend.predicted_window()) > SPLIT_PREGATE * ref
+
+    def _split_update(self, split: SplitScan) -> TrackEstimate | None:
+        """The change mode read from the window's samples: ``K_after`` of the most
+        significant split (in a change mode, of the change's own split when none is);
+        None: no change mode (the window is a measurement for the filters)."""
+        ref = math.sqrt(self.scale2) * self.se_ref  # calm windows' standard error
+        row = split.best()
+        if row is None or abs(split.z_ratio[row]) <= self.split_gate * ref:
+            if not self.splitting:
+                return None
+            row = split.row_at(self.t_s - self.split_at)
+            if row is None:
+                return TrackEstimate(self.split_value, self.split_se, 0.0, False, False, "change")
+        elif not self.splitting:
+            if abs(split.k_after[row] - self._published_level()) <= self.split_gate * ref:
+                return None  # a change the published value has already followed
+            self.change_hops = 0  # a change mode read from the windows' ramp gives way
+        started = not self.splitting
+        self.split_at = self.t_s - float(split.offsets_s[row])
+        self.split_value = float(split.k_after[row])
+        self.split_se = ref * math.sqrt(float(split.after_var[row]))
+        self._history.clear()
+        return TrackEstimate(self.split_value, self.split_se, 0.0, True, started, "change")
 
     def _start_change(self, z: float, sigma2: float, u: float) -> TrackEstimate:
         sign = 1.0 if u > 0 else -1.0
@@ -436,7 +518,7 @@ class ParameterTracker:
         """Update the learned scale ``s²`` from consecutive windows' second difference."""
         recent = self._recent
         t = self.t_s
-        calm = not self.change_hops and self.calm_after <= 0
+        calm = not self.change_hops and not self.splitting and self.calm_after <= 0
         self.calm_after -= 1
         if len(recent) == 2 and abs((t - recent[1][0]) - self.hop_s) < 1e-9 * max(1.0, t):
             if calm:
@@ -452,6 +534,8 @@ class ParameterTracker:
     # -- what is published ---------------------------------------------------------------
 
     def _published_level(self) -> float:
+        if self.splitting:
+            return self.split_value
         if self.change_hops:
             return self.change_value
         return self.trend.x0 if self.trending else self.quiet.x0

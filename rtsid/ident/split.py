@@ -1,0 +1,156 @@
+"""Every split of one window's stiffness into a value before and a value after.
+
+After a stiffness step the 300 ms window estimates do not jump: they ramp over a window
+length, each averaging the old value over the samples before the step with the new one
+after it. No function of the window estimates can read the new value sooner than the ramp
+lets it (``rtsid bench tv``'s oracle step read-out). The window's own samples can: the
+output-error fit with ``K`` replaced by ``K_before`` on the rows before a split and
+``K_after`` on the rows from it, scanned over every split, finds the step's instant to a
+sample or two and reads ``K_after`` from the samples after it — 20 ms after a step in the
+simulated ankles, against a window length for the ramp.
+
+:func:`split_scan` forms every split of one window at once. Its problem is the window's
+(:class:`~rtsid.ident.second_order.OutputErrorDesign`): torque on ``(ü, u̇, u)`` with an
+offset and a trend, the held inertia (and damping) moved to the left-hand side, plus one
+regressor ``v_s = u·[row ≥ s]`` carrying ``Δ = K_after − K_before``. By the Frisch–Waugh
+theorem, with ``X`` the free regressors (offset, trend, the fitted derivatives, ``u``),
+``G = XᵀX``, ``c_s = Xᵀv_s`` and ``w_s = G⁻¹c_s``::
+
+    Δ_s = (v_sᵀr − c_sᵀG⁻¹Xᵀr) / (v_sᵀv_s − c_sᵀw_s),   K_after = K̂ + Δ_s·(1 − w_s[K])
+
+where ``K̂`` is the window's own (unsplit) fit. ``c_s`` and ``v_sᵀv_s``, ``v_sᵀr`` are
+suffix sums over the rows, so every split costs a few vector operations.
+
+Variances are returned relative to the unsplit ``K̂``'s for white noise, ``σ²·G⁻¹[K,K]``:
+the tracker (:mod:`rtsid.ident.tracker`) scales them by the calm windows' own standard error
+of ``K``, which carries the residual's colour and the learned scale. (A straddling window's
+own standard error balloons with the step it does not model; the calm windows' does not.)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rtsid.ident.analysis import AnalysisPlan
+from rtsid.ident.second_order import OutputErrorDesign
+
+FloatArray = NDArray[np.float64]
+
+#: Rows a split leaves on each side at least (analysis samples).
+MIN_SIDE_ROWS = 3
+
+__all__ = ["SplitScan", "split_scan"]
+
+
+@dataclass(frozen=True)
+class SplitScan:
+    """Every split of one window's K (see the module notes), one entry per design row.
+
+    Attributes
+    ----------
+    offsets_s : numpy.ndarray
+        Each row's time before the window's last sample, s (decreasing).
+    k_after : numpy.ndarray
+        ``K`` fitted to the rows from this one on (``K_before`` free), N·m/rad.
+    z_ratio : numpy.ndarray
+        ``Δ`` over its standard error relative to ``K̂``'s: ``Δ_s / √(var Δ_s / σ_K²)``;
+        divided by the standard error of ``K̂`` it is the split's z statistic.
+    after_var : numpy.ndarray
+        ``var K_after / σ_K²``.
+    usable : numpy.ndarray of bool
+        Splits with at least :data:`MIN_SIDE_ROWS` rows on each side.
+    """
+
+    offsets_s: FloatArray
+    k_after: FloatArray
+    z_ratio: FloatArray
+    after_var: FloatArray
+    usable: NDArray[np.bool_]
+
+    def best(self) -> int | None:
+        """The most significant split's row (None: no usable split)."""
+        if not self.usable.any():
+            return None
+        return int(np.argmax(np.where(self.usable, np.abs(self.z_ratio), -1.0)))
+
+    def row_at(self, offset_s: float) -> int | None:
+        """The first row at or after the instant ``offset_s`` before the window's end
+        (None: no usable split there)."""
+        row = int(np.searchsorted(-self.offsets_s, -offset_s))
+        return row if row < self.usable.size and self.usable[row] else None
+
+
+def split_scan(
+    design: OutputErrorDesign,
+    inertia: float | None,
+    damping: float | None,
+    plan: AnalysisPlan,
+    window_samples: int,
+) -> SplitScan | None:
+    """Every split of the window's ``K`` with the held ``inertia`` (and ``damping``).
+
+    Parameters
+    ----------
+    design : OutputErrorDesign
+        The window's output-error problem.
+    inertia, damping : float or None
+        Held values (None: fitted; damping is held only with inertia).
+    plan : AnalysisPlan
+        The window's analysis (places each row within the window).
+    window_samples : int
+        Samples in the window at the data rate.
+
+    Returns
+    -------
+    SplitScan or None
+        None for a window with lost samples (its rows are not contiguous) or too few rows.
+    """
+    if design.keep is not None:
+        return None
+    d2, d1, u = design.regressors
+    n = u.size
+    if n < 2 * MIN_SIDE_ROWS + 4:
+        return None
+    n_held = 0 if inertia is None else (1 if damping is None else 2)
+    p = 5 - n_held  # offset, trend, the fitted derivatives, u
+    x = np.empty((p + 1, n))  # the free regressors, then the torque they fit
+    x[0] = 1.0
+    x[1] = np.arange(n, dtype=np.float64) - (n - 1) / 2.0
+    x[2 : p - 1] = design.regressors[n_held:2]
+    x[p - 1] = u
+    x[p] = design.measured
+    if n_held:
+        x[p] -= inertia * d2
+    if n_held == 2:
+        x[p] -= damping * d1
+    gram = x @ x[:p].T  # (p + 1, p): XᵀX over Xᵀr
+    try:
+        inverse = np.linalg.inv(gram[:p])
+    except np.linalg.LinAlgError:
+        return None
+    gkk = inverse[-1, -1]
+    if not gkk > 0:
+        return None
+    xr = gram[p]
+    k_hat = inverse[-1] @ xr
+    sums = np.cumsum((x * u)[:, ::-1], axis=1)[:, ::-1]  # Xᵀv_s and v_sᵀr, every split s
+    c = sums[:p]
+    w = inverse @ c
+    pvv = c[-1] - np.einsum("in,in->n", c, w)  # v_sᵀv_s = Σ u² from s on is c[-1]
+    pvr = sums[p] - xr @ w
+    rows = np.arange(n)
+    usable = (rows >= MIN_SIDE_ROWS) & (rows <= n - MIN_SIDE_ROWS) & (pvv > 1e-12 * c[-1, 0])
+    safe = np.where(usable, pvv, 1.0)
+    delta = np.where(usable, pvr / safe, 0.0)
+    after_k = 1.0 - w[-1]
+    offsets = (window_samples - 1 - ((rows + 4) * plan.factor + (plan.taps.size - 1) / 2.0))
+    return SplitScan(
+        offsets / plan.fs_hz,
+        k_hat + delta * after_k,
+        delta * np.sqrt(safe * gkk),
+        1.0 + after_k * after_k / (safe * gkk),
+        usable,
+    )

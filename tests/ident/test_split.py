@@ -1,0 +1,164 @@
+"""Splits of a window's K (rtsid.ident.split) and the tracker's change mode read from them."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from rtsid.ident.excitation import filtered_noise
+from rtsid.ident.split import SplitScan, split_scan
+from rtsid.ident.stream import WindowStream, sliding_estimates
+from rtsid.ident.tracker import ParameterTracker, TrackerOptions
+from rtsid.ident.window import (
+    EstimatorOptions,
+    analyse_window,
+    output_error_back_end,
+    output_error_design,
+)
+from rtsid.sim import JointParameters, simulate_impedance
+from rtsid.sim.joint import StiffnessProfile
+
+FS = 2500.0
+INERTIA, DAMPING = 0.02, 0.8
+
+
+def _step_record(seconds: float, step_s: float, seed: int, noise: float = 10.0):
+    rng = np.random.default_rng(seed)
+    theta = filtered_noise(round(seconds * FS), FS, 40.0, peak=0.03, seed=rng)
+    step = StiffnessProfile.ramp(150.0, 300.0, step_s, step_s + 1.0 / FS)
+    torque = simulate_impedance(
+        theta, FS, JointParameters(INERTIA, DAMPING, 150.0), step, noise_percent=noise, seed=rng
+    )
+    return theta, torque
+
+
+def _window_scan(theta, torque, end: int, n: int = 750):
+    window = analyse_window(theta[end - n : end], torque[end - n : end], FS, EstimatorOptions())
+    design = output_error_design(window.u, window.y, window.irf)
+    estimate = output_error_back_end(*window.signals, EstimatorOptions(), window.plan)
+    return split_scan(design, INERTIA, DAMPING, window.plan, n), estimate
+
+
+def test_the_best_split_finds_a_step_at_its_instant_and_reads_the_value_after_it():
+    step_s = 1.5
+    theta, torque = _step_record(2.0, step_s, seed=1)
+    end = round((step_s + 0.06) * FS)  # a window ending 60 ms after the step
+    scan, estimate = _window_scan(theta, torque, end)
+    assert scan is not None
+    row = scan.best()
+    assert row is not None
+    found_s = (end - 1) / FS - scan.offsets_s[row]
+    assert abs(found_s - step_s) < 0.004, found_s  # to a few analysis samples
+    assert abs(scan.k_after[row] - 300.0) < 15.0, scan.k_after[row]
+    assert estimate.K < 200.0  # while the window's own estimate is mostly the old value
+
+
+def test_a_window_without_a_change_has_no_significant_split():
+    theta, torque = _step_record(2.0, 10.0, seed=2)  # the step is after the record
+    calm, calm_estimate = _window_scan(theta, torque, round(1.0 * FS))
+    assert calm is not None
+    z = abs(calm.z_ratio[calm.best()]) / calm_estimate.K_se
+    assert z < TrackerOptions().split_gate, z
+
+
+def test_a_window_with_lost_samples_has_no_split_scan():
+    theta, torque = _step_record(1.0, 10.0, seed=3)
+    valid = np.ones(750, dtype=bool)
+    valid[300:303] = False
+    window = analyse_window(theta[:750], torque[:750], FS, EstimatorOptions(), valid=valid)
+    design = output_error_design(window.u, window.y, window.irf, window.gaps)
+    assert split_scan(design, INERTIA, DAMPING, window.plan, 750) is None
+
+
+def _tracked(theta, torque, tracker: TrackerOptions | None = None):
+    """K_track per window and the K tracker's mode after it (one stream)."""
+    stream = WindowStream(FS, EstimatorOptions(), 0.02, window_s=0.3, tracker=tracker)
+    out = []
+    for r in sliding_estimates(theta, torque, FS, 0.3, 0.02, stream=stream):
+        assert r.track is not None
+        out.append((r.t_end_s, r.track.K, stream.tracker.stiffness.splitting))
+    return out
+
+
+def test_a_step_is_read_from_the_samples_within_two_hops_and_the_filters_restart_after():
+    step_s = 4.0
+    theta, torque = _step_record(6.0, step_s, seed=4)
+    out = _tracked(theta, torque)
+    t = np.array([o[0] for o in out])
+    k = np.array([o[1] for o in out])
+    splitting = np.array([o[2] for o in out])
+    first = int(np.searchsorted(t, step_s, side="right"))  # the first window after the step
+    assert not splitting[:first].any()  # no false alarm in 3.7 s of constant stiffness
+    assert splitting[first + 1]
+    # from the second window after the step the track reads the new value within 13 %, and
+    # within 5 % after 100 ms, while the windows are a fifth of the way, then two thirds
+    assert np.all(np.abs(k[first + 1 : first + 15] - 300.0) < 40.0), k[first : first + 6]
+    assert np.all(np.abs(k[first + 5 : first + 15] - 300.0) < 15.0), k[first : first + 15]
+    # once the windows are past the step the filters restart there
+    assert not splitting[first + 15 :].any()
+    assert np.all(np.abs(k[first + 15 :] - 300.0) < 5.0)
+
+
+def test_without_the_samples_the_change_mode_reads_the_windows_ramp_and_lags_more():
+    theta, torque = _step_record(6.0, 4.0, seed=4)
+    with_samples = _tracked(theta, torque)
+    # the same windows through a tracker fed their numbers only (as a recording's estimates)
+    options = TrackerOptions()
+    numbers_only = ParameterTracker(
+        0.3, 0.02, options.stiffness_noise, options.stiffness_rate_noise, options
+    )
+    k_numbers = []
+    for r in sliding_estimates(theta, torque, FS, 0.3, 0.02):
+        assert r.estimate is not None
+        k_numbers.append(numbers_only.step(r.t_end_s, r.estimate.K, r.estimate.K_se).value)
+    t = np.array([o[0] for o in with_samples])
+    after = (t > 4.0) & (t < 4.3)
+    err_samples = np.sqrt(np.mean((np.array([o[1] for o in with_samples])[after] - 300) ** 2))
+    err_numbers = np.sqrt(np.mean((np.array(k_numbers)[after] - 300) ** 2))
+    assert err_samples < 0.6 * err_numbers, (err_samples, err_numbers)
+
+
+def _fake_scan(k_after: float, z_ratio: float, offset_s: float) -> SplitScan:
+    """A scan of 100 rows 1 ms apart whose one split ``offset_s`` before the end stands out."""
+    offsets = np.arange(100)[::-1] * 0.001 + 0.004
+    z = np.zeros(100)
+    row = int(np.argmin(np.abs(offsets - offset_s)))
+    z[row] = z_ratio
+    return SplitScan(offsets, np.full(100, k_after), z, np.full(100, 4.0), np.ones(100, bool))
+
+
+def test_a_withheld_window_holds_the_read_and_the_change_ends_when_the_windows_pass_it():
+    tracker = ParameterTracker(0.3, 0.02, 0.3, 100.0, TrackerOptions())
+    rng = np.random.default_rng(5)
+    for i in range(100):
+        tracker.step(i * 0.02, 150.0 + 0.3 * rng.standard_normal(), 0.3)
+    scan = _fake_scan(300.0, 50.0, 0.01)
+    read = tracker.step(100 * 0.02, 160.0, 2.0, lambda: scan)
+    assert read.change and read.mode == "change" and read.value == 300.0
+    assert math.isclose(read.se, math.sqrt(tracker.scale2) * tracker.se_ref * 2.0)
+    held = tracker.step(101 * 0.02)  # withheld: the read is held, the band widens
+    assert held.value == 300.0 and held.se > read.se and not held.updated
+    for i in range(102, 115):  # windows still holding the change, no samples to read it
+        assert tracker.step(i * 0.02, 250.0, 2.0).value == 300.0
+    after = tracker.step(116 * 0.02, 299.0, 0.3)  # this window starts after the change
+    assert after.mode == "quiet" and after.value == 299.0 and not tracker.splitting
+
+
+def test_a_split_that_the_published_value_has_already_followed_starts_nothing():
+    tracker = ParameterTracker(0.3, 0.02, 0.3, 100.0, TrackerOptions())
+    rng = np.random.default_rng(6)
+    for i in range(100):
+        tracker.step(i * 0.02, 150.0 + 0.3 * rng.standard_normal(), 0.3)
+    scanned = []
+
+    def scan() -> SplitScan:
+        scanned.append(True)
+        return _fake_scan(150.5, 50.0, 0.01)
+
+    out = tracker.step(100 * 0.02, 151.2, 0.3, scan)  # departs: scanned, but no new level
+    assert scanned and out.mode != "change" and not tracker.splitting
+    scanned.clear()
+    level = tracker.trend.predicted_window()
+    tracker.step(101 * 0.02, level, 0.3, scan)  # in line with the prediction: not scanned
+    assert not scanned
