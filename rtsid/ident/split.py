@@ -146,7 +146,7 @@ def split_scan(
     safe = np.where(usable, pvv, 1.0)
     delta = np.where(usable, pvr / safe, 0.0)
     after_k = 1.0 - w[-1]
-    offsets = (window_samples - 1 - ((rows + 4) * plan.factor + (plan.taps.size - 1) / 2.0))
+    offsets = window_samples - 1 - ((rows + 4) * plan.factor + (plan.taps.size - 1) / 2.0)
     return SplitScan(
         offsets / plan.fs_hz,
         k_hat + delta * after_k,
