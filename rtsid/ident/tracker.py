@@ -39,9 +39,35 @@ predicting better, not by claiming a narrower noise). Above ``switch_threshold``
 filter is published and the quiet filter is reset to its level (so on the way back the
 quiet filter starts where the trend left, not a lag behind).
 
-The change mode
----------------
-After a step the windows do not jump; they ramp over one window length, each reading the old
+The change mode read from the samples
+-------------------------------------
+When the stream hands the tracker its window's samples (:mod:`rtsid.ident.split`: every
+split of the window's K into a value before and a value after, with its significance), a
+step is read from the samples after it instead of from the windows' ramp. A window whose
+estimate departs from the trend filter's prediction by more than :data:`SPLIT_PREGATE`
+calm standard errors (or whose ``K_se`` swells past 1.25× the calm one) has its splits
+scanned; the most significant split beyond ``split_gate`` is a candidate when it is a
+plausible step (after a warm-up of two windows' worth, at least ``split_gate`` calm
+standard errors from the published value, and not changing K's sign). Two consecutive
+windows must find the same change (instants within a hop, the same side of the published
+value): on the shared human recording single windows find "steps" of −60 or +420 N·m/rad
+over a few samples (reflex bursts), which the next window does not confirm. Until the
+windows are past the change, the tracker publishes ``K_after`` of the change's split
+(re-located each window), with its standard error from the calm windows' scaled by the
+information after the split; a change whose own split fades below :data:`SPLIT_FADE` of
+the gate in a later window was a false alarm. Then both filters restart from the window.
+
+With the samples available the ramp read below is not used: a window beyond
+``change_gate`` that no confirmed split explains restarts both filters at the window (so
+the track is never further out than the window itself; the ramp read multiplies a
+window's departure by up to ``1/κ²`` and on the human recording published −317 and
++426 N·m/rad where the windows said 25–190).
+
+The change mode read from the windows' ramp
+-------------------------------------------
+(For estimates without their samples: a recording's estimates fed to
+:class:`ParameterTracker` directly, or windows with lost samples.) After a step the
+windows do not jump; they ramp over one window length, each reading the old
 level on the part of the window before the step and the new one after it. The trend filter's
 innovation, in units of the windows' steady spread ``σ_ref`` (an average of calm windows'
 ``K_se``: the straddling windows' own standard errors balloon with the misfit), crosses
@@ -97,6 +123,13 @@ CHANGE_ONSET = 1.0
 #: more than this many ``σ_ref`` (or during a change read from the samples): a step that a
 #: split reveals beyond ``split_gate`` moves the window's own estimate too.
 SPLIT_PREGATE = 2.0
+#: A change read from the samples whose own split falls below this fraction of
+#: ``split_gate`` in a later window (more samples after it) was a false alarm.
+SPLIT_FADE = 0.5
+
+#: Splits start no change mode before this many windows' worth of measurements (the calm
+#: windows' standard error and its learned scale are not known yet).
+SPLIT_WARM_UP = 2
 
 #: The window's splits of K, computed on demand (:func:`rtsid.ident.split.split_scan`).
 SplitSource = Callable[[], "SplitScan | None"]
@@ -131,9 +164,9 @@ class TrackerOptions:
         starts a change mode.
     split_gate : float
         A split of a window's K (:mod:`rtsid.ident.split`) whose change is beyond this many
-        of its standard errors — and a step of at least this many calm windows' standard
-        errors from the published value — starts a change mode read from the window's own
-        samples.
+        of its standard errors — a step of at least this many calm windows' standard errors
+        from the published value, found by two consecutive windows — starts a change mode
+        read from the window's own samples.
     change_spread : float
         κ: the spread of the fraction of a window past a change, relative to
         ``√(F(1 − F))`` (the change mode's shrinkage; 0: the plain inverse of the ramp).
@@ -324,6 +357,8 @@ class ParameterTracker:
         self.change_value = self.change_se = math.nan
         # change mode read from the windows' samples: the change's instant (s; NaN: none)
         self.split_at = self.split_value = self.split_se = math.nan
+        self._candidate: tuple[float, float] | None = None  # (instant, K_after) to confirm
+        self.updates = 0  # windows taken as measurements
         self.calm_after = 0  # windows until the scale learns again
         self._recent: tuple[tuple[float, float, float], ...] = ()  # (t, z, se) of the last two
         self._history: list[tuple[float, float]] = []  # (trend innovation / σ_ref, level before)
@@ -365,6 +400,7 @@ class ParameterTracker:
         self.trend.predict(dt)
         if not usable:
             self._recent = ()
+            self._candidate = None
             return self._withheld(dt)
         return self._update(float(z), float(se), dt, split)  # type: ignore[arg-type]
 
@@ -398,6 +434,7 @@ class ParameterTracker:
         return self._published(False, False)
 
     def _update(self, z: float, se: float, dt: float, split: SplitSource | None) -> TrackEstimate:
+        self.updates += 1
         self._learn_scale(z, se)
         sigma2 = self.scale2 * se * se
         if self.splitting and self.t_s - self.window_s >= self.split_at:  # past the change
@@ -412,6 +449,8 @@ class ParameterTracker:
                 return read
         elif self.splitting:  # no samples to read the change from: hold its read
             return self._withheld(dt)
+        else:
+            self._candidate = None
         if self.change_hops:
             during = self._continue_change(z, sigma2, dt)
             if during is not None:
@@ -421,7 +460,10 @@ class ParameterTracker:
         self._history.append((u, level_before))
         del self._history[: -self.ramp_hops - 1]
         if abs(u) > self.gate:
-            return self._start_change(z, sigma2, u)
+            if split is None:
+                return self._start_change(z, sigma2, u)
+            self._end_change(z, sigma2 * self.overlap)  # no step in the samples: restart here
+            return self._published(True, False)
         self.se_ref += 5.0 * self.alpha * (se - self.se_ref)  # calm windows only
         self._select(z, sigma2)
         return self._published(True, False)
@@ -447,21 +489,64 @@ class ParameterTracker:
 
     def _split_update(self, split: SplitScan) -> TrackEstimate | None:
         """The change mode read from the window's samples: ``K_after`` of the most
-        significant split (in a change mode, of the change's own split when none is);
-        None: no change mode (the window is a measurement for the filters)."""
+        significant split beyond ``split_gate`` (in a change mode, of the change's own split
+        when none is); None: no change mode (the window is a measurement for the filters)."""
         ref = math.sqrt(self.scale2) * self.se_ref  # calm windows' standard error
         row = split.best()
-        if row is None or abs(split.z_ratio[row]) <= self.split_gate * ref:
-            if not self.splitting:
-                return None
+        if row is not None and abs(split.z_ratio[row]) <= self.split_gate * ref:
+            row = None
+        if self.splitting:
+            return self._follow_split(split, row, ref)
+        return self._detect_split(split, row, ref)
+
+    def _follow_split(self, split: SplitScan, row: int | None, ref: float) -> TrackEstimate | None:
+        """In a change mode: read the significant split, else the change's own; end as a
+        false alarm when the change's own split faded with more samples after it."""
+        if row is None:
             row = split.row_at(self.t_s - self.split_at)
             if row is None:
                 return TrackEstimate(self.split_value, self.split_se, 0.0, False, False, "change")
-        elif not self.splitting:
-            if abs(split.k_after[row] - self._published_level()) <= self.split_gate * ref:
-                return None  # a change the published value has already followed
-            self.change_hops = 0  # a change mode read from the windows' ramp gives way
-        started = not self.splitting
+            if abs(split.z_ratio[row]) < SPLIT_FADE * self.split_gate * ref:
+                self.split_at = math.nan
+                self.calm_after = self.end_hops
+                return None
+        return self._read(split, row, ref, started=False)
+
+    def _detect_split(self, split: SplitScan, row: int | None, ref: float) -> TrackEstimate | None:
+        """Start a change mode when two consecutive windows find the same plausible step."""
+        if row is None or not self._plausible_step(float(split.k_after[row]), ref):
+            self._candidate = None
+            return None
+        candidate = (self.t_s - float(split.offsets_s[row]), float(split.k_after[row]))
+        earlier, self._candidate = self._candidate, candidate
+        if earlier is None or not self._same_change(earlier, candidate):
+            return None
+        self._candidate = None
+        self.change_hops = 0  # a change mode read from the windows' ramp gives way
+        return self._read(split, row, ref, started=True)
+
+    def _plausible_step(self, k_after: float, ref: float) -> bool:
+        """A step to ``k_after`` worth a change mode: after the warm-up, at least
+        ``split_gate`` calm standard errors from the published value, and not changing the
+        sign of K (which a part of a window's samples is not trusted to show)."""
+        level = self._published_level()
+        return (
+            self.updates >= SPLIT_WARM_UP * self.end_hops
+            and abs(k_after - level) > self.split_gate * ref
+            and k_after * level > 0.0
+        )
+
+    def _same_change(self, earlier: tuple[float, float], later: tuple[float, float]) -> bool:
+        """Two windows' splits ``(instant, K_after)`` find the same change: instants within
+        a hop, and both on the same side of the published value."""
+        level = self._published_level()
+        return (
+            abs(later[0] - earlier[0]) <= self.hop_s
+            and (later[1] - level) * (earlier[1] - level) > 0
+        )
+
+    def _read(self, split: SplitScan, row: int, ref: float, started: bool) -> TrackEstimate:
+        """Publish ``K_after`` of ``row``'s split (the change mode)."""
         self.split_at = self.t_s - float(split.offsets_s[row])
         self.split_value = float(split.k_after[row])
         self.split_se = ref * math.sqrt(float(split.after_var[row]))

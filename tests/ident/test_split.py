@@ -113,10 +113,10 @@ def test_without_the_samples_the_change_mode_reads_the_windows_ramp_and_lags_mor
         assert r.estimate is not None
         k_numbers.append(numbers_only.step(r.t_end_s, r.estimate.K, r.estimate.K_se).value)
     t = np.array([o[0] for o in with_samples])
-    after = (t > 4.0) & (t < 4.3)
+    after = (t > 4.03) & (t < 4.3)  # from the second window after the step
     err_samples = np.sqrt(np.mean((np.array([o[1] for o in with_samples])[after] - 300) ** 2))
     err_numbers = np.sqrt(np.mean((np.array(k_numbers)[after] - 300) ** 2))
-    assert err_samples < 0.6 * err_numbers, (err_samples, err_numbers)
+    assert err_samples < 0.5 * err_numbers, (err_samples, err_numbers)
 
 
 def _fake_scan(k_after: float, z_ratio: float, offset_s: float) -> SplitScan:
@@ -128,37 +128,58 @@ def _fake_scan(k_after: float, z_ratio: float, offset_s: float) -> SplitScan:
     return SplitScan(offsets, np.full(100, k_after), z, np.full(100, 4.0), np.ones(100, bool))
 
 
-def test_a_withheld_window_holds_the_read_and_the_change_ends_when_the_windows_pass_it():
+def _calm_tracker(windows: int = 100, seed: int = 5) -> ParameterTracker:
     tracker = ParameterTracker(0.3, 0.02, 0.3, 100.0, TrackerOptions())
-    rng = np.random.default_rng(5)
-    for i in range(100):
+    rng = np.random.default_rng(seed)
+    for i in range(windows):
         tracker.step(i * 0.02, 150.0 + 0.3 * rng.standard_normal(), 0.3)
-    scan = _fake_scan(300.0, 50.0, 0.01)
-    read = tracker.step(100 * 0.02, 160.0, 2.0, lambda: scan)
+    return tracker
+
+
+def test_a_change_starts_when_two_windows_find_it_and_a_withheld_window_holds_its_read():
+    tracker = _calm_tracker()
+    first = tracker.step(100 * 0.02, 152.0, 2.0, lambda: _fake_scan(290.0, 50.0, 0.01))
+    assert first.mode != "change" and not tracker.splitting  # one window is not enough
+    read = tracker.step(101 * 0.02, 160.0, 2.0, lambda: _fake_scan(300.0, 50.0, 0.03))
     assert read.change and read.mode == "change" and read.value == 300.0
     assert math.isclose(read.se, math.sqrt(tracker.scale2) * tracker.se_ref * 2.0)
-    held = tracker.step(101 * 0.02)  # withheld: the read is held, the band widens
+    held = tracker.step(102 * 0.02)  # withheld: the read is held, the band widens
     assert held.value == 300.0 and held.se > read.se and not held.updated
-    for i in range(102, 115):  # windows still holding the change, no samples to read it
+    for i in range(103, 115):  # windows still holding the change, no samples to read it
         assert tracker.step(i * 0.02, 250.0, 2.0).value == 300.0
-    after = tracker.step(116 * 0.02, 299.0, 0.3)  # this window starts after the change
+    after = tracker.step(115 * 0.02, 299.0, 0.3)  # this window starts after the change
     assert after.mode == "quiet" and after.value == 299.0 and not tracker.splitting
 
 
+def test_splits_that_disagree_or_read_a_negative_stiffness_start_nothing():
+    tracker = _calm_tracker()
+    tracker.step(100 * 0.02, 152.0, 2.0, lambda: _fake_scan(290.0, 50.0, 0.01))
+    elsewhere = tracker.step(101 * 0.02, 152.0, 2.0, lambda: _fake_scan(290.0, 50.0, 0.2))
+    assert elsewhere.mode != "change"  # the second window's change is 170 ms earlier
+    tracker = _calm_tracker()
+    for i in (100, 101):
+        out = tracker.step(i * 0.02, 147.0, 2.0, lambda: _fake_scan(-40.0, -50.0, 0.01))
+        assert out.mode != "change"  # K does not change sign on a part of a window's samples
+
+
+def test_a_departure_the_samples_do_not_explain_restarts_the_filters_at_the_window():
+    tracker = _calm_tracker()
+    out = tracker.step(100 * 0.02, 180.0, 0.3, lambda: _fake_scan(150.0, 0.0, 0.01))
+    assert out.mode == "quiet" and out.value == 180.0  # the window, never amplified
+
+
 def test_a_split_that_the_published_value_has_already_followed_starts_nothing():
-    tracker = ParameterTracker(0.3, 0.02, 0.3, 100.0, TrackerOptions())
-    rng = np.random.default_rng(6)
-    for i in range(100):
-        tracker.step(i * 0.02, 150.0 + 0.3 * rng.standard_normal(), 0.3)
+    tracker = _calm_tracker(seed=6)
     scanned = []
 
     def scan() -> SplitScan:
         scanned.append(True)
         return _fake_scan(150.5, 50.0, 0.01)
 
-    out = tracker.step(100 * 0.02, 151.2, 0.3, scan)  # departs: scanned, but no new level
-    assert scanned and out.mode != "change" and not tracker.splitting
+    for i in (100, 101):  # depart: scanned, but no new level
+        out = tracker.step(i * 0.02, 151.2, 0.3, scan)
+        assert scanned and out.mode != "change" and not tracker.splitting
     scanned.clear()
     level = tracker.trend.predicted_window()
-    tracker.step(101 * 0.02, level, 0.3, scan)  # in line with the prediction: not scanned
+    tracker.step(102 * 0.02, level, 0.3, scan)  # in line with the prediction: not scanned
     assert not scanned
