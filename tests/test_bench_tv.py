@@ -33,7 +33,8 @@ def test_bias_random_and_total_error_separate_a_shared_offset_from_scatter():
 def test_bench_tv_quick_prints_the_table_floors_and_cost(capsys, tmp_path):
     assert main(["bench", "tv", "--quick", "--figures", str(tmp_path)]) == 0
     out = capsys.readouterr().out
-    for text in ("tracker", "window 300 ms", "oracle 300 ms", "skirt legendre", "floors", "cost"):
+    expected = ("tracker", "window 300 ms", "oracle 300 ms", "skirt legendre", "floors", "cost")
+    for text in (*expected, "real record"):
         assert text in out
     assert len(list(tmp_path.glob("tv_*.png"))) == len(tv.profiles(8.0))
 
