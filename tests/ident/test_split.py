@@ -183,3 +183,25 @@ def test_a_split_that_the_published_value_has_already_followed_starts_nothing():
     level = tracker.trend.predicted_window()
     tracker.step(102 * 0.02, level, 0.3, scan)  # in line with the prediction: not scanned
     assert not scanned
+
+
+def test_on_the_human_recording_the_track_stays_inside_the_windows_spread(reklab_path):
+    """No true K on a person: the track must never be further out than the windows it
+    filters (the ramp read published −317 and +426 N·m/rad here where the windows said
+    25–190), and it must be steadier than them."""
+    from rtsid.io.sample_files import load_samples
+
+    record = load_samples(reklab_path)
+    n = round(20.0 * record.fs_hz)
+    stream = WindowStream(record.fs_hz, EstimatorOptions(torque_sign=-1.0), 0.02, window_s=0.3)
+    window, track = [], []
+    for r in sliding_estimates(
+        record.position_rad[:n], record.torque_nm[:n], record.fs_hz, 0.3, 0.02, stream=stream
+    ):
+        window.append(r.estimate.K if r.estimate else np.nan)
+        track.append(r.track.K if r.track else np.nan)
+    w_lo, w_q1, w_q3, w_hi = np.nanpercentile(window, [1, 25, 75, 99])
+    t_lo, t_q1, t_q3, t_hi = np.nanpercentile(track, [1, 25, 75, 99])
+    assert w_lo <= t_lo and t_hi <= w_hi, ((t_lo, t_hi), (w_lo, w_hi))
+    assert t_q3 - t_q1 < 0.5 * (w_q3 - w_q1)
+    assert np.nanmax(np.abs(np.diff(track))) <= np.nanmax(np.abs(np.diff(window)))
