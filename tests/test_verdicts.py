@@ -12,7 +12,7 @@ from rtsid.ident.window import EstimatorOptions, estimate_window
 from rtsid.io.messages import ESTIMATE_SCHEMA
 from rtsid.link.protocol import STATUS_DISCONTINUITY, STATUS_TORQUE_SATURATED
 from rtsid.link.ring import RingBuffer
-from rtsid.runtime.worker import WindowWorker, WorkerConfig, assess_window
+from rtsid.runtime.worker import WindowEvaluator, WindowWorker, WorkerConfig, assess_window
 from rtsid.sim.joint import JointParameters, simulate_impedance
 from rtsid.verdicts import Flag, Reason
 
@@ -110,7 +110,7 @@ def test_every_flag_occurs_and_is_declared():
     for k in range(750):
         ring.append(theta[k], tau[k], 0, now, k / FS)
     config = WorkerConfig(budget_s=1e-9)
-    worker = WindowWorker(ring, FS, config, EstimatorOptions(), published.append)
+    worker = WindowWorker(ring, WindowEvaluator(FS, config, EstimatorOptions(), published.append))
     message = worker.process_window(749)
     assert Flag.OVER_BUDGET in message["flags"]
     assert ESTIMATE_SCHEMA["properties"]["flags"]["items"]["enum"] == list(Flag)

@@ -50,7 +50,7 @@ from rtsid.link.ring import RingBuffer, Snapshot
 from rtsid.runtime.clock import Deadlines
 from rtsid.runtime.power import cpu_latency_request
 from rtsid.runtime.slow_lane import SlowLane
-from rtsid.runtime.worker import WindowWorker, WorkerConfig
+from rtsid.runtime.worker import WindowEvaluator, WindowWorker, WorkerConfig
 
 __all__ = ["Daemon", "DaemonConfig", "DaemonSettings", "RunSummary"]
 
@@ -336,8 +336,7 @@ class Daemon:
                 models = (
                     ReflexModels(cfg.link.fs_hz, cfg.slow_lane) if cfg.slow_lane.enabled else None
                 )
-                worker = WindowWorker(
-                    ring,
+                evaluator = WindowEvaluator(
                     cfg.link.fs_hz,
                     cfg.worker,
                     cfg.estimator,
@@ -348,6 +347,7 @@ class Daemon:
                     reflex=models,
                     tracker=cfg.tracker,
                 )
+                worker = WindowWorker(ring, evaluator)
                 self.worker = worker
                 slow_lane = self._slow_lane(ring, worker, models, mcap, zenoh)
                 # Everything built so far lives for the whole run: move it out of the cyclic

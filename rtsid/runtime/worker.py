@@ -443,38 +443,15 @@ class WindowWorker(ThreadOwner):
     ----------
     ring : RingBuffer
         Samples written by the acquisition thread.
-    fs_hz, config, options, publish, robot, joint, calibration, tracker
-        As :class:`WindowEvaluator`'s (live).
+    evaluator : WindowEvaluator
+        The stream's message builder (live: ``live=True``).
     """
 
-    def __init__(
-        self,
-        ring: RingBuffer,
-        fs_hz: float,
-        config: WorkerConfig,
-        options: EstimatorOptions,
-        publish: Callable[[dict[str, Any]], None],
-        *,
-        robot: str = "robot",
-        joint: str = "ankle",
-        calibration: Calibration | None = None,
-        reflex: ReflexModels | None = None,
-        tracker: TrackerOptions | None = None,
-    ) -> None:
+    def __init__(self, ring: RingBuffer, evaluator: WindowEvaluator) -> None:
         super().__init__("rtsid-worker")
         self.ring = ring
-        self.config = config
-        self.evaluator = WindowEvaluator(
-            fs_hz,
-            config,
-            options,
-            publish,
-            robot=robot,
-            joint=joint,
-            calibration=calibration,
-            reflex=reflex,
-            tracker=tracker,
-        )
+        self.config = evaluator.config
+        self.evaluator = evaluator
         self.window_samples = self.evaluator.window_samples
         self.hop_samples = self.evaluator.hop_samples
         self._wake = threading.Event()  # set by the ring's writer, or by stop()

@@ -8,7 +8,7 @@ from rtsid.ident.window import EstimatorOptions
 from rtsid.io.schemas import ESTIMATE_FIELDS
 from rtsid.link.protocol import STATUS_TORQUE_SATURATED
 from rtsid.link.ring import RingBuffer
-from rtsid.runtime.worker import WindowWorker, WorkerConfig
+from rtsid.runtime.worker import WindowEvaluator, WindowWorker, WorkerConfig
 from rtsid.sim.joint import JointParameters, simulate_impedance
 
 FS = 2500.0
@@ -31,15 +31,10 @@ def filled_ring(n=1500, *, gap_at=None, gap_len=3, saturate_at=None, age_s=0.0, 
 
 
 def make_worker(ring, published, **cfg):
-    return WindowWorker(
-        ring,
-        FS,
-        WorkerConfig(**cfg),
-        EstimatorOptions(),
-        published.append,
-        robot="r1",
-        joint="ankle",
+    evaluator = WindowEvaluator(
+        FS, WorkerConfig(**cfg), EstimatorOptions(), published.append, robot="r1", joint="ankle"
     )
+    return WindowWorker(ring, evaluator)
 
 
 def test_windows_end_on_a_grid_of_sample_indices():
