@@ -136,6 +136,12 @@ class StreamTracker:
         self.damping = ParameterTracker(
             window_s, hop_s, options.damping_noise, options.damping_rate_noise, options
         )
+        self._latest = Tracked(*(float("nan"),) * 4)
+
+    @property
+    def latest(self) -> Tracked:
+        """What the latest :meth:`step` returned (NaN before the first)."""
+        return self._latest
 
     def step(
         self, t_end_s: float, estimate: WindowEstimate | None, split: SplitSource | None = None
@@ -160,7 +166,8 @@ class StreamTracker:
                 estimate.B if b_measured and estimate is not None else None,
                 estimate.B_se if b_measured and estimate is not None else None,
             )
-        return Tracked(k.value, k.se, b.value, b.se)
+        self._latest = Tracked(k.value, k.se, b.value, b.se)
+        return self._latest
 
 
 class WindowStream:

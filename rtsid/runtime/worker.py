@@ -30,7 +30,7 @@ from rtsid.config import require_range, section_from_mapping
 from rtsid.errors import ConfigError, InputDataError, NumericalError, WindowError
 from rtsid.ident.grid import first_window_end
 from rtsid.ident.reflex_lane import ReflexModels, ReflexUpdate, predict_reflex_torque
-from rtsid.ident.stream import WindowStream
+from rtsid.ident.stream import Tracked, WindowStream
 from rtsid.ident.tracker import TrackerOptions
 from rtsid.ident.window import EstimatorOptions, WindowEstimate
 from rtsid.io.calibration import Calibration, load_calibration
@@ -307,20 +307,28 @@ class WindowEvaluator:
             reflex = self._reflex_torque(snap)
         self.last_reflex = reflex
         estimate, reason = self._estimate(window, reason, reflex.torque)
+        first, last = int(window.sample_index[0]), int(window.sample_index[-1])
+        track = self.stream.track(last / self.fs_hz, estimate)  # every evaluated window steps it
         compute_s = time.perf_counter() - started
         self.compute_ms = compute_s * 1e3
         if compute_s > self.config.effective_budget_s:
             self.misses += 1
-        first, last = int(window.sample_index[0]), int(window.sample_index[-1])
-        message = self._message(first, last, estimate, reason, compute_s, arrival, reflex)
+        message = self._message(first, last, estimate, reason, compute_s, arrival, reflex, track)
         self.publish(message)
         return message
 
     def publish_stale(self, end_index: int) -> None:
-        """No samples are arriving: say so once per hop for the window that is due."""
+        """No samples are arriving: say so once per hop for the window that is due.
+
+        The window may still be evaluated when its samples come (or skipped as late), so the
+        message carries the latest track without stepping it: a replay, which has the
+        samples, steps the tracker once per evaluated window exactly as live did."""
         self.withheld[Reason.STALE] += 1
         start = end_index - self.window_samples + 1
-        self.publish(self._message(start, end_index, None, Reason.STALE, 0.0, None, _NO_REFLEX))
+        track = self.stream.tracker.latest
+        self.publish(
+            self._message(start, end_index, None, Reason.STALE, 0.0, None, _NO_REFLEX, track)
+        )
 
     def _reflex_torque(self, snap: Snapshot) -> _ReflexUse:
         """The due reflex model's torque over the window, in the recorded torque's sign."""
@@ -397,6 +405,7 @@ class WindowEvaluator:
         compute_s: float,
         last_arrival_s: float | None,
         reflex: _ReflexUse,
+        track: Tracked,
     ) -> dict[str, Any]:
         overrun = compute_s > self.config.effective_budget_s
         flags = (
@@ -408,7 +417,6 @@ class WindowEvaluator:
         seq = self._seq
         self._seq += 1
         numbers = {k: getattr(estimate, k) if estimate else None for k in _ESTIMATE_NUMBERS}
-        track = self.stream.track(last / self.fs_hz, estimate)  # every window steps it
         return EstimateMessage(
             robot=self.robot,
             joint=self.joint,

@@ -128,3 +128,23 @@ def test_falling_behind_skips_to_the_newest_window_and_counts_the_rest(wait_for)
     ends = [m["window_end_index"] for m in published]
     assert 1549 not in ends and ends[-1] == 1999
     assert worker.counters().overruns == 9  # windows ending 1549 … 1949 were skipped
+
+
+def test_a_stale_message_does_not_step_the_tracker_that_its_window_will_step():
+    """Live, a window can be said stale (no samples yet) and then evaluated when its samples
+    come; a replay evaluates it once. The track must not depend on the stale message."""
+    ring = filled_ring(n=3000, seed=3)
+    plain, stale_first = [], []
+    quiet = make_worker(ring, plain, hop_s=0.02, max_sample_age_s=60.0)
+    told = make_worker(ring, stale_first, hop_s=0.02, max_sample_age_s=60.0)
+    for end in range(749, 3000, 50):
+        quiet.process_window(end)
+        told.evaluator.publish_stale(end)
+        told.evaluator.publish_stale(end)  # once per hop while the samples are late
+        told.process_window(end)
+    stale, evaluated = stale_first[0::3] + stale_first[1::3], stale_first[2::3]
+    assert all(m["reason"] == "stale" for m in stale) and all(m["ok"] for m in evaluated)
+    keys = ("K_track", "K_track_se")
+    assert [[m[k] for k in keys] for m in evaluated] == [[m[k] for k in keys] for m in plain]
+    # a stale message carries the latest track (the previous window's), unchanged
+    assert stale_first[3]["K_track"] == evaluated[0]["K_track"] is not None
