@@ -55,6 +55,8 @@ class SplitScan:
         Each row's time before the window's last sample, s (decreasing).
     k_after : numpy.ndarray
         ``K`` fitted to the rows from this one on (``K_before`` free), N·m/rad.
+    k_before : numpy.ndarray
+        ``K`` fitted to the rows before this one (with ``K_after``), N·m/rad.
     z_ratio : numpy.ndarray
         ``Δ`` over its standard error relative to ``K̂``'s: ``Δ_s / √(var Δ_s / σ_K²)``;
         divided by the standard error of ``K̂`` it is the split's z statistic.
@@ -66,6 +68,7 @@ class SplitScan:
 
     offsets_s: FloatArray
     k_after: FloatArray
+    k_before: FloatArray
     z_ratio: FloatArray
     after_var: FloatArray
     usable: NDArray[np.bool_]
@@ -147,9 +150,11 @@ def split_scan(
     delta = np.where(usable, pvr / safe, 0.0)
     after_k = 1.0 - w[-1]
     offsets = window_samples - 1 - ((rows + 4) * plan.factor + (plan.taps.size - 1) / 2.0)
+    k_after = k_hat + delta * after_k
     return SplitScan(
         offsets / plan.fs_hz,
-        k_hat + delta * after_k,
+        k_after,
+        k_after - delta,
         delta * np.sqrt(safe * gkk),
         1.0 + after_k * after_k / (safe * gkk),
         usable,

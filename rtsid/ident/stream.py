@@ -110,6 +110,9 @@ class Tracked:
 _UNTRACKED = TrackEstimate(float("nan"), float("nan"), float("nan"), False, False)
 #: An estimate carrying one of these flags is not a measurement for the tracker.
 _NOT_MEASURED = frozenset({"low_vaf", "model_mismatch"})
+#: ... nor, of K (of B), one that reads K <= 0 (B <= 0): not a joint held by a robot (on the
+#: human recording such windows read K ≈ −1600 N·m/rad during a torque burst).
+_NOT_STIFFNESS, _NOT_DAMPING = "negative_stiffness", "negative_damping"
 
 
 class StreamTracker:
@@ -117,7 +120,8 @@ class StreamTracker:
 
     Every window of the stream, estimated or withheld, steps it once (at the window's last
     sample time): an estimate is taken as a measurement unless flagged ``low_vaf`` or
-    ``model_mismatch``; anything else only advances the prediction. B is tracked only
+    ``model_mismatch`` (and of K unless ``negative_stiffness``, of B unless
+    ``negative_damping``); anything else only advances the prediction. B is tracked only
     while it is fitted per window (its standard error finite); held, it stays NaN.
 
     Parameters
@@ -152,14 +156,19 @@ class StreamTracker:
             return Tracked(*(float("nan"),) * 4)
         if estimate is not None and _NOT_MEASURED.intersection(estimate.flags):
             estimate = None  # not a measurement: the prediction only advances
+        k_measured = estimate is not None and _NOT_STIFFNESS not in estimate.flags
         k = self.stiffness.step(
             t_end_s,
-            None if estimate is None else estimate.K,
-            None if estimate is None else estimate.K_se,
-            split if estimate is not None else None,
+            estimate.K if k_measured and estimate is not None else None,
+            estimate.K_se if k_measured and estimate is not None else None,
+            split if k_measured else None,
         )
         b = _UNTRACKED
-        b_measured = estimate is not None and math.isfinite(estimate.B_se)
+        b_measured = (
+            estimate is not None
+            and math.isfinite(estimate.B_se)
+            and _NOT_DAMPING not in estimate.flags
+        )
         if b_measured or self.damping.started:
             b = self.damping.step(
                 t_end_s,
