@@ -177,13 +177,15 @@ class TrackerOptions:
         Log-likelihood ratio (nats, CUSUM over about 1 s) at which the trend filter is
         published instead of the quiet one.
     change_gate : float
-        A trend-filter innovation beyond this many of the calm windows' standard deviations
-        starts a change mode.
+        A trend-filter innovation beyond this many of the calm windows' standard deviations:
+        with the window's samples, that no confirmed split explains, an outlier held out
+        once and a restart of the filters at the second such window; without them, a change
+        mode read from the windows' ramp.
     split_gate : float
         A split of a window's K (:mod:`rtsid.ident.split`) whose change is beyond this many
-        of its standard errors — a step of at least this many calm windows' standard errors
-        from the published value, found by two consecutive windows — starts a change mode
-        read from the window's own samples.
+        of its standard errors — a plausible step of at least this many calm windows'
+        standard errors from the published value, found by two windows 20 ms apart — starts
+        a change mode read from the window's own samples.
     change_spread : float
         κ: the spread of the fraction of a window past a change, relative to
         ``√(F(1 − F))`` (the change mode's shrinkage; 0: the plain inverse of the ramp).
@@ -544,7 +546,8 @@ class ParameterTracker:
         return self._read(split, row, ref, started=False)
 
     def _detect_split(self, split: SplitScan, row: int | None, ref: float) -> TrackEstimate | None:
-        """Start a change mode when two consecutive windows find the same plausible step."""
+        """Start a change mode when two windows at least :data:`SPLIT_CONFIRM_S` apart find
+        the same plausible step."""
         if row is None or not self._plausible_step(split, row, ref):
             self._candidate = None
             return None
