@@ -51,6 +51,7 @@ import numpy as np
 
 from rtsid.benchmarks.real import DEFAULT_DATA, TORQUE_SIGN
 from rtsid.benchmarks.table import format_table, median_p99
+from rtsid.benchmarks.yardstick import least_squares_window
 from rtsid.errors import NumericalError
 from rtsid.ident.cascade import CascadeSettings, fit_parallel_cascade, intrinsic_parameters
 from rtsid.ident.excitation import filtered_noise
@@ -350,23 +351,30 @@ def _floors(rows: list[list[Any]]) -> str:
 
 def _real_record_table(path: Path, seconds: float | None) -> str:
     """The tracker on the shared human recording (no true K): its spread and hop-to-hop
-    jumps against the 300 ms windows it filters, every 20 ms, and the parallel-cascade
-    model's intrinsic K of the whole record as the reference level."""
+    jumps against the 300 ms windows it filters, every 20 ms, with per-window least squares
+    on the same windows and the parallel-cascade model's intrinsic K of the whole record as
+    the references."""
     if not path.exists():
         return f"\nreal record: {path} not found, table skipped (pass --data PATH)"
     record = load_samples(path)
     n = record.position_rad.size if seconds is None else round(seconds * record.fs_hz)
     pos, tor, fs = record.position_rad[:n], record.torque_nm[:n], record.fs_hz
     stream = WindowStream(fs, EstimatorOptions(torque_sign=TORQUE_SIGN), HOP_S, window_s=0.3)
-    window, track, changes, splitting = [], [], 0, False
+    window, track, least_squares, changes, splitting = [], [], [], 0, False
     for r in sliding_estimates(pos, tor, fs, 0.3, HOP_S, stream=stream):
         window.append(r.estimate.K if r.estimate else np.nan)
+        signed = TORQUE_SIGN * tor[r.start : r.stop]
+        least_squares.append(least_squares_window(pos[r.start : r.stop], signed, fs)[2])
         track.append(r.track.K if r.track else np.nan)
         changes += stream.tracker.stiffness.splitting and not splitting
         splitting = stream.tracker.stiffness.splitting
     cascade = fit_parallel_cascade(pos, TORQUE_SIGN * tor, fs, CascadeSettings())
     k_cascade = intrinsic_parameters(pos, TORQUE_SIGN * tor, fs, cascade.reflex).K
-    rows = [_spread_row("window 300 ms", np.array(window)), _spread_row("tracker", np.array(track))]
+    rows = [
+        _spread_row("window 300 ms", np.array(window)),
+        _spread_row("least squares, same windows (reference)", np.array(least_squares)),
+        _spread_row("tracker", np.array(track)),
+    ]
     rows.append(["parallel cascade, whole record (reference)", f"{k_cascade:.1f}", *["—"] * 5])
     return "\n" + format_table(
         f"real record ({n / fs:g} s, every {HOP_S * 1e3:g} ms; {changes} change modes read "

@@ -128,6 +128,8 @@ CHANGE_ONSET = 1.0
 #: more than this many ``σ_ref`` (or during a change read from the samples): a step that a
 #: split reveals beyond ``split_gate`` moves the window's own estimate too.
 SPLIT_PREGATE = 2.0
+#: ... or when its own ``K_se`` swells past this many calm ones (a straddling window's does).
+SPLIT_SE_SWELL = 1.25
 #: A change read from the samples whose own split falls below this fraction of
 #: ``split_gate`` in a later window (more samples after it) was a false alarm.
 SPLIT_FADE = 0.5
@@ -462,7 +464,7 @@ class ParameterTracker:
             self.split_at = math.nan
             self._end_change(z, sigma2 * self.overlap)
             return self._published(True, False)
-        worth = self.splitting or self._departs(z) or se > 1.25 * self.se_ref
+        worth = self.splitting or self._departs(z) or se > SPLIT_SE_SWELL * self.se_ref
         scan = split() if split is not None and worth else None
         if scan is not None:
             read = self._split_update(scan)
