@@ -65,6 +65,22 @@ def client(endpoint: str, joint: str, **kw: Any) -> ZenohConfig:
     return ZenohConfig(mode="client", connect=(endpoint,), robot="rig", joint=joint, **kw)
 
 
+def wait_until_routed(endpoint: str, selector: str, timeout_s: float = 10.0) -> None:
+    """Return once ``selector`` is answered through the router at ``endpoint``.
+
+    A client's queryables reach the router a moment after its session opens; a query sent
+    before that finds nobody and ends with no reply, which would read as a wrong answer.
+    """
+    deadline = time.monotonic() + timeout_s
+    with zenoh.open(subscriber_config((endpoint,), "client")) as session:
+        while True:
+            answer = query(session, selector, timeout_s=1.0)
+            if answer.replies or answer.errors:
+                return
+            assert time.monotonic() < deadline, f"{selector} was never answered via {endpoint}"
+            time.sleep(0.05)
+
+
 def estimate(joint: str, seq: int) -> bytes:
     return json.dumps(
         {"robot": "rig", "joint": joint, "seq": seq, "ok": True, "K": 100.0 + seq,
@@ -198,6 +214,7 @@ def test_unreachable_router_is_said_once_retried_and_joined_when_it_comes(
             while not pub.is_up:
                 assert time.monotonic() < deadline, "the daemon did not join the router"
                 time.sleep(0.05)
+            wait_until_routed(endpoint, "rtsid/rig/j0/history?since=60s")
             with zenoh.open(subscriber_config((endpoint,), "client")) as late:
                 answer = query(late, "rtsid/rig/j0/history?since=60s")
             (part,) = [json.loads(p) for _, p in answer.replies if b'"estimate"' in p[:60]]
@@ -212,6 +229,7 @@ def test_unreachable_router_is_said_once_retried_and_joined_when_it_comes(
 def test_malformed_queries_get_an_error_reply(free_port: int) -> None:
     with Router(free_port) as router, ZenohPublisher(client(router.endpoint, "j0")) as pub:
         pub.publish_estimate(estimate("j0", 1))
+        wait_until_routed(router.endpoint, "rtsid/rig/j0/history?since=60s")
         with zenoh.open(subscriber_config((router.endpoint,), "client")) as session:
             for params, match in [
                 ("since=abc", "since='abc' is not a duration"),
@@ -232,6 +250,7 @@ def test_rtsid_query_prints_latest_and_history_as_json_lines(
     with Router(free_port) as router, ZenohPublisher(client(router.endpoint, "j0")) as pub:
         for seq in range(3):
             pub.publish_estimate(estimate("j0", seq))
+        wait_until_routed(router.endpoint, "rtsid/rig/j0/history?since=60s")
         connect = ["--connect", router.endpoint]
         assert main(["query", *connect]) == 0
         (line,) = capsys.readouterr().out.splitlines()
