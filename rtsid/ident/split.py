@@ -42,7 +42,7 @@ FloatArray = NDArray[np.float64]
 #: Rows a split leaves on each side at least (analysis samples).
 MIN_SIDE_ROWS = 3
 
-__all__ = ["SplitScan", "split_scan"]
+__all__ = ["NewestPart", "SplitProblem", "SplitScan", "split_scan"]
 
 
 @dataclass(frozen=True)
@@ -111,51 +111,138 @@ def split_scan(
     SplitScan or None
         None for a window with lost samples (its rows are not contiguous) or too few rows.
     """
-    if design.keep is not None:
-        return None
-    d2, d1, u = design.regressors
-    n = u.size
-    if n < 2 * MIN_SIDE_ROWS + 4:
-        return None
-    n_held = 0 if inertia is None else (1 if damping is None else 2)
-    p = 5 - n_held  # offset, trend, the fitted derivatives, u
-    x = np.empty((p + 1, n))  # the free regressors, then the torque they fit
-    x[0] = 1.0
-    x[1] = np.arange(n, dtype=np.float64) - (n - 1) / 2.0
-    x[2 : p - 1] = design.regressors[n_held:2]
-    x[p - 1] = u
-    x[p] = design.measured
-    if n_held:
-        x[p] -= inertia * d2
-    if n_held == 2:
-        x[p] -= damping * d1
-    gram = x @ x[:p].T  # (p + 1, p): XᵀX over Xᵀr
-    try:
-        inverse = np.linalg.inv(gram[:p])
-    except np.linalg.LinAlgError:
-        return None
-    gkk = inverse[-1, -1]
-    if not gkk > 0:
-        return None
-    xr = gram[p]
-    k_hat = inverse[-1] @ xr
-    sums = np.cumsum((x * u)[:, ::-1], axis=1)[:, ::-1]  # Xᵀv_s and v_sᵀr, every split s
-    c = sums[:p]
-    w = inverse @ c
-    pvv = c[-1] - np.einsum("in,in->n", c, w)  # v_sᵀv_s = Σ u² from s on is c[-1]
-    pvr = sums[p] - xr @ w
-    rows = np.arange(n)
-    usable = (rows >= MIN_SIDE_ROWS) & (rows <= n - MIN_SIDE_ROWS) & (pvv > 1e-12 * c[-1, 0])
-    safe = np.where(usable, pvv, 1.0)
-    delta = np.where(usable, pvr / safe, 0.0)
-    after_k = 1.0 - w[-1]
-    offsets = window_samples - 1 - ((rows + 4) * plan.factor + (plan.taps.size - 1) / 2.0)
-    k_after = k_hat + delta * after_k
-    return SplitScan(
-        offsets / plan.fs_hz,
-        k_after,
-        k_after - delta,
-        delta * np.sqrt(safe * gkk),
-        1.0 + after_k * after_k / (safe * gkk),
-        usable,
-    )
+    problem = SplitProblem.of(design, inertia, damping, plan, window_samples)
+    return None if problem is None else problem.scan()
+
+
+@dataclass(frozen=True)
+class NewestPart:
+    """:meth:`SplitProblem.newest`'s answer.
+
+    Attributes
+    ----------
+    k : float
+        ``K`` of the newest rows, N·m/rad.
+    var : float
+        Its variance relative to the whole window's ``K``'s (``σ_K²``).
+    centre_s : float
+        The rows' centre before the window's last sample, s.
+    """
+
+    k: float
+    var: float
+    centre_s: float
+
+
+@dataclass(frozen=True)
+class SplitProblem:
+    """One window's splits of ``K``: its free regressors ``X`` (offset, trend, the fitted
+    derivatives, ``u``) over the torque they fit (held parameters moved to the left), with
+    ``(XᵀX)⁻¹`` and the unsplit ``K̂``; built once per window (:meth:`of`)."""
+
+    x: FloatArray
+    p: int
+    inverse: FloatArray
+    gkk: float
+    xr: FloatArray
+    k_hat: float
+    plan: AnalysisPlan
+    window_samples: int
+
+    @classmethod
+    def of(
+        cls,
+        design: OutputErrorDesign,
+        inertia: float | None,
+        damping: float | None,
+        plan: AnalysisPlan,
+        window_samples: int,
+    ) -> SplitProblem | None:
+        """The window's problem (arguments as :func:`split_scan`'s; None as its)."""
+        if design.keep is not None:
+            return None
+        d2, d1, u = design.regressors
+        n = u.size
+        if n < 2 * MIN_SIDE_ROWS + 4:
+            return None
+        n_held = 0 if inertia is None else (1 if damping is None else 2)
+        p = 5 - n_held  # offset, trend, the fitted derivatives, u
+        x = np.empty((p + 1, n))  # the free regressors, then the torque they fit
+        x[0] = 1.0
+        x[1] = np.arange(n, dtype=np.float64) - (n - 1) / 2.0
+        x[2 : p - 1] = design.regressors[n_held:2]
+        x[p - 1] = u
+        x[p] = design.measured
+        if n_held:
+            x[p] -= inertia * d2
+        if n_held == 2:
+            x[p] -= damping * d1
+        gram = x @ x[:p].T  # (p + 1, p): XᵀX over Xᵀr
+        try:
+            inverse = np.linalg.inv(gram[:p])
+        except np.linalg.LinAlgError:
+            return None
+        gkk = float(inverse[-1, -1])
+        if not gkk > 0:
+            return None
+        xr = gram[p]
+        k_hat = float(inverse[-1] @ xr)
+        return cls(x, p, inverse, gkk, xr, k_hat, plan, window_samples)
+
+    def scan(self) -> SplitScan:
+        """Every split at once (suffix sums; see the module notes)."""
+        x, p = self.x, self.p
+        u = x[p - 1]
+        sums = np.cumsum((x * u)[:, ::-1], axis=1)[:, ::-1]  # Xᵀv_s and v_sᵀr, every split s
+        c = sums[:p]
+        w = self.inverse @ c
+        pvv = c[-1] - np.einsum("in,in->n", c, w)  # v_sᵀv_s = Σ u² from s on is c[-1]
+        pvr = sums[p] - self.xr @ w
+        n = u.size
+        rows = np.arange(n, dtype=np.float64)
+        usable = (rows >= MIN_SIDE_ROWS) & (rows <= n - MIN_SIDE_ROWS) & (pvv > 1e-12 * c[-1, 0])
+        safe = np.where(usable, pvv, 1.0)
+        delta = np.where(usable, pvr / safe, 0.0)
+        after_k = 1.0 - w[-1]
+        k_after = self.k_hat + delta * after_k
+        return SplitScan(
+            self._offsets_s(rows),
+            k_after,
+            k_after - delta,
+            delta * np.sqrt(safe * self.gkk),
+            1.0 + after_k * after_k / (safe * self.gkk),
+            usable,
+        )
+
+    def newest(self, span_s: float) -> NewestPart | None:
+        """``K`` of the window's newest ``span_s`` (one hop), the rest of the window with
+        its own ``K``: the one split of :meth:`scan` at the first of the last
+        ``round(span_s·analysis rate)`` rows. Consecutive windows' newest parts share no
+        samples, so their errors are nearly independent (lag-one correlation 0.03–0.17 on
+        the simulated ankles), unlike the windows' own. None: fewer than
+        :data:`MIN_SIDE_ROWS` rows in the span, or none of ``u``'s variation in it."""
+        x, p = self.x, self.p
+        u = x[p - 1]
+        n = u.size
+        first = max(n - round(span_s * self.plan.analysis_fs_hz), MIN_SIDE_ROWS)
+        if n - first < MIN_SIDE_ROWS:
+            return None
+        sums = x[:, first:] @ u[first:]
+        c = sums[:p]
+        w = self.inverse @ c
+        pvv = float(c[-1] - c @ w)
+        if not pvv > 1e-12 * float(c[-1]):
+            return None
+        delta = float(sums[p] - self.xr @ w) / pvv
+        after_k = 1.0 - float(w[-1])
+        return NewestPart(
+            self.k_hat + delta * after_k,
+            1.0 + after_k * after_k / (pvv * self.gkk),
+            float(self._offsets_s(np.array([0.5 * (first + n - 1)]))[0]),
+        )
+
+    def _offsets_s(self, rows: FloatArray) -> FloatArray:
+        """Each (fractional) row's time before the window's last sample, s."""
+        plan = self.plan
+        delay = (plan.taps.size - 1) / 2.0
+        return (self.window_samples - 1 - ((rows + 4.0) * plan.factor + delay)) / plan.fs_hz

@@ -30,7 +30,7 @@ from rtsid.errors import InputDataError, NumericalError, WindowError
 from rtsid.ident.analysis import AnalysisPlan
 from rtsid.ident.grid import window_ends
 from rtsid.ident.second_order import OutputErrorDesign
-from rtsid.ident.split import SplitScan, split_scan
+from rtsid.ident.split import NewestPart, SplitProblem, SplitScan
 from rtsid.ident.tracker import ParameterTracker, SplitSource, TrackerOptions, TrackEstimate
 from rtsid.ident.vaf import vaf
 from rtsid.ident.window import (
@@ -134,8 +134,14 @@ class StreamTracker:
 
     def __init__(self, window_s: float, hop_s: float, options: TrackerOptions) -> None:
         self.options = options
+        self.hop_s = hop_s
         self.stiffness = ParameterTracker(
-            window_s, hop_s, options.stiffness_noise, options.stiffness_rate_noise, options
+            window_s,
+            hop_s,
+            options.stiffness_noise,
+            options.stiffness_rate_noise,
+            options,
+            options.stiffness_acceleration_noise,
         )
         self.damping = ParameterTracker(
             window_s, hop_s, options.damping_noise, options.damping_rate_noise, options
@@ -148,10 +154,15 @@ class StreamTracker:
         return self._latest
 
     def step(
-        self, t_end_s: float, estimate: WindowEstimate | None, split: SplitSource | None = None
+        self,
+        t_end_s: float,
+        estimate: WindowEstimate | None,
+        split: SplitSource | None = None,
+        newest: NewestPart | None = None,
     ) -> Tracked:
         """Advance to ``t_end_s`` (s) and take ``estimate`` if it is a measurement;
-        ``split`` computes its window's splits of K (:mod:`rtsid.ident.split`)."""
+        ``split`` computes its window's splits of K, ``newest`` is K of its newest hop
+        (:mod:`rtsid.ident.split`)."""
         if not self.options.enabled:
             return Tracked(*(float("nan"),) * 4)
         if estimate is not None and _NOT_MEASURED.intersection(estimate.flags):
@@ -162,6 +173,7 @@ class StreamTracker:
             estimate.K if k_measured and estimate is not None else None,
             estimate.K_se if k_measured and estimate is not None else None,
             split if k_measured else None,
+            newest if k_measured else None,
         )
         b = _UNTRACKED
         b_measured = (
@@ -224,8 +236,10 @@ class WindowStream:
         """Step the tracker with this window (its end time, s; None: withheld), and with the
         splits of its K when ``estimate`` is the stream's latest."""
         source, self._split_source = self._split_source, None
-        split = source.scan if source is not None and estimate is source.estimate else None
-        return self.tracker.step(t_end_s, estimate, split)
+        if source is None or estimate is not source.estimate or not self.tracker.options.enabled:
+            return self.tracker.step(t_end_s, estimate)
+        newest = source.newest(self.tracker.hop_s)
+        return self.tracker.step(t_end_s, estimate, source.scan, newest)
 
     def estimate(
         self, position: ArrayLike, torque: ArrayLike, valid: ArrayLike | None = None
@@ -262,19 +276,35 @@ class WindowStream:
         return result
 
 
-@dataclass(frozen=True)
 class _SplitSource:
-    """What :meth:`WindowStream.track` needs to scan the splits of an estimate's K."""
+    """What :meth:`WindowStream.track` reads from an estimate's samples: the splits of its K
+    and its newest hop's K, from one :class:`~rtsid.ident.split.SplitProblem` built when
+    first asked for."""
 
-    estimate: WindowEstimate
-    design: OutputErrorDesign
-    held: Held
-    plan: AnalysisPlan
-    window_samples: int
+    def __init__(
+        self,
+        estimate: WindowEstimate,
+        design: OutputErrorDesign,
+        held: Held,
+        plan: AnalysisPlan,
+        window_samples: int,
+    ) -> None:
+        self.estimate = estimate
+        self._args = (design, held.inertia, held.damping, plan, window_samples)
+        self._problem: SplitProblem | bool | None = False  # False: not built yet
+
+    def problem(self) -> SplitProblem | None:
+        if self._problem is False:
+            self._problem = SplitProblem.of(*self._args)
+        return self._problem  # type: ignore[return-value]
 
     def scan(self) -> SplitScan | None:
-        held = self.held
-        return split_scan(self.design, held.inertia, held.damping, self.plan, self.window_samples)
+        problem = self.problem()
+        return None if problem is None else problem.scan()
+
+    def newest(self, span_s: float) -> NewestPart | None:
+        problem = self.problem()
+        return None if problem is None else problem.newest(span_s)
 
 
 @dataclass(frozen=True)

@@ -114,7 +114,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from rtsid.errors import invalid, require_range
-from rtsid.ident.split import SplitScan
+from rtsid.ident.split import NewestPart, SplitScan
 
 #: Memory of the filters' likelihood-ratio CUSUM, s.
 SWITCH_MEMORY_S = 1.0
@@ -149,6 +149,19 @@ SPLIT_BEFORE_SHARE = 0.25
 #: Splits start no change mode before this many windows' worth of measurements (the calm
 #: windows' standard error and its learned scale are not known yet).
 SPLIT_WARM_UP = 2
+
+#: A hop's log-likelihood ratio between the fast filter and the published one is clipped to
+#: this many nats (one wild hop, a reflex burst on the human recording, does not switch).
+FAST_LLR_CAP = 2.0
+#: Newest-hop reads are weighed as Student t with this many degrees of freedom (on the
+#: human recording their tails are far heavier than a normal's: p1/p99 at ±7 IQR).
+FAST_DF = 4.0
+#: The fast filter is published once its CUSUM is above ``switch_threshold`` for this many
+#: hops in a row (a single hop's false alarm on a constant K cost 25 N·m/rad).
+FAST_CONFIRM_HOPS = 2
+#: The fast filter is not published before its hops' variance scale was learned from this
+#: many windows' worth of hops.
+FAST_WARM_UP = 2
 
 #: The window's splits of K, computed on demand (:func:`rtsid.ident.split.split_scan`).
 SplitSource = Callable[[], "SplitScan | None"]
@@ -193,6 +206,9 @@ class TrackerOptions:
         ``√(F(1 − F))`` (the change mode's shrinkage; 0: the plain inverse of the ramp).
     scale_horizon_s : float
         Horizon of the learned scale of the windows' standard errors, s.
+    stiffness_acceleration_noise : float
+        Random walk of dK/dt in the fast filter over each window's newest hop, N·m/rad/s²
+        per √s (0: no fast filter).
     """
 
     enabled: bool = True
@@ -206,6 +222,7 @@ class TrackerOptions:
     split_gate: float = 8.0
     change_spread: float = 0.3
     scale_horizon_s: float = 10.0
+    stiffness_acceleration_noise: float = 1000.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.enabled, bool):
@@ -221,6 +238,7 @@ class TrackerOptions:
         require_range("split_gate", self.split_gate, 1.0, 100.0)
         require_range("change_spread", self.change_spread, 0.0, 10.0)
         require_range("scale_horizon_s", self.scale_horizon_s, 0.0, 3600.0, low_inclusive=False)
+        require_range("stiffness_acceleration_noise", self.stiffness_acceleration_noise, 0.0, 1e7)
 
 
 @dataclass(frozen=True)
@@ -250,6 +268,12 @@ class TrackEstimate:
     updated: bool
     change: bool
     mode: str = ""
+
+
+def _t_log_density(nis: float, variance: float) -> float:
+    """Log density of a Student t (:data:`FAST_DF` degrees of freedom, scale² ``variance``)
+    at a normalised squared innovation ``nis``, up to a constant."""
+    return -0.5 * math.log(variance) - 0.5 * (FAST_DF + 1.0) * math.log1p(nis / FAST_DF)
 
 
 def transition(dt: float, tau: float, level_q: float, rate_q: float) -> tuple[float, ...]:
@@ -308,6 +332,11 @@ class _LevelRateFilter:
         """The next window's expected estimate (the parameter at its centre)."""
         return self.x0 - self.lag * self.x1
 
+    def predicted_variance(self) -> float:
+        """``H·P·Hᵀ``: the variance of :meth:`predicted_window`."""
+        c = self.lag
+        return self.p00 - 2.0 * c * self.p01 + c * c * self.p11
+
     def update(self, z: float, sigma2: float) -> tuple[float, float]:
         """Take window ``z`` of variance ``sigma2`` (inflated by :attr:`overlap`); return its
         innovation and the prediction's variance ``H·P·Hᵀ`` (before the update)."""
@@ -348,6 +377,7 @@ class ParameterTracker:
         level_noise: float,
         rate_noise: float,
         options: TrackerOptions,
+        acceleration_noise: float = 0.0,
     ) -> None:
         lag = 0.5 * window_s  # the window's centre behind its end
         self.window_s = window_s
@@ -361,6 +391,16 @@ class ParameterTracker:
         self.trend = _LevelRateFilter(
             lag, level_noise, rate_noise, tau, max(1.0, TREND_OVERLAP * self.overlap)
         )
+        # the fast filter over the windows' newest hops (None: none)
+        self.fast = None
+        if acceleration_noise > 0:
+            self.fast = _LevelRateFilter(0.0, level_noise, acceleration_noise, tau, 1.0)
+        self.fast_cusum = 0.0
+        self.fast_on = False
+        self.fast_scale2 = 1.0  # learned scale of the newest hops' variance
+        self.fast_scored = 0  # newest hops it was learned from
+        self._fast_hops = 0  # consecutive hops with the fast filter's CUSUM above threshold
+        self._hop_recent: tuple[tuple[float, float, float], ...] = ()  # (t, K, var) of the last two
         self.switch_threshold = options.switch_threshold
         self.forget = math.exp(-hop_s / SWITCH_MEMORY_S)
         self.gate = options.change_gate
@@ -402,6 +442,7 @@ class ParameterTracker:
         z: float | None = None,
         se: float | None = None,
         split: SplitSource | None = None,
+        newest: NewestPart | None = None,
     ) -> TrackEstimate:
         """Advance to ``t_s`` (the window's end, s) and take its estimate ``z ± se`` if usable.
 
@@ -409,7 +450,8 @@ class ParameterTracker:
         ``split``: computes the window's :func:`~rtsid.ident.split.split_scan` (called only
         when the window departs from the prediction, or during a change read from the
         samples), which detects and reads a change from the window's samples (without it
-        the change mode reads the window estimates' ramp).
+        the change mode reads the window estimates' ramp). ``newest``: the window's newest
+        hop's K, the fast filter's measurement.
         """
         usable = z is not None and se is not None and math.isfinite(z) and se > 0
         usable = usable and math.isfinite(se)  # type: ignore[arg-type]
@@ -419,12 +461,14 @@ class ParameterTracker:
             return self._start(t_s, float(z), float(se))  # type: ignore[arg-type]
         dt = t_s - self.t_s
         self.t_s = max(self.t_s, t_s)
-        self.quiet.predict(dt)
-        self.trend.predict(dt)
+        for f in self._filters():
+            f.predict(dt)
         if not usable:
             self._recent = ()
             self._candidate = None
             return self._withheld(dt)
+        if newest is not None and self.fast is not None:
+            self._take_newest(newest, float(se))  # type: ignore[arg-type]
         return self._update(float(z), float(se), dt, split)  # type: ignore[arg-type]
 
     # -- the steps -----------------------------------------------------------------------
@@ -432,7 +476,7 @@ class ParameterTracker:
     def _start(self, t_s: float, z: float, se: float) -> TrackEstimate:
         self.t_s = t_s
         self.se_ref = se
-        for f in (self.quiet, self.trend):
+        for f in self._filters():
             f.reset(z, se * se * self.overlap)
         self._recent = ((t_s, z, se),)
         return self._published(True, False)
@@ -445,8 +489,7 @@ class ParameterTracker:
             self.split_se = math.hypot(self.split_se, self.quiet.level_q * math.sqrt(dt))
             if self.t_s - self.window_s < self.split_at:
                 return TrackEstimate(self.split_value, self.split_se, 0.0, False, False, "change")
-            self.split_at = math.nan  # the windows are past the change
-            self._end_change(self.split_value, self.split_se**2)
+            self._end_split(self.split_value, self.split_se**2)  # the windows are past it
         if self.change_hops:
             self.change_hops += self._hops(dt)
             self.change_se = math.hypot(self.change_se, self.quiet.level_q * math.sqrt(dt))
@@ -461,8 +504,7 @@ class ParameterTracker:
         self._learn_scale(z, se)
         sigma2 = self.scale2 * se * se
         if self.splitting and self.t_s - self.window_s >= self.split_at:  # past the change
-            self.split_at = math.nan
-            self._end_change(z, sigma2 * self.overlap)
+            self._end_split(z, sigma2 * self.overlap)
             return self._published(True, False)
         worth = self.splitting or self._departs(z) or se > SPLIT_SE_SWELL * self.se_ref
         scan = split() if split is not None and worth else None
@@ -638,6 +680,67 @@ class ParameterTracker:
         self.change_value = self.k_old + step
         self.change_se = math.sqrt(sigma2 + step * step * spread / (f + spread))
 
+    def _end_split(self, level: float, variance: float) -> None:
+        """The windows are past a change read from the samples: all three filters restart
+        at ``level`` (the fast filter followed the step only as far as its Huber weight
+        lets a hop move it)."""
+        self.split_at = math.nan
+        self._end_change(level, variance)
+        if self.fast is not None:
+            self.fast.reset(level, variance)
+            self.fast_cusum, self.fast_on, self._fast_hops = 0.0, False, 0
+
+    def _take_newest(self, part: NewestPart, se: float) -> None:
+        """The fast filter takes the window's newest hop; outside change modes the CUSUM of
+        its log-likelihood ratio against the published filter (both predicting the same
+        hop) chooses whether it is published."""
+        fast = self.fast
+        assert fast is not None
+        fast.lag = part.centre_s
+        r = self._learn_hop_scale(part.k, part.var * se * se) * part.var * se * se
+        s_f = fast.predicted_variance() + r
+        nu_f = part.k - fast.predicted_window()
+        nis = nu_f * nu_f / s_f
+        if not self.change_hops and not self.splitting:
+            slow = self.trend if self.trending else self.quiet
+            lag, slow.lag = slow.lag, part.centre_s
+            s_s = slow.predicted_variance() + r
+            nu_s = part.k - slow.predicted_window()
+            slow.lag = lag
+            llr = _t_log_density(nis, s_f) - _t_log_density(nu_s * nu_s / s_s, s_s)
+            llr = min(FAST_LLR_CAP, max(-FAST_LLR_CAP, llr))
+            self.fast_cusum = max(0.0, self.forget * self.fast_cusum + llr)
+            above = self.fast_cusum > self.switch_threshold
+            self._fast_hops = self._fast_hops + 1 if above else 0
+            warm = self.fast_scored >= FAST_WARM_UP * self.end_hops
+            self.fast_on = warm and self._fast_hops >= FAST_CONFIRM_HOPS
+        fast.update(part.k, r + s_f * max(0.0, nis - 1.0) / (FAST_DF + 1.0))  # the t's weight
+
+    def _learn_hop_scale(self, k: float, var: float) -> float:
+        """The newest hops' variance scale, learned like the windows' (:meth:`_learn_scale`)
+        from consecutive hops' second differences: the hops share no samples, so for a
+        locally linear K their variance is ``6σ²``. A mean over the first hops, then
+        forgetting over ``scale_horizon_s``; not during a change mode or a window after."""
+        t = self.t_s
+        recent = self._hop_recent
+        if recent and abs((t - recent[-1][0]) - self.hop_s) >= 1e-9 * max(1.0, t):
+            recent = ()
+        calm = not self.change_hops and not self.splitting and self.calm_after <= 0
+        if len(recent) == 2 and calm:
+            (_, k0, v0), (_, k1, v1) = recent
+            d2 = k - 2.0 * k1 + k0
+            u = d2 * d2 / (2.0 * (v0 + v1 + var))
+            self.fast_scored += 1
+            weight = max(self.alpha, 1.0 / self.fast_scored)  # a mean, then forgetting
+            scale2 = self.fast_scale2
+            self.fast_scale2 += weight * (min(u, SCALE_CAP * scale2) - scale2)
+        self._hop_recent = (*recent[-1:], (t, k, var))
+        return self.fast_scale2
+
+    def _filters(self) -> tuple[_LevelRateFilter, ...]:
+        both = (self.quiet, self.trend)
+        return both if self.fast is None else (*both, self.fast)
+
     def _end_change(self, level: float, variance: float) -> None:
         """The windows are past the change: both filters restart at ``level``."""
         self.change_hops = 0
@@ -671,15 +774,13 @@ class ParameterTracker:
             return self.split_value
         if self.change_hops:
             return self.change_value
-        return self.trend.x0 if self.trending else self.quiet.x0
+        return self.trend.x0 if self.trending else self.quiet.x0  # not the fast filter's
+
+    def _published_filter(self) -> tuple[_LevelRateFilter, str]:
+        if self.fast_on and self.fast is not None:
+            return self.fast, "fast"
+        return (self.trend, "trend") if self.trending else (self.quiet, "quiet")
 
     def _published(self, updated: bool, change: bool) -> TrackEstimate:
-        f = self.trend if self.trending else self.quiet
-        return TrackEstimate(
-            f.x0,
-            math.sqrt(max(f.p00, 0.0)),
-            f.x1,
-            updated,
-            change,
-            "trend" if self.trending else "quiet",
-        )
+        f, mode = self._published_filter()
+        return TrackEstimate(f.x0, math.sqrt(max(f.p00, 0.0)), f.x1, updated, change, mode)

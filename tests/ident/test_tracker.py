@@ -189,6 +189,7 @@ def test_before_the_first_estimate_nothing_is_published():
         ({"stiffness_noise": -1.0}, "stiffness_noise"),
         ({"change_gate": 0.5}, "change_gate"),
         ({"split_gate": 0.0}, "split_gate"),
+        ({"stiffness_acceleration_noise": -1.0}, "stiffness_acceleration_noise"),
         ({"switch_threshold": -1.0}, "switch_threshold"),
         ({"change_spread": float("inf")}, "change_spread"),
         ({"rate_time_constant_s": 0.0}, "rate_time_constant_s"),
