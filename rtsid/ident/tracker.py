@@ -39,6 +39,21 @@ predicting better, not by claiming a narrower noise). Above ``switch_threshold``
 filter is published and the quiet filter is reset to its level (so on the way back the
 quiet filter starts where the trend left, not a lag behind).
 
+The fast filter over each window's newest hop
+---------------------------------------------
+(K only, with the window's samples.) The windows' filters cannot follow 1–2 Hz: a 300 ms
+window sees a 2 Hz sine at half its amplitude, half a window late. Each window's newest hop
+(:meth:`rtsid.ident.split.SplitProblem.newest`: K of the last hop's rows, the rest of the
+window with its own K) shares no samples with the previous window's, so a third filter —
+level and a rate driven by ``stiffness_acceleration_noise`` — takes the hops as independent
+measurements, each at its rows' centre, with its relative variance times a scale learned
+from the hops' second differences (variance ``6σ²`` for independent hops). It is published
+when a CUSUM of its Student-t (:data:`FAST_DF`) log-likelihood ratio against the published
+quiet/trend filter, both predicting the same hop, stays above ``switch_threshold`` for
+:data:`FAST_CONFIRM_HOPS` hops, after :data:`FAST_WARM_UP` windows' worth of hops. The split
+reads below compare with the quiet/trend level, never the fast one, and restart the fast
+filter where they end.
+
 The change mode read from the samples
 -------------------------------------
 When the stream hands the tracker its window's samples (:mod:`rtsid.ident.split`: every
