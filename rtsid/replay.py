@@ -15,7 +15,7 @@ from __future__ import annotations
 import csv
 import math
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -37,10 +37,12 @@ from rtsid.io.schemas import ESTIMATE_FIELDS, SCHEMAS, SampleBatch, encode_estim
 from rtsid.link.ring import Snapshot
 from rtsid.runtime.daemon import DaemonConfig
 from rtsid.runtime.worker import WindowEvaluator
+from rtsid.verdicts import Reason
 
 __all__ = [
     "LiveDecisions",
     "ReplayResult",
+    "is_announcement",
     "iter_windows",
     "paced",
     "recording_config",
@@ -64,6 +66,12 @@ def recording_config(path: str | Path) -> DaemonConfig:
     )
 
 
+def is_announcement(message: Mapping[str, Any]) -> bool:
+    """A live ``stale`` message that only announced a due window's samples had not come
+    (no latency: nothing was evaluated), as opposed to the window's own evaluation."""
+    return message.get("reason") == Reason.STALE and message.get("latency_ms") is None
+
+
 @dataclass(frozen=True)
 class LiveDecisions:
     """What the live run decided that its samples alone do not say, read from its estimates:
@@ -76,23 +84,35 @@ class LiveDecisions:
     first_end: int
     last_end: int
     reflex: dict[int, tuple[int | None, bool, bool]]  # end -> (reflex_seq, absent, stale)
+    stale: frozenset[int] = frozenset()  # windows evaluated live with samples too old
 
     def skipped(self, window_end: int) -> bool:
-        """The live worker never estimated this window (inside the live run's span)."""
+        """The live worker never evaluated this window (inside the live run's span)."""
         return self.first_end <= window_end <= self.last_end and window_end not in self.reflex
 
     @classmethod
     def of(cls, parts: Iterable[Path]) -> LiveDecisions | None:
-        """From the recording's ``/estimate`` messages (None when it has none)."""
+        """From the recording's ``/estimate`` messages (None when it has none).
+
+        A ``stale`` message without a latency only announced that the due window's samples
+        had not come (``WindowEvaluator.publish_stale``): the window was evaluated later, or
+        skipped when the worker caught up. One with a latency is the window's evaluation,
+        withheld because its samples were too old when it ran."""
         reflex: dict[int, tuple[int | None, bool, bool]] = {}
+        stale: set[int] = set()
         for part in parts:
             for m in iter_estimates(part):
+                if is_announcement(m):
+                    continue
+                end = int(m["window_end_index"])
+                if m.get("reason") == Reason.STALE:
+                    stale.add(end)
                 flags = set(m.get("flags") or ())
-                absent, stale = "reflex_absent" in flags, "reflex_stale" in flags
-                reflex[int(m["window_end_index"])] = (m.get("reflex_seq"), absent, stale)
+                absent, late = "reflex_absent" in flags, "reflex_stale" in flags
+                reflex[end] = (m.get("reflex_seq"), absent, late)
         if not reflex:
             return None
-        return cls(min(reflex), max(reflex), reflex)
+        return cls(min(reflex), max(reflex), reflex, frozenset(stale))
 
 
 def iter_windows(
@@ -339,6 +359,7 @@ def replay_batches(
     slow_lane = ReplayedSlowLane(evaluator, result.reflex.append) if evaluator.reflex else None
     if live is not None:
         evaluator.recorded_reflex = live.reflex
+        evaluator.recorded_stale = live.stale
     started = time.perf_counter()
     for snap in iter_windows(batches, evaluator, slow_lane, live):
         evaluator.evaluate(snap)

@@ -255,6 +255,8 @@ class WindowEvaluator:
         self.last_reflex = _NO_REFLEX  # the slow lane's part in the latest window
         # a replay following a live run: window end -> (reflex_seq, absent, stale) as live had
         self.recorded_reflex: dict[int, tuple[int | None, bool, bool]] | None = None
+        # ... and the windows it withheld as stale (its samples' age is not in a recording)
+        self.recorded_stale: frozenset[int] = frozenset()
         self._seq = 0
         self.withheld: Counter[str] = Counter()
         self.estimates = 0
@@ -302,6 +304,8 @@ class WindowEvaluator:
         now = time.monotonic() if arrival is not None else math.inf
         max_age = self.config.max_sample_age_s if self.live else math.inf
         reason = assess_window(window, now, max_age)
+        if reason is None and int(window.sample_index[-1]) in self.recorded_stale:
+            reason = Reason.STALE  # live withheld it so; the tracker steps alike
         reflex = _NO_REFLEX
         if reason is None and self.reflex is not None:
             reflex = self._reflex_torque(snap)

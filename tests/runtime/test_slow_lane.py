@@ -15,7 +15,7 @@ import pytest
 from mcap.reader import make_reader
 
 from rtsid.io.mcap_read import iter_estimates, iter_status
-from rtsid.replay import replay_file
+from rtsid.replay import is_announcement, replay_file
 from rtsid.runtime.daemon import Daemon, DaemonConfig
 
 REFLEX_GAIN = 10.0
@@ -54,7 +54,7 @@ def test_the_slow_lane_fits_the_plants_reflex_and_replay_reproduces_live(tmp_pat
     assert len(fits) >= 3 and all(f["ok"] and f["applied"] for f in fits)
     assert np.median([f["gain"] for f in fits]) == pytest.approx(REFLEX_GAIN, rel=0.2)
     assert np.median([f["delay_ms"] for f in fits]) == pytest.approx(40.0, abs=8.0)
-    live = {m["window_end_index"]: m for m in iter_estimates(recording)}
+    live = {m["window_end_index"]: m for m in iter_estimates(recording) if not is_announcement(m)}
     used = [m for m in live.values() if m["ok"] and m["reflex_seq"] is not None]
     assert len(used) > 50
     assert all(m["window_end_index"] >= fits[0]["applies_from_index"] for m in used)
