@@ -613,12 +613,12 @@ class ZenohPublisher:
         import zenoh
 
         try:
-            with query:
+            with query:  # counted before dropping it finalizes the query for the caller
                 query.reply_err(
                     encode_json({"error": message}), encoding=zenoh.Encoding.APPLICATION_JSON
                 )
-            with self._count_lock:
-                self._query_errors += 1
+                with self._count_lock:
+                    self._query_errors += 1
         except Exception as exc:
             self._record_error(f"zenoh error reply failed: {exc}")
 

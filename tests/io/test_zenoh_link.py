@@ -84,7 +84,7 @@ def test_config_file_replaces_the_session_settings(tmp_path: Any, free_port: int
         zenoh_config(ZenohConfig(config_file=str(bad)))
 
 
-def test_publish_liveliness_and_queryables_in_process(free_port: int) -> None:
+def test_publish_liveliness_and_queryables_in_process(free_port: int, wait_for: Any) -> None:
     port = free_port
     cfg = config(port)
     keys = key_expressions(cfg)
@@ -111,7 +111,8 @@ def test_publish_liveliness_and_queryables_in_process(free_port: int) -> None:
         pub.publish_status({"robot": "rig", "joint": "ankle", "host_time_ns": 1, "uptime_s": 3.0})
         status_replies = list(sub_session.get(keys["status"], timeout=5))
         assert json.loads(status_replies[0].ok.payload.to_bytes())["uptime_s"] == 3.0
-        assert pub.stats()["queries"] == 2 and pub.stats()["errors"] == 0
+        wait_for(lambda: pub.stats()["queries"] == 2, 5.0, "both queries counted")
+        assert pub.stats()["errors"] == 0
         assert not pub.publish_samples(0, [0.0], [0.0], [True], [0], fs_hz=2500.0)  # off by default
     assert pub.stats()["state"] == "closed"
 
@@ -124,7 +125,7 @@ def test_taken_port_is_reported_then_recovered_without_raising(
     try:
         with ZenohPublisher(config(port, retry_interval_s=0.05)) as pub:
             stats = pub.stats()
-            assert stats["state"] == "down" and stats["errors"] == 1
+            assert stats["state"] == "down" and stats["errors"] >= 1  # the retry may add one
             assert f"127.0.0.1:{port}" in stats["last_error"]
             assert "Address already in use" in stats["last_error"]
             assert "zenoh.listen" in stats["last_error"]

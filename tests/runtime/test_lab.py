@@ -312,6 +312,9 @@ def test_a_flood_of_queries_never_reaches_the_worker(
         while daemon.worker is None or daemon.worker.counters().estimates < 50:
             assert time.monotonic() < deadline, "the daemon did not start estimating"
             time.sleep(0.05)
+        while not query(session, "rtsid/rig/ankle/estimate", timeout_s=1.0).replies:
+            assert time.monotonic() < deadline, "the peers did not connect"  # zenoh retries
+            time.sleep(0.05)
         before = daemon.worker.counters()
         histories = latest = 0
         for _ in range(150):  # bounded flood: ≈ 3 s of back-to-back queries

@@ -1,3 +1,4 @@
+import sys
 import time
 
 import numpy as np
@@ -103,9 +104,9 @@ def test_over_budget_is_counted_and_flagged():
 def test_thread_starts_at_the_newest_window_then_reports_stale(wait_for):
     published = []
     ring = filled_ring()  # 1500 samples already there, nothing more arrives
-    worker = make_worker(ring, published, hop_s=0.02, max_sample_age_s=0.05)
+    worker = make_worker(ring, published, hop_s=0.02, max_sample_age_s=0.5)
     with worker:
-        wait_for(lambda: len(published) >= 3, 5.0, "three messages")
+        wait_for(lambda: len(published) >= 3, 10.0, "three messages")
     assert worker.stop(timeout_s=1.0)
     first = published[0]
     assert first["ok"] and first["window_end_index"] == 1499  # starts at the newest window
@@ -121,8 +122,13 @@ def test_falling_behind_skips_to_the_newest_window_and_counts_the_rest(wait_for)
     with worker:
         wait_for(lambda: any(m["window_end_index"] == 1499 for m in published), 5.0, "first")
         now = time.monotonic()
-        for k in range(500):  # ten hops arrive at once, e.g. after a stall
-            ring.append(0.01 * np.sin(k / 5.0), 1.0 * np.cos(k / 7.0), 0, now, 0.0)
+        switch = sys.getswitchinterval()
+        sys.setswitchinterval(1.0)  # all ten hops land before the worker wakes
+        try:
+            for k in range(500):  # ten hops arrive at once, e.g. after a stall
+                ring.append(0.01 * np.sin(k / 5.0), 1.0 * np.cos(k / 7.0), 0, now, 0.0)
+        finally:
+            sys.setswitchinterval(switch)
         wait_for(lambda: any(m["window_end_index"] == 1999 for m in published), 5.0, "newest")
     assert worker.stop(timeout_s=1.0)
     ends = [m["window_end_index"] for m in published]
