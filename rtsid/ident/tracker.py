@@ -719,10 +719,11 @@ class ParameterTracker:
         if not self.change_hops and not self.splitting:
             slow = self.trend if self.trending else self.quiet
             lag, slow.lag = slow.lag, part.centre_s
-            s_s = slow.predicted_variance() + r
             nu_s = part.k - slow.predicted_window()
             slow.lag = lag
-            llr = _t_log_density(nis, s_f) - _t_log_density(nu_s * nu_s / s_s, s_s)
+            # both scored with the fast filter's variance: it must predict better, not claim
+            # a narrower band (the slow filters' P understates their error on a drift)
+            llr = _t_log_density(nis, s_f) - _t_log_density(nu_s * nu_s / s_f, s_f)
             llr = min(FAST_LLR_CAP, max(-FAST_LLR_CAP, llr))
             self.fast_cusum = max(0.0, self.forget * self.fast_cusum + llr)
             above = self.fast_cusum > self.switch_threshold
