@@ -49,7 +49,8 @@ level and a rate driven by ``stiffness_acceleration_noise`` — takes the hops a
 measurements, each at its rows' centre, with its relative variance times a scale learned
 from the hops' second differences (variance ``6σ²`` for independent hops). It is published
 when a CUSUM of its Student-t (:data:`FAST_DF`) log-likelihood ratio against the published
-quiet/trend filter, both predicting the same hop, stays above ``switch_threshold`` for
+quiet/trend filter, both predicting the same hop and scored with the fast filter's
+predictive variance (it must predict better), stays above ``switch_threshold`` for
 :data:`FAST_CONFIRM_HOPS` hops, after :data:`FAST_WARM_UP` windows' worth of hops. The split
 reads below compare with the quiet/trend level, never the fast one, and restart the fast
 filter where they end.
@@ -708,7 +709,7 @@ class ParameterTracker:
     def _take_newest(self, part: NewestPart, se: float) -> None:
         """The fast filter takes the window's newest hop; outside change modes the CUSUM of
         its log-likelihood ratio against the published filter (both predicting the same
-        hop) chooses whether it is published."""
+        hop, with its variance) chooses whether it is published."""
         fast = self.fast
         assert fast is not None
         fast.lag = part.centre_s
