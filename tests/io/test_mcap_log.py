@@ -290,6 +290,9 @@ def test_sigkill_loses_at_most_about_one_second(tmp_path: Path, flush_interval_s
                     break
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(timeout=10)
+        for line in proc.stdout.read().splitlines():  # what it handed over before it died
+            if line.startswith("end"):
+                handed_over = max(handed_over, int(line.split()[1]))
     finally:
         if proc.poll() is None:
             proc.kill()
