@@ -46,6 +46,7 @@ from rtsid.ident.window import (
 from rtsid.verdicts import Reason
 
 __all__ = [
+    "ExcitationLevels",
     "HeldParameters",
     "StreamTracker",
     "Tracked",
@@ -94,6 +95,36 @@ class HeldParameters:
         self._inertia.append(inertia)
         if damping > 0:
             self._damping.append(damping)
+
+
+class ExcitationLevels:
+    """Running median of the windows' band-limited position standard deviation over the
+    last ``horizon`` windows: the stream's typical perturbation, to withhold a window where
+    it paused (``EstimatorOptions.min_relative_excitation``). Every analysed window is
+    learned from, so a pause longer than half the horizon becomes the new typical level."""
+
+    def __init__(self, horizon_windows: int, min_windows: int = 5) -> None:
+        self._levels: deque[float] = deque(maxlen=max(1, horizon_windows))
+        self.min_windows = max(1, min(min_windows, horizon_windows))
+
+    def typical(self) -> float | None:
+        """The median level so far (None before ``min_windows`` windows)."""
+        if len(self._levels) < self.min_windows:
+            return None
+        return float(np.median(self._levels))
+
+    def check_and_learn(self, level: float, fraction: float) -> None:
+        """Learn ``level`` (rad); raise ``WindowError`` (``no_excitation``) when it is below
+        ``fraction`` of the typical level before it."""
+        typical = self.typical()
+        self._levels.append(level)
+        if typical is not None and level < fraction * typical:
+            raise WindowError(
+                f"the position varies by {level:.3g} rad in the analysed band, under "
+                f"{fraction:g} of the last windows' median {typical:.3g} rad: the perturbation "
+                "paused, nothing to identify (estimator.min_relative_excitation)",
+                Reason.NO_EXCITATION,
+            )
 
 
 @dataclass(frozen=True)
@@ -229,6 +260,7 @@ class WindowStream:
         self.max_lowpass_hz = max_lowpass_hz
         horizon = max(1, round(options.hold_horizon_s / hop_s))
         self.held = HeldParameters(options.hold, horizon)
+        self.excitation = ExcitationLevels(horizon)
         self.tracker = StreamTracker(window_s, hop_s, tracker or TrackerOptions())
         self._split_source: _SplitSource | None = None
 
@@ -255,6 +287,10 @@ class WindowStream:
             position, torque, self.fs_hz, options, self.plan, valid, self.max_lowpass_hz
         )
         self.plan = plan = window.plan  # the first window's plan serves the whole stream
+        if options.min_relative_excitation > 0:
+            self.excitation.check_and_learn(
+                float(np.std(window.u)), options.min_relative_excitation
+            )
         irf, u, y = window.signals
         gaps = window.gaps
         if options.hold == "none":

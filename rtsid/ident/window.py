@@ -111,6 +111,12 @@ class EstimatorOptions:
     min_excitation_rad : float
         Windows whose position standard deviation is below this are withheld
         (``reason="no_excitation"``).
+    min_relative_excitation : float
+        In a stream of windows (:class:`~rtsid.ident.stream.WindowStream`), a window whose
+        band-limited position varies by less than this fraction of the median of the last
+        ``hold_horizon_s`` of windows is withheld too (``reason="no_excitation"``): the
+        perturbation paused, and what the torque does then says nothing about stiffness
+        (0: no such check).
     max_lost_percent : float
         A window may have up to this share of lost samples, bridged by sums over valid
         samples only (:mod:`rtsid.ident.gaps`); more withholds it (``reason="gap"``).
@@ -143,6 +149,7 @@ class EstimatorOptions:
     detrend: str = "linear"
     uncertainty: bool = True
     min_excitation_rad: float = 1e-5
+    min_relative_excitation: float = 0.1
     max_lost_percent: float = 2.0
     max_gap_s: float = 0.004
     hold: str = "inertia_damping"
@@ -176,6 +183,7 @@ class EstimatorOptions:
         require_range("low_vaf_percent", self.low_vaf_percent, 0.0, 100.0)
         require_range("fit_points", self.fit_points, 3)
         require_range("min_excitation_rad", self.min_excitation_rad, 0.0)
+        require_range("min_relative_excitation", self.min_relative_excitation, 0.0, 1.0)
         require_range("max_lost_percent", self.max_lost_percent, 0.0, 100.0)
         require_range("max_gap_s", self.max_gap_s, 0.0, 1.0)
         if self.fit_band_hz is not None:
