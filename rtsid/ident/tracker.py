@@ -274,8 +274,8 @@ class TrackEstimate:
     change : bool
         This window started a change mode.
     mode : str
-        What was published: ``"quiet"``, ``"trend"`` or ``"change"`` (``""`` before the
-        first measurement).
+        What was published: ``"quiet"``, ``"trend"``, ``"fast"`` or ``"change"`` (``""``
+        before the first measurement).
     """
 
     value: float
@@ -698,8 +698,8 @@ class ParameterTracker:
 
     def _end_split(self, level: float, variance: float) -> None:
         """The windows are past a change read from the samples: all three filters restart
-        at ``level`` (the fast filter followed the step only as far as its Huber weight
-        lets a hop move it)."""
+        at ``level`` (the fast filter followed the step only as far as its Student-t
+        weights let the hops move it)."""
         self.split_at = math.nan
         self._end_change(level, variance)
         if self.fast is not None:
