@@ -25,6 +25,11 @@ Variances are returned relative to the unsplit ``K̂``'s for white noise, ``σ²
 the tracker (:mod:`rtsid.ident.tracker`) scales them by the calm windows' own standard error
 of ``K``, which carries the residual's colour and the learned scale. (A straddling window's
 own standard error balloons with the step it does not model; the calm windows' does not.)
+
+:class:`SplitProblem` builds a window's problem once; besides :meth:`~SplitProblem.scan`
+it reads the one split at the window's newest hop (:meth:`~SplitProblem.newest`): K of the
+last hop's rows alone, which consecutive windows never share — the tracker's fast filter
+takes those as independent measurements.
 """
 
 from __future__ import annotations
