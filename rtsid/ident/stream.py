@@ -39,6 +39,7 @@ from rtsid.ident.window import (
     WindowEstimate,
     analyse_window,
     back_end,
+    check_relative_excitation,
     held_values,
     output_error_back_end,
     output_error_design,
@@ -46,14 +47,32 @@ from rtsid.ident.window import (
 from rtsid.verdicts import Reason
 
 __all__ = [
-    "ExcitationLevels",
     "HeldParameters",
+    "RunningMedian",
     "StreamTracker",
     "Tracked",
     "WindowResult",
     "WindowStream",
     "sliding_estimates",
 ]
+
+
+class RunningMedian:
+    """Median of the last ``horizon`` values, once at least ``min_count`` were added (plain
+    data updated in window order: a replay reproduces it)."""
+
+    def __init__(self, horizon: int, min_count: int = 5) -> None:
+        self._values: deque[float] = deque(maxlen=max(1, horizon))
+        self.min_count = max(1, min(min_count, horizon))
+
+    def add(self, value: float) -> None:
+        self._values.append(value)
+
+    def median(self) -> float | None:
+        """None before ``min_count`` values."""
+        if len(self._values) < self.min_count:
+            return None
+        return float(np.median(self._values))
 
 
 class HeldParameters:
@@ -71,16 +90,15 @@ class HeldParameters:
 
     def __init__(self, hold: str, horizon_windows: int, min_windows: int = 5) -> None:
         self.hold = hold
-        self._inertia: deque[float] = deque(maxlen=max(1, horizon_windows))
-        self._damping: deque[float] = deque(maxlen=max(1, horizon_windows))
-        self.min_windows = max(1, min(min_windows, horizon_windows))
+        self._inertia = RunningMedian(horizon_windows, min_windows)
+        self._damping = RunningMedian(horizon_windows, min_windows)
 
     def current(self) -> Held:
         """What the next window holds."""
-        if self.hold == "none" or len(self._inertia) < self.min_windows:
+        inertia = self._inertia.median()
+        if self.hold == "none" or inertia is None:
             return Held()
-        inertia = float(np.median(self._inertia))
-        damping = float(np.median(self._damping)) if self.hold == "inertia_damping" else None
+        damping = self._damping.median() if self.hold == "inertia_damping" else None
         return Held(inertia, damping)
 
     def learn(self, inertia: float, damping: float, explained: bool) -> None:
@@ -92,39 +110,9 @@ class HeldParameters:
         """
         if self.hold == "none" or not explained or not inertia > 0:
             return
-        self._inertia.append(inertia)
+        self._inertia.add(inertia)
         if damping > 0:
-            self._damping.append(damping)
-
-
-class ExcitationLevels:
-    """Running median of the windows' band-limited position standard deviation over the
-    last ``horizon`` windows: the stream's typical perturbation, to withhold a window where
-    it paused (``EstimatorOptions.min_relative_excitation``). Every analysed window is
-    learned from, so a pause longer than half the horizon becomes the new typical level."""
-
-    def __init__(self, horizon_windows: int, min_windows: int = 5) -> None:
-        self._levels: deque[float] = deque(maxlen=max(1, horizon_windows))
-        self.min_windows = max(1, min(min_windows, horizon_windows))
-
-    def typical(self) -> float | None:
-        """The median level so far (None before ``min_windows`` windows)."""
-        if len(self._levels) < self.min_windows:
-            return None
-        return float(np.median(self._levels))
-
-    def check_and_learn(self, level: float, fraction: float) -> None:
-        """Learn ``level`` (rad); raise ``WindowError`` (``no_excitation``) when it is below
-        ``fraction`` of the typical level before it."""
-        typical = self.typical()
-        self._levels.append(level)
-        if typical is not None and level < fraction * typical:
-            raise WindowError(
-                f"the position varies by {level:.3g} rad in the analysed band, under "
-                f"{fraction:g} of the last windows' median {typical:.3g} rad: the perturbation "
-                "paused, nothing to identify (estimator.min_relative_excitation)",
-                Reason.NO_EXCITATION,
-            )
+            self._damping.add(damping)
 
 
 @dataclass(frozen=True)
@@ -260,7 +248,9 @@ class WindowStream:
         self.max_lowpass_hz = max_lowpass_hz
         horizon = max(1, round(options.hold_horizon_s / hop_s))
         self.held = HeldParameters(options.hold, horizon)
-        self.excitation = ExcitationLevels(horizon)
+        # the windows' band-limited position SD: the stream's typical perturbation (every
+        # analysed window counts, so a pause longer than half the horizon becomes typical)
+        self.excitation = RunningMedian(horizon)
         self.tracker = StreamTracker(window_s, hop_s, tracker or TrackerOptions())
         self._split_source: _SplitSource | None = None
 
@@ -287,10 +277,10 @@ class WindowStream:
             position, torque, self.fs_hz, options, self.plan, valid, self.max_lowpass_hz
         )
         self.plan = plan = window.plan  # the first window's plan serves the whole stream
-        if options.min_relative_excitation > 0:
-            self.excitation.check_and_learn(
-                float(np.std(window.u)), options.min_relative_excitation
-            )
+        level = window.excitation_rad
+        typical = self.excitation.median()
+        self.excitation.add(level)
+        check_relative_excitation(level, typical, options)
         irf, u, y = window.signals
         gaps = window.gaps
         if options.hold == "none":

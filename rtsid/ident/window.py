@@ -591,6 +591,11 @@ class AnalysedWindow:
         """``(irf, u, y)``, the back ends' first arguments."""
         return self.irf, self.u, self.y
 
+    @property
+    def excitation_rad(self) -> float:
+        """The band-limited position's standard deviation, rad."""
+        return float(np.std(self.u))
+
 
 def analyse_window(
     position: ArrayLike,
@@ -857,6 +862,22 @@ def _check_band_limited_excitation(u: FloatArray, options: EstimatorOptions) -> 
         raise WindowError(
             f"the position varies by less than {options.min_excitation_rad} rad in the "
             "analysed band: no usable perturbation, nothing to identify",
+            Reason.NO_EXCITATION,
+        )
+
+
+def check_relative_excitation(
+    level_rad: float, typical_rad: float | None, options: EstimatorOptions
+) -> None:
+    """Withhold a window of a stream whose band-limited perturbation ``level_rad`` is below
+    ``min_relative_excitation`` of the stream's ``typical_rad`` (None: not known yet): the
+    perturbation paused, and the torque then follows the person, not the position."""
+    fraction = options.min_relative_excitation
+    if typical_rad is not None and level_rad < fraction * typical_rad:
+        raise WindowError(
+            f"the position varies by {level_rad:.3g} rad in the analysed band, under "
+            f"{fraction:g} of the last windows' median {typical_rad:.3g} rad: the "
+            "perturbation paused, nothing to identify (estimator.min_relative_excitation)",
             Reason.NO_EXCITATION,
         )
 
