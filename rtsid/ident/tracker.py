@@ -346,7 +346,11 @@ class _LevelRateFilter:
 
     def predicted_window(self) -> float:
         """The next window's expected estimate (the parameter at its centre)."""
-        return self.x0 - self.lag * self.x1
+        return self.predicted_at(self.lag)
+
+    def predicted_at(self, back_s: float) -> float:
+        """The parameter ``back_s`` before the newest window's end (a linear trend)."""
+        return self.x0 - back_s * self.x1
 
     def predicted_variance(self) -> float:
         """``H·P·Hᵀ``: the variance of :meth:`predicted_window`."""
@@ -719,9 +723,7 @@ class ParameterTracker:
         nis = nu_f * nu_f / s_f
         if not self.change_hops and not self.splitting:
             slow = self.trend if self.trending else self.quiet
-            lag, slow.lag = slow.lag, part.centre_s
-            nu_s = part.k - slow.predicted_window()
-            slow.lag = lag
+            nu_s = part.k - slow.predicted_at(part.centre_s)
             # both scored with the fast filter's variance: it must predict better, not claim
             # a narrower band (the slow filters' P understates their error on a drift)
             llr = _t_log_density(nis, s_f) - _t_log_density(nu_s * nu_s / s_f, s_f)
