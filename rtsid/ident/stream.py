@@ -197,10 +197,12 @@ class StreamTracker:
         b = _UNTRACKED
         b_measured = (
             estimate is not None
+            and not estimate.B_held
             and math.isfinite(estimate.B_se)
             and _NOT_DAMPING not in estimate.flags
         )
-        if b_measured or self.damping.started:
+        b_held = estimate is not None and estimate.B_held
+        if (b_measured or self.damping.started) and not b_held:
             b = self.damping.step(
                 t_end_s,
                 estimate.B if b_measured and estimate is not None else None,

@@ -230,6 +230,9 @@ class WindowEstimate:
         Fit method used.
     lost_samples : int
         Lost samples in the window, bridged by sums over valid samples only.
+    I_held, B_held : bool
+        True when the value was held (learned over a longer horizon, or given), not fitted
+        in this window: its standard error is then NaN, never a band.
     """
 
     I: float  # noqa: E741 - the physical symbol
@@ -247,6 +250,8 @@ class WindowEstimate:
     flags: tuple[Flag, ...]
     method: str
     lost_samples: int = 0
+    I_held: bool = False
+    B_held: bool = False
 
     def as_dict(self) -> dict[str, Any]:
         """The scalar fields, JSON-friendly (NaN becomes None)."""
@@ -257,6 +262,8 @@ class WindowEstimate:
         out["flags"] = list(self.flags)
         out["method"] = self.method
         out["lost_samples"] = self.lost_samples
+        out["I_held"] = self.I_held
+        out["B_held"] = self.B_held
         return out
 
 
@@ -755,7 +762,10 @@ def output_error_back_end(
     vafs = (vaf(fit.measured, fit.model), vaf_irf, vaf_fit)
     se_i, se_b, se_k = fit.se.tolist()
     lost = 0 if gaps is None else gaps.lost
-    return _assemble(irf, fit.params, (se_i, se_b, se_k), vafs, "output_error", options, lost)
+    estimate = _assemble(irf, fit.params, (se_i, se_b, se_k), vafs, "output_error", options, lost)
+    if held.inertia is None:
+        return estimate
+    return replace(estimate, I_held=True, B_held=held.damping is not None)
 
 
 def output_error_design(

@@ -96,6 +96,21 @@ class EstimateMessage:
     reason: Reason | None = field(metadata=_meta("why the estimate is withheld (null when ok)"))
     flags: tuple[Flag, ...] = field(metadata=_meta("warnings on a published estimate"))
     host_time_ns: int = field(metadata=_meta("host UNIX time at publication, ns"))
+    I_held: bool | None = field(
+        default=None,
+        metadata=_meta(
+            "true: I is a held value (median of the stream's full fits over hold_horizon_s, or "
+            "estimator.hold_inertia), not fitted in this window; I_se is then null; null when "
+            "withheld"
+        ),
+    )
+    B_held: bool | None = field(
+        default=None,
+        metadata=_meta(
+            "true: B is a held value (hold = inertia_damping), not fitted in this window; B_se "
+            "and B_track are then null; null when withheld"
+        ),
+    )
     reflex_seq: int | None = field(
         default=None,
         metadata=_meta(

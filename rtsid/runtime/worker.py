@@ -60,6 +60,8 @@ _ESTIMATE_NUMBERS = (
     "vaf_irf",
     "vaf_fit",
     "lost_samples",
+    "I_held",
+    "B_held",
 )
 
 

@@ -32,6 +32,10 @@ def test_a_stream_plans_once_and_holds_what_it_learned():
     assert all(np.isfinite(e.I_se) for e in first)  # nothing learned yet: all fitted
     assert all(np.isnan(e.I_se) and np.isnan(e.B_se) for e in later)  # held, not fitted
     assert later[0].I == pytest.approx(np.median([e.I for e in first]))
+    # held values say so: marked held, no standard error, and no tracked B beside them
+    assert not any(e.I_held or e.B_held for e in first)
+    assert all(e.I_held and e.B_held for e in later)
+    assert all(np.isnan(r.track.B) and np.isnan(r.track.B_se) for r in results[5:])
     assert all(e.I == pytest.approx(0.02, rel=0.05) for e in later)
     assert np.median([abs(e.K - 200.0) for e in later]) < 0.02 * 200.0
 
