@@ -93,8 +93,8 @@ class WindowVafBasis:
     def least_squares_vaf(self, start: int, stop: int, extra: FloatArray | None = None) -> float:
         """VAF (%) on samples ``start … stop − 1`` of the window's own least-squares
         ``(I, B, K)`` (offset and trend as nuisance terms) fitted to the torque minus
-        ``extra``, with ``extra`` (the same length; a smooth torque such as a reflex prediction) counted as part
-        of the model."""
+        ``extra``, with ``extra`` (the same length; a smooth torque such as a reflex
+        prediction) counted as part of the model."""
         n = stop - start
         target = self.torque[start:stop] if extra is None else self.torque[start:stop] - extra
         design = np.column_stack(

@@ -135,3 +135,48 @@ def test_replay_with_the_slow_lane_on_a_recording_made_without_it(reklab_path, t
     for a, b in zip(with_lane, without, strict=True):
         assert a["reflex_seq"] is None or a["ok"]
         assert [a[k] for k in numbers] == [b[k] for k in numbers]
+
+
+def _children(pid: int) -> list[int]:
+    """Process ids whose parent is ``pid`` (from /proc)."""
+    found = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as fh:
+                    fields = fh.read().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                found.append(int(entry))
+    return found
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="needs /proc to find the worker process")
+def test_the_slow_lanes_worker_process_ends_with_a_killed_daemon(tmp_path, free_port):
+    config = tmp_path / "lane.toml"
+    config.write_text(
+        f'[zenoh]\nlisten = ["tcp/127.0.0.1:{free_port}"]\n[mcap]\ndirectory = "{tmp_path}"\n'
+        '[slow_lane]\nenabled = true\nmode = "process"\n'
+    )
+    daemon = subprocess.Popen(
+        [sys.executable, "-m", "rtsid.cli", "run", "--config", str(config), "--quiet"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        deadline = time.monotonic() + 30.0
+        while not (workers := _children(daemon.pid)) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert workers, "the slow lane's worker process did not start"
+    finally:
+        daemon.send_signal(signal.SIGKILL)
+        daemon.wait(10)
+    deadline = time.monotonic() + 10.0
+    while any(os.path.exists(f"/proc/{p}") for p in workers) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    alive = [p for p in workers if os.path.exists(f"/proc/{p}")]
+    for p in alive:  # leave nothing behind, whatever the outcome
+        os.kill(p, signal.SIGKILL)
+    assert not alive, "the worker process outlived the killed daemon"
