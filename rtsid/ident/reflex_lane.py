@@ -75,9 +75,11 @@ class SlowLaneSettings:
         A reflex pathway that adds less VAF than this over the intrinsic IRF alone (over the
         whole horizon) is judged absent: not subtracted.
     min_window_vaf_gain_percent : float
-        ... nor one whose subtraction raises the median VAF of the horizon's short windows
-        (per-window least squares, :func:`window_vaf_gain`) by less than this: a reflex the
-        windows' own I, B, K already explain is judged absent too.
+        ... nor one whose subtraction raises the median VAF of the newest short windows
+        (per-window least squares, :func:`window_vaf_gain`) by less than this many points: a
+        reflex the windows' own I, B, K already explain is judged absent too (3 points: the
+        shared human recording's fits reach at most 1.9, simulated reflexes of gain 10–25
+        N·m·s/rad 12–46).
     max_lost_percent : float
         Lost samples a fit (or a prediction's history) bridges by linear interpolation; more,
         or a gap longer than the model's sample period, and it is skipped.
@@ -91,7 +93,7 @@ class SlowLaneSettings:
     stale_after_s: float = 10.0
     variant: str = "rect"
     min_vaf_gain_percent: float = 1.0
-    min_window_vaf_gain_percent: float = 1.0
+    min_window_vaf_gain_percent: float = 3.0
     max_lost_percent: float = 2.0
 
     def __post_init__(self) -> None:
@@ -228,9 +230,11 @@ def fit_reflex_update(
     return _update_from(seq, start_index, end_index, cascade, evidence, settings)
 
 
-#: The short windows :func:`window_vaf_gain` scores: the fast lane's length, spread over the
-#: horizon.
-EVIDENCE_WINDOW_S, EVIDENCE_STEP_S = 0.3, 0.5
+#: The short windows :func:`window_vaf_gain` scores: the fast lane's length, every
+#: ``EVIDENCE_STEP_S`` over the last ``EVIDENCE_SPAN_S`` of the horizon (the decision is for
+#: the windows to come, so the newest data judge it: a reflex that switched on or off part-way
+#: through the horizon is judged by what it does now).
+EVIDENCE_WINDOW_S, EVIDENCE_STEP_S, EVIDENCE_SPAN_S = 0.3, 0.25, 10.0
 
 
 def window_vaf_gain(
@@ -242,7 +246,8 @@ def window_vaf_gain(
 ) -> tuple[float, float]:
     """Does subtracting ``reflex_torque`` help short windows explain the torque?
 
-    Over windows of ``EVIDENCE_WINDOW_S`` every ``EVIDENCE_STEP_S``, each window's own
+    Over windows of ``EVIDENCE_WINDOW_S`` every ``EVIDENCE_STEP_S`` in the last
+    ``EVIDENCE_SPAN_S`` of the data, each window's own
     least-squares I, B, K is scored on the benchmarks' window VAF basis
     (:class:`rtsid.ident.yardstick.WindowVafBasis`: torque low-passed at 40 Hz), once fitted
     to the torque and once to the torque minus the reflex prediction (counted as part of the
@@ -266,6 +271,7 @@ def window_vaf_gain(
     """
     basis = WindowVafBasis(position, torque, fs_hz)
     n = round(EVIDENCE_WINDOW_S * fs_hz)
+    first = max(first, position.size - round(EVIDENCE_SPAN_S * fs_hz))
     starts = range(first, position.size - n + 1, max(1, round(EVIDENCE_STEP_S * fs_hz)))
     gains = np.array(
         [

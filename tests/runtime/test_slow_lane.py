@@ -125,7 +125,7 @@ def test_replay_with_the_slow_lane_on_a_recording_made_without_it(reklab_path, t
     assert all(f["ok"] for f in fits)
     assert all(f["vaf_total"] > f["vaf_intrinsic_only"] + 3.0 for f in fits)
     assert not any(f["applied"] for f in fits)
-    assert all(f["window_vaf_gain"] < 1.0 for f in fits)
+    assert all(f["window_vaf_gain"] < 3.0 for f in fits)
     # ... so nothing is subtracted and the windows equal the fast lane alone
     config.write_text(header + "[slow_lane]\nenabled = false\n")
     assert main(["replay", str(recording), "--config", str(config), "-o", str(alone)]) == 0
