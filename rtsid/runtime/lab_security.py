@@ -54,6 +54,7 @@ __all__ = [
     "LabProfile",
     "access_control",
     "daemon_common_name",
+    "profile_texts",
     "viewer_common_name",
     "write_lab_profile",
 ]
@@ -330,6 +331,23 @@ def participants(profile: LabProfile) -> list[tuple[str, str]]:
     return out + [(f"viewer-{v}", viewer_common_name(v)) for v in profile.viewers]
 
 
+def profile_texts(profile: LabProfile, certs: Path) -> dict[str, str]:
+    """The configuration files of ``profile`` (name → text) for certificates in ``certs``:
+    ``router.json5``, ``router.toml`` and one ``<participant>.json5`` each."""
+    texts = {
+        "router.json5": _json5_text(
+            router_json5(profile, certs), "The lab's zenoh router: mutual TLS + access control."
+        ),
+        "router.toml": "# rtsid router --config THIS_FILE: the secure lab's router "
+        '(router.json5 beside it).\n[router]\nconfig_file = "router.json5"\n',
+    }
+    for stem, common_name in participants(profile):
+        texts[f"{stem}.json5"] = _json5_text(
+            client_json5(profile, certs, stem), f"The zenoh client {common_name} of the lab."
+        )
+    return texts
+
+
 def write_lab_profile(directory: str | Path, profile: LabProfile) -> list[Path]:
     """Write the lab's CA, certificates and zenoh json5 files into the new ``directory``.
 
@@ -366,17 +384,8 @@ def write_lab_profile(directory: str | Path, profile: LabProfile) -> list[Path]:
         (work / "ca.srl").unlink(missing_ok=True)
         for key in work.glob("*-key.pem"):
             key.chmod(0o600)
-        (work / "router.json5").write_text(
-            _json5_text(router_json5(profile, target), "The lab's zenoh router: mTLS + ACL.")
-        )
-        (work / "router.toml").write_text(
-            "# rtsid router --config THIS_FILE: the secure lab router (router.json5 beside it).\n"
-            '[router]\nconfig_file = "router.json5"\n'
-        )
-        for stem, common_name in participants(profile):
-            (work / f"{stem}.json5").write_text(
-                _json5_text(client_json5(profile, target, stem), f"zenoh client {common_name}.")
-            )
+        for name, text in profile_texts(profile, target).items():
+            (work / name).write_text(text)
         if target.exists():
             target.rmdir()
         os.replace(work, target)

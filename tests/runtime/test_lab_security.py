@@ -27,8 +27,17 @@ import zenoh
 from rtsid.cli import main
 from rtsid.errors import ConfigError, ServiceError
 from rtsid.io.watch import LabFeed
-from rtsid.io.zenoh_link import VIEWER_CONFIG_ENV, ZenohConfig, ZenohPublisher, subscriber_config
-from rtsid.runtime.lab_security import LabProfile, _make_leaf, write_lab_profile
+from rtsid.io.zenoh_link import (
+    VIEWER_CONFIG_ENV,
+    RouterConfig,
+    ZenohConfig,
+    ZenohPublisher,
+    router_config,
+    subscriber_config,
+)
+from rtsid.runtime.daemon import DaemonConfig
+from rtsid.runtime.lab_security import LabProfile, _make_leaf, profile_texts, write_lab_profile
+from rtsid.runtime.router import load_router_config, open_to_anyone, run_router
 
 ROOT = Path(__file__).resolve().parents[2]
 OWN = "rtsid/rig1/ankle/estimate"
@@ -268,3 +277,46 @@ def test_a_daemon_and_the_viewers_commands_work_through_the_secure_router(
     monkeypatch.setenv(VIEWER_CONFIG_ENV, str(lab / "missing.json5"))
     with pytest.raises(ConfigError, match="RTSID_ZENOH_CONFIG"):
         subscriber_config(())
+
+
+def test_the_shipped_profile_is_what_rtsid_certs_writes() -> None:
+    shipped = ROOT / "hw" / "lab-secure"
+    profile = LabProfile(
+        daemons=(("rig1", "ankle"), ("rig2", "ankle")),
+        viewers=("desk",),
+        listen=("tls/192.168.10.2:7447",),
+    )
+    for name, text in profile_texts(profile, Path("/etc/rtsid/lab")).items():
+        assert (shipped / name).read_text() == text, f"hw/lab-secure/{name} is out of date"
+    conf = router_config(load_router_config(shipped / "router.toml"))
+    assert json.loads(conf.get_json("access_control/enabled")) is True
+    assert open_to_anyone(conf) == []
+    daemon = DaemonConfig.load(shipped / "lab-joint.toml")
+    assert daemon.zenoh.config_file == "/etc/rtsid/lab/daemon-rig1-ankle.json5"
+    assert (daemon.zenoh.robot, daemon.zenoh.joint) == ("rig1", "ankle")
+
+
+def test_a_router_opened_beyond_loopback_without_access_control_says_so(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Decided from the configuration, before anything binds (tests never leave loopback)."""
+    for endpoint, exposed in [
+        ("tcp/127.0.0.1:7447", False),
+        ("tcp/[::1]:7447", False),
+        ("tcp/0.0.0.0:7447", True),
+        ("tcp/[::]:7447", True),
+        ("tcp/192.168.10.2:7447#iface=eth0", True),
+    ]:
+        conf = router_config(RouterConfig(listen=(endpoint,)))
+        assert open_to_anyone(conf) == ([endpoint] if exposed else []), endpoint
+
+    def refuse(conf: Any) -> Any:  # stands in for binding 0.0.0.0
+        raise zenoh.ZError("not binding beyond loopback in a test")
+
+    monkeypatch.setattr(zenoh, "open", refuse)
+    lines: list[str] = []
+    with pytest.raises(ServiceError, match="could not open"):
+        run_router(
+            RouterConfig(listen=("tcp/0.0.0.0:7447",)), threading.Event(), on_event=lines.append
+        )
+    assert len(lines) == 1 and "without access control" in lines[0] and "rtsid certs" in lines[0]
