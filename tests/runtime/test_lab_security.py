@@ -32,6 +32,7 @@ from rtsid.io.zenoh_link import (
     RouterConfig,
     ZenohConfig,
     ZenohPublisher,
+    query,
     router_config,
     subscriber_config,
 )
@@ -274,6 +275,10 @@ def test_a_daemon_and_the_viewers_commands_work_through_the_secure_router(
         assert json.loads(capsys.readouterr().out.splitlines()[0])["K"] == 150.0
         with zenoh.open(subscriber_config(())) as viewer:  # the env's viewer file
             assert replies(viewer, "rtsid/rig1/ankle/config", 5.0)
+            history = query(viewer, "rtsid/rig1/ankle/history?since=60s", timeout_s=5.0)
+            assert history.replies and not history.errors
+            bad = query(viewer, "rtsid/rig1/ankle/history?since=abc", timeout_s=5.0)
+            assert bad.errors and "since" in bad.errors[0], "error replies pass the rules too"
     monkeypatch.setenv(VIEWER_CONFIG_ENV, str(lab / "missing.json5"))
     with pytest.raises(ConfigError, match="RTSID_ZENOH_CONFIG"):
         subscriber_config(())
