@@ -317,11 +317,16 @@ class WindowEvaluator:
         track = self.stream.track(last / self.fs_hz, estimate)  # every evaluated window steps it
         compute_s = time.perf_counter() - started
         self.compute_ms = compute_s * 1e3
-        if compute_s > self.config.effective_budget_s:
+        if self._over_budget(compute_s):
             self.misses += 1
         message = self._message(first, last, estimate, reason, compute_s, arrival, reflex, track)
         self.publish(message)
         return message
+
+    def _over_budget(self, compute_s: float) -> bool:
+        """A live window whose compute overran the budget (recorded samples have no deadline:
+        a replay's numbers and flags never depend on how busy the computer was)."""
+        return self.live and compute_s > self.config.effective_budget_s
 
     def publish_stale(self, end_index: int) -> None:
         """No samples are arriving: say so once per hop for the window that is due.
@@ -390,7 +395,7 @@ class WindowEvaluator:
         planned = self.stream.plan is not None
         try:
             valid = None if snap.valid.all() else snap.valid
-            estimate = self.stream.estimate(snap.position_rad, torque, valid)
+            estimate = self.stream.estimate(snap.position_rad, torque, valid, reflex_torque)
         except WindowError as exc:
             self.withheld[exc.reason] += 1
             return None, exc.reason
@@ -413,7 +418,7 @@ class WindowEvaluator:
         reflex: _ReflexUse,
         track: Tracked,
     ) -> dict[str, Any]:
-        overrun = compute_s > self.config.effective_budget_s
+        overrun = self._over_budget(compute_s)
         flags = (
             *(estimate.flags if estimate else ()),
             *((Flag.OVER_BUDGET,) if overrun else ()),
