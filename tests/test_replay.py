@@ -79,7 +79,7 @@ def test_replay_reproduces_the_stored_reference_output():
         rows = list(csv.DictReader(fh))
     stored = {
         int(r["window_end_index"]): {
-            "ok": r["ok"] == "True",
+            "ok": r["ok"] == "true",
             "reason": r["reason"] or None,
             **{k: float(r[k]) if r[k] else None for k in NUMBERS},
         }
@@ -137,7 +137,7 @@ def test_replay_command_outputs_and_directories(tmp_path, capsys):
     folder.mkdir()
     for name in ("a.mcap", "b.mcap"):
         shutil.copy(REFERENCE / "sim_3s.mcap", folder / name)
-    assert main(["replay", str(folder), "--out", str(tmp_path / "out"), "--jobs", "2"]) == 0
+    assert main(["replay", str(folder), "-o", str(tmp_path / "out"), "--jobs", "2"]) == 0
     table = capsys.readouterr().out
     assert "a.mcap" in table and "b.mcap" in table
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a.csv", "b.csv"]
@@ -151,7 +151,7 @@ def test_replay_command_outputs_and_directories(tmp_path, capsys):
     [
         (["replay", "missing.mcap"], "no such file"),
         (["replay", str(REFERENCE / "sim_3s.mcap"), "--rate", "fast"], "--rate 'fast'"),
-        (["replay", str(REFERENCE / "sim_3s.mcap"), "--out", "x.txt"], "use a .csv or .mcap"),
+        (["replay", str(REFERENCE / "sim_3s.mcap"), "-o", "x.txt"], "use a .csv or .mcap"),
     ],
 )
 def test_replay_errors_are_one_line(argv, message, capsys):
