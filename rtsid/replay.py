@@ -85,8 +85,10 @@ class LiveDecisions:
     stale: frozenset[int] = frozenset()  # windows evaluated live with samples too old
 
     def skipped(self, window_end: int) -> bool:
-        """The live worker never evaluated this window (inside the live run's span)."""
-        return self.first_end <= window_end <= self.last_end and window_end not in self.reflex
+        """The live worker never evaluated this window: one before the live run's last
+        estimate that it has no estimate of, those before its first included (a worker that
+        starts late begins at the newest window, the earlier ones being history)."""
+        return window_end <= self.last_end and window_end not in self.reflex
 
     @classmethod
     def of(cls, parts: Iterable[Path]) -> LiveDecisions | None:

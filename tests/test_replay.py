@@ -74,6 +74,33 @@ def test_replay_gives_the_live_daemons_windows_and_numbers_exactly(tmp_path, fre
     assert_same_estimates(live, replayed)  # bit for bit
 
 
+@pytest.mark.slow  # a real-time daemon run of seconds
+def test_replay_follows_a_live_worker_that_started_late(tmp_path, free_port, monkeypatch):
+    # Under load the live worker can start after the first windows' samples are in: it begins
+    # at the newest window (earlier ones are history). The replay must not learn from those.
+    from rtsid.runtime.worker import WindowWorker
+
+    started = WindowWorker._starting_window_end
+
+    def late(self, newest):
+        return started(self, newest) + 8 * self.hop_samples
+
+    monkeypatch.setattr(WindowWorker, "_starting_window_end", late)
+    config = DaemonConfig.from_mapping(
+        {"zenoh": {"listen": [f"tcp/127.0.0.1:{free_port}"]}, "mcap": {"directory": str(tmp_path)}}
+    )
+    Daemon(config).run(duration_s=1.5)
+    monkeypatch.undo()
+    recording = next(tmp_path.glob("*.mcap"))
+    live = live_windows(iter_estimates(recording))
+    replayed = replay_file(recording).messages
+    assert min(m["window_end_index"] for m in replayed) == min(live)  # nothing before
+    assert len(live) > 20 and set(live) <= set(by_window(replayed))
+    assert_same_estimates(live, by_window(replayed))
+    held = {m["window_end_index"]: m["I_held"] for m in replayed}
+    assert all(held[end] == m["I_held"] for end, m in live.items())
+
+
 def test_replay_reproduces_the_stored_reference_output():
     with (REFERENCE / "sim_3s.csv").open() as fh:
         rows = list(csv.DictReader(fh))
