@@ -169,7 +169,7 @@ def test_replay_command_outputs_and_directories(tmp_path, capsys):
     assert "a.mcap" in table and "b.mcap" in table
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a.csv", "b.csv"]
     out_mcap = tmp_path / "one.mcap"
-    assert main(["replay", str(folder / "a.mcap"), "--out", str(out_mcap), "--rate", "50"]) == 0
+    assert main(["replay", str(folder / "a.mcap"), "-o", str(out_mcap), "--rate", "50"]) == 0
     assert len(list(iter_estimates(out_mcap))) == len(replay_file(folder / "a.mcap").messages)
 
 
