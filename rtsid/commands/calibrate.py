@@ -5,15 +5,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from rtsid.commands.common import add_fs, add_output
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "baseline", type=Path, help="a run with no person attached: .mcap, .npz or .csv"
     )
-    parser.add_argument(
-        "-o", "--output", type=Path, required=True, help="calibration file to write (JSON)"
-    )
-    parser.add_argument("--fs", type=float, metavar="HZ", help="sampling rate of a CSV without t_s")
+    add_output(parser, "calibration file to write (JSON)", required=True, kind=Path)
+    add_fs(parser, "sampling rate of a CSV without t_s")
     parser.add_argument(
         "--lowpass",
         type=float,

@@ -5,10 +5,12 @@ from __future__ import annotations
 import argparse
 import csv
 import sys
+from collections import Counter
 from dataclasses import replace
 
 import numpy as np
 
+from rtsid.commands.common import add_fs, add_output
 from rtsid.config import load_toml, section_from_mapping
 from rtsid.errors import InputDataError
 from rtsid.ident.cascade import (
@@ -21,9 +23,10 @@ from rtsid.ident.cascade import (
 from rtsid.ident.reflex import REFLEX_VARIANTS
 from rtsid.ident.stream import WindowResult, WindowStream, sliding_estimates
 from rtsid.ident.window import EstimatorOptions, WindowEstimate, estimate_window
-from rtsid.io.estimate_csv import open_output, write_estimates
+from rtsid.io.estimate_csv import encode_value, open_output, window_messages, write_estimates
 from rtsid.io.sample_files import SampleRecord, load_samples, nonfinite_report
 from rtsid.plots import plot_cascade, plot_cascade_windows
+from rtsid.verdicts import format_counts
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,14 +38,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="window, s (0.3; with --model cascade: the whole record unless given)",
     )
     parser.add_argument("--hop", type=float, metavar="S", help="hop, s (0.1; cascade: --window/4)")
-    parser.add_argument("--out", "-o", metavar="PATH", help="CSV output (default: stdout)")
+    add_output(parser, "the estimates' CSV (default: stdout)", old=("--out",))
     parser.add_argument(
         "--torque-sign",
         type=float,
         choices=(1.0, -1.0),
         help="-1 for rigs reporting torque inverted",
     )
-    parser.add_argument("--fs", type=float, metavar="HZ", help="sampling rate of a CSV without t_s")
+    add_fs(parser, "sampling rate of a CSV without t_s")
     parser.add_argument(
         "--fit",
         choices=("output_error", "relative", "logmag"),
@@ -98,12 +101,13 @@ def _options(args: argparse.Namespace) -> EstimatorOptions:
 
 def _summary(results: list[WindowResult]) -> str:
     kept = [r.estimate for r in results if r.estimate is not None]
-    withheld = len(results) - len(kept)
+    reasons = format_counts(Counter(str(r.reason) for r in results if r.estimate is None))
     if not kept:
-        return f"{len(results)} windows, all withheld"
+        return f"{len(results)} windows, all withheld ({reasons})"
+    withheld = f"{len(results) - len(kept)} withheld" + (f": {reasons}" if reasons != "0" else "")
     med = {k: float(np.median([getattr(e, k) for e in kept])) for k in ("K", "B", "I", "vaf")}
     return (
-        f"{len(results)} windows ({withheld} withheld): median K = {med['K']:.1f} N·m/rad, "
+        f"{len(results)} windows ({withheld}): median K = {med['K']:.1f} N·m/rad, "
         f"B = {med['B']:.3f} N·m·s/rad, I = {med['I']:.4f} kg·m², VAF = {med['vaf']:.1f} %"
     )
 
@@ -135,8 +139,8 @@ def run(args: argparse.Namespace) -> int:
             valid=valid,
         )
     )
-    with open_output(args.out) as fh:
-        write_estimates(results, fh)
+    with open_output(args.output) as fh:
+        write_estimates(window_messages(results, record.fs_hz), fh)
     if stream.plan is not None:
         print(f"rtsid identify: {stream.plan.describe()}", file=sys.stderr)
     print(f"rtsid identify: {_summary(results)}", file=sys.stderr)
@@ -206,7 +210,7 @@ def _write_cascade_rows(rows: list[dict[str, float]], out: str | None) -> None:
         writer = csv.DictWriter(fh, fieldnames=CASCADE_COLUMNS, lineterminator="\n")
         writer.writeheader()
         for row in rows:
-            writer.writerow({k: f"{v:.6g}" for k, v in row.items()})
+            writer.writerow({k: encode_value(v) for k, v in row.items()})
 
 
 def _identify_cascade(
@@ -229,7 +233,7 @@ def _identify_cascade(
         span = slice(w.start_index, w.end_index + 1)
         plain = estimate_window(record.position_rad[span], torque[span], fs, whole)
         rows.append(_cascade_row(w.start_index, w.end_index, fs, w.cascade, w.intrinsic, plain.K))
-    _write_cascade_rows(rows, args.out)
+    _write_cascade_rows(rows, args.output)
     if args.plot:
         plot_cascade_windows(rows, args.plot, title=f"{record.source}: {args.reflex} cascade")
     k = np.array([r["K"] for r in rows])
@@ -258,7 +262,7 @@ def _whole_record_cascade(
         record.position_rad, torque, fs, replace(options, torque_sign=1.0, hold="none")
     )
     row = _cascade_row(0, record.position_rad.size - 1, fs, cascade, intrinsic, plain.K)
-    _write_cascade_rows([row], args.out)
+    _write_cascade_rows([row], args.output)
     if args.plot:
         plot_cascade(cascade, args.plot, title=f"{record.source}: {settings.variant} cascade")
     reflex = cascade.reflex

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from rtsid.commands.common import add_output
 from rtsid.errors import InputDataError
 
 KEYS = ("K", "B", "I", "K_se", "B_se", "I_se", "vaf")
@@ -22,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         nargs="+",
         help="an .mcap with /estimate messages (any part of a rotated session reads them all)",
     )
-    parser.add_argument("-o", "--output", type=Path, required=True, help="the PNG to write")
+    add_output(parser, "the PNG to write", required=True, kind=Path)
     parser.add_argument("--hist", type=Path, metavar="PNG", help="also histograms of K, B, I, VAF")
     parser.add_argument("--title", help="figure title (default: the file name)")
     parser.add_argument(

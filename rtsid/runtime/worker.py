@@ -48,21 +48,6 @@ __all__ = ["WindowWorker", "WorkerConfig", "WorkerCounters", "assess_window"]
 
 _SATURATED = STATUS_POSITION_SATURATED | STATUS_TORQUE_SATURATED
 log = logging.getLogger(__name__)
-#: What an estimate message takes from the window's estimate (None when withheld).
-_ESTIMATE_NUMBERS = (
-    "I",
-    "B",
-    "K",
-    "I_se",
-    "B_se",
-    "K_se",
-    "vaf",
-    "vaf_irf",
-    "vaf_fit",
-    "lost_samples",
-    "I_held",
-    "B_held",
-)
 
 
 @dataclass(frozen=True)
@@ -419,35 +404,24 @@ class WindowEvaluator:
         track: Tracked,
     ) -> dict[str, Any]:
         overrun = self._over_budget(compute_s)
-        flags = (
-            *(estimate.flags if estimate else ()),
-            *((Flag.OVER_BUDGET,) if overrun else ()),
-            *(reflex.flags if estimate else ()),
-        )
+        flags = (*((Flag.OVER_BUDGET,) if overrun else ()), *reflex.flags)
         latency = None if last_arrival_s is None else (time.monotonic() - last_arrival_s) * 1e3
         seq = self._seq
         self._seq += 1
-        numbers = {k: getattr(estimate, k) if estimate else None for k in _ESTIMATE_NUMBERS}
-        return EstimateMessage(
+        return EstimateMessage.of_window(
+            estimate,
+            reason,
+            track,
+            seq=seq,
+            first=first,
+            last=last,
+            fs_hz=self.fs_hz,
             robot=self.robot,
             joint=self.joint,
-            seq=seq,
-            window_start_index=first,
-            window_end_index=last,
-            t_start_s=first / self.fs_hz,
-            t_end_s=last / self.fs_hz,
-            **numbers,
-            K_track=track.K,
-            K_track_se=track.K_se,
-            B_track=track.B,
-            B_track_se=track.B_se,
+            flags=flags,
             compute_ms=compute_s * 1e3,
             latency_ms=latency,
-            ok=estimate is not None,
-            reason=reason,
-            flags=flags,
-            reflex_seq=reflex.seq if estimate else None,
-            host_time_ns=time.time_ns(),
+            reflex_seq=reflex.seq,
         ).as_dict()
 
 

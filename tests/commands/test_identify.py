@@ -49,7 +49,7 @@ def test_identify_tracks_a_stiffness_ramp_with_inverted_torque(ramp_recording, t
     k = np.array([float(r["K"]) for r in rows])
     truth = 100.0 + 50.0 * (t_end - 0.15)  # stiffness at the window's centre
     np.testing.assert_allclose(k, truth, rtol=0.08)
-    assert all(r["ok"] == "1" for r in rows)
+    assert all(r["ok"] == "true" for r in rows)
     assert "7 windows (0 withheld)" in capsys.readouterr().err
 
 
@@ -69,11 +69,11 @@ def test_identify_refuses_nan_unless_allowed_and_leaves_no_partial_file(tmp_path
     rows = read_rows(out)
     # the NaN row is a lost sample: windows across it are estimated from the rest, counted
     across = [r for r in rows if 1500 / fs <= float(r["t_end_s"]) < 1800 / fs]
-    assert across and all(r["ok"] == "1" and r["lost_samples"] == "1" for r in across)
+    assert across and all(r["ok"] == "true" and r["lost_samples"] == "1" for r in across)
     tau[1500:1520] = np.nan  # 20 ms lost: more than max_gap_s, withheld as a gap
     np.savez(path, position_rad=theta, torque_nm=tau, fs_hz=fs)
     assert main(["identify", str(path), "-o", str(out), "--allow-nan"]) == 0
-    withheld = [r for r in read_rows(out) if r["ok"] == "0"]
+    withheld = [r for r in read_rows(out) if r["ok"] == "false"]
     assert withheld and all(r["reason"] == "gap" and r["K"] == "" for r in withheld)
 
 
@@ -102,7 +102,7 @@ def test_identify_real_recording_with_its_preset(reklab_path, tmp_path):
     assert len(rows) == 60
     # the window ending at 40 s falls where the perturbation paused (K ≈ −1800 if estimated)
     withheld = [(r["t_end_s"], r["reason"]) for r in rows if not r["K"]]
-    assert withheld == [("39.999000", "no_excitation")]
+    assert withheld == [("39.999", "no_excitation")]
     k = np.median([float(r["K"]) for r in rows if r["K"]])
     vaf = np.median([float(r["vaf"]) for r in rows if r["vaf"]])
     assert 80.0 < k < 120.0 and vaf > 65.0
