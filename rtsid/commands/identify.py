@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 
 from rtsid.config import load_toml, section_from_mapping
-from rtsid.errors import InputDataError
+from rtsid.errors import ConfigError, InputDataError
 from rtsid.ident.cascade import (
     CascadeFit,
     CascadeSettings,
@@ -19,6 +19,7 @@ from rtsid.ident.cascade import (
     sliding_cascades,
 )
 from rtsid.ident.reflex import REFLEX_VARIANTS
+from rtsid.ident.sign import SignCount, inverted_torque_message
 from rtsid.ident.stream import WindowResult, WindowStream, sliding_estimates
 from rtsid.ident.window import EstimatorOptions, WindowEstimate, estimate_window
 from rtsid.io.estimate_csv import open_output, write_estimates
@@ -108,6 +109,18 @@ def _summary(results: list[WindowResult]) -> str:
     )
 
 
+def refuse_inverted_sign(results: list[WindowResult], options: EstimatorOptions) -> None:
+    """Refuse a record whose windows read K, B, I < 0 (:mod:`rtsid.ident.sign`)."""
+    count = SignCount()
+    inverted = False
+    for e in (r.estimate for r in results if r.estimate is not None):
+        inverted = count.add(e.K, e.B, e.I, e.I_held)
+    if inverted:
+        other = f"{-options.torque_sign:g}"
+        fix = f"rerun with --torque-sign {other} (or [estimator] torque_sign = {other})"
+        raise ConfigError(inverted_torque_message(count.inverted, count.estimable, fix))
+
+
 def run(args: argparse.Namespace) -> int:
     options = _options(args)
     record = load_samples(args.file, args.fs)
@@ -135,6 +148,7 @@ def run(args: argparse.Namespace) -> int:
             valid=valid,
         )
     )
+    refuse_inverted_sign(results, options)
     with open_output(args.out) as fh:
         write_estimates(results, fh)
     if stream.plan is not None:

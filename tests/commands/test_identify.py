@@ -168,3 +168,24 @@ def test_identify_cascade_window_longer_than_the_record_is_refused(reklab_path, 
     argv = ["identify", str(reklab_path), "--model", "cascade", "--window", "90"]
     assert main(argv) == 2
     assert "longer than the record" in capsys.readouterr().err
+
+
+def test_identify_refuses_an_inverted_torque_sign_naming_the_switch(reklab_path, tmp_path, capsys):
+    # issue 19: without --torque-sign the shared recording printed median K −97.8 and exited 0
+    out = tmp_path / "est.csv"
+    assert main(["identify", str(reklab_path), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert "most windows read K, B, I < 0 (" in err[0] and "of 596)" in err[0]
+    assert "--torque-sign -1" in err[0] and "[estimator] torque_sign = -1" in err[0]
+    assert not out.exists()  # nothing written half-way
+    assert main(["identify", str(reklab_path), "--torque-sign", "-1", "-o", str(out)]) == 0
+
+
+def test_identify_sign_check_does_not_fire_on_a_correct_sign(ramp_recording, tmp_path):
+    # the ramp's torque is stored inverted: read with sign +1 it is refused, with -1 it is
+    # not (86 windows at a 20 ms hop: enough to judge, rtsid.ident.sign.MIN_WINDOWS = 50)
+    out = tmp_path / "est.csv"
+    argv = ["identify", str(ramp_recording), "--hop", "0.02", "-o", str(out)]
+    assert main(argv) == 2
+    assert main([*argv, "--torque-sign", "-1"]) == 0
