@@ -48,7 +48,7 @@ MIN_WINDOWS = 50
 INVERTED_SHARE = 0.5
 
 
-def reads_inverted(K: float, B: float, I: float, I_held: bool = False) -> bool:  # noqa: E741, N803
+def reads_inverted(K: float, B: float, I: float, I_held: bool = False) -> bool:  # noqa: E741
     """Whether one window reads as a joint seen through an inverted torque sign: ``K < 0``
     and ``B < 0``, and ``I < 0`` unless ``I`` is held (a held value is not this window's)."""
     return K < 0 and B < 0 and (I_held or I < 0)
@@ -75,7 +75,7 @@ class SignCount:
     inverted: int = 0
     estimable: int = 0
 
-    def add(self, K: float, B: float, I: float, I_held: bool = False) -> bool:  # noqa: E741, N803
+    def add(self, K: float, B: float, I: float, I_held: bool = False) -> bool:  # noqa: E741
         """Count one estimable window; True when the sign is now judged inverted."""
         self.estimable += 1
         self.inverted += reads_inverted(K, B, I, I_held)
