@@ -179,7 +179,12 @@ def plot_cascade(cascade: Any, out_png: str | Path, *, title: str, excerpt_s: fl
         reflex.dynamics.response(fine),
         lw=1.0,
         label=f"delayed low-pass: gain {reflex.gain:.3g} N·m·s/rad, "
-        f"delay {reflex.delay_s * 1e3:.0f} ms",
+        f"delay {reflex.delay_s * 1e3:.0f} ms"
+        + (
+            f" (at the {reflex.dynamics.delay_at_bound} bound of its search)"
+            if reflex.dynamics.delay_at_bound
+            else ""
+        ),
     )
     bottom.set(xlabel="lag (ms)", ylabel="N·m per rad/s per s")
     bottom.legend(loc="upper right", fontsize=8)
@@ -188,7 +193,7 @@ def plot_cascade(cascade: Any, out_png: str | Path, *, title: str, excerpt_s: fl
 
 
 def plot_cascade_windows(
-    rows: Sequence[Mapping[str, float]], out_png: str | Path, *, title: str
+    rows: Sequence[Mapping[str, float | str]], out_png: str | Path, *, title: str
 ) -> Path:
     """Window-by-window cascades: intrinsic K (with ±1.96·SE) beside the K of a fit without a
     reflex model, the reflex gain and delay, and the cascade's VAF."""

@@ -174,6 +174,7 @@ CASCADE_COLUMNS = (
     "K_no_reflex_model",
     "reflex_gain_nm_s_per_rad",
     "reflex_delay_ms",
+    "reflex_delay_at_bound",
     "reflex_irf_gain_nm_s_per_rad",
     "reflex_dynamics_vaf",
     "reflex_rank",
@@ -188,7 +189,7 @@ def _cascade_row(
     cascade: CascadeFit,
     intrinsic: WindowEstimate,
     plain_k: float,
-) -> dict[str, float]:
+) -> dict[str, float | str]:
     reflex = cascade.reflex
     values = (
         start / fs_hz,
@@ -207,6 +208,7 @@ def _cascade_row(
         plain_k,
         reflex.gain,
         reflex.delay_s * 1e3,
+        reflex.dynamics.delay_at_bound or "",
         reflex.irf_gain,
         reflex.dynamics.vaf,
         reflex.rank,
@@ -215,12 +217,12 @@ def _cascade_row(
     return dict(zip(CASCADE_COLUMNS, values, strict=True))
 
 
-def _write_cascade_rows(rows: list[dict[str, float]], out: str | None) -> None:
+def _write_cascade_rows(rows: list[dict[str, float | str]], out: str | None) -> None:
     with open_output(out) as fh:
         writer = csv.DictWriter(fh, fieldnames=CASCADE_COLUMNS, lineterminator="\n")
         writer.writeheader()
         for row in rows:
-            writer.writerow({k: f"{v:.6g}" for k, v in row.items()})
+            writer.writerow({k: v if isinstance(v, str) else f"{v:.6g}" for k, v in row.items()})
 
 
 def _identify_cascade(
@@ -246,16 +248,28 @@ def _identify_cascade(
     _write_cascade_rows(rows, args.out)
     if args.plot:
         plot_cascade_windows(rows, args.plot, title=f"{record.source}: {args.reflex} cascade")
-    k = np.array([r["K"] for r in rows])
-    gain = np.array([r["reflex_gain_nm_s_per_rad"] for r in rows])
+    k = np.array([float(r["K"]) for r in rows])
+    gain = np.array([float(r["reflex_gain_nm_s_per_rad"]) for r in rows])
     print(
         f"rtsid identify: {len(rows)} cascade windows of {args.window:g} s every {hop:g} s: "
-        f"median VAF {np.median([r['vaf_cascade'] for r in rows]):.1f} %, intrinsic K "
+        f"median VAF {np.median([float(r['vaf_cascade']) for r in rows]):.1f} %, intrinsic K "
         f"{np.median(k):.1f} N·m/rad (IQR {np.subtract(*np.percentile(k, [75, 25])):.1f}), "
-        f"reflex gain {np.median(gain):.3g} N·m·s/rad",
+        f"reflex gain {np.median(gain):.3g} N·m·s/rad{_delays_at_bound(rows)}",
         file=sys.stderr,
     )
     return 0
+
+
+def _delays_at_bound(rows: list[dict[str, float | str]]) -> str:
+    """``"; the reflex delay ended at the lower bound of its search in 5 of 5 windows …"``."""
+    bounds = [str(r["reflex_delay_at_bound"]) for r in rows if r["reflex_delay_at_bound"]]
+    if not bounds:
+        return ""
+    which = " or ".join(sorted(set(bounds)))
+    return (
+        f"; the reflex delay ended at the {which} bound of its search in {len(bounds)} of "
+        f"{len(rows)} windows (reflex_delay_at_bound): there it is not a measured delay"
+    )
 
 
 def _whole_record_cascade(
@@ -284,8 +298,8 @@ def _whole_record_cascade(
         f"{cascade.iterations} alternations; intrinsic K = {intrinsic.K:.1f} ± "
         f"{intrinsic.K_se:.1f} N·m/rad, B = {intrinsic.B:.3f}, I = {intrinsic.I:.4f} "
         f"(without the reflex model K = {plain.K:.1f}); reflex gain {reflex.gain:.3g} "
-        f"N·m·s/rad, delay {reflex.delay_s * 1e3:.1f} ms (the delayed low-pass explains "
-        f"{reflex.dynamics.vaf:.0f} % of the reflex IRF; IRF rank {reflex.rank} by MDL)",
+        f"N·m·s/rad (the delayed low-pass explains {reflex.dynamics.vaf:.0f} % of the reflex "
+        f"IRF; IRF rank {reflex.rank} by MDL), {reflex.dynamics.describe_delay()}",
         file=sys.stderr,
     )
     return 0

@@ -135,7 +135,11 @@ def test_identify_cascade_separates_intrinsic_from_reflex_stiffness(reklab_path,
     # shared/data/README: cascade ≈ 93 %, its intrinsic K ≈ 80 (plain least squares ≈ 106)
     assert float(row["vaf_cascade"]) >= 92.0
     assert 70.0 < float(row["K"]) < 90.0 < 95.0 < float(row["K_no_reflex_model"])
-    assert "reflex gain" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "reflex gain" in err
+    # issue 19: its delay sits at the lower bound of the search, and the output says so
+    assert row["reflex_delay_at_bound"] == "lower"
+    assert "delay 10.0 ms (at the lower bound of the 10–200 ms search" in err
 
 
 def test_identify_cascade_names_the_minimum_record_length(tmp_path, capsys):
