@@ -18,7 +18,8 @@ or ``OSError`` keep working.
 Warnings (work went on, but the user must hear of it; the CLI prints each as one line)::
 
     RtsidWarning(UserWarning)
-    └── IncompleteRecordingWarning       a recording ended early; says how much was read
+    ├── IncompleteRecordingWarning       a recording ended early; says how much was read
+    └── JointAttachedWarning             a calibration forced from a baseline with a joint on
 """
 
 from __future__ import annotations
@@ -95,6 +96,10 @@ class RtsidWarning(UserWarning):
 
 class IncompleteRecordingWarning(RtsidWarning):
     """A recording ended before its footer; the message says how much of it was read."""
+
+
+class JointAttachedWarning(RtsidWarning):
+    """``rtsid calibrate --force`` calibrated from a baseline with a joint attached."""
 
 
 # The checks every frozen settings class runs in ``__post_init__``; here, at the bottom of the
