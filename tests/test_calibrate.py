@@ -277,6 +277,8 @@ def test_the_joint_check_sees_a_weak_ankle_and_not_a_noisy_robot_alone(plant):
 
     position, torque = simulate(plant, 4.0)
     assert baseline_stiffness([(position, torque)], FS).joint_attached
+    inverted = baseline_stiffness([(position, -torque)], FS)  # a rig reporting torque inverted
+    assert inverted.joint_attached and inverted.K > 0
     alone = replace(plant, inertia=0.0, damping=0.0, stiffness=0.0, noise_percent=30.0)
     position, torque = simulate(alone, 4.0)
     found = baseline_stiffness([(position, torque)], FS)

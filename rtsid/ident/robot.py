@@ -297,7 +297,8 @@ class BaselineStiffness:
     Attributes
     ----------
     K : float
-        Stiffness of the torque on position, N·m/rad.
+        Stiffness of the torque on position, N·m/rad, in the sign of the inertia fitted beside
+        it (so a rig that reports torque inverted reads as any other).
     t : float
         ``K`` over its standard error (least squares, samples counted by the filter's
         bandwidth: ``n·2·lowpass_hz/fs_hz`` independent ones).
@@ -352,7 +353,8 @@ def baseline_stiffness(
     sse = float(residual @ residual)
     independent = max(4.0, y.size * min(1.0, 2.0 * lowpass_hz / fs_hz))
     covariance = np.linalg.inv(x.T @ x) * sse / (y.size - 3) * (y.size / independent)
-    k = float(coefficients[2])
+    # in the inertia's sign: a rig that reports torque inverted inverts both
+    k = float(coefficients[2]) * (-1.0 if coefficients[0] < 0 else 1.0)
     t = k / float(np.sqrt(covariance[2, 2])) if covariance[2, 2] > 0 else 0.0
     without_k, *_ = np.linalg.lstsq(x[:, :2], y, rcond=None)
     rest = y - x[:, :2] @ without_k
