@@ -24,7 +24,12 @@ from rtsid.ident.stream import WindowResult, WindowStream, sliding_estimates
 from rtsid.ident.window import EstimatorOptions, WindowEstimate, estimate_window
 from rtsid.io.estimate_csv import open_output, write_estimates
 from rtsid.io.sample_files import SampleRecord, load_samples, nonfinite_report
-from rtsid.plots import plot_cascade, plot_cascade_windows
+from rtsid.plots import (
+    plot_cascade,
+    plot_cascade_windows,
+    plot_impedance_track,
+    require_matplotlib,
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -73,8 +78,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--plot",
         metavar="PNG",
-        help="cascade: draw both pathways' torque and the reflex IRF (whole record), or the "
-        "intrinsic K and the reflex gain window by window",
+        help="draw a figure here (PNG): windows: K_track with its band, each window's K, B, I "
+        "and VAF over time; cascade: both pathways' torque and the reflex IRF (whole record), "
+        "or the intrinsic K and the reflex gain window by window (needs rtsid[plot])",
     )
     parser.add_argument("--config", metavar="TOML", help="take [estimator] options from this file")
     parser.add_argument(
@@ -121,7 +127,23 @@ def refuse_inverted_sign(results: list[WindowResult], options: EstimatorOptions)
         raise ConfigError(inverted_torque_message(count.inverted, count.estimable, fix))
 
 
+def _window_series(results: list[WindowResult]) -> dict[str, np.ndarray]:
+    """The windows' numbers for :func:`rtsid.plots.plot_impedance_track` (NaN: withheld)."""
+    keys = ("K", "B", "I", "K_se", "B_se", "I_se", "vaf", "I_held", "B_held")
+    series = {
+        k: np.array([float(getattr(r.estimate, k)) if r.estimate else np.nan for r in results])
+        for k in keys
+    }
+    for name, attribute in (("K_track", "K"), ("K_track_se", "K_se")):
+        series[name] = np.array(
+            [getattr(r.track, attribute) if r.track else np.nan for r in results], dtype=float
+        )
+    return series
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.plot:
+        require_matplotlib()  # refuse before the work, not after it
     options = _options(args)
     record = load_samples(args.file, args.fs)
     problem = nonfinite_report(record)
@@ -151,6 +173,17 @@ def run(args: argparse.Namespace) -> int:
     refuse_inverted_sign(results, options)
     with open_output(args.out) as fh:
         write_estimates(results, fh)
+    if args.plot:
+        flagged = np.array([bool(r.estimate and r.estimate.flags) for r in results])
+        figure = plot_impedance_track(
+            [r.t_end_s for r in results],
+            _window_series(results),
+            args.plot,
+            title=f"{record.source}: {window * 1e3:.0f} ms windows every {hop * 1e3:.0f} ms",
+            flagged=flagged,
+            window_s=window,
+        )
+        print(f"rtsid identify: wrote {figure}", file=sys.stderr)
     if stream.plan is not None:
         print(f"rtsid identify: {stream.plan.describe()}", file=sys.stderr)
     print(f"rtsid identify: {_summary(results)}", file=sys.stderr)

@@ -1,4 +1,5 @@
-"""``rtsid plot REC.mcap -o FIG.png``: K, B, I with 95 % bands, and VAF, over time."""
+"""``rtsid plot REC.mcap -o FIG.png``: the tracked stiffness K_track with its 95 % band (each
+window's K beside it), B and I (fitted with their bands, held values as held), and VAF."""
 
 from __future__ import annotations
 
@@ -11,7 +12,9 @@ import numpy as np
 
 from rtsid.errors import InputDataError
 
-KEYS = ("K", "B", "I", "K_se", "B_se", "I_se", "vaf")
+KEYS = ("K", "B", "I", "K_se", "B_se", "I_se", "vaf", "I_held", "B_held")
+#: Published with every message, also while a window is withheld (the tracker's state).
+TRACK_KEYS = ("K_track", "K_track_se")
 IGNORED_FLAGS = ("over_budget",)  # about the computer, not the estimate
 
 
@@ -46,10 +49,19 @@ def estimate_series(
         )
         for k in KEYS
     }
+    for k in TRACK_KEYS:
+        series[k] = np.array([np.nan if m.get(k) is None else m[k] for m in messages], dtype=float)
     flagged = np.array(
         [bool(m.get("ok")) and any(f not in IGNORED_FLAGS for f in m["flags"]) for m in messages]
     )
     return t, series, flagged
+
+
+def _window_s(message: dict[str, Any]) -> float:
+    """The window's length, s, from its first and last sample's index and time."""
+    gaps = message["window_end_index"] - message["window_start_index"]
+    span_s = message["t_end_s"] - message["t_start_s"]
+    return float(span_s * (gaps + 1) / gaps) if gaps > 0 and span_s > 0 else 0.3
 
 
 def run(args: argparse.Namespace) -> int:
@@ -81,9 +93,16 @@ def run(args: argparse.Namespace) -> int:
             "nothing to plot"
         )
     title = args.title or f"{name}: {int(ok.sum())} of {len(t)} windows"
-    out = plot_impedance_track(t, series, args.output, title=title, flagged=flagged)
+    window_s = _window_s(messages[0])
+    out = plot_impedance_track(
+        t, series, args.output, title=title, flagged=flagged, window_s=window_s
+    )
+    track = series["K_track"]
+    tracked = (
+        f"median K_track {np.nanmedian(track):.1f} N·m/rad, " if np.isfinite(track).any() else ""
+    )
     print(
-        f"wrote {out}: median K {np.nanmedian(series['K']):.1f} N·m/rad, "
+        f"wrote {out}: {tracked}median K {np.nanmedian(series['K']):.1f} N·m/rad, "
         f"B {np.nanmedian(series['B']):.3f} N·m·s/rad, I {np.nanmedian(series['I']):.4f} kg·m², "
         f"VAF {np.nanmedian(series['vaf']):.1f} % over {int(ok.sum())} windows "
         f"({len(t) - int(ok.sum())} withheld, {int(flagged.sum())} flagged)"

@@ -82,6 +82,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from rtsid import tv
 
+    if args.plot:
+        tv.require_matplotlib()  # fail before the work, not after
+        if args.simulate and not args.recording:
+            npz = args.output or "X.npz"
+            raise InputDataError(
+                "--plot draws the identification of a recording; give the file --simulate "
+                f"writes as the recording too: rtsid tv --simulate {args.simulate} -o {npz} "
+                f"{npz} --plot {args.plot}"
+            )
     if args.simulate:
         if not args.output:
             raise InputDataError("--simulate needs -o FILE.npz to write the experiment to")
@@ -98,8 +107,6 @@ def run(args: argparse.Namespace) -> int:
         raise InputDataError(
             f"give a recording (.npz or .mcap), or --simulate {'|'.join(STUDY_CASES)} -o FILE.npz"
         )
-    if args.plot:
-        tv.require_matplotlib()  # fail before the work, not after
     data = tv.load_tv(args.recording, trim=args.trim)
     if data.selection:
         print(f"used {data.selection}")
