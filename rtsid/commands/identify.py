@@ -266,6 +266,11 @@ def _identify_cascade(
     reflex pathway's prediction removed."""
     if problem := nonfinite_report(record):
         raise InputDataError(f"{record.source}: {problem}; the cascade needs a clean record")
+    # the sign is judged on the record's 300 ms windows, as without --model cascade
+    windows = sliding_estimates(
+        record.position_rad, record.torque_nm, record.fs_hz, 0.3, 0.1, options
+    )
+    refuse_inverted_sign(list(windows), options)
     torque = options.torque_sign * record.torque_nm
     settings = CascadeSettings(variant=args.reflex)
     if args.window is None:

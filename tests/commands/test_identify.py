@@ -169,8 +169,8 @@ def test_identify_cascade_on_sliding_windows_writes_a_row_per_window_and_a_plot(
 
 
 def test_identify_cascade_window_longer_than_the_record_is_refused(reklab_path, capsys):
-    argv = ["identify", str(reklab_path), "--model", "cascade", "--window", "90"]
-    assert main(argv) == 2
+    argv = ["identify", str(reklab_path), "--torque-sign", "-1", "--model", "cascade"]
+    assert main([*argv, "--window", "90"]) == 2
     assert "longer than the record" in capsys.readouterr().err
 
 
@@ -184,6 +184,11 @@ def test_identify_refuses_an_inverted_torque_sign_naming_the_switch(reklab_path,
     assert "--torque-sign -1" in err[0] and "[estimator] torque_sign = -1" in err[0]
     assert not out.exists()  # nothing written half-way
     assert main(["identify", str(reklab_path), "--torque-sign", "-1", "-o", str(out)]) == 0
+    capsys.readouterr()
+    # the cascade judges the same windows first
+    cascade = ["identify", str(reklab_path), "--model", "cascade", "-o", str(tmp_path / "c.csv")]
+    assert main(cascade) == 2 and "--torque-sign -1" in capsys.readouterr().err
+    assert not (tmp_path / "c.csv").exists()
 
 
 def test_identify_sign_check_does_not_fire_on_a_correct_sign(ramp_recording, tmp_path):
