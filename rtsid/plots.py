@@ -308,8 +308,16 @@ def plot_cascade_windows(
     axes[1].plot(t, [r["reflex_gain_nm_s_per_rad"] for r in rows], "o-", ms=3, label="gain")
     axes[1].set_ylabel("reflex gain\n(N·m·s/rad)")
     delay = axes[1].twinx()
-    delay.plot(t, [r["reflex_delay_ms"] for r in rows], "x:", color="C3", label="delay")
+    delays = np.array([float(r["reflex_delay_ms"]) for r in rows])
+    delay.plot(t, delays, "x:", color="C3", label="delay")
+    pinned = np.array([bool(r.get("reflex_delay_at_bound")) for r in rows])
+    if pinned.any():  # not a measured delay: it ended at a bound of its search
+        delay.plot(
+            t[pinned], delays[pinned], "o", mfc="none", color="C3", label="delay at a search bound"
+        )
+        delay.legend(loc="upper right", fontsize=8)
     delay.set_ylabel("delay (ms)")
+    delay.set_ylim(0, max(60.0, 1.2 * float(np.nanmax(delays, initial=0.0))))  # never a zoom
     axes[2].plot(t, [r["vaf_cascade"] for r in rows], "o-", ms=3, label="cascade")
     axes[2].plot(
         t, [r["vaf_intrinsic_irf"] for r in rows], "s--", ms=3, label="intrinsic IRF alone"
