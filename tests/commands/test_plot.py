@@ -231,3 +231,15 @@ def test_replayed_estimates_carry_what_the_figure_needs():
     _, series, _ = estimate_series(messages)
     assert np.isfinite(series["K_track"]).any() and np.isfinite(series["K_track_se"]).any()
     assert set(np.unique(series["B_held"][np.isfinite(series["B_held"])])) <= {0.0, 1.0}
+
+
+def test_identify_plot_in_whole_record_cascade_mode_writes_the_figure(tmp_path):
+    from rtsid.sim.joint import JointParameters
+    from rtsid.sim.reflex import ReflexParameters, prbs_ankle_with_reflex
+
+    theta, torque = prbs_ankle_with_reflex(5.0, 1000.0, JointParameters(), ReflexParameters())
+    np.savez(tmp_path / "r.npz", position_rad=theta, torque_nm=torque, fs_hz=1000.0)
+    png = tmp_path / "cascade.png"
+    argv = ["identify", str(tmp_path / "r.npz"), "--model", "cascade", "--plot", str(png)]
+    assert main([*argv, "-o", str(tmp_path / "c.csv")]) == 0
+    assert png.read_bytes()[:8] == PNG_MAGIC and png.stat().st_size > 10_000
