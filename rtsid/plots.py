@@ -19,6 +19,7 @@ __all__ = [
     "plot_distributions",
     "plot_impedance_track",
     "require_matplotlib",
+    "window_series",
 ]
 
 PANELS = (
@@ -147,6 +148,22 @@ def impedance_figure(
     axes[-1].set_ylim(0, 100)
     fig.suptitle(title)
     return fig
+
+
+def window_series(results: Sequence[Any]) -> dict[str, np.ndarray]:
+    """The numbers :func:`impedance_figure` draws, from a stream's window results
+    (:class:`rtsid.ident.stream.WindowResult`: ``estimate`` or None, ``track`` or None);
+    NaN where a window was withheld."""
+    keys = ("K", "B", "I", "K_se", "B_se", "I_se", "vaf", "I_held", "B_held")
+    series = {
+        k: np.array([float(getattr(r.estimate, k)) if r.estimate else np.nan for r in results])
+        for k in keys
+    }
+    for name, attribute in (("K_track", "K"), ("K_track_se", "K_se")):
+        series[name] = np.array(
+            [getattr(r.track, attribute) if r.track else np.nan for r in results], dtype=float
+        )
+    return series
 
 
 def _column(series: Mapping[str, ArrayLike], key: str, n: int) -> np.ndarray | None:

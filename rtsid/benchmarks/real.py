@@ -211,14 +211,11 @@ def _plot(
     folder: Path,
 ) -> list[str]:
     try:
-        from rtsid.plots import plot_distributions, plot_impedance_track
+        from rtsid.plots import plot_distributions, plot_impedance_track, window_series
 
         whole = estimate_window(pos, tor, fs_hz, options)
         t = np.array([r.t_end_s for r in results])
-        series = {
-            k: np.array([getattr(r.estimate, k) if r.estimate else np.nan for r in results])
-            for k in ("K", "B", "I", "vaf", "K_se", "B_se", "I_se")
-        }
+        series = window_series(results)
         reference = {k: float(getattr(whole, k)) for k in ("K", "B", "I", "vaf")}
         flagged = np.array([bool(r.estimate and r.estimate.flags) for r in results])
         title = "reklab ankle recording, 300 ms windows (defaults, torque sign −1)"

@@ -29,6 +29,7 @@ from rtsid.plots import (
     plot_cascade_windows,
     plot_impedance_track,
     require_matplotlib,
+    window_series,
 )
 
 
@@ -127,20 +128,6 @@ def refuse_inverted_sign(results: list[WindowResult], options: EstimatorOptions)
         raise ConfigError(inverted_torque_message(count.inverted, count.estimable, fix))
 
 
-def _window_series(results: list[WindowResult]) -> dict[str, np.ndarray]:
-    """The windows' numbers for :func:`rtsid.plots.plot_impedance_track` (NaN: withheld)."""
-    keys = ("K", "B", "I", "K_se", "B_se", "I_se", "vaf", "I_held", "B_held")
-    series = {
-        k: np.array([float(getattr(r.estimate, k)) if r.estimate else np.nan for r in results])
-        for k in keys
-    }
-    for name, attribute in (("K_track", "K"), ("K_track_se", "K_se")):
-        series[name] = np.array(
-            [getattr(r.track, attribute) if r.track else np.nan for r in results], dtype=float
-        )
-    return series
-
-
 def run(args: argparse.Namespace) -> int:
     if args.plot:
         require_matplotlib()  # refuse before the work, not after it
@@ -177,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
         flagged = np.array([bool(r.estimate and r.estimate.flags) for r in results])
         figure = plot_impedance_track(
             [r.t_end_s for r in results],
-            _window_series(results),
+            window_series(results),
             args.plot,
             title=f"{record.source}: {window * 1e3:.0f} ms windows every {hop * 1e3:.0f} ms",
             flagged=flagged,
