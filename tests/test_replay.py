@@ -259,3 +259,16 @@ def test_replay_follows_the_windows_a_live_worker_skipped(tmp_path, free_port, m
     # a re-analysis with a config given estimates every window
     again = by_window(replay_file(recording, recording_config(recording)).messages)
     assert set(skipped) <= set(again)
+
+
+def test_replay_refuses_an_inverted_torque_sign_as_live_does(tmp_path, capsys):
+    # issue 19: the live check (rtsid.ident.sign) runs in replay's windows too
+    config = tmp_path / "inverted.toml"
+    config.write_text("[estimator]\ntorque_sign = -1.0\n")
+    out = tmp_path / "out.csv"
+    argv = ["replay", str(REFERENCE / "sim_3s.mcap"), "--config", str(config), "--out", str(out)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "the torque sign is inverted" in err[0]
+    assert "[estimator] torque_sign = 1 " in err[0]
+    assert not out.exists()

@@ -284,17 +284,12 @@ def _plot(
     folder: Path,
 ) -> list[str]:
     try:
-        from rtsid.plots import plot_distributions, plot_impedance_track
+        from rtsid.plots import estimate_series, plot_distributions, plot_impedance_track
 
         options = EstimatorOptions(torque_sign=TORQUE_SIGN)
         whole = estimate_window(pos, tor, fs_hz, options)
-        t = np.array([w.t_end_s for w in windows])
-        series = {
-            k: np.array([np.nan if getattr(w, k) is None else getattr(w, k) for w in windows])
-            for k in ("K", "B", "I", "vaf", "K_se", "B_se", "I_se")
-        }
+        t, series, flagged = estimate_series([w.as_dict() for w in windows])
         reference = {k: float(getattr(whole, k)) for k in ("K", "B", "I", "vaf")}
-        flagged = np.array([bool(w.ok and w.flags) for w in windows])
         title = "reklab ankle recording, 300 ms windows (defaults, torque sign −1)"
         out = folder / "real_defaults.png"
         track = plot_impedance_track(

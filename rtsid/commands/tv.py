@@ -96,6 +96,15 @@ def _old_simulation_output(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     from rtsid import tv
 
+    if args.plot:
+        tv.require_matplotlib()  # fail before the work, not after
+        if args.simulate and not args.recording:
+            npz = args.output or "X.npz"
+            raise InputDataError(
+                "--plot draws the identification of a recording; give the file --simulate "
+                f"writes as the recording too: rtsid tv --simulate {args.simulate} -o {npz} "
+                f"{npz} --plot {args.plot}"
+            )
     if args.simulate:
         _old_simulation_output(args)
         if not args.save_simulation:
@@ -120,8 +129,6 @@ def run(args: argparse.Namespace) -> int:
             f"give a recording (.npz or .mcap), or --simulate {'|'.join(STUDY_CASES)} "
             "--save-simulation FILE.npz"
         )
-    if args.plot:
-        tv.require_matplotlib()  # fail before the work, not after
     data = tv.load_tv(args.recording, trim=args.trim)
     if data.selection:
         print(f"used {data.selection}")

@@ -27,9 +27,16 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from rtsid.config import require_range, section_from_mapping
-from rtsid.errors import ConfigError, InputDataError, NumericalError, WindowError
+from rtsid.errors import (
+    ConfigError,
+    InputDataError,
+    NumericalError,
+    TorqueSignError,
+    WindowError,
+)
 from rtsid.ident.grid import first_window_end
 from rtsid.ident.reflex_lane import ReflexModels, ReflexUpdate, predict_reflex_torque
+from rtsid.ident.sign import SignCount, inverted_torque_message
 from rtsid.ident.stream import Tracked, WindowStream
 from rtsid.ident.tracker import TrackerOptions
 from rtsid.ident.window import EstimatorOptions, WindowEstimate
@@ -249,6 +256,7 @@ class WindowEvaluator:
         self.estimates = 0
         self.misses = 0
         self.compute_ms = 0.0
+        self.sign = SignCount()  # windows reading K, B, I < 0 (rtsid.ident.sign)
 
     def first_window_end(self, first_index: int) -> int:
         """The first grid window end whose window starts at or after ``first_index``."""
@@ -388,9 +396,20 @@ class WindowEvaluator:
             self.withheld[Reason.NUMERICAL] += 1
             return None, Reason.NUMERICAL
         self.estimates += 1
+        self._refuse_inverted_sign(estimate)
         if not planned and self.stream.plan is not None:
             log.info("%s/%s %s", self.robot, self.joint, self.stream.plan.describe())
         return estimate, None
+
+    def _refuse_inverted_sign(self, e: WindowEstimate) -> None:
+        """Stop the stream (live: the worker thread fails, the daemon exits 1; replay: the
+        command refuses) once most windows read K, B, I < 0."""
+        if self.sign.add(e.K, e.B, e.I, e.I_held):
+            other = f"{-self.options.torque_sign:g}"
+            fix = f"set [estimator] torque_sign = {other} in the config (--config TOML)"
+            inverted, estimable = self.sign.inverted, self.sign.estimable
+            message = inverted_torque_message(inverted, estimable, fix)
+            raise TorqueSignError(message, inverted, estimable, self.options.torque_sign)
 
     def _message(
         self,

@@ -349,3 +349,16 @@ def test_a_mute_socketcand_server_neither_hangs_start_up_nor_stop(tmp_path, free
         summary = daemon.run(duration_s=60.0)  # returns through request_stop, not the duration
     assert daemon.acquisition is not None and "did not greet" in daemon.acquisition.last_error
     assert summary.samples == 0 and summary.failure is None
+
+
+def test_an_inverted_torque_sign_stops_the_daemon_naming_the_key(tmp_path, free_port, capsys):
+    # issue 19: a rig whose torque reads inverted gave K, B, I < 0 and ran on. The embedded
+    # plant reports the torque as it is; [estimator] torque_sign = -1 inverts it.
+    from rtsid.cli import main
+
+    config = write_config(tmp_path, free_port, "[estimator]\ntorque_sign = -1.0\n")
+    assert main(["run", "--config", str(config), "--quiet", "--duration", "60"]) == 1
+    err = capsys.readouterr().err
+    failed = "rtsid run: error: thread rtsid-worker failed: ConfigError: most windows read K, B"
+    assert failed in err
+    assert "[estimator] torque_sign = 1 " in err
