@@ -36,7 +36,7 @@ from rtsid.io.schemas import SampleBatch
 from rtsid.replay import ReplayedSlowLane, WindowCutter, recorded_evaluator
 from rtsid.runtime.daemon import DaemonConfig
 
-__all__ = ["Identifier", "analysis_config", "identify"]
+__all__ = ["Identifier", "analysis_config", "identify", "record_windows"]
 
 #: ``rtsid identify``'s hop (the daemon's is ``[worker] hop_s``, 20 ms).
 OFFLINE_HOP_S = 0.1
@@ -190,8 +190,34 @@ def identify(
     **overrides: Any,
 ) -> list[EstimateMessage]:
     """Every window of a whole record: :class:`Identifier` with all samples pushed at once
-    (what ``rtsid identify FILE`` writes). NaN or infinite samples count as lost."""
-    return Identifier(fs_hz, config, **overrides).push(position_rad, torque_nm, valid)
+    (what ``rtsid identify FILE`` writes). NaN or infinite samples count as lost.
+
+    Raises
+    ------
+    InputDataError
+        The record is shorter than one window (or position and torque differ in shape).
+    TorqueSignError
+        Most windows read K, B, I < 0: pass the opposite ``torque_sign``.
+    """
+    return record_windows(Identifier(fs_hz, config, **overrides), position_rad, torque_nm, valid)
+
+
+def record_windows(
+    ident: Identifier,
+    position_rad: ArrayLike,
+    torque_nm: ArrayLike,
+    valid: ArrayLike | None = None,
+) -> list[EstimateMessage]:
+    """The windows of a whole record pushed into a fresh ``ident`` (see :func:`identify`)."""
+    windows = ident.push(position_rad, torque_nm, valid)
+    if not windows:
+        worker = ident.config.worker
+        n = np.size(position_rad)
+        raise InputDataError(
+            f"the record has {n} samples ({n / ident.fs_hz:g} s), shorter than one "
+            f"{worker.window_s:g} s window; use a shorter window (--window)"
+        )
+    return windows
 
 
 def as_message(message: Mapping[str, Any]) -> EstimateMessage:

@@ -266,7 +266,7 @@ def test_replay_refuses_an_inverted_torque_sign_as_live_does(tmp_path, capsys):
     config = tmp_path / "inverted.toml"
     config.write_text("[estimator]\ntorque_sign = -1.0\n")
     out = tmp_path / "out.csv"
-    argv = ["replay", str(REFERENCE / "sim_3s.mcap"), "--config", str(config), "--out", str(out)]
+    argv = ["replay", str(REFERENCE / "sim_3s.mcap"), "--config", str(config), "-o", str(out)]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "the torque sign is inverted" in err[0]

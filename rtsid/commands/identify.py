@@ -23,7 +23,7 @@ from rtsid.ident.cascade import (
 from rtsid.ident.reflex import REFLEX_VARIANTS
 from rtsid.ident.sign import inverted_torque_message
 from rtsid.ident.window import EstimatorOptions, WindowEstimate, estimate_window
-from rtsid.identifier import Identifier
+from rtsid.identifier import Identifier, record_windows
 from rtsid.io.estimate_csv import encode_value, open_output, write_estimates
 from rtsid.io.messages import EstimateMessage
 from rtsid.io.sample_files import SampleRecord, load_samples, nonfinite_report
@@ -142,7 +142,7 @@ def _summary(windows: list[EstimateMessage]) -> str:
 def _windows(ident: Identifier, record: SampleRecord) -> list[EstimateMessage]:
     """Every window of the record; an inverted torque sign refused naming the switch."""
     try:
-        return ident.push(record.position_rad, record.torque_nm)
+        return record_windows(ident, record.position_rad, record.torque_nm)
     except TorqueSignError as exc:
         other = f"{-exc.torque_sign:g}"
         fix = f"rerun with --torque-sign {other} (or [estimator] torque_sign = {other})"

@@ -4,12 +4,33 @@ window's K beside it), B and I (fitted with their bands, held values as held), a
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from rtsid.commands.common import add_output
 from rtsid.errors import InputDataError
 from rtsid.plots import estimate_series
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "recording",
+        type=Path,
+        nargs="+",
+        help="an .mcap with /estimate messages (any part of a rotated session reads them all)",
+    )
+    add_output(parser, "the PNG to write", required=True, kind=Path)
+    parser.add_argument("--hist", type=Path, metavar="PNG", help="also histograms of K, B, I, VAF")
+    parser.add_argument("--title", help="figure title (default: the file name)")
+    parser.add_argument(
+        "--every",
+        type=int,
+        default=1,
+        metavar="N",
+        help="plot every N-th window only (long recordings at a 20 ms hop get dense)",
+    )
 
 
 def _window_s(message: dict[str, Any]) -> float:

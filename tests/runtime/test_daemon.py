@@ -359,6 +359,6 @@ def test_an_inverted_torque_sign_stops_the_daemon_naming_the_key(tmp_path, free_
     config = write_config(tmp_path, free_port, "[estimator]\ntorque_sign = -1.0\n")
     assert main(["run", "--config", str(config), "--quiet", "--duration", "60"]) == 1
     err = capsys.readouterr().err
-    failed = "rtsid run: error: thread rtsid-worker failed: ConfigError: most windows read K, B"
+    failed = "rtsid run: error: thread rtsid-worker failed: TorqueSignError: most windows read K, B"
     assert failed in err
     assert "[estimator] torque_sign = 1 " in err
