@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import json
 import logging
+import sys
 import threading
 import time
 from collections import deque
@@ -324,6 +325,11 @@ class _Server(ThreadingHTTPServer):
         self.board = board
         self.stopping = threading.Event()
         super().__init__(address, _Handler)
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        """A page or client that broke its connection: a debug line, never a traceback on
+        the console (socketserver's default prints one)."""
+        log.debug("web: request from %s ended: %r", client_address, sys.exc_info()[1])
 
 
 class WebView:
