@@ -1,7 +1,10 @@
 """``rtsid watch``: subscribe to estimates and status over zenoh and show them.
 
 A live table redrawn in place when stdout is a terminal; one plain line per estimate
-otherwise (pipes, logs, tests). Rendering is pure (:func:`format_estimate_line`,
+otherwise (pipes, logs, tests). Rows lead with the tracked stiffness K_track and its 95 % band,
+the window's K beside it; held I and B show as held. Every payload is checked
+(:mod:`rtsid.io.validate`); a malformed one is skipped and counted ("rejected N malformed
+messages"). Rendering is pure (:func:`format_estimate_line`,
 :func:`render_view`) so it is tested without a terminal.
 
 :class:`LabFeed` is the subscribing side shared by the table and the web view

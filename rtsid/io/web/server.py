@@ -8,10 +8,12 @@
             ◄── GET /events  (Server-Sent Events: snapshot, then each        ◄┘
                               estimate, status, alive, gone as it arrives)
 
-The page (``static/index.html`` + ``app.js``) draws, for each ``robot/joint``: K, B and I with
-their 95 % bands over the last 30 s, VAF, withheld windows with their reason, and the link and
-deadline counters of the status message; the latest message of any other channel a daemon
-publishes (e.g. a reflex model) is shown as its fields, so a new channel needs no change here.
+The page (``static/index.html`` + ``app.js``) draws, for each ``robot/joint``: the tracked
+stiffness K_track with its 95 % band and the window's K beside it, B and I with their 95 % bands
+(held values as held, no band) over the last 30 s, VAF, withheld windows with their reason, and
+the link and deadline counters of the status message; the latest message of any other channel a
+daemon publishes (e.g. a reflex model) is shown as its fields, so a new channel needs no change
+here.
 On start the board asks the daemons for their last 30 s (the ``history`` queryable), so the
 plots are full at once. Everything is standard library (``http.server``) and the plotting
 library (uPlot, MIT) ships inside the package: labs are often offline.
