@@ -12,7 +12,8 @@ or escape codes in a terminal. The checks, all documented bounds:
   keys, no unknown keys where the schema says so, the closed vocabularies of reasons and
   flags, minimums); a channel without a schema is an object with ``robot`` and ``joint``;
 - every number is finite with ``|x| <=`` :data:`MAX_ABS_NUMBER` (integers: within int64);
-  every string is at most :data:`MAX_STRING_CHARS` characters with no control characters;
+  every string is at most :data:`MAX_STRING_CHARS` characters with no control characters but
+  tab, CR and LF (an error text may span lines; what is printed goes through :func:`printable`);
   every array at most :data:`MAX_ITEMS` items;
 - ``robot`` and ``joint`` are names (:data:`NAME_PATTERN`) and equal the key the message came
   on (``<prefix>/<robot>/<joint>/<channel>``): a daemon's channel cannot speak for another.
@@ -67,7 +68,8 @@ MAX_DEPTH = 8
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")
 
 _INT64 = (-(2**63), 2**63 - 1)
-_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")  # replaced by printable()
+_FORBIDDEN = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\x9f]")  # in a string: not tab, CR, LF
 _SCHEMAS: dict[str, Mapping[str, Any]] = {
     "estimate": ESTIMATE_SCHEMA,
     "status": STATUS_SCHEMA,
@@ -189,7 +191,7 @@ def _check_bounds(actual: str, value: Any, where: str) -> None:
     if actual == "string":
         if len(value) > MAX_STRING_CHARS:
             raise MalformedMessage(f"{where} is a string of {len(value)} characters")
-        if _CONTROL.search(value):
+        if _FORBIDDEN.search(value):
             raise MalformedMessage(f"{where} holds control characters")
     if actual not in ("null", "boolean", "integer", "number", "string", "array", "object"):
         raise MalformedMessage(f"{where} is a {actual}")

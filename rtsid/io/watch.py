@@ -228,7 +228,7 @@ def _status_line(name: str, s: Mapping[str, Any]) -> str:
     zn = s.get("zenoh") or {}
     withheld = wk.get("withheld") or {}
     withheld_txt = ",".join(f"{k}:{v}" for k, v in sorted(withheld.items())) or "0"
-    mcap_file = str(mc.get("file") or "-").rsplit("/", 1)[-1]
+    mcap_file = printable(str(mc.get("file") or "-").rsplit("/", 1)[-1], 80)
     return "\n".join(
         [
             f"  {name}: up {_num(s.get('uptime_s'), '.0f')} s"

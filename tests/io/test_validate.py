@@ -39,9 +39,12 @@ def message(**changes: Any) -> dict[str, Any]:
 def test_a_daemons_messages_pass() -> None:
     assert decode_message("estimate", json.dumps(message()).encode(), KEY)["K"] == 150.0
     status = {"robot": "rig", "joint": "ankle", "host_time_ns": 1, "uptime_s": 2.0,
-              "acquisition": {"samples": 5}, "worker": {"withheld": {"gap": 1}}}  # fmt: skip
-    check_message("status", status, "rtsid/rig/ankle/status")
+              "acquisition": {"samples": 5}, "worker": {"withheld": {"gap": 1}},
+              "zenoh": {"last_error": "router lost:\n\tconnection reset"}}  # fmt: skip
+    check_message("status", status, "rtsid/rig/ankle/status")  # an error text may span lines
     jsonschema.validate(status, STATUS_SCHEMA)
+    with pytest.raises(MalformedMessage, match=r"mcap.file holds control characters"):
+        check_message("status", {**status, "mcap": {"file": "\x1b[2J"}}, "rtsid/rig/ankle/status")
 
 
 @pytest.mark.parametrize(
