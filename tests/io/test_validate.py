@@ -11,7 +11,13 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from rtsid.io.messages import ESTIMATE_SCHEMA, STATUS_SCHEMA, EstimateMessage
+from rtsid.io.messages import (
+    ESTIMATE_SCHEMA,
+    REFLEX_SCHEMA,
+    STATUS_SCHEMA,
+    EstimateMessage,
+    ReflexMessage,
+)
 from rtsid.io.validate import (
     MAX_MESSAGE_BYTES,
     MalformedMessage,
@@ -45,6 +51,19 @@ def test_a_daemons_messages_pass() -> None:
     jsonschema.validate(status, STATUS_SCHEMA)
     with pytest.raises(MalformedMessage, match=r"mcap.file holds control characters"):
         check_message("status", {**status, "mcap": {"file": "\x1b[2J"}}, "rtsid/rig/ankle/status")
+
+
+def test_a_reflex_message_passes() -> None:
+    reflex = ReflexMessage(
+        robot="rig", joint="ankle", seq=2, start_index=0, end_index=50_000,
+        applies_from_index=50_000, ok=True, applied=True, variant="rect", gain=12.0,
+        delay_ms=40.0, corner_hz=5.0, damping_ratio=0.7, dynamics_vaf=80.0, irf_gain=1.0, rank=4,
+        vaf_total=92.0, vaf_intrinsic_only=85.0, vaf_intrinsic_path=80.0, vaf_reflex_path=12.0,
+        iterations=3, irf_fs_hz=100.0, irf=[0.1 * i for i in range(200)], fit_ms=None,
+        error=None, host_time_ns=1_800_000_000_000_000_000,
+    ).as_dict()  # fmt: skip
+    check_message("reflex", json.loads(json.dumps(reflex)), "rtsid/rig/ankle/reflex")
+    jsonschema.validate(reflex, REFLEX_SCHEMA)
 
 
 @pytest.mark.parametrize(
