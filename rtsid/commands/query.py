@@ -110,7 +110,7 @@ def _report(answer: QueryAnswer, wanted: str, where: str) -> int:
             file=sys.stderr,
         )
     for _, _, message in checked.messages:
-        sys.stdout.write(json.dumps(message, allow_nan=False) + "\n")
+        sys.stdout.write(json.dumps(message, separators=(",", ":"), allow_nan=False) + "\n")
     sys.stdout.flush()
     if not answer.replies and not answer.errors:
         print(

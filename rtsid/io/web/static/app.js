@@ -56,7 +56,7 @@ function card(name) {
       "div",
       { class: "values" },
       el("span", { class: "lead" }, "K_track ", val("K_track"), " ", band("K_track"), " N·m/rad"),
-      el("span", {}, kWindow, " ", val("K"), " ", band("K")),
+      el("span", {}, kWindow, " ", val("K"), " ", band("K"), " N·m/rad"),
       el("span", {}, "B ", val("B"), " ", band("B"), " N·m·s/rad"),
       el("span", {}, "I ", val("I"), " ", band("I"), " kg·m²"),
       el("span", {}, "VAF ", val("vaf"), " %"),
