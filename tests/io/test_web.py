@@ -399,6 +399,28 @@ def test_the_board_refuses_malformed_and_hostile_messages_and_counts_them() -> N
     assert counts == list(range(1, snap["rejected"] + 1))
 
 
+def test_the_event_stream_after_hostile_messages_is_json_with_the_count() -> None:
+    board = LabBoard()
+    for bad in hostile_events(10**18):
+        board.take(bad)
+    board.take(event("estimate", estimate(5, 10**18)))
+    server = _Server(("127.0.0.1", 0), board)
+    thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05})
+    thread.start()
+    try:
+        (snapshot,) = sse_messages(int(server.server_address[1]), 1)
+    finally:
+        board.stop()
+        server.stopping.set()
+        server.shutdown()
+        server.server_close()
+        thread.join(10)
+    assert snapshot["type"] == "snapshot" and list(snapshot["joints"]) == ["rig/ankle"]
+    assert snapshot["rejected"] == len(hostile_events(10**18))
+    last = snapshot["last_rejection"]  # the last hostile message: HTML as a withheld reason
+    assert last.startswith("rtsid/rig/ankle/estimate: reason = ") and "not one of the known" in last
+
+
 @st.composite
 def feed_events(draw: Any) -> FeedEvent:
     kind = draw(st.sampled_from(["estimate", "status", "reflex", "alive", "gone", "x", "<b>"]))
