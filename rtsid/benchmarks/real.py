@@ -19,12 +19,12 @@ from pathlib import Path
 import numpy as np
 
 from rtsid.benchmarks.table import print_table
-from rtsid.benchmarks.yardstick import WindowVafBasis, least_squares_window
 from rtsid.errors import InputDataError
 from rtsid.ident.cascade import CascadeFit, fit_parallel_cascade
 from rtsid.ident.stream import WindowResult, sliding_estimates
 from rtsid.ident.vaf import vaf
 from rtsid.ident.window import EstimatorOptions, estimate_window, resolve_plan
+from rtsid.ident.yardstick import WindowVafBasis, least_squares_window
 from rtsid.io.sample_files import load_samples
 
 REPO = Path(__file__).resolve().parents[2]

@@ -29,7 +29,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--foxglove-host",
         default="127.0.0.1",
-        help="address the Foxglove server binds to (default 127.0.0.1: this machine only)",
+        help="address the Foxglove server binds to: loopback only (127.0.0.1 or ::1), as its "
+        "protocol has no authentication; reach it from elsewhere through an SSH tunnel",
     )
     parser.add_argument(
         "--print-config",

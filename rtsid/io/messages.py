@@ -332,7 +332,9 @@ class ReflexMessage:
     ok: bool = field(metadata=_meta("true: a reflex pathway was fitted"))
     applied: bool = field(
         metadata=_meta(
-            "true: the fast lane subtracts it (its pathway adds at least min_vaf_gain_percent)"
+            "the decision: true when a reflex pathway is present in the data and the fast lane "
+            "subtracts it (it adds at least min_vaf_gain_percent over the horizon and "
+            "window_vaf_gain >= min_window_vaf_gain_percent); false: absent, nothing subtracted"
         )
     )
     variant: str = field(metadata=_meta("reflex pathway: rect or hammerstein"))
@@ -354,6 +356,16 @@ class ReflexMessage:
     vaf_intrinsic_path: float | None = field(metadata=_meta("VAF by the intrinsic pathway, %"))
     vaf_reflex_path: float | None = field(metadata=_meta("VAF by the reflex pathway, %"))
     iterations: int = field(metadata=_meta("alternations of the cascade"))
+    window_vaf_gain: float | None = field(
+        metadata=_meta(
+            "evidence for the decision: median over the horizon's 300 ms windows of the VAF "
+            "(percentage points, 40 Hz basis) the reflex model adds to each window's own "
+            "least-squares I, B, K"
+        )
+    )
+    windows_improved: float | None = field(
+        metadata=_meta("share of those windows whose VAF the reflex model raises, 0-1")
+    )
     irf_fs_hz: float | None = field(metadata=_meta("rate of the IRF lags, Hz"))
     irf: list[float] = field(
         metadata=_meta("reflex IRF, lags 0, 1/irf_fs_hz, …, N·m per rad/s per s")
@@ -398,6 +410,8 @@ class ReflexMessage:
             vaf_intrinsic_path=update.vaf_intrinsic_path,
             vaf_reflex_path=update.vaf_reflex_path,
             iterations=update.iterations,
+            window_vaf_gain=update.window_vaf_gain,
+            windows_improved=update.windows_improved,
             irf_fs_hz=p.fs_hz if p else None,
             irf=[float(v) for v in p.irf] if p else [],
             fit_ms=fit_ms,

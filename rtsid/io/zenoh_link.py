@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import re
 import threading
 from collections.abc import Mapping
@@ -43,6 +44,7 @@ from rtsid.io.history import HistoryStore, QueryError, parse_history_query
 from rtsid.io.schemas import encode_estimate, encode_json, encode_samples, encode_status
 
 __all__ = [
+    "VIEWER_CONFIG_ENV",
     "QueryAnswer",
     "RouterConfig",
     "ZenohConfig",
@@ -195,8 +197,29 @@ def zenoh_config(cfg: ZenohConfig) -> Any:
     return conf
 
 
-def subscriber_config(connect: tuple[str, ...], mode: str = "peer") -> Any:
-    """A listener-less session connecting to ``connect`` with scouting off (``rtsid watch``)."""
+#: Environment variable naming a zenoh json5 file for every viewer session (``rtsid watch``,
+#: ``rtsid query``, the web page): a secure lab's ``viewer-NAME.json5`` from ``rtsid certs``.
+VIEWER_CONFIG_ENV = "RTSID_ZENOH_CONFIG"
+
+
+def subscriber_config(
+    connect: tuple[str, ...], mode: str = "peer", config_file: str | None = None
+) -> Any:
+    """A listener-less session connecting to ``connect`` with scouting off (``rtsid watch``).
+
+    ``config_file`` (default: the ``RTSID_ZENOH_CONFIG`` environment variable) names a zenoh
+    json5 file that replaces ``connect`` and ``mode`` entirely, e.g. a viewer's TLS
+    certificate and the router's ``tls/`` endpoint in the secure lab profile (docs/lab.md).
+
+    Raises
+    ------
+    ConfigError
+        ``config_file`` missing or not a valid zenoh json5 config.
+    """
+    if config_file is None:
+        config_file = os.environ.get(VIEWER_CONFIG_ENV, "")
+    if config_file:
+        return _config_from_file(config_file, VIEWER_CONFIG_ENV)
     conf = _base_config(mode, (), connect, False)
     conf.insert_json5("scouting/gossip/enabled", "false")
     return conf

@@ -60,6 +60,7 @@ def test_a_reflex_message_passes() -> None:
         delay_ms=40.0, corner_hz=5.0, damping_ratio=0.7, dynamics_vaf=80.0, irf_gain=1.0, rank=4,
         vaf_total=92.0, vaf_intrinsic_only=85.0, vaf_intrinsic_path=80.0, vaf_reflex_path=12.0,
         iterations=3, irf_fs_hz=100.0, irf=[0.1 * i for i in range(200)], fit_ms=None,
+        window_vaf_gain=2.5, windows_improved=0.8,
         error=None, host_time_ns=1_800_000_000_000_000_000,
     ).as_dict()  # fmt: skip
     check_message("reflex", json.loads(json.dumps(reflex)), "rtsid/rig/ankle/reflex")

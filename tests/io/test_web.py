@@ -404,7 +404,7 @@ def test_the_event_stream_after_hostile_messages_is_json_with_the_count() -> Non
     for bad in hostile_events(10**18):
         board.take(bad)
     board.take(event("estimate", estimate(5, 10**18)))
-    server = _Server(("127.0.0.1", 0), board)
+    server = _Server(("127.0.0.1", 0), board, None)
     thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05})
     thread.start()
     try:
@@ -467,7 +467,7 @@ def test_any_event_stream_leaves_a_board_whose_snapshot_and_events_are_json(
 def page_server() -> Iterator[int]:
     """The page's HTTP server on its own (an empty board, no zenoh); yields its port."""
     board = LabBoard()
-    server = _Server(("127.0.0.1", 0), board)
+    server = _Server(("127.0.0.1", 0), board, None)
     thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05})
     thread.start()
     try:

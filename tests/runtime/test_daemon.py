@@ -237,13 +237,16 @@ def test_nan_in_any_numeric_key_is_one_line_naming_the_key(path):
 
 
 def test_window_longer_than_the_ring_is_refused_with_the_fix():
-    document = {"link": {"ring_capacity_s": 1.0}, "worker": {"window_s": 2.0}}
+    off = {"enabled": False}  # the slow lane needs a longer ring: refused for that alone
+    document = {"link": {"ring_capacity_s": 1.0}, "worker": {"window_s": 2.0}, "slow_lane": off}
     with pytest.raises(ConfigError) as info:
         DaemonConfig.from_mapping(document)
     message = str(info.value)
     assert "worker.window_s" in message and "link.ring_capacity_s" in message
     assert "\n" not in message
-    DaemonConfig.from_mapping({"link": {"ring_capacity_s": 1.0}, "worker": {"window_s": 0.5}})
+    DaemonConfig.from_mapping(
+        {"link": {"ring_capacity_s": 1.0}, "worker": {"window_s": 0.5}, "slow_lane": off}
+    )
 
 
 def _injected(*_args: object, **_kwargs: object) -> None:

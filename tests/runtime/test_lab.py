@@ -449,7 +449,7 @@ def test_bench_lab_prints_its_tables(capsys: pytest.CaptureFixture[str]) -> None
     for title in ("### Lab: 2 daemons", "### Per joint", "### Late joiner", "### History queries"):
         assert title in out
     rows = [line for line in out.splitlines() if line.startswith("|")]
-    for phase in ("router", "router + queries", "peer-to-peer"):
+    for phase in ("router", "router + queries", "TLS router", "peer-to-peer"):
         assert any(line.split("|")[1].strip() == phase for line in rows), phase
-    late = [r for r in rows if r.split("|")[1].strip() in ("router", "peer-to-peer")]
+    late = [r for r in rows if r.split("|")[1].strip() in ("router", "TLS router", "peer-to-peer")]
     assert any(r.split("|")[2].strip() == "2" for r in late)  # trials done in each topology

@@ -19,7 +19,8 @@ plots are full at once. Everything is standard library (``http.server``) and the
 library (uPlot, MIT) ships inside the package: labs are often offline.
 
 Nothing binds beyond loopback unless ``host`` says so (``--host 0.0.0.0`` opens the page to
-the lab network: there is no authentication, so only on a trusted network).
+the lab network), and then only with a token (``RTSID_WEB_TOKEN``, :mod:`rtsid.io.access_token`)
+checked on every request: refused without one.
 
 The page renders data, never markup: the server relays only messages that pass
 :mod:`rtsid.io.validate` (names of letters, digits, ``_ . -`` equal to the key they came on;
@@ -40,11 +41,14 @@ import time
 from collections import deque
 from collections.abc import Iterator
 from http import HTTPStatus
+from http.cookies import CookieError, SimpleCookie
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from typing import Any
+from urllib.parse import parse_qs
 
 from rtsid.errors import ConfigError, ServiceError
+from rtsid.io.access_token import TOKEN_ENV, token_matches, web_token
 from rtsid.io.validate import (
     NAME_PATTERN,
     MalformedMessage,
@@ -248,7 +252,50 @@ class _Handler(BaseHTTPRequestHandler):
     def log_message(self, format: str, *args: Any) -> None:
         log.debug("web: " + format, *args)
 
+    _COOKIE = "rtsid_token"
+
+    def _presented_token(self) -> tuple[str | None, bool]:
+        """The token this request carries, and whether it came in the URL."""
+        auth = self.headers.get("Authorization", "")
+        if auth.startswith("Bearer "):
+            return auth.removeprefix("Bearer "), False
+        in_url = parse_qs(self.path.partition("?")[2]).get("token")
+        if in_url:
+            return in_url[0], True
+        try:
+            cookie = SimpleCookie(self.headers.get("Cookie", ""))
+        except CookieError:
+            return None, False
+        morsel = cookie.get(self._COOKIE)
+        return (morsel.value if morsel is not None else None), False
+
+    def _authorized(self) -> bool:
+        """Loopback without a token: everyone here; otherwise the token, constant-time."""
+        self._new_cookie: str | None = None
+        expected = self.server.token
+        if expected is None:
+            return True
+        given, in_url = self._presented_token()
+        if token_matches(given, expected):
+            if in_url:  # the page's own requests (scripts, /events) then carry the cookie
+                self._new_cookie = f"{self._COOKIE}={expected}; HttpOnly; SameSite=Strict; Path=/"
+            return True
+        body = f"this page needs its token: open /?token=<the {TOKEN_ENV} value>\n".encode()
+        self._send(HTTPStatus.UNAUTHORIZED, "text/plain; charset=utf-8", body)
+        return False
+
+    def end_headers(self) -> None:
+        """Every response: :data:`SECURITY_HEADERS`, and the token's cookie once it was given
+        in the URL."""
+        for name, value in SECURITY_HEADERS.items():
+            self.send_header(name, value)
+        if getattr(self, "_new_cookie", None):
+            self.send_header("Set-Cookie", str(self._new_cookie))
+        super().end_headers()
+
     def do_GET(self) -> None:
+        if not self._authorized():
+            return
         path = self.path.split("?", 1)[0]
         if path in ("/", "/index.html"):
             self._file("index.html")
@@ -270,11 +317,6 @@ class _Handler(BaseHTTPRequestHandler):
             return
         suffix = "." + name.rsplit(".", 1)[-1]
         self._send(HTTPStatus.OK, _CONTENT_TYPES.get(suffix, "application/octet-stream"), data)
-
-    def end_headers(self) -> None:
-        for name, value in SECURITY_HEADERS.items():
-            self.send_header(name, value)
-        super().end_headers()
 
     def _send(self, status: HTTPStatus, content_type: str, body: bytes) -> None:
         self.send_response(status)
@@ -323,8 +365,9 @@ class _Server(ThreadingHTTPServer):
     daemon_threads = True
     block_on_close = True  # server_close() joins the page threads (they end within 0.5 s)
 
-    def __init__(self, address: tuple[str, int], board: LabBoard) -> None:
+    def __init__(self, address: tuple[str, int], board: LabBoard, token: str | None) -> None:
         self.board = board
+        self.token = token
         self.stopping = threading.Event()
         super().__init__(address, _Handler)
 
@@ -346,7 +389,8 @@ class WebView:
     mode : str
         ``"client"`` through a router, ``"peer"`` straight to daemons.
     host : str
-        Address the page binds to (default 127.0.0.1).
+        Address the page binds to (default 127.0.0.1). Beyond loopback the page requires the
+        token in ``RTSID_WEB_TOKEN`` (a :class:`~rtsid.errors.ConfigError` without one).
     port : int
         TCP port (0: a free one; :attr:`port` says which).
     history_s : float
@@ -371,6 +415,7 @@ class WebView:
         self.host = host
         self.requested_port = port
         self.history_s = history_s
+        self.token = web_token(host)  # None on loopback without RTSID_WEB_TOKEN
         self.board = LabBoard()
         self.port: int | None = None
         self.failure: str | None = None
@@ -393,7 +438,7 @@ class WebView:
             The port is taken or the address cannot be bound, or the feed could not open.
         """
         try:
-            self._server = _Server((self.host, self.requested_port), self.board)
+            self._server = _Server((self.host, self.requested_port), self.board, self.token)
         except OSError as exc:
             raise ServiceError(
                 f"web page on {self.host}:{self.requested_port} could not bind: {exc}; choose a "
@@ -471,7 +516,9 @@ def serve_web(
     with WebView(key, connect, mode=mode, host=host, port=port) as view:
         print(
             f"rtsid watch: live page on {view.url} (daemons {view.key} via "
-            f"{', '.join(connect)}, {mode}); Ctrl-C stops",
+            f"{', '.join(connect)}, {mode})"
+            + (f"; token required: open it as {view.url}?token=<{TOKEN_ENV}>" if view.token else "")
+            + "; Ctrl-C stops",
             flush=True,
         )
         end = None if timeout_s is None else time.monotonic() + timeout_s
