@@ -12,7 +12,6 @@ cut short replays to its last complete message with a warning saying how much wa
 
 from __future__ import annotations
 
-import csv
 import math
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
@@ -33,7 +32,7 @@ from rtsid.io.mcap_read import (
     sample_count,
 )
 from rtsid.io.recording import SampleGrid, iter_batches, session_parts
-from rtsid.io.schemas import ESTIMATE_FIELDS, SCHEMAS, SampleBatch, encode_estimate, encode_json
+from rtsid.io.schemas import SCHEMAS, SampleBatch, encode_estimate, encode_json
 from rtsid.link.ring import Snapshot
 from rtsid.runtime.daemon import DaemonConfig
 from rtsid.runtime.worker import WindowEvaluator
@@ -50,7 +49,6 @@ __all__ = [
     "recording_config",
     "replay_batches",
     "replay_file",
-    "write_estimates_csv",
     "write_estimates_mcap",
 ]
 
@@ -92,8 +90,10 @@ class LiveDecisions:
     stale: frozenset[int] = frozenset()  # windows evaluated live with samples too old
 
     def skipped(self, window_end: int) -> bool:
-        """The live worker never evaluated this window (inside the live run's span)."""
-        return self.first_end <= window_end <= self.last_end and window_end not in self.reflex
+        """The live worker never evaluated this window: one before the live run's last
+        estimate that it has no estimate of, those before its first included (a worker that
+        starts late begins at the newest window, the earlier ones being history)."""
+        return window_end <= self.last_end and window_end not in self.reflex
 
     @classmethod
     def of(cls, parts: Iterable[Path]) -> LiveDecisions | None:
@@ -415,20 +415,6 @@ def _counted(
         yield batch
         if progress is not None:
             progress(result.samples, total)
-
-
-def write_estimates_csv(messages: Iterable[dict[str, Any]], fh: IO[str]) -> int:
-    """Estimate messages as CSV, one row each, columns in schema order; returns the row count."""
-    columns = [k for k in ESTIMATE_FIELDS if k not in ("robot", "joint", "host_time_ns")]
-    writer = csv.DictWriter(fh, fieldnames=columns, lineterminator="\n", extrasaction="ignore")
-    writer.writeheader()
-    count = 0
-    for message in messages:
-        row = {k: ("" if message[k] is None else message[k]) for k in columns}
-        row["flags"] = ";".join(message["flags"])
-        writer.writerow(row)
-        count += 1
-    return count
 
 
 def write_estimates_mcap(

@@ -88,6 +88,8 @@ def test_each_stream_decides_whether_a_reflex_is_present(reflex, present):
     late = [w for w in windows if w.ok and w.window_start_index > fits[0]["applies_from_index"]]
     if present:
         assert all(w.reflex_seq is not None for w in late)
+        # the published VAF counts the reflex torque subtracted as part of the model
+        assert np.median([w.vaf for w in late]) >= 90.0
     else:  # absent: nothing subtracted, the windows are the fast lane's alone
         alone = identify(theta, tau, FS, {"slow_lane": {"enabled": False}})
         same = ("K", "B", "I", "vaf", "K_track")
@@ -110,3 +112,23 @@ def test_the_decision_follows_a_reflex_that_switches_on_and_off():
     assert not any(v for t, v in decided.items() if t <= 15.0)
     assert all(v for t, v in decided.items() if 24.0 <= t <= 32.0)  # within 9 s of the onset
     assert not any(v for t, v in decided.items() if t >= 40.0)  # within 8 s of the end
+
+
+def test_the_published_vaf_ranks_windows_like_the_benchmarks_yardstick(reklab_path):
+    from scipy import stats
+
+    from rtsid.ident.yardstick import WindowVafBasis
+
+    record = load_samples(reklab_path)
+    pos, tor, fs = record.position_rad, record.torque_nm, record.fs_hz
+    ok = [w for w in identify(pos, tor, fs, torque_sign=-1) if w.ok]
+    basis = WindowVafBasis(pos, -tor, fs)
+    bounds = [(w.window_start_index, w.window_end_index + 1) for w in ok]
+    yardstick = [
+        basis.vaf(np.array([w.I, w.B, w.K]), a, b) for w, (a, b) in zip(ok, bounds, strict=True)
+    ]
+    published = [w.vaf for w in ok]
+    assert stats.spearmanr(published, yardstick).statistic >= 0.9
+    assert abs(np.median(published) - np.median(yardstick)) <= 2.0
+    # low_vaf fires on every window below the threshold of that same figure, and only there
+    assert all(("low_vaf" in w.flags) == (w.vaf < 50.0) for w in ok)

@@ -21,28 +21,28 @@ def test_tv_command_identifies_a_recording_and_writes_track_and_figure(
 ):
     path, exp = small_experiment
     csv, png = tmp_path / "track.csv", tmp_path / "tv.png"
-    assert main(["tv", str(path), "-p", "10", "--csv", str(csv), "--plot", str(png)]) == 0
+    assert main(["tv", str(path), "-p", "10", "-o", str(csv), "--plot", str(png)]) == 0
     out = capsys.readouterr().out
     assert "10 excited lines 0.8…8 Hz" in out
     assert "quantisation floor" in out
     table = np.genfromtxt(csv, delimiter=",", names=True)
-    fn_true = np.sqrt(table["stiffness_true_nm_per_rad"] / exp.inertia) / (2 * np.pi)
+    fn_true = np.sqrt(table["K_true"] / exp.inertia) / (2 * np.pi)
     inner = slice(2, -2)
-    err = table["natural_frequency_hz"][inner] - fn_true[inner]
+    err = table["f_n_hz"][inner] - fn_true[inner]
     assert np.sqrt(np.mean(err**2)) < 0.1
     assert png.stat().st_size > 10_000
 
 
 def test_simulate_to_an_unwritable_place_is_a_clear_error(tmp_path, capsys):
     out = tmp_path / "missing-dir" / "exp.npz"
-    assert main(["tv", "--simulate", "CS2", "-o", str(out)]) == 2
+    assert main(["tv", "--simulate", "CS2", "--save-simulation", str(out)]) == 2
     assert "cannot write" in capsys.readouterr().err
     assert not out.parent.exists()
 
 
 def test_simulate_writes_a_recording_the_command_reads(tmp_path, capsys):
     out = tmp_path / "cs1.npz"
-    assert main(["tv", "--simulate", "CS1", "-o", str(out), "--spacing", "1.4"]) == 0
+    assert main(["tv", "--simulate", "CS1", "--save-simulation", str(out), "--spacing", "1.4"]) == 0
     data = load_tv_npz(out)
     assert data.torque_nm.size == 40000 and data.period_samples == 2000
     np.testing.assert_array_equal(data.excited_bins, np.arange(14, 101, 14))
@@ -74,11 +74,11 @@ def test_missing_arrays_and_partial_periods_are_clear_errors(small_experiment, t
 def test_common_inertia_option_holds_one_inertia(small_experiment, tmp_path):
     path, exp = small_experiment
     csv = tmp_path / "held.csv"
-    assert main(["tv", str(path), "-p", "10", "--common-inertia", "--csv", str(csv)]) == 0
+    assert main(["tv", str(path), "-p", "10", "--common-inertia", "-o", str(csv)]) == 0
     table = np.genfromtxt(csv, delimiter=",", names=True)
-    assert np.ptp(table["inertia_nms2_per_rad"]) < 1e-9
+    assert np.ptp(table["I"]) < 1e-9
     # 25 Hz sampling puts 8× more noise per bin than the study (SNR per line is lower).
-    assert table["inertia_nms2_per_rad"][0] == pytest.approx(exp.inertia, rel=0.15)
+    assert table["I"][0] == pytest.approx(exp.inertia, rel=0.15)
 
 
 def test_auto_basis_takes_the_largest_well_conditioned_n_p(small_experiment, capsys):
@@ -116,8 +116,8 @@ def cyclic_experiment(tmp_path):
 
 def _fn_rmse(csv, inertia=0.02):
     table = np.genfromtxt(csv, delimiter=",", names=True)
-    fn_true = np.sqrt(table["stiffness_true_nm_per_rad"] / inertia) / (2 * np.pi)
-    return float(np.sqrt(np.nanmean((table["natural_frequency_hz"] - fn_true) ** 2)))
+    fn_true = np.sqrt(table["K_true"] / inertia) / (2 * np.pi)
+    return float(np.sqrt(np.nanmean((table["f_n_hz"] - fn_true) ** 2)))
 
 
 def test_fourier_family_tracks_a_cyclic_stiffness_that_legendre_cannot(
@@ -127,7 +127,7 @@ def test_fourier_family_tracks_a_cyclic_stiffness_that_legendre_cannot(
     for family in ("legendre", "fourier"):
         csv = tmp_path / f"{family}.csv"
         args = ["tv", str(cyclic_experiment), "-p", "auto", "--basis-family", family]
-        assert main([*args, "--times", "2", "--csv", str(csv)]) == 0
+        assert main([*args, "--times", "2", "-o", str(csv)]) == 0
         rmse[family] = _fn_rmse(csv)
     out = capsys.readouterr().out
     assert "(auto, fourier: best predicted validation VAF" in out

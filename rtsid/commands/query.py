@@ -14,6 +14,7 @@ import json
 import sys
 from typing import TYPE_CHECKING, Any
 
+from rtsid.commands.common import add_zenoh_reader, connect_endpoints
 from rtsid.errors import ConfigError, ServiceError
 from rtsid.io.history import QueryError, parse_duration_s
 from rtsid.io.validate import check_replies, error_reply_text, printable
@@ -26,16 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "key", nargs="?", default="rtsid/*/*", help="rtsid/<robot>/<joint> (default rtsid/*/*)"
     )
-    parser.add_argument(
-        "--connect",
-        action="append",
-        default=None,
-        metavar="ENDPOINT",
-        help="a router's or a daemon's endpoint (repeatable; default tcp/127.0.0.1:7447)",
-    )
-    parser.add_argument(
-        "--mode", choices=("peer", "client"), default="client", help="client (default) or peer"
-    )
+    add_zenoh_reader(parser, "a router's or a daemon's endpoint")
     parser.add_argument("--since", metavar="DURATION", help="history of the last 60s, 5m, …")
     parser.add_argument("--from", dest="from_ns", type=int, metavar="NS", help="UNIX ns")
     parser.add_argument("--to", dest="to_ns", type=int, metavar="NS", help="UNIX ns")
@@ -76,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("give --since or --from, not both")
     if not args.timeout > 0:
         raise ConfigError(f"--timeout {args.timeout} is not accepted; expected seconds > 0")
-    connect = tuple(args.connect or ["tcp/127.0.0.1:7447"])
+    connect = connect_endpoints(args)
     wanted = selector(args)
     try:
         session = zenoh.open(subscriber_config(connect, args.mode))

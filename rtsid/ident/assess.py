@@ -1,8 +1,12 @@
 """Step 5, assess: VAFs and flags of a fitted window, and its :class:`WindowEstimate`.
 
-* VAF (:func:`rtsid.ident.vaf.vaf`) of the model's torque prediction against the
-  band-limited measured torque (``vaf``), of the IRF's (``vaf_irf``), and of the model
-  against the IRF (``vaf_fit``, the model check), over the samples with full support
+* ``vaf`` (:func:`published_vaf`), the one VAF rtsid publishes: the share of the measured
+  torque's variance in the perturbation's band (above DC up to the plan's band edge) that the
+  published model explains — ``I·θ̈ + B·θ̇ + K·θ`` plus any torque another pathway explained
+  first (the slow lane's reflex prediction) — over the window, its mean removed but not its
+  trend;
+* the model checks ``vaf_irf`` (the IRF's prediction against the band-limited torque) and
+  ``vaf_fit`` (the model against the IRF), over the samples with full support
   (:func:`predict_torque`) and, when samples were lost, the clean rows only;
 * flags that do not withhold the estimate (:func:`window_flags`);
 * the estimate itself (:func:`assemble`), held values marked as held.
@@ -19,6 +23,7 @@ from numpy.typing import NDArray
 
 from rtsid.ident.filters import stencil_derivatives
 from rtsid.ident.fit import NOT_HELD, Held
+from rtsid.ident.front import ScoredBand
 from rtsid.ident.gaps import WindowGaps
 from rtsid.ident.irf import IRF
 from rtsid.ident.options import EstimatorOptions
@@ -32,6 +37,7 @@ __all__ = [
     "assemble",
     "assess",
     "predict_torque",
+    "published_vaf",
     "three_vafs",
     "window_flags",
 ]
@@ -50,7 +56,8 @@ class WindowEstimate:
     I_se, B_se, K_se : float
         Standard errors (NaN when not computed).
     vaf : float
-        Percent of torque variance accounted for by the parametric model's prediction.
+        Percent of the measured torque's variance in the perturbation's band accounted for
+        by the published model (:func:`published_vaf`).
     vaf_irf : float
         Percent accounted for by the IRF's prediction.
     vaf_fit : float
@@ -108,6 +115,57 @@ class WindowEstimate:
         return out
 
 
+def published_vaf(
+    measured: FloatArray,
+    model: FloatArray,
+    stiffness: float,
+    score: ScoredBand,
+    fs_hz: float,
+    index: NDArray[np.intp],
+    *,
+    in_band: bool = True,
+) -> float:
+    """The published VAF, %: the measured torque in ``score``'s band against the model.
+
+    ``measured = y + trend + explained`` and ``model = I·θ̈ + B·θ̇ + K·(u + trend) +
+    explained`` at the analysis rate, each window's mean removed; the VAF is taken over the
+    DFT bins above DC up to ``score.band_hz`` (the torque beyond the perturbation's band is
+    noise no model of the position explains). A window with lost samples is scored on its
+    clean rows in time (``in_band`` False: its DFT would mix the zeroed rows in).
+
+    Parameters
+    ----------
+    measured, model : numpy.ndarray, shape (k,)
+        Band-limited torque ``y`` and the model's ``I·θ̈ + B·θ̇ + K·u``, N·m.
+    stiffness : float
+        K, N·m/rad (the position trend's torque).
+    score : ScoredBand
+    fs_hz : float
+        Analysis rate, Hz.
+    index : numpy.ndarray of int, shape (k,)
+        The analysis samples ``measured`` and ``model`` hold.
+    """
+    measured = measured + score.torque_slope * index
+    model = model + stiffness * score.position_slope * index
+    if score.explained is not None:
+        measured = measured + score.explained[index]
+        model = model + score.explained[index]
+    if not in_band:
+        return vaf(measured, model)
+    return _band_vaf(measured - measured.mean(), measured - model, fs_hz, score.band_hz)
+
+
+def _band_vaf(measured: FloatArray, error: FloatArray, fs_hz: float, band_hz: float) -> float:
+    error = error - error.mean()
+    bins = np.fft.rfftfreq(measured.size, 1.0 / fs_hz)
+    scored = (bins > 0) & (bins <= band_hz)
+    total = float(np.sum(np.abs(np.fft.rfft(measured)[scored]) ** 2))
+    if total <= 0:
+        return 0.0
+    left = float(np.sum(np.abs(np.fft.rfft(error)[scored]) ** 2))
+    return round(max(0.0, 1.0 - left / total) * 100.0, 12)
+
+
 def assess(
     irf: IRF,
     u: FloatArray,
@@ -116,21 +174,38 @@ def assess(
     options: EstimatorOptions,
     held: Held = NOT_HELD,
     gaps: WindowGaps | None = None,
+    score: ScoredBand | None = None,
 ) -> WindowEstimate:
     """Step 5 of an output-error fit: its VAFs, flags and estimate.
 
-    ``vaf`` is the fit's own model torque against the torque it was fitted to (over the rows
-    the fit used); ``vaf_irf`` and ``vaf_fit`` compare with the IRF's prediction. The
-    standard errors are the fit's (NaN for held values, which are marked as held).
+    ``vaf`` is :func:`published_vaf` (``score`` None: the fit's own model torque against the
+    torque it was fitted to); ``vaf_irf`` and ``vaf_fit`` compare with the IRF's prediction.
+    The standard errors are the fit's (NaN for held values, which are marked as held).
     """
     _, vaf_irf, vaf_fit = three_vafs(predict_torque(irf, u, y, fit.params, gaps))
-    vafs = (vaf(fit.measured, fit.model), vaf_irf, vaf_fit)
+    if score is None:
+        published = vaf(fit.measured, fit.model)
+    else:
+        rows = fit_rows(gaps)
+        index = np.arange(4, 4 + fit.measured.size) if rows is None else rows
+        stiffness = float(fit.params[2])
+        published = published_vaf(
+            fit.measured, fit.model, stiffness, score, irf.fs_hz, index, in_band=rows is None
+        )
+    vafs = (published, vaf_irf, vaf_fit)
     se_i, se_b, se_k = fit.se.tolist()
     lost = 0 if gaps is None else gaps.lost
     estimate = assemble(irf, fit.params, (se_i, se_b, se_k), vafs, "output_error", options, lost)
     if held.inertia is None:
         return estimate
     return replace(estimate, I_held=True, B_held=held.damping is not None)
+
+
+def fit_rows(gaps: WindowGaps | None) -> NDArray[np.intp] | None:
+    """Analysis-sample indices of a gap window's fitted rows (None without lost samples)."""
+    if gaps is None:
+        return None
+    return np.flatnonzero(gaps.rows(4)) + 4  # the stencils' rows 4 … m − 5 that were kept
 
 
 @dataclass(frozen=True)

@@ -11,13 +11,15 @@ samples always takes the numpy path, with the lost samples' reach zeroed
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from rtsid.errors import WindowError
 from rtsid.ident.analysis import AnalysisPlan
 from rtsid.ident.check import check_analysis_length, check_band_limited_excitation
-from rtsid.ident.correlation import detrend
+from rtsid.ident.correlation import detrend, trend_slope
 from rtsid.ident.gaps import LostSamples, WindowGaps, contaminated
 from rtsid.ident.irf import IRF, estimate_irf
 from rtsid.ident.levinson import compiled_kernel, not_positive_definite
@@ -25,6 +27,29 @@ from rtsid.ident.options import EstimatorOptions
 from rtsid.verdicts import Reason
 
 _eureka = compiled_kernel()
+
+
+@dataclass(frozen=True)
+class ScoredBand:
+    """What :func:`published_vaf` scores besides the analysis-rate signals ``(u, y)``.
+
+    Attributes
+    ----------
+    band_hz : float
+        Upper edge of the scored band, Hz: the plan's perturbation band edge (the low-pass
+        cut-off ÷ 1.5 when the cut-off was set explicitly).
+    position_slope, torque_slope : float
+        The linear trends the window's detrending removed, rad and N·m per analysis sample.
+    explained : numpy.ndarray, shape (m,), or None
+        Torque explained by another pathway and subtracted before the fit (the slow lane's
+        reflex prediction), band-limited like ``y``, N·m.
+    """
+
+    band_hz: float
+    position_slope: float = 0.0
+    torque_slope: float = 0.0
+    explained: FloatArray | None = None
+
 
 __all__ = ["analyse_irf", "front_end", "prepare_window"]
 
@@ -138,3 +163,25 @@ def _band_limit(x: FloatArray, plan: AnalysisPlan) -> FloatArray:
             Reason.TOO_SHORT,
         )
     return np.convolve(x, plan.taps, mode="valid")[:: plan.factor]
+
+
+def scored_band(
+    position: FloatArray,
+    torque: FloatArray,
+    options: EstimatorOptions,
+    plan: AnalysisPlan,
+    explained: ArrayLike | None = None,
+) -> ScoredBand:
+    """What the published VAF scores besides ``(u, y)`` (:func:`rtsid.ident.assess.
+    published_vaf`): the trends the detrending removed, at the analysis rate, and the torque
+    ``explained`` elsewhere (same samples and sign as ``torque``) band-limited like it."""
+    band = plan.edge_hz if plan.edge_hz is not None else plan.lowpass_hz / 1.5
+    slopes = (0.0, 0.0)
+    if options.detrend == "linear":
+        sign = options.torque_sign
+        slopes = (trend_slope(position) * plan.factor, sign * trend_slope(torque) * plan.factor)
+    extra = None
+    if explained is not None:
+        signed = options.torque_sign * np.asarray(explained, dtype=np.float64)
+        extra = _band_limit(signed - signed.mean(), plan)
+    return ScoredBand(band, *slopes, explained=extra)

@@ -33,10 +33,19 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from rtsid.ident.analysis import AnalysisPlan, plan_source, resolve_plan
-from rtsid.ident.assess import TorquePredictions, WindowEstimate, assess, predict_torque
+from rtsid.ident.assess import (
+    ScoredBand,
+    TorquePredictions,
+    WindowEstimate,
+    assess,
+    predict_torque,
+    published_vaf,
+    supported_edge,
+    window_flags,
+)
 from rtsid.ident.check import check_relative_excitation, check_window, without_lost
 from rtsid.ident.fit import NOT_HELD, Held, held_values, output_error_design, output_error_fit
-from rtsid.ident.front import analyse_irf, front_end, prepare_window
+from rtsid.ident.front import analyse_irf, front_end, prepare_window, scored_band
 from rtsid.ident.gaps import WindowGaps
 from rtsid.ident.irf import IRF
 from rtsid.ident.legacy import fit_parameters, legacy_back_end, numpy_back_end, standard_errors
@@ -136,7 +145,8 @@ def estimate_window(
     if overrides:
         options = replace(options, **overrides)
     window = analyse_window(position, torque, fs, options, plan, valid)  # steps 1–3
-    return back_end(*window.signals, options, window.plan, held_values(options, held), window.gaps)
+    held = held_values(options, held)
+    return back_end(*window.signals, options, window.plan, held, window.gaps, window.score)
 
 
 @dataclass(frozen=True)
@@ -148,6 +158,7 @@ class AnalysedWindow:
     y: FloatArray
     irf: IRF
     gaps: WindowGaps | None
+    score: ScoredBand
 
     @property
     def signals(self) -> tuple[IRF, FloatArray, FloatArray]:
@@ -168,10 +179,12 @@ def analyse_window(
     plan: AnalysisPlan | None = None,
     valid: ArrayLike | None = None,
     max_lowpass_hz: float | None = None,
+    explained: ArrayLike | None = None,
 ) -> AnalysedWindow:
     """Check a window (step 1), plan it unless ``plan`` is given (step 2), band-limit it
     and identify its IRF (step 3) — what :func:`estimate_window` and
-    :class:`rtsid.ident.stream.WindowStream` share before their fits.
+    :class:`rtsid.ident.stream.WindowStream` share before their fits. ``explained``: torque
+    already subtracted from ``torque`` (the slow lane's reflex), counted in the VAF.
 
     Raises
     ------
@@ -185,7 +198,8 @@ def analyse_window(
     pos, tor = without_lost(pos, tor, lost)
     plan = plan or resolve_plan(plan_source(pos, lost), fs, options, max_lowpass_hz)  # 2. plan
     u, y, irf, gaps = analyse_irf(pos, tor, fs, options, plan, lost)  # 3. IRF
-    return AnalysedWindow(plan, u, y, irf, gaps)
+    score = scored_band(pos, tor, options, plan, explained)
+    return AnalysedWindow(plan, u, y, irf, gaps, score)
 
 
 def back_end(
@@ -196,16 +210,36 @@ def back_end(
     plan: AnalysisPlan,
     held: Held = NOT_HELD,
     gaps: WindowGaps | None = None,
+    score: ScoredBand | None = None,
 ) -> WindowEstimate:
     """Steps 4–5 of an analysed window: fit and assess it with ``options.fit_method``.
 
     Output error (the default): :func:`output_error_back_end`. The legacy criteria
     (``relative``, ``logmag``): :func:`rtsid.ident.legacy.legacy_back_end`, which fits all
-    three parameters (``held`` is not used).
+    three parameters (``held`` is not used), its ``vaf`` then scored like the default's.
     """
-    if options.fit_method != "output_error":
-        return legacy_back_end(irf, u, y, options, plan, gaps)
-    return output_error_back_end(irf, u, y, options, plan, held, gaps=gaps)
+    if options.fit_method == "output_error":
+        return output_error_back_end(irf, u, y, options, plan, held, gaps=gaps, score=score)
+    estimate = legacy_back_end(irf, u, y, options, plan, gaps)
+    if score is None:
+        return estimate
+    params = np.array([estimate.I, estimate.B, estimate.K])
+    p = predict_torque(irf, u, y, params, gaps)
+    index = np.arange(supported_edge(irf), supported_edge(irf) + p.measured.size)
+    keep = slice(None) if p.rows is None else p.rows
+    published = published_vaf(
+        p.measured[keep],
+        p.model[keep],
+        estimate.K,
+        score,
+        irf.fs_hz,
+        index[keep],
+        in_band=p.rows is None,
+    )
+    vafs = (published, estimate.vaf_irf, estimate.vaf_fit)
+    se = (estimate.I_se, estimate.B_se, estimate.K_se)
+    flags = window_flags((estimate.I, estimate.B, estimate.K), se, vafs, options)
+    return replace(estimate, vaf=vafs[0], flags=flags)
 
 
 def output_error_back_end(
@@ -217,8 +251,9 @@ def output_error_back_end(
     held: Held = NOT_HELD,
     design: OutputErrorDesign | None = None,
     gaps: WindowGaps | None = None,
+    score: ScoredBand | None = None,
 ) -> WindowEstimate:
     """Steps 4–5 with the output-error fit (the default criterion); ``design`` when the
     caller has already formed this window's (:class:`WindowStream` fits it twice)."""
     fit = output_error_fit(irf, u, y, options, plan, held, design, gaps)  # 4. fit
-    return assess(irf, u, y, fit, options, held, gaps)  # 5. assess
+    return assess(irf, u, y, fit, options, held, gaps, score)  # 5. assess

@@ -77,6 +77,7 @@ def test_daemon_logs_every_sample_and_every_estimate(tmp_path, free_port):
     final = list(iter_status(path))[-1]
     assert final["acquisition"]["samples"] == valid
     assert final["worker"]["estimates"] == summary.estimates
+    assert all(type(reason) is str for reason in summary.withheld)  # values, not Reason members
 
 
 def open_files() -> set[str]:
@@ -282,6 +283,42 @@ def test_rtsid_run_exits_1_naming_the_dead_thread(tmp_path, free_port, monkeypat
     assert "rtsid run: error: thread rtsid-worker failed: RuntimeError: injected failure" in err
 
 
+def test_rtsid_run_prints_the_withheld_reasons_as_their_values(
+    tmp_path, free_port, monkeypatch, capsys
+):
+    from rtsid.cli import main
+    from rtsid.runtime.daemon import RunSummary
+    from rtsid.verdicts import Reason
+
+    class OneGap:
+        """A daemon whose run withheld one window for a gap (as the worker counts it)."""
+
+        def __init__(self, *args: object, **kwargs: object) -> None:
+            pass
+
+        def request_stop(self) -> None:
+            pass
+
+        def run(self, duration_s: float | None = None) -> RunSummary:
+            return RunSummary(
+                estimates=9,
+                withheld={Reason.GAP: 1},
+                deadline_misses=0,
+                overruns=0,
+                samples=2500,
+                lost_samples=0,
+                mcap_files=[],
+                mcap_dropped=0,
+                clean_shutdown=True,
+            )
+
+    monkeypatch.setattr("rtsid.commands.run.Daemon", OneGap)
+    config = write_config(tmp_path, free_port)
+    assert main(["run", "--config", str(config), "--quiet", "--duration", "1"]) == 0
+    err = capsys.readouterr().err
+    assert "9 estimates, withheld gap: 1, 0 deadline misses" in err and "<Reason" not in err
+
+
 def test_an_unwritable_recordings_folder_stops_start_up_naming_the_key(tmp_path, free_port, capsys):
     from rtsid.cli import main
 
@@ -312,3 +349,16 @@ def test_a_mute_socketcand_server_neither_hangs_start_up_nor_stop(tmp_path, free
         summary = daemon.run(duration_s=60.0)  # returns through request_stop, not the duration
     assert daemon.acquisition is not None and "did not greet" in daemon.acquisition.last_error
     assert summary.samples == 0 and summary.failure is None
+
+
+def test_an_inverted_torque_sign_stops_the_daemon_naming_the_key(tmp_path, free_port, capsys):
+    # issue 19: a rig whose torque reads inverted gave K, B, I < 0 and ran on. The embedded
+    # plant reports the torque as it is; [estimator] torque_sign = -1 inverts it.
+    from rtsid.cli import main
+
+    config = write_config(tmp_path, free_port, "[estimator]\ntorque_sign = -1.0\n")
+    assert main(["run", "--config", str(config), "--quiet", "--duration", "60"]) == 1
+    err = capsys.readouterr().err
+    failed = "rtsid run: error: thread rtsid-worker failed: ConfigError: most windows read K, B"
+    assert failed in err
+    assert "[estimator] torque_sign = 1 " in err
