@@ -57,12 +57,15 @@ def run(args: argparse.Namespace) -> int:
             since_s = parse_duration_s(args.since, "--since")
         except QueryError as exc:
             raise ConfigError(str(exc)) from None
+    from rtsid.io.zenoh_link import user_key_expr
+
+    key = user_key_expr(args.key)
     connect = connect_endpoints(args)
     if args.web is not None:
         from rtsid.io.web.server import serve_web
 
         return serve_web(
-            args.key,
+            key,
             connect,
             mode=args.mode,
             host=args.host,
@@ -70,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
             timeout_s=args.timeout,
         )
     return watch(
-        args.key,
+        key,
         connect,
         mode=args.mode,
         count=args.count,

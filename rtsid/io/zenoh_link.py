@@ -53,6 +53,7 @@ __all__ = [
     "query",
     "router_config",
     "subscriber_config",
+    "user_key_expr",
     "zenoh_config",
 ]
 
@@ -617,6 +618,10 @@ class ZenohPublisher:
         except QueryError as exc:
             self._answer_error(query, f"{self.keys['history']}: {exc}")
             return
+        except Exception as exc:  # never silence, never a traceback on zenoh's thread
+            self._record_error(f"history query failed: {exc!r}")
+            self._answer_error(query, f"{self.keys['history']}: the query could not be answered")
+            return
         self._answer(query, "history", parts)
 
     def _answer(self, query: Any, name: str, payloads: list[bytes]) -> None:
@@ -671,6 +676,29 @@ class ZenohPublisher:
 
 
 # ---------------------------------------------------------------------- the querying side
+def user_key_expr(text: str, what: str = "key") -> str:
+    """A key expression given by a user (``rtsid watch KEY``, ``rtsid query KEY``), checked by
+    zenoh's own parser; a trailing ``/`` is dropped.
+
+    Raises
+    ------
+    ConfigError
+        Names the key, zenoh's reason and what is expected.
+    """
+    import zenoh
+
+    key = text.rstrip("/")
+    try:
+        zenoh.KeyExpr(key)
+    except zenoh.ZError as exc:
+        reason = str(exc).split(" at /", 1)[0]
+        raise ConfigError(
+            f"{what} {text[:80]!r} is not a zenoh key expression ({reason}); expected e.g. "
+            "rtsid/*/* or rtsid/<robot>/<joint>"
+        ) from None
+    return key
+
+
 @dataclass(frozen=True)
 class QueryAnswer:
     """What the daemons matching a key answered to a query.

@@ -26,6 +26,8 @@ import zenoh
 
 from rtsid.cli import main
 from rtsid.errors import ConfigError, ServiceError
+from rtsid.io.messages import EstimateMessage
+from rtsid.io.schemas import encode_json
 from rtsid.io.watch import LabFeed
 from rtsid.io.zenoh_link import (
     VIEWER_CONFIG_ENV,
@@ -257,10 +259,15 @@ def test_a_daemon_and_the_viewers_commands_work_through_the_secure_router(
 ) -> None:
     cfg = ZenohConfig(config_file=str(lab / "daemon-rig1-ankle.json5"), robot="rig1", joint="ankle")
     monkeypatch.setenv(VIEWER_CONFIG_ENV, str(lab / "viewer-desk.json5"))
-    message = json.dumps(
-        {"robot": "rig1", "joint": "ankle", "seq": 1, "ok": True, "K": 150.0,
-         "host_time_ns": time.time_ns()}
-    ).encode()  # fmt: skip
+    message = encode_json(  # well-formed: the viewers check every message (rtsid.io.validate)
+        EstimateMessage(
+            robot="rig1", joint="ankle", seq=1, window_start_index=0, window_end_index=749,
+            t_start_s=0.0, t_end_s=0.2996, I=0.01, B=0.8, K=150.0, I_se=None, B_se=None,
+            K_se=1.0, K_track=150.0, K_track_se=0.5, B_track=None, B_track_se=None, vaf=90.0,
+            vaf_irf=90.0, vaf_fit=90.0, lost_samples=0, compute_ms=1.0, latency_ms=1.0, ok=True,
+            reason=None, flags=(), host_time_ns=time.time_ns(), I_held=True, B_held=True,
+        ).as_dict()
+    )  # fmt: skip
     with ZenohPublisher(cfg) as pub, LabFeed("rtsid/*/*", ()) as feed:
         assert pub.is_up, pub.stats()
         deadline = time.monotonic() + 10
