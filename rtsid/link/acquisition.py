@@ -9,7 +9,10 @@ Sample bookkeeping, in one place:
 * the 12-bit counter is unwrapped into a monotonic ``sample_index``; after a silence of one
   or more whole wraps (1.64 s at 2500 Hz) the number of wraps comes from the frames' bus
   timestamps (host clock when the interface gives none), rounded towards fewer wraps;
-* a forward jump of ``d`` writes ``d - 1`` invalid rows (a *gap*; ``lost_samples`` += d - 1);
+* a forward jump of ``d`` writes ``d - 1`` invalid rows (a *gap*; ``lost_samples`` += d - 1)
+  once the frames after it confirm it; frames the next in-sequence frames refute are
+  *strays*, dropped (:mod:`rtsid.link.sequence`: a run of up to ``MAX_STRAY_RUN``
+  consecutive strays is classified like one);
 * a frame whose counter is at most ``reorder_window`` behind the newest is late: a
   *duplicate* if its row is valid already, otherwise *out of order*; both are dropped (rows
   already published are never rewritten);
@@ -51,6 +54,7 @@ from rtsid.link.protocol import (
     encode_command,
 )
 from rtsid.link.ring import RingBuffer
+from rtsid.link.sequence import Sequencer
 
 __all__ = ["Acquisition", "LinkCounters", "unwrap_counter"]
 
@@ -59,7 +63,6 @@ CAN_ERR_BUSOFF = 0x40
 _CPU_EVERY = 512  # frames between thread CPU readings
 _WRAP_TOLERANCE = 0.1  # of a wrap period: how much earlier than expected a frame may arrive
 _HOST_SLACK_WRAPS = 0.3  # of a wrap period: how much longer than the host saw a silence may be
-_CONFIRM_FRAMES = 3  # frames continuing from the newest sample that unmask a held jump as stray
 _MAX_REJECTS_IN_ROW = 256  # rejected state frames in a row: a broken link, fatal to the thread
 
 _Sample = tuple[float, float, int, float, float]  # position rad, torque N·m, status, host s, bus s
@@ -147,8 +150,10 @@ class LinkCounters:
         State frames that could not be used (a bus timestamp that is not a finite number,
         or any error handling the frame): counted and dropped, never fatal one by one.
     strays : int
-        State frames whose counter jumped ahead and that no later frame confirmed (a
-        foreign frame with a valid checksum): dropped, so they invent no lost samples.
+        State frames whose counter jumped ahead and that the frames after them refuted
+        (foreign frames with a valid checksum, alone or up to
+        :data:`~rtsid.link.sequence.MAX_STRAY_RUN` in a row): dropped, so they invent no
+        lost samples and never shift the sample index.
     last_frame_age_s : float
         Seconds since the last state frame (since start if none).
     connected : bool
@@ -268,7 +273,6 @@ class Acquisition(ThreadOwner):
                 "commands_seen",
                 "stale_events",
                 "rejected",
-                "strays",
             ),
             0,
         )
@@ -278,8 +282,7 @@ class Acquisition(ThreadOwner):
         self._last_frame_host = self._started
         self._last_bus_time = 0.0
         self._last_index = -1
-        self._pending: tuple[int, _Sample] | None = None  # a jump waiting for confirmation
-        self._pending_strikes = 0
+        self._sequence: Sequencer[_Sample] = Sequencer(reach=reorder_window)
         self._rejects_in_row = 0
         self._backoff = backoff_min_s
         self._last_reopen = self._started
@@ -325,6 +328,8 @@ class Acquisition(ThreadOwner):
     def counters(self) -> LinkCounters:
         """A consistent-enough snapshot of the counters (each value is read once)."""
         c = dict(self._c)
+        c["strays"] = self._sequence.strays
+        c["duplicates"] += self._sequence.duplicates
         age = time.monotonic() - self._last_frame_host
         return LinkCounters(
             **c,
@@ -441,44 +446,25 @@ class Acquisition(ThreadOwner):
             self.anchor_index, self.anchor_host_time_s = counter, now
             self._last_index = counter - 1
             self._write(counter, sample)
+            self._sequence.last = counter
         else:
             self._place(counter, sample)
 
     def _place(self, counter: int, sample: _Sample) -> None:
-        """Write the sample a frame carries, holding a jump until a later frame confirms it.
+        """Write the sample a frame carries, or hold it while it may be a stray.
 
-        A frame that jumps ahead is held (``_pending``). The next frame that lands past it
-        confirms the jump (the gap is written, then the held sample); frames landing in the
-        gap fill it (reordering). When ``_CONFIRM_FRAMES`` frames continue from the newest
-        sample instead, the held frame was a stray (a foreign or corrupt frame whose checksum
-        happened to pass): it is dropped and counted, and invents no lost samples.
+        Late frames (at or behind the newest sample) are dropped and counted here; every
+        other frame goes through the :class:`~rtsid.link.sequence.Sequencer`, which holds
+        counter jumps until later frames confirm them (a gap) or refute them (strays:
+        dropped, counted, inventing no lost samples and never shifting the index).
         """
         last = self._last_index
         index = self._unwrap(counter, last, sample[4], sample[3])
-        pending = self._pending
         if index <= last:
             self._late(index)
-        elif pending is None:
-            if index == last + 1:
-                self._write(index, sample)
-            else:
-                self._pending, self._pending_strikes = (index, sample), 0
-        elif index == pending[0]:
-            self._c["duplicates"] += 1
-        elif index > pending[0]:  # continues past the held frame: the jump was real
-            self._pending = None
-            self._write(*pending)
-            self._place(counter, sample)
-        else:  # lands between the newest sample and the held frame
-            self._write(index, sample)
-            if pending[0] == self._last_index + 1:
-                self._pending = None
-                self._write(*pending)
-            else:
-                self._pending_strikes += 1
-                if self._pending_strikes >= _CONFIRM_FRAMES:
-                    self._pending = None
-                    self._c["strays"] += 1
+            return
+        for row_index, row in self._sequence.offer(index, sample):
+            self._write(row_index, row)
 
     def _write(self, index: int, sample: _Sample) -> None:
         """Write sample ``index`` after the newest one, the skipped indices as a gap."""
