@@ -6,10 +6,13 @@ import argparse
 import logging
 import signal
 import sys
+from collections.abc import Mapping
 from typing import Any
 
 from rtsid.config import to_toml
 from rtsid.errors import ConfigError
+from rtsid.link.acquisition import explain_link_state
+from rtsid.link.config import LinkConfig
 from rtsid.runtime.daemon import Daemon, DaemonConfig
 
 
@@ -42,13 +45,19 @@ def _fmt(value: Any, spec: str) -> str:
     return "—" if value is None else format(value, spec)
 
 
-def status_line(status: dict[str, Any], estimate: dict[str, Any] | None) -> str:
-    """One console line: the newest estimate and the health counters."""
+def status_line(
+    status: dict[str, Any], estimate: dict[str, Any] | None, where: str = "the bus"
+) -> str:
+    """One console line: the newest estimate (or why none comes) and the health counters.
+
+    ``where`` names the link's far end (:func:`link_where`) in the reason for waiting.
+    """
     acq, worker = status.get("acquisition", {}), status.get("worker", {})
     withheld = sum(worker.get("withheld", {}).values())
     head = f"t={status.get('uptime_s', 0):6.1f}s"
+    why = explain_link_state(acq, where)
     if estimate is None:
-        est = "waiting for the first window"
+        est = "waiting for the first window" if why is None else f"waiting: {why}"
     elif estimate["ok"]:
         est = (
             f"K={_fmt(estimate['K'], '7.1f')}±{_fmt(estimate['K_se'], '.1f')} N·m/rad  "
@@ -57,12 +66,31 @@ def status_line(status: dict[str, Any], estimate: dict[str, Any] | None) -> str:
         )
     else:
         est = f"withheld: {estimate['reason']}"
+    if estimate is not None and why is not None:
+        est = f"{est}; link: {why}"
     health = (
         f"[{worker.get('estimates', 0)} estimates, {withheld} withheld, "
         f"{worker.get('deadline_misses', 0)} misses, {acq.get('lost_samples', 0)} lost, "
         f"cpu {status.get('cpu_percent', 0):.0f}%]"
     )
     return f"{head}  {est}  {health}"
+
+
+def link_where(link: LinkConfig) -> str:
+    """The link's far end as a user names it: ``host:port``, the adapter and channel."""
+    if link.interface == "socketcand":
+        return f"{link.host}:{link.port}"
+    if link.interface == "embedded":
+        return "the embedded plant"
+    return f"{link.interface} channel {link.channel}"
+
+
+def counts_text(counts: Mapping[str, int]) -> str:
+    """``4 (gap: 1, stale: 3)`` for a count per reason; ``0`` when there is none."""
+    total = sum(counts.values())
+    if not counts:
+        return "0"
+    return f"{total} (" + ", ".join(f"{key}: {n}" for key, n in sorted(counts.items())) + ")"
 
 
 def _zenoh_where(config: DaemonConfig) -> str:
@@ -100,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
 
     def show(status: dict[str, Any], estimate: dict[str, Any] | None) -> None:
-        print(status_line(status, estimate), flush=True)
+        print(status_line(status, estimate, link_where(config.link)), flush=True)
 
     if not args.quiet:  # the worker says once which analysis it chose, and so on
         logging.basicConfig(level=logging.INFO, format="rtsid run: %(message)s")
@@ -134,7 +162,8 @@ def run(args: argparse.Namespace) -> int:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     print(
-        f"rtsid run: stopped — {summary.estimates} estimates, withheld {summary.withheld or 0}, "
+        f"rtsid run: stopped — {summary.estimates} estimates, "
+        f"withheld {counts_text(summary.withheld)}, "
         f"{summary.deadline_misses} deadline misses, {summary.samples} samples "
         f"({summary.lost_samples} lost), MCAP: {', '.join(summary.mcap_files) or 'none'}"
         f"{'' if summary.clean_shutdown else ' (shutdown was not clean)'}",

@@ -33,13 +33,13 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import can
 
-from rtsid.errors import LinkError
+from rtsid.errors import LinkError, LinkHandshakeError
 from rtsid.lifecycle import ThreadOwner
 from rtsid.link.protocol import (
     COMMAND_ID,
@@ -56,7 +56,7 @@ from rtsid.link.protocol import (
 from rtsid.link.ring import RingBuffer
 from rtsid.link.sequence import Sequencer
 
-__all__ = ["Acquisition", "LinkCounters", "unwrap_counter"]
+__all__ = ["LINK_STATES", "Acquisition", "LinkCounters", "explain_link_state", "unwrap_counter"]
 
 BusFactory = Callable[[], can.BusABC]
 CAN_ERR_BUSOFF = 0x40
@@ -66,6 +66,19 @@ _HOST_SLACK_WRAPS = 0.3  # of a wrap period: how much longer than the host saw a
 _MAX_REJECTS_IN_ROW = 256  # rejected state frames in a row: a broken link, fatal to the thread
 
 _Sample = tuple[float, float, int, float, float]  # position rad, torque N·m, status, host s, bus s
+
+#: Where the link stands (``link_state`` in the counters): why no samples come, or that they do.
+LINK_STATES = {
+    "opening": "the bus is being opened (at start, or again after an error)",
+    "unreachable": "the last attempt to open the bus failed (no server, adapter or channel)",
+    "no_greeting": "the server accepted the connection but never greeted (socketcand)",
+    "no_frames": "the bus is open and no frame has arrived yet",
+    "no_state_frames": "frames arrive but none is a usable state frame (identifiers, length, "
+    "checksum)",
+    "streaming": "state frames arrive",
+    "stale": "no state frame for longer than stale_after_s",
+    "stopped": "the acquisition was stopped",
+}
 
 
 def _usable_time(stamp: Any) -> bool:
@@ -114,6 +127,46 @@ def unwrap_counter(
     return last + delta
 
 
+def explain_link_state(acquisition: Mapping[str, Any], where: str) -> str | None:
+    """Why no samples come, in words, from a status message's ``acquisition`` object.
+
+    Parameters
+    ----------
+    acquisition : Mapping
+        :class:`LinkCounters` as a dict (the status message's ``acquisition``).
+    where : str
+        The link's far end as a user knows it, e.g. ``"127.0.0.1:29536"``.
+
+    Returns
+    -------
+    str or None
+        E.g. ``"connected to 127.0.0.1:29536 but socketcand has not greeted (bus errors
+        4)"``; None while state frames stream (or from a status without ``link_state``).
+    """
+    state = acquisition.get("link_state", "streaming")
+    errors = f"bus errors {acquisition.get('bus_errors', 0)}"
+    if state == "opening":
+        return f"opening the bus at {where} ({errors})"
+    if state == "unreachable":
+        return f"not connected to {where} ({errors}; last: {acquisition.get('last_error')})"
+    if state == "no_greeting":
+        return f"connected to {where} but socketcand has not greeted ({errors})"
+    if state == "no_frames":
+        return f"connected to {where}, no frames yet from the bus"
+    if state == "no_state_frames":
+        return (
+            f"{acquisition.get('frames', 0)} frames from {where} but no state frame "
+            f"({acquisition.get('unknown_id', 0)} unknown id, "
+            f"{acquisition.get('malformed', 0)} malformed): check the robot's identifiers"
+        )
+    if state == "stopped":
+        return "the acquisition has stopped"
+    if state == "stale":
+        age_s = float(acquisition.get("last_frame_age_s", 0.0))
+        return f"stale: no state frame from {where} for {age_s:.1f} s"
+    return None
+
+
 @dataclass(frozen=True)
 class LinkCounters:
     """A snapshot of the acquisition's counters (all cumulative since start).
@@ -158,6 +211,10 @@ class LinkCounters:
         Seconds since the last state frame (since start if none).
     connected : bool
         A bus is open.
+    link_state : str
+        One of :data:`LINK_STATES`: why no samples come, or ``streaming``.
+    last_error : str
+        The newest error seen (opening the bus, receiving, a rejected frame); empty if none.
     thread_cpu_s : float
         CPU time of the acquisition thread, s.
     newest_index : int
@@ -185,6 +242,8 @@ class LinkCounters:
     strays: int
     last_frame_age_s: float
     connected: bool
+    link_state: str
+    last_error: str
     thread_cpu_s: float
     newest_index: int
 
@@ -282,6 +341,7 @@ class Acquisition(ThreadOwner):
         self._last_frame_host = self._started
         self._last_bus_time = 0.0
         self._last_index = -1
+        self._open_failure = ""  # why the last opening of the bus failed ("" after success)
         self._sequence: Sequencer[_Sample] = Sequencer(reach=reorder_window)
         self._rejects_in_row = 0
         self._backoff = backoff_min_s
@@ -331,15 +391,28 @@ class Acquisition(ThreadOwner):
         c["strays"] = self._sequence.strays
         c["duplicates"] += self._sequence.duplicates
         age = time.monotonic() - self._last_frame_host
+        connected = self._bus is not None
         return LinkCounters(
             **c,
             ring_overwrites=self.ring.reader_overruns,
             stale=age > self.stale_after_s,
             last_frame_age_s=age,
-            connected=self._bus is not None,
+            connected=connected,
+            link_state=self._link_state(connected, c["frames"], age),
+            last_error=self.last_error,
             thread_cpu_s=self._cpu_s,
             newest_index=self.ring.newest_index,
         )
+
+    def _link_state(self, connected: bool, frames: int, age_s: float) -> str:
+        """One of :data:`LINK_STATES`."""
+        if self._stop.is_set():
+            return "stopped"
+        if not connected:
+            return self._open_failure or "opening"
+        if self._last_index < 0:
+            return "no_state_frames" if frames else "no_frames"
+        return "stale" if age_s > self.stale_after_s else "streaming"
 
     def sample_time_s(self, index: int) -> float:
         """Host-clock (``time.monotonic``) time of sample ``index``, from the counter."""
@@ -551,7 +624,10 @@ class Acquisition(ThreadOwner):
         except Exception as exc:
             self._c["bus_errors"] += 1
             self._note_error(exc)
+            handshake = isinstance(exc, LinkHandshakeError)
+            self._open_failure = "no_greeting" if handshake else "unreachable"
             return
+        self._open_failure = ""
         with self._send_lock:
             self._bus = bus
         self._c["reconnects"] += reconnect

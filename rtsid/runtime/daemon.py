@@ -487,7 +487,7 @@ class Daemon:
         stats = mcap.stats()
         return RunSummary(
             estimates=worker.estimates if worker else 0,
-            withheld=worker.withheld if worker else {},
+            withheld={str(k): n for k, n in worker.withheld.items()} if worker else {},
             deadline_misses=worker.deadline_misses if worker else 0,
             overruns=worker.overruns if worker else 0,
             samples=acq.samples if acq else 0,
