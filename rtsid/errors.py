@@ -10,6 +10,7 @@
     ├── NumericalError(ArithmeticError)  the numerics cannot give a trustworthy answer
     │   └── NotPositiveDefiniteError     Toeplitz matrix not positive definite
     ├── LinkError(OSError)               the hardware link (CAN bus, socketcand, protocol)
+    │   └── LinkHandshakeError           connected, but the far end never completed its handshake
     ├── RecordingError(OSError)          reading or writing recordings (MCAP, CSV, npz)
     └── ServiceError(RuntimeError)       the daemon's threads, zenoh, deadlines
 
@@ -99,6 +100,11 @@ class NotPositiveDefiniteError(NumericalError):
 
 class LinkError(RtsidError, OSError):
     """The hardware link failed: bus, socketcand connection or protocol."""
+
+
+class LinkHandshakeError(LinkError):
+    """The connection opened but the far end never completed its handshake (a socketcand
+    server that accepts and never greets)."""
 
 
 class RecordingError(RtsidError, OSError):

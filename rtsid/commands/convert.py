@@ -96,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"frames {c.frames}: gaps {c.gaps} ({c.lost_samples} samples lost), duplicates "
             f"{c.duplicates}, out of order {c.out_of_order}, malformed {c.malformed}, "
-            f"unknown id {c.unknown_id}, error frames {c.error_frames}"
+            f"unknown id {c.unknown_id}, error frames {c.error_frames}, strays {c.strays}"
         )
     print(f"wrote {out}; next: rtsid replay {out}")
     return 0

@@ -11,6 +11,8 @@ from typing import Any
 from rtsid.commands.common import add_duration
 from rtsid.config import to_toml
 from rtsid.errors import ConfigError
+from rtsid.link.acquisition import explain_link_state
+from rtsid.link.config import LinkConfig
 from rtsid.runtime.daemon import Daemon, DaemonConfig
 from rtsid.verdicts import format_counts
 
@@ -45,13 +47,19 @@ def _fmt(value: Any, spec: str) -> str:
     return "—" if value is None else format(value, spec)
 
 
-def status_line(status: dict[str, Any], estimate: dict[str, Any] | None) -> str:
-    """One console line: the newest estimate and the health counters."""
+def status_line(
+    status: dict[str, Any], estimate: dict[str, Any] | None, where: str = "the bus"
+) -> str:
+    """One console line: the newest estimate (or why none comes) and the health counters.
+
+    ``where`` names the link's far end (:func:`link_where`) in the reason for waiting.
+    """
     acq, worker = status.get("acquisition", {}), status.get("worker", {})
     withheld = sum(worker.get("withheld", {}).values())
     head = f"t={status.get('uptime_s', 0):6.1f}s"
+    why = explain_link_state(acq, where)
     if estimate is None:
-        est = "waiting for the first window"
+        est = "waiting for the first window" if why is None else f"waiting: {why}"
     elif estimate["ok"]:
         est = (
             f"K={_fmt(estimate['K'], '7.1f')}±{_fmt(estimate['K_se'], '.1f')} N·m/rad  "
@@ -60,12 +68,23 @@ def status_line(status: dict[str, Any], estimate: dict[str, Any] | None) -> str:
         )
     else:
         est = f"withheld: {estimate['reason']}"
+    if estimate is not None and why is not None:
+        est = f"{est}; link: {why}"
     health = (
         f"[{worker.get('estimates', 0)} estimates, {withheld} withheld, "
         f"{worker.get('deadline_misses', 0)} misses, {acq.get('lost_samples', 0)} lost, "
         f"cpu {status.get('cpu_percent', 0):.0f}%]"
     )
     return f"{head}  {est}  {health}"
+
+
+def link_where(link: LinkConfig) -> str:
+    """The link's far end as a user names it: ``host:port``, the adapter and channel."""
+    if link.interface == "socketcand":
+        return f"{link.host}:{link.port}"
+    if link.interface == "embedded":
+        return "the embedded plant"
+    return f"{link.interface} channel {link.channel}"
 
 
 def _zenoh_where(config: DaemonConfig) -> str:
@@ -103,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
 
     def show(status: dict[str, Any], estimate: dict[str, Any] | None) -> None:
-        print(status_line(status, estimate), flush=True)
+        print(status_line(status, estimate, link_where(config.link)), flush=True)
 
     if not args.quiet:  # the worker says once which analysis it chose, and so on
         logging.basicConfig(level=logging.INFO, format="rtsid run: %(message)s")

@@ -6,8 +6,10 @@ Sources:
   read with python-can's :func:`can.LogReader` and decoded with the project's DBC
   (:func:`rtsid.link.protocol.decode_state`). Samples are numbered exactly as the live link
   numbers them (:func:`rtsid.link.acquisition.unwrap_counter`): a jump of the sequence
-  counter becomes invalid rows (a gap, later withheld, never bridged), late frames
-  (duplicates, reordered) are dropped, malformed frames are counted and never decoded.
+  counter becomes invalid rows (a gap, later withheld, never bridged) once the frames after it
+  confirm it, stray frames are dropped (:class:`rtsid.link.sequence.Sequencer`, as live),
+  late frames (duplicates, reordered) are dropped, malformed frames are counted and never
+  decoded.
 * Sample files ``.npz``/``.csv`` (:func:`rtsid.io.sample_files.load_samples`); non-finite
   values become invalid rows.
 
@@ -44,6 +46,7 @@ from rtsid.link.protocol import (
     TORQUE_SCALE_NM,
     decode_state,
 )
+from rtsid.link.sequence import Sequencer
 
 __all__ = [
     "CAN_LOG_SUFFIXES",
@@ -79,6 +82,8 @@ class ImportCounters:
     error_frames: int = 0
     diagnostics: int = 0
     commands_seen: int = 0
+    strays: int = 0  # jumped frames the frames after them refuted (dropped, as live)
+    unjudged: int = 0  # frames after a jump at the very end, too few to judge (not written)
 
     def as_metadata(self) -> dict[str, str]:
         """As MCAP metadata strings, prefixed ``import_``."""
@@ -202,6 +207,7 @@ def read_can_log(path: str | Path, fs_hz: float, *, reorder_window: int = 64) ->
     first = last = -1
     last_time = 0.0
     first_time = 0.0
+    sequence: Sequencer[tuple[int, int, int, float]] = Sequencer(reach=reorder_window)
     try:
         with can.LogReader(p) as reader:
             for msg in reader:
@@ -211,22 +217,24 @@ def read_can_log(path: str | Path, fs_hz: float, *, reorder_window: int = 64) ->
                 position, torque, counter, status = state
                 stamp = float(msg.timestamp or 0.0)
                 if last < 0:
-                    first = last = counter
-                    first_time = stamp
-                else:
-                    elapsed = stamp - last_time if stamp > 0 and stamp >= last_time else 0.0
-                    index = unwrap_counter(counter, last, elapsed, fs_hz, reorder_window)
-                    if index <= last:
-                        _count_late(counters, rows, index - first)
-                        continue
-                    if index > last + 1:
+                    first = last = sequence.last = counter
+                    first_time = last_time = stamp
+                    rows.add(position, torque, status)
+                    counters.samples += 1
+                    continue
+                elapsed = stamp - last_time if stamp > 0 and stamp >= last_time else 0.0
+                index = unwrap_counter(counter, last, elapsed, fs_hz, reorder_window)
+                if index <= last:
+                    _count_late(counters, rows, index - first)
+                    continue
+                for row_index, row in sequence.offer(index, (position, torque, status, stamp)):
+                    if row_index > last + 1:
                         counters.gaps += 1
-                        counters.lost_samples += index - last - 1
-                        rows.gap(index - last - 1)
-                    last = index
-                rows.add(position, torque, status)
-                counters.samples += 1
-                last_time = stamp
+                        counters.lost_samples += row_index - last - 1
+                        rows.gap(row_index - last - 1)
+                    rows.add(*row[:3])
+                    counters.samples += 1
+                    last, last_time = row_index, row[3]
     except (OSError, ValueError, EOFError) as exc:
         raise InputDataError(f"{p}: cannot read it as a CAN log ({exc})") from None
     if first < 0:
@@ -234,6 +242,8 @@ def read_can_log(path: str | Path, fs_hz: float, *, reorder_window: int = 64) ->
             f"{p}: no AnkleState frames (id 0x{STATE_ID:X}) among {counters.frames} frames; "
             "is it a capture of the ankle robot's bus?"
         )
+    counters.strays, counters.unjudged = sequence.strays, sequence.held
+    counters.duplicates += sequence.duplicates
     start_ns = round(first_time * 1e9) if first_time > _EPOCH_2000_S else 0
     return ImportedSamples(
         first_index=first,

@@ -289,7 +289,9 @@ ESTIMATE_SCHEMA: dict[str, Any] = schema_of(EstimateMessage, "rtsid.Estimate")
 def _counters(description: str, names: Sequence[str]) -> dict[str, Any]:
     return {
         "description": description,
-        "properties": {n: {"type": ["integer", "number", "boolean", "null"]} for n in names},
+        "properties": {
+            n: {"type": ["integer", "number", "boolean", "string", "null"]} for n in names
+        },
         "additionalProperties": True,
     }
 

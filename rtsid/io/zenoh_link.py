@@ -22,7 +22,9 @@ zenoh json5 file (``config_file``). :func:`router_config` builds the configurati
 :class:`ZenohPublisher` never raises into its caller: when the session cannot open (port
 taken, bad endpoint) the error is logged, counted and kept in :meth:`~ZenohPublisher.stats`,
 publishing is skipped (counted as ``not_published``), and a background thread retries the
-session every ``retry_interval_s``. Queryable callbacks only reply with a prepared bytes
+session every ``retry_interval_s``. A client whose router is gone (zenoh reconnects by
+itself) has nowhere to send: its messages are counted as ``not_published`` too, never as
+``published``. Queryable callbacks only reply with a prepared bytes
 snapshot; they never call into the session nor block.
 """
 
@@ -159,6 +161,9 @@ class ZenohConfig:
         """Build from the ``[zenoh]`` TOML table (unknown keys and bad values rejected)."""
         return section_from_mapping(cls, mapping, "zenoh")
 
+
+#: Why a message was not published (``not_published_by_reason`` in the status).
+NOT_PUBLISHED_REASONS = ("session_down", "no_router")
 
 _KEYS = ("estimate", "status", "samples", "reflex", "alive", "config", "history")
 
@@ -305,10 +310,23 @@ def _config_from_file(path_text: str, key: str) -> Any:
 class _Entities:
     """An open session and what was declared on it."""
 
-    def __init__(self, session: Any, publishers: dict[str, Any], others: list[Any]) -> None:
+    def __init__(
+        self, session: Any, publishers: dict[str, Any], others: list[Any], client: bool
+    ) -> None:
         self.session = session
         self.publishers = publishers
         self.others = others
+        self.client = client  # a client reaches nobody while it has no router
+
+    def has_route(self) -> bool:
+        """Whether a put can leave this session: always for a peer (whoever connects to it
+        gets it), only while a router is connected for a client."""
+        if not self.client:
+            return True
+        try:
+            return bool(self.session.info.routers_zid())  # < 1 µs
+        except Exception:  # a closing session
+            return False
 
 
 class ZenohPublisher:
@@ -350,7 +368,7 @@ class ZenohPublisher:
         self._retry_thread: threading.Thread | None = None
         self._config_bytes = encode_json(run_config or {})
         self._published = 0
-        self._not_published = 0
+        self._not_published = dict.fromkeys(NOT_PUBLISHED_REASONS, 0)
         self._errors = 0
         self._open_attempts = 0
         self._queries = 0
@@ -456,9 +474,10 @@ class ZenohPublisher:
             if self.history is not None:
                 self.history.append(name, payload)
         entities = self._entities
-        if entities is None:
+        if entities is None or not entities.has_route():
+            reason = "session_down" if entities is None else "no_router"
             with self._count_lock:
-                self._not_published += 1
+                self._not_published[reason] += 1
             return False
         try:
             entities.publishers[name].put(payload)
@@ -476,17 +495,23 @@ class ZenohPublisher:
         -------
         dict
             ``state`` (disabled, starting, up, down, router_lost, closed), ``mode``, ``listen``,
-            ``connect``, ``published``, ``not_published`` (session down), ``errors``,
-            ``last_error``, ``open_attempts``, ``queries`` (answered), ``query_errors``
-            (malformed queries answered with an error reply), ``history_s``.
+            ``connect``, ``published`` (handed to zenoh with a way out: a peer's open
+            session, a client's connected router), ``not_published`` (messages that went
+            nowhere) and ``not_published_by_reason`` (``session_down``: no session;
+            ``no_router``: a client's router was gone), ``errors``, ``last_error``,
+            ``open_attempts``, ``queries`` (answered), ``query_errors`` (malformed queries
+            answered with an error reply), ``history_s``.
         """
+        with self._count_lock:
+            not_published = dict(self._not_published)
         return {
             "state": self._link_state(),
             "mode": self.cfg.mode,
             "listen": list(self.cfg.listen) if self.cfg.mode == "peer" else [],
             "connect": list(self.cfg.connect),
             "published": self._published,
-            "not_published": self._not_published,
+            "not_published": sum(not_published.values()),
+            "not_published_by_reason": not_published,
             "errors": self._errors,
             "last_error": self._last_error,
             "open_attempts": self._open_attempts,
@@ -499,12 +524,9 @@ class ZenohPublisher:
         """``state``, with ``router_lost`` while a client's session has no router (zenoh
         reconnects by itself; said once when it goes and once when it is back)."""
         entities = self._entities
-        if self._state != "up" or entities is None or self.cfg.mode != "client":
+        if self._state != "up" or entities is None or not entities.client:
             return self._state
-        try:
-            connected = bool(list(entities.session.info.routers_zid()))
-        except Exception:  # a closing session: report what we knew
-            return self._state
+        connected = entities.has_route()
         if connected == self._router_lost:  # a transition
             self._router_lost = not connected
             if connected:
@@ -524,8 +546,9 @@ class ZenohPublisher:
         self._open_attempts += 1
         session = None
         try:
-            session = zenoh.open(zenoh_config(self.cfg))
-            entities = self._declare(session)
+            conf = zenoh_config(self.cfg)
+            session = zenoh.open(conf)
+            entities = self._declare(session, client=json.loads(conf.get_json("mode")) == "client")
         except Exception as exc:  # ZError (port taken, bad endpoint) or ConfigError
             if session is not None:
                 try:
@@ -561,7 +584,7 @@ class ZenohPublisher:
             "this port? set zenoh.listen to a free one)"
         )
 
-    def _declare(self, session: Any) -> _Entities:
+    def _declare(self, session: Any, *, client: bool) -> _Entities:
         import zenoh
 
         json_enc = zenoh.Encoding.APPLICATION_JSON
@@ -591,7 +614,7 @@ class ZenohPublisher:
             session.declare_queryable(self.keys["estimate"], self._answer_latest_estimate),
             session.declare_queryable(self.keys["history"], self._answer_history),
         ]
-        return _Entities(session, publishers, others)
+        return _Entities(session, publishers, others, client)
 
     def _answer_latest_estimate(self, query: Any) -> None:
         self._answer_latest(query, "estimate")

@@ -9,7 +9,10 @@ Sample bookkeeping, in one place:
 * the 12-bit counter is unwrapped into a monotonic ``sample_index``; after a silence of one
   or more whole wraps (1.64 s at 2500 Hz) the number of wraps comes from the frames' bus
   timestamps (host clock when the interface gives none), rounded towards fewer wraps;
-* a forward jump of ``d`` writes ``d - 1`` invalid rows (a *gap*; ``lost_samples`` += d - 1);
+* a forward jump of ``d`` writes ``d - 1`` invalid rows (a *gap*; ``lost_samples`` += d - 1)
+  once the frames after it confirm it; frames the next in-sequence frames refute are
+  *strays*, dropped (:mod:`rtsid.link.sequence`: a run of up to ``MAX_STRAY_RUN``
+  consecutive strays is classified like one);
 * a frame whose counter is at most ``reorder_window`` behind the newest is late: a
   *duplicate* if its row is valid already, otherwise *out of order*; both are dropped (rows
   already published are never rewritten);
@@ -30,13 +33,13 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import can
 
-from rtsid.errors import LinkError
+from rtsid.errors import LinkError, LinkHandshakeError
 from rtsid.lifecycle import ThreadOwner
 from rtsid.link.protocol import (
     COMMAND_ID,
@@ -51,18 +54,31 @@ from rtsid.link.protocol import (
     encode_command,
 )
 from rtsid.link.ring import RingBuffer
+from rtsid.link.sequence import Sequencer
 
-__all__ = ["Acquisition", "LinkCounters", "unwrap_counter"]
+__all__ = ["LINK_STATES", "Acquisition", "LinkCounters", "explain_link_state", "unwrap_counter"]
 
 BusFactory = Callable[[], can.BusABC]
 CAN_ERR_BUSOFF = 0x40
 _CPU_EVERY = 512  # frames between thread CPU readings
 _WRAP_TOLERANCE = 0.1  # of a wrap period: how much earlier than expected a frame may arrive
 _HOST_SLACK_WRAPS = 0.3  # of a wrap period: how much longer than the host saw a silence may be
-_CONFIRM_FRAMES = 3  # frames continuing from the newest sample that unmask a held jump as stray
 _MAX_REJECTS_IN_ROW = 256  # rejected state frames in a row: a broken link, fatal to the thread
 
 _Sample = tuple[float, float, int, float, float]  # position rad, torque N·m, status, host s, bus s
+
+#: Where the link stands (``link_state`` in the counters): why no samples come, or that they do.
+LINK_STATES = {
+    "opening": "the bus is being opened (at start, or again after an error)",
+    "unreachable": "the last attempt to open the bus failed (no server, adapter or channel)",
+    "no_greeting": "the server accepted the connection but never greeted (socketcand)",
+    "no_frames": "the bus is open and no frame has arrived yet",
+    "no_state_frames": "frames arrive but none is a usable state frame (identifiers, length, "
+    "checksum)",
+    "streaming": "state frames arrive",
+    "stale": "no state frame for longer than stale_after_s",
+    "stopped": "the acquisition was stopped",
+}
 
 
 def _usable_time(stamp: Any) -> bool:
@@ -111,6 +127,46 @@ def unwrap_counter(
     return last + delta
 
 
+def explain_link_state(acquisition: Mapping[str, Any], where: str) -> str | None:
+    """Why no samples come, in words, from a status message's ``acquisition`` object.
+
+    Parameters
+    ----------
+    acquisition : Mapping
+        :class:`LinkCounters` as a dict (the status message's ``acquisition``).
+    where : str
+        The link's far end as a user knows it, e.g. ``"127.0.0.1:29536"``.
+
+    Returns
+    -------
+    str or None
+        E.g. ``"connected to 127.0.0.1:29536 but socketcand has not greeted (bus errors
+        4)"``; None while state frames stream (or from a status without ``link_state``).
+    """
+    state = acquisition.get("link_state", "streaming")
+    errors = f"bus errors {acquisition.get('bus_errors', 0)}"
+    if state == "opening":
+        return f"opening the bus at {where} ({errors})"
+    if state == "unreachable":
+        return f"not connected to {where} ({errors}; last: {acquisition.get('last_error')})"
+    if state == "no_greeting":
+        return f"connected to {where} but socketcand has not greeted ({errors})"
+    if state == "no_frames":
+        return f"connected to {where}, no frames yet from the bus"
+    if state == "no_state_frames":
+        return (
+            f"{acquisition.get('frames', 0)} frames from {where} but no state frame "
+            f"({acquisition.get('unknown_id', 0)} unknown id, "
+            f"{acquisition.get('malformed', 0)} malformed): check the robot's identifiers"
+        )
+    if state == "stopped":
+        return "the acquisition has stopped"
+    if state == "stale":
+        age_s = float(acquisition.get("last_frame_age_s", 0.0))
+        return f"stale: no state frame from {where} for {age_s:.1f} s"
+    return None
+
+
 @dataclass(frozen=True)
 class LinkCounters:
     """A snapshot of the acquisition's counters (all cumulative since start).
@@ -147,12 +203,18 @@ class LinkCounters:
         State frames that could not be used (a bus timestamp that is not a finite number,
         or any error handling the frame): counted and dropped, never fatal one by one.
     strays : int
-        State frames whose counter jumped ahead and that no later frame confirmed (a
-        foreign frame with a valid checksum): dropped, so they invent no lost samples.
+        State frames whose counter jumped ahead and that the frames after them refuted
+        (foreign frames with a valid checksum, alone or up to
+        :data:`~rtsid.link.sequence.MAX_STRAY_RUN` in a row): dropped, so they invent no
+        lost samples and never shift the sample index.
     last_frame_age_s : float
         Seconds since the last state frame (since start if none).
     connected : bool
         A bus is open.
+    link_state : str
+        One of :data:`LINK_STATES`: why no samples come, or ``streaming``.
+    last_error : str
+        The newest error seen (opening the bus, receiving, a rejected frame); empty if none.
     thread_cpu_s : float
         CPU time of the acquisition thread, s.
     newest_index : int
@@ -180,6 +242,8 @@ class LinkCounters:
     strays: int
     last_frame_age_s: float
     connected: bool
+    link_state: str
+    last_error: str
     thread_cpu_s: float
     newest_index: int
 
@@ -268,7 +332,6 @@ class Acquisition(ThreadOwner):
                 "commands_seen",
                 "stale_events",
                 "rejected",
-                "strays",
             ),
             0,
         )
@@ -278,8 +341,8 @@ class Acquisition(ThreadOwner):
         self._last_frame_host = self._started
         self._last_bus_time = 0.0
         self._last_index = -1
-        self._pending: tuple[int, _Sample] | None = None  # a jump waiting for confirmation
-        self._pending_strikes = 0
+        self._open_failure = ""  # why the last opening of the bus failed ("" after success)
+        self._sequence: Sequencer[_Sample] = Sequencer(reach=reorder_window)
         self._rejects_in_row = 0
         self._backoff = backoff_min_s
         self._last_reopen = self._started
@@ -325,16 +388,31 @@ class Acquisition(ThreadOwner):
     def counters(self) -> LinkCounters:
         """A consistent-enough snapshot of the counters (each value is read once)."""
         c = dict(self._c)
+        c["strays"] = self._sequence.strays
+        c["duplicates"] += self._sequence.duplicates
         age = time.monotonic() - self._last_frame_host
+        connected = self._bus is not None
         return LinkCounters(
             **c,
             ring_overwrites=self.ring.reader_overruns,
             stale=age > self.stale_after_s,
             last_frame_age_s=age,
-            connected=self._bus is not None,
+            connected=connected,
+            link_state=self._link_state(connected, c["frames"], age),
+            last_error=self.last_error,
             thread_cpu_s=self._cpu_s,
             newest_index=self.ring.newest_index,
         )
+
+    def _link_state(self, connected: bool, frames: int, age_s: float) -> str:
+        """One of :data:`LINK_STATES`."""
+        if self._stop.is_set():
+            return "stopped"
+        if not connected:
+            return self._open_failure or "opening"
+        if self._last_index < 0:
+            return "no_state_frames" if frames else "no_frames"
+        return "stale" if age_s > self.stale_after_s else "streaming"
 
     def sample_time_s(self, index: int) -> float:
         """Host-clock (``time.monotonic``) time of sample ``index``, from the counter."""
@@ -441,44 +519,25 @@ class Acquisition(ThreadOwner):
             self.anchor_index, self.anchor_host_time_s = counter, now
             self._last_index = counter - 1
             self._write(counter, sample)
+            self._sequence.last = counter
         else:
             self._place(counter, sample)
 
     def _place(self, counter: int, sample: _Sample) -> None:
-        """Write the sample a frame carries, holding a jump until a later frame confirms it.
+        """Write the sample a frame carries, or hold it while it may be a stray.
 
-        A frame that jumps ahead is held (``_pending``). The next frame that lands past it
-        confirms the jump (the gap is written, then the held sample); frames landing in the
-        gap fill it (reordering). When ``_CONFIRM_FRAMES`` frames continue from the newest
-        sample instead, the held frame was a stray (a foreign or corrupt frame whose checksum
-        happened to pass): it is dropped and counted, and invents no lost samples.
+        Late frames (at or behind the newest sample) are dropped and counted here; every
+        other frame goes through the :class:`~rtsid.link.sequence.Sequencer`, which holds
+        counter jumps until later frames confirm them (a gap) or refute them (strays:
+        dropped, counted, inventing no lost samples and never shifting the index).
         """
         last = self._last_index
         index = self._unwrap(counter, last, sample[4], sample[3])
-        pending = self._pending
         if index <= last:
             self._late(index)
-        elif pending is None:
-            if index == last + 1:
-                self._write(index, sample)
-            else:
-                self._pending, self._pending_strikes = (index, sample), 0
-        elif index == pending[0]:
-            self._c["duplicates"] += 1
-        elif index > pending[0]:  # continues past the held frame: the jump was real
-            self._pending = None
-            self._write(*pending)
-            self._place(counter, sample)
-        else:  # lands between the newest sample and the held frame
-            self._write(index, sample)
-            if pending[0] == self._last_index + 1:
-                self._pending = None
-                self._write(*pending)
-            else:
-                self._pending_strikes += 1
-                if self._pending_strikes >= _CONFIRM_FRAMES:
-                    self._pending = None
-                    self._c["strays"] += 1
+            return
+        for row_index, row in self._sequence.offer(index, sample):
+            self._write(row_index, row)
 
     def _write(self, index: int, sample: _Sample) -> None:
         """Write sample ``index`` after the newest one, the skipped indices as a gap."""
@@ -565,7 +624,10 @@ class Acquisition(ThreadOwner):
         except Exception as exc:
             self._c["bus_errors"] += 1
             self._note_error(exc)
+            handshake = isinstance(exc, LinkHandshakeError)
+            self._open_failure = "no_greeting" if handshake else "unreachable"
             return
+        self._open_failure = ""
         with self._send_lock:
             self._bus = bus
         self._c["reconnects"] += reconnect

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import can
 
 from rtsid.config import invalid
-from rtsid.errors import LinkError
+from rtsid.errors import LinkError, LinkHandshakeError
 from rtsid.link.acquisition import Acquisition
 from rtsid.link.config import LinkConfig, PlantConfig
 from rtsid.link.plant import VirtualPlant
@@ -122,7 +122,7 @@ def _probe_socketcand(host: str, port: int) -> None:
                     raise ConnectionResetError("closed the connection before greeting")
                 greeting += chunk
     except TimeoutError as exc:
-        raise LinkError(
+        raise LinkHandshakeError(
             f"the socketcand server at {host}:{port} accepted the connection but did not greet "
             f"('< hi >') within {_PROBE_TIMEOUT_S:g} s; restart it, or fix [link] host/port if "
             "something else listens there"

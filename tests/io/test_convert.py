@@ -107,6 +107,31 @@ def test_can_capture_decodes_exactly_with_gaps_as_invalid_rows(tmp_path, suffix)
     assert np.all(samples.status[ok] == STATUS_PERTURBATION_ON)
 
 
+@pytest.mark.parametrize("k", [1, 2, 5])
+def test_consecutive_stray_frames_in_a_capture_are_dropped_as_live(tmp_path, k):
+    # issue 20: strays +1000, +1001 made 4094 phantom lost samples and shifted the index
+    pos_raw, trq_raw = plant_raw()
+    index = FIRST + np.arange(N)
+    counters = index % COUNTER_MODULO
+    payload = encode_state_block(pos_raw, trq_raw, counters, np.zeros(N, dtype=np.int64))
+    strays = encode_state_block(
+        pos_raw[:k], trq_raw[:k], (counters[300] + 1000 + np.arange(k)) % COUNTER_MODULO,
+        np.zeros(k, dtype=np.int64),
+    )  # fmt: skip
+    capture = tmp_path / "strays.log"
+    with can.Logger(str(capture)) as writer:
+        for n in range(N):
+            writer.on_message_received(frame(payload[n].tobytes(), n))
+            if n == 300:
+                for j in range(k):
+                    writer.on_message_received(frame(strays[j].tobytes(), n + 0.1 * (j + 1)))
+    samples = read_can_log(capture, FS)
+    c = samples.counters
+    assert (c.strays, c.gaps, c.lost_samples, c.unjudged) == (k, 0, 0, 0)
+    assert samples.first_index == FIRST and len(samples) == N and samples.valid.all()
+    np.testing.assert_array_equal(samples.position_rad, pos_raw * POSITION_SCALE_RAD)
+
+
 def test_candump_converts_and_replays_with_the_lost_frame_bridged(tmp_path, capsys):
     capture = tmp_path / "capture.log"
     pos_raw, trq_raw = write_capture(capture)

@@ -14,6 +14,7 @@ from rtsid.link.config import FaultConfig, PlantConfig
 from rtsid.link.plant import VirtualPlant
 from rtsid.link.protocol import STATE_ID, encode_state_block
 from rtsid.link.ring import RingBuffer
+from rtsid.link.sequence import MAX_STRAY_RUN
 
 virtual_bus = None  # set by the autouse fixture below (conftest's helper)
 
@@ -164,18 +165,58 @@ def test_a_stray_frame_with_a_valid_checksum_invents_no_lost_samples(channel):
     assert (snap.position_rad * 1e6).round().tolist() == [*range(10), *range(11, 21)]
 
 
+@pytest.mark.parametrize("k", [1, 2, 3, 5])
+@pytest.mark.parametrize("offset", [1000, 40, 3000])
+def test_consecutive_stray_frames_are_dropped_like_one_and_never_shift_the_index(
+    channel, k, offset
+):
+    # issue 20: two strays (+1000, +1001) made 4094 phantom lost samples and shifted the
+    # index (and t_s) by a counter wrap
+    ring = RingBuffer(1000)
+    strays = [(9 + offset + j) % 4096 for j in range(k)]
+    counters = [*range(10), *strays, *range(10, 40)]
+    with virtual_bus(channel, preserve_timestamps=True) as tx:
+        with Acquisition(lambda: virtual_bus(channel), ring) as acq:
+            send_states(tx, counters, [50.0 + n / 2500 for n in range(len(counters))])
+            assert wait_for(lambda: acq.counters().samples == 40)
+            c = acq.counters()
+            t_s = [acq.sample_time_s(i) - acq.sample_time_s(0) for i in (10, 39)]
+    assert c.strays == k and c.lost_samples == 0 and c.gaps == 0 and c.duplicates == 0
+    snap = ring.read_since(0, 100)
+    assert snap.sample_index.tolist() == list(range(40)) and snap.valid.all()
+    assert t_s == pytest.approx([10 / 2500, 39 / 2500])
+    # send_states writes the frame's position in its row: no stray's was ever written
+    assert (snap.position_rad * 1e6).round().tolist() == [*range(10), *range(10 + k, 40 + k)]
+
+
+@pytest.mark.parametrize("size", [1, 2, 3, 5, 1000])
+def test_a_real_gap_the_size_of_a_stray_run_is_still_a_gap(channel, size):
+    ring = RingBuffer(2000)
+    counters = [*range(10), *range(10 + size, 40 + size)]
+    with virtual_bus(channel, preserve_timestamps=True) as tx:
+        with Acquisition(lambda: virtual_bus(channel), ring) as acq:
+            send_states(tx, counters, [50.0 + n / 2500 for n in counters])
+            assert wait_for(lambda: acq.counters().samples == 40)
+            c = acq.counters()
+    assert c.gaps == 1 and c.lost_samples == size and c.strays == 0
+    snap = ring.read_since(0, 2000)
+    assert snap.sample_index[~snap.valid].tolist() == list(range(10, 10 + size))
+    assert ring.newest_index == 39 + size
+
+
 @pytest.mark.parametrize("stamp", [float("inf"), float("nan"), None, -1.0])
 def test_a_frame_with_a_bad_timestamp_is_counted_and_dropped(channel, stamp):
     ring = RingBuffer(1000)
-    times: list = [20.0 + k / 2500 for k in range(10)]
+    n = 6 + MAX_STRAY_RUN + 1  # the frames after the gap confirm it (strays are fewer)
+    times: list = [20.0 + k / 2500 for k in range(n)]
     times[5] = stamp
     with virtual_bus(channel, preserve_timestamps=True) as tx:
         with Acquisition(lambda: virtual_bus(channel), ring) as acq:
-            send_states(tx, list(range(10)), times)
-            assert wait_for(lambda: acq.counters().samples == 9)
+            send_states(tx, list(range(n)), times)
+            assert wait_for(lambda: acq.counters().samples == n - 1)
             c = acq.counters()
             assert acq.running and acq.failure is None
-    assert c.rejected == 1 and c.lost_samples == 1 and ring.newest_index == 9
+    assert c.rejected == 1 and c.lost_samples == 1 and ring.newest_index == n - 1
     assert acq.error is None
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -362,3 +363,117 @@ def test_an_inverted_torque_sign_stops_the_daemon_naming_the_key(tmp_path, free_
     failed = "rtsid run: error: thread rtsid-worker failed: TorqueSignError: most windows read K, B"
     assert failed in err
     assert "[estimator] torque_sign = 1 " in err
+
+
+def console_lines_until(config: DaemonConfig, done, duration_s: float = 60.0) -> list[str]:
+    """Run the daemon, keeping each console line (``rtsid run``'s), until ``done(line,
+    status)``; the last line returned is the one that was done (not the one at shutdown)."""
+    from rtsid.commands.run import link_where, status_line
+
+    lines: list[str] = []
+    daemon = Daemon(config)
+
+    def show(status: dict, estimate: dict | None) -> None:
+        if daemon.stop_event.is_set():
+            return
+        lines.append(status_line(status, estimate, link_where(config.link)))
+        if done(lines[-1], status):
+            daemon.request_stop()
+
+    daemon.on_status = show
+    summary = daemon.run(duration_s=duration_s)  # ends through request_stop, not the duration
+    assert summary.failure is None, summary.failure
+    return lines
+
+
+def socketcand_config(tmp_path: Path, zenoh_port: int, port: int) -> DaemonConfig:
+    extra = f'[link]\ninterface = "socketcand"\nport = {port}\n[daemon]\nstatus_period_s = 0.1\n'
+    return DaemonConfig.load(write_config(tmp_path, zenoh_port, extra))
+
+
+@pytest.mark.slow  # a real-time daemon run of seconds
+def test_the_console_says_why_it_waits_for_a_server_that_never_greets_or_is_not_there(
+    tmp_path, free_port
+):
+    # issue 20: the console said only "waiting for the first window" while /status knew
+    # connected: false, bus_errors: 4
+    import re
+    import socket
+
+    with socket.create_server(("127.0.0.1", 0)) as mute:  # accepts, never greets
+        port = mute.getsockname()[1]
+        config = socketcand_config(tmp_path, free_port, port)
+        lines = console_lines_until(config, lambda _, s: s["acquisition"]["bus_errors"] >= 2)
+    line = lines[-1]
+    pattern = rf"waiting: connected to 127\.0\.0\.1:{port} but socketcand has not greeted "
+    assert re.search(pattern + r"\(bus errors 2\)", line), line
+    assert "waiting for the first window" not in "".join(lines)
+    port = free_port + 1 if free_port < 65535 else free_port - 1
+    with socket.socket() as closed:  # nothing listens there
+        closed.bind(("127.0.0.1", 0))
+        port = closed.getsockname()[1]
+    config = socketcand_config(tmp_path, free_port, port)
+    line = console_lines_until(config, lambda _, s: s["acquisition"]["bus_errors"] >= 1)[-1]
+    assert f"waiting: not connected to 127.0.0.1:{port} (bus errors " in line, line
+    assert f"no socketcand server at 127.0.0.1:{port}" in line
+
+
+@pytest.mark.slow  # a real-time daemon run of seconds
+def test_the_console_says_no_frames_no_state_frames_and_stale(tmp_path, free_port):
+    import can
+
+    from rtsid.link.protocol import STATE_ID, encode_state_block
+    from rtsid.link.socketcand import SocketcandServer
+
+    def frames(ident: int, n: int) -> list[can.Message]:
+        payload = encode_state_block(*(np.arange(n, dtype=np.int64),) * 3, np.zeros(n, np.int64))
+        return [
+            can.Message(arbitration_id=ident, data=p.tobytes(), is_extended_id=False)
+            for p in payload
+        ]
+
+    seen: list[str] = []
+
+    def step(line: str, status: dict) -> bool:
+        """Walk through the phases: each sends what the next one needs, once it is seen."""
+        for phase, text, then in (
+            ("no_frames", "no frames yet from the bus", frames(0x7FF, 5)),
+            ("no_state_frames", "5 frames from 127.0.0.1", frames(STATE_ID, 20)),
+        ):
+            if text in line and phase not in seen:
+                server.send_frames(then)
+                if server.counters().frames_out:  # not sent during the client's handshake
+                    seen.append(phase)
+        if "stale: no state frame from 127.0.0.1" in line:
+            seen.append("stale")
+        return "stale" in seen
+
+    with SocketcandServer(port=0) as server:
+        config = socketcand_config(tmp_path, free_port, server.port)
+        lines = console_lines_until(config, step)
+    assert seen == ["no_frames", "no_state_frames", "stale"], lines
+    assert any(
+        f"waiting: connected to 127.0.0.1:{server.port}, no frames yet from the bus" in line
+        for line in lines
+    )
+    assert any(
+        "waiting: 5 frames from 127.0.0.1" in line
+        and "but no state frame (5 unknown id, 0 malformed)" in line
+        for line in lines
+    )
+
+
+def test_the_run_summary_prints_reasons_as_their_values(tmp_path, free_port, capsys):
+    from rtsid.cli import main
+    from rtsid.verdicts import Reason, format_counts
+
+    assert format_counts({Reason.GAP: 1}) == "gap: 1"
+    assert format_counts({Reason.STALE: 3, Reason.GAP: 1}) == "gap: 1, stale: 3"
+    assert format_counts({}) == "0"
+    # the embedded plant falls silent for 0.4 s of every 1 s: windows withheld as gaps
+    extra = "[plant.faults]\nsilence_every_s = 0.6\nsilence_s = 0.2\n"
+    config = write_config(tmp_path, free_port, extra)
+    assert main(["run", "--config", str(config), "--quiet", "--duration", "2"]) == 0
+    err = capsys.readouterr().err
+    assert re.search(r"withheld (gap: \d+|stale: \d+)", err), err
+    assert "Reason" not in err and "{" not in err

@@ -453,3 +453,42 @@ def test_bench_lab_prints_its_tables(capsys: pytest.CaptureFixture[str]) -> None
         assert any(line.split("|")[1].strip() == phase for line in rows), phase
     late = [r for r in rows if r.split("|")[1].strip() in ("router", "TLS router", "peer-to-peer")]
     assert any(r.split("|")[2].strip() == "2" for r in late)  # trials done in each topology
+
+
+def test_published_counts_only_what_had_a_router_and_the_outage_is_counted_as_lost(
+    free_port: int,
+) -> None:
+    # issue 20: during a router outage `published` kept rising and `not_published` stayed 0
+    endpoint = f"tcp/127.0.0.1:{free_port}"
+
+    def publish_until(pub: ZenohPublisher, done: Callable[[dict[str, Any]], bool]) -> None:
+        deadline = time.monotonic() + 15
+        while not done(pub.stats()):
+            assert time.monotonic() < deadline, pub.stats()
+            pub.publish_estimate(estimate("j0", 0))
+            time.sleep(0.01)
+
+    with ZenohPublisher(client(endpoint, "j0", retry_interval_s=0.1)) as pub:
+        with Router(free_port):
+            publish_until(pub, lambda s: s["published"] >= 5)
+            assert pub.stats()["not_published"] == 0
+        # the router is gone: once zenoh sees it, nothing more counts as published
+        publish_until(pub, lambda s: s["not_published"] > 0)
+        before = pub.stats()
+        for _ in range(50):
+            assert pub.publish_estimate(estimate("j0", 1)) is False
+        after = pub.stats()
+        assert after["published"] == before["published"]
+        assert after["not_published"] == before["not_published"] + 50
+        assert after["not_published_by_reason"]["no_router"] == after["not_published"]
+        assert after["state"] == "router_lost"
+        with Router(free_port), zenoh.open(subscriber_config((endpoint,), "client")) as s:
+            received = s.declare_subscriber("rtsid/rig/j0/estimate", zenoh.handlers.FifoChannel(64))
+            publish_until(pub, lambda _: received.try_recv() is not None)  # delivered again
+            back = pub.stats()
+            for _ in range(20):
+                assert pub.publish_estimate(estimate("j0", 2)) is True
+            assert pub.stats()["published"] == back["published"] + 20 > after["published"] + 20
+            assert pub.stats()["not_published"] == back["not_published"]
+            assert pub.stats()["state"] == "up"
+            received.undeclare()
