@@ -59,7 +59,7 @@ def test_virtual_plant_recording_to_stiffness_track(tmp_path, free_port, capsys)
     recording, *later_parts = recording_parts(next((tmp_path / "rec").glob("*.mcap")))
     assert later_parts  # rotated
     csv = tmp_path / "track.csv"
-    argv = ["tv", str(recording), "--common-inertia", "-p", "auto", "--csv", str(csv)]
+    argv = ["tv", str(recording), "--csv", str(csv)]  # the defaults
     assert main(argv) == 0
     out = capsys.readouterr().out
     assert "used periods 0..5 of the multisine (6 × 2500 samples: rows 0..14999" in out
@@ -78,7 +78,7 @@ def test_virtual_plant_recording_to_stiffness_track(tmp_path, free_port, capsys)
     fn_err = track["natural_frequency_hz"][inner] - fn_true[inner]
     assert np.max(np.abs(k_err)) < 0.05 * (K_HIGH - K_LOW)
     assert np.sqrt(np.mean(fn_err**2)) < 0.15
-    assert track["inertia_nms2_per_rad"][0] == pytest.approx(0.015, rel=0.05)
+    assert track["inertia_kgm2"][0] == pytest.approx(0.015, rel=0.05)
     # a recording cut short (no footer, as after a crash) gives the periods it still holds
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(recording.read_bytes()[: recording.stat().st_size * 2 // 3])
