@@ -243,8 +243,20 @@ def legendre_basis(n_samples: int, n_basis: int) -> FloatArray:
 
 
 def _skirts(family: str, n_samples: int, n_basis: int) -> ComplexArray:
-    """DFT of each basis function over the record, shape (n_basis, n_samples)."""
-    return np.fft.fft(basis_functions(n_samples, n_basis, family), axis=1)
+    """DFT of each basis function over the record, shape (n_basis, n_samples).
+
+    Transformed a few rows at a time: the FFT's complex copy of its input then stays small
+    beside the result (a 500 000-sample record with 50 functions: 0.7 GB at peak, not 1 GB).
+    """
+    basis = basis_functions(n_samples, n_basis, family)
+    out = np.empty(basis.shape, dtype=np.complex128)
+    for i in range(0, n_basis, _FFT_ROWS):
+        out[i : i + _FFT_ROWS] = np.fft.fft(basis[i : i + _FFT_ROWS], axis=1)
+    return out
+
+
+#: Basis functions transformed at once by :func:`_skirts`.
+_FFT_ROWS = 8
 
 
 def _nested(family: str) -> bool:
@@ -1199,9 +1211,9 @@ def identify_ltv(
     spectrum_u = _check_multisine(u_arr, record_bins, input_tolerance, fs_hz)
     spectrum_y = np.fft.fft(y_arr)
 
+    whiten = _whitener(family, n, n_basis)  # before the skirts: one basis in memory at a time
     skirts = _skirts(family, n, n_basis)
     layouts = _layouts(record_bins, n, window_lines, neighbours)
-    whiten = _whitener(family, n, n_basis)
     solvers = {
         layout: _Solver.build(*_design(layout, skirts, n, n_transient), whiten)
         for layout in set(layouts)
