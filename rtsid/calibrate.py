@@ -3,9 +3,10 @@
 ``rtsid calibrate BASELINE -o CAL.json`` reads a run made with **no person attached** (an
 rtsid MCAP recording, or an ``.npz``/``.csv`` sample file), identifies the robot's
 acceleration → torque IRF (:func:`rtsid.ident.robot.identify_robot`), reports its VAF and
-writes a calibration file. With ``[worker] calibration_file`` set, the daemon and replay
-subtract the robot torque it predicts from every window before identifying the ankle
-(:meth:`Calibration.torque_offset`).
+writes a calibration file. A baseline whose torque follows position like a spring (a joint
+attached: :func:`rtsid.ident.robot.baseline_stiffness`) is refused unless forced. With
+``[worker] calibration_file`` set, the daemon and replay subtract the robot torque it
+predicts from every window before identifying the ankle (:meth:`Calibration.torque_offset`).
 
 The calibration as a value (file format, loading, what a run does with it) lives in
 :mod:`rtsid.io.calibration`, which the runtime imports; this module makes calibrations.
@@ -13,6 +14,7 @@ The calibration as a value (file format, loading, what a run does with it) lives
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,7 +23,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from rtsid.ident.robot import identify_robot
+from rtsid.errors import InputDataError, JointAttachedWarning
+from rtsid.ident.robot import BaselineStiffness, baseline_stiffness, identify_robot
 from rtsid.io.calibration import (
     Calibration,
     calibration_record,
@@ -42,6 +45,7 @@ __all__ = [
     "Calibration",
     "calibrate_file",
     "calibration_record",
+    "check_nobody_attached",
     "contiguous_segments",
     "load_calibration",
     "read_samples",
@@ -122,6 +126,7 @@ def calibrate_file(
     lowpass_hz: float | None = None,
     lag_s: float = 0.01,
     ridge: float = 1e-3,
+    force: bool = False,
 ) -> Calibration:
     """Identify the robot from a run with no person attached.
 
@@ -136,16 +141,47 @@ def calibrate_file(
         has one, else 100 Hz (at most ``fs/4``).
     lag_s, ridge : float
         IRF lag span (s) and relative ridge (see :func:`rtsid.ident.robot.identify_robot`).
+    force : bool
+        Calibrate even from a baseline with a joint attached (a warning says so).
 
     Returns
     -------
     Calibration
+
+    Raises
+    ------
+    InputDataError
+        The baseline has a joint attached (and not ``force``), or cannot be calibrated from.
     """
     rows = read_samples(path, fs_hz)
     if lowpass_hz is None:
         stored = rows.config.get("estimator", {}).get("lowpass_hz")
         lowpass_hz = float(stored) if stored else min(100.0, rows.fs_hz / 5)
+    check_nobody_attached(rows, lowpass_hz, force=force)
     robot = identify_robot(
         contiguous_segments(rows), rows.fs_hz, lowpass_hz=lowpass_hz, lag_s=lag_s, ridge=ridge
     )
     return Calibration(robot=robot, source=str(path))
+
+
+def joint_attached_message(found: BaselineStiffness) -> str:
+    """What was found in a baseline that reads as a joint attached."""
+    return (
+        f"the baseline's torque follows position like a spring: K = {found.K:.1f} N·m/rad beside "
+        f"the inertia ({found.t:.0f} standard errors from 0), where a robot alone has none: a "
+        "joint seems attached"
+    )
+
+
+def check_nobody_attached(rows: SampleRows, lowpass_hz: float, *, force: bool) -> None:
+    """Refuse (or, forced, warn about) a baseline with a joint attached."""
+    found = baseline_stiffness(contiguous_segments(rows), rows.fs_hz, lowpass_hz=lowpass_hz)
+    if not found.joint_attached:
+        return
+    said = joint_attached_message(found)
+    if not force:
+        raise InputDataError(
+            f"{said}; record the baseline with nobody attached, or pass --force to calibrate "
+            "from it anyway"
+        )
+    warnings.warn(f"{said}; calibrating anyway (--force)", JointAttachedWarning, stacklevel=2)

@@ -4,6 +4,7 @@
 
     RtsidError
     ├── ConfigError(ValueError)          a config key or value is not accepted
+    │   └── TorqueSignError              most windows read K, B, I < 0: the sign is inverted
     ├── InputDataError(ValueError)       samples or files that cannot be used as they are
     │   └── WindowError                  a window that must not be estimated (gap, NaN, too short…)
     ├── NumericalError(ArithmeticError)  the numerics cannot give a trustworthy answer
@@ -18,7 +19,8 @@ or ``OSError`` keep working.
 Warnings (work went on, but the user must hear of it; the CLI prints each as one line)::
 
     RtsidWarning(UserWarning)
-    └── IncompleteRecordingWarning       a recording ended early; says how much was read
+    ├── IncompleteRecordingWarning       a recording ended early; says how much was read
+    └── JointAttachedWarning             a calibration forced from a baseline with a joint on
 """
 
 from __future__ import annotations
@@ -35,6 +37,24 @@ class RtsidError(Exception):
 
 class ConfigError(RtsidError, ValueError):
     """A configuration key or value is not accepted; the message names key, value and choices."""
+
+
+class TorqueSignError(ConfigError):
+    """Most windows of a stream read K, B, I < 0: the configured torque sign is inverted.
+
+    Attributes
+    ----------
+    inverted, estimable : int
+        Windows that read inverted, of the estimable ones.
+    torque_sign : float
+        The sign that was configured (the fix is its opposite).
+    """
+
+    def __init__(self, message: str, inverted: int, estimable: int, torque_sign: float) -> None:
+        super().__init__(message)
+        self.inverted = inverted
+        self.estimable = estimable
+        self.torque_sign = torque_sign
 
 
 class InputDataError(RtsidError, ValueError):
@@ -95,6 +115,10 @@ class RtsidWarning(UserWarning):
 
 class IncompleteRecordingWarning(RtsidWarning):
     """A recording ended before its footer; the message says how much of it was read."""
+
+
+class JointAttachedWarning(RtsidWarning):
+    """``rtsid calibrate --force`` calibrated from a baseline with a joint attached."""
 
 
 # The checks every frozen settings class runs in ``__post_init__``; here, at the bottom of the

@@ -12,7 +12,6 @@ cut short replays to its last complete message with a warning saying how much wa
 
 from __future__ import annotations
 
-import csv
 import math
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
@@ -24,7 +23,7 @@ import numpy as np
 
 from rtsid import __version__
 from rtsid.errors import RecordingError
-from rtsid.ident.reflex_lane import ReflexModels, fit_reflex_update
+from rtsid.ident.reflex_lane import ReflexModels, SlowLaneSettings, fit_reflex_update
 from rtsid.io.calibration import robot_calibration, with_recorded_calibration
 from rtsid.io.mcap_read import (
     iter_estimates,
@@ -33,7 +32,7 @@ from rtsid.io.mcap_read import (
     sample_count,
 )
 from rtsid.io.recording import SampleGrid, iter_batches, session_parts
-from rtsid.io.schemas import ESTIMATE_FIELDS, SCHEMAS, SampleBatch, encode_estimate, encode_json
+from rtsid.io.schemas import SCHEMAS, SampleBatch, encode_estimate, encode_json
 from rtsid.link.ring import Snapshot
 from rtsid.runtime.daemon import DaemonConfig
 from rtsid.runtime.worker import WindowEvaluator
@@ -42,25 +41,29 @@ from rtsid.verdicts import Reason
 __all__ = [
     "LiveDecisions",
     "ReplayResult",
+    "WindowCutter",
     "is_announcement",
     "iter_windows",
     "paced",
+    "recorded_evaluator",
     "recording_config",
     "replay_batches",
     "replay_file",
-    "write_estimates_csv",
     "write_estimates_mcap",
 ]
 
 
 def recording_config(path: str | Path) -> DaemonConfig:
-    """The configuration a recording was made with (defaults where it has none), with the
-    robot calibration the recording carries
+    """The configuration a recording was made with (defaults where it has none; a recording
+    whose configuration has no ``[slow_lane]`` ran without one), with the robot calibration
+    the recording carries
     (:func:`rtsid.io.calibration.with_recorded_calibration`)."""
     metadata = read_metadata(path)
     document = run_config_from_metadata(metadata)
     if not document:
-        return DaemonConfig()
+        return DaemonConfig(slow_lane=SlowLaneSettings(enabled=False))
+    # a recording made before the slow lane existed (or was on by default) ran without it
+    document.setdefault("slow_lane", {"enabled": False})
     return DaemonConfig.from_mapping(
         with_recorded_calibration(document, metadata.get("calibration"))
     )
@@ -87,8 +90,10 @@ class LiveDecisions:
     stale: frozenset[int] = frozenset()  # windows evaluated live with samples too old
 
     def skipped(self, window_end: int) -> bool:
-        """The live worker never evaluated this window (inside the live run's span)."""
-        return self.first_end <= window_end <= self.last_end and window_end not in self.reflex
+        """The live worker never evaluated this window: one before the live run's last
+        estimate that it has no estimate of, those before its first included (a worker that
+        starts late begins at the newest window, the earlier ones being history)."""
+        return window_end <= self.last_end and window_end not in self.reflex
 
     @classmethod
     def of(cls, parts: Iterable[Path]) -> LiveDecisions | None:
@@ -130,25 +135,47 @@ def iter_windows(
     is due: the same samples, so the same models, as live. With ``live``, the windows the live
     worker skipped are skipped here too.
     """
-    n = evaluator.window_samples
-    reach = n + evaluator.history_samples
-    grid: SampleGrid | None = None
-    first = next_end = 0
+    cutter = WindowCutter(evaluator, slow_lane, live)
     for batch in batches:
+        yield from cutter.add(batch)
+
+
+class WindowCutter:
+    """The grid windows of samples that arrive in batches: :func:`iter_windows` one batch at a
+    time (for a caller that pushes samples as they come, :class:`rtsid.identifier.Identifier`).
+    """
+
+    def __init__(
+        self,
+        evaluator: WindowEvaluator,
+        slow_lane: ReplayedSlowLane | None = None,
+        live: LiveDecisions | None = None,
+    ) -> None:
+        self.evaluator = evaluator
+        self.slow_lane = slow_lane
+        self.live = live
+        self.reach = evaluator.window_samples + evaluator.history_samples
+        self.grid: SampleGrid | None = None
+        self.first = self.next_end = 0
+
+    def add(self, batch: SampleBatch) -> Iterator[Snapshot]:
+        """The windows ``batch`` completes (it follows the previous batch on the grid)."""
+        grid = self.grid
         if grid is None:
-            grid = SampleGrid(batch.first_index, batch.fs_hz, capacity=8 * reach)
-            first = grid.first_index
-            next_end = evaluator.first_window_end(first)
+            grid = self.grid = SampleGrid(batch.first_index, batch.fs_hz, capacity=8 * self.reach)
+            self.first = grid.first_index
+            self.next_end = self.evaluator.first_window_end(self.first)
         grid.append(batch)
-        while next_end < grid.end_index:
-            if slow_lane is not None:
-                slow_lane.catch_up(grid, first, next_end)
-            if live is None or not live.skipped(next_end):
-                yield _snapshot(grid.rows(max(next_end - reach + 1, first), next_end + 1))
-            next_end += evaluator.hop_samples
-        keep = next_end - reach + 1
-        if slow_lane is not None:
-            keep = min(keep, slow_lane.oldest_needed(first))
+        while self.next_end < grid.end_index:
+            end = self.next_end
+            if self.slow_lane is not None:
+                self.slow_lane.catch_up(grid, self.first, end)
+            if self.live is None or not self.live.skipped(end):
+                yield _snapshot(grid.rows(max(end - self.reach + 1, self.first), end + 1))
+            self.next_end += self.evaluator.hop_samples
+        keep = self.next_end - self.reach + 1
+        if self.slow_lane is not None:
+            keep = min(keep, self.slow_lane.oldest_needed(self.first))
         grid.drop_before(keep)
 
 
@@ -342,20 +369,7 @@ def replay_batches(
         if publish is not None:
             publish(message)
 
-    evaluator = WindowEvaluator(
-        config.link.fs_hz,
-        config.worker,
-        config.estimator,
-        sink,
-        robot=config.zenoh.robot,
-        joint=config.zenoh.joint,
-        calibration=robot_calibration(config.worker.calibration_file, config.link.fs_hz),
-        live=False,  # recorded samples: never stale, no latency
-        reflex=ReflexModels(config.link.fs_hz, config.slow_lane)
-        if config.slow_lane.enabled
-        else None,
-        tracker=config.tracker,
-    )
+    evaluator = recorded_evaluator(config, sink)
     slow_lane = ReplayedSlowLane(evaluator, result.reflex.append) if evaluator.reflex else None
     if live is not None:
         evaluator.recorded_reflex = live.reflex
@@ -370,6 +384,26 @@ def replay_batches(
     return result
 
 
+def recorded_evaluator(
+    config: DaemonConfig, publish: Callable[[dict[str, Any]], None]
+) -> WindowEvaluator:
+    """The live daemon's window evaluator for recorded samples (never stale, no latency),
+    with the slow lane's reflex models when it is enabled."""
+    fs = config.link.fs_hz
+    return WindowEvaluator(
+        fs,
+        config.worker,
+        config.estimator,
+        publish,
+        robot=config.zenoh.robot,
+        joint=config.zenoh.joint,
+        calibration=robot_calibration(config.worker.calibration_file, fs),
+        live=False,
+        reflex=ReflexModels(fs, config.slow_lane) if config.slow_lane.enabled else None,
+        tracker=config.tracker,
+    )
+
+
 def _counted(
     batches: Iterable[SampleBatch],
     result: ReplayResult,
@@ -381,20 +415,6 @@ def _counted(
         yield batch
         if progress is not None:
             progress(result.samples, total)
-
-
-def write_estimates_csv(messages: Iterable[dict[str, Any]], fh: IO[str]) -> int:
-    """Estimate messages as CSV, one row each, columns in schema order; returns the row count."""
-    columns = [k for k in ESTIMATE_FIELDS if k not in ("robot", "joint", "host_time_ns")]
-    writer = csv.DictWriter(fh, fieldnames=columns, lineterminator="\n", extrasaction="ignore")
-    writer.writeheader()
-    count = 0
-    for message in messages:
-        row = {k: ("" if message[k] is None else message[k]) for k in columns}
-        row["flags"] = ";".join(message["flags"])
-        writer.writerow(row)
-        count += 1
-    return count
 
 
 def write_estimates_mcap(

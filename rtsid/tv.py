@@ -132,9 +132,8 @@ def load_tv_npz(path: str | Path, *, trim: bool = False) -> TvData:
         A scalar that is not one finite number.
     """
     p = Path(path)
-    arrays = read_npz(
-        p, REQUIRED, hint="make a time-varying experiment with 'rtsid tv --simulate CS3 -o exp.npz'"
-    )
+    hint = "make a time-varying experiment with 'rtsid tv --simulate CS3 --save-simulation exp.npz'"
+    arrays = read_npz(p, REQUIRED, hint=hint)
     period = int(_scalar(arrays, "period_samples", p))
     torque = np.asarray(arrays["torque_nm"], dtype=np.float64)
     position = np.asarray(arrays["position_rad"], dtype=np.float64)
@@ -572,29 +571,30 @@ def plot_result(result: TvResult, path: str | Path, title: str = "") -> Path:
 
 
 def write_track_csv(result: TvResult, path: str | Path) -> Path:
-    """The second-order track (and truth when known) as CSV, one row per time."""
+    """The second-order track (and truth when known) as CSV, one row per time.
+
+    Columns (units in docs/skirt.md): ``t_s``, ``K``, ``B``, ``I``, ``f_n_hz``, ``f_peak_hz``,
+    ``fit_error`` and, when the truth is known, ``K_true``; the estimates' CSV conventions
+    (:mod:`rtsid.io.estimate_csv`): shortest round-trip numbers, NaN as an empty field.
+    """
+    from rtsid.io.estimate_csv import encode_value
+    from rtsid.io.files import atomic_write
+
     tr = result.track
     cols = {
         "t_s": tr.t_s,
-        "stiffness_nm_per_rad": tr.stiffness,
-        "damping_nms_per_rad": tr.damping,
-        "inertia_kgm2": tr.inertia,
-        "natural_frequency_hz": tr.natural_frequency_hz,
-        "peak_resonance_hz": result.peak_hz,
+        "K": tr.stiffness,
+        "B": tr.damping,
+        "I": tr.inertia,
+        "f_n_hz": tr.natural_frequency_hz,
+        "f_peak_hz": result.peak_hz,
         "fit_error": tr.fit_error,
     }
     if result.stiffness_true is not None:
-        cols["stiffness_true_nm_per_rad"] = result.stiffness_true
+        cols["K_true"] = result.stiffness_true
     out = Path(path)
-    try:
-        np.savetxt(
-            out,
-            np.column_stack(list(cols.values())),
-            delimiter=",",
-            header=",".join(cols),
-            comments="",
-            fmt="%.6g",
-        )
-    except OSError as exc:
-        raise RecordingError(f"cannot write {str(out)!r}: {exc}") from None
+    lines = [",".join(cols)]
+    lines += [",".join(encode_value(v) for v in row) for row in zip(*cols.values(), strict=True)]
+    with atomic_write(out, what="track") as fh:
+        fh.write("\n".join(lines) + "\n")
     return out

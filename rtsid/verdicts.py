@@ -2,15 +2,17 @@
 
 Two closed vocabularies, one place: the numerics raise them, the worker publishes them, the
 JSON schema lists them (:mod:`rtsid.io.messages`), and a test makes each one happen. Both are
-``StrEnum``: a member *is* its string (``Reason.GAP == "gap"``), so JSON, CSV and comparisons
-with plain strings work unchanged.
+``StrEnum``: a member *is* its string (``Reason.GAP == "gap"``), so JSON, CSV, ``str()``,
+f-strings and comparisons with plain strings give the value. Only a container's ``repr`` shows
+``<Reason.GAP: 'gap'>``: a tally for people goes through :func:`format_counts`.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from enum import StrEnum
 
-__all__ = ["Flag", "Reason"]
+__all__ = ["Flag", "Reason", "format_counts", "plain_counts"]
 
 
 class Reason(StrEnum):
@@ -48,6 +50,16 @@ class Flag(StrEnum):
     def description(self) -> str:
         """One line for the schema and the docs."""
         return _FLAGS[self]
+
+
+def plain_counts(counts: Mapping[str, int]) -> dict[str, int]:
+    """A tally keyed by reasons or flags with plain-string keys (their values), sorted."""
+    return {str(k): int(v) for k, v in sorted(counts.items(), key=lambda kv: str(kv[0]))}
+
+
+def format_counts(counts: Mapping[str, int], empty: str = "0") -> str:
+    """A tally of reasons or flags for people: ``gap: 1, nan: 2`` (``empty`` when none)."""
+    return ", ".join(f"{k}: {v}" for k, v in plain_counts(counts).items() if v) or empty
 
 
 _REASONS = {

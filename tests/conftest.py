@@ -15,6 +15,14 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+from hypothesis import settings  # noqa: E402
+
+# Property-based tests: a small fixed budget in CI ("ci"), a long one for a nightly-style run:
+#   RTSID_HYPOTHESIS_PROFILE=nightly pytest …   or   pytest --hypothesis-profile nightly …
+# (register_profile replaces a profile of the same name: registering twice is harmless)
+settings.register_profile("ci", max_examples=50, deadline=None)
+settings.register_profile("nightly", max_examples=2000, deadline=None)
+settings.load_profile(os.environ.get("RTSID_HYPOTHESIS_PROFILE", "ci"))
 
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 REKLAB = SHARED_DATA / "reklab_ankle_z.npz"

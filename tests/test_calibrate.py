@@ -244,3 +244,42 @@ def test_a_recorded_calibration_is_used_only_when_the_stored_file_differs(tmp_pa
     assert copy.parent == tmp_path / "cache" / "rtsid" / "calibrations"
     assert copy.read_text() == recorded["json"]
     assert with_recorded_calibration(document, recorded) == moved  # same content, same copy
+
+
+def test_a_baseline_with_an_ankle_attached_is_refused_unless_forced(tmp_path, capsys):
+    # issue 19: calibrate on a run with an ankle attached reported VAF 99.3 % and wrote the
+    # file without a word
+    position, torque = simulate(PLANT, 4.0)  # the ankle (K 150) on the robot
+    np.savez(tmp_path / "with_ankle.npz", position_rad=position, torque_nm=torque, fs_hz=FS)
+    out = tmp_path / "cal.json"
+    assert main(["calibrate", str(tmp_path / "with_ankle.npz"), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "a joint seems attached" in err[0] and "--force" in err[0]
+    assert "K = 1" in err[0]  # the stiffness found, ≈ 150 N·m/rad
+    assert not out.exists()
+    argv = ["calibrate", str(tmp_path / "with_ankle.npz"), "-o", str(out), "--force"]
+    assert main(argv) == 0
+    assert out.exists()
+    assert "warning: the baseline's torque follows position like a spring" in (
+        capsys.readouterr().err
+    )
+
+
+@pytest.mark.parametrize(
+    "plant",
+    [
+        replace(PLANT, stiffness=20.0, damping=0.3),  # a weak ankle, still seen
+        replace(PLANT, perturbation="prbs", bandwidth_hz=40.0, noise_percent=10.0),
+    ],
+)
+def test_the_joint_check_sees_a_weak_ankle_and_not_a_noisy_robot_alone(plant):
+    from rtsid.ident.robot import baseline_stiffness
+
+    position, torque = simulate(plant, 4.0)
+    assert baseline_stiffness([(position, torque)], FS).joint_attached
+    inverted = baseline_stiffness([(position, -torque)], FS)  # a rig reporting torque inverted
+    assert inverted.joint_attached and inverted.K > 0
+    alone = replace(plant, inertia=0.0, damping=0.0, stiffness=0.0, noise_percent=30.0)
+    position, torque = simulate(alone, 4.0)
+    found = baseline_stiffness([(position, torque)], FS)
+    assert not found.joint_attached and abs(found.t) < 2.0

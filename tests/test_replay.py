@@ -74,12 +74,39 @@ def test_replay_gives_the_live_daemons_windows_and_numbers_exactly(tmp_path, fre
     assert_same_estimates(live, replayed)  # bit for bit
 
 
+@pytest.mark.slow  # a real-time daemon run of seconds
+def test_replay_follows_a_live_worker_that_started_late(tmp_path, free_port, monkeypatch):
+    # Under load the live worker can start after the first windows' samples are in: it begins
+    # at the newest window (earlier ones are history). The replay must not learn from those.
+    from rtsid.runtime.worker import WindowWorker
+
+    started = WindowWorker._starting_window_end
+
+    def late(self, newest):
+        return started(self, newest) + 8 * self.hop_samples
+
+    monkeypatch.setattr(WindowWorker, "_starting_window_end", late)
+    config = DaemonConfig.from_mapping(
+        {"zenoh": {"listen": [f"tcp/127.0.0.1:{free_port}"]}, "mcap": {"directory": str(tmp_path)}}
+    )
+    Daemon(config).run(duration_s=1.5)
+    monkeypatch.undo()
+    recording = next(tmp_path.glob("*.mcap"))
+    live = live_windows(iter_estimates(recording))
+    replayed = replay_file(recording).messages
+    assert min(m["window_end_index"] for m in replayed) == min(live)  # nothing before
+    assert len(live) > 20 and set(live) <= set(by_window(replayed))
+    assert_same_estimates(live, by_window(replayed))
+    held = {m["window_end_index"]: m["I_held"] for m in replayed}
+    assert all(held[end] == m["I_held"] for end, m in live.items())
+
+
 def test_replay_reproduces_the_stored_reference_output():
     with (REFERENCE / "sim_3s.csv").open() as fh:
         rows = list(csv.DictReader(fh))
     stored = {
         int(r["window_end_index"]): {
-            "ok": r["ok"] == "True",
+            "ok": r["ok"] == "true",
             "reason": r["reason"] or None,
             **{k: float(r[k]) if r[k] else None for k in NUMBERS},
         }
@@ -137,12 +164,12 @@ def test_replay_command_outputs_and_directories(tmp_path, capsys):
     folder.mkdir()
     for name in ("a.mcap", "b.mcap"):
         shutil.copy(REFERENCE / "sim_3s.mcap", folder / name)
-    assert main(["replay", str(folder), "--out", str(tmp_path / "out"), "--jobs", "2"]) == 0
+    assert main(["replay", str(folder), "-o", str(tmp_path / "out"), "--jobs", "2"]) == 0
     table = capsys.readouterr().out
     assert "a.mcap" in table and "b.mcap" in table
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a.csv", "b.csv"]
     out_mcap = tmp_path / "one.mcap"
-    assert main(["replay", str(folder / "a.mcap"), "--out", str(out_mcap), "--rate", "50"]) == 0
+    assert main(["replay", str(folder / "a.mcap"), "-o", str(out_mcap), "--rate", "50"]) == 0
     assert len(list(iter_estimates(out_mcap))) == len(replay_file(folder / "a.mcap").messages)
 
 
@@ -151,7 +178,7 @@ def test_replay_command_outputs_and_directories(tmp_path, capsys):
     [
         (["replay", "missing.mcap"], "no such file"),
         (["replay", str(REFERENCE / "sim_3s.mcap"), "--rate", "fast"], "--rate 'fast'"),
-        (["replay", str(REFERENCE / "sim_3s.mcap"), "--out", "x.txt"], "use a .csv or .mcap"),
+        (["replay", str(REFERENCE / "sim_3s.mcap"), "-o", "x.txt"], "use a .csv or .mcap"),
     ],
 )
 def test_replay_errors_are_one_line(argv, message, capsys):
@@ -232,3 +259,16 @@ def test_replay_follows_the_windows_a_live_worker_skipped(tmp_path, free_port, m
     # a re-analysis with a config given estimates every window
     again = by_window(replay_file(recording, recording_config(recording)).messages)
     assert set(skipped) <= set(again)
+
+
+def test_replay_refuses_an_inverted_torque_sign_as_live_does(tmp_path, capsys):
+    # issue 19: the live check (rtsid.ident.sign) runs in replay's windows too
+    config = tmp_path / "inverted.toml"
+    config.write_text("[estimator]\ntorque_sign = -1.0\n")
+    out = tmp_path / "out.csv"
+    argv = ["replay", str(REFERENCE / "sim_3s.mcap"), "--config", str(config), "-o", str(out)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "the torque sign is inverted" in err[0]
+    assert "[estimator] torque_sign = 1 " in err[0]
+    assert not out.exists()

@@ -21,28 +21,28 @@ def test_tv_command_identifies_a_recording_and_writes_track_and_figure(
 ):
     path, exp = small_experiment
     csv, png = tmp_path / "track.csv", tmp_path / "tv.png"
-    assert main(["tv", str(path), "-p", "10", "--csv", str(csv), "--plot", str(png)]) == 0
+    assert main(["tv", str(path), "-p", "10", "-o", str(csv), "--plot", str(png)]) == 0
     out = capsys.readouterr().out
     assert "10 excited lines 0.8…8 Hz" in out
     assert "quantisation floor" in out
     table = np.genfromtxt(csv, delimiter=",", names=True)
-    fn_true = np.sqrt(table["stiffness_true_nm_per_rad"] / exp.inertia) / (2 * np.pi)
+    fn_true = np.sqrt(table["K_true"] / exp.inertia) / (2 * np.pi)
     inner = slice(2, -2)
-    err = table["natural_frequency_hz"][inner] - fn_true[inner]
+    err = table["f_n_hz"][inner] - fn_true[inner]
     assert np.sqrt(np.mean(err**2)) < 0.1
     assert png.stat().st_size > 10_000
 
 
 def test_simulate_to_an_unwritable_place_is_a_clear_error(tmp_path, capsys):
     out = tmp_path / "missing-dir" / "exp.npz"
-    assert main(["tv", "--simulate", "CS2", "-o", str(out)]) == 2
+    assert main(["tv", "--simulate", "CS2", "--save-simulation", str(out)]) == 2
     assert "cannot write" in capsys.readouterr().err
     assert not out.parent.exists()
 
 
 def test_simulate_writes_a_recording_the_command_reads(tmp_path, capsys):
     out = tmp_path / "cs1.npz"
-    assert main(["tv", "--simulate", "CS1", "-o", str(out), "--spacing", "1.4"]) == 0
+    assert main(["tv", "--simulate", "CS1", "--save-simulation", str(out), "--spacing", "1.4"]) == 0
     data = load_tv_npz(out)
     assert data.torque_nm.size == 40000 and data.period_samples == 2000
     np.testing.assert_array_equal(data.excited_bins, np.arange(14, 101, 14))
@@ -80,14 +80,14 @@ def test_inertia_is_common_by_default_and_free_on_request(small_experiment, tmp_
         ("free", ["--free-inertia"]),
     ):
         csv = tmp_path / f"{name}.csv"
-        assert main(["tv", str(path), "-p", "10", *flags, "--csv", str(csv)]) == 0
+        assert main(["tv", str(path), "-p", "10", *flags, "-o", str(csv)]) == 0
         tables[name] = np.genfromtxt(csv, delimiter=",", names=True)
     for name in ("default", "old flag"):
-        inertia = tables[name]["inertia_kgm2"]
+        inertia = tables[name]["I"]
         assert np.ptp(inertia) < 1e-9
         # 25 Hz sampling puts 8× more noise per bin than the study (SNR per line is lower).
         assert inertia[0] == pytest.approx(exp.inertia, rel=0.15)
-    assert np.ptp(tables["free"]["inertia_kgm2"]) > 1e-4
+    assert np.ptp(tables["free"]["I"]) > 1e-4
 
 
 def test_auto_basis_takes_the_largest_well_conditioned_n_p(small_experiment, capsys):
@@ -127,8 +127,8 @@ def cyclic_experiment(tmp_path):
 
 def _fn_rmse(csv, inertia=0.02):
     table = np.genfromtxt(csv, delimiter=",", names=True)
-    fn_true = np.sqrt(table["stiffness_true_nm_per_rad"] / inertia) / (2 * np.pi)
-    return float(np.sqrt(np.nanmean((table["natural_frequency_hz"] - fn_true) ** 2)))
+    fn_true = np.sqrt(table["K_true"] / inertia) / (2 * np.pi)
+    return float(np.sqrt(np.nanmean((table["f_n_hz"] - fn_true) ** 2)))
 
 
 def test_fourier_family_tracks_a_cyclic_stiffness_that_legendre_cannot(
@@ -138,7 +138,7 @@ def test_fourier_family_tracks_a_cyclic_stiffness_that_legendre_cannot(
     for family in ("legendre", "fourier"):
         csv = tmp_path / f"{family}.csv"
         args = ["tv", str(cyclic_experiment), "-p", "auto", "--basis-family", family]
-        assert main([*args, "--times", "2", "--csv", str(csv)]) == 0
+        assert main([*args, "--times", "2", "-o", str(csv)]) == 0
         rmse[family] = _fn_rmse(csv)
     out = capsys.readouterr().out
     assert "model chosen from the data: fourier N_p = " in out
@@ -172,10 +172,10 @@ def test_defaults_follow_a_sinusoidal_stiffness_that_the_old_defaults_cannot(
     from rtsid.tv import choose_model, identify_recording
 
     new_csv, old_csv = tmp_path / "new.csv", tmp_path / "old.csv"
-    assert main(["tv", str(cyclic_experiment), "--times", "2", "--csv", str(new_csv)]) == 0
+    assert main(["tv", str(cyclic_experiment), "--times", "2", "-o", str(new_csv)]) == 0
     out = capsys.readouterr().out
     assert "model chosen from the data: " in out and "runners-up: " in out
-    old = ["-p", "8", "--basis-family", "legendre", "--free-inertia", "--csv", str(old_csv)]
+    old = ["-p", "8", "--basis-family", "legendre", "--free-inertia", "-o", str(old_csv)]
     assert main(["tv", str(cyclic_experiment), "--times", "2", *old]) == 0
     assert _fn_rmse(new_csv) <= 0.03 < 0.1 < _fn_rmse(old_csv)
 

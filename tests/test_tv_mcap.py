@@ -59,13 +59,13 @@ def test_virtual_plant_recording_to_stiffness_track(tmp_path, free_port, capsys)
     recording, *later_parts = recording_parts(next((tmp_path / "rec").glob("*.mcap")))
     assert later_parts  # rotated
     csv = tmp_path / "track.csv"
-    argv = ["tv", str(recording), "--csv", str(csv)]  # the defaults
+    argv = ["tv", str(recording), "-o", str(csv)]  # the defaults
     assert main(argv) == 0
     out = capsys.readouterr().out
     assert "used periods 0..5 of the multisine (6 × 2500 samples: rows 0..14999" in out
     assert "10 excited lines 2…20 Hz, 2 Hz apart" in out
     track = np.genfromtxt(csv, delimiter=",", names=True)
-    k_true = track["stiffness_true_nm_per_rad"]
+    k_true = track["K_true"]
     fn_true = np.sqrt(k_true / 0.015) / (2 * np.pi)
     # Tolerances: the Legendre expansion is weakest at the record's two ends, so judge
     # 10 … 90 % of it. There, over 8 phase/noise seeds of this experiment (rtsid.tv on the
@@ -74,11 +74,11 @@ def test_virtual_plant_recording_to_stiffness_track(tmp_path, free_port, capsys)
     # 6 periods, and a frozen second-order fit to a joint whose K changes by 40 % per
     # second), not the noise. Limits: 5 % of the range, 0.15 Hz (this seed: 1.8 %, 0.08 Hz).
     inner = slice(track.size // 10, -track.size // 10)
-    k_err = track["stiffness_nm_per_rad"][inner] - k_true[inner]
-    fn_err = track["natural_frequency_hz"][inner] - fn_true[inner]
+    k_err = track["K"][inner] - k_true[inner]
+    fn_err = track["f_n_hz"][inner] - fn_true[inner]
     assert np.max(np.abs(k_err)) < 0.05 * (K_HIGH - K_LOW)
     assert np.sqrt(np.mean(fn_err**2)) < 0.15
-    assert track["inertia_kgm2"][0] == pytest.approx(0.015, rel=0.05)
+    assert track["I"][0] == pytest.approx(0.015, rel=0.05)
     # a recording cut short (no footer, as after a crash) gives the periods it still holds
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(recording.read_bytes()[: recording.stat().st_size * 2 // 3])

@@ -16,12 +16,12 @@ from collections.abc import Callable
 import numpy as np
 
 from rtsid.benchmarks.table import print_table
-from rtsid.benchmarks.yardstick import least_squares_window
 from rtsid.errors import RtsidError
 from rtsid.ident.excitation import filtered_noise, prbs
 from rtsid.ident.filters import derivatives
 from rtsid.ident.stream import sliding_estimates
 from rtsid.ident.window import EstimatorOptions, Held, estimate_window
+from rtsid.ident.yardstick import least_squares_window
 from rtsid.sim.joint import JointParameters, StiffnessProfile, robot_servo, simulate_impedance
 
 FS_HZ = 2500.0

@@ -25,7 +25,13 @@ from scipy import signal
 from rtsid.benchmarks.table import print_table
 from rtsid.ident.correlation import detrend
 from rtsid.ident.irf import estimate_irf
-from rtsid.ident.robot import identify_robot, robot_filter_taps
+from rtsid.ident.robot import (
+    ATTACHED_MIN_K,
+    ATTACHED_MIN_T,
+    baseline_stiffness,
+    identify_robot,
+    robot_filter_taps,
+)
 from rtsid.ident.stream import WindowStream
 from rtsid.ident.vaf import vaf
 from rtsid.ident.window import EstimatorOptions
@@ -119,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
         ),
     ]
     rows = []
+    checks = []
     for label, base in scenarios:
         person = replace(base, robot_inertia=ROBOT_INERTIA, seed=5)
         nobody = replace(person, inertia=0.0, damping=0.0, stiffness=0.0, seed=6)
@@ -126,6 +133,10 @@ def run(args: argparse.Namespace) -> int:
         p0, t0 = _simulate(nobody, baseline_s)
         p1, t1 = _simulate(person, person_s)
         robot = identify_robot([(p0, t0)], fs)
+        for who, (p, t) in (("nobody", (p0, t0)), ("ankle attached", (p1, t1))):
+            found = baseline_stiffness([(p, t)], fs)
+            refused = "refused" if found.joint_attached else "calibrated"
+            checks.append([label, who, found.K, found.t, refused])
         methods: list[tuple[str, Predictor | None, float]] = [
             ("none", None, float("nan")),
             ("source (10 Hz double diff.)", *_source_method(p0, t0, fs)),
@@ -155,5 +166,13 @@ def run(args: argparse.Namespace) -> int:
         f"IRF's static gain, i.e. the identified inertia (truth {ROBOT_INERTIA}). I/B/K err: "
         "median over windows of a run with a person, after subtracting the predicted robot "
         "torque.",
+    )
+    print_table(
+        "Is a joint attached? (the baseline's stiffness beside the robot's inertia)",
+        ["scenario", "run used as baseline", "K N·m/rad", "t", "rtsid calibrate"],
+        checks,
+        note=f"K: least squares τ = I·θ̈ + B·θ̇ + K·θ on the filtered run; t: K over its "
+        f"standard error. Refused (unless --force) when K ≥ {ATTACHED_MIN_K:g} and "
+        f"t ≥ {ATTACHED_MIN_T:g}.",
     )
     return 0

@@ -26,13 +26,13 @@ import numpy as np
 
 from rtsid.benchmarks.real import DEFAULT_DATA, TORQUE_SIGN
 from rtsid.benchmarks.table import median_p99, print_table, time_calls
-from rtsid.benchmarks.yardstick import WindowVafBasis, least_squares_window, savgol_derivatives
 from rtsid.errors import InputDataError
 from rtsid.ident.cascade import CascadeSettings, fit_parallel_cascade, intrinsic_parameters
 from rtsid.ident.reflex import decimated
 from rtsid.ident.reflex_lane import SlowLaneSettings, fit_reflex_update, predict_reflex_torque
 from rtsid.ident.vaf import vaf
 from rtsid.ident.window import EstimatorOptions, estimate_window
+from rtsid.ident.yardstick import WindowVafBasis, least_squares_window, savgol_derivatives
 from rtsid.io.sample_files import load_samples
 from rtsid.io.schemas import SampleBatch
 from rtsid.replay import ReplayResult, replay_batches

@@ -12,9 +12,13 @@ Phases, one after the other in the same run, each ``--duration`` long:
 2. ``router + queries``: the same processes while another process asks every daemon for its
    history (``--query-since``) ``--query-rate`` times a second, through the router: what a
    query costs the fast lane (deadline misses, e2e) against phase 1.
-3. ``peer-to-peer``: the daemons restarted as peers, the subscriber connected to each.
+3. ``TLS router``: the daemons and router restarted with the secure lab profile that
+   ``rtsid certs`` writes (zenoh's mutual TLS on a ``tls/`` listener, access control by
+   certificate common name; docs/lab.md), the subscriber a viewer of that profile. Its
+   ``e2e p99 / router`` column is the price of the security against phase 1 (floor ≤ 1.5).
+4. ``peer-to-peer``: the daemons restarted as peers, the subscriber connected to each.
 
-After phases 1 and 3, a late joiner opens a new session and asks for every joint's latest
+After phases 1, 3 and 4, a late joiner opens a new session and asks for every joint's latest
 estimate (``rtsid/lab/*/estimate``), ``--late-trials`` times: time from opening the session
 (and from the query) to the last joint's answer. Router CPU comes from /proc/<pid>/stat;
 daemon CPU and deadline counters from the daemons' own status messages (counted over the phase).
@@ -55,6 +59,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--query-since", default="10s", help="history each query asks for (10s of every joint)"
     )
     parser.add_argument("--no-query-phase", action="store_true", help="skip phase 2")
+    parser.add_argument(
+        "--no-tls-phase", action="store_true", help="skip phase 3 (the TLS + ACL router)"
+    )
     parser.add_argument("--late-trials", type=int, default=20, help="late-joiner trials (20)")
     parser.add_argument(
         "--cpu-latency-us",
@@ -121,9 +128,14 @@ def _proc_cpu_s(pid: int) -> float:
 class Lab:
     """The processes of one topology: an optional router and the daemons."""
 
-    def __init__(self, folder: Path, joints: list[str], routed: bool, qos: int) -> None:
+    def __init__(
+        self, folder: Path, joints: list[str], routed: bool, qos: int, secure: bool = False
+    ) -> None:
         self.joints = joints
         self.routed = routed
+        self.secure = secure
+        #: The subscriber's zenoh json5 (the secure profile's viewer); "": built from endpoints.
+        self.client_config = ""
         self.router: subprocess.Popen[bytes] | None = None
         self.daemons: list[subprocess.Popen[bytes]] = []
         self.endpoints: tuple[str, ...] = ()
@@ -136,7 +148,9 @@ class Lab:
 
     def _start(self, folder: Path, qos: int) -> None:
         joints, routed = self.joints, self.routed
-        if routed:
+        if routed and self.secure:
+            configs = self._start_secure(folder, qos)
+        elif routed:
             port = _free_port()
             self.endpoints = (f"tcp/127.0.0.1:{port}",)
             self.router = subprocess.Popen(
@@ -166,6 +180,31 @@ class Lab:
                     stderr=subprocess.DEVNULL,
                 )
             )
+
+    def _start_secure(self, folder: Path, qos: int) -> list[Path]:
+        """The router and daemons of the secure lab profile (``rtsid certs``), TLS on loopback."""
+        from rtsid.runtime.lab_security import LabProfile, write_lab_profile
+
+        port = _free_port()
+        self.endpoints = (f"tls/127.0.0.1:{port}",)
+        certs = folder / "certs"
+        profile = LabProfile(
+            daemons=tuple((ROBOT, j) for j in self.joints),
+            viewers=("bench",),
+            listen=self.endpoints,
+        )
+        write_lab_profile(certs, profile)
+        self.client_config = str(certs / "viewer-bench.json5")
+        self.router = subprocess.Popen(
+            _cli("router", "--config", str(certs / "router.toml")),
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        _wait_listening(port, self.router, "rtsid router (TLS)")
+        return [
+            _daemon_config(folder, j, f'config_file = "{certs / f"daemon-{ROBOT}-{j}.json5"}"', qos)
+            for j in self.joints
+        ]
 
     @property
     def mode(self) -> str:
@@ -221,7 +260,7 @@ class Phase:
     stalls_with_steal: int = 0
 
 
-def _open(endpoints: tuple[str, ...], mode: str) -> Any:
+def _open(endpoints: tuple[str, ...], mode: str, config_file: str = "") -> Any:
     import zenoh
 
     from rtsid.io.zenoh_link import subscriber_config
@@ -229,7 +268,7 @@ def _open(endpoints: tuple[str, ...], mode: str) -> Any:
     deadline = time.monotonic() + 30.0
     while True:
         try:
-            return zenoh.open(subscriber_config(endpoints, mode))
+            return zenoh.open(subscriber_config(endpoints, mode, config_file))
         except zenoh.ZError:
             if time.monotonic() > deadline:
                 raise
@@ -323,7 +362,7 @@ def _late_joiners(lab: Lab, phase: Phase, trials: int) -> None:
     wanted = len(lab.joints)
     for _ in range(trials):
         t_open = time.perf_counter()
-        with zenoh.open(subscriber_config(lab.endpoints, lab.mode)) as session:
+        with zenoh.open(subscriber_config(lab.endpoints, lab.mode, lab.client_config)) as session:
             t_query = time.perf_counter()
             joints: set[str] = set()
             replies = session.get(
@@ -371,13 +410,18 @@ def _flood(endpoint: str, since: str, rate_hz: float, seconds: float, out: Any) 
 
 
 def _run_topology(
-    folder: Path, joints: list[str], routed: bool, phases: list[str], args: argparse.Namespace
+    folder: Path,
+    joints: list[str],
+    routed: bool,
+    phases: list[str],
+    args: argparse.Namespace,
+    secure: bool = False,
 ) -> list[Phase]:
     seconds = args.duration if not args.quick else 15.0
-    lab = Lab(folder, joints, routed, args.qos)
+    lab = Lab(folder, joints, routed, args.qos, secure)
     results = []
     try:
-        with _open(lab.endpoints, lab.mode) as session:
+        with _open(lab.endpoints, lab.mode, lab.client_config) as session:
             _wait_for_all(session, joints)
             time.sleep(2.0)  # past start-up: plans chosen, first status periods
             for name in phases:
@@ -451,6 +495,10 @@ def run(args: argparse.Namespace) -> int:
     routed_phases = ["router"] + ([] if args.no_query_phase else ["router + queries"])
     with tempfile.TemporaryDirectory(prefix="rtsid-bench-lab-") as tmp:
         phases = _run_topology(Path(tmp) / "routed", joints, True, routed_phases, args)
+        if not args.no_tls_phase:
+            phases += _run_topology(
+                Path(tmp) / "tls", joints, True, ["TLS router"], args, secure=True
+            )
         phases += _run_topology(Path(tmp) / "peer", joints, False, ["peer-to-peer"], args)
     seconds = phases[0].seconds
     base = phases[0]
@@ -483,8 +531,10 @@ def run(args: argparse.Namespace) -> int:
             "the daemons' counters over the phase, summed over joints. Router CPU: % of one core "
             "(/proc). Daemon CPU includes its simulated robot. Misses with host steal: "
             "over-budget windows seen by the subscriber during which the hypervisor took at "
-            "least the overrun (steal time of all CPUs, as in bench service). Floors (router "
-            "phase): every joint ≥ 45 estimates/s, e2e p99 ≤ 10 ms, 0 deadline misses."
+            "least the overrun (steal time of all CPUs, as in bench service). TLS router: the "
+            "secure lab profile (zenoh mutual TLS + access control, `rtsid certs`). Floors "
+            "(router phase): every joint ≥ 45 estimates/s, e2e p99 ≤ 10 ms, 0 deadline misses; "
+            "TLS router e2e p99 ≤ 1.5 × the router's."
         ),
     )
     rows = []

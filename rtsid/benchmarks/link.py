@@ -2,7 +2,7 @@
 
 For each transport (python-can ``virtual`` with the embedded plant in this process, and
 ``socketcand`` with ``rtsid plant`` as a separate process on 127.0.0.1) it streams the
-simulated ankle for ``--duration-s`` and reports:
+simulated ankle for ``--duration`` and reports:
 
 * samples received, lost, and lost *unexplained* (not accounted for by the plant's own
   counters — the floor is 0);
@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rtsid.commands.common import add_duration
 from rtsid.link.acquisition import Acquisition, LinkCounters
 from rtsid.link.config import LinkConfig, PlantConfig
 from rtsid.link.open import bus_factory, open_link
@@ -47,7 +48,7 @@ SUSTAINED_P99_S = 0.050  # a step whose p99 latency exceeds this is falling behi
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--duration-s", type=float, default=600.0, help="steady run per transport")
+    add_duration(parser, "steady run per transport (600)", default=600.0)
     parser.add_argument(
         "--transport",
         choices=("virtual", "socketcand", "both"),
@@ -402,7 +403,7 @@ def print_ramp(transport: str, steps: list[tuple[RunResult, bool, str]]) -> None
 
 
 def run(args: argparse.Namespace) -> int:
-    duration = 5.0 if args.quick else args.duration_s
+    duration = 5.0 if args.quick else args.duration
     step = 1.0 if args.quick else args.ramp_step_s
     base_s = 2.0 if args.quick else args.baseline_s
     transports = ("virtual", "socketcand") if args.transport == "both" else (args.transport,)

@@ -51,7 +51,6 @@ import numpy as np
 
 from rtsid.benchmarks.real import DEFAULT_DATA, TORQUE_SIGN
 from rtsid.benchmarks.table import format_table, median_p99
-from rtsid.benchmarks.yardstick import least_squares_window
 from rtsid.errors import NumericalError
 from rtsid.ident.cascade import CascadeSettings, fit_parallel_cascade, intrinsic_parameters
 from rtsid.ident.excitation import filtered_noise
@@ -59,6 +58,7 @@ from rtsid.ident.filters import derivatives
 from rtsid.ident.skirt import BASIS_FAMILIES, SkirtConditioningWarning, select_basis_size
 from rtsid.ident.stream import WindowStream, sliding_estimates
 from rtsid.ident.window import EstimatorOptions
+from rtsid.ident.yardstick import least_squares_window
 from rtsid.io.sample_files import load_samples
 from rtsid.sim.joint import JointParameters, StiffnessProfile, add_noise
 from rtsid.sim.ltv import multisine_experiment

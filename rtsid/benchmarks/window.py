@@ -17,21 +17,15 @@ import numpy as np
 from scipy.linalg import toeplitz
 
 from rtsid.benchmarks.table import median_p99, print_table
-from rtsid.ident.analysis import AnalysisPlan
+from rtsid.ident.analysis import AnalysisPlan, resolve_plan
+from rtsid.ident.assess import predict_torque
 from rtsid.ident.correlation import auto_correlation, cross_correlation
 from rtsid.ident.excitation import filtered_noise
+from rtsid.ident.front import front_end, prepare_window
 from rtsid.ident.irf import IRF, estimate_irf
-from rtsid.ident.window import (
-    EstimatorOptions,
-    back_end,
-    estimate_window,
-    fit_parameters,
-    front_end,
-    predict_torque,
-    prepare_window,
-    resolve_plan,
-    standard_errors,
-)
+from rtsid.ident.legacy import fit_parameters, standard_errors
+from rtsid.ident.options import EstimatorOptions
+from rtsid.ident.window import back_end, estimate_window
 from rtsid.sim.joint import JointParameters, simulate_impedance
 
 FS_HZ = 2500.0

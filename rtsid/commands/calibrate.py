@@ -5,15 +5,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from rtsid.commands.common import add_fs, add_output
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "baseline", type=Path, help="a run with no person attached: .mcap, .npz or .csv"
     )
-    parser.add_argument(
-        "-o", "--output", type=Path, required=True, help="calibration file to write (JSON)"
-    )
-    parser.add_argument("--fs", type=float, metavar="HZ", help="sampling rate of a CSV without t_s")
+    add_output(parser, "calibration file to write (JSON)", required=True, kind=Path)
+    add_fs(parser, "sampling rate of a CSV without t_s")
     parser.add_argument(
         "--lowpass",
         type=float,
@@ -22,13 +22,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "estimator.lowpass_hz, else 100 Hz)",
     )
     parser.add_argument("--lag", type=float, default=0.01, metavar="S", help="IRF lags ±S (0.01)")
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="calibrate even when the baseline's torque has a stiffness (a joint attached)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     from rtsid.calibrate import calibrate_file, save_calibration
 
     calibration = calibrate_file(
-        args.baseline, fs_hz=args.fs, lowpass_hz=args.lowpass, lag_s=args.lag
+        args.baseline, fs_hz=args.fs, lowpass_hz=args.lowpass, lag_s=args.lag, force=args.force
     )
     robot = calibration.robot
     save_calibration(calibration, args.output)

@@ -6,6 +6,7 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
+from rtsid.commands.common import add_fs, add_output
 from rtsid.errors import InputDataError
 from rtsid.io.convert import (
     CAN_LOG_SUFFIXES,
@@ -20,12 +21,10 @@ from rtsid.runtime.daemon import DaemonConfig
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     kinds = ", ".join(CAN_LOG_SUFFIXES + SAMPLE_FILE_SUFFIXES)
     parser.add_argument("input", type=Path, help=f"a CAN capture or sample file ({kinds})")
-    parser.add_argument("-o", "--output", type=Path, required=True, help="the .mcap to write")
-    parser.add_argument(
-        "--fs",
-        type=float,
-        metavar="HZ",
-        help="sample rate: the robot's state-frame rate for CAN captures (default: the "
+    add_output(parser, "the .mcap to write", required=True, kind=Path)
+    add_fs(
+        parser,
+        "sample rate: the robot's state-frame rate for CAN captures (default: the "
         "--config's [link] fs_hz, else derived from the frames' timestamps), or the rate of a "
         "CSV without a t_s column",
     )

@@ -7,6 +7,7 @@ import argparse
 import numpy as np
 
 from rtsid.benchmarks.table import print_table
+from rtsid.commands.common import add_duration, add_fs
 from rtsid.ident.excitation import filtered_noise
 from rtsid.ident.stream import sliding_estimates
 from rtsid.ident.window import EstimatorOptions
@@ -14,8 +15,8 @@ from rtsid.sim.joint import JointParameters, StiffnessProfile, simulate_impedanc
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--duration", type=float, default=4.0, metavar="S", help="seconds (4)")
-    parser.add_argument("--fs", type=float, default=2500.0, metavar="HZ", help="rate (2500)")
+    add_duration(parser, "seconds simulated (4)", default=4.0)
+    add_fs(parser, "sampling rate (2500)", default=2500.0)
     parser.add_argument("--noise", type=float, default=10.0, metavar="PCT", help="torque noise %%")
     parser.add_argument("--hop", type=float, default=0.25, metavar="S", help="hop, s (0.25)")
     parser.add_argument("--seed", type=int, default=0)

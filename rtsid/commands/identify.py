@@ -5,12 +5,14 @@ from __future__ import annotations
 import argparse
 import csv
 import sys
+from collections import Counter
 from dataclasses import replace
 
 import numpy as np
 
-from rtsid.config import load_toml, section_from_mapping
-from rtsid.errors import InputDataError
+from rtsid.commands.common import add_fs, add_output
+from rtsid.config import load_toml
+from rtsid.errors import ConfigError, InputDataError, TorqueSignError
 from rtsid.ident.cascade import (
     CascadeFit,
     CascadeSettings,
@@ -19,11 +21,20 @@ from rtsid.ident.cascade import (
     sliding_cascades,
 )
 from rtsid.ident.reflex import REFLEX_VARIANTS
-from rtsid.ident.stream import WindowResult, WindowStream, sliding_estimates
+from rtsid.ident.sign import inverted_torque_message
 from rtsid.ident.window import EstimatorOptions, WindowEstimate, estimate_window
-from rtsid.io.estimate_csv import open_output, write_estimates
+from rtsid.identifier import Identifier, record_windows
+from rtsid.io.estimate_csv import encode_value, open_output, write_estimates
+from rtsid.io.messages import EstimateMessage
 from rtsid.io.sample_files import SampleRecord, load_samples, nonfinite_report
-from rtsid.plots import plot_cascade, plot_cascade_windows
+from rtsid.plots import (
+    estimate_series,
+    plot_cascade,
+    plot_cascade_windows,
+    plot_impedance_track,
+    require_matplotlib,
+)
+from rtsid.verdicts import format_counts
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,14 +46,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="window, s (0.3; with --model cascade: the whole record unless given)",
     )
     parser.add_argument("--hop", type=float, metavar="S", help="hop, s (0.1; cascade: --window/4)")
-    parser.add_argument("--out", "-o", metavar="PATH", help="CSV output (default: stdout)")
+    add_output(parser, "the estimates' CSV (default: stdout)", old=("--out",))
     parser.add_argument(
         "--torque-sign",
         type=float,
         choices=(1.0, -1.0),
         help="-1 for rigs reporting torque inverted",
     )
-    parser.add_argument("--fs", type=float, metavar="HZ", help="sampling rate of a CSV without t_s")
+    add_fs(parser, "sampling rate of a CSV without t_s")
     parser.add_argument(
         "--fit",
         choices=("output_error", "relative", "logmag"),
@@ -72,10 +83,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--plot",
         metavar="PNG",
-        help="cascade: draw both pathways' torque and the reflex IRF (whole record), or the "
-        "intrinsic K and the reflex gain window by window",
+        help="draw a figure here (PNG): windows: K_track with its band, each window's K, B, I "
+        "and VAF over time; cascade: both pathways' torque and the reflex IRF (whole record), "
+        "or the intrinsic K and the reflex gain window by window (needs rtsid[plot])",
     )
-    parser.add_argument("--config", metavar="TOML", help="take [estimator] options from this file")
+    parser.add_argument(
+        "--config",
+        metavar="TOML",
+        help="a daemon config: its [estimator], [worker], [slow_lane] and [tracker] apply",
+    )
     parser.add_argument(
         "--allow-nan",
         action="store_true",
@@ -84,32 +100,75 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _options(args: argparse.Namespace) -> EstimatorOptions:
-    table = load_toml(args.config).get("estimator") if args.config else None
-    options = section_from_mapping(EstimatorOptions, table, "estimator")
+def _identifier(
+    args: argparse.Namespace, fs_hz: float, window_s: float, **config: dict[str, object]
+) -> Identifier:
+    """The stream ``rtsid identify`` runs: the daemon's window path (:class:`rtsid.Identifier`)
+    with ``--config`` (a daemon TOML: [estimator], [worker], [slow_lane], [tracker]) and the
+    command's switches over it; ``--hop`` 0.1 s unless the config sets [worker] hop_s."""
     overrides = {
         "torque_sign": args.torque_sign,
         "fit_method": args.fit,
         "hold": args.hold,
         "lag_s": args.lag,
     }
-    return replace(options, **{k: v for k, v in overrides.items() if v is not None})
+    document = load_toml(args.config) if args.config else {}
+    for section, values in config.items():
+        document.setdefault(section, {}).update(values)
+    return Identifier(
+        fs_hz,
+        document,
+        window_s=window_s,
+        hop_s=args.hop,
+        **{k: v for k, v in overrides.items() if v is not None},
+    )
 
 
-def _summary(results: list[WindowResult]) -> str:
-    kept = [r.estimate for r in results if r.estimate is not None]
-    withheld = len(results) - len(kept)
+def _summary(windows: list[EstimateMessage]) -> str:
+    kept = [w for w in windows if w.ok]
+    reasons = format_counts(Counter(str(w.reason) for w in windows if not w.ok))
     if not kept:
-        return f"{len(results)} windows, all withheld"
-    med = {k: float(np.median([getattr(e, k) for e in kept])) for k in ("K", "B", "I", "vaf")}
+        return f"{len(windows)} windows, all withheld ({reasons})"
+    withheld = f"{len(windows) - len(kept)} withheld" + (f": {reasons}" if reasons != "0" else "")
+    med = {k: float(np.median([getattr(w, k) for w in kept])) for k in ("K", "B", "I", "vaf")}
+    tracked = [w.K_track for w in kept if w.K_track is not None]
+    lead = f"median K_track = {np.median(tracked):.1f} N·m/rad, " if tracked else ""
     return (
-        f"{len(results)} windows ({withheld} withheld): median K = {med['K']:.1f} N·m/rad, "
+        f"{len(windows)} windows ({withheld}): {lead}K = {med['K']:.1f} N·m/rad, "
         f"B = {med['B']:.3f} N·m·s/rad, I = {med['I']:.4f} kg·m², VAF = {med['vaf']:.1f} %"
     )
 
 
+def _windows(ident: Identifier, record: SampleRecord) -> list[EstimateMessage]:
+    """Every window of the record; an inverted torque sign refused naming the switch."""
+    try:
+        return record_windows(ident, record.position_rad, record.torque_nm)
+    except TorqueSignError as exc:
+        other = f"{-exc.torque_sign:g}"
+        fix = f"rerun with --torque-sign {other} (or [estimator] torque_sign = {other})"
+        raise ConfigError(inverted_torque_message(exc.inverted, exc.estimable, fix)) from None
+
+
+def _reflex_line(fits: list[dict[str, object]]) -> str:
+    """What the slow lane decided, with its evidence."""
+    if not fits:
+        return "slow lane: no fit (record shorter than its first horizon, or slow lane off)"
+    present = [f for f in fits if f["applied"]]
+    gains = [float(g) for f in fits if isinstance(g := f["window_vaf_gain"], float)]
+    evidence = f" (median window VAF gain {np.median(gains):+.1f} points)" if gains else ""
+    if not present:
+        return (
+            f"slow lane: reflex judged absent in all {len(fits)} fits{evidence}: nothing subtracted"
+        )
+    return (
+        f"slow lane: reflex judged present in {len(present)} of {len(fits)} fits{evidence}: "
+        "its torque subtracted before those windows' I, B, K"
+    )
+
+
 def run(args: argparse.Namespace) -> int:
-    options = _options(args)
+    if args.plot:
+        require_matplotlib()  # refuse before the work, not after it
     record = load_samples(args.file, args.fs)
     problem = nonfinite_report(record)
     if problem and not args.allow_nan:
@@ -118,28 +177,29 @@ def run(args: argparse.Namespace) -> int:
             "windows that contain them"
         )
     if args.model == "cascade":
-        return _identify_cascade(record, options, args)
-    window = args.window if args.window is not None else 0.3
-    hop = args.hop if args.hop is not None else 0.1
-    stream = WindowStream(record.fs_hz, options, hop)
-    valid = np.isfinite(record.position_rad) & np.isfinite(record.torque_nm) if problem else None
-    results = list(
-        sliding_estimates(
-            record.position_rad,
-            record.torque_nm,
-            record.fs_hz,
-            window,
-            hop,
-            options,
-            stream=stream,
-            valid=valid,
+        return _identify_cascade(record, args)
+    ident = _identifier(args, record.fs_hz, args.window if args.window is not None else 0.3)
+    windows = _windows(ident, record)
+    messages = [w.as_dict() for w in windows]
+    with open_output(args.output) as fh:
+        write_estimates(messages, fh)
+    if args.plot:
+        t, series, flagged = estimate_series(messages)
+        worker = ident.config.worker
+        figure = plot_impedance_track(
+            t,
+            series,
+            args.plot,
+            title=f"{record.source}: {worker.window_s * 1e3:.0f} ms windows every "
+            f"{worker.hop_s * 1e3:.0f} ms",
+            flagged=flagged,
+            window_s=worker.window_s,
         )
-    )
-    with open_output(args.out) as fh:
-        write_estimates(results, fh)
-    if stream.plan is not None:
-        print(f"rtsid identify: {stream.plan.describe()}", file=sys.stderr)
-    print(f"rtsid identify: {_summary(results)}", file=sys.stderr)
+        print(f"rtsid identify: wrote {figure}", file=sys.stderr)
+    if ident.plan is not None:
+        print(f"rtsid identify: {ident.plan}", file=sys.stderr)
+    print(f"rtsid identify: {_reflex_line(ident.reflex)}", file=sys.stderr)
+    print(f"rtsid identify: {_summary(windows)}", file=sys.stderr)
     return 0
 
 
@@ -160,6 +220,7 @@ CASCADE_COLUMNS = (
     "K_no_reflex_model",
     "reflex_gain_nm_s_per_rad",
     "reflex_delay_ms",
+    "reflex_delay_at_bound",
     "reflex_irf_gain_nm_s_per_rad",
     "reflex_dynamics_vaf",
     "reflex_rank",
@@ -174,7 +235,7 @@ def _cascade_row(
     cascade: CascadeFit,
     intrinsic: WindowEstimate,
     plain_k: float,
-) -> dict[str, float]:
+) -> dict[str, float | str]:
     reflex = cascade.reflex
     values = (
         start / fs_hz,
@@ -193,6 +254,7 @@ def _cascade_row(
         plain_k,
         reflex.gain,
         reflex.delay_s * 1e3,
+        reflex.dynamics.delay_at_bound or "",
         reflex.irf_gain,
         reflex.dynamics.vaf,
         reflex.rank,
@@ -201,22 +263,24 @@ def _cascade_row(
     return dict(zip(CASCADE_COLUMNS, values, strict=True))
 
 
-def _write_cascade_rows(rows: list[dict[str, float]], out: str | None) -> None:
+def _write_cascade_rows(rows: list[dict[str, float | str]], out: str | None) -> None:
     with open_output(out) as fh:
         writer = csv.DictWriter(fh, fieldnames=CASCADE_COLUMNS, lineterminator="\n")
         writer.writeheader()
         for row in rows:
-            writer.writerow({k: f"{v:.6g}" for k, v in row.items()})
+            writer.writerow({k: encode_value(v) for k, v in row.items()})
 
 
-def _identify_cascade(
-    record: SampleRecord, options: EstimatorOptions, args: argparse.Namespace
-) -> int:
+def _identify_cascade(record: SampleRecord, args: argparse.Namespace) -> int:
     """The parallel cascade of the whole record, or of sliding windows (``--window``); the
     intrinsic I/B/K by the window estimator's output-error fit to the torque with the
     reflex pathway's prediction removed."""
     if problem := nonfinite_report(record):
         raise InputDataError(f"{record.source}: {problem}; the cascade needs a clean record")
+    # the sign is judged on the record's 300 ms windows, as without --model cascade
+    sign_check = _identifier(args, record.fs_hz, 0.3, slow_lane={"enabled": False})
+    _windows(sign_check, record)
+    options = sign_check.config.estimator
     torque = options.torque_sign * record.torque_nm
     settings = CascadeSettings(variant=args.reflex)
     if args.window is None:
@@ -229,19 +293,31 @@ def _identify_cascade(
         span = slice(w.start_index, w.end_index + 1)
         plain = estimate_window(record.position_rad[span], torque[span], fs, whole)
         rows.append(_cascade_row(w.start_index, w.end_index, fs, w.cascade, w.intrinsic, plain.K))
-    _write_cascade_rows(rows, args.out)
+    _write_cascade_rows(rows, args.output)
     if args.plot:
         plot_cascade_windows(rows, args.plot, title=f"{record.source}: {args.reflex} cascade")
-    k = np.array([r["K"] for r in rows])
-    gain = np.array([r["reflex_gain_nm_s_per_rad"] for r in rows])
+    k = np.array([float(r["K"]) for r in rows])
+    gain = np.array([float(r["reflex_gain_nm_s_per_rad"]) for r in rows])
     print(
         f"rtsid identify: {len(rows)} cascade windows of {args.window:g} s every {hop:g} s: "
-        f"median VAF {np.median([r['vaf_cascade'] for r in rows]):.1f} %, intrinsic K "
+        f"median VAF {np.median([float(r['vaf_cascade']) for r in rows]):.1f} %, intrinsic K "
         f"{np.median(k):.1f} N·m/rad (IQR {np.subtract(*np.percentile(k, [75, 25])):.1f}), "
-        f"reflex gain {np.median(gain):.3g} N·m·s/rad",
+        f"reflex gain {np.median(gain):.3g} N·m·s/rad{_delays_at_bound(rows)}",
         file=sys.stderr,
     )
     return 0
+
+
+def _delays_at_bound(rows: list[dict[str, float | str]]) -> str:
+    """``"; the reflex delay ended at the lower bound of its search in 5 of 5 windows …"``."""
+    bounds = [str(r["reflex_delay_at_bound"]) for r in rows if r["reflex_delay_at_bound"]]
+    if not bounds:
+        return ""
+    which = " or ".join(sorted(set(bounds)))
+    return (
+        f"; the reflex delay ended at the {which} bound of its search in {len(bounds)} of "
+        f"{len(rows)} windows (reflex_delay_at_bound): there it is not a measured delay"
+    )
 
 
 def _whole_record_cascade(
@@ -258,7 +334,7 @@ def _whole_record_cascade(
         record.position_rad, torque, fs, replace(options, torque_sign=1.0, hold="none")
     )
     row = _cascade_row(0, record.position_rad.size - 1, fs, cascade, intrinsic, plain.K)
-    _write_cascade_rows([row], args.out)
+    _write_cascade_rows([row], args.output)
     if args.plot:
         plot_cascade(cascade, args.plot, title=f"{record.source}: {settings.variant} cascade")
     reflex = cascade.reflex
@@ -270,8 +346,8 @@ def _whole_record_cascade(
         f"{cascade.iterations} alternations; intrinsic K = {intrinsic.K:.1f} ± "
         f"{intrinsic.K_se:.1f} N·m/rad, B = {intrinsic.B:.3f}, I = {intrinsic.I:.4f} "
         f"(without the reflex model K = {plain.K:.1f}); reflex gain {reflex.gain:.3g} "
-        f"N·m·s/rad, delay {reflex.delay_s * 1e3:.1f} ms (the delayed low-pass explains "
-        f"{reflex.dynamics.vaf:.0f} % of the reflex IRF; IRF rank {reflex.rank} by MDL)",
+        f"N·m·s/rad (the delayed low-pass explains {reflex.dynamics.vaf:.0f} % of the reflex "
+        f"IRF; IRF rank {reflex.rank} by MDL), {reflex.dynamics.describe_delay()}",
         file=sys.stderr,
     )
     return 0

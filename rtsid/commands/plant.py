@@ -2,7 +2,7 @@
 
 A daemon (or ``cantools monitor``/python-can) then connects with python-can's
 ``socketcand`` interface to ``127.0.0.1:PORT``, channel ``can0``, exactly as to a real
-socketcand host. Runs until SIGINT/SIGTERM (or ``--duration-s``); prints one line with the
+socketcand host. Runs until SIGINT/SIGTERM (or ``--duration``); prints one line with the
 address when ready and one line of counters (JSON) at the end.
 """
 
@@ -10,7 +10,10 @@ from __future__ import annotations
 
 import argparse
 
+from rtsid.commands.common import add_duration, add_fs, deprecated_alias
 from rtsid.link.serve import PlantServerOptions, serve_plant
+
+PLANT_MODES = ("sim", "player", "torque_multisine")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -18,13 +21,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", default="127.0.0.1", help="loopback address (default 127.0.0.1)")
     parser.add_argument("--port", type=int, default=29536, help="TCP port, 0 = a free one")
     parser.add_argument("--channel", default="can0", help="bus name clients open (default can0)")
-    parser.add_argument(
-        "--mode", choices=("sim", "player", "torque_multisine"), help="override [plant] mode"
-    )
+    parser.add_argument("--plant-mode", choices=PLANT_MODES, help="override [plant] mode")
+    # --mode is the zenoh session's in every other command
+    deprecated_alias(parser, "--mode", "--plant-mode", "plant_mode", choices=PLANT_MODES)
     parser.add_argument("--file", metavar="NPZ", help="recording for player mode")
-    parser.add_argument("--fs-hz", type=float, help="override [plant] fs_hz (frame rate)")
+    add_fs(parser, "override [plant] fs_hz (frame rate)")
     parser.add_argument("--fast", action="store_true", help="as fast as the client reads")
-    parser.add_argument("--duration-s", type=float, default=0.0, help="stop after this long")
+    add_duration(parser, "stop after S seconds (default: run until stopped)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -33,10 +36,10 @@ def run(args: argparse.Namespace) -> int:
         host=args.host,
         port=args.port,
         channel=args.channel,
-        mode=args.mode,
+        mode=args.plant_mode,
         player_file=args.file,
-        fs_hz=args.fs_hz,
+        fs_hz=args.fs,
         fast=args.fast,
-        duration_s=args.duration_s,
+        duration_s=args.duration or 0.0,
     )
     return serve_plant(options)

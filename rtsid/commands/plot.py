@@ -1,18 +1,17 @@
-"""``rtsid plot REC.mcap -o FIG.png``: K, B, I with 95 % bands, and VAF, over time."""
+"""``rtsid plot REC.mcap -o FIG.png``: the tracked stiffness K_track with its 95 % band (each
+window's K beside it), B and I (fitted with their bands, held values as held), and VAF."""
 
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from rtsid.commands.common import add_output
 from rtsid.errors import InputDataError
-
-KEYS = ("K", "B", "I", "K_se", "B_se", "I_se", "vaf")
-IGNORED_FLAGS = ("over_budget",)  # about the computer, not the estimate
+from rtsid.plots import estimate_series
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -22,7 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         nargs="+",
         help="an .mcap with /estimate messages (any part of a rotated session reads them all)",
     )
-    parser.add_argument("-o", "--output", type=Path, required=True, help="the PNG to write")
+    add_output(parser, "the PNG to write", required=True, kind=Path)
     parser.add_argument("--hist", type=Path, metavar="PNG", help="also histograms of K, B, I, VAF")
     parser.add_argument("--title", help="figure title (default: the file name)")
     parser.add_argument(
@@ -34,22 +33,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def estimate_series(
-    messages: Sequence[dict[str, Any]],
-) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
-    """Times (window end, s), series by key (NaN where withheld) and flagged windows."""
-    t = np.array([m["t_end_s"] for m in messages], dtype=float)
-    series = {
-        k: np.array(
-            [m[k] if m.get("ok") and m.get(k) is not None else np.nan for m in messages],
-            dtype=float,
-        )
-        for k in KEYS
-    }
-    flagged = np.array(
-        [bool(m.get("ok")) and any(f not in IGNORED_FLAGS for f in m["flags"]) for m in messages]
-    )
-    return t, series, flagged
+def _window_s(message: dict[str, Any]) -> float:
+    """The window's length, s, from its first and last sample's index and time."""
+    gaps = message["window_end_index"] - message["window_start_index"]
+    span_s = message["t_end_s"] - message["t_start_s"]
+    return float(span_s * (gaps + 1) / gaps) if gaps > 0 and span_s > 0 else 0.3
 
 
 def run(args: argparse.Namespace) -> int:
@@ -81,9 +69,16 @@ def run(args: argparse.Namespace) -> int:
             "nothing to plot"
         )
     title = args.title or f"{name}: {int(ok.sum())} of {len(t)} windows"
-    out = plot_impedance_track(t, series, args.output, title=title, flagged=flagged)
+    window_s = _window_s(messages[0])
+    out = plot_impedance_track(
+        t, series, args.output, title=title, flagged=flagged, window_s=window_s
+    )
+    track = series["K_track"]
+    tracked = (
+        f"median K_track {np.nanmedian(track):.1f} N·m/rad, " if np.isfinite(track).any() else ""
+    )
     print(
-        f"wrote {out}: median K {np.nanmedian(series['K']):.1f} N·m/rad, "
+        f"wrote {out}: {tracked}median K {np.nanmedian(series['K']):.1f} N·m/rad, "
         f"B {np.nanmedian(series['B']):.3f} N·m·s/rad, I {np.nanmedian(series['I']):.4f} kg·m², "
         f"VAF {np.nanmedian(series['vaf']):.1f} % over {int(ok.sum())} windows "
         f"({len(t) - int(ok.sum())} withheld, {int(flagged.sum())} flagged)"

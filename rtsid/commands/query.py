@@ -12,26 +12,22 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+from rtsid.commands.common import add_zenoh_reader, connect_endpoints
 from rtsid.errors import ConfigError, ServiceError
 from rtsid.io.history import QueryError, parse_duration_s
+from rtsid.io.validate import check_replies, error_reply_text, printable
+
+if TYPE_CHECKING:
+    from rtsid.io.zenoh_link import QueryAnswer
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "key", nargs="?", default="rtsid/*/*", help="rtsid/<robot>/<joint> (default rtsid/*/*)"
     )
-    parser.add_argument(
-        "--connect",
-        action="append",
-        default=None,
-        metavar="ENDPOINT",
-        help="a router's or a daemon's endpoint (repeatable; default tcp/127.0.0.1:7447)",
-    )
-    parser.add_argument(
-        "--mode", choices=("peer", "client"), default="client", help="client (default) or peer"
-    )
+    add_zenoh_reader(parser, "a router's or a daemon's endpoint")
     parser.add_argument("--since", metavar="DURATION", help="history of the last 60s, 5m, …")
     parser.add_argument("--from", dest="from_ns", type=int, metavar="NS", help="UNIX ns")
     parser.add_argument("--to", dest="to_ns", type=int, metavar="NS", help="UNIX ns")
@@ -43,7 +39,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def selector(args: argparse.Namespace) -> str:
     """The zenoh selector the arguments ask for (``KEY/estimate`` or ``KEY/history?…``)."""
-    key = args.key.rstrip("/")
+    from rtsid.io.zenoh_link import user_key_expr
+
+    key = user_key_expr(args.key)
     params = []
     if args.since is not None:
         try:
@@ -70,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("give --since or --from, not both")
     if not args.timeout > 0:
         raise ConfigError(f"--timeout {args.timeout} is not accepted; expected seconds > 0")
-    connect = tuple(args.connect or ["tcp/127.0.0.1:7447"])
+    connect = connect_endpoints(args)
     wanted = selector(args)
     try:
         session = zenoh.open(subscriber_config(connect, args.mode))
@@ -79,37 +77,45 @@ def run(args: argparse.Namespace) -> int:
             f"cannot reach {', '.join(connect)}: {exc}; is the router (or daemon) running there?"
         ) from None
     with session:
-        answer = query(session, wanted, timeout_s=args.timeout)
+        try:
+            answer = query(session, wanted, timeout_s=args.timeout)
+        except zenoh.ZError as exc:
+            raise ConfigError(f"zenoh refused the query {wanted!r}: {exc}") from None
+    return _report(answer, wanted, f"within {args.timeout:g} s via {', '.join(connect)}")
+
+
+def _report(answer: QueryAnswer, wanted: str, where: str) -> int:
+    """Print the checked messages (stdout, JSON lines, oldest first) and the history summary,
+    error replies and rejected replies (stderr, one printable line each); the exit code."""
     for error in answer.errors:
-        print(f"rtsid query: error reply: {error}", file=sys.stderr)
-    messages: list[tuple[int, bytes]] = []
-    for _, payload in answer.replies:
-        if "/history" not in wanted:
-            messages.append((_time_of(json.loads(payload)), payload))
-            continue
-        part = json.loads(payload)
+        print(f"rtsid query: error reply: {error_reply_text(error)}", file=sys.stderr)
+    checked = check_replies(answer.replies)
+    for part in checked.parts:
         if part["part"] == 0:
             print(_summary(part), file=sys.stderr)
-        messages += [(_time_of(m), json.dumps(m).encode()) for m in part["messages"]]
-    for _, payload in sorted(messages, key=lambda pair: pair[0]):
-        sys.stdout.write(payload.decode() + "\n")
+    for why in checked.rejected[:5]:
+        print(f"rtsid query: rejected a malformed reply: {why}", file=sys.stderr)
+    if checked.rejected:
+        print(
+            f"rtsid query: rejected {len(checked.rejected)} malformed replies or messages "
+            "(not printed); a peer that is not an rtsid daemon may answer on this key",
+            file=sys.stderr,
+        )
+    for _, _, message in checked.messages:
+        sys.stdout.write(json.dumps(message, separators=(",", ":"), allow_nan=False) + "\n")
     sys.stdout.flush()
     if not answer.replies and not answer.errors:
         print(
-            f"rtsid query: no daemon answered {wanted} within {args.timeout:g} s via "
-            f"{', '.join(connect)}; check the key and that the daemons are connected",
+            f"rtsid query: no daemon answered {wanted} {where}; check the key and that the "
+            "daemons are connected",
             file=sys.stderr,
         )
         return 1
-    return 1 if answer.errors else 0
-
-
-def _time_of(message: Any) -> int:
-    return int(message.get("host_time_ns") or 0) if isinstance(message, dict) else 0
+    return 1 if answer.errors or (not checked.messages and not checked.parts) else 0
 
 
 def _summary(part: dict[str, Any]) -> str:
     held = part["held_from_ns"]
     where = "nothing held" if held is None else f"held from {held} ns"
     text = f"rtsid query: {part['robot']}/{part['joint']} {part['kind']}: {where}"
-    return text + (f"; {part['note']}" if part["note"] else "; the whole range is held")
+    return text + (f"; {printable(part['note'])}" if part["note"] else "; the whole range is held")

@@ -5,16 +5,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from rtsid.commands.common import add_output
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recording", type=Path, help="an MCAP recording (e.g. after kill -9)")
-    parser.add_argument(
-        "-o",
-        "--output",
-        type=Path,
-        default=None,
-        help="output file (default: REC-recovered.mcap beside the input)",
-    )
+    add_output(parser, "output file (default: REC-recovered.mcap beside the input)", kind=Path)
     parser.add_argument("--overwrite", action="store_true", help="replace OUTPUT if it exists")
 
 

@@ -13,18 +13,19 @@ from typing import Any
 import numpy as np
 
 from rtsid.benchmarks.table import print_table
+from rtsid.commands.common import add_output
 from rtsid.errors import IncompleteRecordingWarning, InputDataError
-from rtsid.io.estimate_csv import open_output
+from rtsid.io.estimate_csv import open_output, write_estimates
 from rtsid.io.files import atomic_write
 from rtsid.io.recording import session_parts
 from rtsid.replay import (
     ReplayResult,
     recording_config,
     replay_file,
-    write_estimates_csv,
     write_estimates_mcap,
 )
 from rtsid.runtime.daemon import DaemonConfig
+from rtsid.verdicts import format_counts
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -34,12 +35,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--rate", default="max", help="1 = real time, N = N× real time, max = as fast as possible"
     )
     parser.add_argument("--publish", action="store_true", help="publish estimates over zenoh")
-    parser.add_argument(
-        "--out",
-        "-o",
-        metavar="PATH",
-        help="OUT.csv or OUT.mcap (a directory "
-        "for a directory of recordings; default: a summary only)",
+    add_output(
+        parser,
+        "the estimates: OUT.csv or OUT.mcap (a directory for a directory of recordings; "
+        "default: a summary only)",
+        old=("--out",),
     )
     parser.add_argument("--jobs", type=int, default=0, help="processes for a directory (0: cores)")
 
@@ -63,7 +63,7 @@ def _config(args: argparse.Namespace, path: Path) -> DaemonConfig:
 def _write(result: ReplayResult, out: Path, config: DaemonConfig) -> None:
     if out.suffix == ".csv":
         with open_output(out) as fh:
-            write_estimates_csv(result.messages, fh)
+            write_estimates(result.messages, fh)
     elif out.suffix == ".mcap":
         with atomic_write(out, "wb", what="estimates") as fh:
             write_estimates_mcap(
@@ -74,7 +74,7 @@ def _write(result: ReplayResult, out: Path, config: DaemonConfig) -> None:
                 reflex=result.reflex,
             )
     else:
-        raise InputDataError(f"--out {out}: use a .csv or .mcap file name")
+        raise InputDataError(f"-o {out}: use a .csv or .mcap file name")
 
 
 def _summary_row(result: ReplayResult) -> list[Any]:
@@ -83,7 +83,7 @@ def _summary_row(result: ReplayResult) -> list[Any]:
         k: float(np.median([m[k] for m in ok])) if ok else float("nan")
         for k in ("K", "B", "I", "vaf")
     }
-    withheld = ", ".join(f"{k} {v}" for k, v in sorted(result.withheld.items())) or "0"
+    withheld = format_counts(result.withheld)
     return [
         Path(result.source).name,
         result.duration_s,
@@ -147,7 +147,7 @@ def _replay_directory(folder: Path, args: argparse.Namespace) -> list[list[Any]]
     sessions = _sessions(sorted(folder.glob("*.mcap")))
     if not sessions:
         raise InputDataError(f"{folder}: no .mcap recordings in this directory")
-    out_dir = Path(args.out) if args.out else None
+    out_dir = Path(args.output) if args.output else None
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
     jobs = args.jobs or mp.cpu_count()
@@ -186,7 +186,8 @@ def run(args: argparse.Namespace) -> int:
         rows = _replay_directory(path, args)
     else:
         args.progress = True
-        rows = [_rewarn(*_replay_one(path, args, Path(args.out) if args.out else None))]
+        out = Path(args.output) if args.output else None
+        rows = [_rewarn(*_replay_one(path, args, out))]
     print_table(
         "Replay",
         [

@@ -7,6 +7,7 @@ import signal
 import sys
 import threading
 
+from rtsid.commands.common import add_duration
 from rtsid.runtime.router import load_router_config, run_router
 
 
@@ -21,7 +22,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="ENDPOINT",
         help="endpoint to listen on, repeatable (default tcp/127.0.0.1:7447, loopback only)",
     )
-    parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    add_duration(parser, "stop after S seconds")
 
 
 def run(args: argparse.Namespace) -> int:

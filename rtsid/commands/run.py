@@ -8,14 +8,16 @@ import signal
 import sys
 from typing import Any
 
+from rtsid.commands.common import add_duration
 from rtsid.config import to_toml
 from rtsid.errors import ConfigError
 from rtsid.runtime.daemon import Daemon, DaemonConfig
+from rtsid.verdicts import format_counts
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", metavar="TOML", help="daemon config (default: virtual plant)")
-    parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    add_duration(parser, "stop after S seconds")
     parser.add_argument("--quiet", action="store_true", help="no console line per status")
     parser.add_argument(
         "--foxglove",
@@ -29,7 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--foxglove-host",
         default="127.0.0.1",
-        help="address the Foxglove server binds to (default 127.0.0.1: this machine only)",
+        help="address the Foxglove server binds to: loopback only (127.0.0.1 or ::1), as its "
+        "protocol has no authentication; reach it from elsewhere through an SSH tunnel",
     )
     parser.add_argument(
         "--print-config",
@@ -133,8 +136,9 @@ def run(args: argparse.Namespace) -> int:
             foxglove.stop()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+    withheld = format_counts(summary.withheld)
     print(
-        f"rtsid run: stopped — {summary.estimates} estimates, withheld {summary.withheld or 0}, "
+        f"rtsid run: stopped — {summary.estimates} estimates, withheld {withheld}, "
         f"{summary.deadline_misses} deadline misses, {summary.samples} samples "
         f"({summary.lost_samples} lost), MCAP: {', '.join(summary.mcap_files) or 'none'}"
         f"{'' if summary.clean_shutdown else ' (shutdown was not clean)'}",

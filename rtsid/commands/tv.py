@@ -7,6 +7,7 @@ import argparse
 import sys
 import warnings
 
+from rtsid.commands.common import add_output, deprecation_note
 from rtsid.errors import InputDataError
 from rtsid.ident.skirt import AUTO_MAX_BASIS, BASIS_FAMILIES, SkirtConditioningWarning
 from rtsid.ident.skirt import WARN_VARIANCE_INFLATION as WARN
@@ -78,15 +79,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--common-damping", action="store_true", help="hold the damping constant over time too"
     )
     parser.add_argument("--plot", metavar="PNG", help="write |G(jω,t)|, K(t), f_n(t) here")
-    parser.add_argument("--csv", metavar="PATH", help="write the K/B/I/f_n track as CSV")
+    add_output(
+        parser,
+        "write the K, B, I, f_n track here as CSV (columns in docs/skirt.md)",
+        metavar="CSV",
+        old=("--csv",),
+    )
     sim = parser.add_argument_group("simulated experiment (the published study)")
     sim.add_argument(
         "--simulate",
         choices=tuple(STUDY_CASES),
-        help="simulate this case and write it to -o instead of reading a file (CS1–CS3: the "
-        "published study; SIN2: K(t) sinusoidal, two cycles per record)",
+        help="simulate this case and write it to --save-simulation instead of reading a file "
+        "(CS1–CS3: the published study; SIN2: K(t) sinusoidal, two cycles per record)",
     )
-    sim.add_argument("-o", "--output", metavar="NPZ", help="where --simulate writes")
+    sim.add_argument("--save-simulation", metavar="NPZ", help="where --simulate writes")
     sim.add_argument(
         "--spacing",
         type=float,
@@ -98,27 +104,50 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sim.add_argument("--seed", type=int, default=1, help="phases and noise seed (1)")
 
 
+def _old_simulation_output(args: argparse.Namespace) -> None:
+    """``--simulate CASE -o FILE.npz`` (before -o meant the track, as in every command): the
+    simulation's file, for one more release, with the deprecation note."""
+    if args.save_simulation is None and str(args.output or "").lower().endswith(".npz"):
+        print(deprecation_note("-o FILE.npz with --simulate", "--save-simulation"), file=sys.stderr)
+        args.save_simulation, args.output = args.output, None
+
+
 def run(args: argparse.Namespace) -> int:
     from rtsid import tv
 
+    if args.plot:
+        tv.require_matplotlib()  # fail before the work, not after
+        if args.simulate and not args.recording:
+            npz = args.output or "X.npz"
+            raise InputDataError(
+                "--plot draws the identification of a recording; give the file --simulate "
+                f"writes as the recording too: rtsid tv --simulate {args.simulate} -o {npz} "
+                f"{npz} --plot {args.plot}"
+            )
     if args.simulate:
-        if not args.output:
-            raise InputDataError("--simulate needs -o FILE.npz to write the experiment to")
+        _old_simulation_output(args)
+        if not args.save_simulation:
+            raise InputDataError(
+                "--simulate needs --save-simulation FILE.npz to write the experiment to"
+            )
         tv.simulate_to_npz(
-            args.simulate, args.output, spacing_hz=args.spacing, snr_db=args.snr, seed=args.seed
+            args.simulate,
+            args.save_simulation,
+            spacing_hz=args.spacing,
+            snr_db=args.snr,
+            seed=args.seed,
         )
         print(
-            f"wrote {args.output}: case {args.simulate}, lines {args.spacing:g} Hz apart, "
-            f"SNR {args.snr:g} dB; identify it with: rtsid tv {args.output}"
+            f"wrote {args.save_simulation}: case {args.simulate}, lines {args.spacing:g} Hz "
+            f"apart, SNR {args.snr:g} dB; identify it with: rtsid tv {args.save_simulation}"
         )
         if not args.recording:
             return 0
     if not args.recording:
         raise InputDataError(
-            f"give a recording (.npz or .mcap), or --simulate {'|'.join(STUDY_CASES)} -o FILE.npz"
+            f"give a recording (.npz or .mcap), or --simulate {'|'.join(STUDY_CASES)} "
+            "--save-simulation FILE.npz"
         )
-    if args.plot:
-        tv.require_matplotlib()  # fail before the work, not after
     data = tv.load_tv(args.recording, trim=args.trim)
     if data.selection:
         print(f"used {data.selection}")
@@ -151,6 +180,6 @@ def run(args: argparse.Namespace) -> int:
     print(tv.format_report(result, rows=max(2, args.times)))
     if args.plot:
         print(f"figure: {tv.plot_result(result, args.plot)}")
-    if args.csv:
-        print(f"track: {tv.write_track_csv(result, args.csv)}")
+    if args.output:
+        print(f"track: {tv.write_track_csv(result, args.output)}")
     return 0

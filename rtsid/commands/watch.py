@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from rtsid.commands.common import add_zenoh_reader, connect_endpoints
 from rtsid.errors import ConfigError
 from rtsid.io.history import QueryError, parse_duration_s
 
@@ -15,20 +16,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="rtsid/*/*",
         help="key expression of the daemon(s): rtsid/<robot>/<joint> (default: rtsid/*/*)",
     )
-    parser.add_argument(
-        "--connect",
-        action="append",
-        default=None,
-        metavar="ENDPOINT",
-        help="zenoh endpoint of the daemon (repeatable; default: tcp/127.0.0.1:7447)",
-    )
-    parser.add_argument(
-        "--mode",
-        choices=("peer", "client"),
-        default="peer",
-        help="peer (default) waits for a daemon that starts later; client: through a router "
-        "(or a daemon) that is up now",
-    )
+    add_zenoh_reader(parser, "zenoh endpoint of the daemon or the lab's router")
     parser.add_argument("--count", type=int, default=None, help="exit after N estimates")
     parser.add_argument("--timeout", type=float, default=None, help="exit after S seconds")
     parser.add_argument(
@@ -69,12 +57,15 @@ def run(args: argparse.Namespace) -> int:
             since_s = parse_duration_s(args.since, "--since")
         except QueryError as exc:
             raise ConfigError(str(exc)) from None
-    connect = tuple(args.connect or ["tcp/127.0.0.1:7447"])
+    from rtsid.io.zenoh_link import user_key_expr
+
+    key = user_key_expr(args.key)
+    connect = connect_endpoints(args)
     if args.web is not None:
         from rtsid.io.web.server import serve_web
 
         return serve_web(
-            args.key,
+            key,
             connect,
             mode=args.mode,
             host=args.host,
@@ -82,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
             timeout_s=args.timeout,
         )
     return watch(
-        args.key,
+        key,
         connect,
         mode=args.mode,
         count=args.count,

@@ -1,4 +1,5 @@
-"""Choose a window's analysis from the data: band-limiting filter, analysis rate, lag span.
+"""Step 2, plan: choose a window's analysis from the data — band-limiting filter, analysis
+rate, lag span (:func:`resolve_plan` from the estimator's options, :func:`plan_analysis`).
 
 What a window can tell about ``(I, B, K)`` lies in the band the perturbation excites. Above
 it the position's derivatives are mostly sensor noise and actuator dynamics, and a human
@@ -32,11 +33,13 @@ from functools import lru_cache
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from rtsid.errors import InputDataError, WindowError
 from rtsid.ident.correlation import detrend
 from rtsid.ident.filters import band_limit_taps, decimation_factor
+from rtsid.ident.gaps import LostSamples
+from rtsid.ident.options import EstimatorOptions
 from rtsid.verdicts import Reason
 
 __all__ = [
@@ -45,6 +48,8 @@ __all__ = [
     "hann_taper",
     "perturbation_edge_hz",
     "plan_analysis",
+    "plan_source",
+    "resolve_plan",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -223,3 +228,33 @@ def plan_analysis(
     band = fit_band_hz if fit_band_hz is not None else (1.0, min(lowpass_hz, 0.45 * fs_a))
     lo, hi = band
     return AnalysisPlan(fs, edge, float(lowpass_hz), factor, lag, (float(lo), float(hi)), taps)
+
+
+def plan_source(position: FloatArray, lost: LostSamples | None) -> FloatArray:
+    """What to plan an analysis from: the window, or its longest stretch of valid samples."""
+    return position if lost is None else position[lost.longest_valid_stretch()]
+
+
+def resolve_plan(
+    position: ArrayLike,
+    fs: float,
+    options: EstimatorOptions,
+    max_lowpass_hz: float | None = None,
+) -> AnalysisPlan:
+    """The analysis plan for ``position`` (a window or a longer stretch of a stream), its
+    chosen cut-off no higher than ``max_lowpass_hz`` (e.g. a robot calibration's band).
+
+    Raises
+    ------
+    WindowError
+        ``"no_excitation"``: nothing in the position to plan from.
+    """
+    return plan_analysis(
+        np.asarray(position, dtype=np.float64),
+        float(fs),
+        lowpass_hz=options.lowpass_hz,
+        analysis_fs_hz=options.analysis_fs_hz,
+        lag_s=options.lag_s,
+        fit_band_hz=options.fit_band_hz,
+        max_lowpass_hz=max_lowpass_hz,
+    )

@@ -32,6 +32,14 @@ def _centred_ramp(n: int) -> tuple[FloatArray, float]:
     return t, max(float(t @ t), 1e-300)
 
 
+def trend_slope(x: ArrayLike) -> float:
+    """Slope of the least-squares line through ``x``, per sample (what ``detrend`` removes
+    beside the mean)."""
+    arr = np.asarray(x, dtype=np.float64)
+    t, tt = _centred_ramp(arr.size)
+    return float(t @ arr) / tt
+
+
 def detrend(x: ArrayLike, kind: str = "linear") -> FloatArray:
     """Remove the mean (``"mean"``), a straight line (``"linear"``) or nothing (``"none"``).
 

@@ -23,7 +23,14 @@ from numpy.typing import NDArray
 from rtsid.errors import WindowError
 from rtsid.verdicts import Reason
 
-__all__ = ["LostSamples", "clean_rows", "contaminated", "count_lost", "require_rows"]
+__all__ = [
+    "LostSamples",
+    "WindowGaps",
+    "clean_rows",
+    "contaminated",
+    "count_lost",
+    "require_rows",
+]
 
 BoolArray = NDArray[np.bool_]
 
@@ -108,3 +115,27 @@ def require_rows(rows: BoolArray, needed: int, what: str) -> None:
             "the window is withheld",
             Reason.GAP,
         )
+
+
+@dataclass(frozen=True)
+class WindowGaps:
+    """Where a window's lost samples reach after band-limiting (:mod:`rtsid.ident.gaps`).
+
+    Attributes
+    ----------
+    bad : numpy.ndarray of bool, shape (m,)
+        Analysis samples whose FIR support held a lost sample (zeroed in ``u`` and ``y``).
+    lost : int
+        Lost input samples.
+    """
+
+    bad: NDArray[np.bool_]
+    lost: int
+
+    def rows(self, half_width: int) -> NDArray[np.bool_]:
+        """Rows ``half_width … m − half_width − 1`` whose ``±half_width`` support is clean."""
+        return clean_rows(self.bad, half_width)
+
+    def irf_checkable(self, lag: int) -> bool:
+        """Enough clean rows over the IRF's lag span to fit and check it (2L + 11)."""
+        return int(self.rows(lag).sum()) >= 2 * lag + 11

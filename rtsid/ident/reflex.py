@@ -19,6 +19,15 @@ The delay is estimated from the IRF: a delayed second-order low-pass ``G·h(t �
 static gain, corner ``f_c``, damping ratio ``ζ``) is fitted to the IRF lags by nonlinear
 least squares (:func:`fit_reflex_dynamics`), which places the onset between lags. ``G`` is the
 reflex gain reported (N·m·s/rad: torque per rad/s of stretch velocity).
+
+The delay is searched from one model sample (10 ms at 100 Hz) to :data:`DELAY_MAX_S`
+(:func:`delay_search_s`): the IRF's lag 0 holds the rectifier's instantaneous share
+(``max(θ̇, 0) = θ̇/2 + |θ̇|/2``, and the intrinsic pathway's damping explains ``θ̇/2`` as well),
+so an onset before the first lag is not resolved. A delay that ends at a bound of that search
+is not a measured delay: :attr:`ReflexDynamics.delay_at_bound` says which bound. On the shared
+real record the fit ends at the lower bound at every model rate tried (10.0 ms at 100 Hz,
+5.0 at 200 Hz, 4.0 at 250 Hz) and in every 20 s window; on simulated reflexes of 20, 30 and
+50 ms it finds 21.3, 30.0 and 51.1 ms.
 """
 
 from __future__ import annotations
@@ -42,6 +51,7 @@ __all__ = [
     "ReflexPathway",
     "convolve_causal",
     "decimated",
+    "delay_search_s",
     "fit_reflex_dynamics",
     "fit_reflex_pathway",
     "mdl_projection",
@@ -54,8 +64,19 @@ FloatArray = NDArray[np.float64]
 REFLEX_VARIANTS = ("rect", "hammerstein")
 POLYNOMIAL_DEGREE = 3
 HAMMERSTEIN_SWEEPS = 4
-#: The grid searched before the delayed low-pass is refined (δ is then continuous).
+#: The grid searched before the delayed low-pass is refined (δ is then continuous), from
+#: the search's lower bound (:func:`delay_search_s`).
 DELAY_GRID_S = np.arange(0.0, 0.1501, 0.002)
+#: The longest reflex delay searched, s.
+DELAY_MAX_S = 0.2
+
+
+def delay_search_s(fs_hz: float) -> tuple[float, float]:
+    """The reflex delay's search range at the model's rate ``fs_hz``, s: one model sample
+    (an earlier onset is not resolved, see the module notes) to :data:`DELAY_MAX_S`."""
+    return 1.0 / fs_hz, DELAY_MAX_S
+
+
 CORNER_GRID_HZ = np.geomspace(0.3, 20.0, 24)
 DAMPING_GRID = np.geomspace(0.3, 2.5, 10)
 
@@ -149,6 +170,8 @@ class ReflexDynamics:
     vaf : float
         Of the IRF by the fitted response, % (a low value: the IRF is not of this shape, and
         gain and delay say little).
+    delay_search_s : tuple of float
+        The ``(lowest, longest)`` delay searched, s (:func:`delay_search_s`).
     """
 
     gain: float
@@ -156,6 +179,36 @@ class ReflexDynamics:
     corner_hz: float
     damping_ratio: float
     vaf: float
+    delay_search_s: tuple[float, float] = (float("nan"), float("nan"))
+
+    @property
+    def delay_at_bound(self) -> str | None:
+        """``"lower"`` or ``"upper"`` when the fitted delay ended at that bound of its search
+        (within 1 % of the lower bound; the delay then is not a measurement), else None."""
+        low, high = self.delay_search_s
+        tolerance = 0.01 * low
+        if self.delay_s <= low + tolerance:
+            return "lower"
+        if self.delay_s >= high - tolerance:
+            return "upper"
+        return None
+
+    def describe_delay(self) -> str:
+        """``"delay 40.2 ms"``, and at a bound of the search what that means."""
+        said = f"delay {self.delay_s * 1e3:.1f} ms"
+        low, high = (v * 1e3 for v in self.delay_search_s)
+        span = f"{low:g}–{high:g} ms search"
+        if self.delay_at_bound == "lower":
+            return (
+                f"{said} (at the lower bound of the {span}: the delay is not resolved and the "
+                "true one may be shorter; the reflex IRF's first lags may hold intrinsic torque)"
+            )
+        if self.delay_at_bound == "upper":
+            return (
+                f"{said} (at the upper bound of the {span}: the true delay may be longer, or "
+                "the reflex IRF holds no clear onset)"
+            )
+        return said
 
     def response(self, lags_s: FloatArray) -> FloatArray:
         """``G·h(t − δ)`` at ``lags_s``."""
@@ -195,8 +248,9 @@ def _low_pass_response(t: FloatArray, wn: ArrayLike, zeta: ArrayLike) -> FloatAr
 def _grid(n_lags: int, fs_hz: float) -> tuple[FloatArray, FloatArray]:
     """The (δ, f_c, ζ) grid, shape (m, 3), and its unit-energy responses on ``n_lags`` lags,
     shape (m, n_lags): computed once per lag grid."""
+    delays = DELAY_GRID_S[DELAY_GRID_S >= delay_search_s(fs_hz)[0]]
     params = np.stack(
-        [v.ravel() for v in np.meshgrid(DELAY_GRID_S, CORNER_GRID_HZ, DAMPING_GRID, indexing="ij")],
+        [v.ravel() for v in np.meshgrid(delays, CORNER_GRID_HZ, DAMPING_GRID, indexing="ij")],
         axis=1,
     )
     lags_s = np.arange(n_lags) / fs_hz
@@ -220,8 +274,9 @@ def fit_reflex_dynamics(irf: FloatArray, fs_hz: float) -> ReflexDynamics:
     """Fit ``G·h(t − δ)`` (:class:`ReflexDynamics`) to a one-sided IRF at ``fs_hz``.
 
     ``G`` is solved linearly for each ``(δ, f_c, ζ)``; these three are first searched on a
-    grid (δ every 2 ms up to 150 ms, f_c 0.3–20 Hz, ζ 0.3–2.5), then refined by bounded
-    nonlinear least squares from the best grid point.
+    grid (δ every 2 ms from one model sample up to 150 ms, f_c 0.3–20 Hz, ζ 0.3–2.5), then
+    refined by bounded nonlinear least squares (δ within :func:`delay_search_s`) from the best
+    grid point.
     """
     g = np.asarray(irf, dtype=np.float64)
     lags = np.arange(g.size) / fs_hz
@@ -233,14 +288,15 @@ def fit_reflex_dynamics(irf: FloatArray, fs_hz: float) -> ReflexDynamics:
         return gain * h - g
 
     start = _best_on_grid(g, fs_hz)
-    bounds = ([0.0, 0.3, 0.2], [0.2, 20.0, 3.0])
+    low, high = delay_search_s(fs_hz)
+    bounds = ([low, 0.3, 0.2], [high, 20.0, 3.0])
     fit = optimize.least_squares(residual, start, bounds=bounds, x_scale=[0.01, 1.0, 0.3])
     delay, corner, zeta = (float(v) for v in fit.x)
     h = _low_pass_response(lags - delay, 2 * np.pi * corner, zeta)
     gain = float(h @ g) / max(float(h @ h), 1e-300)
     power = float(g @ g)
     explained = 100.0 * (1.0 - 2.0 * float(fit.cost) / power) if power > 0 else 0.0
-    return ReflexDynamics(gain, delay, corner, zeta, max(0.0, explained))
+    return ReflexDynamics(gain, delay, corner, zeta, max(0.0, explained), (low, high))
 
 
 # ----------------------------------------------------------------------------- the pathway

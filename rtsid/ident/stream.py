@@ -266,17 +266,31 @@ class WindowStream:
         return self.tracker.step(t_end_s, estimate, source.scan, newest)
 
     def estimate(
-        self, position: ArrayLike, torque: ArrayLike, valid: ArrayLike | None = None
+        self,
+        position: ArrayLike,
+        torque: ArrayLike,
+        valid: ArrayLike | None = None,
+        explained: ArrayLike | None = None,
     ) -> WindowEstimate:
         """The next window's estimate (same errors and ``valid`` as :func:`estimate_window`).
 
-        With a learned hold, the window is fitted twice from one IRF and one least-squares
-        design: in full (learned from) and with the held values (returned).
+        ``explained``: torque another pathway explained and the caller already subtracted
+        from ``torque`` (the slow lane's reflex prediction); the published ``vaf`` counts it
+        as part of the model. With a learned hold, the window is fitted twice from one IRF
+        and one least-squares design: in full (learned from) and with the held values
+        (returned).
         """
         options = self.options
         self._split_source = None
         window = analyse_window(
-            position, torque, self.fs_hz, options, self.plan, valid, self.max_lowpass_hz
+            position,
+            torque,
+            self.fs_hz,
+            options,
+            self.plan,
+            valid,
+            self.max_lowpass_hz,
+            explained,
         )
         self.plan = plan = window.plan  # the first window's plan serves the whole stream
         level = window.excitation_rad
@@ -284,21 +298,21 @@ class WindowStream:
         self.excitation.add(level)
         check_relative_excitation(level, typical, options)
         irf, u, y = window.signals
-        gaps = window.gaps
+        gaps, score = window.gaps, window.score
         if options.hold == "none":
-            return back_end(irf, u, y, options, plan, gaps=gaps)
+            return back_end(irf, u, y, options, plan, gaps=gaps, score=score)
         held = held_values(options, self.held.current())  # from earlier windows only
         if options.fit_method != "output_error":
-            full = back_end(irf, u, y, options, plan, gaps=gaps)
+            full = back_end(irf, u, y, options, plan, gaps=gaps, score=score)
             self.held.learn(full.I, full.B, "low_vaf" not in full.flags)
             if held.inertia is None:
                 return full
-            return back_end(irf, u, y, options, plan, held, gaps)
+            return back_end(irf, u, y, options, plan, held, gaps, score)
         design = output_error_design(u, y, irf, gaps)
         whole = design.fit()
         explained = vaf(whole.measured, whole.model) >= options.low_vaf_percent
         self.held.learn(float(whole.params[0]), float(whole.params[1]), explained)
-        result = output_error_back_end(irf, u, y, options, plan, held, design, gaps)
+        result = output_error_back_end(irf, u, y, options, plan, held, design, gaps, score)
         window_samples = np.shape(position)[0]
         self._split_source = _SplitSource(result, design, held, plan, window_samples)
         return result

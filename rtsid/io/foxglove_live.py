@@ -21,6 +21,7 @@ from collections.abc import Iterable
 from typing import Any
 
 from rtsid.errors import ConfigError, ServiceError
+from rtsid.io.access_token import is_loopback
 from rtsid.io.schemas import SCHEMAS, encode_json
 
 __all__ = ["FoxgloveLive", "require_foxglove"]
@@ -74,6 +75,12 @@ class FoxgloveLive:
     ) -> None:
         if not 0 <= port <= 65535:
             raise ConfigError(f"--foxglove port {port} is not accepted; expected 0…65535")
+        if not is_loopback(host):
+            raise ConfigError(
+                f"--foxglove-host {host} is not accepted: Foxglove's WebSocket protocol has no "
+                "authentication, so the server stays on loopback; from another machine tunnel "
+                f"to it: ssh -L {port}:127.0.0.1:{port} THIS_HOST"
+            )
         self.kinds = tuple(kinds)
         self.host = host
         self.requested_port = port

@@ -15,8 +15,12 @@ Key expression ``<prefix>/<robot>/<joint>/history``; parameters (zenoh selector 
 =============== ================================================================================
 ``kind``        channels to return, comma-separated (default: every channel held)
 ``since``       the last duration: ``60s``, ``5m``, ``1.5h``, ``250ms`` or plain seconds
-``from``, ``to``  UNIX time bounds, ns (inclusive); ``since`` and ``from`` exclude each other
+``from``, ``to``  UNIX time bounds, ns (inclusive, 0 … 2**63 − 1); ``since`` and ``from`` exclude
+                each other
 =============== ================================================================================
+
+``since`` is at most :data:`MAX_SINCE_S` (a year: far beyond any ring); anything else
+(``1e308``, negative, NaN, not a number) gets an error reply naming the parameter.
 
 Each channel is answered by one or more replies (parts of at most :data:`PART_MESSAGES`
 messages), each a JSON object::
@@ -26,9 +30,9 @@ messages), each a JSON object::
 
 ``held_from_ns`` is the publication time of the oldest message the daemon still holds on that
 channel (null: none yet); ``complete`` is false when the range starts before it, and ``note``
-then says where the returned history starts. A malformed query gets an error reply (JSON
-``{"error": ...}``) naming the parameter and what is accepted. A client must ask with
-consolidation off (``zenoh.ConsolidationMode.NONE``) to receive every part.
+then says where the returned history starts (:data:`HISTORY_PART_SCHEMA`). A malformed query
+gets an error reply (JSON ``{"error": ...}``) naming the parameter and what is accepted. A
+client must ask with consolidation off (``zenoh.ConsolidationMode.NONE``) to receive every part.
 """
 
 from __future__ import annotations
@@ -42,6 +46,8 @@ from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 
 __all__ = [
+    "HISTORY_PART_SCHEMA",
+    "MAX_SINCE_S",
     "PART_MESSAGES",
     "HistoryQuery",
     "HistoryStore",
@@ -56,6 +62,35 @@ PART_MESSAGES = 500
 _DURATION = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(ms|s|m|min|h)?\s*$")
 _UNIT_S = {"ms": 1e-3, "s": 1.0, "m": 60.0, "min": 60.0, "h": 3600.0, None: 1.0}
 _PARAMETERS = ("kind", "since", "from", "to")
+#: Longest ``since`` accepted, s (one year).
+MAX_SINCE_S = 366 * 86400.0
+_MAX_NS = 2**63 - 1
+_NS_OR_NULL = {"type": ["integer", "null"], "minimum": 0}
+
+#: One reply of the ``history`` queryable (what clients check each reply against; the
+#: messages inside are checked against their channel's schema).
+HISTORY_PART_SCHEMA = {
+    "type": "object",
+    "properties": {
+        "robot": {"type": "string"},
+        "joint": {"type": "string"},
+        "kind": {"type": "string"},
+        "from_ns": {"type": "integer", "minimum": 0},
+        "to_ns": {"type": "integer", "minimum": 0},
+        "held_from_ns": _NS_OR_NULL,
+        "first_ns": _NS_OR_NULL,
+        "complete": {"type": "boolean"},
+        "note": {"type": "string"},
+        "part": {"type": "integer", "minimum": 0},
+        "parts": {"type": "integer", "minimum": 1},
+        "messages": {"type": "array", "maxItems": PART_MESSAGES, "items": {"type": "object"}},
+    },
+    "required": [
+        "robot", "joint", "kind", "from_ns", "to_ns", "held_from_ns", "first_ns", "complete",
+        "note", "part", "parts", "messages",
+    ],
+    "additionalProperties": False,
+}  # fmt: skip
 
 
 class QueryError(ValueError):
@@ -68,13 +103,17 @@ def parse_duration_s(text: str, name: str = "since") -> float:
     Raises
     ------
     QueryError
-        Not a positive finite duration.
+        Not a positive finite duration of at most :data:`MAX_SINCE_S`.
     """
     match = _DURATION.match(text)
     value = float(match.group(1)) * _UNIT_S[match.group(2)] if match else math.nan
     if not (math.isfinite(value) and value > 0):
         raise QueryError(
-            f"{name}={text!r} is not a duration; expected e.g. 60s, 5m, 1.5h, 250ms or seconds"
+            f"{name}={text[:40]!r} is not a duration; expected e.g. 60s, 5m, 1.5h, 250ms or seconds"
+        )
+    if value > MAX_SINCE_S:
+        raise QueryError(
+            f"{name}={text[:40]!r} is longer than a year ({MAX_SINCE_S:g} s); ask for less"
         )
     return value
 
@@ -90,11 +129,17 @@ class HistoryQuery:
 
 def _parse_ns(name: str, text: str) -> int:
     try:
-        value = int(text)
-    except ValueError:
-        raise QueryError(f"{name}={text!r} is not an integer; expected UNIX time in ns") from None
+        value = int(text) if text.strip().isdigit() or text.strip().startswith("-") else None
+    except ValueError:  # more digits than Python converts
+        value = None
+    if value is None:
+        raise QueryError(f"{name}={text[:40]!r} is not an integer; expected UNIX time in ns")
     if value < 0:
-        raise QueryError(f"{name}={text!r} is negative; expected UNIX time in ns")
+        raise QueryError(f"{name}={text[:40]!r} is negative; expected UNIX time in ns")
+    if value > _MAX_NS:
+        raise QueryError(
+            f"{name}={text[:40]!r} is out of range; expected UNIX time in ns, 0 … 2**63-1"
+        )
     return value
 
 
@@ -112,14 +157,14 @@ def parse_history_query(
     unknown = sorted(set(parameters) - set(_PARAMETERS))
     if unknown:
         raise QueryError(
-            f"unknown query parameter {unknown[0]!r}; accepted: " + ", ".join(_PARAMETERS)
+            f"unknown query parameter {unknown[0][:40]!r}; accepted: " + ", ".join(_PARAMETERS)
         )
     now = time.time_ns() if now_ns is None else now_ns
     if "since" in parameters and "from" in parameters:
         raise QueryError("give either since= or from=, not both")
     from_ns = 0
     if "since" in parameters:
-        from_ns = now - int(parse_duration_s(parameters["since"]) * 1e9)
+        from_ns = max(0, now - int(parse_duration_s(parameters["since"]) * 1e9))
     elif "from" in parameters:
         from_ns = _parse_ns("from", parameters["from"])
     to_ns = _parse_ns("to", parameters["to"]) if "to" in parameters else 2**63 - 1
@@ -253,7 +298,9 @@ class HistoryStore:
         kinds = self.kinds if query.kinds is None else query.kinds
         for kind in kinds:
             if kind not in self._rings:
-                raise QueryError(f"kind={kind!r} is not held here; held: " + ", ".join(self.kinds))
+                raise QueryError(
+                    f"kind={kind[:40]!r} is not held here; held: " + ", ".join(self.kinds)
+                )
         now = time.time_ns() if now_ns is None else now_ns
         horizon_from = now - int(self.horizon_s * 1e9)
         for kind in kinds:

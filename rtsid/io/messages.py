@@ -17,11 +17,15 @@ import types
 import typing
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rtsid.ident.reflex_lane import ReflexUpdate
 from rtsid.link.acquisition import LinkCounters
 from rtsid.verdicts import Flag, Reason
+
+if TYPE_CHECKING:
+    from rtsid.ident.stream import Tracked
+    from rtsid.ident.window import WindowEstimate
 
 __all__ = [
     "ESTIMATE_SCHEMA",
@@ -41,25 +45,19 @@ def _meta(text: str, **schema: Any) -> dict[str, Any]:
     return {"description": text, **schema}
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
 class EstimateMessage:
-    """One identification window: I, B, K of tau = I*ddq + B*dq + K*q, or why not."""
+    """One identification window: I, B, K of tau = I*ddq + B*dq + K*q, or why not.
+
+    The fields' order is every output's: the JSON keys (zenoh, MCAP) and the CSV columns of
+    ``rtsid identify`` and ``rtsid replay`` (:mod:`rtsid.io.estimate_csv`) lead with the
+    window's time, the tracked stiffness, then K, B, I with their standard errors and held
+    markers, the VAF and the verdict.
+    """
 
     robot: str = field(metadata=_meta("robot name from the config"))
     joint: str = field(metadata=_meta("joint name from the config"))
-    seq: int = field(metadata=_meta("estimate counter (0, 1, …)", minimum=0))
-    window_start_index: int = field(metadata=_meta("first sample index"))
-    window_end_index: int = field(metadata=_meta("last sample index (inclusive)"))
-    t_start_s: float = field(metadata=_meta("sample time of the first sample, s (index / fs)"))
     t_end_s: float = field(metadata=_meta("sample time of the last sample, s"))
-    I: float | None = field(metadata=_meta("inertia, kg·m² (N·m·s²/rad)"))  # noqa: E741 - the physical symbol
-    B: float | None = field(metadata=_meta("damping, N·m·s/rad"))
-    K: float | None = field(metadata=_meta("stiffness, N·m/rad"))
-    I_se: float | None = field(
-        metadata=_meta("standard error of I, kg·m² (null when held or not computed)")
-    )
-    B_se: float | None = field(metadata=_meta("standard error of B, N·m·s/rad (null when held)"))
-    K_se: float | None = field(metadata=_meta("standard error of K, N·m/rad"))
     K_track: float | None = field(
         metadata=_meta(
             "tracked stiffness now (causal Kalman filter over the windows, rtsid.ident.tracker;"
@@ -68,15 +66,41 @@ class EstimateMessage:
         )
     )
     K_track_se: float | None = field(metadata=_meta("standard error of K_track, N·m/rad"))
-    B_track: float | None = field(
-        metadata=_meta("tracked damping, N·m·s/rad; null while B is held (hold = inertia_damping)")
+    K: float | None = field(metadata=_meta("stiffness, N·m/rad"))
+    K_se: float | None = field(metadata=_meta("standard error of K, N·m/rad"))
+    B: float | None = field(metadata=_meta("damping, N·m·s/rad"))
+    B_se: float | None = field(metadata=_meta("standard error of B, N·m·s/rad (null when held)"))
+    B_held: bool | None = field(
+        default=None,
+        metadata=_meta(
+            "true: B is a held value (hold = inertia_damping), not fitted in this window; B_se "
+            "and B_track are then null; null when withheld"
+        ),
     )
-    B_track_se: float | None = field(metadata=_meta("standard error of B_track, N·m·s/rad"))
+    I: float | None = field(metadata=_meta("inertia, kg·m² (N·m·s²/rad)"))  # noqa: E741 - the physical symbol
+    I_se: float | None = field(
+        metadata=_meta("standard error of I, kg·m² (null when held or not computed)")
+    )
+    I_held: bool | None = field(
+        default=None,
+        metadata=_meta(
+            "true: I is a held value (median of the stream's full fits over hold_horizon_s, or "
+            "estimator.hold_inertia), not fitted in this window; I_se is then null; null when "
+            "withheld"
+        ),
+    )
     vaf: float | None = field(
         metadata=_meta(
             "variance of the measured torque (analysed band) accounted for by the I, B, K model, %"
         )
     )
+    ok: bool = field(metadata=_meta("true: I, B, K are usable"))
+    reason: Reason | None = field(metadata=_meta("why the estimate is withheld (null when ok)"))
+    flags: tuple[Flag, ...] = field(metadata=_meta("warnings on a published estimate"))
+    B_track: float | None = field(
+        metadata=_meta("tracked damping, N·m·s/rad; null while B is held (hold = inertia_damping)")
+    )
+    B_track_se: float | None = field(metadata=_meta("standard error of B_track, N·m·s/rad"))
     vaf_irf: float | None = field(metadata=_meta("variance accounted for by the IRF's torque, %"))
     vaf_fit: float | None = field(
         metadata=_meta("variance of the IRF's torque accounted for by the I, B, K model, %")
@@ -88,28 +112,13 @@ class EstimateMessage:
             minimum=0,
         )
     )
+    seq: int = field(metadata=_meta("estimate counter (0, 1, …)", minimum=0))
+    window_start_index: int = field(metadata=_meta("first sample index"))
+    window_end_index: int = field(metadata=_meta("last sample index (inclusive)"))
+    t_start_s: float = field(metadata=_meta("sample time of the first sample, s (index / fs)"))
     compute_ms: float | None = field(metadata=_meta("time spent identifying the window, ms"))
     latency_ms: float | None = field(
         metadata=_meta("time from the window's last sample to publication, ms")
-    )
-    ok: bool = field(metadata=_meta("true: I, B, K are usable"))
-    reason: Reason | None = field(metadata=_meta("why the estimate is withheld (null when ok)"))
-    flags: tuple[Flag, ...] = field(metadata=_meta("warnings on a published estimate"))
-    host_time_ns: int = field(metadata=_meta("host UNIX time at publication, ns"))
-    I_held: bool | None = field(
-        default=None,
-        metadata=_meta(
-            "true: I is a held value (median of the stream's full fits over hold_horizon_s, or "
-            "estimator.hold_inertia), not fitted in this window; I_se is then null; null when "
-            "withheld"
-        ),
-    )
-    B_held: bool | None = field(
-        default=None,
-        metadata=_meta(
-            "true: B is a held value (hold = inertia_damping), not fitted in this window; B_se "
-            "and B_track are then null; null when withheld"
-        ),
     )
     reflex_seq: int | None = field(
         default=None,
@@ -118,6 +127,51 @@ class EstimateMessage:
             "(its seq on /reflex); null: none (slow lane off, no model yet, or withheld)"
         ),
     )
+    host_time_ns: int = field(metadata=_meta("host UNIX time at publication, ns"))
+
+    @classmethod
+    def of_window(
+        cls,
+        estimate: WindowEstimate | None,
+        reason: Reason | None,
+        track: Tracked | None,
+        *,
+        seq: int,
+        first: int,
+        last: int,
+        fs_hz: float,
+        robot: str = "",
+        joint: str = "",
+        flags: Sequence[Flag] = (),
+        compute_ms: float | None = None,
+        latency_ms: float | None = None,
+        reflex_seq: int | None = None,
+    ) -> EstimateMessage:
+        """The message of one window: its estimate (None when withheld, with ``reason``),
+        the stream's track after it, and the flags the caller adds to the estimate's own
+        (e.g. ``over_budget``; ignored when withheld)."""
+        numbers = {k: getattr(estimate, k) if estimate else None for k in _WINDOW_NUMBERS}
+        return cls(
+            robot=robot,
+            joint=joint,
+            seq=seq,
+            window_start_index=first,
+            window_end_index=last,
+            t_start_s=first / fs_hz,
+            t_end_s=last / fs_hz,
+            **numbers,
+            K_track=track.K if track else None,
+            K_track_se=track.K_se if track else None,
+            B_track=track.B if track else None,
+            B_track_se=track.B_se if track else None,
+            compute_ms=compute_ms,
+            latency_ms=latency_ms,
+            ok=estimate is not None,
+            reason=reason,
+            flags=(*estimate.flags, *flags) if estimate else (),
+            reflex_seq=reflex_seq if estimate else None,
+            host_time_ns=time.time_ns(),
+        )
 
     def as_dict(self) -> dict[str, Any]:
         """The JSON object: non-finite numbers as ``None``, flags as a list."""
@@ -128,6 +182,23 @@ class EstimateMessage:
                 value = None
             out[f.name] = list(value) if f.name == "flags" else value
         return out
+
+
+#: What an estimate message takes from the window's estimate (None when withheld).
+_WINDOW_NUMBERS = (
+    "I",
+    "B",
+    "K",
+    "I_se",
+    "B_se",
+    "K_se",
+    "vaf",
+    "vaf_irf",
+    "vaf_fit",
+    "lost_samples",
+    "I_held",
+    "B_held",
+)
 
 
 def _fields_as_json(message: Any) -> dict[str, Any]:
@@ -332,7 +403,9 @@ class ReflexMessage:
     ok: bool = field(metadata=_meta("true: a reflex pathway was fitted"))
     applied: bool = field(
         metadata=_meta(
-            "true: the fast lane subtracts it (its pathway adds at least min_vaf_gain_percent)"
+            "the decision: true when a reflex pathway is present in the data and the fast lane "
+            "subtracts it (it adds at least min_vaf_gain_percent over the horizon and "
+            "window_vaf_gain >= min_window_vaf_gain_percent); false: absent, nothing subtracted"
         )
     )
     variant: str = field(metadata=_meta("reflex pathway: rect or hammerstein"))
@@ -354,6 +427,16 @@ class ReflexMessage:
     vaf_intrinsic_path: float | None = field(metadata=_meta("VAF by the intrinsic pathway, %"))
     vaf_reflex_path: float | None = field(metadata=_meta("VAF by the reflex pathway, %"))
     iterations: int = field(metadata=_meta("alternations of the cascade"))
+    window_vaf_gain: float | None = field(
+        metadata=_meta(
+            "evidence for the decision: median over the horizon's 300 ms windows of the VAF "
+            "(percentage points, 40 Hz basis) the reflex model adds to each window's own "
+            "least-squares I, B, K"
+        )
+    )
+    windows_improved: float | None = field(
+        metadata=_meta("share of those windows whose VAF the reflex model raises, 0-1")
+    )
     irf_fs_hz: float | None = field(metadata=_meta("rate of the IRF lags, Hz"))
     irf: list[float] = field(
         metadata=_meta("reflex IRF, lags 0, 1/irf_fs_hz, …, N·m per rad/s per s")
@@ -398,6 +481,8 @@ class ReflexMessage:
             vaf_intrinsic_path=update.vaf_intrinsic_path,
             vaf_reflex_path=update.vaf_reflex_path,
             iterations=update.iterations,
+            window_vaf_gain=update.window_vaf_gain,
+            windows_improved=update.windows_improved,
             irf_fs_hz=p.fs_hz if p else None,
             irf=[float(v) for v in p.irf] if p else [],
             fit_ms=fit_ms,

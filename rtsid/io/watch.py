@@ -1,7 +1,10 @@
 """``rtsid watch``: subscribe to estimates and status over zenoh and show them.
 
 A live table redrawn in place when stdout is a terminal; one plain line per estimate
-otherwise (pipes, logs, tests). Rendering is pure (:func:`format_estimate_line`,
+otherwise (pipes, logs, tests). Rows lead with the tracked stiffness K_track and its 95 % band,
+the window's K beside it; held I and B show as held. Every payload is checked
+(:mod:`rtsid.io.validate`); a malformed one is skipped and counted ("rejected N malformed
+messages"). Rendering is pure (:func:`format_estimate_line`,
 :func:`render_view`) so it is tested without a terminal.
 
 :class:`LabFeed` is the subscribing side shared by the table and the web view
@@ -21,6 +24,15 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, TextIO
 
+from rtsid.io.validate import (
+    MalformedMessage,
+    check_replies,
+    decode_message,
+    error_reply_text,
+    joint_of_key,
+    printable,
+)
+
 __all__ = ["FeedEvent", "LabFeed", "WatchState", "format_estimate_line", "render_view", "watch"]
 
 _CLEAR = "\x1b[H\x1b[J"  # cursor home, clear to the end of the screen
@@ -28,26 +40,65 @@ _REDRAW_S = 0.1
 _POLL_S = 0.001  # idle poll of the subscription channels, s
 
 
+#: The 95 % band of a value: ± this many standard errors.
+Z95 = 1.96
+
+
 def _num(value: Any, fmt: str) -> str:
-    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+    if value is None or isinstance(value, bool) or not isinstance(value, int | float):
+        return "-"
+    if isinstance(value, float) and not math.isfinite(value):
         return "-"
     return format(value, fmt)
 
 
-def _pm(message: Mapping[str, Any], name: str, fmt: str) -> str:
+def is_held(message: Mapping[str, Any], name: str) -> bool:
+    """True when ``name`` (``"I"`` or ``"B"``) is a held value, not this window's fit
+    (``I_held``/``B_held``; messages before those fields: a value without a standard error)."""
+    held = message.get(f"{name}_held")
+    if held is not None:
+        return bool(held)
+    return message.get(name) is not None and message.get(f"{name}_se") is None
+
+
+def _band(message: Mapping[str, Any], name: str, fmt: str) -> str:
+    """``value±half-width of the 95 % band``; a held value as ``value (held)``, never a band."""
+    value = _num(message.get(name), fmt)
+    if name in ("I", "B") and is_held(message, name):
+        return f"{value} (held)"
     se = message.get(f"{name}_se")
-    return _num(message.get(name), fmt) + ("" if se is None else "±" + _num(se, fmt))
+    if value == "-" or se is None or _num(se, fmt) == "-":
+        return value
+    return f"{value}±{_num(Z95 * se, fmt)}"
+
+
+def window_ms(message: Mapping[str, Any]) -> float | None:
+    """The window's length, ms, from its sample indices and times (None: not known)."""
+    try:
+        n = int(message["window_end_index"]) - int(message["window_start_index"])
+        span_s = float(message["t_end_s"]) - float(message["t_start_s"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    if n < 1 or not span_s > 0:
+        return None
+    return span_s * (n + 1) / n * 1e3
+
+
+def window_k_label(message: Mapping[str, Any]) -> str:
+    """``K (300 ms window)``: what the window's own K is, beside the tracked one."""
+    length = window_ms(message)
+    return "K (window)" if length is None else f"K ({length:.0f} ms window)"
 
 
 def format_estimate_line(message: Mapping[str, Any], received_ns: int | None = None) -> str:
-    """One line per estimate, e.g.
-    ``rig/ankle seq=12 t=1.234s K=120.3±2.0 B=0.900±0.050 I=0.01200±0.00100 VAF=95.5%
-    lat=4.1ms ok``.
+    """One line per estimate, leading with the tracked stiffness, e.g.
+    ``rig/ankle seq=12 t=1.234s K_track=120.3±3.9 K(300ms)=121.0±5.9 B=0.900 (held)
+    I=0.01200±0.00196 VAF=95.5% lat=4.1ms ok`` (± the 95 % band, 1.96 standard errors).
 
     Parameters
     ----------
     message : Mapping
-        An estimate (ESTIMATE_SCHEMA).
+        An estimate (ESTIMATE_SCHEMA), checked (:mod:`rtsid.io.validate`).
     received_ns : int, optional
         Host UNIX time it arrived, ns: adds ``age=`` (publication → here, ms).
     """
@@ -57,10 +108,13 @@ def format_estimate_line(message: Mapping[str, Any], received_ns: int | None = N
         f"t={_num(message.get('t_end_s'), '.3f')}s",
     ]
     if message.get("ok"):
+        length = window_ms(message)
+        k_name = "K" if length is None else f"K({length:.0f}ms)"
         parts += [
-            f"K={_pm(message, 'K', '.1f')}",
-            f"B={_pm(message, 'B', '.3f')}",
-            f"I={_pm(message, 'I', '.5f')}",
+            f"K_track={_band(message, 'K_track', '.1f')}",
+            f"{k_name}={_band(message, 'K', '.1f')}",
+            f"B={_band(message, 'B', '.3f')}".replace(" (held)", "(held)"),
+            f"I={_band(message, 'I', '.5f')}".replace(" (held)", "(held)"),
             f"VAF={_num(message.get('vaf'), '.1f')}%",
         ]
     parts.append(f"lat={_num(message.get('latency_ms'), '.1f')}ms")
@@ -93,42 +147,50 @@ def joint_name(key: str) -> str:
 class WatchState:
     """Latest estimate and status per ``robot/joint`` (fed by :meth:`update`).
 
+    Every payload is checked (:func:`rtsid.io.validate.decode_message`); one that is not a
+    well-formed message of its channel, from the daemon its key names, is skipped and counted
+    in :attr:`rejected` (the view shows "rejected N malformed messages"), never shown.
     A joint whose liveliness token went is removed (and noted in :attr:`notes`); what it
     still sends is ignored until its token is back.
     """
 
     joints: dict[str, JointView] = field(default_factory=dict)
     received: int = 0
-    undecodable: int = 0
+    rejected: int = 0
+    last_rejection: str | None = None
     notes: list[str] = field(default_factory=list)
     gone: set[str] = field(default_factory=set)
+
+    def reject(self, why: str) -> None:
+        """Count one malformed message (``why``: one printable line)."""
+        self.rejected += 1
+        self.last_rejection = why
 
     def update(self, key: str, payload: bytes, received_ns: int) -> dict[str, Any] | None:
         """Take one sample (key expression, JSON payload). Returns it if it is a new estimate
         (not one already seen, e.g. from both the history and the live subscription)."""
         self.received += 1
+        kind = key.rstrip("/").rsplit("/", 1)[-1]
         try:
-            message = json.loads(payload)
-        except ValueError:
-            self.undecodable += 1
+            message = decode_message(kind, payload, key)
+        except MalformedMessage as exc:
+            self.reject(f"{printable(key, 120)}: {exc}")
             return None
-        if not isinstance(message, dict):
-            self.undecodable += 1
-            return None
-        name = f"{message.get('robot')}/{message.get('joint')}"
+        name = f"{message['robot']}/{message['joint']}"
         if name in self.gone:
             return None
         view = self.joints.setdefault(name, JointView())
-        if key.endswith("/status"):
+        if kind == "status":
             view.status = message
+            return None
+        if kind != "estimate":
             return None
         if _seen_before(view.estimate, message):
             return None
         view.estimate = message
         view.estimates += 1
         view.withheld += 0 if message.get("ok") else 1
-        if isinstance(message.get("host_time_ns"), int):
-            view.last_age_ms = (received_ns - message["host_time_ns"]) / 1e6
+        view.last_age_ms = (received_ns - message["host_time_ns"]) / 1e6
         return message
 
     def set_alive(self, token_key: str, alive: bool, now_s: float | None = None) -> str:
@@ -166,7 +228,7 @@ def _status_line(name: str, s: Mapping[str, Any]) -> str:
     zn = s.get("zenoh") or {}
     withheld = wk.get("withheld") or {}
     withheld_txt = ",".join(f"{k}:{v}" for k, v in sorted(withheld.items())) or "0"
-    mcap_file = str(mc.get("file") or "-").rsplit("/", 1)[-1]
+    mcap_file = printable(str(mc.get("file") or "-").rsplit("/", 1)[-1], 80)
     return "\n".join(
         [
             f"  {name}: up {_num(s.get('uptime_s'), '.0f')} s"
@@ -194,9 +256,11 @@ def render_view(state: WatchState, *, title: str, now_s: float | None = None) ->
     """
     now = time.time() if now_s is None else now_s
     lines = [f"{title}   {time.strftime('%H:%M:%S', time.localtime(now))}", ""]
+    first = next((v.estimate for _, v in sorted(state.joints.items()) if v.estimate), None)
+    k_window = window_k_label(first or {})
     header = (
-        f"{'robot/joint':<18}{'seq':>8}  {'K N·m/rad':>16}  {'B N·m·s/rad':>16}  "
-        f"{'I kg·m²':>18}  {'VAF %':>6}  {'lat ms':>7}  {'age ms':>7}  state"
+        f"{'robot/joint':<18}{'seq':>8}  {'K_track N·m/rad':>16}  {k_window:>18}  "
+        f"{'B N·m·s/rad':>16}  {'I kg·m²':>18}  {'VAF %':>6}  {'lat ms':>7}  {'age ms':>7}  state"
     )
     lines.append(header)
     if not state.joints:
@@ -212,9 +276,10 @@ def render_view(state: WatchState, *, title: str, now_s: float | None = None) ->
             state_txt += " [" + ",".join(e["flags"]) + "]"
         lines.append(
             f"{name:<18}{e.get('seq', '-')!s:>8}  "
-            f"{_pm(e, 'K', '.1f') if ok else '-':>16}  "
-            f"{_pm(e, 'B', '.3f') if ok else '-':>16}  "
-            f"{_pm(e, 'I', '.5f') if ok else '-':>18}  "
+            f"{_band(e, 'K_track', '.1f') if ok else '-':>16}  "
+            f"{_band(e, 'K', '.1f') if ok else '-':>18}  "
+            f"{_band(e, 'B', '.3f') if ok else '-':>16}  "
+            f"{_band(e, 'I', '.5f') if ok else '-':>18}  "
             f"{_num(e.get('vaf'), '.1f') if ok else '-':>6}  "
             f"{_num(e.get('latency_ms'), '.1f'):>7}  {_num(view.last_age_ms, '.1f'):>7}  "
             f"{state_txt}"
@@ -232,10 +297,17 @@ def render_view(state: WatchState, *, title: str, now_s: float | None = None) ->
     lines.append(
         f"received {state.received}  estimates "
         f"{sum(v.estimates for v in state.joints.values())}  withheld "
-        f"{sum(v.withheld for v in state.joints.values())}  undecodable {state.undecodable}  "
-        "(Ctrl-C to quit)"
+        f"{sum(v.withheld for v in state.joints.values())}  "
+        f"{rejected_text(state.rejected)}  (± is the 95 % band; Ctrl-C to quit)"
     )
+    if state.last_rejection:
+        lines.append(f"last rejected: {state.last_rejection}")
     return "\n".join(lines)
+
+
+def rejected_text(count: int) -> str:
+    """``rejected 3 malformed messages``: the counter every view shows."""
+    return f"rejected {count} malformed message{'' if count == 1 else 's'}"
 
 
 @dataclass(frozen=True)
@@ -331,38 +403,54 @@ class LabFeed:
             events.append(FeedEvent(kind, str(token.key_expr), b"", time.time_ns()))
         return events
 
-    def history(
-        self, since_s: float, *, timeout_s: float = 5.0
-    ) -> tuple[list[FeedEvent], list[str]]:
-        """The estimates and status of the last ``since_s`` that the daemons still hold.
-
-        Returns
-        -------
-        events : list of FeedEvent
-            Oldest first (by publication time), kinds ``estimate`` and ``status``.
-        notes : list of str
-            Where a daemon's history starts later than asked, and error replies.
-        """
+    def history(self, since_s: float, *, timeout_s: float = 5.0) -> HistoryEvents:
+        """The messages of the last ``since_s`` that the daemons still hold, every reply
+        checked (:func:`rtsid.io.validate.check_replies`); what fails is counted, not shown."""
         from rtsid.io.zenoh_link import query
 
         answer = query(self._session, f"{self.key}/history?since={since_s:g}s", timeout_s=timeout_s)
-        timed: list[tuple[int, FeedEvent]] = []
-        notes = list(answer.errors)
-        for key, payload in answer.replies:
-            part = json.loads(payload)
-            if part.get("note") and part.get("part") == 0:
-                notes.append(f"{part['robot']}/{part['joint']}: {part['note']}")
-            base = key.rsplit("/", 1)[0]
-            for message in part.get("messages", []):
-                event = FeedEvent(
-                    part["kind"],
-                    f"{base}/{part['kind']}",
-                    json.dumps(message).encode(),
-                    time.time_ns(),
-                )
-                timed.append((int(message.get("host_time_ns") or 0), event))
-        timed.sort(key=lambda pair: pair[0])
-        return [event for _, event in timed], notes
+        return history_events(answer.replies, answer.errors)
+
+
+@dataclass
+class HistoryEvents:
+    """A history query's answer as feed events.
+
+    Attributes
+    ----------
+    events : list of FeedEvent
+        Oldest first (by publication time).
+    notes : list of str
+        Where a daemon's history starts later than asked, and error replies (printable).
+    rejected : list of str
+        Why each malformed reply or message was refused.
+    """
+
+    events: list[FeedEvent]
+    notes: list[str]
+    rejected: list[str]
+
+
+def history_events(replies: list[tuple[str, bytes]], errors: list[str]) -> HistoryEvents:
+    """Check a history query's replies and turn them into feed events (pure: no session)."""
+    checked = check_replies(replies)
+    notes = [f"error reply: {error_reply_text(error)}" for error in errors]
+    notes += [
+        f"{part['robot']}/{part['joint']}: {printable(part['note'])}"
+        for part in checked.parts
+        if part["note"] and part["part"] == 0
+    ]
+    now = time.time_ns()
+    events = [
+        FeedEvent(kind, key, json.dumps(message).encode(), now)
+        for kind, key, message in checked.messages
+    ]
+    return HistoryEvents(events, notes, checked.rejected)
+
+
+def _worth_saying(count: int) -> bool:
+    """Plain mode says the 1st, 10th, 100th, … rejection (a flood cannot flood stderr)."""
+    return count == 1 or (count % 10 == 0 and str(count).rstrip("0") == "1")
 
 
 def watch(
@@ -415,7 +503,23 @@ def watch(
 
     def take(event: FeedEvent) -> None:
         nonlocal seen
+        before = state.rejected
+        _take(event)
+        if state.rejected > before and not live and _worth_saying(state.rejected):
+            print(
+                f"rtsid watch: {rejected_text(state.rejected)}; last: {state.last_rejection}",
+                file=sys.stderr,
+                flush=True,
+            )
+
+    def _take(event: FeedEvent) -> None:
+        nonlocal seen
         if event.kind in ("alive", "gone"):
+            try:
+                joint_of_key(event.key)
+            except MalformedMessage as exc:
+                state.reject(str(exc))
+                return
             name = state.set_alive(event.key, event.kind == "alive")
             if not live:
                 print(
@@ -445,10 +549,19 @@ def watch(
                 flush=True,
             )
             if since_s is not None:
-                past, notes = feed.history(since_s)
-                for note in notes:
+                past = feed.history(since_s)
+                for note in past.notes:
                     print(f"rtsid watch: {note}", file=sys.stderr, flush=True)
-                for event in past:
+                for why in past.rejected:
+                    state.reject(why)
+                if past.rejected:
+                    print(
+                        f"rtsid watch: history: {rejected_text(len(past.rejected))}; first: "
+                        f"{past.rejected[0]}",
+                        file=sys.stderr,
+                        flush=True,
+                    )
+                for event in past.events:
                     take(event)
             while count is None or seen < count:
                 now = time.monotonic()
@@ -469,6 +582,8 @@ def watch(
         if live:
             out.write(_CLEAR + render_view(state, title=title) + "\n")
             out.flush()
+    if state.rejected and not live:
+        print(f"rtsid watch: {rejected_text(state.rejected)} in all", file=sys.stderr)
     if seen == 0:
         print(
             f"rtsid watch: no estimates on {key}/estimate within {timeout_s:g} s; is the daemon "

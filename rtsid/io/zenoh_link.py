@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import re
 import threading
 from collections.abc import Mapping
@@ -43,6 +44,7 @@ from rtsid.io.history import HistoryStore, QueryError, parse_history_query
 from rtsid.io.schemas import encode_estimate, encode_json, encode_samples, encode_status
 
 __all__ = [
+    "VIEWER_CONFIG_ENV",
     "QueryAnswer",
     "RouterConfig",
     "ZenohConfig",
@@ -51,6 +53,7 @@ __all__ = [
     "query",
     "router_config",
     "subscriber_config",
+    "user_key_expr",
     "zenoh_config",
 ]
 
@@ -194,8 +197,29 @@ def zenoh_config(cfg: ZenohConfig) -> Any:
     return conf
 
 
-def subscriber_config(connect: tuple[str, ...], mode: str = "peer") -> Any:
-    """A listener-less session connecting to ``connect`` with scouting off (``rtsid watch``)."""
+#: Environment variable naming a zenoh json5 file for every viewer session (``rtsid watch``,
+#: ``rtsid query``, the web page): a secure lab's ``viewer-NAME.json5`` from ``rtsid certs``.
+VIEWER_CONFIG_ENV = "RTSID_ZENOH_CONFIG"
+
+
+def subscriber_config(
+    connect: tuple[str, ...], mode: str = "peer", config_file: str | None = None
+) -> Any:
+    """A listener-less session connecting to ``connect`` with scouting off (``rtsid watch``).
+
+    ``config_file`` (default: the ``RTSID_ZENOH_CONFIG`` environment variable) names a zenoh
+    json5 file that replaces ``connect`` and ``mode`` entirely, e.g. a viewer's TLS
+    certificate and the router's ``tls/`` endpoint in the secure lab profile (docs/lab.md).
+
+    Raises
+    ------
+    ConfigError
+        ``config_file`` missing or not a valid zenoh json5 config.
+    """
+    if config_file is None:
+        config_file = os.environ.get(VIEWER_CONFIG_ENV, "")
+    if config_file:
+        return _config_from_file(config_file, VIEWER_CONFIG_ENV)
     conf = _base_config(mode, (), connect, False)
     conf.insert_json5("scouting/gossip/enabled", "false")
     return conf
@@ -594,6 +618,10 @@ class ZenohPublisher:
         except QueryError as exc:
             self._answer_error(query, f"{self.keys['history']}: {exc}")
             return
+        except Exception as exc:  # never silence, never a traceback on zenoh's thread
+            self._record_error(f"history query failed: {exc!r}")
+            self._answer_error(query, f"{self.keys['history']}: the query could not be answered")
+            return
         self._answer(query, "history", parts)
 
     def _answer(self, query: Any, name: str, payloads: list[bytes]) -> None:
@@ -648,6 +676,29 @@ class ZenohPublisher:
 
 
 # ---------------------------------------------------------------------- the querying side
+def user_key_expr(text: str, what: str = "key") -> str:
+    """A key expression given by a user (``rtsid watch KEY``, ``rtsid query KEY``), checked by
+    zenoh's own parser; a trailing ``/`` is dropped.
+
+    Raises
+    ------
+    ConfigError
+        Names the key, zenoh's reason and what is expected.
+    """
+    import zenoh
+
+    key = text.rstrip("/")
+    try:
+        zenoh.KeyExpr(key)
+    except zenoh.ZError as exc:
+        reason = str(exc).split(" at /", 1)[0]
+        raise ConfigError(
+            f"{what} {text[:80]!r} is not a zenoh key expression ({reason}); expected e.g. "
+            "rtsid/*/* or rtsid/<robot>/<joint>"
+        ) from None
+    return key
+
+
 @dataclass(frozen=True)
 class QueryAnswer:
     """What the daemons matching a key answered to a query.

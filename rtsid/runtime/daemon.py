@@ -51,6 +51,7 @@ from rtsid.runtime.clock import Deadlines
 from rtsid.runtime.power import cpu_latency_request
 from rtsid.runtime.slow_lane import SlowLane
 from rtsid.runtime.worker import WindowEvaluator, WindowWorker, WorkerConfig
+from rtsid.verdicts import plain_counts
 
 __all__ = ["Daemon", "DaemonConfig", "DaemonSettings", "RunSummary"]
 
@@ -487,7 +488,7 @@ class Daemon:
         stats = mcap.stats()
         return RunSummary(
             estimates=worker.estimates if worker else 0,
-            withheld=worker.withheld if worker else {},
+            withheld=plain_counts(worker.withheld) if worker else {},
             deadline_misses=worker.deadline_misses if worker else 0,
             overruns=worker.overruns if worker else 0,
             samples=acq.samples if acq else 0,

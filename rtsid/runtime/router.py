@@ -12,6 +12,7 @@ The router also watches the daemons' liveliness tokens, so its console says whic
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 import time
@@ -21,9 +22,10 @@ from typing import Any
 
 from rtsid.config import load_toml
 from rtsid.errors import ConfigError, ServiceError
+from rtsid.io.access_token import is_loopback
 from rtsid.io.zenoh_link import RouterConfig, router_config
 
-__all__ = ["RouterConfig", "load_router_config", "run_router"]
+__all__ = ["RouterConfig", "load_router_config", "open_to_anyone", "run_router"]
 
 log = logging.getLogger(__name__)
 
@@ -47,6 +49,26 @@ def load_router_config(path: str | Path | None, listen: tuple[str, ...] = ()) ->
         file = Path(section["config_file"]).expanduser()
         section["config_file"] = str(file if file.is_absolute() else Path(path).parent / file)
     return RouterConfig.from_mapping(section)
+
+
+def open_to_anyone(conf: Any) -> list[str]:
+    """The router's endpoints beyond loopback when its access control is off (else none).
+
+    ``conf`` is the router's ``zenoh.Config``. Such a router lets anyone who reaches it publish
+    on and read every daemon's keys; the secure lab profile (``rtsid certs``) closes it.
+    """
+    if json.loads(conf.get_json("access_control/enabled")):
+        return []
+    listen = json.loads(conf.get_json("listen/endpoints"))
+    if isinstance(listen, dict):  # zenoh's per-mode form: {"router": [...], ...}
+        listen = listen.get("router") or []
+    beyond = []
+    for endpoint in listen:
+        address = str(endpoint).split("#", 1)[0].split("?", 1)[0].partition("/")[2]
+        host = address.rsplit(":", 1)[0] if ":" in address else address
+        if not is_loopback(host):
+            beyond.append(str(endpoint))
+    return beyond
 
 
 def _token_name(key: str) -> str:
@@ -90,6 +112,13 @@ def run_router(
 
     say = on_event or (lambda line: log.info("%s", line))
     conf = router_config(cfg)
+    exposed = open_to_anyone(conf)
+    if exposed:
+        say(
+            f"warning: listening beyond loopback ({', '.join(exposed)}) without access control: "
+            f"anyone who reaches it can publish on and read {key_prefix}/**; use the secure "
+            "lab profile (rtsid certs, docs/lab.md)"
+        )
     where = ", ".join(cfg.listen) if not cfg.config_file else cfg.config_file
     try:
         session = zenoh.open(conf)

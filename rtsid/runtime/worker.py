@@ -27,9 +27,16 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from rtsid.config import require_range, section_from_mapping
-from rtsid.errors import ConfigError, InputDataError, NumericalError, WindowError
+from rtsid.errors import (
+    ConfigError,
+    InputDataError,
+    NumericalError,
+    TorqueSignError,
+    WindowError,
+)
 from rtsid.ident.grid import first_window_end
 from rtsid.ident.reflex_lane import ReflexModels, ReflexUpdate, predict_reflex_torque
+from rtsid.ident.sign import SignCount, inverted_torque_message
 from rtsid.ident.stream import Tracked, WindowStream
 from rtsid.ident.tracker import TrackerOptions
 from rtsid.ident.window import EstimatorOptions, WindowEstimate
@@ -48,21 +55,6 @@ __all__ = ["WindowWorker", "WorkerConfig", "WorkerCounters", "assess_window"]
 
 _SATURATED = STATUS_POSITION_SATURATED | STATUS_TORQUE_SATURATED
 log = logging.getLogger(__name__)
-#: What an estimate message takes from the window's estimate (None when withheld).
-_ESTIMATE_NUMBERS = (
-    "I",
-    "B",
-    "K",
-    "I_se",
-    "B_se",
-    "K_se",
-    "vaf",
-    "vaf_irf",
-    "vaf_fit",
-    "lost_samples",
-    "I_held",
-    "B_held",
-)
 
 
 @dataclass(frozen=True)
@@ -264,6 +256,7 @@ class WindowEvaluator:
         self.estimates = 0
         self.misses = 0
         self.compute_ms = 0.0
+        self.sign = SignCount()  # windows reading K, B, I < 0 (rtsid.ident.sign)
 
     def first_window_end(self, first_index: int) -> int:
         """The first grid window end whose window starts at or after ``first_index``."""
@@ -317,11 +310,16 @@ class WindowEvaluator:
         track = self.stream.track(last / self.fs_hz, estimate)  # every evaluated window steps it
         compute_s = time.perf_counter() - started
         self.compute_ms = compute_s * 1e3
-        if compute_s > self.config.effective_budget_s:
+        if self._over_budget(compute_s):
             self.misses += 1
         message = self._message(first, last, estimate, reason, compute_s, arrival, reflex, track)
         self.publish(message)
         return message
+
+    def _over_budget(self, compute_s: float) -> bool:
+        """A live window whose compute overran the budget (recorded samples have no deadline:
+        a replay's numbers and flags never depend on how busy the computer was)."""
+        return self.live and compute_s > self.config.effective_budget_s
 
     def publish_stale(self, end_index: int) -> None:
         """No samples are arriving: say so once per hop for the window that is due.
@@ -390,7 +388,7 @@ class WindowEvaluator:
         planned = self.stream.plan is not None
         try:
             valid = None if snap.valid.all() else snap.valid
-            estimate = self.stream.estimate(snap.position_rad, torque, valid)
+            estimate = self.stream.estimate(snap.position_rad, torque, valid, reflex_torque)
         except WindowError as exc:
             self.withheld[exc.reason] += 1
             return None, exc.reason
@@ -398,9 +396,20 @@ class WindowEvaluator:
             self.withheld[Reason.NUMERICAL] += 1
             return None, Reason.NUMERICAL
         self.estimates += 1
+        self._refuse_inverted_sign(estimate)
         if not planned and self.stream.plan is not None:
             log.info("%s/%s %s", self.robot, self.joint, self.stream.plan.describe())
         return estimate, None
+
+    def _refuse_inverted_sign(self, e: WindowEstimate) -> None:
+        """Stop the stream (live: the worker thread fails, the daemon exits 1; replay: the
+        command refuses) once most windows read K, B, I < 0."""
+        if self.sign.add(e.K, e.B, e.I, e.I_held):
+            other = f"{-self.options.torque_sign:g}"
+            fix = f"set [estimator] torque_sign = {other} in the config (--config TOML)"
+            inverted, estimable = self.sign.inverted, self.sign.estimable
+            message = inverted_torque_message(inverted, estimable, fix)
+            raise TorqueSignError(message, inverted, estimable, self.options.torque_sign)
 
     def _message(
         self,
@@ -413,36 +422,25 @@ class WindowEvaluator:
         reflex: _ReflexUse,
         track: Tracked,
     ) -> dict[str, Any]:
-        overrun = compute_s > self.config.effective_budget_s
-        flags = (
-            *(estimate.flags if estimate else ()),
-            *((Flag.OVER_BUDGET,) if overrun else ()),
-            *(reflex.flags if estimate else ()),
-        )
+        overrun = self._over_budget(compute_s)
+        flags = (*((Flag.OVER_BUDGET,) if overrun else ()), *reflex.flags)
         latency = None if last_arrival_s is None else (time.monotonic() - last_arrival_s) * 1e3
         seq = self._seq
         self._seq += 1
-        numbers = {k: getattr(estimate, k) if estimate else None for k in _ESTIMATE_NUMBERS}
-        return EstimateMessage(
+        return EstimateMessage.of_window(
+            estimate,
+            reason,
+            track,
+            seq=seq,
+            first=first,
+            last=last,
+            fs_hz=self.fs_hz,
             robot=self.robot,
             joint=self.joint,
-            seq=seq,
-            window_start_index=first,
-            window_end_index=last,
-            t_start_s=first / self.fs_hz,
-            t_end_s=last / self.fs_hz,
-            **numbers,
-            K_track=track.K,
-            K_track_se=track.K_se,
-            B_track=track.B,
-            B_track_se=track.B_se,
+            flags=flags,
             compute_ms=compute_s * 1e3,
             latency_ms=latency,
-            ok=estimate is not None,
-            reason=reason,
-            flags=flags,
-            reflex_seq=reflex.seq if estimate else None,
-            host_time_ns=time.time_ns(),
+            reflex_seq=reflex.seq,
         ).as_dict()
 
 

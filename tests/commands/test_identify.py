@@ -49,7 +49,7 @@ def test_identify_tracks_a_stiffness_ramp_with_inverted_torque(ramp_recording, t
     k = np.array([float(r["K"]) for r in rows])
     truth = 100.0 + 50.0 * (t_end - 0.15)  # stiffness at the window's centre
     np.testing.assert_allclose(k, truth, rtol=0.08)
-    assert all(r["ok"] == "1" for r in rows)
+    assert all(r["ok"] == "true" for r in rows)
     assert "7 windows (0 withheld)" in capsys.readouterr().err
 
 
@@ -69,11 +69,11 @@ def test_identify_refuses_nan_unless_allowed_and_leaves_no_partial_file(tmp_path
     rows = read_rows(out)
     # the NaN row is a lost sample: windows across it are estimated from the rest, counted
     across = [r for r in rows if 1500 / fs <= float(r["t_end_s"]) < 1800 / fs]
-    assert across and all(r["ok"] == "1" and r["lost_samples"] == "1" for r in across)
+    assert across and all(r["ok"] == "true" and r["lost_samples"] == "1" for r in across)
     tau[1500:1520] = np.nan  # 20 ms lost: more than max_gap_s, withheld as a gap
     np.savez(path, position_rad=theta, torque_nm=tau, fs_hz=fs)
     assert main(["identify", str(path), "-o", str(out), "--allow-nan"]) == 0
-    withheld = [r for r in read_rows(out) if r["ok"] == "0"]
+    withheld = [r for r in read_rows(out) if r["ok"] == "false"]
     assert withheld and all(r["reason"] == "gap" and r["K"] == "" for r in withheld)
 
 
@@ -102,7 +102,7 @@ def test_identify_real_recording_with_its_preset(reklab_path, tmp_path):
     assert len(rows) == 60
     # the window ending at 40 s falls where the perturbation paused (K ≈ −1800 if estimated)
     withheld = [(r["t_end_s"], r["reason"]) for r in rows if not r["K"]]
-    assert withheld == [("39.999000", "no_excitation")]
+    assert withheld == [("39.999", "no_excitation")]
     k = np.median([float(r["K"]) for r in rows if r["K"]])
     vaf = np.median([float(r["vaf"]) for r in rows if r["vaf"]])
     assert 80.0 < k < 120.0 and vaf > 65.0
@@ -135,7 +135,11 @@ def test_identify_cascade_separates_intrinsic_from_reflex_stiffness(reklab_path,
     # shared/data/README: cascade ≈ 93 %, its intrinsic K ≈ 80 (plain least squares ≈ 106)
     assert float(row["vaf_cascade"]) >= 92.0
     assert 70.0 < float(row["K"]) < 90.0 < 95.0 < float(row["K_no_reflex_model"])
-    assert "reflex gain" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "reflex gain" in err
+    # issue 19: its delay sits at the lower bound of the search, and the output says so
+    assert row["reflex_delay_at_bound"] == "lower"
+    assert "delay 10.0 ms (at the lower bound of the 10–200 ms search" in err
 
 
 def test_identify_cascade_names_the_minimum_record_length(tmp_path, capsys):
@@ -165,6 +169,33 @@ def test_identify_cascade_on_sliding_windows_writes_a_row_per_window_and_a_plot(
 
 
 def test_identify_cascade_window_longer_than_the_record_is_refused(reklab_path, capsys):
-    argv = ["identify", str(reklab_path), "--model", "cascade", "--window", "90"]
-    assert main(argv) == 2
+    argv = ["identify", str(reklab_path), "--torque-sign", "-1", "--model", "cascade"]
+    assert main([*argv, "--window", "90"]) == 2
     assert "longer than the record" in capsys.readouterr().err
+
+
+def test_identify_refuses_an_inverted_torque_sign_naming_the_switch(reklab_path, tmp_path, capsys):
+    # issue 19: without --torque-sign the shared recording printed median K −97.8 and exited 0
+    out = tmp_path / "est.csv"
+    assert main(["identify", str(reklab_path), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    # refused once the first 50 estimable windows are in (as live), not after the whole file
+    assert "most windows read K, B, I < 0 (" in err[0] and "of 50)" in err[0]
+    assert "--torque-sign -1" in err[0] and "[estimator] torque_sign = -1" in err[0]
+    assert not out.exists()  # nothing written half-way
+    assert main(["identify", str(reklab_path), "--torque-sign", "-1", "-o", str(out)]) == 0
+    capsys.readouterr()
+    # the cascade judges the same windows first
+    cascade = ["identify", str(reklab_path), "--model", "cascade", "-o", str(tmp_path / "c.csv")]
+    assert main(cascade) == 2 and "--torque-sign -1" in capsys.readouterr().err
+    assert not (tmp_path / "c.csv").exists()
+
+
+def test_identify_sign_check_does_not_fire_on_a_correct_sign(ramp_recording, tmp_path):
+    # the ramp's torque is stored inverted: read with sign +1 it is refused, with -1 it is
+    # not (86 windows at a 20 ms hop: enough to judge, rtsid.ident.sign.MIN_WINDOWS = 50)
+    out = tmp_path / "est.csv"
+    argv = ["identify", str(ramp_recording), "--hop", "0.02", "-o", str(out)]
+    assert main(argv) == 2
+    assert main([*argv, "--torque-sign", "-1"]) == 0

@@ -119,3 +119,29 @@ def test_mdl_drops_the_components_noise_dominates_and_so_beats_the_full_rank_irf
         error_full = np.linalg.norm(full * 100.0 - g)
         assert error_mdl <= error_full
     assert ranks[1] < ranks[0] <= g.size
+
+
+def test_a_delay_at_a_bound_of_its_search_is_flagged_and_a_found_one_is_not(reklab_path):
+    # issue 19: the shared record's cascade printed "delay 10.0 ms", a delay pinned at the
+    # first model lag (the same at 200 and 250 Hz), as if it were measured
+    from rtsid.ident.reflex import delay_search_s
+
+    theta, torque = joint_with_reflex()
+    found = fit_parallel_cascade(theta, torque, FS).reflex.dynamics
+    assert found.delay_search_s == delay_search_s(100.0) == (0.01, 0.2)
+    assert found.delay_at_bound is None
+    assert found.describe_delay() == f"delay {found.delay_s * 1e3:.1f} ms"
+    data = np.load(reklab_path)
+    real = fit_parallel_cascade(data["position_rad"], -data["torque_nm"], float(data["fs_hz"]))
+    dynamics = real.reflex.dynamics
+    assert dynamics.delay_at_bound == "lower"
+    assert "at the lower bound of the 10–200 ms search" in dynamics.describe_delay()
+
+
+def test_the_delay_search_never_starts_before_the_first_model_lag():
+    from rtsid.ident.reflex import fit_reflex_dynamics
+
+    lags_s = np.arange(101) / 100.0
+    onset_at_lag_0 = np.exp(-lags_s / 0.05)  # a response from lag 0 on: no resolvable delay
+    dynamics = fit_reflex_dynamics(onset_at_lag_0, 100.0)
+    assert dynamics.delay_s >= 0.01 - 1e-9 and dynamics.delay_at_bound == "lower"

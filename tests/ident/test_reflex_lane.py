@@ -67,7 +67,7 @@ def test_settings_are_checked_like_the_rest_of_the_config():
     with pytest.raises(ConfigError, match="mode"):
         SlowLaneSettings(mode="fork")
     with pytest.raises(ConfigError, match="enabled"):
-        ReflexModels(FS, SlowLaneSettings())
+        ReflexModels(FS, SlowLaneSettings(enabled=False))
 
 
 def test_lost_samples_are_bridged_when_few_and_short_and_refused_otherwise():

@@ -1,11 +1,11 @@
 import numpy as np
 import pytest
 
-from rtsid.benchmarks.yardstick import least_squares_window
 from rtsid.ident.excitation import filtered_noise
 from rtsid.ident.filters import derivatives
 from rtsid.ident.stream import WindowStream, sliding_estimates
 from rtsid.ident.window import EstimatorOptions, estimate_window
+from rtsid.ident.yardstick import least_squares_window
 from rtsid.sim.joint import JointParameters, simulate_impedance
 
 FS = 2500.0

@@ -183,16 +183,16 @@ def test_standard_errors_are_positive_for_a_servoed_prbs_perturbation():
     ],
 )
 def test_compiled_front_end_matches_the_numpy_reference(overrides):
-    from rtsid.ident import window
+    from rtsid.ident import front
     from rtsid.ident.irf import estimate_irf
 
-    if window._eureka is None:
+    if front._eureka is None:
         pytest.skip("compiled kernel not built")
     options = EstimatorOptions(**overrides)
     theta, tau = simulated_window(21, noise=10.0)
-    plan = window.resolve_plan(theta, FS, options)
-    u, y, irf = window.front_end(theta, tau, FS, options, plan)
-    u_ref, y_ref = window.prepare_window(theta, tau, options, plan)
+    plan = resolve_plan(theta, FS, options)
+    u, y, irf = front.front_end(theta, tau, FS, options, plan)
+    u_ref, y_ref = front.prepare_window(theta, tau, options, plan)
     fs_a = plan.analysis_fs_hz
     ref = estimate_irf(u_ref, y_ref, fs_a, plan.lag, ridge=options.ridge, refine=options.refine)
     np.testing.assert_allclose(u, u_ref, rtol=1e-12, atol=1e-15)
@@ -218,16 +218,16 @@ SCALARS = ("I", "B", "K", "I_se", "B_se", "K_se", "vaf", "vaf_irf", "vaf_fit")
     ],
 )
 def test_compiled_back_end_matches_the_numpy_reference(overrides):
-    from rtsid.ident import window
+    from rtsid.ident import legacy, window
 
-    if window._eureka is None:
+    if legacy._eureka is None:
         pytest.skip("compiled kernel not built")
     options = EstimatorOptions(fit_method="relative", **overrides)
     theta, tau = simulated_window(23, noise=10.0)
-    plan = window.resolve_plan(theta, FS, options)
+    plan = resolve_plan(theta, FS, options)
     u, y, irf = window.front_end(theta, tau, FS, options, plan)
     compiled = window.back_end(irf, u, y, options, plan)
-    reference = window.numpy_back_end(irf, u, y, options, plan)
+    reference = legacy.numpy_back_end(irf, u, y, options, plan)
     for name in SCALARS:
         np.testing.assert_allclose(
             getattr(compiled, name), getattr(reference, name), rtol=1e-9, err_msg=name
@@ -255,12 +255,12 @@ def test_back_end_rejects_a_window_whose_torque_does_not_respond():
 
 def test_every_status_of_the_compiled_fit_names_its_problem():
     from rtsid.errors import NotPositiveDefiniteError, NumericalError
-    from rtsid.ident import window
+    from rtsid.ident import legacy
 
-    kernel = window._eureka
+    kernel = legacy._eureka
     if kernel is None:
         pytest.skip("compiled kernel not built")
-    window._raise_for_fit_status(kernel.FIT_OK)  # no error
+    legacy._raise_for_fit_status(kernel.FIT_OK)  # no error
     expected = {
         kernel.FIT_FIRST_SINGULAR: "cannot separate inertia from stiffness",
         kernel.FIT_FINAL_SINGULAR: "cannot separate inertia from stiffness",
@@ -269,6 +269,6 @@ def test_every_status_of_the_compiled_fit_names_its_problem():
     }
     for status, message in expected.items():
         with pytest.raises(NumericalError, match=message):
-            window._raise_for_fit_status(status)
+            legacy._raise_for_fit_status(status)
     with pytest.raises(NotPositiveDefiniteError):
-        window._raise_for_fit_status(kernel.FIT_NOT_PD)
+        legacy._raise_for_fit_status(kernel.FIT_NOT_PD)

@@ -183,10 +183,12 @@ def test_real_recording_converts_and_replays_with_its_preset(tmp_path, reklab_pa
     ok = [m for m in result.messages if m["ok"]]
     assert 80.0 < np.median([m["K"] for m in ok]) < 130.0
     assert np.median([m["vaf"] for m in ok]) > 70.0
-    # the converted file also feeds calibration (here with a person attached: only a smoke
-    # test that it reads the stored rate; with no stored low-pass it uses 100 Hz)
+    # the converted file also feeds calibration (here with a person attached, which is
+    # refused unless forced: only a smoke test that it reads the stored rate; with no stored
+    # low-pass it uses 100 Hz)
     cal = tmp_path / "cal.json"
-    assert main(["calibrate", str(out), "-o", str(cal)]) == 0
+    assert main(["calibrate", str(out), "-o", str(cal)]) == 2 and not cal.exists()
+    assert main(["calibrate", str(out), "-o", str(cal), "--force"]) == 0
     document = json.loads(cal.read_text())
     assert document["fs_hz"] == 1000.0 and document["lowpass_hz"] == 100.0
 

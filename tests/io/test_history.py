@@ -160,3 +160,83 @@ def test_a_channel_first_seen_gets_its_own_ring() -> None:
     parts = [json.loads(p) for p in store.answer(HistoryQuery(None, 0, NOW), robot="r", joint="j")]
     assert {p["kind"] for p in parts} == {"estimate", "status", "reflex"}
     assert next(p for p in parts if p["kind"] == "reflex")["messages"] == [{"gain": 1}]
+
+
+# ---------------------------------------------------------------------- hostile selectors
+
+from hypothesis import given  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from rtsid.io.messages import EstimateMessage  # noqa: E402
+from rtsid.io.schemas import encode_json  # noqa: E402
+from rtsid.io.validate import check_replies  # noqa: E402
+
+
+@pytest.mark.parametrize(
+    "params",
+    [
+        {"since": "1e308"},  # raised OverflowError in the daemon: no reply at all
+        {"since": "1e308s"},
+        {"since": "1e20h"},
+        {"since": "-5"},
+        {"since": "nan"},
+        {"since": "9" * 5000},
+        {"from": "9" * 5000},
+        {"from": "99999999999999999999"},
+        {"to": "-1_0"},
+        {"from": "1_000"},
+    ],
+)
+def test_out_of_range_selectors_are_query_errors(params: dict[str, str]) -> None:
+    with pytest.raises(QueryError) as caught:
+        parse_history_query(params, now_ns=NOW)
+    assert len(str(caught.value)) < 200  # one line, the value cut short
+
+
+def daemon_estimate(seq: int, t_ns: int) -> bytes:
+    return encode_json(
+        EstimateMessage(
+            robot="rig", joint="ankle", seq=seq, window_start_index=seq, window_end_index=seq + 749,
+            t_start_s=0.0, t_end_s=0.3, I=0.01, B=0.8, K=150.0, I_se=None, B_se=None, K_se=1.0,
+            K_track=150.0, K_track_se=0.5, B_track=None, B_track_se=None, vaf=90.0, vaf_irf=90.0,
+            vaf_fit=90.0, lost_samples=0, compute_ms=1.0, latency_ms=1.0, ok=True, reason=None,
+            flags=(), host_time_ns=t_ns, I_held=True, B_held=True,
+        ).as_dict()
+    )  # fmt: skip
+
+
+@given(st.dictionaries(st.sampled_from(["since", "from", "to", "kind", "x"]), st.text(max_size=30)))
+def test_any_selector_is_answered_or_refused_and_answers_pass_the_clients_checks(
+    params: dict[str, str],
+) -> None:
+    store = HistoryStore(60.0)
+    for i in range(3):
+        store.append("estimate", daemon_estimate(i, NOW - (3 - i) * S), NOW - (3 - i) * S)
+    try:
+        query = parse_history_query(params, now_ns=NOW)
+        parts = list(store.answer(query, robot="rig", joint="ankle", now_ns=NOW))
+    except QueryError:
+        return
+    checked = check_replies([("rtsid/rig/ankle/history", part) for part in parts])
+    assert not checked.rejected and len(checked.parts) == len(parts)
+
+
+@given(
+    key=st.sampled_from(["rtsid/rig/ankle/history", "rtsid/rig/ankle/estimate", "x", "a/b/c/d"]),
+    payload=st.binary(max_size=100)
+    | st.recursive(
+        st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=10),
+        lambda inner: (
+            st.lists(inner, max_size=3)
+            | st.dictionaries(
+                st.sampled_from(["robot", "joint", "kind", "part", "parts", "messages", "note"]),
+                inner,
+                max_size=7,
+            )
+        ),
+        max_leaves=15,
+    ).map(lambda v: json.dumps(v).encode()),
+)
+def test_any_reply_is_checked_without_a_traceback(key: str, payload: bytes) -> None:
+    checked = check_replies([(key, payload)])
+    assert len(checked.rejected) + len(checked.parts) + len(checked.messages) >= 1

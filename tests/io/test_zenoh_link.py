@@ -228,3 +228,45 @@ def test_samples_are_published_when_enabled(free_port: int) -> None:
         batch = decode_samples(sample.payload.to_bytes())
         assert batch.fs_hz == 2500.0 and batch.valid.tolist() == [True, False, True]
         assert batch.position_rad[0] == 0.1 and batch.torque_nm[2] == 3.0
+
+
+# ---------------------------------------------------------------------- hostile selectors
+
+from hypothesis import HealthCheck, example, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from rtsid.io.zenoh_link import query  # noqa: E402
+
+_VALUE = st.text(
+    st.characters(blacklist_categories=("Cc", "Cs"), blacklist_characters=";=#?&"), max_size=24
+)
+
+
+@pytest.fixture
+def history_daemon(free_port: int) -> Any:
+    """A publisher holding a few estimates (the daemon's queryables) and a client session."""
+    cfg = config(free_port)
+    with (
+        ZenohPublisher(cfg) as pub,
+        zenoh.open(subscriber_config((f"tcp/127.0.0.1:{free_port}",), mode="client")) as session,
+    ):
+        for seq in range(3):
+            pub.publish_estimate(estimate(seq))
+        yield pub, session, key_expressions(cfg)["history"]
+
+
+@settings(suppress_health_check=[HealthCheck.function_scoped_fixture])  # one daemon throughout
+@given(params=st.dictionaries(st.sampled_from(["since", "from", "to", "kind", "x"]), _VALUE))
+@example(params={"since": "1e308"})  # the daemon raised OverflowError and sent nothing
+@example(params={"from": "9" * 5000})
+def test_every_history_selector_gets_a_reply_or_an_error_reply(
+    history_daemon: Any, params: dict[str, str]
+) -> None:
+    pub, session, key = history_daemon
+    selector = key + ("?" + ";".join(f"{k}={v}" for k, v in params.items()) if params else "")
+    try:
+        answer = query(session, selector, timeout_s=10)
+    except zenoh.ZError:
+        return  # zenoh's own parser refused the selector before it left
+    assert answer.replies or answer.errors, selector  # never silence
+    assert pub.stats()["errors"] == 0  # no failure in the daemon's callback

@@ -77,6 +77,7 @@ def test_daemon_logs_every_sample_and_every_estimate(tmp_path, free_port):
     final = list(iter_status(path))[-1]
     assert final["acquisition"]["samples"] == valid
     assert final["worker"]["estimates"] == summary.estimates
+    assert all(type(reason) is str for reason in summary.withheld)  # values, not Reason members
 
 
 def open_files() -> set[str]:
@@ -237,13 +238,16 @@ def test_nan_in_any_numeric_key_is_one_line_naming_the_key(path):
 
 
 def test_window_longer_than_the_ring_is_refused_with_the_fix():
-    document = {"link": {"ring_capacity_s": 1.0}, "worker": {"window_s": 2.0}}
+    off = {"enabled": False}  # the slow lane needs a longer ring: refused for that alone
+    document = {"link": {"ring_capacity_s": 1.0}, "worker": {"window_s": 2.0}, "slow_lane": off}
     with pytest.raises(ConfigError) as info:
         DaemonConfig.from_mapping(document)
     message = str(info.value)
     assert "worker.window_s" in message and "link.ring_capacity_s" in message
     assert "\n" not in message
-    DaemonConfig.from_mapping({"link": {"ring_capacity_s": 1.0}, "worker": {"window_s": 0.5}})
+    DaemonConfig.from_mapping(
+        {"link": {"ring_capacity_s": 1.0}, "worker": {"window_s": 0.5}, "slow_lane": off}
+    )
 
 
 def _injected(*_args: object, **_kwargs: object) -> None:
@@ -279,6 +283,42 @@ def test_rtsid_run_exits_1_naming_the_dead_thread(tmp_path, free_port, monkeypat
     assert "rtsid run: error: thread rtsid-worker failed: RuntimeError: injected failure" in err
 
 
+def test_rtsid_run_prints_the_withheld_reasons_as_their_values(
+    tmp_path, free_port, monkeypatch, capsys
+):
+    from rtsid.cli import main
+    from rtsid.runtime.daemon import RunSummary
+    from rtsid.verdicts import Reason
+
+    class OneGap:
+        """A daemon whose run withheld one window for a gap (as the worker counts it)."""
+
+        def __init__(self, *args: object, **kwargs: object) -> None:
+            pass
+
+        def request_stop(self) -> None:
+            pass
+
+        def run(self, duration_s: float | None = None) -> RunSummary:
+            return RunSummary(
+                estimates=9,
+                withheld={Reason.GAP: 1},
+                deadline_misses=0,
+                overruns=0,
+                samples=2500,
+                lost_samples=0,
+                mcap_files=[],
+                mcap_dropped=0,
+                clean_shutdown=True,
+            )
+
+    monkeypatch.setattr("rtsid.commands.run.Daemon", OneGap)
+    config = write_config(tmp_path, free_port)
+    assert main(["run", "--config", str(config), "--quiet", "--duration", "1"]) == 0
+    err = capsys.readouterr().err
+    assert "9 estimates, withheld gap: 1, 0 deadline misses" in err and "<Reason" not in err
+
+
 def test_an_unwritable_recordings_folder_stops_start_up_naming_the_key(tmp_path, free_port, capsys):
     from rtsid.cli import main
 
@@ -309,3 +349,16 @@ def test_a_mute_socketcand_server_neither_hangs_start_up_nor_stop(tmp_path, free
         summary = daemon.run(duration_s=60.0)  # returns through request_stop, not the duration
     assert daemon.acquisition is not None and "did not greet" in daemon.acquisition.last_error
     assert summary.samples == 0 and summary.failure is None
+
+
+def test_an_inverted_torque_sign_stops_the_daemon_naming_the_key(tmp_path, free_port, capsys):
+    # issue 19: a rig whose torque reads inverted gave K, B, I < 0 and ran on. The embedded
+    # plant reports the torque as it is; [estimator] torque_sign = -1 inverts it.
+    from rtsid.cli import main
+
+    config = write_config(tmp_path, free_port, "[estimator]\ntorque_sign = -1.0\n")
+    assert main(["run", "--config", str(config), "--quiet", "--duration", "60"]) == 1
+    err = capsys.readouterr().err
+    failed = "rtsid run: error: thread rtsid-worker failed: TorqueSignError: most windows read K, B"
+    assert failed in err
+    assert "[estimator] torque_sign = 1 " in err

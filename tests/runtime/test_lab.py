@@ -17,6 +17,8 @@ import zenoh
 
 from rtsid.cli import main
 from rtsid.errors import ConfigError, ServiceError
+from rtsid.io.messages import EstimateMessage
+from rtsid.io.schemas import encode_json
 from rtsid.io.watch import LabFeed, WatchState, render_view
 from rtsid.io.zenoh_link import (
     RouterConfig,
@@ -81,11 +83,17 @@ def wait_until_routed(endpoint: str, selector: str, timeout_s: float = 10.0) -> 
             time.sleep(0.05)
 
 
-def estimate(joint: str, seq: int) -> bytes:
-    return json.dumps(
-        {"robot": "rig", "joint": joint, "seq": seq, "ok": True, "K": 100.0 + seq,
-         "host_time_ns": time.time_ns()}
-    ).encode()  # fmt: skip
+def estimate(joint: str, seq: int, robot: str = "rig") -> bytes:
+    """A well-formed estimate (the clients check every message against ESTIMATE_SCHEMA)."""
+    return encode_json(
+        EstimateMessage(
+            robot=robot, joint=joint, seq=seq, window_start_index=seq, window_end_index=seq + 749,
+            t_start_s=0.0, t_end_s=0.2996, I=0.01, B=0.8, K=100.0 + seq, I_se=0.001, B_se=0.01,
+            K_se=1.0, K_track=100.0, K_track_se=0.5, B_track=0.8, B_track_se=0.005, vaf=90.0,
+            vaf_irf=90.0, vaf_fit=90.0, lost_samples=0, compute_ms=1.0, latency_ms=1.0, ok=True,
+            reason=None, flags=(), host_time_ns=time.time_ns(), I_held=False, B_held=False,
+        ).as_dict()
+    )  # fmt: skip
 
 
 def pump(
@@ -265,6 +273,109 @@ def test_rtsid_query_prints_latest_and_history_as_json_lines(
         assert "no daemon answered" in capsys.readouterr().err
 
 
+# ---------------------------------------------------------------------- bad peers (issue 20)
+
+
+def test_the_history_queryable_answers_out_of_range_selectors_with_an_error_reply(
+    free_port: int,
+) -> None:
+    with Router(free_port) as router, ZenohPublisher(client(router.endpoint, "j0")) as pub:
+        pub.publish_estimate(estimate("j0", 1))
+        wait_until_routed(router.endpoint, "rtsid/rig/j0/history?since=60s")
+        with zenoh.open(subscriber_config((router.endpoint,), "client")) as session:
+            for params, match in [
+                ("since=1e308", "longer than a year"),  # was an OverflowError and no reply
+                ("since=-5", "is not a duration"),
+                ("since=nan", "is not a duration"),
+                ("from=99999999999999999999", "out of range"),
+                ("from=" + "9" * 5000, "is not an integer"),
+            ]:
+                answer = query(session, f"rtsid/rig/j0/history?{params}", timeout_s=10)
+                assert not answer.replies, params
+                (error,) = answer.errors
+                assert match in json.loads(error)["error"]
+        assert pub.stats()["query_errors"] == 5 and pub.stats()["errors"] == 0
+
+
+BAD_REPLIES = [
+    b"\xff\xfe\x00",  # not UTF-8: `rtsid query` died with UnicodeDecodeError
+    b'{"K": NaN}',
+    b"[1, 2, 3]",
+    b'{"robot": "evil", "joint": "ankle", "kind": "estimate", "part": 0}',  # KeyError
+    json.dumps({"robot": "evil", "joint": "ankle", "kind": "estimate", "from_ns": 0, "to_ns": 1,
+                "held_from_ns": None, "first_ns": None, "complete": True, "note": "\x1b[2J",
+                "part": 0, "parts": 1, "messages": "no"}).encode(),  # TypeError
+    json.dumps({"robot": "evil", "joint": "ankle", "kind": "estimate", "from_ns": 0, "to_ns": 1,
+                "held_from_ns": None, "first_ns": None, "complete": True, "note": "", "part": 0,
+                "parts": 1, "messages": [1, {"K": 99999}, json.loads(estimate("x", 1))]}).encode(),
+]  # fmt: skip
+
+
+class FakeResponder:
+    """A zenoh client (not a daemon) answering ``rtsid/evil/ankle/{history,estimate}`` with
+    every payload of :data:`BAD_REPLIES`."""
+
+    def __init__(self, endpoint: str) -> None:
+        self.session = zenoh.open(subscriber_config((endpoint,), "client"))
+        self.queryables = [
+            self.session.declare_queryable(f"rtsid/evil/ankle/{kind}", self._answer)
+            for kind in ("history", "estimate")
+        ]
+
+    @staticmethod
+    def _answer(q: Any) -> None:
+        with q:
+            for payload in BAD_REPLIES:
+                q.reply(str(q.key_expr), payload)
+
+    def close(self) -> None:
+        for queryable in self.queryables:
+            queryable.undeclare()
+        self.session.close()
+
+
+def test_fake_responders_and_bad_keys_cannot_crash_the_clients(
+    free_port: int, capsys: pytest.CaptureFixture[str], wait_for: Callable[..., None]
+) -> None:
+    from rtsid.io.watch import watch
+    from rtsid.io.web.server import WebView
+
+    with Router(free_port) as router, ZenohPublisher(client(router.endpoint, "j0")) as pub:
+        fake = FakeResponder(router.endpoint)
+        try:
+            pub.publish_estimate(estimate("j0", 7))
+            wait_until_routed(router.endpoint, "rtsid/rig/j0/history?since=60s")
+            wait_until_routed(router.endpoint, "rtsid/evil/ankle/history")
+            connect = ["--connect", router.endpoint, "--timeout", "3"]
+            assert main(["query", *connect]) == 0
+            out, err = capsys.readouterr()
+            assert [json.loads(x)["robot"] for x in out.splitlines()] == ["rig"]
+            assert "rejected 6 malformed" in err and "\x1b" not in err
+            assert main(["query", *connect, "--since", "60s"]) == 0
+            out, err = capsys.readouterr()
+            assert {json.loads(x)["robot"] for x in out.splitlines()} == {"rig"}
+            assert "rejected" in err and "\x1b" not in err
+            code = watch("rtsid/*/*", (router.endpoint,), mode="client", timeout_s=1.0,
+                         since_s=60.0, live=False)  # fmt: skip
+            out, err = capsys.readouterr()
+            assert code == 0 and "rig/j0 seq=7" in out and "99999" not in out
+            assert "history: rejected" in err
+            with WebView("rtsid/*/*", (router.endpoint,), mode="client", port=0) as view:
+                wait_for(
+                    lambda: view.board.rejected >= 6, 10.0, "the history's bad replies counted"
+                )
+                assert view.failure is None  # it exited at start-up
+                wait_for(lambda: view.board.snapshot()[1]["joints"], 10.0, "rig/j0 on the board")
+                assert list(view.board.snapshot()[1]["joints"]) == ["rig/j0"]
+        finally:
+            fake.close()
+    for bad in ("", "rtsid//x", "rtsid/a?b"):
+        for command in (["query", bad], ["watch", bad, "--timeout", "1"]):
+            assert main(command) == 2
+            (line,) = capsys.readouterr().err.splitlines()
+            assert "is not a zenoh key expression" in line and "rtsid/*/*" in line
+
+
 # ---------------------------------------------------------------------- the fast lane
 
 
@@ -338,7 +449,7 @@ def test_bench_lab_prints_its_tables(capsys: pytest.CaptureFixture[str]) -> None
     for title in ("### Lab: 2 daemons", "### Per joint", "### Late joiner", "### History queries"):
         assert title in out
     rows = [line for line in out.splitlines() if line.startswith("|")]
-    for phase in ("router", "router + queries", "peer-to-peer"):
+    for phase in ("router", "router + queries", "TLS router", "peer-to-peer"):
         assert any(line.split("|")[1].strip() == phase for line in rows), phase
-    late = [r for r in rows if r.split("|")[1].strip() in ("router", "peer-to-peer")]
+    late = [r for r in rows if r.split("|")[1].strip() in ("router", "TLS router", "peer-to-peer")]
     assert any(r.split("|")[2].strip() == "2" for r in late)  # trials done in each topology

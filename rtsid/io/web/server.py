@@ -8,35 +8,57 @@
             ◄── GET /events  (Server-Sent Events: snapshot, then each        ◄┘
                               estimate, status, alive, gone as it arrives)
 
-The page (``static/index.html`` + ``app.js``) draws, for each ``robot/joint``: K, B and I with
-their 95 % bands over the last 30 s, VAF, withheld windows with their reason, and the link and
-deadline counters of the status message; the latest message of any other channel a daemon
-publishes (e.g. a reflex model) is shown as its fields, so a new channel needs no change here.
+The page (``static/index.html`` + ``app.js``) draws, for each ``robot/joint``: the tracked
+stiffness K_track with its 95 % band and the window's K beside it, B and I with their 95 % bands
+(held values as held, no band) over the last 30 s, VAF, withheld windows with their reason, and
+the link and deadline counters of the status message; the latest message of any other channel a
+daemon publishes (e.g. a reflex model) is shown as its fields, so a new channel needs no change
+here.
 On start the board asks the daemons for their last 30 s (the ``history`` queryable), so the
 plots are full at once. Everything is standard library (``http.server``) and the plotting
 library (uPlot, MIT) ships inside the package: labs are often offline.
 
 Nothing binds beyond loopback unless ``host`` says so (``--host 0.0.0.0`` opens the page to
-the lab network: there is no authentication, so only on a trusted network).
+the lab network), and then only with a token (``RTSID_WEB_TOKEN``, :mod:`rtsid.io.access_token`)
+checked on every request: refused without one.
+
+The page renders data, never markup: the server relays only messages that pass
+:mod:`rtsid.io.validate` (names of letters, digits, ``_ . -`` equal to the key they came on;
+finite numbers within bounds; capped sizes; reasons and flags from their closed vocabularies),
+counts the rest (``rejected`` on the page: "rejected N malformed messages") and serves every
+response with :data:`SECURITY_HEADERS`: a Content-Security-Policy that allows scripts, styles
+and connections from this origin only (no inline script, no framing), ``nosniff`` and no
+referrer. The page itself puts message fields in with ``textContent`` only.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import sys
 import threading
 import time
 from collections import deque
 from collections.abc import Iterator
 from http import HTTPStatus
+from http.cookies import CookieError, SimpleCookie
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from typing import Any
+from urllib.parse import parse_qs
 
 from rtsid.errors import ConfigError, ServiceError
-from rtsid.io.watch import FeedEvent, LabFeed, joint_name
+from rtsid.io.access_token import TOKEN_ENV, token_matches, web_token
+from rtsid.io.validate import (
+    NAME_PATTERN,
+    MalformedMessage,
+    decode_message,
+    joint_of_key,
+    printable,
+)
+from rtsid.io.watch import FeedEvent, LabFeed, window_ms
 
-__all__ = ["LabBoard", "WebView", "serve_web"]
+__all__ = ["SECURITY_HEADERS", "LabBoard", "WebView", "serve_web"]
 
 log = logging.getLogger(__name__)
 
@@ -51,14 +73,34 @@ _CONTENT_TYPES = {
     ".txt": "text/plain; charset=utf-8",
     ".LICENSE": "text/plain; charset=utf-8",
 }
-_ESTIMATE_KEYS = ("seq", "K", "K_se", "B", "B_se", "I", "I_se", "vaf", "ok", "reason", "flags")
+_ESTIMATE_KEYS = (
+    "seq", "K_track", "K_track_se", "K", "K_se", "B", "B_se", "B_held", "I", "I_se", "I_held",
+    "vaf", "ok", "reason", "flags", "latency_ms",
+)  # fmt: skip
+#: Sent with every response: this origin's scripts, styles and connections only (no inline
+#: script, no eval, no plugins), never framed, no MIME sniffing, no referrer.
+SECURITY_HEADERS = {
+    "Content-Security-Policy": (
+        "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self'; "
+        "connect-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'"
+    ),
+    "X-Content-Type-Options": "nosniff",
+    "X-Frame-Options": "DENY",
+    "Referrer-Policy": "no-referrer",
+    "Cross-Origin-Resource-Policy": "same-origin",
+}
+#: Files the page is made of (nothing else under /static/ is served).
+_STATIC_FILES = frozenset(
+    f.name for f in (resources.files("rtsid.io.web") / "static").iterdir() if f.is_file()
+)
 
 
 def _point(message: dict[str, Any]) -> dict[str, Any]:
-    """What the page needs of an estimate (t: publication time, UNIX s)."""
+    """What the page needs of a checked estimate (t: publication time, UNIX s; window_ms: the
+    window's length, for "K (300 ms window)")."""
     point = {k: message.get(k) for k in _ESTIMATE_KEYS}
-    point["t"] = (message.get("host_time_ns") or 0) / 1e9
-    point["latency_ms"] = message.get("latency_ms")
+    point["t"] = message["host_time_ns"] / 1e9
+    point["window_ms"] = window_ms(message)
     return point
 
 
@@ -74,36 +116,49 @@ class LabBoard:
         self.notes: deque[str] = deque(maxlen=10)
         self._gone_names: set[str] = set()  # left (token gone), until their token is back
         self.stopped = False
+        #: Messages refused (malformed, non-finite, oversized, another daemon's name).
+        self.rejected = 0
+        self.last_rejection: str | None = None
 
     # ------------------------------------------------------------------ writer side
     def take(self, event: FeedEvent) -> None:
-        """Add one feed event (estimate, status, alive, gone)."""
-        name = joint_name(event.key)
-        if event.kind in ("alive", "gone"):
-            self._liveliness(name, event.kind == "alive")
-            return
+        """Add one feed event (estimate, status, any other channel, alive, gone); one that
+        fails the checks of :mod:`rtsid.io.validate` is counted in :attr:`rejected` and the
+        pages are told the count."""
         try:
-            message = json.loads(event.payload)
-        except ValueError:
+            if not NAME_PATTERN.match(event.kind):
+                raise MalformedMessage(f"channel {printable(repr(event.kind), 80)} is not a name")
+            if event.kind in ("alive", "gone"):
+                self._liveliness(joint_of_key(event.key), event.kind == "alive")
+                return
+            message = decode_message(event.kind, event.payload, event.key)
+        except MalformedMessage as exc:
+            self.reject(f"{printable(event.key, 120)}: {exc}")
             return
-        if not isinstance(message, dict):
-            return
-        name = f"{message.get('robot')}/{message.get('joint')}"
+        self._take(event.kind, message)
+
+    def reject(self, why: str) -> None:
+        """Count one refused message and tell the pages."""
+        with self._cond:
+            self.rejected += 1
+            self.last_rejection = why
+            self._emit({"type": "rejected", "count": self.rejected, "last": why})
+
+    def _take(self, kind: str, message: dict[str, Any]) -> None:
+        name = f"{message['robot']}/{message['joint']}"
         with self._cond:
             joint = self._joints.get(name)
             if joint is None:
                 if name in self._gone_names:
                     return  # late messages of a daemon that left
                 joint = self._joints[name] = self._new_joint()
-            if event.kind == "status":
+            if kind == "status":
                 joint["status"] = message
                 self._emit({"type": "status", "joint": name, "status": message})
                 return
-            if event.kind != "estimate":  # any other channel a daemon publishes: its latest
-                joint["channels"][event.kind] = message
-                self._emit(
-                    {"type": "channel", "joint": name, "channel": event.kind, "message": message}
-                )
+            if kind != "estimate":  # any other channel a daemon publishes: its latest
+                joint["channels"][kind] = message
+                self._emit({"type": "channel", "joint": name, "channel": kind, "message": message})
                 return
             point = _point(message)
             points = joint["points"]
@@ -168,6 +223,8 @@ class LabBoard:
                 "window_s": WINDOW_S,
                 "joints": joints,
                 "notes": list(self.notes),
+                "rejected": self.rejected,
+                "last_rejection": self.last_rejection,
             }
 
     def events_after(self, last_id: int, timeout_s: float) -> list[tuple[int, str]] | None:
@@ -183,10 +240,9 @@ class LabBoard:
 
 def _static(name: str) -> bytes | None:
     """A file of the page (package data), or None when there is no such file."""
-    if "/" in name or name.startswith("."):
+    if name not in _STATIC_FILES:
         return None
-    path = resources.files("rtsid.io.web") / "static" / name
-    return path.read_bytes() if path.is_file() else None
+    return (resources.files("rtsid.io.web") / "static" / name).read_bytes()
 
 
 class _Handler(BaseHTTPRequestHandler):
@@ -196,7 +252,50 @@ class _Handler(BaseHTTPRequestHandler):
     def log_message(self, format: str, *args: Any) -> None:
         log.debug("web: " + format, *args)
 
+    _COOKIE = "rtsid_token"
+
+    def _presented_token(self) -> tuple[str | None, bool]:
+        """The token this request carries, and whether it came in the URL."""
+        auth = self.headers.get("Authorization", "")
+        if auth.startswith("Bearer "):
+            return auth.removeprefix("Bearer "), False
+        in_url = parse_qs(self.path.partition("?")[2]).get("token")
+        if in_url:
+            return in_url[0], True
+        try:
+            cookie = SimpleCookie(self.headers.get("Cookie", ""))
+        except CookieError:
+            return None, False
+        morsel = cookie.get(self._COOKIE)
+        return (morsel.value if morsel is not None else None), False
+
+    def _authorized(self) -> bool:
+        """Loopback without a token: everyone here; otherwise the token, constant-time."""
+        self._new_cookie: str | None = None
+        expected = self.server.token
+        if expected is None:
+            return True
+        given, in_url = self._presented_token()
+        if token_matches(given, expected):
+            if in_url:  # the page's own requests (scripts, /events) then carry the cookie
+                self._new_cookie = f"{self._COOKIE}={expected}; HttpOnly; SameSite=Strict; Path=/"
+            return True
+        body = f"this page needs its token: open /?token=<the {TOKEN_ENV} value>\n".encode()
+        self._send(HTTPStatus.UNAUTHORIZED, "text/plain; charset=utf-8", body)
+        return False
+
+    def end_headers(self) -> None:
+        """Every response: :data:`SECURITY_HEADERS`, and the token's cookie once it was given
+        in the URL."""
+        for name, value in SECURITY_HEADERS.items():
+            self.send_header(name, value)
+        if getattr(self, "_new_cookie", None):
+            self.send_header("Set-Cookie", str(self._new_cookie))
+        super().end_headers()
+
     def do_GET(self) -> None:
+        if not self._authorized():
+            return
         path = self.path.split("?", 1)[0]
         if path in ("/", "/index.html"):
             self._file("index.html")
@@ -204,7 +303,8 @@ class _Handler(BaseHTTPRequestHandler):
             self._file(path.removeprefix("/static/"))
         elif path == "/state.json":
             _, snap = self.server.board.snapshot()
-            self._send(HTTPStatus.OK, "application/json", json.dumps(snap).encode())
+            body = json.dumps(snap, allow_nan=False).encode()
+            self._send(HTTPStatus.OK, "application/json", body)
         elif path == "/events":
             self._events()
         else:
@@ -244,13 +344,13 @@ class _Handler(BaseHTTPRequestHandler):
 
     def _stream(self, board: LabBoard) -> Iterator[bytes]:
         last_id, snap = board.snapshot()
-        yield b"data: " + json.dumps(snap).encode() + b"\n\n"
+        yield b"data: " + json.dumps(snap, allow_nan=False).encode() + b"\n\n"
         quiet_since = time.monotonic()
         while not board.stopped and not self.server.stopping.is_set():
             events = board.events_after(last_id, 0.5)
             if events is None:  # fell behind: start again from a snapshot
                 last_id, snap = board.snapshot()
-                yield b"data: " + json.dumps(snap).encode() + b"\n\n"
+                yield b"data: " + json.dumps(snap, allow_nan=False).encode() + b"\n\n"
                 continue
             if events:
                 last_id = events[-1][0]
@@ -265,10 +365,16 @@ class _Server(ThreadingHTTPServer):
     daemon_threads = True
     block_on_close = True  # server_close() joins the page threads (they end within 0.5 s)
 
-    def __init__(self, address: tuple[str, int], board: LabBoard) -> None:
+    def __init__(self, address: tuple[str, int], board: LabBoard, token: str | None) -> None:
         self.board = board
+        self.token = token
         self.stopping = threading.Event()
         super().__init__(address, _Handler)
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        """A page or client that broke its connection: a debug line, never a traceback on
+        the console (socketserver's default prints one)."""
+        log.debug("web: request from %s ended: %r", client_address, sys.exc_info()[1])
 
 
 class WebView:
@@ -283,7 +389,8 @@ class WebView:
     mode : str
         ``"client"`` through a router, ``"peer"`` straight to daemons.
     host : str
-        Address the page binds to (default 127.0.0.1).
+        Address the page binds to (default 127.0.0.1). Beyond loopback the page requires the
+        token in ``RTSID_WEB_TOKEN`` (a :class:`~rtsid.errors.ConfigError` without one).
     port : int
         TCP port (0: a free one; :attr:`port` says which).
     history_s : float
@@ -308,6 +415,7 @@ class WebView:
         self.host = host
         self.requested_port = port
         self.history_s = history_s
+        self.token = web_token(host)  # None on loopback without RTSID_WEB_TOKEN
         self.board = LabBoard()
         self.port: int | None = None
         self.failure: str | None = None
@@ -330,7 +438,7 @@ class WebView:
             The port is taken or the address cannot be bound, or the feed could not open.
         """
         try:
-            self._server = _Server((self.host, self.requested_port), self.board)
+            self._server = _Server((self.host, self.requested_port), self.board, self.token)
         except OSError as exc:
             raise ServiceError(
                 f"web page on {self.host}:{self.requested_port} could not bind: {exc}; choose a "
@@ -374,10 +482,12 @@ class WebView:
             with LabFeed(self.key, self.connect, self.mode) as feed:
                 self._feed_ready.set()
                 if self.history_s > 0:
-                    past, notes = feed.history(self.history_s)
-                    for note in notes:
+                    past = feed.history(self.history_s)
+                    for note in past.notes:
                         log.info("%s", note)
-                    for event in past:
+                    for why in past.rejected:
+                        self.board.reject(why)
+                    for event in past.events:
                         self.board.take(event)
                 while not self._stop.is_set():
                     events = feed.poll()
@@ -406,7 +516,9 @@ def serve_web(
     with WebView(key, connect, mode=mode, host=host, port=port) as view:
         print(
             f"rtsid watch: live page on {view.url} (daemons {view.key} via "
-            f"{', '.join(connect)}, {mode}); Ctrl-C stops",
+            f"{', '.join(connect)}, {mode})"
+            + (f"; token required: open it as {view.url}?token=<{TOKEN_ENV}>" if view.token else "")
+            + "; Ctrl-C stops",
             flush=True,
         )
         end = None if timeout_s is None else time.monotonic() + timeout_s

@@ -1,0 +1,307 @@
+"""Step 5, assess: VAFs and flags of a fitted window, and its :class:`WindowEstimate`.
+
+* ``vaf`` (:func:`published_vaf`), the one VAF rtsid publishes: the share of the measured
+  torque's variance in the perturbation's band (above DC up to the plan's band edge) that the
+  published model explains — ``I·θ̈ + B·θ̇ + K·θ`` plus any torque another pathway explained
+  first (the slow lane's reflex prediction) — over the window, its mean removed but not its
+  trend;
+* the model checks ``vaf_irf`` (the IRF's prediction against the band-limited torque) and
+  ``vaf_fit`` (the model against the IRF), over the samples with full support
+  (:func:`predict_torque`) and, when samples were lost, the clean rows only;
+* flags that do not withhold the estimate (:func:`window_flags`);
+* the estimate itself (:func:`assemble`), held values marked as held.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rtsid.ident.filters import stencil_derivatives
+from rtsid.ident.fit import NOT_HELD, Held
+from rtsid.ident.front import ScoredBand
+from rtsid.ident.gaps import WindowGaps
+from rtsid.ident.irf import IRF
+from rtsid.ident.options import EstimatorOptions
+from rtsid.ident.second_order import OutputErrorFit
+from rtsid.ident.vaf import vaf
+from rtsid.verdicts import Flag
+
+__all__ = [
+    "TorquePredictions",
+    "WindowEstimate",
+    "assemble",
+    "assess",
+    "predict_torque",
+    "published_vaf",
+    "three_vafs",
+    "window_flags",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class WindowEstimate:
+    """Impedance of one window.
+
+    Attributes
+    ----------
+    I, B, K : float
+        Inertia kg·m², damping N·m·s/rad, stiffness N·m/rad.
+    I_se, B_se, K_se : float
+        Standard errors (NaN when not computed).
+    vaf : float
+        Percent of the measured torque's variance in the perturbation's band accounted for
+        by the published model (:func:`published_vaf`).
+    vaf_irf : float
+        Percent accounted for by the IRF's prediction.
+    vaf_fit : float
+        Percent of the IRF's predicted torque accounted for by the parametric model.
+    irf : numpy.ndarray, shape (2L+1,)
+        IRF values, N·m/rad/s.
+    lags_s : numpy.ndarray, shape (2L+1,)
+        IRF lags, s.
+    fs_hz : float
+        Analysis rate of the IRF, Hz.
+    flags : tuple of str
+        Warnings that do not withhold the estimate: ``"negative_stiffness"``,
+        ``"negative_damping"``, ``"negative_inertia"``, ``"inertia_uncertain"`` (SE > 25 %),
+        ``"stiffness_uncertain"`` (SE > 10 %), ``"model_mismatch"`` (the second-order model
+        explains < 50 % of the IRF's prediction: the joint or rig is not second-order in the
+        analysed band — lower ``lowpass_hz`` and ``fit_band_hz``).
+    method : str
+        Fit method used.
+    lost_samples : int
+        Lost samples in the window, bridged by sums over valid samples only.
+    I_held, B_held : bool
+        True when the value was held (learned over a longer horizon, or given), not fitted
+        in this window: its standard error is then NaN, never a band.
+    """
+
+    I: float  # noqa: E741 - the physical symbol
+    B: float
+    K: float
+    I_se: float
+    B_se: float
+    K_se: float
+    vaf: float
+    vaf_irf: float
+    vaf_fit: float
+    irf: FloatArray = field(repr=False)
+    lags_s: FloatArray = field(repr=False)
+    fs_hz: float
+    flags: tuple[Flag, ...]
+    method: str
+    lost_samples: int = 0
+    I_held: bool = False
+    B_held: bool = False
+
+    def as_dict(self) -> dict[str, Any]:
+        """The scalar fields, JSON-friendly (NaN becomes None)."""
+        out: dict[str, Any] = {}
+        for key in ("I", "B", "K", "I_se", "B_se", "K_se", "vaf", "vaf_irf", "vaf_fit"):
+            value = float(getattr(self, key))
+            out[key] = value if np.isfinite(value) else None
+        out["flags"] = list(self.flags)
+        out["method"] = self.method
+        out["lost_samples"] = self.lost_samples
+        out["I_held"] = self.I_held
+        out["B_held"] = self.B_held
+        return out
+
+
+def published_vaf(
+    measured: FloatArray,
+    model: FloatArray,
+    stiffness: float,
+    score: ScoredBand,
+    fs_hz: float,
+    index: NDArray[np.intp],
+    *,
+    in_band: bool = True,
+) -> float:
+    """The published VAF, %: the measured torque in ``score``'s band against the model.
+
+    ``measured = y + trend + explained`` and ``model = I·θ̈ + B·θ̇ + K·(u + trend) +
+    explained`` at the analysis rate, each window's mean removed; the VAF is taken over the
+    DFT bins above DC up to ``score.band_hz`` (the torque beyond the perturbation's band is
+    noise no model of the position explains). A window with lost samples is scored on its
+    clean rows in time (``in_band`` False: its DFT would mix the zeroed rows in).
+
+    Parameters
+    ----------
+    measured, model : numpy.ndarray, shape (k,)
+        Band-limited torque ``y`` and the model's ``I·θ̈ + B·θ̇ + K·u``, N·m.
+    stiffness : float
+        K, N·m/rad (the position trend's torque).
+    score : ScoredBand
+    fs_hz : float
+        Analysis rate, Hz.
+    index : numpy.ndarray of int, shape (k,)
+        The analysis samples ``measured`` and ``model`` hold.
+    """
+    measured = measured + score.torque_slope * index
+    model = model + stiffness * score.position_slope * index
+    if score.explained is not None:
+        measured = measured + score.explained[index]
+        model = model + score.explained[index]
+    if not in_band:
+        return vaf(measured, model)
+    return _band_vaf(measured - measured.mean(), measured - model, fs_hz, score.band_hz)
+
+
+def _band_vaf(measured: FloatArray, error: FloatArray, fs_hz: float, band_hz: float) -> float:
+    error = error - error.mean()
+    bins = np.fft.rfftfreq(measured.size, 1.0 / fs_hz)
+    scored = (bins > 0) & (bins <= band_hz)
+    total = float(np.sum(np.abs(np.fft.rfft(measured)[scored]) ** 2))
+    if total <= 0:
+        return 0.0
+    left = float(np.sum(np.abs(np.fft.rfft(error)[scored]) ** 2))
+    return round(max(0.0, 1.0 - left / total) * 100.0, 12)
+
+
+def assess(
+    irf: IRF,
+    u: FloatArray,
+    y: FloatArray,
+    fit: OutputErrorFit,
+    options: EstimatorOptions,
+    held: Held = NOT_HELD,
+    gaps: WindowGaps | None = None,
+    score: ScoredBand | None = None,
+) -> WindowEstimate:
+    """Step 5 of an output-error fit: its VAFs, flags and estimate.
+
+    ``vaf`` is :func:`published_vaf` (``score`` None: the fit's own model torque against the
+    torque it was fitted to); ``vaf_irf`` and ``vaf_fit`` compare with the IRF's prediction.
+    The standard errors are the fit's (NaN for held values, which are marked as held).
+    """
+    _, vaf_irf, vaf_fit = three_vafs(predict_torque(irf, u, y, fit.params, gaps))
+    if score is None:
+        published = vaf(fit.measured, fit.model)
+    else:
+        rows = fit_rows(gaps)
+        index = np.arange(4, 4 + fit.measured.size) if rows is None else rows
+        stiffness = float(fit.params[2])
+        published = published_vaf(
+            fit.measured, fit.model, stiffness, score, irf.fs_hz, index, in_band=rows is None
+        )
+    vafs = (published, vaf_irf, vaf_fit)
+    se_i, se_b, se_k = fit.se.tolist()
+    lost = 0 if gaps is None else gaps.lost
+    estimate = assemble(irf, fit.params, (se_i, se_b, se_k), vafs, "output_error", options, lost)
+    if held.inertia is None:
+        return estimate
+    return replace(estimate, I_held=True, B_held=held.damping is not None)
+
+
+def fit_rows(gaps: WindowGaps | None) -> NDArray[np.intp] | None:
+    """Analysis-sample indices of a gap window's fitted rows (None without lost samples)."""
+    if gaps is None:
+        return None
+    return np.flatnonzero(gaps.rows(4)) + 4  # the stencils' rows 4 … m − 5 that were kept
+
+
+@dataclass(frozen=True)
+class TorquePredictions:
+    """Measured and predicted torque over the fully supported samples (N·m)."""
+
+    measured: FloatArray
+    irf: FloatArray
+    model: FloatArray
+    rows: NDArray[np.bool_] | None = None  # the clean ones, when samples were lost
+
+
+def predict_torque(
+    irf: IRF, u: FloatArray, y: FloatArray, params: FloatArray, gaps: WindowGaps | None = None
+) -> TorquePredictions:
+    """Torque predicted by the IRF and by the parametric model ``(I, B, K)``."""
+    edge = supported_edge(irf)
+    inertia, damping, stiffness = params
+    d1, d2 = stencil_derivatives(u, irf.fs_hz)
+    model_torque = inertia * d2 + damping * d1 + stiffness * u[4:-4]  # samples 4 … n−5
+    inner = slice(edge, u.size - edge)
+    return TorquePredictions(
+        measured=y[inner],
+        irf=irf.predict(u)[inner],
+        model=model_torque[edge - 4 : u.size - edge - 4],
+        rows=None if gaps is None else _checkable_rows(gaps, irf, edge),
+    )
+
+
+def _checkable_rows(gaps: WindowGaps, irf: IRF, edge: int) -> NDArray[np.bool_]:
+    """The clean rows the IRF's checks may use: none when too few remain to check it."""
+    rows = gaps.rows(edge)
+    return rows if gaps.irf_checkable(irf.max_lag) else np.zeros_like(rows)
+
+
+def supported_edge(irf: IRF) -> int:
+    """Samples at each end without full support for the IRF (``L``) or the 9-point
+    derivative stencils (4): predictions and residuals skip them."""
+    return max(irf.max_lag, 4)
+
+
+def three_vafs(p: TorquePredictions) -> tuple[float, float, float]:
+    """VAF of the model and of the IRF against the measurement, and of the model against
+    the IRF (over the clean rows when samples were lost)."""
+    rows = slice(None) if p.rows is None else p.rows
+    measured, irf, model = p.measured[rows], p.irf[rows], p.model[rows]
+    if measured.size < 2:  # lost samples left no row over the IRF's whole lag span
+        return vaf(p.measured, p.model), math.nan, math.nan
+    return vaf(measured, model), vaf(measured, irf), vaf(irf, model)
+
+
+def assemble(
+    irf: IRF,
+    params: FloatArray,
+    se: tuple[float, float, float],
+    vafs: tuple[float, float, float],
+    method: str,
+    options: EstimatorOptions,
+    lost: int = 0,
+) -> WindowEstimate:
+    inertia, damping, stiffness = (float(v) for v in params)
+    vaf_model, vaf_irf, vaf_fit = vafs
+    return WindowEstimate(
+        I=inertia,
+        B=damping,
+        K=stiffness,
+        I_se=se[0],
+        B_se=se[1],
+        K_se=se[2],
+        vaf=vaf_model,
+        vaf_irf=vaf_irf,
+        vaf_fit=vaf_fit,
+        irf=irf.h,
+        lags_s=irf.lags_s,
+        fs_hz=irf.fs_hz,
+        flags=window_flags((inertia, damping, stiffness), se, vafs, options),
+        method=method,
+        lost_samples=lost,
+    )
+
+
+def window_flags(
+    params: tuple[float, float, float],
+    se: tuple[float, float, float],
+    vafs: tuple[float, float, float],
+    options: EstimatorOptions,
+) -> tuple[Flag, ...]:
+    inertia, damping, stiffness = params
+    vaf_model, _, vaf_fit = vafs
+    checks = (
+        (vaf_model < options.low_vaf_percent, Flag.LOW_VAF),
+        (vaf_fit < 50.0, Flag.MODEL_MISMATCH),  # NaN (not checkable): no flag
+        (stiffness <= 0, Flag.NEGATIVE_STIFFNESS),
+        (damping <= 0, Flag.NEGATIVE_DAMPING),
+        (inertia <= 0, Flag.NEGATIVE_INERTIA),
+        (math.isfinite(se[0]) and se[0] > 0.25 * abs(inertia), Flag.INERTIA_UNCERTAIN),
+        (math.isfinite(se[2]) and se[2] > 0.1 * abs(stiffness), Flag.STIFFNESS_UNCERTAIN),
+    )
+    return tuple(flag for raised, flag in checks if raised)

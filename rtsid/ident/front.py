@@ -1,0 +1,187 @@
+"""Step 3, IRF: band-limit a checked window and identify its two-sided IRF.
+
+Torque sign, trend removed from both signals, the plan's zero-phase FIR on both and
+decimation to the analysis rate (``u``, ``y``); then Wiener–Hopf deconvolution solved with
+EUREKA and refined (:func:`rtsid.ident.irf.estimate_irf`). :func:`front_end` makes one call
+into the compiled kernel when it was built (``window_irf``), :func:`prepare_window` and
+``estimate_irf`` in numpy otherwise — the reference it is tested against. A window with lost
+samples always takes the numpy path, with the lost samples' reach zeroed
+(:class:`~rtsid.ident.gaps.WindowGaps`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from rtsid.errors import WindowError
+from rtsid.ident.analysis import AnalysisPlan
+from rtsid.ident.check import check_analysis_length, check_band_limited_excitation
+from rtsid.ident.correlation import detrend, trend_slope
+from rtsid.ident.gaps import LostSamples, WindowGaps, contaminated
+from rtsid.ident.irf import IRF, estimate_irf
+from rtsid.ident.levinson import compiled_kernel, not_positive_definite
+from rtsid.ident.options import EstimatorOptions
+from rtsid.verdicts import Reason
+
+_eureka = compiled_kernel()
+
+
+@dataclass(frozen=True)
+class ScoredBand:
+    """What :func:`published_vaf` scores besides the analysis-rate signals ``(u, y)``.
+
+    Attributes
+    ----------
+    band_hz : float
+        Upper edge of the scored band, Hz: the plan's perturbation band edge (the low-pass
+        cut-off ÷ 1.5 when the cut-off was set explicitly).
+    position_slope, torque_slope : float
+        The linear trends the window's detrending removed, rad and N·m per analysis sample.
+    explained : numpy.ndarray, shape (m,), or None
+        Torque explained by another pathway and subtracted before the fit (the slow lane's
+        reflex prediction), band-limited like ``y``, N·m.
+    """
+
+    band_hz: float
+    position_slope: float = 0.0
+    torque_slope: float = 0.0
+    explained: FloatArray | None = None
+
+
+__all__ = ["analyse_irf", "front_end", "prepare_window"]
+
+FloatArray = NDArray[np.float64]
+
+
+def analyse_irf(
+    position: FloatArray,
+    torque: FloatArray,
+    fs: float,
+    options: EstimatorOptions,
+    plan: AnalysisPlan,
+    lost: LostSamples | None,
+) -> tuple[FloatArray, FloatArray, IRF, WindowGaps | None]:
+    """Step 3 of a checked window: :func:`front_end`, or for a window with lost samples
+    the numpy path with the lost samples' reach zeroed and the IRF fitted on clean rows."""
+    if lost is None:
+        return (*front_end(position, torque, fs, options, plan), None)
+    u, y = prepare_window(position, torque, options, plan)
+    bad = contaminated(lost.valid, plan.taps.size, plan.factor)
+    u[bad], y[bad] = 0.0, 0.0
+    gaps = WindowGaps(bad=bad, lost=lost.count)
+    rows = gaps.rows(plan.lag)
+    # Refinement needs rows whose whole lag span is clean; without enough of them the IRF is
+    # the plain Wiener–Hopf solution from correlations over valid pairs, and the checks that
+    # compare against it (vaf_irf, vaf_fit) are left out (null).
+    refine = options.refine if gaps.irf_checkable(plan.lag) else 0
+    irf = estimate_irf(
+        u, y, plan.analysis_fs_hz, plan.lag, ridge=options.ridge, refine=refine, rows=rows
+    )
+    return u, y, irf, gaps
+
+
+_DETREND_CODES = {"none": 0, "mean": 1, "linear": 2}
+
+
+def front_end(
+    position: ArrayLike,
+    torque: ArrayLike,
+    fs: float,
+    options: EstimatorOptions,
+    plan: AnalysisPlan,
+) -> tuple[FloatArray, FloatArray, IRF]:
+    """Step 3: the analysis-rate signals ``(u, y)`` and the refined IRF.
+
+    One call into the compiled kernel when it was built (detrend, FIR decimation,
+    correlations, EUREKA and refinement in C); otherwise :func:`prepare_window` and
+    :func:`rtsid.ident.irf.estimate_irf` in numpy, the reference it is tested against.
+    """
+    if _eureka is None:
+        u, y = prepare_window(position, torque, options, plan)
+        irf = estimate_irf(
+            u, y, plan.analysis_fs_hz, plan.lag, ridge=options.ridge, refine=options.refine
+        )
+        return u, y, irf
+    pos = np.ascontiguousarray(position, dtype=np.float64)
+    tor = np.ascontiguousarray(torque, dtype=np.float64)
+    taps, factor, lag, fs_a = plan.taps, plan.factor, plan.lag, plan.analysis_fs_hz
+    m = (pos.size - taps.size) // factor + 1 if pos.size >= taps.size else 0
+    check_analysis_length(m, fs_a, lag)
+    u, y = np.empty(m), np.empty(m)
+    h, phi = np.empty(2 * lag + 1), np.empty(2 * lag + 1)
+    status, alpha = _eureka.window_irf(
+        pos,
+        tor,
+        np.ascontiguousarray(taps),
+        factor,
+        options.torque_sign,
+        _DETREND_CODES[options.detrend],
+        lag,
+        options.refine,
+        options.ridge,
+        fs_a,
+        u,
+        y,
+        h,
+        phi,
+    )
+    if status >= 0:
+        raise not_positive_definite(status, alpha)
+    check_band_limited_excitation(u, options)
+    return u, y, IRF(h=h, fs_hz=fs_a, phi_uu=phi)
+
+
+def prepare_window(
+    position: ArrayLike, torque: ArrayLike, options: EstimatorOptions, plan: AnalysisPlan
+) -> tuple[FloatArray, FloatArray]:
+    """Step 3, first half: sign, detrend, band-limit and decimate a checked window; ``(u, y)``."""
+    pos = np.asarray(position, dtype=np.float64)
+    tor = np.asarray(torque, dtype=np.float64)
+    u, y = _preprocess(pos, tor, plan, options)
+    check_analysis_length(u.size, plan.analysis_fs_hz, plan.lag)
+    check_band_limited_excitation(u, options)
+    return u, y
+
+
+def _preprocess(
+    position: FloatArray, torque: FloatArray, plan: AnalysisPlan, options: EstimatorOptions
+) -> tuple[FloatArray, FloatArray]:
+    u = detrend(position, options.detrend)
+    y = detrend(torque * options.torque_sign, options.detrend)
+    return _band_limit(u, plan), _band_limit(y, plan)
+
+
+def _band_limit(x: FloatArray, plan: AnalysisPlan) -> FloatArray:
+    """The plan's FIR over the fully supported samples, every ``factor``-th kept."""
+    if x.size < plan.taps.size:
+        raise WindowError(
+            f"window of {x.size} samples is shorter than the {plan.taps.size}-tap low-pass; "
+            "lengthen the window or raise lowpass_hz",
+            Reason.TOO_SHORT,
+        )
+    return np.convolve(x, plan.taps, mode="valid")[:: plan.factor]
+
+
+def scored_band(
+    position: FloatArray,
+    torque: FloatArray,
+    options: EstimatorOptions,
+    plan: AnalysisPlan,
+    explained: ArrayLike | None = None,
+) -> ScoredBand:
+    """What the published VAF scores besides ``(u, y)`` (:func:`rtsid.ident.assess.
+    published_vaf`): the trends the detrending removed, at the analysis rate, and the torque
+    ``explained`` elsewhere (same samples and sign as ``torque``) band-limited like it."""
+    band = plan.edge_hz if plan.edge_hz is not None else plan.lowpass_hz / 1.5
+    slopes = (0.0, 0.0)
+    if options.detrend == "linear":
+        sign = options.torque_sign
+        slopes = (trend_slope(position) * plan.factor, sign * trend_slope(torque) * plan.factor)
+    extra = None
+    if explained is not None:
+        signed = options.torque_sign * np.asarray(explained, dtype=np.float64)
+        extra = _band_limit(signed - signed.mean(), plan)
+    return ScoredBand(band, *slopes, explained=extra)
