@@ -31,12 +31,15 @@ from numpy.typing import NDArray
 from rtsid.config import section_from_mapping
 from rtsid.errors import InputDataError, RecordingError, RtsidError
 from rtsid.ident.skirt import (
+    BASIS_FAMILIES,
     BasisSelection,
     LtvEstimate,
+    ModelSelection,
     SecondOrderTrack,
     fourier_harmonics,
     identify_ltv,
     select_basis_size,
+    select_model,
 )
 from rtsid.io.files import atomic_write, read_npz
 from rtsid.io.mcap_read import read_run_config
@@ -50,6 +53,8 @@ __all__ = [
     "TvResult",
     "auto_basis",
     "choose_basis",
+    "choose_model",
+    "format_choice",
     "format_report",
     "identify_recording",
     "load_tv",
@@ -81,7 +86,7 @@ class TvData:
     stiffness_nm_per_rad : numpy.ndarray or None
         True ``K(t)`` per sample when known (simulation), N·m/rad.
     inertia : float or None
-        True inertia when known, N·m·s²/rad.
+        True inertia when known, kg·m².
     """
 
     torque_nm: FloatArray
@@ -362,21 +367,80 @@ def choose_basis(
     )
 
 
+def choose_model(
+    data: TvData,
+    *,
+    families: tuple[str, ...] = BASIS_FAMILIES,
+    n_transient: int | None = None,
+) -> ModelSelection:
+    """Basis family and ``N_p`` chosen from the record, as ``rtsid tv`` does by default
+    (:func:`rtsid.ident.skirt.select_model`): per family every well-conditioned ``N_p`` up
+    to :data:`rtsid.ident.skirt.AUTO_MAX_BASIS` (Legendre 20, Fourier 101, B-splines 80),
+    then the best predicted validation VAF over all of them.
+    """
+    if data.period_samples < 1 or data.torque_nm.size < data.period_samples:
+        raise InputDataError("choosing the model needs at least one whole multisine period")
+    return select_model(
+        data.torque_nm,
+        data.position_rad,
+        data.fs_hz,
+        data.excited_bins,
+        data.period_samples,
+        families=families,
+        n_transient=n_transient,
+    )
+
+
+def format_choice(selection: ModelSelection | BasisSelection) -> str:
+    """What was chosen from the data and why, for the report: the model and its predicted
+    validation VAF, the runners-up, and one line per family whose search stopped short of
+    its documented range (with the reason)."""
+    if isinstance(selection, BasisSelection):
+        selection = ModelSelection((selection,), selection.estimate)
+    best = selection.chosen
+    band = f" of the output up to {selection.band_hz:.3g} Hz" if selection.decimation > 1 else ""
+    lines = [
+        f"model chosen from the data: {best.basis_family} N_p = {best.n_basis}, predicted "
+        f"validation VAF{band} {best.chosen_vaf:.1f} % (best of {len(best.candidates)} N_p, "
+        f"{best.candidates[0]}…{best.candidates[-1]})"
+    ]
+    if selection.runners_up:
+        lines.append(
+            "runners-up: "
+            + ", ".join(
+                f"{s.basis_family} N_p = {s.n_basis}: {s.chosen_vaf:.1f} %"
+                for s in selection.runners_up
+            )
+        )
+    lines += [f"{s.basis_family} cap: {s.cap_reason}" for s in selection.families if s.cap_reason]
+    lines += [f"{family} not used: {why}" for family, why in selection.refused]
+    return "\n".join(lines)
+
+
+#: Parameters ``rtsid tv`` holds constant over the record by default (a joint's inertia
+#: does not change; the high, noisy lines that determine it are then pooled).
+DEFAULT_COMMON: tuple[str, ...] = ("inertia",)
+
+
 def identify_recording(
     data: TvData,
     *,
     n_basis: int = 8,
     n_transient: int | None = None,
     n_times: int = 401,
-    common: tuple[str, ...] = (),
+    common: tuple[str, ...] = DEFAULT_COMMON,
     basis_family: str = "legendre",
+    estimate: LtvEstimate | None = None,
 ) -> TvResult:
     """Skirt decomposition of ``data`` and the second-order track at ``n_times`` times.
 
     ``common`` names parameters held constant over time in the second-order fit
-    (``"inertia"``, ``"damping"``; see :meth:`LtvEstimate.fit_second_order`).
+    (``"inertia"``, the default, and ``"damping"``; ``()`` frees them: see
+    :meth:`LtvEstimate.fit_second_order`). ``estimate``: an estimate of ``data`` already
+    made (e.g. :attr:`BasisSelection.estimate`), used instead of ``n_basis`` and
+    ``basis_family``.
     """
-    est = identify_ltv(
+    est = estimate or identify_ltv(
         data.torque_nm,
         data.position_rad,
         data.fs_hz,
@@ -427,7 +491,7 @@ def format_report(result: TvResult, rows: int = 11) -> str:
         f"inflation {est.variance_inflation:.2f}",
     ]
     truth = result.stiffness_true is not None
-    head = f"{'t s':>7} {'K N·m/rad':>10} {'B N·m·s/rad':>12} {'I N·m·s²/rad':>13} {'f_n Hz':>7}"
+    head = f"{'t s':>7} {'K N·m/rad':>10} {'B N·m·s/rad':>12} {'I kg·m²':>9} {'f_n Hz':>7}"
     head += f" {'peak Hz':>8} {'fit err':>8}"
     if truth:
         head += f" {'K true':>7}"
@@ -437,7 +501,7 @@ def format_report(result: TvResult, rows: int = 11) -> str:
     for i in np.linspace(0, tr.t_s.size - 1, rows).round().astype(int):
         row = (
             f"{tr.t_s[i]:7.1f} {tr.stiffness[i]:10.3f} {tr.damping[i]:12.4f} "
-            f"{tr.inertia[i]:13.5f} {tr.natural_frequency_hz[i]:7.3f} {result.peak_hz[i]:8.3f} "
+            f"{tr.inertia[i]:9.5f} {tr.natural_frequency_hz[i]:7.3f} {result.peak_hz[i]:8.3f} "
             f"{tr.fit_error[i]:8.3f}"
         )
         if result.stiffness_true is not None:

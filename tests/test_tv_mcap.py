@@ -59,7 +59,7 @@ def test_virtual_plant_recording_to_stiffness_track(tmp_path, free_port, capsys)
     recording, *later_parts = recording_parts(next((tmp_path / "rec").glob("*.mcap")))
     assert later_parts  # rotated
     csv = tmp_path / "track.csv"
-    argv = ["tv", str(recording), "--common-inertia", "-p", "auto", "-o", str(csv)]
+    argv = ["tv", str(recording), "-o", str(csv)]  # the defaults
     assert main(argv) == 0
     out = capsys.readouterr().out
     assert "used periods 0..5 of the multisine (6 × 2500 samples: rows 0..14999" in out

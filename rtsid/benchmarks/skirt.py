@@ -14,8 +14,9 @@ ratio to one FFT of the record measured in the same run), an ablation (half-way 
 the transient polynomial vs the defaults, and the oracle: the best N_p-term Legendre
 expansion of the true frozen G(jω, t)), the three time-basis families (Legendre, Fourier,
 B-splines) side by side at the N_p each chooses from the data, on the study's cases and on
-SIN2 (two sinusoidal cycles of K(t) per record, the floor case of the tailored bases), and
-CS3 side by side with the windowed method.
+SIN2 (two sinusoidal cycles of K(t) per record, the floor case of the tailored bases),
+``rtsid tv``'s defaults (family and N_p chosen from the data, one inertia) against the old
+ones (Legendre N_p = 8, free inertia), and CS3 side by side with the windowed method.
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ from rtsid.ident.skirt import (
     identify_ltv,
     legendre_basis,
     select_basis_size,
+    select_model,
 )
 from rtsid.sim.ltv import LtvExperiment, multisine_experiment
 
@@ -59,6 +61,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=5,
         metavar="N",
         help="estimation/validation pairs for the spread table at Δf_exc = 0.8 Hz (5; 0: skip)",
+    )
+    parser.add_argument(
+        "--defaults-only",
+        action="store_true",
+        help="print only the table of rtsid tv's defaults against the old ones (≈ 1 min)",
     )
 
 
@@ -134,9 +141,16 @@ def _evaluate(case: Case, n_basis: int, **kw: Any) -> Point:
     if est is None:
         nan = float("nan")
         return Point(nan, nan, nan, 0, nan, flag, seconds)
+    return _score(case, est, flag, seconds)
+
+
+def _score(
+    case: Case, est: LtvEstimate, flag: str, seconds: float, common: tuple[str, ...] = ()
+) -> Point:
+    """Validation VAF, resonance and K errors of an estimate of ``case``'s record."""
     vaf = _vaf(case.val.position_clean_rad, est.simulate(case.val.torque_nm))
     peak = _rmse(est.resonance_from_peak(case.t_s), case.fn_true)
-    track = est.fit_second_order(case.t_s)
+    track = est.fit_second_order(case.t_s, common=common)
     fn = track.natural_frequency_hz
     return Point(
         vaf,
@@ -325,6 +339,9 @@ def _window_comparison(
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.defaults_only:
+        print(_defaults(("SIN2", "CS3") if args.quick else FAMILY_CASES))
+        return 0
     spacings = (0.8,) if args.quick else SPACINGS_HZ
     bases = (1, 4, 8, 12) if args.quick else tuple(range(1, args.max_basis + 1))
     print(
@@ -354,6 +371,8 @@ def run(args: argparse.Namespace) -> int:
     print(_ablation(cases, spacings, (8, 12, 16)))
     print()
     print(_families(spacings, ("SIN2", "CS3") if args.quick else FAMILY_CASES, cases))
+    print()
+    print(_defaults(("SIN2", "CS3") if args.quick else FAMILY_CASES, cases))
     print()
     if not args.quick and args.realisations > 0:
         print(_spread(args.realisations, (8, 12, 20)))
@@ -421,6 +440,66 @@ def _families(
             f"{vaf_floor:g} % and f_n RMSE ≤ {fn_floor:g} Hz at its chosen N_p): "
             + (f"met by {', '.join(tailored)}" if tailored else "NOT met")
             + f"; Legendre {'meets' if BASIS_FAMILIES[0] in met else 'does not meet'} it",
+        ]
+    return "\n".join(lines)
+
+
+#: The floor of ``rtsid tv``'s defaults on SIN2 at Δf_exc = 0.8 Hz (issue 19): validation
+#: VAF %, f_n RMSE Hz.
+DEFAULTS_FLOOR = (99.0, 0.03)
+
+
+def _defaults(names: tuple[str, ...], cases: dict[tuple[str, float], Case] | None = None) -> str:
+    """``rtsid tv``'s defaults (family and N_p chosen from the record, one inertia for the
+    record) against the old defaults (Legendre N_p = 8, inertia free per time), Δf_exc =
+    0.8 Hz."""
+    from rtsid.tv import DEFAULT_COMMON
+
+    lines = [
+        "rtsid tv's defaults against the old ones, Δf_exc = 0.8 Hz, 22 dB: new = basis family "
+        "and N_p chosen from the estimation record (best predicted validation VAF over "
+        "Legendre 1…20, Fourier 1…101, B-splines 1…80, where well conditioned), inertia "
+        "common to the record; old = Legendre N_p = 8, inertia free at each time. Validation "
+        "VAF % of the noiseless validation output, continuous f_n and K RMSE at 1000 times; "
+        "CPU s = choice + estimate + fit, this process's CPU time (simulation excluded).",
+        "",
+        "| case | defaults | model | VAF % | f_n RMSE Hz | K RMSE N·m/rad | CPU s |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    floor: Point | None = None
+    for name in names:
+        case = (cases or {}).get((name, 0.8)) or _make_case(name, 0.8)
+        e = case.est
+        start = time.process_time()
+        old_est, _, _ = _identify(case, 8)
+        assert old_est is not None
+        old = _score(case, old_est, "", time.process_time() - start)
+        start = time.process_time()
+        chosen = select_model(
+            e.torque_nm, e.position_rad, e.fs_hz, e.excited_bins, e.period_samples
+        )
+        new = _score(case, chosen.estimate, "", 0.0, DEFAULT_COMMON)
+        new = replace(new, seconds=time.process_time() - start)
+        if name == "SIN2":
+            floor = new
+        sel = chosen.chosen
+        for label, model, p in (
+            ("old", "legendre N_p = 8", old),
+            ("new", f"{sel.basis_family} N_p = {sel.n_basis}", new),
+        ):
+            nan = f" ({p.fn_invalid} NaN)" if p.fn_invalid else ""
+            lines.append(
+                f"| {name} | {label} | {model} | {_fmt(p.vaf, '.1f')} | "
+                f"{_fmt(p.fn_rmse, '.3f', nan)} | {_fmt(p.k_rmse, '.3f')} | {p.seconds:.2f} |"
+            )
+    if floor is not None:
+        vaf_floor, fn_floor = DEFAULTS_FLOOR
+        met = floor.vaf >= vaf_floor and floor.fn_rmse <= fn_floor
+        lines += [
+            "",
+            f"floor (rtsid tv's defaults on SIN2: validation VAF ≥ {vaf_floor:g} % and f_n RMSE "
+            f"≤ {fn_floor:g} Hz): {'met' if met else 'NOT met'} ({floor.vaf:.1f} %, "
+            f"{floor.fn_rmse:.3f} Hz)",
         ]
     return "\n".join(lines)
 

@@ -9,9 +9,17 @@ import warnings
 
 from rtsid.commands.common import add_output, deprecation_note
 from rtsid.errors import InputDataError
-from rtsid.ident.skirt import BASIS_FAMILIES, SkirtConditioningWarning
+from rtsid.ident.skirt import AUTO_MAX_BASIS, BASIS_FAMILIES, SkirtConditioningWarning
 from rtsid.ident.skirt import WARN_VARIANCE_INFLATION as WARN
 from rtsid.sim.ltv import STUDY_CASES
+
+#: ``--basis-family`` values: ``auto`` (the default) chooses among the families.
+FAMILY_CHOICES = ("auto", *BASIS_FAMILIES)
+
+
+def auto_range_text() -> str:
+    """The N_p each family's automatic search covers, as ``--help`` says it."""
+    return ", ".join(f"{family} 1…{AUTO_MAX_BASIS[family]}" for family in BASIS_FAMILIES)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,17 +32,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--basis",
         "-p",
-        default="8",
+        default="auto",
         metavar="N_P",
-        help="basis functions N_p (8), or 'auto': among the well-conditioned N_p (Legendre "
-        "≤ 20, Fourier ≤ 101, B-splines ≤ 80) the one of best predicted validation VAF",
+        help="basis functions N_p, or 'auto' (default): per family every N_p of "
+        f"{auto_range_text()} whose local problems are well conditioned (variance inflation "
+        f"≤ {WARN:g}; where the line spacing allows fewer, the output says so and why), the "
+        "one of best predicted validation VAF",
     )
     parser.add_argument(
         "--basis-family",
-        choices=BASIS_FAMILIES,
-        default=BASIS_FAMILIES[0],
-        help="time basis: legendre (default; smooth, slow change), fourier (periodic change "
-        "with whole cycles in the record: cyclic tasks, gait), bspline (local changes)",
+        choices=FAMILY_CHOICES,
+        default="auto",
+        help="time basis: auto (default: the family of best predicted validation VAF; with a "
+        "fixed N_p, legendre), legendre (smooth, slow change), fourier (periodic change with "
+        "whole cycles in the record: cyclic tasks, gait), bspline (local changes)",
     )
     parser.add_argument(
         "--transient",
@@ -54,7 +65,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--common-inertia",
         action="store_true",
-        help="hold the inertia constant over time in the K/B/I fit (a joint's does not change)",
+        default=True,
+        help="hold the inertia constant over time in the K/B/I fit (the default: a joint's "
+        "does not change)",
+    )
+    parser.add_argument(
+        "--free-inertia",
+        dest="common_inertia",
+        action="store_false",
+        help="fit the inertia at each time, like K",
     )
     parser.add_argument(
         "--common-damping", action="store_true", help="hold the damping constant over time too"
@@ -133,23 +152,28 @@ def run(args: argparse.Namespace) -> int:
     if data.selection:
         print(f"used {data.selection}")
     family = args.basis_family
+    estimate = None
     if args.basis == "auto":
-        chosen = tv.choose_basis(data, basis_family=family, n_transient=args.transient)
-        n_basis = chosen.n_basis
-        print(
-            f"N_p = {n_basis} (auto, {family}: best predicted validation VAF "
-            f"{chosen.chosen_vaf:.1f} % among {len(chosen.candidates)} N_p up to "
-            f"{chosen.n_stable}, all well conditioned: variance inflation ≤ {WARN:g})"
-        )
+        families = BASIS_FAMILIES if family == "auto" else (family,)
+        chosen = tv.choose_model(data, families=families, n_transient=args.transient)
+        print(tv.format_choice(chosen))
+        n_basis, family = chosen.chosen.n_basis, chosen.chosen.basis_family
+        estimate = chosen.estimate
     elif args.basis.isdigit() and int(args.basis) >= 1:
         n_basis = int(args.basis)
+        family = BASIS_FAMILIES[0] if family == "auto" else family
     else:
         raise InputDataError(f"--basis must be a positive integer or 'auto', got {args.basis!r}")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", SkirtConditioningWarning)
         common = ("inertia",) * args.common_inertia + ("damping",) * args.common_damping
         result = tv.identify_recording(
-            data, n_basis=n_basis, n_transient=args.transient, common=common, basis_family=family
+            data,
+            n_basis=n_basis,
+            n_transient=args.transient,
+            common=common,
+            basis_family=family,
+            estimate=estimate,
         )
     for w in caught:
         print(f"rtsid tv: warning: {w.message}", file=sys.stderr)

@@ -67,6 +67,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -80,6 +81,7 @@ __all__ = [
     "WARN_VARIANCE_INFLATION",
     "BasisSelection",
     "LtvEstimate",
+    "ModelSelection",
     "SecondOrderTrack",
     "SkirtConditioning",
     "SkirtConditioningWarning",
@@ -92,6 +94,7 @@ __all__ = [
     "max_stable_basis",
     "predicted_validation_vaf",
     "select_basis_size",
+    "select_model",
     "skirt_conditioning",
 ]
 
@@ -240,8 +243,20 @@ def legendre_basis(n_samples: int, n_basis: int) -> FloatArray:
 
 
 def _skirts(family: str, n_samples: int, n_basis: int) -> ComplexArray:
-    """DFT of each basis function over the record, shape (n_basis, n_samples)."""
-    return np.fft.fft(basis_functions(n_samples, n_basis, family), axis=1)
+    """DFT of each basis function over the record, shape (n_basis, n_samples).
+
+    Transformed a few rows at a time: the FFT's complex copy of its input then stays small
+    beside the result (a 500 000-sample record with 50 functions: 0.7 GB at peak, not 1 GB).
+    """
+    basis = basis_functions(n_samples, n_basis, family)
+    out = np.empty(basis.shape, dtype=np.complex128)
+    for i in range(0, n_basis, _FFT_ROWS):
+        out[i : i + _FFT_ROWS] = np.fft.fft(basis[i : i + _FFT_ROWS], axis=1)
+    return out
+
+
+#: Basis functions transformed at once by :func:`_skirts`.
+_FFT_ROWS = 8
 
 
 def _nested(family: str) -> bool:
@@ -568,7 +583,7 @@ class SecondOrderTrack:
     t_s : numpy.ndarray, shape (n_times,)
         Times, s from the record's first sample.
     stiffness, damping, inertia : numpy.ndarray, shape (n_times,)
-        ``K`` (N·m/rad), ``B`` (N·m·s/rad), ``I`` (N·m·s²/rad).
+        ``K`` (N·m/rad), ``B`` (N·m·s/rad), ``I`` (kg·m²).
     natural_frequency_hz : numpy.ndarray, shape (n_times,)
         ``√(K/I)/2π``, Hz (NaN where ``K/I <= 0``).
     fit_error : numpy.ndarray, shape (n_times,)
@@ -1196,9 +1211,9 @@ def identify_ltv(
     spectrum_u = _check_multisine(u_arr, record_bins, input_tolerance, fs_hz)
     spectrum_y = np.fft.fft(y_arr)
 
+    whiten = _whitener(family, n, n_basis)  # before the skirts: one basis in memory at a time
     skirts = _skirts(family, n, n_basis)
     layouts = _layouts(record_bins, n, window_lines, neighbours)
-    whiten = _whitener(family, n, n_basis)
     solvers = {
         layout: _Solver.build(*_design(layout, skirts, n, n_transient), whiten)
         for layout in set(layouts)
@@ -1259,7 +1274,7 @@ class BasisSelection:
     n_basis : int
         The chosen ``N_p``.
     n_stable : int
-        Largest ``N_p`` (≤ the family's cap) whose skirt inflation stays ≤
+        Largest ``N_p`` (≤ ``n_cap``) whose skirt inflation stays ≤
         :data:`WARN_VARIANCE_INFLATION`: the candidates end there.
     candidates : tuple of int
         The ``N_p`` tried.
@@ -1267,6 +1282,12 @@ class BasisSelection:
         Predicted validation VAF (%, of a noisy validation output) per candidate.
     estimate : LtvEstimate
         The estimate at the chosen ``N_p``.
+    n_cap : int
+        The largest ``N_p`` the search would try for this family (:data:`AUTO_MAX_BASIS`, or
+        ``n_max``).
+    cap_reason : str
+        Why the search stopped below ``n_cap`` (one line with the numbers), or ``""`` when
+        it covered the whole range.
     """
 
     basis_family: str
@@ -1275,11 +1296,51 @@ class BasisSelection:
     candidates: tuple[int, ...]
     predicted_vaf: tuple[float, ...]
     estimate: LtvEstimate = field(repr=False)
+    n_cap: int = 0
+    cap_reason: str = ""
 
     @property
     def chosen_vaf(self) -> float:
         """Predicted validation VAF at the chosen ``N_p``, %."""
         return self.predicted_vaf[self.candidates.index(self.n_basis)]
+
+
+@dataclass(frozen=True)
+class ModelSelection:
+    """Basis family and ``N_p`` chosen by :func:`select_model`.
+
+    Attributes
+    ----------
+    families : tuple of BasisSelection
+        Each family's own choice, best predicted validation VAF first: ``families[0]`` is
+        the model chosen. Their scores and estimates are of the record the search ran on.
+    estimate : LtvEstimate
+        The chosen model estimated on the whole record.
+    refused : tuple of (str, str)
+        Families with no usable ``N_p`` for this record, with the reason.
+    decimation : int
+        The search ran on the record band-limited and resampled to ``1/decimation`` of its
+        samples (1: on the record itself); see :func:`select_model`.
+    band_hz : float
+        The band the search's scores cover, Hz (the Nyquist frequency of the record it ran
+        on).
+    """
+
+    families: tuple[BasisSelection, ...]
+    estimate: LtvEstimate
+    refused: tuple[tuple[str, str], ...] = ()
+    decimation: int = 1
+    band_hz: float = float("nan")
+
+    @property
+    def chosen(self) -> BasisSelection:
+        """The selection of the winning family."""
+        return self.families[0]
+
+    @property
+    def runners_up(self) -> tuple[BasisSelection, ...]:
+        """The other families' choices, best first."""
+        return self.families[1:]
 
 
 def predicted_validation_vaf(estimate: LtvEstimate, u: ArrayLike, y: ArrayLike) -> float:
@@ -1353,18 +1414,84 @@ def select_basis_size(
         conditioned.
     """
     family = check_basis_family(basis_family)
-    cap = AUTO_MAX_BASIS[family] if n_max is None else int(n_max)
-    if cap < 1:
+    record = _SearchRecord.build(u, y, fs_hz, excited_bins, period_samples, n_periods)
+    search = _search_range(family, n_max, record, n_transient, window_lines, neighbours)
+    if search.n_stable < 1:
+        raise InputDataError(search.reason)
+    return _score_candidates(
+        family,
+        search,
+        record,
+        n_transient=n_transient,
+        window_lines=window_lines,
+        neighbours=neighbours,
+        input_tolerance=input_tolerance,
+    )
+
+
+@dataclass(frozen=True)
+class _SearchRecord:
+    """A record checked once for every family's search."""
+
+    u: FloatArray
+    y: FloatArray
+    fs_hz: float
+    excited_bins: NDArray[np.int64]
+    period_samples: int
+    n_periods: int
+    record_bins: NDArray[np.int64]
+    spacing: int
+
+    @classmethod
+    def build(
+        cls,
+        u: ArrayLike,
+        y: ArrayLike,
+        fs_hz: float,
+        excited_bins: ArrayLike,
+        period_samples: int,
+        n_periods: int | None,
+    ) -> _SearchRecord:
+        u_arr, y_arr = _as_signal("u", u), _as_signal("y", y)
+        periods = _record_periods(u_arr.size, int(period_samples), n_periods)
+        bins = _check_bins(excited_bins, int(period_samples))
+        record_bins = bins * periods
+        if record_bins.size < 2:
+            raise InputDataError("choosing N_p needs at least two excited lines; excite more lines")
+        spacing = int(np.min(np.diff(record_bins)))
+        return cls(
+            u_arr, y_arr, float(fs_hz), bins, int(period_samples), periods, record_bins, spacing
+        )
+
+    @property
+    def n_samples(self) -> int:
+        return self.u.size
+
+
+@dataclass(frozen=True)
+class _SearchRange:
+    """``N_p`` a family's search covers: up to ``n_stable`` of ``n_cap``, and why not more."""
+
+    n_cap: int
+    n_stable: int
+    reason: str
+
+
+def _search_range(
+    family: str,
+    n_max: int | None,
+    record: _SearchRecord,
+    n_transient: int | None,
+    window_lines: float,
+    neighbours: int,
+) -> _SearchRange:
+    """The family's documented cap (:data:`AUTO_MAX_BASIS` or ``n_max``), lowered by what
+    the record's bins allow at all and by the conditioning of the local problems."""
+    n_cap = AUTO_MAX_BASIS[family] if n_max is None else int(n_max)
+    if n_cap < 1:
         raise InputDataError(f"n_max must be >= 1, got {n_max!r}")
-    u_arr, y_arr = _as_signal("u", u), _as_signal("y", y)
-    n = u_arr.size
-    periods = _record_periods(n, int(period_samples), n_periods)
-    record_bins = _check_bins(excited_bins, int(period_samples)) * periods
-    if record_bins.size < 2:
-        raise InputDataError("choosing N_p needs at least two excited lines; excite more lines")
-    spacing = int(np.min(np.diff(record_bins)))
-    if family == "fourier":  # harmonics a line owns alone (beyond them: refused)
-        cap = min(cap, 2 * max(min((spacing - 1) // 2, int(record_bins[0]) - 1), 0) + 1)
+    n, spacing = record.n_samples, record.spacing
+    cap, reason = _room_cap(family, n_cap, spacing, record.record_bins, n, record.fs_hz)
     stable = max_stable_basis(
         n,
         spacing,
@@ -1375,32 +1502,222 @@ def select_basis_size(
         basis_family=family,
     )
     if stable < 1:
-        raise InputDataError(
-            f"excited lines {spacing} record bins apart leave no room for time variation; "
-            "excite lines further apart or record more periods"
+        return _SearchRange(
+            n_cap,
+            0,
+            f"excited lines {spacing} record bins apart leave no room for time variation "
+            f"with {_FAMILY_NAMES[family]}; excite lines further apart or record more periods",
         )
-    candidates = _candidates(family, stable)
+    if stable < cap:
+        cond = skirt_conditioning(
+            n,
+            spacing,
+            stable + 1,
+            n_transient,
+            window_lines=window_lines,
+            neighbours=neighbours,
+            basis_family=family,
+        )
+        reason = _conditioning_reason(cond, stable, n_cap, n, record.fs_hz)
+    return _SearchRange(n_cap, stable, reason)
+
+
+def _score_candidates(
+    family: str,
+    search: _SearchRange,
+    record: _SearchRecord,
+    **options: Any,
+) -> BasisSelection:
+    """Estimate every candidate ``N_p`` of ``search`` and keep the best predicted VAF."""
+    candidates = _candidates(family, search.n_stable)
     scores: list[float] = []
     best: LtvEstimate | None = None
     for n_basis in candidates:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", SkirtConditioningWarning)  # edge lines only
             est = identify_ltv(
-                u_arr,
-                y_arr,
-                fs_hz,
-                excited_bins,
-                period_samples,
-                periods,
+                record.u,
+                record.y,
+                record.fs_hz,
+                record.excited_bins,
+                record.period_samples,
+                record.n_periods,
                 n_basis,
-                n_transient=n_transient,
-                window_lines=window_lines,
-                neighbours=neighbours,
-                input_tolerance=input_tolerance,
                 basis_family=family,
+                **options,
             )
-        scores.append(predicted_validation_vaf(est, u_arr, y_arr))
+        scores.append(predicted_validation_vaf(est, record.u, record.y))
         if best is None or scores[-1] > max(scores[:-1]):
             best = est
     assert best is not None
-    return BasisSelection(family, best.n_basis, stable, candidates, tuple(scores), best)
+    return BasisSelection(
+        family,
+        best.n_basis,
+        search.n_stable,
+        candidates,
+        tuple(scores),
+        best,
+        search.n_cap,
+        search.reason,
+    )
+
+
+def _room_cap(
+    family: str, cap: int, spacing: int, record_bins: NDArray[np.int64], n: int, fs_hz: float
+) -> tuple[int, str]:
+    """The family's cap after what the record's bins allow at all, and why it is lower.
+
+    Fourier harmonics beyond those a line owns alone are refused by :func:`identify_ltv`
+    (they share bins with the next line's skirt, or reach DC); B-splines need two samples
+    per knot interval.
+    """
+    if family == "fourier":
+        room = max(min((spacing - 1) // 2, int(record_bins[0]) - 1), 0)
+        if 2 * room + 1 < cap:
+            what = (
+                f"the next line's, {spacing} record bins ({spacing * fs_hz / n:.3g} Hz) away"
+                if (spacing - 1) // 2 <= int(record_bins[0]) - 1
+                else f"DC's (the lowest line is record bin {int(record_bins[0])})"
+            )
+            return 2 * room + 1, (
+                f"N_p ≤ {2 * room + 1} of {cap}: harmonic {room + 1} of the record would put "
+                f"a line's skirt on {what}; record more periods to allow more"
+            )
+    if family == "bspline" and n // 2 < cap:
+        return n // 2, f"N_p ≤ {n // 2} of {cap}: {n} samples give under 2 per knot beyond"
+    return cap, ""
+
+
+def _conditioning_reason(
+    cond: SkirtConditioning, stable: int, n_cap: int, n: int, fs_hz: float
+) -> str:
+    """One line: why the search stopped at ``stable`` (``cond`` is at ``stable + 1``)."""
+    df = cond.spacing_bins * fs_hz / n
+    worst = cond.max_variance_inflation
+    why = (
+        f"the variance ×{worst:.3g} (limit {WARN_VARIANCE_INFLATION:g})"
+        if np.isfinite(worst)
+        else "them singular"
+    )
+    return (
+        f"N_p ≤ {stable} of {n_cap}: at N_p = {stable + 1} the skirts of lines "
+        f"{cond.spacing_bins} record bins ({df:.3g} Hz) apart overlap and inflate {why}; "
+        "more periods or lines further apart allow more"
+    )
+
+
+def select_model(
+    u: ArrayLike,
+    y: ArrayLike,
+    fs_hz: float,
+    excited_bins: ArrayLike,
+    period_samples: int,
+    n_periods: int | None = None,
+    *,
+    families: tuple[str, ...] = BASIS_FAMILIES,
+    n_transient: int | None = None,
+    window_lines: float = 1.25,
+    neighbours: int = 1,
+    input_tolerance: float = DEFAULT_INPUT_TOLERANCE,
+) -> ModelSelection:
+    """Choose the basis family and ``N_p`` from the record: each family's best ``N_p``
+    (:func:`select_basis_size`), then the family of best predicted validation VAF.
+
+    A family with no usable ``N_p`` for the line spacing is skipped (``refused`` says why);
+    if none is usable the first refusal is raised. Arguments as in :func:`identify_ltv`.
+
+    Only the bins up to the highest line plus 2.5 line spacings enter the local problems,
+    so when the record is sampled far above that (a 2500 Hz recording of lines up to 20 Hz)
+    the search runs on the record band-limited to the fewest samples per period that keep
+    them (exactly, in the DFT: the bins the local problems use are unchanged; the bases
+    sampled at the lower rate move ``G_p`` by well under 1 %) and the chosen model is then
+    estimated on the whole record. The scores are then predicted VAFs
+    of the output in that band (``band_hz``), noise above it excluded.
+
+    Returns
+    -------
+    ModelSelection
+    """
+    if not families:
+        raise InputDataError("select_model needs at least one basis family")
+    full = _SearchRecord.build(u, y, fs_hz, excited_bins, period_samples, n_periods)
+    record, decimation, band_hz = _band_limited(full)
+    chosen: list[BasisSelection] = []
+    refused: list[tuple[str, str]] = []
+    options: dict[str, Any] = dict(
+        n_transient=n_transient,
+        window_lines=window_lines,
+        neighbours=neighbours,
+        input_tolerance=input_tolerance,
+    )
+    for family in families:
+        search = _search_range(
+            check_basis_family(family), None, record, n_transient, window_lines, neighbours
+        )
+        if search.n_stable < 1:
+            refused.append((family, search.reason))
+            continue
+        chosen.append(_score_candidates(family, search, record, **options))
+    if not chosen:
+        raise InputDataError(refused[0][1])
+    chosen.sort(key=lambda sel: -sel.chosen_vaf)
+    best = chosen[0]
+    estimate = best.estimate
+    if decimation > 1:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SkirtConditioningWarning)  # edge lines only
+            estimate = identify_ltv(
+                full.u,
+                full.y,
+                full.fs_hz,
+                full.excited_bins,
+                full.period_samples,
+                full.n_periods,
+                best.n_basis,
+                basis_family=best.basis_family,
+                **options,
+            )
+    return ModelSelection(tuple(chosen), estimate, tuple(refused), decimation, band_hz)
+
+
+#: How far above the highest excited line (in line spacings) the search keeps the
+#: record's spectrum: each local window reaches 1.25 spacings, its neighbours' skirts
+#: beyond.
+_SEARCH_BAND_SPACINGS = 2.5
+
+
+def _band_limited(record: _SearchRecord) -> tuple[_SearchRecord, int, float]:
+    """The record resampled to ``1/d`` of its samples, ``d`` the largest divisor of the
+    period that keeps every bin up to the highest line + :data:`_SEARCH_BAND_SPACINGS`
+    spacings below the new Nyquist bin, and the band kept (Hz); ``(record, 1, fs/2)`` when
+    no ``d > 1`` does.
+
+    Exact for what the search uses: the DFT bins kept are the record's, scaled by ``1/d``,
+    so the excited lines (and the input's check) are unchanged.
+    """
+    n, period = record.n_samples, record.period_samples
+    keep = int(record.record_bins[-1] + _SEARCH_BAND_SPACINGS * record.spacing)
+    d = max(
+        (d for d in range(1, period + 1) if period % d == 0 and (n // d - 1) // 2 > keep),
+        default=1,
+    )
+    if d == 1:
+        return record, 1, record.fs_hz / 2
+    n_short = n // d
+
+    def resample(x: FloatArray) -> FloatArray:
+        spectrum = np.fft.rfft(x)[: n_short // 2 + 1]
+        spectrum[keep + 1 :] = 0.0  # nothing at or near the new Nyquist bin
+        return np.asarray(np.fft.irfft(spectrum, n_short) / d, dtype=float)
+
+    short = _SearchRecord(
+        resample(record.u),
+        resample(record.y),
+        record.fs_hz / d,
+        record.excited_bins,
+        period // d,
+        record.n_periods,
+        record.record_bins,
+        record.spacing,
+    )
+    return short, d, keep * record.fs_hz / n

@@ -51,7 +51,7 @@ class StiffnessFunction(Protocol):
         ...
 
 
-#: Plant of the published study: I = 0.02 N·m·s²/rad, B = 0.05 N·m·s/rad.
+#: Plant of the published study: I = 0.02 kg·m², B = 0.05 N·m·s/rad.
 STUDY_JOINT = JointParameters(inertia=0.02, damping=0.05, stiffness=0.4)
 
 #: Case name -> (stiffness profile kind, description).
@@ -302,7 +302,7 @@ class LtvExperiment:
     period_samples : int
         Samples per multisine period.
     inertia, damping : float
-        True ``I`` (N·m·s²/rad) and ``B`` (N·m·s/rad).
+        True ``I`` (kg·m²) and ``B`` (N·m·s/rad).
     """
 
     torque_nm: FloatArray

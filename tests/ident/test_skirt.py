@@ -10,14 +10,17 @@ from rtsid.ident.skirt import (
     WARN_VARIANCE_INFLATION,
     LtvEstimate,
     SkirtConditioningWarning,
+    _band_limited,
     _design,
     _layouts,
+    _SearchRecord,
     basis_functions,
     fit_admittance,
     identify_ltv,
     legendre_basis,
     max_stable_basis,
     select_basis_size,
+    select_model,
     skirt_conditioning,
 )
 
@@ -362,6 +365,10 @@ def test_fourier_recovers_a_cyclic_change_that_legendre_cannot(ms):
         u, noisy, FS, ms.excited_bins, ms.period_samples, basis_family="fourier"
     )
     assert sel.n_basis >= 9 and sel.n_stable == 19  # lines 20 bins apart: harmonics ≤ 9
+    assert sel.n_cap == 101 and sel.cap_reason.startswith(
+        "N_p ≤ 19 of 101: harmonic 10 of the record would put a line's skirt on the next "
+        "line's, 20 record bins (1 Hz) away"
+    )
     assert all(c % 2 for c in sel.candidates)  # whole harmonics only
     below = [v for c, v in zip(sel.candidates, sel.predicted_vaf, strict=True) if c < 9]
     assert sel.chosen_vaf > max(below)
@@ -435,3 +442,65 @@ def test_bspline_conditioning_ignores_the_basis_own_correlation():
     assert max_stable_basis(n, 160, n_max=40, basis_family="bspline") > max_stable_basis(
         n, 160, n_max=40
     )
+
+
+def _cyclic_record(ms, noise=0.02, seed=5):
+    """A Fourier-exact LTV output (2 cycles per record) with white noise, at FS."""
+    g0 = admittance(2.0, 2 * np.pi * ms.frequencies_hz)
+    g_p = np.zeros((5, g0.size), dtype=complex)
+    g_p[0], g_p[3] = g0, 0.4 * g0  # row 3: cos 2θ
+    u = ms.samples(PERIODS)
+    y = family_output(u, ms.excited_bins, g_p, "fourier")
+    rng = np.random.default_rng(seed)
+    return u, y + noise * np.std(y) * rng.standard_normal(y.size)
+
+
+def test_the_search_runs_on_the_band_limited_record_with_the_same_lines():
+    """Lines up to 5 Hz sampled at 100 Hz: the search keeps the bins up to the highest line
+    + 2.5 spacings and resamples to the fewest samples per period that hold them."""
+    low = multisine(FS, 2.0, 5.0, every=2, rms=0.1, seed=7)  # lines 20 record bins apart
+    u, y = _cyclic_record(low)
+    full = _SearchRecord.build(u, y, FS, low.excited_bins, low.period_samples, None)
+    short, d, band_hz = _band_limited(full)
+    assert d == 5 and short.n_samples == u.size // 5 and short.period_samples == 40
+    assert band_hz == pytest.approx((100 + 2.5 * 20) * FS / u.size)
+    # The kept bins are the record's (scaled by 1/d), so the local problems see the same data.
+    kept = np.arange(151)
+    np.testing.assert_allclose(np.fft.rfft(short.y)[kept] * d, np.fft.rfft(y)[kept], atol=1e-9)
+    np.testing.assert_allclose(np.fft.rfft(short.u)[kept] * d, np.fft.rfft(u)[kept], atol=1e-9)
+    # The estimates from it: the same for Fourier terms (periodic over either record); the
+    # other bases sampled at the lower rate move G_p by well under 1 %.
+    tolerance = {"fourier": 1e-9, "legendre": 1e-2, "bspline": 1e-2}
+    for family in BASIS_FAMILIES:
+        a = identify_ltv(
+            u, y, FS, low.excited_bins, low.period_samples, n_basis=5, basis_family=family
+        )
+        b = identify_ltv(
+            short.u,
+            short.y,
+            FS / d,
+            low.excited_bins,
+            short.period_samples,
+            n_basis=5,
+            basis_family=family,
+        )
+        assert np.max(np.abs(a.G_p - b.G_p)) < tolerance[family] * np.max(np.abs(a.G_p))
+
+
+def test_select_model_chooses_the_family_and_n_p_of_best_predicted_vaf(ms):
+    u, y = _cyclic_record(ms)
+    chosen = select_model(u, y, FS, ms.excited_bins, ms.period_samples)
+    scores = [sel.chosen_vaf for sel in chosen.families]
+    assert scores == sorted(scores, reverse=True)
+    assert {sel.basis_family for sel in chosen.families} == set(BASIS_FAMILIES)
+    assert chosen.chosen.basis_family == "fourier" and chosen.chosen.n_basis >= 5
+    # Each family's choice is select_basis_size's on the record the search ran on.
+    assert chosen.decimation == 2
+    one = select_model(u, y, FS, ms.excited_bins, ms.period_samples, families=("legendre",))
+    assert one.families[0].n_basis == chosen.families[-1].n_basis or len(one.families) == 1
+    # The chosen model comes back estimated on the whole record.
+    assert chosen.estimate.n_samples == u.size
+    assert chosen.estimate.basis_family == "fourier"
+    assert chosen.estimate.n_basis == chosen.chosen.n_basis
+    with pytest.raises(InputDataError, match="unknown basis family"):
+        select_model(u, y, FS, ms.excited_bins, ms.period_samples, families=("wavelet",))
