@@ -25,6 +25,7 @@ class Reason(StrEnum):
     NO_EXCITATION = "no_excitation"
     NUMERICAL = "numerical"
     TOO_SHORT = "too_short"
+    UNIDENTIFIABLE = "unidentifiable"
 
     @property
     def description(self) -> str:
@@ -72,6 +73,8 @@ _REASONS = {
     Reason.NUMERICAL: "the numerics cannot give a trustworthy answer (e.g. not positive "
     "definite, inseparable inertia and stiffness)",
     Reason.TOO_SHORT: "the window is too short for the analysis (filter, lags, stencils)",
+    Reason.UNIDENTIFIABLE: "the fit reads K <= 0 and the second-order model does not match the "
+    "window's own IRF (model_mismatch): no joint's impedance, so no estimate",
 }
 _FLAGS = {
     Flag.LOW_VAF: "the I/B/K model explains less of the torque than low_vaf_percent",

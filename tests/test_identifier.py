@@ -132,3 +132,32 @@ def test_the_published_vaf_ranks_windows_like_the_benchmarks_yardstick(reklab_pa
     assert abs(np.median(published) - np.median(yardstick)) <= 2.0
     # low_vaf fires on every window below the threshold of that same figure, and only there
     assert all(("low_vaf" in w.flags) == (w.vaf < 50.0) for w in ok)
+
+
+def test_a_lone_window_withholds_every_window_the_stream_withholds(reklab_path):
+    from rtsid.errors import WindowError
+    from rtsid.ident.window import EstimatorOptions, analyse_window, estimate_window
+
+    record = load_samples(reklab_path)
+    pos, tor, fs = record.position_rad, record.torque_nm, record.fs_hz
+    stream = identify(pos, tor, fs, torque_sign=-1)
+    options = EstimatorOptions(torque_sign=-1)
+    first = next(w for w in stream if w.ok)
+    plan = analyse_window(*_span(first, pos, tor), fs, options).plan
+    levels = [analyse_window(*_span(w, pos, tor), fs, options, plan).excitation_rad for w in stream]
+    typical = float(np.median(levels))
+    withheld = [w for w in stream if not w.ok]
+    assert {w.reason for w in withheld} == {"no_excitation", "unidentifiable"}
+    for w in withheld:
+        with pytest.raises(WindowError) as caught:
+            estimate_window(*_span(w, pos, tor), fs, options, typical_excitation_rad=typical)
+        assert caught.value.reason == w.reason
+    # the garbage a lone call used to return (planned from its own weak window: K -5580)
+    with pytest.raises(WindowError, match="not a joint's impedance") as caught:
+        estimate_window(pos[11800:12100], tor[11800:12100], fs, options)
+    assert caught.value.reason == "unidentifiable"
+
+
+def _span(window, position, torque):
+    span = slice(window.window_start_index, window.window_end_index + 1)
+    return position[span], torque[span]

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from rtsid.errors import WindowError
 from rtsid.ident.filters import stencil_derivatives
 from rtsid.ident.fit import NOT_HELD, Held
 from rtsid.ident.front import ScoredBand
@@ -29,7 +30,7 @@ from rtsid.ident.irf import IRF
 from rtsid.ident.options import EstimatorOptions
 from rtsid.ident.second_order import OutputErrorFit
 from rtsid.ident.vaf import vaf
-from rtsid.verdicts import Flag
+from rtsid.verdicts import Flag, Reason
 
 __all__ = [
     "TorquePredictions",
@@ -40,6 +41,7 @@ __all__ = [
     "published_vaf",
     "three_vafs",
     "window_flags",
+    "withhold_unidentifiable",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -305,3 +307,22 @@ def window_flags(
         (math.isfinite(se[2]) and se[2] > 0.1 * abs(stiffness), Flag.STIFFNESS_UNCERTAIN),
     )
     return tuple(flag for raised, flag in checks if raised)
+
+
+#: An estimate carrying all of these is no joint's impedance: withheld, not published.
+UNIDENTIFIABLE = frozenset({Flag.NEGATIVE_STIFFNESS, Flag.MODEL_MISMATCH})
+
+
+def withhold_unidentifiable(estimate: WindowEstimate) -> WindowEstimate:
+    """``estimate``, unless it reads K <= 0 while its model does not even match the window's
+    own IRF: then :class:`~rtsid.errors.WindowError` (``"unidentifiable"``). On the shared
+    human recording such windows read K = −1316 N·m/rad (a torque burst) or, planned from a
+    window alone, −5580; a stream and a lone call withhold them alike."""
+    if UNIDENTIFIABLE.issubset(estimate.flags):
+        raise WindowError(
+            f"the window's fit reads K = {estimate.K:.4g} N·m/rad and the second-order model "
+            f"explains {estimate.vaf_fit:.0f} % of its own IRF: not a joint's impedance, "
+            "withheld",
+            Reason.UNIDENTIFIABLE,
+        )
+    return estimate

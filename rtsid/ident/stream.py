@@ -28,6 +28,7 @@ from numpy.typing import ArrayLike
 
 from rtsid.errors import InputDataError, NumericalError, WindowError
 from rtsid.ident.analysis import AnalysisPlan
+from rtsid.ident.assess import withhold_unidentifiable
 from rtsid.ident.grid import window_ends
 from rtsid.ident.second_order import OutputErrorDesign
 from rtsid.ident.split import NewestPart, SplitProblem, SplitScan
@@ -280,8 +281,21 @@ class WindowStream:
         and one least-squares design: in full (learned from) and with the held values
         (returned).
         """
-        options = self.options
         self._split_source = None
+        try:
+            return withhold_unidentifiable(self._fit(position, torque, valid, explained))
+        except WindowError:
+            self._split_source = None
+            raise
+
+    def _fit(
+        self,
+        position: ArrayLike,
+        torque: ArrayLike,
+        valid: ArrayLike | None,
+        explained: ArrayLike | None,
+    ) -> WindowEstimate:
+        options = self.options
         window = analyse_window(
             position,
             torque,

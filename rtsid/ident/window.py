@@ -42,6 +42,7 @@ from rtsid.ident.assess import (
     published_vaf,
     supported_edge,
     window_flags,
+    withhold_unidentifiable,
 )
 from rtsid.ident.check import check_relative_excitation, check_window, without_lost
 from rtsid.ident.fit import NOT_HELD, Held, held_values, output_error_design, output_error_fit
@@ -91,9 +92,23 @@ def estimate_window(
     plan: AnalysisPlan | None = None,
     held: Held = NOT_HELD,
     valid: ArrayLike | None = None,
+    typical_excitation_rad: float | None = None,
     **overrides: Any,
 ) -> WindowEstimate:
     """Identify joint impedance ``(I, B, K)`` from one window of position and torque.
+
+    One window alone. For the numbers ``rtsid identify``, replay and the daemon give, use
+    :class:`rtsid.Identifier` (or :func:`rtsid.identify`): a stream plans its analysis once,
+    from its first estimable window, holds I and B at the median of its own full fits,
+    tracks K and subtracts the slow lane's reflex torque — none of which one window can do.
+    A lone call plans from its own window (a weakly perturbed window then gets a narrow,
+    poor plan: pass the stream's ``plan``), holds only what ``held`` (or
+    ``options.hold_inertia``) gives it (``hold`` alone holds nothing: holding needs values
+    learned over ``hold_horizon_s`` of earlier windows), and withholds every window a stream
+    withholds: the checks of one window, the ``unidentifiable`` fits
+    (:func:`rtsid.ident.assess.withhold_unidentifiable`), and with
+    ``typical_excitation_rad`` the paused-perturbation check a stream makes against its own
+    recent windows.
 
     Parameters
     ----------
@@ -114,6 +129,9 @@ def estimate_window(
     valid : array_like of bool, shape (n,), optional
         False for lost samples (their values are ignored): bridged by sums over valid samples
         only, up to ``max_lost_percent`` and ``max_gap_s`` (:mod:`rtsid.ident.gaps`).
+    typical_excitation_rad : float, optional
+        The stream's typical band-limited position SD, rad: a window below
+        ``min_relative_excitation`` of it is withheld (``"no_excitation"``), as a stream does.
 
     Returns
     -------
@@ -124,7 +142,7 @@ def estimate_window(
     ------
     WindowError
         The window must not be estimated: ``reason`` is ``"nan"``, ``"too_short"``,
-        ``"no_excitation"`` or ``"gap"``.
+        ``"no_excitation"``, ``"gap"`` or ``"unidentifiable"``.
     NotPositiveDefiniteError
         The perturbation does not excite enough bandwidth for the lag span.
     InputDataError
@@ -145,8 +163,11 @@ def estimate_window(
     if overrides:
         options = replace(options, **overrides)
     window = analyse_window(position, torque, fs, options, plan, valid)  # steps 1–3
+    if typical_excitation_rad is not None:
+        check_relative_excitation(window.excitation_rad, typical_excitation_rad, options)
     held = held_values(options, held)
-    return back_end(*window.signals, options, window.plan, held, window.gaps, window.score)
+    estimate = back_end(*window.signals, options, window.plan, held, window.gaps, window.score)
+    return withhold_unidentifiable(estimate)
 
 
 @dataclass(frozen=True)
