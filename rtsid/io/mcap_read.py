@@ -27,6 +27,7 @@ from rtsid.io.schemas import SCHEMAS, SampleBatch, decode_samples
 
 __all__ = [
     "ReadReport",
+    "holds_no_record",
     "iter_can_frames",
     "iter_estimates",
     "iter_messages",
@@ -271,12 +272,13 @@ def recording_parts(path: str | Path) -> list[Path]:
 
     A daemon's session is ``rtsid-<robot>-<joint>-<UTC>.mcap`` followed by ``-001``, ``-002``, …
     after rotation (or after a write error). Given any part, returns the existing parts in the
-    same directory sorted by part number (a file not named that way is returned alone).
+    same directory sorted by part number (a file not named that way is returned alone, and so
+    is a ``…-recovered.mcap`` written by ``rtsid recover``).
     """
     p = Path(path)
     match = _PART.match(p.name)
-    if match is None:
-        return [p]
+    if match is None or p.name.endswith("-recovered.mcap"):
+        return [p]  # a recovered file is read as itself, never as its session's damaged part
     session = match["session"]
     parts = []
     for candidate in p.parent.glob(f"{session}*.mcap"):
@@ -288,6 +290,22 @@ def recording_parts(path: str | Path) -> list[Path]:
         ):
             parts.append((int(m["part"] or 0), candidate))
     return [c for _n, c in sorted(parts)] or [p]
+
+
+def holds_no_record(path: str | Path) -> bool:
+    """Whether ``path`` is empty or ends inside the MCAP magic and header (a part created when
+    the disk was already full), so that it holds nothing to read."""
+    from mcap.exceptions import EndOfFile, McapError
+    from mcap.stream_reader import StreamReader
+
+    with _open(path) as fh:
+        try:
+            next(StreamReader(fh, record_size_limit=1 << 30).records)
+        except EndOfFile:
+            return True
+        except (McapError, StopIteration, ValueError, struct.error):
+            return False
+    return False
 
 
 def sample_count(path: str | Path) -> int:
