@@ -15,6 +15,13 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+from hypothesis import settings  # noqa: E402
+
+# Property-based (fuzz) tests: "ci" keeps the default run fast; "nightly" is the long run
+# (RTSID_HYPOTHESIS_PROFILE=nightly python -m pytest tests -k fuzz, see docs/io.md).
+settings.register_profile("ci", max_examples=50, deadline=None)
+settings.register_profile("nightly", max_examples=2000, deadline=None)
+settings.load_profile(os.environ.get("RTSID_HYPOTHESIS_PROFILE", "ci"))
 
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 REKLAB = SHARED_DATA / "reklab_ankle_z.npz"
