@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import math
 import re
 import struct
 from collections.abc import Generator, Iterable, Iterator
@@ -21,7 +22,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from rtsid import __version__
-from rtsid.errors import RecordingError
+from rtsid.errors import InputDataError, RecordingError
 from rtsid.io.files import atomic_write
 from rtsid.io.schemas import SCHEMAS, SampleBatch, decode_samples
 
@@ -41,6 +42,11 @@ __all__ = [
     "sample_count",
     "summarize",
 ]
+
+#: Largest MCAP record or chunk (uncompressed) read, bytes: rtsid writes chunks of at most
+#: ``[mcap] chunk_size`` (64 MiB) plus one message, so larger is damage, refused before it is
+#: allocated.
+MAX_RECORD_BYTES = 256 << 20
 
 _STOPPED = (
     "the writer stopped before finishing the file: kill -9, a crash, a full disk or a torn copy"
@@ -106,7 +112,7 @@ def _iter_records(path: str | Path, report: ReadReport) -> Generator[Any, None, 
 
     damage = _damage_errors()
     with _open(path) as fh:
-        reader = StreamReader(fh, emit_chunks=True, record_size_limit=1 << 30)
+        reader = StreamReader(fh, emit_chunks=True, record_size_limit=MAX_RECORD_BYTES)
         records = reader.records
         first = True
         while True:
@@ -139,6 +145,13 @@ def _iter_records(path: str | Path, report: ReadReport) -> Generator[Any, None, 
                 return
             first = False
             if isinstance(record, Chunk):
+                if record.uncompressed_size > MAX_RECORD_BYTES:
+                    report.error = (
+                        f"damaged chunk after {report.messages} messages: it declares "
+                        f"{record.uncompressed_size} bytes, more than the "
+                        f"{MAX_RECORD_BYTES >> 20} MiB a chunk may hold"
+                    )
+                    return
                 try:
                     inner = breakup_chunk(record, validate_crc=True)
                 except damage as exc:
@@ -209,19 +222,29 @@ def iter_sample_batches(
         gap, never bridged).
     """
     for message in _iter_topic(path, "samples", report):
-        yield decode_samples(message.data, message.log_time)
+        try:
+            batch = decode_samples(message.data, message.log_time)
+        except (InputDataError, OverflowError, RecursionError) as exc:
+            reason = str(exc)[:200] or type(exc).__name__
+            raise RecordingError(f"{path}: a /samples message does not read: {reason}") from None
+        if not (math.isfinite(batch.fs_hz) and batch.fs_hz > 0 and 0 <= batch.first_index < 2**62):
+            raise RecordingError(
+                f"{path}: a /samples message says fs_hz = {batch.fs_hz!r}, first_index = "
+                f"{batch.first_index}; the file is damaged or not rtsid's"
+            )
+        yield batch
 
 
 def iter_estimates(path: str | Path, report: ReadReport | None = None) -> Iterator[dict[str, Any]]:
     """Estimate messages of one file (dicts following ESTIMATE_SCHEMA; null numbers → None)."""
     for message in _iter_topic(path, "estimate", report):
-        yield json.loads(message.data)
+        yield _json_object(message.data, path, "an estimate")
 
 
 def iter_status(path: str | Path) -> Iterator[dict[str, Any]]:
     """Status messages (dicts following STATUS_SCHEMA)."""
     for message in _iter_topic(path, "status", None):
-        yield json.loads(message.data)
+        yield _json_object(message.data, path, "a status message")
 
 
 def iter_can_frames(path: str | Path) -> Iterator[Any]:
@@ -259,7 +282,26 @@ def read_run_config(path: str | Path) -> dict[str, Any]:
 def run_config_from_metadata(metadata: dict[str, dict[str, str]]) -> dict[str, Any]:
     """The daemon configuration in :func:`read_metadata`'s result (``{}`` when none)."""
     meta = metadata.get("config", {})
-    return dict(json.loads(meta["json"])) if "json" in meta else {}
+    return (
+        _json_object(meta["json"], "the recording", "its config metadata") if "json" in meta else {}
+    )
+
+
+def _json_object(data: bytes | str, path: str | Path, what: str) -> dict[str, Any]:
+    """``data`` parsed as a JSON object; anything else is a RecordingError naming ``what``."""
+    try:
+        value = json.loads(data)
+    except (ValueError, RecursionError) as exc:
+        reason = type(exc).__name__ if isinstance(exc, RecursionError) else str(exc)[:100]
+        raise RecordingError(
+            f"{path}: {what} is not valid JSON ({reason}); the file is damaged or not rtsid's"
+        ) from None
+    if not isinstance(value, dict):
+        raise RecordingError(
+            f"{path}: {what} is {type(value).__name__}, not a JSON object; the file is "
+            "damaged or not rtsid's"
+        )
+    return value
 
 
 _PART = re.compile(
@@ -300,7 +342,7 @@ def holds_no_record(path: str | Path) -> bool:
 
     with _open(path) as fh:
         try:
-            next(StreamReader(fh, record_size_limit=1 << 30).records)
+            next(StreamReader(fh, record_size_limit=MAX_RECORD_BYTES).records)
         except EndOfFile:
             return True
         except (McapError, StopIteration, ValueError, struct.error):

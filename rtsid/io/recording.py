@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from rtsid.errors import IncompleteRecordingWarning, RecordingError, RtsidWarning
+from rtsid.io.files import MAX_ROWS
 from rtsid.io.mcap_read import (
     ReadReport,
     holds_no_record,
@@ -172,6 +173,12 @@ class SampleGrid:
 
     def _make_room(self, extra: int) -> None:
         kept = len(self)
+        if kept + extra > MAX_ROWS:
+            raise RecordingError(
+                f"{kept + extra} rows at {self.fs_hz:g} Hz (a gap up to sample "
+                f"{self.end_index + extra}) exceed the {MAX_ROWS} rows one read holds; the "
+                "recording is damaged, or read its parts one by one"
+            )
         if self._hi + extra <= self._position.size:
             return
         size = self._position.size
