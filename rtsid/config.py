@@ -138,11 +138,13 @@ def section_from_mapping(cls: type[T], mapping: Mapping[str, Any] | None, sectio
     Raises
     ------
     ConfigError
-        An unknown key (with the accepted keys), a value of the wrong type, a NaN or
+        Not a table, an unknown key (with the accepted keys), a value of the wrong type, a NaN or
         infinite number, or a value the dataclass's own ``__post_init__`` rejects.
     """
     if not dataclasses.is_dataclass(cls):
         raise TypeError(f"{cls!r} is not a dataclass")
+    if mapping is not None and not isinstance(mapping, Mapping):
+        raise invalid(section, mapping, f"a table [{section}]")
     mapping = dict(mapping or {})
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}

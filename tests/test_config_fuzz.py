@@ -267,3 +267,16 @@ def test_plant_port_out_of_range_is_one_line(capsys: pytest.CaptureFixture[str],
     """Issue 20: `rtsid plant --port 70000` ended in an OverflowError traceback."""
     assert main(["plant", "--port", port]) == 2
     assert f"--port {port} is not a TCP port; pass 0..65535" in _one_error_line(capsys, "plant")
+
+
+def test_identify_refuses_an_estimator_that_is_not_a_table(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    config = tmp_path / "c.toml"
+    config.write_text("estimator = 5\n")
+    samples = tmp_path / "samples.csv"
+    samples.write_text("t_s,position_rad,torque_nm\n0,0,0\n0.1,0,0\n")
+    assert main(["identify", str(samples), "--config", str(config)]) == 2
+    assert "'estimator' = 5 is not accepted; expected a table [estimator]" in _one_error_line(
+        capsys, "identify"
+    )
