@@ -139,6 +139,14 @@ def samples_payloads(draw: st.DrawFn) -> bytes:
     config="[",
 )
 @example(payloads=[b"[" * 100_000], estimate=None, config="{}")
+@example(
+    payloads=[
+        b'{"first_index": 0, "fs_hz": 2500.0, "position_rad": [], "torque_nm": null, '
+        b'"valid": [], "status": []}'
+    ],
+    estimate=None,
+    config="",
+)
 def test_fuzz_well_formed_files_with_garbage_messages(
     tmp_path: Path, payloads: list[bytes], estimate: Any, config: str
 ) -> None:
