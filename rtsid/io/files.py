@@ -39,7 +39,7 @@ __all__ = [
 ]
 
 #: Most rows of samples one import holds (gaps included): 2 h 13 min at 2500 Hz. An import
-#: needs about 60 bytes per row at its peak, so at most about 1.2 GB (docs/io.md).
+#: needs at most about 100 bytes per row at its peak, so about 2 GB at the cap (docs/io.md).
 MAX_ROWS = 20_000_000
 #: Largest sample file read: a ``.csv`` file's size, or the sum of an ``.npz`` file's arrays
 #: as their headers declare them (uncompressed), bytes (1 GiB).
