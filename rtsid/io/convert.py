@@ -234,6 +234,51 @@ def _open_reader(path: Path) -> Any:
         raise
 
 
+#: Largest BLF object (a container of frames) read, compressed or not, bytes: loggers write
+#: containers of about 128 KiB; a larger size is damage or a decompression bomb, refused
+#: before python-can's reader would allocate or inflate it.
+MAX_BLF_OBJECT_BYTES = 64 << 20
+
+
+def _check_blf_objects(path: Path) -> None:
+    """Walk a BLF file's object headers (inflating each container in bounded steps) and refuse
+    any header or object larger than :data:`MAX_BLF_OBJECT_BYTES` before python-can reads it.
+    Other damage is left for python-can's reader to report."""
+    from can.io import blf
+
+    def too_large(what: str, n_bytes: int) -> InputDataError:
+        return InputDataError(
+            f"{path}: a BLF {what} of {n_bytes} bytes is larger than the "
+            f"{MAX_BLF_OBJECT_BYTES >> 20} MiB rtsid reads; the file is damaged"
+        )
+
+    with path.open("rb") as fh:
+        head = fh.read(blf.FILE_HEADER_STRUCT.size)
+        if len(head) < blf.FILE_HEADER_STRUCT.size or head[:4] != b"LOGG":
+            return
+        header_size = blf.FILE_HEADER_STRUCT.unpack(head)[1]
+        if header_size > MAX_BLF_OBJECT_BYTES:
+            raise too_large("file header", header_size)
+        fh.seek(max(header_size, blf.FILE_HEADER_STRUCT.size))
+        base_size = blf.OBJ_HEADER_BASE_STRUCT.size
+        while len(base := fh.read(base_size)) == base_size:
+            signature, _hs, _hv, obj_size, obj_type = blf.OBJ_HEADER_BASE_STRUCT.unpack(base)
+            if signature != b"LOBJ":
+                return
+            if not base_size <= obj_size <= MAX_BLF_OBJECT_BYTES:
+                raise too_large("object", obj_size)
+            body = fh.read(obj_size - base_size)
+            fh.seek(obj_size % 4, 1)
+            container = blf.LOG_CONTAINER_STRUCT.size
+            if obj_type != blf.LOG_CONTAINER or len(body) < container:
+                continue
+            method, _declared = blf.LOG_CONTAINER_STRUCT.unpack_from(body)
+            if method == blf.ZLIB_DEFLATE:
+                inflated = zlib.decompressobj().decompress(body[container:], MAX_BLF_OBJECT_BYTES)
+                if len(inflated) >= MAX_BLF_OBJECT_BYTES:
+                    raise too_large("container, inflated,", len(inflated))
+
+
 def _frames(path: Path, counters: ImportCounters | None = None) -> Iterator[Any]:
     """The frames of a CAN capture, in file order; a file python-can cannot read (garbage,
     another format, a damaged record) is an InputDataError naming it. Lines its text readers
@@ -244,6 +289,8 @@ def _frames(path: Path, counters: ImportCounters | None = None) -> Iterator[Any]
     for logger in loggers:
         logger.addFilter(quiet)
     try:
+        if path.suffix.lower() == ".blf":
+            _check_blf_objects(path)
         with _open_reader(path) as reader:
             yield from reader
     except errors as exc:

@@ -169,3 +169,38 @@ def test_convert_of_a_garbage_capture_is_one_line_and_writes_nothing(
     assert len(lines) == 1 and "Traceback" not in captured.err, captured.err
     assert lines[0].startswith(f"rtsid convert: error: {path}")
     assert not out.exists()
+
+
+def _blf_container(compressed: bytes, uncompressed_size: int) -> bytes:
+    from can.io import blf
+
+    body = blf.LOG_CONTAINER_STRUCT.pack(blf.ZLIB_DEFLATE, uncompressed_size) + compressed
+    size = blf.OBJ_HEADER_BASE_STRUCT.size + len(body)
+    head = blf.OBJ_HEADER_BASE_STRUCT.pack(b"LOBJ", 16, 1, size, blf.LOG_CONTAINER)
+    return head + body + b"\x00" * (size % 4)
+
+
+def test_a_blf_decompression_bomb_is_refused_before_python_can_inflates_it(
+    tmp_path: Path,
+) -> None:
+    import zlib
+
+    from rtsid.io.convert import MAX_BLF_OBJECT_BYTES
+
+    path = tmp_path / "bomb.blf"
+    write_capture(path, n=10)
+    data = path.read_bytes()
+    squeeze = zlib.compressobj(9)
+    zeros = bytes(1 << 20)
+    bomb = b"".join(squeeze.compress(zeros) for _ in range(80)) + squeeze.flush()  # 80 MiB
+    assert len(bomb) < 200_000
+    path.write_bytes(data + _blf_container(bomb, 80 << 20))
+    with pytest.raises(InputDataError, match=r"a BLF container, inflated, of \d+ bytes is larger"):
+        read_can_log(path, FS)
+    from can.io import blf
+
+    header = blf.OBJ_HEADER_BASE_STRUCT.pack(b"LOBJ", 16, 1, 2**32 - 1, blf.LOG_CONTAINER)
+    path.write_bytes(data + header)
+    with pytest.raises(InputDataError, match=r"a BLF object of 4294967295 bytes is larger than"):
+        read_can_log(path, FS)
+    assert MAX_BLF_OBJECT_BYTES == 64 << 20
