@@ -218,6 +218,32 @@ class _CountParseFailures(logging.Filter):
         return True
 
 
+#: Longest line of a text capture (candump, asc, trc), characters: a frame is < 400.
+MAX_CAPTURE_LINE_CHARS = 1 << 16
+
+
+class _CappedLines:
+    """A text file whose lines python-can iterates, each read with a length cap, so that a
+    file without line breaks is refused, not held whole."""
+
+    def __init__(self, fh: Any, path: Path) -> None:
+        self._fh = fh
+        self._path = path
+
+    def __iter__(self) -> Iterator[str]:
+        number = 0
+        while line := self._fh.readline(MAX_CAPTURE_LINE_CHARS + 1):
+            number += 1
+            if len(line) > MAX_CAPTURE_LINE_CHARS:
+                raise InputDataError(
+                    f"line {number} is longer than {MAX_CAPTURE_LINE_CHARS} characters"
+                )
+            yield line
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._fh, name)
+
+
 def _open_reader(path: Path) -> Any:
     """python-can's reader for ``path``'s suffix, on a file opened here (so that a reader that
     refuses the file in its constructor leaves no file open)."""
@@ -228,7 +254,7 @@ def _open_reader(path: Path) -> Any:
     binary = issubclass(reader_type, BinaryIOMessageReader)
     fh = path.open("rb") if binary else path.open(encoding="utf-8", errors="replace")
     try:
-        return reader_type(fh)
+        return reader_type(fh if binary else _CappedLines(fh, path))
     except BaseException:
         fh.close()
         raise

@@ -204,3 +204,13 @@ def test_a_blf_decompression_bomb_is_refused_before_python_can_inflates_it(
     with pytest.raises(InputDataError, match=r"a BLF object of 4294967295 bytes is larger than"):
         read_can_log(path, FS)
     assert MAX_BLF_OBJECT_BYTES == 64 << 20
+
+
+@pytest.mark.parametrize("suffix", [".log", ".asc", ".trc"])
+def test_a_text_capture_without_line_breaks_is_refused_at_the_line_cap(
+    tmp_path: Path, suffix: str
+) -> None:
+    path = tmp_path / f"one_line{suffix}"
+    path.write_bytes(b"(1.0) can0 0A0#" + b"0" * 100_000)
+    with pytest.raises(InputDataError, match=r"line 1 is longer than 65536 characters"):
+        read_can_log(path, FS)
