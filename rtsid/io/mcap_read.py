@@ -145,10 +145,11 @@ def _iter_records(path: str | Path, report: ReadReport) -> Generator[Any, None, 
                 return
             first = False
             if isinstance(record, Chunk):
-                if record.uncompressed_size > MAX_RECORD_BYTES:
+                declared = max(record.uncompressed_size, _compressed_content_size(record))
+                if declared > MAX_RECORD_BYTES:
                     report.error = (
                         f"damaged chunk after {report.messages} messages: it declares "
-                        f"{record.uncompressed_size} bytes, more than the "
+                        f"{declared} bytes, more than the "
                         f"{MAX_RECORD_BYTES >> 20} MiB a chunk may hold"
                     )
                     return
@@ -164,6 +165,26 @@ def _iter_records(path: str | Path, report: ReadReport) -> Generator[Any, None, 
                 if isinstance(record, Footer):
                     report.complete = True
                 yield record
+
+
+def _compressed_content_size(chunk: Any) -> int:
+    """The size a chunk's compressed frame says it inflates to (0 when it does not say): the
+    decompressors allocate that much whatever the chunk record declares, so a flipped bit in
+    a frame header would otherwise be a multi-gigabyte allocation."""
+    try:
+        if chunk.compression == "zstd":
+            import zstandard
+
+            return max(0, int(zstandard.frame_content_size(chunk.data)))
+        if chunk.compression == "lz4":
+            import lz4.frame
+
+            return max(0, int(lz4.frame.get_frame_info(chunk.data).get("content_size") or 0))
+    except ImportError:
+        return 0
+    except (*_damage_errors(), RuntimeError):  # a frame header that does not parse:
+        return 0  # breakup_chunk says how
+    return 0
 
 
 def iter_messages(

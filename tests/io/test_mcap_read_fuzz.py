@@ -168,10 +168,10 @@ def test_a_gap_beyond_the_row_cap_is_refused_before_allocating(tmp_path: Path) -
         read_recording(path)
 
 
-def _chunk_declaring(uncompressed_size: int) -> bytes:
-    """A chunk record whose header declares ``uncompressed_size`` bytes (holding none)."""
+def _chunk_declaring(uncompressed_size: int, data: bytes = b"") -> bytes:
+    """A zstd chunk record whose header declares ``uncompressed_size`` bytes, holding ``data``."""
     body = struct.pack("<QQQI", 0, 0, uncompressed_size, 0)
-    body += struct.pack("<I", 4) + b"zstd" + struct.pack("<Q", 0)
+    body += struct.pack("<I", 4) + b"zstd" + struct.pack("<Q", len(data)) + data
     return b"\x06" + struct.pack("<Q", len(body)) + body
 
 
@@ -183,6 +183,24 @@ def test_a_chunk_declaring_more_than_the_cap_stops_the_read_as_damage(tmp_path: 
     assert list(iter_messages(path, report)) == []
     assert not report.complete and "more than the 256 MiB a chunk may hold" in str(report.error)
     assert MAX_RECORD_BYTES == 256 << 20
+
+
+def test_a_zstd_frame_declaring_more_than_the_cap_is_not_inflated(tmp_path: Path) -> None:
+    """A bit flipped in a chunk's zstd frame header made the decompressor allocate what the
+    frame declares (found by the replay fuzz test as an out-of-memory exit)."""
+    import zstandard
+
+    size = MAX_RECORD_BYTES + (1 << 20)
+    squeeze = zstandard.ZstdCompressor().compressobj(size=size)
+    zeros = bytes(1 << 20)
+    frame = b"".join(squeeze.compress(zeros) for _ in range(size >> 20)) + squeeze.flush()
+    assert zstandard.frame_content_size(frame) == size and len(frame) < 100_000
+    header = b"\x01" + struct.pack("<Q", 8) + struct.pack("<I", 0) + struct.pack("<I", 0)
+    path = tmp_path / "frame.mcap"
+    path.write_bytes(MAGIC + header + _chunk_declaring(100, frame))
+    report = ReadReport(path)
+    assert list(iter_messages(path, report)) == []
+    assert f"it declares {size} bytes, more than the 256 MiB" in str(report.error)
 
 
 def test_a_record_declaring_a_huge_length_is_damage_not_an_allocation(tmp_path: Path) -> None:
@@ -219,3 +237,28 @@ def test_replay_of_damaged_recordings_is_one_line(
     lines = captured.err.strip().splitlines()
     assert "Traceback" not in captured.err and len(lines) == 1, captured.err
     assert message in lines[0]
+
+
+@settings(
+    max_examples=max(5, settings().max_examples // 5),  # a replay each: a fifth of the profile
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
+)
+@given(draw=st.data())
+def test_fuzz_replay_of_a_mutated_recording_is_done_or_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], draw: st.DataObject
+) -> None:
+    """The whole command, not only the reader: exit 0, 2 or 3, at most one line per warning
+    or error, never a traceback."""
+    original = REFERENCE.read_bytes()
+    out = bytearray(original[: draw.draw(st.integers(0, len(original)), label="cut")])
+    for _ in range(draw.draw(st.integers(0, 4), label="flips")):
+        if out:
+            out[draw.draw(st.integers(0, len(out) - 1))] ^= 1 << draw.draw(st.integers(0, 7))
+    path = tmp_path / "x.mcap"
+    path.write_bytes(bytes(out))
+    capsys.readouterr()
+    code = main(["replay", str(path)])
+    captured = capsys.readouterr()
+    assert code in (0, 2, 3), captured.err
+    assert "Traceback" not in captured.err and "internal error" not in captured.err
+    assert all(line.startswith("rtsid replay: ") for line in captured.err.strip().splitlines())
