@@ -171,6 +171,7 @@ def _compressed_content_size(chunk: Any) -> int:
     """The size a chunk's compressed frame says it inflates to (0 when it does not say): the
     decompressors allocate that much whatever the chunk record declares, so a flipped bit in
     a frame header would otherwise be a multi-gigabyte allocation."""
+    unreadable: tuple[type[BaseException], ...] = (*_damage_errors(), RuntimeError)
     try:
         if chunk.compression == "zstd":
             import zstandard
@@ -182,8 +183,8 @@ def _compressed_content_size(chunk: Any) -> int:
             return max(0, int(lz4.frame.get_frame_info(chunk.data).get("content_size") or 0))
     except ImportError:
         return 0
-    except (*_damage_errors(), RuntimeError):  # a frame header that does not parse:
-        return 0  # breakup_chunk says how
+    except unreadable:  # a frame header that does not parse: breakup_chunk says how
+        return 0
     return 0
 
 
