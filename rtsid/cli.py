@@ -8,7 +8,8 @@ Warnings rtsid issues on purpose (:class:`rtsid.errors.RtsidWarning`) print as o
 Exit status: 0 done; 2 an error (nothing written); 3 done, but a recording it read ended
 early (:class:`rtsid.errors.IncompleteRecordingWarning`): the outputs are complete and correct
 for the part that could be read, and the warning says how much that was — a script must not
-take them for the whole recording without looking; 130 interrupted.
+take them for the whole recording without looking; 70 an internal error (a bug, or out of
+memory: one line says which; ``RTSID_TRACEBACK=1`` shows the traceback); 130 interrupted.
 """
 
 from __future__ import annotations
@@ -76,6 +77,7 @@ def build_parser(commands: Sequence[str] | None = None) -> argparse.ArgumentPars
 
 
 EXIT_INCOMPLETE = 3
+EXIT_BUG = 70  # sysexits EX_SOFTWARE: an exception rtsid did not raise on purpose
 
 
 @contextlib.contextmanager
@@ -120,6 +122,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         # The reader went away (e.g. `rtsid identify … | head`): stop quietly.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except MemoryError:
+        print(
+            f"rtsid {args.command}: error: out of memory; give it a smaller input (the caps "
+            "are in docs/io.md) or more memory",
+            file=sys.stderr,
+        )
+        return EXIT_BUG
+    except Exception as exc:  # last resort: every loader raises RtsidError on purpose
+        if os.environ.get("RTSID_TRACEBACK"):
+            raise
+        where = f"{type(exc).__name__}: {str(exc)[:200]}"
+        print(
+            f"rtsid {args.command}: internal error ({where}); this is a bug in rtsid: please "
+            "report it with the command line (RTSID_TRACEBACK=1 shows the traceback)",
+            file=sys.stderr,
+        )
+        return EXIT_BUG
 
 
 if __name__ == "__main__":

@@ -44,16 +44,44 @@ def require_finite(key: str, value: object) -> None:
             raise invalid(key, value, "a finite number")
 
 
+#: Largest config file read, bytes: a config is a page of settings; anything larger is a
+#: wrong path (a recording, a log), refused before it is read.
+MAX_CONFIG_BYTES = 1 << 20
+
+
 def load_toml(path: str | Path) -> dict[str, Any]:
-    """Read a TOML file; a missing or malformed file is a ConfigError naming the file."""
+    """Read a TOML file; a missing, unreadable, binary, oversized or malformed file is a
+    ConfigError naming the file and the fix."""
     p = Path(path)
+    where = f"config file {str(p)!r}"
     try:
         with p.open("rb") as fh:
-            return tomllib.load(fh)
+            data = fh.read(MAX_CONFIG_BYTES + 1)
     except FileNotFoundError:
-        raise ConfigError(f"config file {str(p)!r} does not exist; check the path") from None
+        raise ConfigError(f"{where} does not exist; check the path") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{where} is a directory; pass the path of a .toml file") from None
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        raise ConfigError(f"{where} cannot be read ({reason}); check the path") from None
+    if len(data) > MAX_CONFIG_BYTES:
+        raise ConfigError(
+            f"{where} is larger than {MAX_CONFIG_BYTES // 1024} KiB, the most a config may be; "
+            "is it the right file?"
+        )
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"{where} is not UTF-8 text (byte {exc.start} is 0x{data[exc.start]:02x}); "
+            "pass a TOML text file"
+        ) from None
+    try:
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"config file {str(p)!r} is not valid TOML: {exc}") from None
+        raise ConfigError(f"{where} is not valid TOML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"{where} nests arrays or tables too deeply; flatten it") from None
 
 
 def _type_matches(value: object, annotation: Any) -> bool:
@@ -77,14 +105,16 @@ def _type_matches(value: object, annotation: Any) -> bool:
         if origin is tuple and args:
             return len(value) == len(args) and all(map(_type_matches, value, args))
         return not args or all(_type_matches(v, args[0]) for v in value)
-    if origin is dict or annotation is dict:
-        return isinstance(value, dict)
+    if origin in (dict, Mapping) or annotation in (dict, Mapping):
+        return isinstance(value, Mapping)
     if isinstance(annotation, type):
         return isinstance(value, annotation)
     return True
 
 
 def _type_name(annotation: Any) -> str:
+    if typing.get_origin(annotation) in (dict, Mapping) or annotation in (dict, Mapping):
+        return "table (e.g. {fd = true})"
     return getattr(annotation, "__name__", None) or str(annotation).replace("typing.", "")
 
 
@@ -108,11 +138,13 @@ def section_from_mapping(cls: type[T], mapping: Mapping[str, Any] | None, sectio
     Raises
     ------
     ConfigError
-        An unknown key (with the accepted keys), a value of the wrong type, a NaN or
+        Not a table, an unknown key (with the accepted keys), a value of the wrong type, a NaN or
         infinite number, or a value the dataclass's own ``__post_init__`` rejects.
     """
     if not dataclasses.is_dataclass(cls):
         raise TypeError(f"{cls!r} is not a dataclass")
+    if mapping is not None and not isinstance(mapping, Mapping):
+        raise invalid(section, mapping, f"a table [{section}]")
     mapping = dict(mapping or {})
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
@@ -131,6 +163,8 @@ def section_from_mapping(cls: type[T], mapping: Mapping[str, Any] | None, sectio
         if isinstance(value, list) and typing.get_origin(annotation) is tuple:
             value = tuple(value)
         if annotation is float and isinstance(value, int):
+            if abs(value) > 2**1023:  # beyond a float: no setting means that
+                raise invalid(f"{section}.{name}", value, "a finite number")
             value = float(value)
         values[name] = value
     try:

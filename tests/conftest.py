@@ -17,9 +17,9 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from hypothesis import settings  # noqa: E402
 
-# Property-based tests: a small fixed budget in CI ("ci"), a long one for a nightly-style run:
-#   RTSID_HYPOTHESIS_PROFILE=nightly pytest …   or   pytest --hypothesis-profile nightly …
-# (register_profile replaces a profile of the same name: registering twice is harmless)
+# Property-based (fuzz) tests: a small fixed budget in CI ("ci"), a long one for a nightly-style
+# run: RTSID_HYPOTHESIS_PROFILE=nightly python -m pytest tests -k fuzz (see docs/io.md), or
+# pytest --hypothesis-profile nightly. register_profile replaces a profile of the same name.
 settings.register_profile("ci", max_examples=50, deadline=None)
 settings.register_profile("nightly", max_examples=2000, deadline=None)
 settings.load_profile(os.environ.get("RTSID_HYPOTHESIS_PROFILE", "ci"))

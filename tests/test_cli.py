@@ -27,3 +27,33 @@ def test_every_command_has_working_help(command, capsys):
         main([command, "--help"])
     assert exit_info.value.code == 0
     assert f"usage: rtsid {command}" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("error", "says"),
+    [
+        (
+            TypeError("'int' object is not iterable"),
+            "internal error (TypeError: 'int' object is not "
+            "iterable); this is a bug in rtsid: please report it",
+        ),
+        (MemoryError(), "error: out of memory; give it a smaller input"),
+    ],
+)
+def test_an_unexpected_exception_is_one_line_and_exit_70(monkeypatch, capsys, error, says):
+    """The last resort, in addition to each loader's own checks: no traceback, a pointer."""
+    import rtsid.commands.recover as command
+
+    def run(_args):
+        raise error
+
+    monkeypatch.setattr(command, "run", run)
+    assert main(["recover", "x.mcap"]) == 70
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("rtsid recover: ") and says in lines[0]
+    assert "Traceback" not in captured.err
+    monkeypatch.setenv("RTSID_TRACEBACK", "1")
+    if isinstance(error, TypeError):
+        with pytest.raises(TypeError):
+            main(["recover", "x.mcap"])

@@ -22,4 +22,5 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
         "intrinsic vs reflex: cascade, slow lane, known reflex",
     ),
     "lab": ("rtsid.benchmarks.lab", "router + 4 daemons + subscriber: e2e, rates, queries, CPU"),
+    "inputs": ("rtsid.benchmarks.inputs", "peak memory of rtsid convert on hostile, large inputs"),
 }

@@ -21,7 +21,11 @@ synchronously and completely (nothing is dropped), atomically (:func:`rtsid.io.f
 
 from __future__ import annotations
 
+import array
+import logging
 import math
+import struct
+import zlib
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -32,7 +36,7 @@ from numpy.typing import NDArray
 
 from rtsid import __version__
 from rtsid.errors import InputDataError, RecordingError
-from rtsid.io.files import atomic_write
+from rtsid.io.files import atomic_write, check_rows
 from rtsid.io.mcap_log import register_channels
 from rtsid.io.sample_files import load_samples
 from rtsid.io.schemas import SampleBatch, encode_json, encode_samples
@@ -65,6 +69,8 @@ __all__ = [
 CAN_LOG_SUFFIXES = (".log", ".asc", ".blf", ".trc")
 SAMPLE_FILE_SUFFIXES = (".npz", ".csv")
 _EPOCH_2000_S = 946_684_800.0  # timestamps after this are wall-clock (UNIX) times
+#: Highest state-frame rate a CAN capture is read at, Hz (as ``[link] fs_hz`` allows).
+MAX_FS_HZ = 100_000.0
 
 
 @dataclass
@@ -148,25 +154,191 @@ class ImportedSamples:
 
 
 class _Rows:
-    """Growing columns of decoded samples (offline: lists, converted once at the end)."""
+    """Decoded samples, compactly (32 bytes each): gaps are not stored, only the row each
+    sample goes to; :meth:`columns` lays them on the full grid once, gaps as invalid rows."""
 
     def __init__(self) -> None:
-        self.position: list[float] = []
-        self.torque: list[float] = []
-        self.valid: list[bool] = []
-        self.status: list[int] = []
+        self.row: array.array[int] = array.array("q")
+        self.position: array.array[float] = array.array("d")
+        self.torque: array.array[float] = array.array("d")
+        self.status: array.array[int] = array.array("q")
 
-    def gap(self, n: int) -> None:
-        self.position.extend([math.nan] * n)
-        self.torque.extend([math.nan] * n)
-        self.valid.extend([False] * n)
-        self.status.extend([0] * n)
-
-    def add(self, position_raw: int, torque_raw: int, status: int) -> None:
+    def add(self, row: int, position_raw: int, torque_raw: int, status: int) -> None:
+        self.row.append(row)
         self.position.append(position_raw * POSITION_SCALE_RAD)
         self.torque.append(torque_raw * TORQUE_SCALE_NM)
-        self.valid.append(True)
         self.status.append(status)
+
+    def holds(self, row: int) -> bool:
+        """Whether a sample was stored at ``row`` (rows are stored in increasing order)."""
+        rows = np.frombuffer(self.row, dtype=np.int64)
+        at = int(np.searchsorted(rows, row))
+        return at < rows.size and int(rows[at]) == row
+
+    def columns(self, n_rows: int) -> tuple[Any, Any, Any, Any]:
+        """``position, torque, valid, status`` over ``n_rows`` rows (NaN, False, 0 in gaps)."""
+        rows = np.frombuffer(self.row, dtype=np.int64)
+        position = np.full(n_rows, np.nan)
+        torque = np.full(n_rows, np.nan)
+        valid = np.zeros(n_rows, dtype=bool)
+        status = np.zeros(n_rows, dtype=np.int64)
+        position[rows] = np.frombuffer(self.position, dtype=np.float64)
+        torque[rows] = np.frombuffer(self.torque, dtype=np.float64)
+        valid[rows] = True
+        status[rows] = np.frombuffer(self.status, dtype=np.int64)
+        return position, torque, valid, status
+
+
+#: What python-can's log readers raise on a damaged or foreign file (its BLF reader raises
+#: its own BLFParseError, the text readers ValueError/IndexError on a malformed line, …).
+def _reader_errors() -> tuple[type[BaseException], ...]:
+    from can.io.blf import BLFParseError
+
+    return (
+        OSError,
+        ValueError,
+        EOFError,
+        IndexError,
+        KeyError,
+        TypeError,
+        struct.error,
+        zlib.error,
+        BLFParseError,
+    )
+
+
+class _CountParseFailures(logging.Filter):
+    """Counts, and keeps off the console, the line-by-line "failed to parse" warnings of
+    python-can's text readers (a damaged capture would print one per line)."""
+
+    def __init__(self, counters: ImportCounters | None) -> None:
+        super().__init__()
+        self.counters = counters
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno <= logging.WARNING:
+            if self.counters is not None:
+                self.counters.malformed += 1
+            return False
+        return True
+
+
+#: Longest line of a text capture (candump, asc, trc), characters: a frame is < 400.
+MAX_CAPTURE_LINE_CHARS = 1 << 16
+
+
+class _CappedLines:
+    """A text file whose lines python-can iterates, each read with a length cap, so that a
+    file without line breaks is refused, not held whole."""
+
+    def __init__(self, fh: Any, path: Path) -> None:
+        self._fh = fh
+        self._path = path
+
+    def __iter__(self) -> Iterator[str]:
+        number = 0
+        while line := self._fh.readline(MAX_CAPTURE_LINE_CHARS + 1):
+            number += 1
+            if len(line) > MAX_CAPTURE_LINE_CHARS:
+                raise InputDataError(
+                    f"line {number} is longer than {MAX_CAPTURE_LINE_CHARS} characters"
+                )
+            yield line
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._fh, name)
+
+
+def _open_reader(path: Path) -> Any:
+    """python-can's reader for ``path``'s suffix, on a file opened here (so that a reader that
+    refuses the file in its constructor leaves no file open)."""
+    from can.io.generic import BinaryIOMessageReader
+    from can.io.player import MESSAGE_READERS
+
+    reader_type: Any = MESSAGE_READERS[path.suffix.lower()]
+    binary = issubclass(reader_type, BinaryIOMessageReader)
+    fh = path.open("rb") if binary else path.open(encoding="utf-8", errors="replace")
+    try:
+        return reader_type(fh if binary else _CappedLines(fh, path))
+    except BaseException:
+        fh.close()
+        raise
+
+
+#: Largest BLF object (a container of frames) read, compressed or not, bytes: loggers write
+#: containers of about 128 KiB; a larger size is damage or a decompression bomb, refused
+#: before python-can's reader would allocate or inflate it.
+MAX_BLF_OBJECT_BYTES = 64 << 20
+
+
+def _check_blf_objects(path: Path) -> None:
+    """Walk a BLF file's object headers (inflating each container in bounded steps) and refuse
+    any header or object larger than :data:`MAX_BLF_OBJECT_BYTES` before python-can reads it.
+    Other damage is left for python-can's reader to report."""
+    from can.io import blf
+
+    def too_large(what: str, n_bytes: int) -> InputDataError:
+        return InputDataError(
+            f"{path}: a BLF {what} of {n_bytes} bytes is larger than the "
+            f"{MAX_BLF_OBJECT_BYTES >> 20} MiB rtsid reads; the file is damaged"
+        )
+
+    with path.open("rb") as fh:
+        head = fh.read(blf.FILE_HEADER_STRUCT.size)
+        if len(head) < blf.FILE_HEADER_STRUCT.size or head[:4] != b"LOGG":
+            return
+        header_size = blf.FILE_HEADER_STRUCT.unpack(head)[1]
+        if header_size > MAX_BLF_OBJECT_BYTES:
+            raise too_large("file header", header_size)
+        fh.seek(max(header_size, blf.FILE_HEADER_STRUCT.size))
+        base_size = blf.OBJ_HEADER_BASE_STRUCT.size
+        while len(base := fh.read(base_size)) == base_size:
+            signature, _hs, _hv, obj_size, obj_type = blf.OBJ_HEADER_BASE_STRUCT.unpack(base)
+            if signature != b"LOBJ":
+                return
+            if not base_size <= obj_size <= MAX_BLF_OBJECT_BYTES:
+                raise too_large("object", obj_size)
+            body = fh.read(obj_size - base_size)
+            fh.seek(obj_size % 4, 1)
+            container = blf.LOG_CONTAINER_STRUCT.size
+            if obj_type != blf.LOG_CONTAINER or len(body) < container:
+                continue
+            method, _declared = blf.LOG_CONTAINER_STRUCT.unpack_from(body)
+            if method == blf.ZLIB_DEFLATE:
+                inflated = zlib.decompressobj().decompress(body[container:], MAX_BLF_OBJECT_BYTES)
+                if len(inflated) >= MAX_BLF_OBJECT_BYTES:
+                    raise too_large("container, inflated,", len(inflated))
+
+
+def _frames(path: Path, counters: ImportCounters | None = None) -> Iterator[Any]:
+    """The frames of a CAN capture, in file order; a file python-can cannot read (garbage,
+    another format, a damaged record) is an InputDataError naming it. Lines its text readers
+    cannot parse are counted as ``malformed`` in ``counters``."""
+    errors = _reader_errors()
+    quiet = _CountParseFailures(counters)
+    loggers = [logging.getLogger(f"can.io.{name}") for name in ("trc", "asc", "blf", "canutils")]
+    for logger in loggers:
+        logger.addFilter(quiet)
+    try:
+        if path.suffix.lower() == ".blf":
+            _check_blf_objects(path)
+        with _open_reader(path) as reader:
+            yield from reader
+    except errors as exc:
+        reason = str(exc) or type(exc).__name__
+        raise InputDataError(
+            f"{path}: cannot read it as a {_log_format(path)} CAN capture ({reason[:200]}); "
+            "is it complete and of the format its suffix says?"
+        ) from None
+    finally:
+        for logger in loggers:
+            logger.removeFilter(quiet)
+
+
+def _finite_time(stamp: Any) -> float:
+    """A frame's timestamp, s; 0 (unknown) when missing, non-finite or past year 2262."""
+    value = float(stamp or 0.0)
+    return value if math.isfinite(value) and 0 < value < 9.2e9 else 0.0
 
 
 def _log_format(path: Path) -> str:
@@ -193,50 +365,52 @@ def read_can_log(path: str | Path, fs_hz: float, *, reorder_window: int = 64) ->
     Raises
     ------
     InputDataError
-        Unreadable file, or no AnkleState frame in it.
+        Unreadable file, no AnkleState frame in it, a rate above :data:`MAX_FS_HZ`, or more
+        rows (first to last sample, gaps included) than :data:`rtsid.io.files.MAX_ROWS`,
+        refused before they are allocated.
     """
-    import can
-
     p = Path(path)
     if not p.is_file():
         raise InputDataError(f"{p}: no such file")
     if not fs_hz > 0:
         raise InputDataError(f"--fs {fs_hz!r}: the state-frame rate must be > 0 Hz")
+    if not fs_hz <= MAX_FS_HZ:
+        raise InputDataError(
+            f"--fs {fs_hz!r}: {p.name} would be read at more than {MAX_FS_HZ:g} Hz, the highest "
+            "state-frame rate rtsid takes; pass the robot's rate (e.g. --fs 2500)"
+        )
     counters = ImportCounters()
     rows = _Rows()
     first = last = -1
     last_time = 0.0
     first_time = 0.0
     sequence: Sequencer[tuple[int, int, int, float]] = Sequencer(reach=reorder_window)
-    try:
-        with can.LogReader(p) as reader:
-            for msg in reader:
-                state = _classify(msg, counters)
-                if state is None:
-                    continue
-                position, torque, counter, status = state
-                stamp = float(msg.timestamp or 0.0)
-                if last < 0:
-                    first = last = sequence.last = counter
-                    first_time = last_time = stamp
-                    rows.add(position, torque, status)
-                    counters.samples += 1
-                    continue
-                elapsed = stamp - last_time if stamp > 0 and stamp >= last_time else 0.0
-                index = unwrap_counter(counter, last, elapsed, fs_hz, reorder_window)
-                if index <= last:
-                    _count_late(counters, rows, index - first)
-                    continue
-                for row_index, row in sequence.offer(index, (position, torque, status, stamp)):
-                    if row_index > last + 1:
-                        counters.gaps += 1
-                        counters.lost_samples += row_index - last - 1
-                        rows.gap(row_index - last - 1)
-                    rows.add(*row[:3])
-                    counters.samples += 1
-                    last, last_time = row_index, row[3]
-    except (OSError, ValueError, EOFError) as exc:
-        raise InputDataError(f"{p}: cannot read it as a CAN log ({exc})") from None
+    for msg in _frames(p, counters):
+        state = _classify(msg, counters)
+        if state is None:
+            continue
+        position, torque, counter, status = state
+        stamp = _finite_time(msg.timestamp)
+        if last < 0:
+            first = last = sequence.last = counter
+            first_time = last_time = stamp
+            rows.add(0, position, torque, status)
+            counters.samples += 1
+            continue
+        elapsed = stamp - last_time if stamp > 0 and stamp >= last_time else 0.0
+        check_rows(p, last - first + elapsed * fs_hz, fs_hz)  # before unwrapping a silence
+        index = unwrap_counter(counter, last, elapsed, fs_hz, reorder_window)
+        if index <= last:
+            _count_late(counters, rows, index - first)
+            continue
+        for row_index, row in sequence.offer(index, (position, torque, status, stamp)):
+            check_rows(p, row_index - first + 1, fs_hz)
+            if row_index > last + 1:
+                counters.gaps += 1
+                counters.lost_samples += row_index - last - 1
+            rows.add(row_index - first, *row[:3])
+            counters.samples += 1
+            last, last_time = row_index, row[3]
     if first < 0:
         raise InputDataError(
             f"{p}: no AnkleState frames (id 0x{STATE_ID:X}) among {counters.frames} frames; "
@@ -245,13 +419,14 @@ def read_can_log(path: str | Path, fs_hz: float, *, reorder_window: int = 64) ->
     counters.strays, counters.unjudged = sequence.strays, sequence.held
     counters.duplicates += sequence.duplicates
     start_ns = round(first_time * 1e9) if first_time > _EPOCH_2000_S else 0
+    position_rad, torque_nm, valid, status = rows.columns(last - first + 1)
     return ImportedSamples(
         first_index=first,
         fs_hz=float(fs_hz),
-        position_rad=np.asarray(rows.position, dtype=np.float64),
-        torque_nm=np.asarray(rows.torque, dtype=np.float64),
-        valid=np.asarray(rows.valid, dtype=bool),
-        status=np.asarray(rows.status, dtype=np.int64),
+        position_rad=position_rad,
+        torque_nm=torque_nm,
+        valid=valid,
+        status=status,
         start_time_ns=start_ns,
         source_format=_log_format(p),
         counters=counters,
@@ -294,18 +469,17 @@ def rate_from_timestamps(times_s: NDArray[np.float64], counters: NDArray[np.int6
 
 def _state_frame_times(path: Path) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Timestamps and counters of the decodable state frames, in file order."""
-    import can
-
-    times: list[float] = []
-    counters: list[int] = []
+    times: array.array[float] = array.array("d")
+    counters: array.array[int] = array.array("q")
     ignored = ImportCounters()
-    with can.LogReader(path) as reader:
-        for msg in reader:
-            state = _classify(msg, ignored)
-            if state is not None and msg.timestamp:
-                times.append(float(msg.timestamp))
-                counters.append(state[2])
-    return np.asarray(times, dtype=np.float64), np.asarray(counters, dtype=np.int64)
+    for msg in _frames(path):
+        state = _classify(msg, ignored)
+        stamp = _finite_time(msg.timestamp)
+        if state is not None and stamp:
+            check_rows(path, len(times) + 1)
+            times.append(stamp)
+            counters.append(state[2])
+    return np.frombuffer(times, dtype=np.float64), np.frombuffer(counters, dtype=np.int64)
 
 
 def derive_rate(path: str | Path) -> tuple[float, str]:
@@ -321,11 +495,11 @@ def derive_rate(path: str | Path) -> tuple[float, str]:
         times, counters = _state_frame_times(p)
         rate = rate_from_timestamps(times, counters)
     except InputDataError as exc:
+        if str(exc).startswith(str(p)):
+            raise
         raise InputDataError(
             f"{p}: {exc}; pass the robot's state-frame rate with --fs HZ"
         ) from None
-    except (OSError, ValueError, EOFError) as exc:
-        raise InputDataError(f"{p}: cannot read it as a CAN log ({exc})") from None
     blocks = max(1, (times.size - 1) // RATE_BLOCK_FRAMES)
     note = (
         f"rate {rate:g} Hz derived from the frames' timestamps (median over {blocks} blocks of "
@@ -362,7 +536,7 @@ def _classify(msg: Any, counters: ImportCounters) -> tuple[int, int, int, int] |
 
 
 def _count_late(counters: ImportCounters, rows: _Rows, row: int) -> None:
-    if 0 <= row < len(rows.valid) and rows.valid[row]:
+    if row >= 0 and rows.holds(row):
         counters.duplicates += 1
     else:
         counters.out_of_order += 1

@@ -7,11 +7,17 @@
 * :func:`read_npz` — every ``.npz`` rtsid reads (sample files, time-varying experiments) is
   opened here, so a missing, empty, truncated or incomplete file is the same one-line
   :class:`~rtsid.errors.InputDataError` everywhere.
+* The caps on what an import may hold in memory, checked before anything is allocated:
+  :data:`MAX_SAMPLE_FILE_BYTES` (a ``.csv`` file's size, an ``.npz`` file's arrays as their
+  headers declare them) and :data:`MAX_ROWS` (rows of samples a conversion or load holds,
+  duration × rate, gaps included); :func:`check_file_size` and :func:`check_rows` refuse more
+  with one line that names the cap.
 """
 
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import tempfile
 import zipfile
@@ -23,7 +29,61 @@ import numpy as np
 
 from rtsid.errors import InputDataError, RecordingError
 
-__all__ = ["atomic_write", "read_npz"]
+__all__ = [
+    "MAX_ROWS",
+    "MAX_SAMPLE_FILE_BYTES",
+    "atomic_write",
+    "check_file_size",
+    "check_rows",
+    "read_npz",
+]
+
+#: Most rows of samples one import holds (gaps included): 2 h 13 min at 2500 Hz. An import
+#: needs at most about 100 bytes per row at its peak, so about 2 GB at the cap (docs/io.md).
+MAX_ROWS = 20_000_000
+#: Largest sample file read: a ``.csv`` file's size, or the sum of an ``.npz`` file's arrays
+#: as their headers declare them (uncompressed), bytes (1 GiB).
+MAX_SAMPLE_FILE_BYTES = 1 << 30
+
+
+def _size_text(n_bytes: float) -> str:
+    for unit, scale in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):
+        if n_bytes >= scale:
+            return f"{n_bytes / scale:.1f} {unit}"
+    return f"{int(n_bytes)} bytes"
+
+
+def check_file_size(path: str | Path, n_bytes: int, what: str, fix: str) -> None:
+    """Refuse ``n_bytes`` of ``what`` above :data:`MAX_SAMPLE_FILE_BYTES` (before reading it).
+
+    Raises
+    ------
+    InputDataError
+        Names the file, its size, the cap and ``fix``.
+    """
+    if n_bytes > MAX_SAMPLE_FILE_BYTES:
+        raise InputDataError(
+            f"{str(path)!r}: {what} of {_size_text(n_bytes)} exceed the "
+            f"{_size_text(MAX_SAMPLE_FILE_BYTES)} rtsid reads at once; {fix}"
+        )
+
+
+def check_rows(source: str | Path, rows: float, fs_hz: float | None = None) -> None:
+    """Refuse an import of more than :data:`MAX_ROWS` rows (``rows`` = duration × rate), before
+    they are allocated.
+
+    Raises
+    ------
+    InputDataError
+        Names the rows (and their duration at ``fs_hz``), the cap and what to do.
+    """
+    if rows > MAX_ROWS or rows != rows:  # NaN counts as too many
+        at = "" if fs_hz is None else f" at {fs_hz:g} Hz ({rows / fs_hz:.4g} s)"
+        raise InputDataError(
+            f"{source}: {rows:.4g} rows{at} exceed the {MAX_ROWS} rows "
+            f"({MAX_ROWS / 2500 / 3600:.2f} h at 2500 Hz) one import holds; check the rate "
+            "(--fs) or split the recording"
+        )
 
 
 @overload
@@ -127,19 +187,56 @@ def read_npz(path: str | Path, required: Iterable[str], *, hint: str) -> dict[st
         raise InputDataError(f"{str(p)!r} does not exist or is not a file; check the path")
     try:
         with p.open("rb") as fh:
+            check_file_size(p, _npz_declared_bytes(fh), "arrays", "split it into smaller files")
+            fh.seek(0)
             loaded = np.load(fh, allow_pickle=False)
             if not isinstance(loaded, np.lib.npyio.NpzFile):
                 raise ValueError("it holds a single array, not named arrays")
             with loaded as data:
                 arrays = {k: np.asarray(data[k]) for k in data.files}
-    except (zipfile.BadZipFile, EOFError, ValueError, OSError) as exc:
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, ValueError, OSError) as exc:
         raise InputDataError(
             f"{str(p)!r} is not a readable .npz file ({exc or type(exc).__name__}); "
             "is it empty, truncated or of another format?"
         ) from None
+    except MemoryError:
+        raise InputDataError(f"{str(p)!r}: its arrays do not fit in memory; split it") from None
     missing = [k for k in required if k not in arrays]
     if missing:
         found = ", ".join(arrays) or "none"
         names = ", ".join(missing)
         raise InputDataError(f"{str(p)!r} lacks {names} (arrays found: {found}); {hint}")
     return arrays
+
+
+def _npz_declared_bytes(fh: IO[bytes]) -> int:
+    """Bytes the arrays of an ``.npz`` declare in their ``.npy`` headers (other members: their
+    uncompressed size), read without loading any array.
+
+    Raises
+    ------
+    zipfile.BadZipFile, ValueError, EOFError
+        Not a zip file, or a member whose header does not read.
+    """
+    magic = fh.read(6)
+    if magic == b"\x93NUMPY":
+        raise ValueError("it holds a single array, not named arrays")
+    if magic[:4] != b"PK\x03\x04":
+        raise ValueError("it is not a zip archive of arrays")
+    fh.seek(0)
+    total = 0
+    with zipfile.ZipFile(fh) as archive:
+        for info in archive.infolist():
+            if not info.filename.endswith(".npy"):
+                total += info.file_size
+                continue
+            with archive.open(info) as member:
+                version = np.lib.format.read_magic(member)
+                header = (
+                    np.lib.format.read_array_header_1_0
+                    if version == (1, 0)
+                    else np.lib.format.read_array_header_2_0
+                )
+                shape, _fortran, dtype = header(member)
+            total += math.prod(shape) * dtype.itemsize
+    return total

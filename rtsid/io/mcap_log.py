@@ -14,7 +14,8 @@
 - A write error (full disk, read-only or vanished directory) never reaches the caller: the file
   is closed, the error is counted and kept as ``last_error`` in :meth:`McapLogger.stats`,
   messages are counted as ``lost`` while there is no file, and a new file is tried every
-  ``retry_interval_s``.
+  ``retry_interval_s``. A try that cannot write the new file's header (the disk is still full)
+  removes the file it created, so a session never holds empty parts and replays whole.
 """
 
 from __future__ import annotations
@@ -557,6 +558,8 @@ class McapLogger(ThreadOwner):
         except OSError as exc:
             self._stream = stream
             self._fail(exc, "creating", path)
+            if stream is not None and path is not None:
+                self._remove_unstarted(path)
             return
         self._writer, self._stream = writer, stream
         self._file_opened_at = time.monotonic()
@@ -566,6 +569,17 @@ class McapLogger(ThreadOwner):
             self._c.file_bytes = size
             self._c.state = "recording"
         log.info("recording to %s", path)
+
+    @staticmethod
+    def _remove_unstarted(path: Path) -> None:
+        """Delete a file this logger created whose header could not be written (it holds no
+        message, and the next try reuses its name)."""
+        try:
+            path.unlink()
+        except FileNotFoundError:
+            pass
+        except OSError as exc:
+            log.warning("could not remove the unstarted recording %s: %s", path, exc.strerror)
 
     def _register(self, writer: Any) -> dict[str, int]:
         return register_channels(writer, can_frames=self.config.log_can_frames)

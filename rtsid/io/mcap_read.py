@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import math
 import re
 import struct
 from collections.abc import Generator, Iterable, Iterator
@@ -21,12 +22,13 @@ from pathlib import Path
 from typing import IO, Any
 
 from rtsid import __version__
-from rtsid.errors import RecordingError
+from rtsid.errors import InputDataError, RecordingError
 from rtsid.io.files import atomic_write
 from rtsid.io.schemas import SCHEMAS, SampleBatch, decode_samples
 
 __all__ = [
     "ReadReport",
+    "holds_no_record",
     "iter_can_frames",
     "iter_estimates",
     "iter_messages",
@@ -40,6 +42,11 @@ __all__ = [
     "sample_count",
     "summarize",
 ]
+
+#: Largest MCAP record or chunk (uncompressed) read, bytes: rtsid writes chunks of at most
+#: ``[mcap] chunk_size`` (64 MiB) plus one message, so larger is damage, refused before it is
+#: allocated.
+MAX_RECORD_BYTES = 256 << 20
 
 _STOPPED = (
     "the writer stopped before finishing the file: kill -9, a crash, a full disk or a torn copy"
@@ -105,7 +112,7 @@ def _iter_records(path: str | Path, report: ReadReport) -> Generator[Any, None, 
 
     damage = _damage_errors()
     with _open(path) as fh:
-        reader = StreamReader(fh, emit_chunks=True, record_size_limit=1 << 30)
+        reader = StreamReader(fh, emit_chunks=True, record_size_limit=MAX_RECORD_BYTES)
         records = reader.records
         first = True
         while True:
@@ -138,6 +145,14 @@ def _iter_records(path: str | Path, report: ReadReport) -> Generator[Any, None, 
                 return
             first = False
             if isinstance(record, Chunk):
+                declared = max(record.uncompressed_size, _compressed_content_size(record))
+                if declared > MAX_RECORD_BYTES:
+                    report.error = (
+                        f"damaged chunk after {report.messages} messages: it declares "
+                        f"{declared} bytes, more than the "
+                        f"{MAX_RECORD_BYTES >> 20} MiB a chunk may hold"
+                    )
+                    return
                 try:
                     inner = breakup_chunk(record, validate_crc=True)
                 except damage as exc:
@@ -150,6 +165,27 @@ def _iter_records(path: str | Path, report: ReadReport) -> Generator[Any, None, 
                 if isinstance(record, Footer):
                     report.complete = True
                 yield record
+
+
+def _compressed_content_size(chunk: Any) -> int:
+    """The size a chunk's compressed frame says it inflates to (0 when it does not say): the
+    decompressors allocate that much whatever the chunk record declares, so a flipped bit in
+    a frame header would otherwise be a multi-gigabyte allocation."""
+    unreadable: tuple[type[BaseException], ...] = (*_damage_errors(), RuntimeError)
+    try:
+        if chunk.compression == "zstd":
+            import zstandard
+
+            return max(0, int(zstandard.frame_content_size(chunk.data)))
+        if chunk.compression == "lz4":
+            import lz4.frame
+
+            return max(0, int(lz4.frame.get_frame_info(chunk.data).get("content_size") or 0))
+    except ImportError:
+        return 0
+    except unreadable:  # a frame header that does not parse: breakup_chunk says how
+        return 0
+    return 0
 
 
 def iter_messages(
@@ -208,19 +244,29 @@ def iter_sample_batches(
         gap, never bridged).
     """
     for message in _iter_topic(path, "samples", report):
-        yield decode_samples(message.data, message.log_time)
+        try:
+            batch = decode_samples(message.data, message.log_time)
+        except (InputDataError, OverflowError, RecursionError) as exc:
+            reason = str(exc)[:200] or type(exc).__name__
+            raise RecordingError(f"{path}: a /samples message does not read: {reason}") from None
+        if not (math.isfinite(batch.fs_hz) and batch.fs_hz > 0 and 0 <= batch.first_index < 2**62):
+            raise RecordingError(
+                f"{path}: a /samples message says fs_hz = {batch.fs_hz!r}, first_index = "
+                f"{batch.first_index}; the file is damaged or not rtsid's"
+            )
+        yield batch
 
 
 def iter_estimates(path: str | Path, report: ReadReport | None = None) -> Iterator[dict[str, Any]]:
     """Estimate messages of one file (dicts following ESTIMATE_SCHEMA; null numbers → None)."""
     for message in _iter_topic(path, "estimate", report):
-        yield json.loads(message.data)
+        yield _json_object(message.data, path, "an estimate")
 
 
 def iter_status(path: str | Path) -> Iterator[dict[str, Any]]:
     """Status messages (dicts following STATUS_SCHEMA)."""
     for message in _iter_topic(path, "status", None):
-        yield json.loads(message.data)
+        yield _json_object(message.data, path, "a status message")
 
 
 def iter_can_frames(path: str | Path) -> Iterator[Any]:
@@ -258,7 +304,26 @@ def read_run_config(path: str | Path) -> dict[str, Any]:
 def run_config_from_metadata(metadata: dict[str, dict[str, str]]) -> dict[str, Any]:
     """The daemon configuration in :func:`read_metadata`'s result (``{}`` when none)."""
     meta = metadata.get("config", {})
-    return dict(json.loads(meta["json"])) if "json" in meta else {}
+    return (
+        _json_object(meta["json"], "the recording", "its config metadata") if "json" in meta else {}
+    )
+
+
+def _json_object(data: bytes | str, path: str | Path, what: str) -> dict[str, Any]:
+    """``data`` parsed as a JSON object; anything else is a RecordingError naming ``what``."""
+    try:
+        value = json.loads(data)
+    except (ValueError, RecursionError) as exc:
+        reason = type(exc).__name__ if isinstance(exc, RecursionError) else str(exc)[:100]
+        raise RecordingError(
+            f"{path}: {what} is not valid JSON ({reason}); the file is damaged or not rtsid's"
+        ) from None
+    if not isinstance(value, dict):
+        raise RecordingError(
+            f"{path}: {what} is {type(value).__name__}, not a JSON object; the file is "
+            "damaged or not rtsid's"
+        )
+    return value
 
 
 _PART = re.compile(
@@ -271,12 +336,13 @@ def recording_parts(path: str | Path) -> list[Path]:
 
     A daemon's session is ``rtsid-<robot>-<joint>-<UTC>.mcap`` followed by ``-001``, ``-002``, …
     after rotation (or after a write error). Given any part, returns the existing parts in the
-    same directory sorted by part number (a file not named that way is returned alone).
+    same directory sorted by part number (a file not named that way is returned alone, and so
+    is a ``…-recovered.mcap`` written by ``rtsid recover``).
     """
     p = Path(path)
     match = _PART.match(p.name)
-    if match is None:
-        return [p]
+    if match is None or p.name.endswith("-recovered.mcap"):
+        return [p]  # a recovered file is read as itself, never as its session's damaged part
     session = match["session"]
     parts = []
     for candidate in p.parent.glob(f"{session}*.mcap"):
@@ -288,6 +354,22 @@ def recording_parts(path: str | Path) -> list[Path]:
         ):
             parts.append((int(m["part"] or 0), candidate))
     return [c for _n, c in sorted(parts)] or [p]
+
+
+def holds_no_record(path: str | Path) -> bool:
+    """Whether ``path`` is empty or ends inside the MCAP magic and header (a part created when
+    the disk was already full), so that it holds nothing to read."""
+    from mcap.exceptions import EndOfFile, McapError
+    from mcap.stream_reader import StreamReader
+
+    with _open(path) as fh:
+        try:
+            next(StreamReader(fh, record_size_limit=MAX_RECORD_BYTES).records)
+        except EndOfFile:
+            return True
+        except (McapError, StopIteration, ValueError, struct.error):
+            return False
+    return False
 
 
 def sample_count(path: str | Path) -> int:

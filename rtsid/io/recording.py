@@ -25,9 +25,11 @@ from typing import Any
 
 import numpy as np
 
-from rtsid.errors import IncompleteRecordingWarning, RecordingError
+from rtsid.errors import IncompleteRecordingWarning, RecordingError, RtsidWarning
+from rtsid.io.files import MAX_ROWS
 from rtsid.io.mcap_read import (
     ReadReport,
+    holds_no_record,
     iter_estimates,
     iter_sample_batches,
     read_run_config,
@@ -51,13 +53,32 @@ def session_parts(paths: Paths) -> list[Path]:
     """Every part of the sessions ``paths`` belong to, in order, each once.
 
     A file not named like a daemon's part (``rtsid-<robot>-<joint>-<UTC>[-NNN].mcap``)
-    stands alone.
+    stands alone, and so does a ``…-recovered.mcap``. Parts that hold no record (created when
+    the disk was full) are skipped with a :class:`~rtsid.errors.RtsidWarning` note.
     """
     given = [paths] if isinstance(paths, str | Path) else list(paths)
     parts: list[Path] = []
     for path in given:
         parts += [p for p in recording_parts(path) if p not in parts]
-    return parts
+    return _without_empty_parts(parts)
+
+
+def _without_empty_parts(parts: list[Path]) -> list[Path]:
+    """``parts`` less those holding no record (created when the disk was full), each skipped
+    with a note; a session of nothing but empty parts is left for the reader to refuse."""
+    kept = [p for p in parts if not (p.is_file() and holds_no_record(p))]
+    if not kept:
+        return parts
+    for part in parts:
+        if part not in kept:
+            warnings.warn(
+                RtsidWarning(
+                    f"skipped {part}: it is empty (created while the disk was full); the "
+                    "session's other parts are read, its samples are a gap"
+                ),
+                stacklevel=3,
+            )
+    return kept
 
 
 class SampleGrid:
@@ -152,6 +173,12 @@ class SampleGrid:
 
     def _make_room(self, extra: int) -> None:
         kept = len(self)
+        if kept + extra > MAX_ROWS:
+            raise RecordingError(
+                f"{kept + extra} rows at {self.fs_hz:g} Hz (a gap up to sample "
+                f"{self.end_index + extra}) exceed the {MAX_ROWS} rows one read holds; the "
+                "recording is damaged, or read its parts one by one"
+            )
         if self._hi + extra <= self._position.size:
             return
         size = self._position.size

@@ -11,15 +11,19 @@ what to do about it.
 
 from __future__ import annotations
 
+import array
 import csv
+import math
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TextIO
 
 import numpy as np
 from numpy.typing import NDArray
 
 from rtsid.errors import InputDataError
-from rtsid.io.files import read_npz
+from rtsid.io.files import check_file_size, check_rows, read_npz
 
 __all__ = ["SampleRecord", "load_samples", "nonfinite_report"]
 
@@ -79,50 +83,101 @@ def _checked(position: FloatArray, torque: FloatArray, fs_hz: float, source: str
     return SampleRecord(position, torque, float(fs_hz), source)
 
 
+def _float_column(data: dict[str, np.ndarray], name: str, path: Path) -> FloatArray:
+    """Array ``name`` as float64; strings, objects, complex or structured data are refused."""
+    array = data[name]
+    if array.dtype.kind not in "biuf":
+        raise InputDataError(
+            f"{path}: {name} holds {array.dtype} values, not real numbers; store it as a "
+            "float array (e.g. numpy.asarray(x, dtype=float))"
+        )
+    return np.asarray(array, dtype=np.float64)
+
+
 def _load_npz(path: Path) -> SampleRecord:
     data = read_npz(
         path,
         SAMPLE_ARRAYS,
         hint="an .npz recording needs position_rad, torque_nm and fs_hz",
     )
-    position = np.asarray(data["position_rad"], dtype=np.float64)
-    torque = np.asarray(data["torque_nm"], dtype=np.float64)
-    fs_arr = np.asarray(data["fs_hz"], dtype=np.float64)
+    fs_arr = _float_column(data, "fs_hz", path)
     if fs_arr.size != 1:
         raise InputDataError(f"{path}: fs_hz must be a scalar, got shape {fs_arr.shape}")
-    return _checked(position, torque, float(fs_arr.reshape(())), str(path))
+    fs_hz = float(fs_arr.reshape(()))
+    check_rows(path, data["position_rad"].size, fs_hz)
+    position = _float_column(data, "position_rad", path)
+    torque = _float_column(data, "torque_nm", path)
+    return _checked(position, torque, fs_hz, str(path))
 
 
-def _csv_rows(path: Path) -> tuple[list[str], FloatArray]:
+#: Longest line of a CSV sample file, characters (a row of numbers is far shorter).
+MAX_CSV_LINE_CHARS = 1 << 16
+
+
+def _data_lines(fh: TextIO, path: Path) -> Iterator[str]:
+    """Lines of ``fh`` that are neither blank nor ``#`` comments, each read with a length cap
+    so that a file without line breaks is refused, not held whole."""
+    number = 0
+    while line := fh.readline(MAX_CSV_LINE_CHARS + 1):
+        number += 1
+        if len(line) > MAX_CSV_LINE_CHARS:
+            raise InputDataError(
+                f"{path}: line {number} is longer than {MAX_CSV_LINE_CHARS} characters; "
+                "is it a CSV of samples (one row of numbers per line)?"
+            )
+        if line.strip() and not line.startswith("#"):
+            yield line
+
+
+def _number(text: str, path: Path, line: int, column: str) -> float:
+    if not text.strip():
+        return math.nan
     try:
-        with path.open(newline="") as fh:
-            reader = csv.reader(row for row in fh if row.strip() and not row.startswith("#"))
+        return float(text)
+    except ValueError:
+        raise InputDataError(
+            f"{path}: line {line}, column {column}: {text[:40]!r} is not a number; "
+            "write plain decimal numbers (empty for a missing value)"
+        ) from None
+
+
+def _csv_rows(path: Path, wanted: Sequence[str]) -> tuple[list[str], dict[str, FloatArray]]:
+    """The header and the ``wanted`` columns present in it, read row by row into compact
+    columns (other columns are only counted), at most :data:`MAX_ROWS` rows."""
+    check_file_size(path, path.stat().st_size, "a CSV file", "split it or save it as .npz")
+    try:
+        with path.open(newline="", encoding="utf-8") as fh:
+            reader = csv.reader(_data_lines(fh, path))
             header = [h.strip() for h in next(reader, [])]
-            rows = list(reader)
+            keep = {name: header.index(name) for name in wanted if name in header}
+            columns = {name: array.array("d") for name in keep}
+            for rows, row in enumerate(reader, start=1):
+                check_rows(path, rows)
+                if len(row) != len(header):
+                    raise InputDataError(
+                        f"{path}: line {reader.line_num} has {len(row)} columns, the header "
+                        f"{len(header)}; give every row a value (or an empty one) per column"
+                    )
+                for name, index in keep.items():
+                    columns[name].append(_number(row[index], path, reader.line_num, name))
     except UnicodeDecodeError:
-        raise InputDataError(f"{path}: not a text CSV file") from None
-    if not header:
+        raise InputDataError(f"{path}: not a UTF-8 text CSV file; export it as text") from None
+    except csv.Error as exc:
+        raise InputDataError(f"{path}: not a readable CSV file ({exc})") from None
+    if not header or header == [""]:
         raise InputDataError(f"{path}: empty CSV; expected a header row and samples")
-    try:
-        values = np.array(
-            [[float(v) if v.strip() else np.nan for v in row] for row in rows], dtype=np.float64
-        )
-    except ValueError as exc:
-        raise InputDataError(f"{path}: a value is not a number ({exc})") from None
-    if values.size and (values.ndim != 2 or values.shape[1] != len(header)):
-        raise InputDataError(f"{path}: rows do not all have {len(header)} columns like the header")
-    return header, values.reshape(-1, len(header))
+    return header, {name: np.frombuffer(col, dtype=np.float64) for name, col in columns.items()}
 
 
 def _load_csv(path: Path, fs_hz: float | None) -> SampleRecord:
-    header, values = _csv_rows(path)
+    header, column = _csv_rows(path, ("position_rad", "torque_nm", *TIME_COLUMNS))
     missing = [c for c in ("position_rad", "torque_nm") if c not in header]
     if missing:
+        shown = ", ".join(h[:40] for h in header[:20])
         raise InputDataError(
             f"{path}: missing column(s) {', '.join(missing)}; the header has "
-            f"{', '.join(header)}. Name the columns position_rad and torque_nm"
+            f"{shown}. Name the columns position_rad and torque_nm"
         )
-    column = {name: values[:, i] for i, name in enumerate(header)}
     time_name = next((c for c in TIME_COLUMNS if c in column), None)
     if fs_hz is None:
         if time_name is None:
@@ -137,13 +192,19 @@ def _load_csv(path: Path, fs_hz: float | None) -> SampleRecord:
 def _rate_from_times(t: FloatArray, path: Path) -> float:
     if t.size < 2:
         raise InputDataError(f"{path}: need at least two samples to infer the sampling rate")
-    steps = np.diff(t)
-    step = float(np.median(steps))
-    if step <= 0 or np.max(np.abs(steps - step)) > 1e-3 * step:
+    if not np.all(np.isfinite(t)):
+        raise InputDataError(f"{path}: the time column has empty, NaN or inf values; fill it")
+    with np.errstate(over="ignore", invalid="ignore"):  # overflowing steps are irregular
+        steps = np.diff(t)
+        step = float(np.median(steps))
+        irregular = not np.max(np.abs(steps - step)) <= 1e-3 * step
+    if not step > 0 or irregular:
         raise InputDataError(
             f"{path}: the time column is not uniformly spaced (steps from {steps.min():.6g} to "
             f"{steps.max():.6g} s); resample the data or pass --fs to ignore the column"
         )
+    if step < 1e-9:
+        raise InputDataError(f"{path}: time steps of {step:.3g} s are too short; use seconds")
     return 1.0 / step
 
 

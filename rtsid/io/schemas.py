@@ -379,7 +379,8 @@ def decode_samples(data: bytes | str, log_time_ns: int = 0) -> SampleBatch:
         )
     except (ValueError, KeyError, TypeError) as exc:
         raise InputDataError(f"not an rtsid samples message ({exc}); see SAMPLES_SCHEMA") from exc
-    if not (batch.torque_nm.shape[0] == batch.valid.shape[0] == batch.status.shape[0] == n):
+    columns = (batch.position_rad, batch.torque_nm, batch.valid, batch.status)
+    if any(c.shape != (n,) for c in columns):
         raise InputDataError("samples message arrays differ in length; the payload is corrupt")
     return batch
 

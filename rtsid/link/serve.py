@@ -8,11 +8,13 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from rtsid.config import load_toml
-from rtsid.link.config import PlantConfig, plant_config_from_mapping
+from rtsid.config import invalid, load_toml, section_from_mapping
+from rtsid.errors import ConfigError
+from rtsid.link.config import LinkConfig, PlantConfig, plant_config_from_mapping
 from rtsid.link.plant import VirtualPlant
 from rtsid.link.socketcand import SocketcandServer
 
@@ -38,9 +40,18 @@ class PlantServerOptions:
 
 def plant_config_for(options: PlantServerOptions) -> PlantConfig:
     """The ``[plant]`` section of ``options.config`` with the command-line overrides."""
+    if not 0 <= options.port <= 65535:
+        raise ConfigError(f"--port {options.port} is not a TCP port; pass 0..65535 (0: a free one)")
     document = load_toml(options.config) if options.config else {}
     base_dir = Path(options.config).resolve().parent if options.config else None
-    table = dict(document.get("plant") or {})
+    link_table = document.get("link")  # not used by the plant, but a bad one is said at once
+    if link_table is not None and not isinstance(link_table, Mapping):
+        raise invalid("link", link_table, "a table [link]")
+    section_from_mapping(LinkConfig, link_table, "link")
+    table = document.get("plant") or {}
+    if not isinstance(table, Mapping):
+        raise invalid("plant", table, "a table [plant]")
+    table = dict(table)
     overrides = {
         "mode": options.mode,
         "player_file": options.player_file,

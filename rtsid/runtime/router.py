@@ -16,7 +16,7 @@ import json
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -42,10 +42,13 @@ def load_router_config(path: str | Path | None, listen: tuple[str, ...] = ()) ->
     unknown = sorted(set(document) - {"router"})
     if unknown:
         raise ConfigError(f"unknown config section [{unknown[0]}]; accepted sections: [router]")
-    section = dict(document.get("router") or {})
+    section = document.get("router") or {}
+    if not isinstance(section, Mapping):
+        raise ConfigError("config key 'router' must be a table [router]")
+    section = dict(section)
     if listen:
         section["listen"] = list(listen)
-    if path is not None and section.get("config_file"):
+    if path is not None and isinstance(section.get("config_file"), str) and section["config_file"]:
         file = Path(section["config_file"]).expanduser()
         section["config_file"] = str(file if file.is_absolute() else Path(path).parent / file)
     return RouterConfig.from_mapping(section)

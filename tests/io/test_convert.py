@@ -203,8 +203,10 @@ def test_real_recording_converts_and_replays_with_its_preset(tmp_path, reklab_pa
     assert config["estimator"].get("analysis_fs_hz") is None  # chosen from the data
     result = replay_file(out)
     assert result.samples == 60_000 and result.estimates > 2900
-    # only where the perturbation paused (40 s and 33.1 s of the recording)
-    assert set(result.withheld) == {"no_excitation"} and sum(result.withheld.values()) <= 15
+    # only where the perturbation paused (40 s and 33.1 s of the recording), and two windows
+    # whose fit reads K < 0 with a model that does not match their IRF (7.6 s and 36.7 s)
+    assert set(result.withheld) == {"no_excitation", "unidentifiable"}
+    assert result.withheld["no_excitation"] <= 15 and result.withheld["unidentifiable"] <= 3
     ok = [m for m in result.messages if m["ok"]]
     assert 80.0 < np.median([m["K"] for m in ok]) < 130.0
     assert np.median([m["vaf"] for m in ok]) > 70.0

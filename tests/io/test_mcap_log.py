@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from rtsid.errors import ConfigError, InputDataError
+from rtsid.errors import ConfigError, IncompleteRecordingWarning, InputDataError
 from rtsid.io import mcap_read
 from rtsid.io.mcap_log import McapConfig, McapLogger, recording_name
 from rtsid.io.schemas import ESTIMATE_FIELDS
@@ -333,3 +333,35 @@ def test_recording_parts_lists_a_rotated_session_in_order(tmp_path: Path) -> Non
     assert mcap_read.recording_parts(tmp_path / "unrelated.mcap") == [tmp_path / "unrelated.mcap"]
     starts = [b.first_index for p in files for b in mcap_read.iter_sample_batches(p)]
     assert starts == sorted(starts) and starts[0] == 0
+
+
+def test_a_disk_still_full_at_each_retry_leaves_no_empty_parts(
+    tmp_path: Path, wait_for: Any
+) -> None:
+    """Issue 20: each retry while the disk was full left a zero-byte part, and replaying the
+    session then failed with '…-001.mcap is empty'."""
+    opened: list[Path] = []
+
+    def open_file(path: Path) -> IO[bytes]:
+        opened.append(path)
+        capacities = {1: 20_000, 2: 0, 3: 0, 4: 0}  # files 2-4: not even the header fits
+        return FullDisk(path, capacities.get(len(opened), 10**9))  # type: ignore[return-value]
+
+    cfg = McapConfig(directory=str(tmp_path), flush_interval_s=0.02, retry_interval_s=0.05)
+    with McapLogger(cfg, robot="r", joint="j", fs_hz=FS_HZ, open_file=open_file) as logger:
+        for k in range(2000):  # bounded; until a file opens after the full disk
+            logger.log_samples(k * 250, np.arange(250) * 1.0, np.arange(250) * 2.0)
+            if len(opened) >= 5 and logger.stats()["state"] == "recording":
+                break
+            time.sleep(0.005)
+        wait_for(lambda: logger.stats()["state"] == "recording")
+        log_batches(logger, 2, start=5000)
+    files = mcap_read.recording_parts(opened[0])
+    assert set(files) == set(tmp_path.glob("*.mcap")) and files[0] == opened[0]
+    assert len(opened) >= 5 and len(files) == 2, [(f.name, f.stat().st_size) for f in files]
+    assert all(f.stat().st_size > 0 for f in files)
+    from rtsid.io.recording import read_recording
+
+    with pytest.warns(IncompleteRecordingWarning):  # the part cut by the full disk
+        grid = read_recording(files[0]).samples
+    assert grid.end_index == 5002 * 250 and grid.all_rows().valid[-500:].all()

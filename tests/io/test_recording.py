@@ -4,13 +4,14 @@ files read to the last complete message with a warning that says how much was re
 from __future__ import annotations
 
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from rtsid.cli import main
-from rtsid.errors import IncompleteRecordingWarning, RecordingError
+from rtsid.errors import IncompleteRecordingWarning, RecordingError, RtsidWarning
 from rtsid.io.mcap_log import McapConfig, McapLogger
 from rtsid.io.recording import (
     SampleGrid,
@@ -130,3 +131,43 @@ def test_replay_and_plot_of_a_file_cut_in_half_say_how_much_was_read(tmp_path, c
     assert len(lines) == 1 and lines[0].startswith(f"rtsid {command}: warning: {half} ends early")
     assert ("samples, " if command == "replay" else "estimates (up to t =") in (lines[0])
     assert main([command, str(REFERENCE), *argv[2:]]) == 0
+
+
+def test_an_empty_part_left_by_a_full_disk_is_skipped_with_a_note(tmp_path, capsys):
+    """Issue 20: a zero-byte part (an older logger's retry on a full disk) made the session
+    fail with '…-001.mcap is empty'; it is skipped, with a note, and the rest is read."""
+    parts = rotated_session(tmp_path)
+    whole = read_recording(parts[0]).samples.end_index
+    empty = parts[-1].with_name(parts[-1].name.replace(".mcap", "0.mcap"))  # -0020 sorts last
+    empty.write_bytes(b"")
+    with pytest.warns(RtsidWarning, match=r"skipped .*-0020\.mcap: it is empty"):
+        recording = read_recording(parts[0])
+    assert recording.parts == parts and recording.samples.end_index == whole
+    defaults = tmp_path / "defaults.toml"  # the test session stores a config replay refuses
+    defaults.write_text("")
+    assert main(["replay", str(parts[0]), "--config", str(defaults)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("rtsid replay: warning: skipped ")
+
+
+def test_a_recovered_file_is_read_as_itself_not_as_its_damaged_original(tmp_path, capsys):
+    """Issue 20: 'rtsid replay X-recovered.mcap' read the truncated X.mcap beside it."""
+    parts = rotated_session(tmp_path)
+    for extra in parts[1:]:
+        extra.unlink()
+    original = parts[0]
+    whole = read_recording(original).samples.end_index
+    data = original.read_bytes()
+    original.write_bytes(data[: len(data) // 2])
+    assert main(["recover", str(original)]) == 0
+    recovered = original.with_name(original.stem + "-recovered.mcap")
+    assert session_parts(recovered) == [recovered]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a complete file: no incomplete-recording warning
+        grid = read_recording(recovered).samples
+    assert 0 < grid.end_index < whole
+    capsys.readouterr()
+    defaults = tmp_path / "defaults.toml"  # the test session stores a config replay refuses
+    defaults.write_text("")
+    assert main(["replay", str(recovered), "--config", str(defaults)]) == 0
+    assert "ends early" not in capsys.readouterr().err
