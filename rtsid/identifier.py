@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from rtsid.config import load_toml
-from rtsid.errors import InputDataError
+from rtsid.errors import InputDataError, invalid
 from rtsid.io.messages import EstimateMessage
 from rtsid.io.schemas import SampleBatch
 from rtsid.replay import ReplayedSlowLane, WindowCutter, recorded_evaluator
@@ -69,21 +69,29 @@ def analysis_config(
     elif isinstance(config, str | Path):
         document = load_toml(config)
     else:
-        document = {k: dict(v) for k, v in (config or {}).items()}
-    worker = document.setdefault("worker", {})
+        document = {k: dict(v) if isinstance(v, Mapping) else v for k, v in (config or {}).items()}
+    worker = _table(document, "worker")
     worker.setdefault("hop_s", OFFLINE_HOP_S)
     if window_s is not None:
         worker["window_s"] = window_s
     if hop_s is not None:
         worker["hop_s"] = hop_s
-    document.setdefault("estimator", {}).update(estimator)
-    link = document.setdefault("link", {})
+    _table(document, "estimator").update(estimator)
+    link = _table(document, "link")
     link["fs_hz"] = float(fs_hz)
-    document.setdefault("plant", {})["fs_hz"] = float(fs_hz)
-    lane = document.get("slow_lane", {})
+    _table(document, "plant")["fs_hz"] = float(fs_hz)
+    lane = _table(document, "slow_lane")
     needed_s = float(lane.get("horizon_s", 20.0)) + float(lane.get("update_s", 2.0)) + 1.0
     link["ring_capacity_s"] = max(float(link.get("ring_capacity_s", 30.0)), needed_s)
     return DaemonConfig.from_mapping(document)
+
+
+def _table(document: dict[str, Any], name: str) -> dict[str, Any]:
+    """Section ``name`` of a config document (created empty), refused unless a table."""
+    section = document.setdefault(name, {})
+    if not isinstance(section, dict):
+        raise invalid(name, section, "a table ([" + name + "] in TOML)")
+    return section
 
 
 class Identifier:

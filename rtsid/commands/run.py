@@ -62,8 +62,9 @@ def status_line(
         est = "waiting for the first window" if why is None else f"waiting: {why}"
     elif estimate["ok"]:
         est = (
-            f"K={_fmt(estimate['K'], '7.1f')}±{_fmt(estimate['K_se'], '.1f')} N·m/rad  "
-            f"B={_fmt(estimate['B'], '.3f')}  I={_fmt(estimate['I'], '.4f')}  "
+            f"K_track={_band(estimate.get('K_track'), estimate.get('K_track_se'))} N·m/rad  "
+            f"K(300ms)={_fmt(estimate['K'], '.1f')}  "
+            f"B={_held(estimate, 'B', '.3f')}  I={_held(estimate, 'I', '.4f')}  "
             f"VAF={_fmt(estimate['vaf'], '5.1f')}%  latency={estimate['latency_ms']:.1f} ms"
         )
     else:
@@ -76,6 +77,20 @@ def status_line(
         f"cpu {status.get('cpu_percent', 0):.0f}%]"
     )
     return f"{head}  {est}  {health}"
+
+
+def _band(value: float | None, se: float | None) -> str:
+    """``149.8±0.4``: a value and its 95 % half-width (1.96 SE), or ``—``."""
+    if value is None:
+        return "—"
+    return f"{value:.1f}" + ("" if se is None else f"±{1.96 * se:.1f}")
+
+
+def _held(estimate: dict[str, Any], key: str, spec: str) -> str:
+    """A parameter as a held value (``0.800 (held)``) or with its standard error."""
+    if estimate.get(f"{key}_held"):
+        return f"{_fmt(estimate[key], spec)} (held)"
+    return f"{_fmt(estimate[key], spec)}±{_fmt(estimate[f'{key}_se'], spec)}"
 
 
 def link_where(link: LinkConfig) -> str:
