@@ -46,9 +46,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--slow-lane",
-        default="off",
-        help="off, process, thread, or a comma-separated list run one after the other: the "
-        "reflex slow lane's mode (on, the virtual plant also has a stretch reflex)",
+        default="process",
+        help="process (the daemon's default), thread, off, or a comma-separated list run one "
+        "after the other: the reflex slow lane's mode (on, the virtual plant also has a "
+        "stretch reflex, so the lane judges it present and the fast lane subtracts it)",
     )
     parser.add_argument(
         "--cpu-latency-us",
@@ -149,7 +150,7 @@ def _slow_lane_modes(text: str) -> list[str]:
 def _slow_lane_section(mode: str) -> str:
     """Config text for a slow-lane mode: on, the plant also has a stretch reflex."""
     if mode == "off":
-        return ""
+        return "[slow_lane]\nenabled = false\n"
     return f'[slow_lane]\nenabled = true\nmode = "{mode}"\n[plant.reflex]\nenabled = true\n'
 
 
