@@ -52,6 +52,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "stretch reflex, so the lane judges it present and the fast lane subtracts it)",
     )
     parser.add_argument(
+        "--plant-reflex",
+        choices=("on", "off"),
+        default="on",
+        help="with the slow lane on, give the virtual plant a stretch reflex (on: the lane "
+        "judges it present and the fast lane subtracts it every window; off: the daemon's "
+        "and the plant's defaults, the lane judges it absent)",
+    )
+    parser.add_argument(
         "--cpu-latency-us",
         type=int,
         default=0,
@@ -147,15 +155,22 @@ def _slow_lane_modes(text: str) -> list[str]:
     return modes
 
 
-def _slow_lane_section(mode: str) -> str:
-    """Config text for a slow-lane mode: on, the plant also has a stretch reflex."""
+def _slow_lane_section(mode: str, plant_reflex: bool = True) -> str:
+    """Config text for a slow-lane mode: on, the plant also has a stretch reflex unless
+    ``plant_reflex`` is false."""
     if mode == "off":
         return "[slow_lane]\nenabled = false\n"
-    return f'[slow_lane]\nenabled = true\nmode = "{mode}"\n[plant.reflex]\nenabled = true\n'
+    reflex = "[plant.reflex]\nenabled = true\n" if plant_reflex else ""
+    return f'[slow_lane]\nenabled = true\nmode = "{mode}"\n' + reflex
 
 
 def _config_file(
-    folder: Path, port: int, can_port: int | None, cpu_latency_us: int, slow_lane: str = "off"
+    folder: Path,
+    port: int,
+    can_port: int | None,
+    cpu_latency_us: int,
+    slow_lane: str = "off",
+    plant_reflex: bool = True,
 ) -> Path:
     path = folder / "bench.toml"
     link = (
@@ -166,7 +181,8 @@ def _config_file(
     path.write_text(
         f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\nrobot = "bench"\n'
         f'[mcap]\ndirectory = "{folder / "rec"}"\n{link}'
-        f"[daemon]\ncpu_latency_us = {cpu_latency_us}\n" + _slow_lane_section(slow_lane)
+        f"[daemon]\ncpu_latency_us = {cpu_latency_us}\n"
+        + _slow_lane_section(slow_lane, plant_reflex)
     )
     return path
 
@@ -265,12 +281,13 @@ def _run_phase(
     transport: str,
     cpu_latency_us: int,
     slow_lane: str = "off",
+    plant_reflex: bool = True,
 ) -> Phase:
     phase = Phase(name)
     with tempfile.TemporaryDirectory(prefix="rtsid-bench-") as tmp:
         port = _free_port()
         can_port = _free_port() if transport == "socketcand" else None
-        config = _config_file(Path(tmp), port, can_port, cpu_latency_us, slow_lane)
+        config = _config_file(Path(tmp), port, can_port, cpu_latency_us, slow_lane, plant_reflex)
         plant = _start_plant(can_port, config) if can_port is not None else None
         daemon = subprocess.Popen(
             [sys.executable, "-m", "rtsid.cli", "run", "--config", str(config), "--quiet"],
@@ -371,14 +388,19 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: {PM_QOS_DEVICE} is not writable here; running with cpu_latency_us = -1")
         qos = -1
     rows, lanes = [], []
+    reflex = args.plant_reflex == "on"
     for mode in _slow_lane_modes(args.slow_lane):
         suffix = "" if mode == "off" else f", slow lane {mode}"
-        idle = _run_phase(f"idle machine{suffix}", seconds, False, args.transport, qos, mode)
+        if mode != "off":
+            suffix += ", plant reflex" if reflex else ", plant without reflex"
+        idle = _run_phase(
+            f"idle machine{suffix}", seconds, False, args.transport, qos, mode, reflex
+        )
         rows.append(_row(idle, None))
         lanes.append(_lane_row(idle, mode))
         if not args.no_load_phase:
             loaded = _run_phase(
-                f"other core loaded{suffix}", seconds, True, args.transport, qos, mode
+                f"other core loaded{suffix}", seconds, True, args.transport, qos, mode, reflex
             )
             rows.append(_row(loaded, idle))
             lanes.append(_lane_row(loaded, mode))

@@ -149,13 +149,18 @@ def _windows(ident: Identifier, record: SampleRecord) -> list[EstimateMessage]:
         raise ConfigError(inverted_torque_message(exc.inverted, exc.estimable, fix)) from None
 
 
-def _reflex_line(fits: list[dict[str, object]]) -> str:
+def _reflex_line(fits: list[dict[str, object]], needed: float) -> str:
     """What the slow lane decided, with its evidence."""
     if not fits:
         return "slow lane: no fit (record shorter than its first horizon, or slow lane off)"
     present = [f for f in fits if f["applied"]]
     gains = [float(g) for f in fits if isinstance(g := f["window_vaf_gain"], float)]
-    evidence = f" (median window VAF gain {np.median(gains):+.1f} points)" if gains else ""
+    evidence = (
+        f" (window VAF gain {min(gains):+.1f} … {max(gains):+.1f} points, median "
+        f"{np.median(gains):+.1f}; present needs ≥ {needed:+g})"
+        if gains
+        else ""
+    )
     if not present:
         return (
             f"slow lane: reflex judged absent in all {len(fits)} fits{evidence}: nothing subtracted"
@@ -198,7 +203,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"rtsid identify: wrote {figure}", file=sys.stderr)
     if ident.plan is not None:
         print(f"rtsid identify: {ident.plan}", file=sys.stderr)
-    print(f"rtsid identify: {_reflex_line(ident.reflex)}", file=sys.stderr)
+    needed = ident.config.slow_lane.min_window_vaf_gain_percent
+    print(f"rtsid identify: {_reflex_line(ident.reflex, needed)}", file=sys.stderr)
     print(f"rtsid identify: {_summary(windows)}", file=sys.stderr)
     return 0
 

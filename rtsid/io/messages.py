@@ -91,7 +91,9 @@ class EstimateMessage:
     )
     vaf: float | None = field(
         metadata=_meta(
-            "variance of the measured torque (analysed band) accounted for by the I, B, K model, %"
+            "share of the measured torque's variance in the perturbation's band (above DC up to "
+            "the plan's band edge) explained by the published model: I, B, K plus any reflex "
+            "torque the slow lane subtracted; window mean removed, trend kept, %"
         )
     )
     ok: bool = field(metadata=_meta("true: I, B, K are usable"))
