@@ -80,10 +80,22 @@ def analysis_config(
     link = _table(document, "link")
     link["fs_hz"] = float(fs_hz)
     _table(document, "plant")["fs_hz"] = float(fs_hz)
-    lane = _table(document, "slow_lane")
-    needed_s = float(lane.get("horizon_s", 20.0)) + float(lane.get("update_s", 2.0)) + 1.0
-    link["ring_capacity_s"] = max(float(link.get("ring_capacity_s", 30.0)), needed_s)
+    _ring_for_the_slow_lane(link, _table(document, "slow_lane"))
     return DaemonConfig.from_mapping(document)
+
+
+def _ring_for_the_slow_lane(link: dict[str, Any], lane: dict[str, Any]) -> None:
+    """Lengthen ``[link] ring_capacity_s`` to hold the slow lane's horizon and an update (an
+    offline analysis has no ring to size; values that are not numbers are left to the
+    config's own checks, which name them)."""
+    values = (
+        lane.get("horizon_s", 20.0),
+        lane.get("update_s", 2.0),
+        link.get("ring_capacity_s", 30.0),
+    )
+    if all(isinstance(v, int | float) and not isinstance(v, bool) for v in values):
+        horizon, update, ring = (float(v) for v in values)
+        link["ring_capacity_s"] = max(ring, horizon + update + 1.0)
 
 
 def _table(document: dict[str, Any], name: str) -> dict[str, Any]:

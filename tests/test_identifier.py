@@ -161,3 +161,19 @@ def test_a_lone_window_withholds_every_window_the_stream_withholds(reklab_path):
 def _span(window, position, torque):
     span = slice(window.window_start_index, window.window_end_index + 1)
     return position[span], torque[span]
+
+
+@pytest.mark.parametrize(
+    "config",
+    [
+        {"estimator": 5},
+        {"slow_lane": {"horizon_s": "abc"}},
+        {"link": {"ring_capacity_s": [1]}},
+        {"worker": "fast"},
+    ],
+)
+def test_a_bad_config_is_one_config_error(config):
+    from rtsid.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="is not accepted"):
+        Identifier(FS, config)
