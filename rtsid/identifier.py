@@ -30,13 +30,13 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from rtsid.config import load_toml
-from rtsid.errors import InputDataError, invalid
+from rtsid.errors import InputDataError, TorqueSignError, invalid
 from rtsid.io.messages import EstimateMessage
 from rtsid.io.schemas import SampleBatch
 from rtsid.replay import ReplayedSlowLane, WindowCutter, recorded_evaluator
 from rtsid.runtime.daemon import DaemonConfig
 
-__all__ = ["Identifier", "analysis_config", "identify", "record_windows"]
+__all__ = ["Identifier", "analysis_config", "config_table", "identify", "record_windows"]
 
 #: ``rtsid identify``'s hop (the daemon's is ``[worker] hop_s``, 20 ms).
 OFFLINE_HOP_S = 0.1
@@ -70,35 +70,39 @@ def analysis_config(
         document = load_toml(config)
     else:
         document = {k: dict(v) if isinstance(v, Mapping) else v for k, v in (config or {}).items()}
-    worker = _table(document, "worker")
+    worker = config_table(document, "worker")
     worker.setdefault("hop_s", OFFLINE_HOP_S)
     if window_s is not None:
         worker["window_s"] = window_s
     if hop_s is not None:
         worker["hop_s"] = hop_s
-    _table(document, "estimator").update(estimator)
-    link = _table(document, "link")
+    config_table(document, "estimator").update(estimator)
+    link = config_table(document, "link")
     link["fs_hz"] = float(fs_hz)
-    _table(document, "plant")["fs_hz"] = float(fs_hz)
-    _ring_for_the_slow_lane(link, _table(document, "slow_lane"))
+    config_table(document, "plant")["fs_hz"] = float(fs_hz)
+    _ring_for_the_analysis(link, worker, config_table(document, "slow_lane"))
     return DaemonConfig.from_mapping(document)
 
 
-def _ring_for_the_slow_lane(link: dict[str, Any], lane: dict[str, Any]) -> None:
-    """Lengthen ``[link] ring_capacity_s`` to hold the slow lane's horizon and an update (an
-    offline analysis has no ring to size; values that are not numbers are left to the
-    config's own checks, which name them)."""
+def _ring_for_the_analysis(
+    link: dict[str, Any], worker: dict[str, Any], lane: dict[str, Any]
+) -> None:
+    """Lengthen ``[link] ring_capacity_s`` to hold a window and the slow lane's horizon with an
+    update (an offline analysis has no ring to size; values that are not numbers are left to
+    the config's own checks, which name them)."""
     values = (
         lane.get("horizon_s", 20.0),
         lane.get("update_s", 2.0),
+        worker.get("window_s", 0.3),
+        worker.get("hop_s", OFFLINE_HOP_S),
         link.get("ring_capacity_s", 30.0),
     )
     if all(isinstance(v, int | float) and not isinstance(v, bool) for v in values):
-        horizon, update, ring = (float(v) for v in values)
-        link["ring_capacity_s"] = max(ring, horizon + update + 1.0)
+        horizon, update, window, hop, ring = (float(v) for v in values)
+        link["ring_capacity_s"] = max(ring, horizon + update + 1.0, window + hop + 1.0)
 
 
-def _table(document: dict[str, Any], name: str) -> dict[str, Any]:
+def config_table(document: dict[str, Any], name: str) -> dict[str, Any]:
     """Section ``name`` of a config document (created empty), refused unless a table."""
     section = document.setdefault(name, {})
     if not isinstance(section, dict):
@@ -151,6 +155,7 @@ class Identifier:
         )
         self._cutter = WindowCutter(self.evaluator, lane)
         self._next_index = 0
+        self._refused: TorqueSignError | None = None
 
     @property
     def plan(self) -> str | None:
@@ -169,12 +174,24 @@ class Identifier:
             The next samples (rad, N·m as the rig reports it: ``torque_sign`` applies).
         valid : array_like of bool, shape (n,), optional
             False for lost samples (their values are ignored; windows bridge a few, as live).
+
+        Raises
+        ------
+        TorqueSignError
+            Most windows read K, B, I < 0: the stream stops there, and every later push
+            raises the same error (make a new Identifier with the opposite ``torque_sign``).
         """
+        if self._refused is not None:
+            raise self._refused  # the stream stopped there; a new Identifier starts afresh
         batch = self._batch(position_rad, torque_nm, valid)
         if len(batch) == 0:
             return []
-        for snap in self._cutter.add(batch):
-            self.evaluator.evaluate(snap)
+        try:
+            for snap in self._cutter.add(batch):
+                self.evaluator.evaluate(snap)
+        except TorqueSignError as exc:
+            self._refused = exc
+            raise
         out = [as_message(m) for m in self._messages]
         self._messages.clear()
         return out

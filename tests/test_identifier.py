@@ -177,3 +177,23 @@ def test_a_bad_config_is_one_config_error(config):
 
     with pytest.raises(ConfigError, match="is not accepted"):
         Identifier(FS, config)
+
+
+def test_after_an_inverted_sign_the_stream_stops_and_says_so_on_every_push():
+    from rtsid.errors import TorqueSignError
+
+    theta, tau = prbs_ankle_with_reflex(8.0, FS, ANKLE, None, seed=6)
+    ident = Identifier(FS, {"slow_lane": {"enabled": False}}, torque_sign=-1)
+    with pytest.raises(TorqueSignError):
+        for a in range(0, theta.size, 2500):
+            ident.push(theta[a : a + 2500], tau[a : a + 2500])
+    count = ident.evaluator.sign.estimable
+    for _ in range(3):  # no window is re-estimated, the count does not creep
+        with pytest.raises(TorqueSignError):
+            ident.push(theta[:2500], tau[:2500])
+    assert ident.evaluator.sign.estimable == count
+
+
+def test_an_offline_window_longer_than_the_daemons_ring_is_analysed():
+    config = analysis_config(1000.0, window_s=40.0, hop_s=5.0)
+    assert config.worker.window_s == 40.0 and config.link.ring_capacity_s >= 46.0

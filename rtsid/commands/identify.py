@@ -23,7 +23,7 @@ from rtsid.ident.cascade import (
 from rtsid.ident.reflex import REFLEX_VARIANTS
 from rtsid.ident.sign import inverted_torque_message
 from rtsid.ident.window import EstimatorOptions, WindowEstimate, estimate_window
-from rtsid.identifier import Identifier, record_windows
+from rtsid.identifier import Identifier, config_table, record_windows
 from rtsid.io.estimate_csv import encode_value, open_output, write_estimates
 from rtsid.io.messages import EstimateMessage
 from rtsid.io.sample_files import SampleRecord, load_samples, nonfinite_report
@@ -101,11 +101,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _identifier(
-    args: argparse.Namespace, fs_hz: float, window_s: float, **config: dict[str, object]
+    args: argparse.Namespace, fs_hz: float, window_s: float | None, **config: dict[str, object]
 ) -> Identifier:
     """The stream ``rtsid identify`` runs: the daemon's window path (:class:`rtsid.Identifier`)
     with ``--config`` (a daemon TOML: [estimator], [worker], [slow_lane], [tracker]) and the
-    command's switches over it; ``--hop`` 0.1 s unless the config sets [worker] hop_s."""
+    command's switches over it; ``--window`` 0.3 s and ``--hop`` 0.1 s unless the config sets
+    [worker] window_s and hop_s."""
     overrides = {
         "torque_sign": args.torque_sign,
         "fit_method": args.fit,
@@ -114,7 +115,7 @@ def _identifier(
     }
     document = load_toml(args.config) if args.config else {}
     for section, values in config.items():
-        document.setdefault(section, {}).update(values)
+        config_table(document, section).update(values)
     return Identifier(
         fs_hz,
         document,
@@ -183,7 +184,7 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.model == "cascade":
         return _identify_cascade(record, args)
-    ident = _identifier(args, record.fs_hz, args.window if args.window is not None else 0.3)
+    ident = _identifier(args, record.fs_hz, args.window)
     windows = _windows(ident, record)
     messages = [w.as_dict() for w in windows]
     with open_output(args.output) as fh:

@@ -247,7 +247,9 @@ def back_end(
     params = np.array([estimate.I, estimate.B, estimate.K])
     p = predict_torque(irf, u, y, params, gaps)
     index = np.arange(supported_edge(irf), supported_edge(irf) + p.measured.size)
-    keep = slice(None) if p.rows is None else p.rows
+    # a gap window is scored on its clean rows (all of them, whether or not enough remain to
+    # check the IRF: the model's torque needs only the stencils' support)
+    keep = slice(None) if gaps is None else gaps.rows(supported_edge(irf))
     published = published_vaf(
         p.measured[keep],
         p.model[keep],
@@ -255,7 +257,7 @@ def back_end(
         score,
         irf.fs_hz,
         index[keep],
-        in_band=p.rows is None,
+        in_band=gaps is None,
     )
     vafs = (published, estimate.vaf_irf, estimate.vaf_fit)
     se = (estimate.I_se, estimate.B_se, estimate.K_se)

@@ -1,4 +1,5 @@
 import csv
+import itertools
 
 import numpy as np
 import pytest
@@ -199,3 +200,32 @@ def test_identify_sign_check_does_not_fire_on_a_correct_sign(ramp_recording, tmp
     argv = ["identify", str(ramp_recording), "--hop", "0.02", "-o", str(out)]
     assert main(argv) == 2
     assert main([*argv, "--torque-sign", "-1"]) == 0
+
+
+def test_identify_takes_the_window_and_hop_of_its_config(tmp_path, capsys):
+    # review: [worker] window_s from --config was overridden with 0.3 s
+    theta = filtered_noise(6000, 1000.0, 30.0, peak=0.03, seed=2)
+    path = tmp_path / "rec.npz"
+    np.savez(path, position_rad=theta, torque_nm=simulate_impedance(theta, 1000.0), fs_hz=1000.0)
+    config = tmp_path / "daemon.toml"
+    config.write_text("[worker]\nwindow_s = 0.5\nhop_s = 0.2\n[slow_lane]\nenabled = false\n")
+    out = tmp_path / "est.csv"
+    assert main(["identify", str(path), "--config", str(config), "-o", str(out)]) == 0
+    with out.open() as fh:
+        rows = list(csv.DictReader(fh))
+    first = rows[0]
+    span = (int(first["window_end_index"]) - int(first["window_start_index"]) + 1) / 1000.0
+    ends = [float(r["t_end_s"]) for r in rows]
+    hops = {round(b - a, 6) for a, b in itertools.pairwise(ends)}
+    assert span == 0.5 and hops == {0.2}
+
+
+def test_identify_cascade_refuses_a_config_section_that_is_not_a_table(tmp_path, capsys):
+    theta = filtered_noise(4000, 1000.0, 30.0, peak=0.03, seed=1)
+    path = tmp_path / "rec.npz"
+    np.savez(path, position_rad=theta, torque_nm=simulate_impedance(theta, 1000.0), fs_hz=1000.0)
+    config = tmp_path / "bad.toml"
+    config.write_text("slow_lane = 3\n")
+    assert main(["identify", str(path), "--model", "cascade", "--config", str(config)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "'slow_lane' = 3 is not accepted" in err
