@@ -276,4 +276,3 @@ def test_files_that_can_never_give_an_estimate_are_refused(
     assert main(["convert", str(source), "-o", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and re.search(problem, err) and not out.exists()
-
