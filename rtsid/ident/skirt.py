@@ -1467,6 +1467,23 @@ class _SearchRecord:
     def n_samples(self) -> int:
         return self.u.size
 
+    def estimate(self, n_basis: int, family: str, **options: Any) -> LtvEstimate:
+        """:func:`identify_ltv` of this record on ``n_basis`` functions of ``family`` (its
+        conditioning warnings, about edge lines only, silenced: the search scores them)."""
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SkirtConditioningWarning)
+            return identify_ltv(
+                self.u,
+                self.y,
+                self.fs_hz,
+                self.excited_bins,
+                self.period_samples,
+                self.n_periods,
+                n_basis,
+                basis_family=family,
+                **options,
+            )
+
 
 @dataclass(frozen=True)
 class _SearchRange:
@@ -1533,19 +1550,7 @@ def _score_candidates(
     scores: list[float] = []
     best: LtvEstimate | None = None
     for n_basis in candidates:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", SkirtConditioningWarning)  # edge lines only
-            est = identify_ltv(
-                record.u,
-                record.y,
-                record.fs_hz,
-                record.excited_bins,
-                record.period_samples,
-                record.n_periods,
-                n_basis,
-                basis_family=family,
-                **options,
-            )
+        est = record.estimate(n_basis, family, **options)
         scores.append(predicted_validation_vaf(est, record.u, record.y))
         if best is None or scores[-1] > max(scores[:-1]):
             best = est
@@ -1664,19 +1669,7 @@ def select_model(
     best = chosen[0]
     estimate = best.estimate
     if decimation > 1:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", SkirtConditioningWarning)  # edge lines only
-            estimate = identify_ltv(
-                full.u,
-                full.y,
-                full.fs_hz,
-                full.excited_bins,
-                full.period_samples,
-                full.n_periods,
-                best.n_basis,
-                basis_family=best.basis_family,
-                **options,
-            )
+        estimate = full.estimate(best.n_basis, best.basis_family, **options)
     return ModelSelection(tuple(chosen), estimate, tuple(refused), decimation, band_hz)
 
 

@@ -7,7 +7,7 @@
 // malformed messages the server refused.
 //
 // Data, never markup: every message field reaches the page through textContent (or a DOM
-// attribute set by code), never innerHTML; the server's Content-Security-Policy forbids inline
+// attribute set by code), never parsed as markup; the server's Content-Security-Policy forbids inline
 // script besides.
 "use strict";
 
