@@ -41,6 +41,7 @@ import can
 
 from rtsid.errors import LinkError, LinkHandshakeError
 from rtsid.lifecycle import ThreadOwner
+from rtsid.link.markers import MarkerInbox, WireMarker
 from rtsid.link.protocol import (
     COMMAND_ID,
     COUNTER_MODULO,
@@ -351,6 +352,7 @@ class Acquisition(ThreadOwner):
         self.anchor_host_time_s = float("nan")
         self.last_diagnostics: dict[str, Any] = {}
         self.last_error: str = ""
+        self.markers = MarkerInbox()  # trial markers decoded from the wire, for the daemon
 
     # ------------------------------------------------------------------ life cycle
     def start(self, *, require_bus: bool = True) -> Acquisition:
@@ -385,6 +387,10 @@ class Acquisition(ThreadOwner):
             self._close_bus()
 
     # ------------------------------------------------------------------ public API
+    def drain_markers(self) -> list[WireMarker]:
+        """Trial markers decoded from the wire since the last call, oldest first."""
+        return self.markers.drain()
+
     def counters(self) -> LinkCounters:
         """A consistent-enough snapshot of the counters (each value is read once)."""
         c = dict(self._c)
