@@ -177,7 +177,14 @@ def parse_history_query(
 
 
 class MessageRing:
-    """A fixed number of (publication time ns, payload bytes) slots; one writer, any readers.
+    """A fixed number of (publication time ns, payload) slots; one writer, any readers.
+
+    The payloads are copied into one byte arena reserved, and touched, when the first
+    message arrives (``capacity`` × its size × :attr:`ARENA_SLACK`), so that a daemon's
+    memory reaches its ceiling at once instead of creeping up while the history fills; the
+    arena grows (a rare re-layout) only when later messages turn out larger on average.
+    Each payload is contiguous in the arena: one that does not fit before the end starts
+    again at the beginning.
 
     Parameters
     ----------
@@ -185,12 +192,26 @@ class MessageRing:
         Slots (the oldest message is replaced once they are all used).
     """
 
+    #: Arena bytes per slot, as a multiple of the first message's size.
+    ARENA_SLACK = 1.5
+    #: Message counts at which the arena is checked against the mean size so far (and grown
+    #: while it holds little), so that a small first message does not force a growth later.
+    _SIZE_CHECKS = frozenset((16, 64, 256, 1024))
+    _PAGE = 4096
+
     def __init__(self, capacity: int) -> None:
         if capacity < 1:
             raise ValueError(f"MessageRing capacity {capacity}; expected >= 1")
         self.capacity = int(capacity)
         self._times = [0] * self.capacity
-        self._payloads: list[bytes] = [b""] * self.capacity
+        # (arena, start byte, length per slot): replaced as one on growth, never mutated after.
+        self._layout: tuple[bytearray, list[int], list[int]] = (
+            bytearray(),
+            [0] * self.capacity,
+            [0] * self.capacity,
+        )
+        self._reserved = 0  # byte position (absolute) the writer may be writing up to
+        self._generation = 0  # bumped when a growth renumbers the byte positions
         self._written = 0  # messages appended so far; bumped last (the commit)
 
     def __len__(self) -> int:
@@ -201,12 +222,69 @@ class MessageRing:
         """Messages appended since the start."""
         return self._written
 
+    @property
+    def reserved_bytes(self) -> int:
+        """Bytes of the arena (0 until the first message)."""
+        return len(self._layout[0])
+
     def append(self, time_ns: int, payload: bytes) -> None:
-        """Add one message (writer thread only; O(1), no lock, no allocation but the slot)."""
+        """Add one message (writer thread only; O(len(payload)), no lock, no allocation but
+        the arena's own, once, or on a rare growth)."""
         slot = self._written % self.capacity
+        if self._written in self._SIZE_CHECKS:
+            self._fit_mean_size()
+        position = self._place(len(payload))
+        arena, starts, lengths = self._layout
+        offset = position % len(arena)
+        arena[offset : offset + len(payload)] = payload
+        starts[slot], lengths[slot] = position, len(payload)
         self._times[slot] = time_ns
-        self._payloads[slot] = payload
         self._written += 1
+
+    def _place(self, n: int) -> int:
+        """Where the next payload of ``n`` bytes goes (absolute), reserved before it is written."""
+        arena, starts, _ = self._layout
+        size = len(arena)
+        if size == 0:
+            self._grow(n)
+            return self._place(n)
+        position = self._reserved
+        if position % size + n > size:  # does not fit before the end: start over at 0
+            position += size - position % size
+        oldest_kept = self._written - self.capacity + 2  # held after this append
+        if n > size or (
+            oldest_kept >= 0 and position + n - size > starts[oldest_kept % self.capacity]
+        ):
+            self._grow(n)
+            return self._place(n)
+        self._reserved = position + n
+        return position
+
+    def _fit_mean_size(self) -> None:
+        _, _, lengths = self._layout
+        held = min(self._written, self.capacity)
+        mean = sum(lengths[:held]) / held if self._written <= self.capacity else 0.0
+        if mean * self.capacity * 1.25 > self.reserved_bytes:
+            self._grow(round(mean * 1.25))
+
+    def _grow(self, n: int) -> None:
+        """A larger arena holding the messages held now, renumbered from byte 0."""
+        old, old_starts, old_lengths = self._layout
+        wanted = max(2 * len(old), int(self.capacity * max(n, 64) * self.ARENA_SLACK))
+        size = -(-wanted // self._PAGE) * self._PAGE
+        arena = bytearray(size)
+        arena[:: self._PAGE] = bytes(len(range(0, size, self._PAGE)))  # touch every page now
+        starts, lengths = [0] * self.capacity, [0] * self.capacity
+        position = 0
+        for index in range(max(0, self._written - self.capacity + 1), self._written):
+            slot = index % self.capacity
+            begin, length = old_starts[slot] % len(old), old_lengths[slot]
+            arena[position : position + length] = old[begin : begin + length]
+            starts[slot], lengths[slot] = position, length
+            position += length
+        self._generation += 1
+        self._layout = (arena, starts, lengths)
+        self._reserved = position
 
     def _time_at(self, index: int) -> int:
         return self._times[index % self.capacity]
@@ -222,20 +300,46 @@ class MessageRing:
         first_ns : int or None
             Publication time of the first message returned (None: none returned).
         """
+        for _ in range(8):  # a growth renumbers the bytes meanwhile: copy again (rare)
+            generation = self._generation
+            copied = self._copy(from_ns, to_ns)
+            if self._generation == generation:
+                return copied
+        return [], None, None
+
+    def newest(self) -> bytes | None:
+        """The newest message (None: none yet), without copying the rest."""
+        end = self._written
+        if end == 0:
+            return None
+        time_ns = self._time_at(end - 1)
+        messages, _, _ = self.snapshot(time_ns, 2**63 - 1)
+        return messages[-1] if messages else None
+
+    def _copy(self, from_ns: int, to_ns: int) -> tuple[list[bytes], int | None, int | None]:
+        arena, starts, lengths = self._layout
         end = self._written
         start = max(0, end - self.capacity + 1)  # the slot after `end` may be mid-write
-        if end <= start:
+        if end <= start or not arena:
             return [], None, None
+        size = len(arena)
         indices = range(start, end)
         lo = start + bisect.bisect_left(indices, from_ns, key=self._time_at)
         hi = start + bisect.bisect_right(indices, to_ns, key=self._time_at)
-        times = [self._time_at(i) for i in range(lo, hi)]
-        messages = [self._payloads[i % self.capacity] for i in range(lo, hi)]
+        times, positions, messages = [], [], []
+        for i in range(lo, hi):
+            slot = i % self.capacity
+            times.append(self._times[slot])
+            position, length = starts[slot], lengths[slot]
+            positions.append(position)
+            messages.append(bytes(arena[position % size : position % size + length]))
         held_from = self._time_at(start)
-        # Seqlock check: drop what the writer reused while we copied.
+        # Seqlock check: drop what the writer reused (slot or bytes) while we copied.
         reused = self._written - self.capacity + 1 - lo
-        if reused > 0:
-            times, messages = times[reused:], messages[reused:]
+        overwritten = bisect.bisect_left(positions, self._reserved - size)
+        drop = max(reused, overwritten)
+        if drop > 0:
+            times, messages = times[drop:], messages[drop:]
             held_from = times[0] if times else self._time_at(self._written - 1)
         return messages, held_from, (times[0] if times else None)
 
@@ -280,10 +384,7 @@ class HistoryStore:
     def latest(self, kind: str) -> bytes | None:
         """The newest message of ``kind`` (None: none yet)."""
         ring = self._rings.get(kind)
-        if ring is None or ring.written == 0:
-            return None
-        messages, _, _ = ring.snapshot(0, 2**63 - 1)
-        return messages[-1] if messages else None
+        return None if ring is None else ring.newest()
 
     def answer(
         self, query: HistoryQuery, *, robot: str, joint: str, now_ns: int | None = None

@@ -240,3 +240,53 @@ def test_any_selector_is_answered_or_refused_and_answers_pass_the_clients_checks
 def test_any_reply_is_checked_without_a_traceback(key: str, payload: bytes) -> None:
     checked = check_replies([(key, payload)])
     assert len(checked.rejected) + len(checked.parts) + len(checked.messages) >= 1
+
+
+def test_the_arena_is_reserved_at_the_first_message_and_never_grows_for_steady_messages() -> None:
+    """Memory reaches its ceiling at once (RSS flat while the history fills), not in steps."""
+    ring = MessageRing(100)
+    assert ring.reserved_bytes == 0
+    ring.append(0, estimate(0, 0))
+    reserved = ring.reserved_bytes
+    assert reserved >= 100 * len(estimate(0, 0))
+    for i in range(1, 1000):  # ten turns of the ring, sizes within the slack
+        ring.append(i, estimate(i, i))
+    assert ring.reserved_bytes == reserved
+    messages, _, _ = ring.snapshot(0, 2**63 - 1)
+    assert messages == [estimate(i, i) for i in range(901, 1000)]
+
+
+def test_larger_messages_grow_the_arena_and_keep_what_is_held() -> None:
+    ring = MessageRing(8)
+    for i in range(5):
+        ring.append(i, b"%d" % i)
+    small = ring.reserved_bytes
+    ring.append(5, b"x" * 10_000)  # larger than the whole arena
+    ring.append(6, b"y" * 3)
+    assert ring.reserved_bytes > small
+    messages, held_from, _ = ring.snapshot(0, 2**63 - 1)
+    assert messages == [b"0", b"1", b"2", b"3", b"4", b"x" * 10_000, b"y" * 3]
+    assert held_from == 0
+    assert ring.newest() == b"y" * 3
+    assert MessageRing(4).newest() is None
+
+
+def test_payloads_never_straddle_the_arena_end() -> None:
+    ring = MessageRing(4)
+    payloads = [bytes([65 + i % 26]) * (1 + (7 * i) % 97) for i in range(200)]
+    for i, payload in enumerate(payloads):
+        ring.append(i, payload)
+        messages, _, _ = ring.snapshot(0, 2**63 - 1)
+        assert messages == payloads[max(0, i - 2) : i + 1]
+
+
+def test_a_small_first_message_is_corrected_early_not_when_the_history_is_full() -> None:
+    ring = MessageRing(2000)
+    ring.append(0, b"{}")
+    for i in range(1, 1025):
+        ring.append(i, estimate(i, i))
+    reserved = ring.reserved_bytes
+    assert reserved >= 2000 * len(estimate(1, 1))
+    for i in range(1025, 8000):
+        ring.append(i, estimate(i, i))
+    assert ring.reserved_bytes == reserved
