@@ -24,7 +24,6 @@ import errno
 import logging
 import os
 import queue
-import re
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
@@ -38,7 +37,6 @@ import numpy as np
 from rtsid import __version__
 from rtsid.config import invalid, require_range, section_from_mapping
 from rtsid.errors import InputDataError, RecordingError
-from rtsid.io.session import SessionConfig, recording_stem
 from rtsid.io.schemas import (
     SCHEMAS,
     encode_can_frames,
@@ -47,6 +45,7 @@ from rtsid.io.schemas import (
     encode_samples,
     encode_status,
 )
+from rtsid.io.session import SessionConfig, recording_stem
 from rtsid.lifecycle import ThreadOwner
 
 __all__ = ["McapConfig", "McapLogger", "channel_kinds", "recording_name", "register_channels"]

@@ -340,9 +340,7 @@ def _json_object(data: bytes | str, path: str | Path, what: str) -> dict[str, An
     return value
 
 
-_PART = re.compile(
-    r"^(?P<session>.*\d{8}T\d{6}Z.*?)(?:-(?P<part>\d{3,}))?(?:-recovered)?\.mcap$"
-)
+_PART = re.compile(r"^(?P<session>.*\d{8}T\d{6}Z.*?)(?:-(?P<part>\d{3,}))?(?:-recovered)?\.mcap$")
 
 
 def recording_parts(path: str | Path) -> list[Path]:
@@ -350,9 +348,9 @@ def recording_parts(path: str | Path) -> list[Path]:
 
     A daemon's session is ``rtsid-<robot>-<joint>-<UTC>.mcap`` (or the ``[session]``
     ``recording_pattern``'s name, which always holds the UTC start) followed by ``-001``,
-    ``-002``, … after rotation (or after a write error). Given any part, returns the existing parts in the
-    same directory sorted by part number (a file not named that way is returned alone, and so
-    is a ``…-recovered.mcap`` written by ``rtsid recover``).
+    ``-002``, … after rotation (or after a write error). Given any part, returns the existing
+    parts in the same directory sorted by part number (a file not named that way is returned
+    alone, and so is a ``…-recovered.mcap`` written by ``rtsid recover``).
     """
     p = Path(path)
     match = _PART.match(p.name)

@@ -19,8 +19,9 @@ or escape codes in a terminal. The checks, all documented bounds:
   on (``<prefix>/<robot>/<joint>/<channel>``): a daemon's channel cannot speak for another.
 
 The validator is a small interpreter of the JSON-schema keywords those schemas use (``type``,
-``enum``, ``minimum``, ``maxItems``, ``maxLength``, ``properties``, ``required``, ``additionalProperties``,
-``items``); ``jsonschema`` is only a test dependency (the tests check both agree).
+``enum``, ``minimum``, ``maxItems``, ``maxLength``, ``properties``, ``required``,
+``additionalProperties``, ``items``); ``jsonschema`` is only a test dependency (the tests check
+both agree).
 """
 
 from __future__ import annotations
@@ -178,7 +179,9 @@ def check_value(value: Any, schema: Mapping[str, Any], where: str = "", depth: i
             f"{where} = {printable(repr(value), 80)} is not one of the known values"
         )
     if actual == "string" and len(value) > schema.get("maxLength", MAX_STRING_CHARS):
-        raise MalformedMessage(f"{where} is a string of {len(value)} characters, more than accepted")
+        raise MalformedMessage(
+            f"{where} is a string of {len(value)} characters, more than accepted"
+        )
     if "minimum" in schema and actual in ("integer", "number") and value < schema["minimum"]:
         raise MalformedMessage(f"{where} = {value!r} is below {schema['minimum']}")
     if actual == "array":

@@ -74,7 +74,7 @@ REMEMBERED_IDS = 4096
 #: Longest wait for the MCAP writer to write a marker before the query is told it failed, s.
 WRITE_TIMEOUT_S = 2.0
 
-_MARKER_ID = re.compile(r"^[A-Za-z0-9_.:\-]{1,%d}$" % MAX_MARKER_ID_CHARS)
+_MARKER_ID = re.compile(rf"^[A-Za-z0-9_.:\-]{{1,{MAX_MARKER_ID_CHARS}}}$")
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 
 
@@ -233,6 +233,10 @@ class SessionDesk(ThreadOwner):
         self._acks: OrderedDict[str, dict[str, Any]] = OrderedDict()
         self._inbox_refused_seen = 0
         self.current = self.session_message(max(0, self._next_sample()), session.condition)
+
+    def next_sample(self) -> int:
+        """The index a marker taken now would mark (the ring's newest + 1)."""
+        return self._next_sample()
 
     # ------------------------------------------------------------------ messages
     def session_message(self, sample_index: int, condition: str) -> dict[str, Any]:
