@@ -265,3 +265,19 @@ def test_hostile_labels_are_refused_by_the_views_checks():
     long_condition = {**session_message(1, "x"), "condition": "c" * 65}
     with pytest.raises(MalformedMessage, match="condition"):
         decode_message("session", json.dumps(long_condition).encode(), "rtsid/rig/ankle/session")
+
+
+def test_watch_shows_labels_as_text_and_refuses_escapes():
+    from rtsid.io.watch import WatchState, render_view
+
+    state = WatchState()
+    key = "rtsid/rig/ankle/marker"
+    html = marker_message(5, "<b>trial</b> 1", "a")
+    assert state.update(key, encode_json(html), 0) == html
+    assert state.update(key, encode_json(html), 0) is None  # the same marker once
+    assert state.update(key, encode_json(marker_message(6, "x\x1b[2J", "b")), 0) is None
+    assert state.rejected == 1
+    state.update("rtsid/rig/ankle/session", encode_json(session_message(0, "baseline")), 0)
+    view = render_view(state, title="t", now_s=0.0)
+    assert "rig/ankle subject S01  session 2  condition baseline (from t=0.000s)" in view
+    assert "rig/ankle marker '<b>trial</b> 1' at t=0.002s (sample 5, zenoh)" in view

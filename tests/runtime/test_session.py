@@ -154,3 +154,27 @@ def test_acknowledged_marks_survive_kill_9_once_each(tmp_path, free_port, marks)
     recorded = {m["marker_id"]: m["sample_index"] for m in read_session(fixed).markers}
     assert recorded == acked  # none lost, none twice, each on its acknowledged sample
     assert len(acked) == marks and sorted(acked.values()) == list(acked.values())
+
+
+def test_watch_and_query_show_the_session_and_markers(daemon, free_port, capsys):
+    import io
+
+    from rtsid.io.watch import watch
+
+    assert main(cli("query", "--session", port=free_port)) == 0
+    (line,) = capsys.readouterr().out.splitlines()
+    shown = json.loads(line)
+    assert (shown["subject"], shown["session"], shown["condition"]) == ("S01", "2", "baseline")
+    out = io.StringIO()
+    connect = (f"tcp/127.0.0.1:{free_port}",)
+    with client(free_port) as session:
+        sender = threading.Timer(1.0, lambda: mark(session, {"label": "trial 10"}))
+        sender.start()
+        try:
+            code = watch("rtsid/*/*", connect, mode="client", count=250, timeout_s=30, out=out)
+        finally:
+            sender.join(10)
+    assert code == 0
+    lines = out.getvalue().splitlines()
+    assert "testbot/ankle subject S01  session 2  condition baseline (from t=" in lines[0]
+    assert any("marker 'trial 10' at t=" in ln and "zenoh)" in ln for ln in lines)
