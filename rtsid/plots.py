@@ -119,7 +119,7 @@ def impedance_figure(
         Window length, s (for the window K's label).
     markers : sequence of (float, str)
         Trial markers (sample time, s; label): a vertical line on every panel, the label
-        above the top one (as plain text: ``$`` never starts mathtext).
+        along it in the top one (as plain text: ``$`` never starts mathtext).
 
     Returns
     -------
@@ -158,17 +158,17 @@ def impedance_figure(
 
 
 def _draw_markers(axes: Sequence[Any], markers: Sequence[tuple[float, str]]) -> None:
-    """A dotted vertical line per marker on every panel, its label rotated above the top."""
+    """A dotted vertical line per marker on every panel, its label along it in the top one."""
     for t, label in markers:
         for ax in axes:
             ax.axvline(t, color="0.35", ls=":", lw=0.9)
         axes[0].annotate(
             _plain_text(label, 40),
-            xy=(t, 1.0),
+            xy=(t, 0.98),
             xycoords=("data", "axes fraction"),
             rotation=90,
-            va="bottom",
-            ha="center",
+            va="top",
+            ha="right",
             fontsize=6,
             annotation_clip=False,
         )
