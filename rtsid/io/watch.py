@@ -284,8 +284,21 @@ def _status_line(name: str, s: Mapping[str, Any]) -> str:
             f"  overruns {wk.get('overruns', '-')}  misses {wk.get('deadline_misses', '-')}",
             f"    mcap {mc.get('state', '-')} {mcap_file}  dropped {mc.get('dropped', '-')}"
             f"  |  zenoh {zn.get('state', '-')}",
+            *_session_counters(s.get("session")),
         ]
     )
+
+
+def _session_counters(session: Any) -> list[str]:
+    """``markers 3 (refused 1, duplicates 0)  condition changes 1``, or nothing (a daemon
+    from before sessions)."""
+    if not isinstance(session, Mapping):
+        return []
+    return [
+        f"    markers {session.get('markers', '-')} (refused {session.get('refused', '-')}, "
+        f"duplicates {session.get('duplicates', '-')})  condition changes "
+        f"{session.get('condition_changes', '-')}"
+    ]
 
 
 def render_view(state: WatchState, *, title: str, now_s: float | None = None) -> str:

@@ -278,6 +278,34 @@ def test_watch_shows_labels_as_text_and_refuses_escapes():
     assert state.update(key, encode_json(marker_message(6, "x\x1b[2J", "b")), 0) is None
     assert state.rejected == 1
     state.update("rtsid/rig/ankle/session", encode_json(session_message(0, "baseline")), 0)
+    status = {"robot": "rig", "joint": "ankle", "host_time_ns": 1, "uptime_s": 1.0}
+    counters = {"markers": 2, "refused": 1, "duplicates": 0, "condition_changes": 1}
+    state.update("rtsid/rig/ankle/status", encode_json({**status, "session": counters}), 0)
     view = render_view(state, title="t", now_s=0.0)
+    assert "markers 2 (refused 1, duplicates 0)  condition changes 1" in view
     assert "rig/ankle subject S01  session 2  condition baseline (from t=0.000s)" in view
     assert "rig/ankle marker '<b>trial</b> 1' at t=0.002s (sample 5, zenoh)" in view
+
+
+def test_the_web_board_relays_session_and_markers_as_data_and_refuses_hostile_ones():
+    import time as _time
+
+    from rtsid.io.watch import FeedEvent
+    from rtsid.io.web.server import LabBoard
+
+    def event(kind: str, message: dict) -> FeedEvent:
+        payload = json.dumps(message).encode()
+        return FeedEvent(kind, f"rtsid/rig/ankle/{kind}", payload, _time.time_ns())
+
+    board = LabBoard()
+    board.take(event("session", session_message(0, "baseline")))
+    board.take(event("marker", marker_message(5, "<script>alert(1)</script>", "a")))
+    board.take(event("marker", marker_message(6, "x" * 10_000, "b")))
+    board.take(event("marker", marker_message(7, "bell\x07", "c")))
+    _, snap = board.snapshot()
+    channels = snap["joints"]["rig/ankle"]["channels"]
+    assert channels["session"]["condition"] == "baseline"
+    assert channels["marker"]["label"] == "<script>alert(1)</script>"  # data, for textContent
+    assert snap["rejected"] == 2
+    script = (Path(__file__).resolve().parents[2] / "rtsid/io/web/static/app.js").read_text()
+    assert "innerHTML" not in script and "insertAdjacentHTML" not in script
