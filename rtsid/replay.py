@@ -23,7 +23,7 @@ from typing import IO, Any
 import numpy as np
 
 from rtsid import __version__
-from rtsid.errors import IncompleteRecordingWarning, RecordingError
+from rtsid.errors import RecordingError, RtsidWarning
 from rtsid.ident.reflex_lane import ReflexModels, SlowLaneSettings, fit_reflex_update
 from rtsid.io.calibration import robot_calibration, with_recorded_calibration
 from rtsid.io.mcap_read import (
@@ -341,8 +341,8 @@ def replay_file(
     replay_batches(batches, config, result, publish=publish, live=live)
     if result.samples == 0:
         raise RecordingError(f"{path}: no samples to replay (is it an rtsid recording?)")
-    with warnings.catch_warnings():  # a part that ended early was said once already
-        warnings.simplefilter("ignore", IncompleteRecordingWarning)
+    with warnings.catch_warnings():  # what the parts lack was said once already
+        warnings.simplefilter("ignore", RtsidWarning)
         session = read_session(parts)
     result.markers, result.sessions = session.markers, session.sessions
     result.session_metadata = next((m for m in session.metadata if m), {})

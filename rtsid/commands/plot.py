@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from rtsid.commands.common import add_output
-from rtsid.errors import IncompleteRecordingWarning, InputDataError
+from rtsid.errors import InputDataError, RtsidWarning
 from rtsid.plots import estimate_series
 
 
@@ -71,8 +71,8 @@ def run(args: argparse.Namespace) -> int:
         )
     title = args.title or f"{name}: {int(ok.sum())} of {len(t)} windows"
     window_s = _window_s(messages[0])
-    with warnings.catch_warnings():  # a part that ended early was said once already
-        warnings.simplefilter("ignore", IncompleteRecordingWarning)
+    with warnings.catch_warnings():  # what the parts lack was said once already
+        warnings.simplefilter("ignore", RtsidWarning)
         markers = read_session(args.recording).markers
     out = plot_impedance_track(
         t,
