@@ -310,7 +310,14 @@ class SessionDesk(ThreadOwner):
             marker_id=marker_id or uuid.uuid4().hex,
             host_time_ns=time.time_ns(),
         ).as_dict()
-        if not self._write_and_wait(message):
+        written = self._write_and_wait(message)
+        if written is None:
+            raise RefusedRequest(
+                f"the MCAP writer did not confirm it within {WRITE_TIMEOUT_S:g} s (it may still "
+                "be written: resend with the same marker_id and readers keep it once)",
+                "write_timeout",
+            )
+        if not written:
             raise RefusedRequest(
                 "the MCAP writer did not write it (recording off, queue full or a disk error: "
                 "see the status's mcap counters)",
@@ -331,7 +338,9 @@ class SessionDesk(ThreadOwner):
                 self._acks.popitem(last=False)
         return ack
 
-    def _write_and_wait(self, message: dict[str, Any]) -> bool:
+    def _write_and_wait(self, message: dict[str, Any]) -> bool | None:
+        """True: written and flushed; False: not written; None: no word within
+        :data:`WRITE_TIMEOUT_S`."""
         done = threading.Event()
         outcome: list[bool] = []
 
@@ -341,7 +350,9 @@ class SessionDesk(ThreadOwner):
 
         if not self._mcap.log_marker(message, on_written=written):
             return False
-        return done.wait(WRITE_TIMEOUT_S) and outcome == [True]
+        if not done.wait(WRITE_TIMEOUT_S):
+            return None
+        return outcome == [True]
 
     def _record_wire(self) -> None:
         for wire in self._wire_markers():

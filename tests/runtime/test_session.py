@@ -4,6 +4,7 @@ recording, wire markers, hostile labels, no daemon, and kill -9 after acknowledg
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import signal
 import threading
@@ -16,6 +17,7 @@ import pytest
 import zenoh
 
 from rtsid.cli import main
+from rtsid.io.mcap_log import McapConfig
 from rtsid.io.mcap_read import recover
 from rtsid.io.recording import read_recording, read_session
 from rtsid.io.zenoh_link import query, subscriber_config
@@ -77,16 +79,18 @@ def test_mark_and_condition_are_acknowledged_and_recorded(daemon, tmp_path, free
     while counters()["markers_by_source"]["wire"] < 1 and time.monotonic() < deadline:
         time.sleep(0.01)
     daemon.request_stop()
-    while desk.running and time.monotonic() < deadline + 20:
-        time.sleep(0.05)
+    for runner in [t for t in threading.enumerate() if t.name == "test-daemon"]:
+        runner.join(30)  # the file is finished when the daemon's run returns
 
     path = only_recording(tmp_path)
     assert path.name.startswith("S01_2_testbot-ankle_")
     got = read_session(path)
-    assert [(m["sample_index"], m["label"], m["source"]) for m in got.markers] == [
-        (acked, "trial 3 start", "zenoh"),  # the resent id is recorded once
-        (wire_at, "wire trial?", "wire"),  # at its own sample, control character cleaned
-    ]
+    assert [(m["sample_index"], m["label"], m["source"]) for m in got.markers] == sorted(
+        [
+            (acked, "trial 3 start", "zenoh"),  # the resent id is recorded once
+            (wire_at, "wire trial?", "wire"),  # at its own sample, control character cleaned
+        ]
+    )
     assert [(s["sample_index"], s["condition"]) for s in got.sessions][-1] == (changed, "fatigue")
     assert got.sessions[0]["condition"] == "baseline"
     grid = read_recording(path).samples
@@ -117,6 +121,26 @@ def test_hostile_labels_are_refused_and_puts_are_counted(daemon, free_port, wait
     assert counters["refused_by_reason"] == {"bad_label": 4, "bad_request": 1}
     (reply,) = latest.replies
     assert json.loads(reply[1])["subject"] == "S01"  # a late joiner sees the session
+
+
+def test_a_daemon_that_does_not_record_refuses_to_acknowledge(tmp_path, free_port, capsys):
+    config = DaemonConfig.load(write_config(tmp_path, free_port))
+    d = Daemon(dataclasses.replace(config, mcap=McapConfig(enabled=False)))
+    runner = threading.Thread(target=d.run, kwargs={"duration_s": 30.0}, name="test-daemon")
+    runner.start()
+    try:
+        deadline = time.monotonic() + 20
+        while not (d.desk is not None and d.desk.running) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        code = main(cli("mark", "trial 1", port=free_port))
+        counters = d.desk.counters() if d.desk is not None else {}
+    finally:
+        d.request_stop()
+        runner.join(30)
+    assert not runner.is_alive()
+    err = capsys.readouterr().err
+    assert code == 1 and "the marker was NOT recorded" in err and "did not write it" in err
+    assert counters["refused_by_reason"] == {"not_written": 1} and counters["markers"] == 0
 
 
 def test_mark_with_no_daemon_fails_with_one_line(free_port, capsys):
