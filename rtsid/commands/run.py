@@ -138,6 +138,14 @@ def _foxglove_server(args: argparse.Namespace, config: DaemonConfig) -> Any:
     return FoxgloveLive(kinds, host=args.foxglove_host, port=args.foxglove)
 
 
+def _who(config: DaemonConfig) -> str:
+    """``; subject S01, session 2, condition baseline`` (empty without a subject)."""
+    s = config.session
+    if not s.subject:
+        return ""
+    return f"; subject {s.subject}, session {s.session or '-'}, condition {s.condition or '-'}"
+
+
 def run(args: argparse.Namespace) -> int:
     config = DaemonConfig.load(args.config)
     session = config.session.with_overrides(
@@ -169,7 +177,7 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"rtsid run: {source}, {config.worker.window_s * 1e3:.0f} ms windows every "
         f"{config.worker.hop_s * 1e3:.0f} ms; zenoh {_zenoh_where(config)}; "
-        f"MCAP in {config.mcap.directory}. Ctrl-C stops.",
+        f"MCAP in {config.mcap.directory}{_who(config)}. Ctrl-C stops.",
         flush=True,
     )
     try:

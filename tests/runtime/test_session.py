@@ -202,3 +202,15 @@ def test_watch_and_query_show_the_session_and_markers(daemon, free_port, capsys)
     lines = out.getvalue().splitlines()
     assert "testbot/ankle subject S01  session 2  condition baseline (from t=" in lines[0]
     assert any("marker 'trial 10' at t=" in ln and "zenoh)" in ln for ln in lines)
+
+
+def test_run_flags_name_the_recording_and_fill_its_metadata(tmp_path, free_port, capsys):
+    config = write_config(tmp_path, free_port, SESSION)
+    argv = ["run", "--config", str(config), "--subject", "S 01", "--condition", "walk"]
+    assert main([*argv, "--duration", "1", "--quiet"]) == 0
+    assert "subject S 01, session 2, condition walk" in capsys.readouterr().out
+    path = only_recording(tmp_path)
+    assert path.name.startswith("S_01_2_testbot-ankle_") and path.name.endswith("Z.mcap")
+    got = read_session(path)
+    assert (got.subject, got.session, got.metadata[0]["condition"]) == ("S 01", "2", "walk")
+    assert got.sessions[0]["condition"] == "walk" and got.markers == []
