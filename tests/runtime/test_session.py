@@ -214,3 +214,25 @@ def test_run_flags_name_the_recording_and_fill_its_metadata(tmp_path, free_port,
     got = read_session(path)
     assert (got.subject, got.session, got.metadata[0]["condition"]) == ("S 01", "2", "walk")
     assert got.sessions[0]["condition"] == "walk" and got.markers == []
+
+
+def test_a_flood_of_puts_is_recorded_or_counted_never_lost(daemon, free_port, wait_for):
+    desk = daemon.desk
+    assert desk is not None
+    sent = 2000
+    with client(free_port) as session:
+        publisher = session.declare_publisher(
+            "rtsid/testbot/ankle/mark/in", congestion_control=zenoh.CongestionControl.BLOCK
+        )
+        for k in range(sent):
+            publisher.put(f"flood {k}")
+        publisher.undeclare()
+
+        def settled() -> bool:
+            c = desk.counters()
+            return c["markers"] + c["refused"] == sent
+
+        wait_for(settled, 60, "every put recorded or counted")
+    counters = desk.counters()
+    assert counters["refused"] == counters["refused_by_reason"].get("inbox_full", 0)
+    assert counters["markers"] >= 256  # at least a full inbox was recorded
