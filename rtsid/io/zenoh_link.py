@@ -251,6 +251,11 @@ class RequestInbox:
             self._ready.notify()
         return True
 
+    def wake(self) -> None:
+        """Wake a :meth:`take` that is waiting (nothing queued, nothing counted)."""
+        with self._ready:
+            self._ready.notify_all()
+
     def take(self, timeout_s: float) -> list[Request]:
         """Every queued request, oldest first, waiting up to ``timeout_s`` for one."""
         with self._ready:

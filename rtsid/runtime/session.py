@@ -266,7 +266,7 @@ class SessionDesk(ThreadOwner):
         self._zenoh.publish_session(self.current)
 
     def _interrupt(self) -> None:
-        self._inbox.offer(Request("wake", b"", None, 0))
+        self._inbox.wake()
 
     def _run(self) -> None:
         while not self._stop.is_set():
@@ -277,8 +277,6 @@ class SessionDesk(ThreadOwner):
 
     def _handle(self, requests: list[Request]) -> None:
         for request in requests:
-            if request.kind == "wake":
-                continue
             try:
                 if request.kind == "condition":
                     reply = self._change_condition(request)

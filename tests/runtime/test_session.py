@@ -175,7 +175,9 @@ def test_acknowledged_marks_survive_kill_9_once_each(tmp_path, free_port, marks)
         stop_process(proc, signal.SIGKILL)
     fixed = tmp_path / "fixed.mcap"
     recover(only_recording(tmp_path), fixed)
-    recorded = {m["marker_id"]: m["sample_index"] for m in read_session(fixed).markers}
+    got = read_session(fixed)
+    assert got.subject == "S01" and got.metadata[0]["condition"] == "baseline"  # recovered too
+    recorded = {m["marker_id"]: m["sample_index"] for m in got.markers}
     assert recorded == acked  # none lost, none twice, each on its acknowledged sample
     assert len(acked) == marks and sorted(acked.values()) == list(acked.values())
 
