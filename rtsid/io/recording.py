@@ -32,16 +32,19 @@ from rtsid.io.mcap_read import (
     holds_no_record,
     iter_estimates,
     iter_sample_batches,
+    read_json_topics,
     read_run_config,
     recording_parts,
 )
 from rtsid.io.schemas import SampleBatch
 
 __all__ = [
+    "RecordedMessages",
     "Recording",
     "SampleGrid",
     "iter_batches",
     "read_estimates",
+    "read_messages",
     "read_recording",
     "session_parts",
 ]
@@ -342,3 +345,51 @@ def read_recording(paths: Paths) -> Recording:
 
 def _as_list(paths: Paths) -> list[Path]:
     return [Path(paths)] if isinstance(paths, str | Path) else [Path(p) for p in paths]
+
+
+@dataclass(frozen=True)
+class RecordedMessages:
+    """The JSON messages of chosen topics of a whole recording, with each part's metadata.
+
+    Attributes
+    ----------
+    parts : list of Path
+        The files read, in order.
+    messages : dict[str, list[dict]]
+        Each topic's messages, part after part in file order.
+    metadata : list of dict
+        Each part's metadata records by name (``rtsid``, ``config``, …), in the parts' order.
+    complete : bool
+        Every part was read to its footer.
+    """
+
+    parts: list[Path]
+    messages: dict[str, list[dict[str, Any]]]
+    metadata: list[dict[str, dict[str, str]]]
+    complete: bool
+
+
+def read_messages(paths: Paths, topics: Sequence[str]) -> RecordedMessages:
+    """The messages of ``topics`` from every part of a recording, one pass per part (warns
+    like :func:`iter_batches` for a part that ends early; ``rtsid summary`` reads this way).
+
+    Raises
+    ------
+    RecordingError
+        A part is missing, empty or not MCAP, or a message is not a JSON object.
+    """
+    parts = _as_list(paths)
+    messages: dict[str, list[dict[str, Any]]] = {t: [] for t in topics}
+    metadata: list[dict[str, dict[str, str]]] = []
+    complete = True
+    for part in parts:
+        tally = _Tally(part)
+        found, meta = read_json_topics(part, topics, tally.report)
+        for message in found.get("/estimate", []):
+            tally.add_estimate(message)
+        for topic in topics:
+            messages[topic] += found[topic]
+        metadata.append(meta)
+        complete = complete and tally.report.complete
+        tally.warn_if_incomplete()
+    return RecordedMessages(parts, messages, metadata, complete)
