@@ -325,12 +325,14 @@ def _summary_stiffness(ax: Any, entries: Sequence[tuple[str, Mapping[str, Any]]]
         ax.errorbar(x + dx, mid, yerr=[low, high], fmt="o", color=colour, capsize=3, label=name)
     ax.set_ylabel("stiffness\n(N·m/rad)")
     ax.set_xticks(x, [""] * len(x))
+    ax.set_xlim(-0.6, len(x) - 0.4)
     _limits_from_zero(ax, [np.array([_number(r, "K_q75") for _, r in entries])])
 
 
 def _summary_vaf(ax: Any, entries: Sequence[tuple[str, Mapping[str, Any]]]) -> None:
     x = np.arange(len(entries))
-    ax.bar(x, [_number(r, "vaf_median") for _, r in entries], color="C2", alpha=0.7)
+    ax.bar(x, [_number(r, "vaf_median") for _, r in entries], width=0.5, color="C2", alpha=0.7)
+    ax.set_xlim(-0.6, len(x) - 0.4)
     ax.set_ylim(0, 100)
     ax.set_ylabel("median\nVAF (%)")
     ax.set_xticks(x, [label for label, _ in entries], rotation=30, ha="right", fontsize=8)

@@ -622,14 +622,16 @@ def _window_statistics(windows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
 
 
 def _reflex_statistics(segments: Sequence[Segment]) -> dict[str, Any]:
-    """Windows with a reflex subtracted (``reflex_seq`` set), and the median gain and delay
-    of the slow-lane fits they used (each window's fit counted once per window)."""
-    fits = [
-        segment.rec.reflex.get(w["reflex_seq"], {})
-        for segment in segments
-        for w in segment.windows
-        if w.get("ok") and isinstance(w.get("reflex_seq"), int)
-    ]
+    """Windows whose slow-lane fit (``reflex_seq``) was applied — judged present, its torque
+    subtracted — and the median gain and delay of those fits over the windows. A window
+    naming a fit judged absent (``applied`` false) or missing from ``/reflex`` counts not."""
+    fits = []
+    for segment in segments:
+        for w in segment.windows:
+            seq = w.get("reflex_seq")
+            fit = segment.rec.reflex.get(seq, {}) if w.get("ok") and isinstance(seq, int) else {}
+            if fit.get("applied") is True:
+                fits.append(fit)
     return {
         "reflex_windows": len(fits),
         "reflex_gain": _quartiles([f.get("gain") for f in fits])[0],

@@ -347,19 +347,19 @@ def test_csv_columns_and_encodings(tmp_path, capsys):
 
 
 def test_lost_samples_from_the_status_counters_and_reflex_gain_and_delay(tmp_path):
-    fit = {"seq": 7, "applies_from_index": 1000, "applied": True, "ok": True}
+    absent = {"seq": 6, "applies_from_index": 500, "applied": False, "ok": True, "gain": 0.1}
+    fit = {"seq": 7, "applies_from_index": 2000, "applied": True, "ok": True}
     fit.update(gain=12.5, delay_ms=42.0)
     est = windows(0.0, 4.0, lambda t: 100.0, reflex_seq=None)
-    for w in est:
-        if w["t_end_s"] >= 2.0:
-            w["reflex_seq"] = 7
+    for w in est:  # windows name the fit in force, applied (present) or not (absent)
+        w["reflex_seq"] = 7 if w["t_end_s"] >= 2.0 else 6 if w["t_end_s"] >= 0.5 else None
     rec = write_recording(
         tmp_path / "rec.mcap",
         est,
         session=SUBJECT,
         markers=[(0.5, "a start"), (1.5, "a end"), (2.5, "b start"), (3.5, "b end")],
         status=[(0.25, 0), (1.0, 5), (2.0, 5), (3.0, 12), (4.0, 20)],
-        reflex=[fit],
+        reflex=[absent, fit],
     )
     a, b = rows_of(rec)
     assert (a["lost_samples"], b["lost_samples"]) == (5, 7)  # 0.5–1.5 s: 0 → 5; 2.5–3.5: 5 → 12
