@@ -257,16 +257,26 @@ def read_study_recording(parts: Sequence[Path]) -> StudyRecording:
     rec = StudyRecording(list(read.parts), estimates=estimates, complete=read.complete)
     _identity(rec, read)
     rec.reflex = {int(f["seq"]): f for f in read.messages["/reflex"] if "seq" in f}
-    rec.markers = sorted(
-        (
-            Marker(float(m["t_s"]), str(m.get("label", "")))
-            for m in read.messages[MARKER_TOPIC]
-            if isinstance(m.get("t_s"), int | float)
-        ),
-        key=lambda m: m.t_s,
-    )
+    rec.markers = _markers(read.messages[MARKER_TOPIC])
     rec.lost = _lost_counter(read.messages["/status"], estimates)
     return rec
+
+
+def _markers(messages: Sequence[Mapping[str, Any]]) -> list[Marker]:
+    """The markers in time order, each ``marker_id`` once (a marker resent after a daemon
+    restart is recorded again with the same id)."""
+    seen: set[str] = set()
+    out = []
+    for m in messages:
+        marker_id = m.get("marker_id")
+        if not isinstance(m.get("t_s"), int | float) or (
+            marker_id is not None and str(marker_id) in seen
+        ):
+            continue
+        if marker_id is not None:
+            seen.add(str(marker_id))
+        out.append(Marker(float(m["t_s"]), str(m.get("label", ""))))
+    return sorted(out, key=lambda m: m.t_s)
 
 
 def _identity(rec: StudyRecording, read: RecordedMessages) -> None:

@@ -76,7 +76,7 @@ def write_recording(
     *,
     session: dict[str, str] | None = None,
     changes: Sequence[tuple[float, str]] = (),
-    markers: Sequence[tuple[float, str]] = (),
+    markers: Sequence[tuple[float, str] | tuple[float, str, str]] = (),
     status: Sequence[tuple[float, int]] = (),
     reflex: Sequence[dict[str, Any]] = (),
     finish: bool = True,
@@ -108,9 +108,10 @@ def write_recording(
             body = {**session, "condition": condition, "robot": "rig", "joint": "ankle"}
             body.update(t_s=t_s, sample_index=round(t_s * 1000), host_time_ns=T0_NS)
             put(extra["/session"], t_s, encode_json(body))
-    for k, (t_s, label) in enumerate(markers):
+    for k, (t_s, label, *marker_id) in enumerate(markers):
         body = {"robot": "rig", "joint": "ankle", "t_s": t_s, "sample_index": round(t_s * 1000)}
-        body.update(label=label, source="test", marker_id=k, host_time_ns=T0_NS)
+        body.update(label=label, source="zenoh", host_time_ns=T0_NS)
+        body["marker_id"] = marker_id[0] if marker_id else f"{path.name}-{k}"
         put(extra["/marker"], t_s, encode_json(body))
     for fit in reflex:
         put(channels["reflex"], fit["applies_from_index"] / 1000, encode_json(fit))
@@ -192,7 +193,13 @@ def test_windows_go_to_the_trial_in_force_at_their_end_and_repeats_are_numbered(
         tmp_path / "rec.mcap",
         windows(0.0, 8.0, k_of),
         session=SUBJECT,
-        markers=[(1.0, "walk start"), (3.0, "walk end"), (5.0, "walk start"), (7.0, "walk end")],
+        markers=[
+            (1.0, "walk start"),
+            (3.0, "walk end", "e1"),
+            (3.0, "walk end", "e1"),  # resent after a restart: recorded twice, counted once
+            (5.0, "walk start"),
+            (7.0, "walk end"),
+        ],
     )
     rows = rows_of(rec)
     assert [(r["trial"], r["repeat"]) for r in rows] == [("walk", 1), ("walk", 2)]
