@@ -237,6 +237,26 @@ class StudyRecording:
         return float(self.estimates[0].get("t_start_s") or 0.0) if self.estimates else 0.0
 
 
+#: What a row needs of an estimate message.
+_KEPT = (
+    "robot",
+    "joint",
+    "t_start_s",
+    "t_end_s",
+    "ok",
+    "reason",
+    "K_track",
+    "K",
+    "B",
+    "B_held",
+    "I",
+    "I_held",
+    "vaf",
+    "reflex_seq",
+    "host_time_ns",
+)
+
+
 def read_study_recording(parts: Sequence[Path]) -> StudyRecording:
     """One recording's estimates, reflex fits, status counters, session and markers.
 
@@ -248,7 +268,9 @@ def read_study_recording(parts: Sequence[Path]) -> StudyRecording:
         The recording holds no ``/estimate`` message (raw samples only).
     """
     read = read_messages(list(parts), TOPICS)
-    estimates = sorted(read.messages["/estimate"], key=lambda m: float(m.get("t_end_s") or 0.0))
+    kept = [{k: m.get(k) for k in _KEPT} for m in read.messages["/estimate"]]
+    read.messages["/estimate"].clear()  # a study holds millions of windows: keep what is used
+    estimates = sorted(kept, key=lambda m: float(m.get("t_end_s") or 0.0))
     if not estimates:
         raise InputDataError(
             f"{parts[0]} has no /estimate messages (raw samples only?); estimate them first "
@@ -590,7 +612,7 @@ def _row(segments: list[Segment], by: str) -> dict[str, Any]:
         ),
         "t_start_s": first.t_start_s if single else None,
         "t_end_s": first.t_end_s if single else None,
-        "duration_s": sum(s.t_end_s - s.t_start_s for s in segments),
+        "duration_s": round(sum(s.t_end_s - s.t_start_s for s in segments), 6),
         "lost_samples": None if all(v is None for v in lost) else sum(v or 0 for v in lost),
         "notes": _joined(n for s in segments for n in s.notes),
         **_window_statistics(windows),
