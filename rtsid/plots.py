@@ -303,8 +303,16 @@ def _summary_panels(
             panel, label = who, row["condition"] or "(none)"
         else:
             panel, label = f"{row['robot']}/{row['joint']}", row["subject"] or "(no subject)"
-        panels.setdefault(panel, []).append((label, row))
+        panels.setdefault(_label_text(panel, 60), []).append((_label_text(label), row))
     return panels
+
+
+def _label_text(text: str, limit: int = 40) -> str:
+    """A name from a recording as plain figure text: cut to ``limit`` characters, and ``$``
+    escaped so that a label never starts matplotlib's mathtext (where ``$x^{$`` is a parse
+    error, not text)."""
+    cut = text if len(text) <= limit else text[: limit - 1] + "…"
+    return cut.replace("$", r"\$")
 
 
 def _number(row: Mapping[str, Any], key: str) -> float:

@@ -429,3 +429,17 @@ def test_markers_without_session_metadata_still_make_trials(tmp_path):
     assert (row["trial"], row["windows"]) == ("x", 20)
     assert NO_SESSION_NOTE in row["notes"]
     assert json.loads(json.dumps(row["K_median"])) == 100.0
+
+
+def test_the_figure_takes_labels_as_plain_text(tmp_path, capsys):
+    rec = write_recording(
+        tmp_path / "rec.mcap",
+        windows(0.0, 3.0, lambda t: 100.0),
+        session={"subject": "$S^$", "session": "1", "condition": "a$^$b"},
+        markers=[(1.0, "$x^{$ start"), (2.0, "$x^{$ end")],
+    )
+    fig = tmp_path / "fig.png"
+    assert main(["summary", str(rec), "--plot", str(fig)]) == 0
+    assert fig.stat().st_size > 0
+    out = capsys.readouterr().out
+    assert "$x^{$" in out  # the CSV keeps the label as recorded
