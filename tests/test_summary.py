@@ -443,3 +443,17 @@ def test_the_figure_takes_labels_as_plain_text(tmp_path, capsys):
     assert fig.stat().st_size > 0
     out = capsys.readouterr().out
     assert "$x^{$" in out  # the CSV keeps the label as recorded
+
+
+def test_the_summary_benchmark_times_summary_beside_replay(tmp_path, capsys):
+    from rtsid.commands.bench import benchmark_parser
+
+    parser, module = benchmark_parser("summary")
+    args = parser.parse_args(["--quick", "--folder", str(tmp_path / "study")])
+    assert module.run(args) == 0  # type: ignore[attr-defined]
+    out = capsys.readouterr().out
+    assert "study: 2 recordings" in out
+    assert "| rtsid replay SUBSET --jobs 1 |          1 |" in out
+    (row,) = rows_of(tmp_path / "study", by="subject")  # S01: one relaxed, one active
+    assert row["condition"] == "relaxed;active" and row["windows"] > 0
+    assert row["K_median"] == pytest.approx(160.0, rel=0.1)  # 120 and 200
