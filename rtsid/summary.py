@@ -19,6 +19,7 @@ labelled ``"<name> end"`` (or ``"<name> stop"``) opens nothing (it closed the op
 says so when that trial had another name, or when none was open); a marker with any other
 label opens a trial named by the label. The last trial runs to the end of the recording. The
 words and names are matched case-insensitively; a bare ``start``/``end`` names the trial ``trial``.
+Markers that open no trial at all (end markers only) leave the recording one trial, noted.
 Windows belong to the trial in force at their last sample (``t_end_s``; a marker at ``t_s``
 is in force from ``t_s`` on); windows before the first marker or after an end marker are
 *between trials*, left out unless asked for. Trials of the same name in one session are
@@ -428,6 +429,8 @@ def trials_from_markers(markers: Sequence[Marker], end_s: float) -> list[Trial]:
     if pending and trials:  # unmatched ends after the last trial
         last = trials[-1]
         trials[-1] = Trial(last.name, last.t_start_s, last.t_end_s, (*last.notes, *pending))
+    elif pending:  # only end markers: no trial opened, the recording is one, noted
+        trials.append(Trial(WHOLE, -np.inf, np.inf, tuple(pending)))
     return trials
 
 

@@ -178,6 +178,8 @@ def test_unmatched_start_and_end_markers_are_noted_not_dropped():
     assert any("'ghost end' at 0.50 s closes no open trial" in n for n in trials[0].notes)
     assert any("no 'a end' marker: ended by 'b start'" in n for n in trials[0].notes)
     assert any("runs to the end of the recording" in n for n in trials[1].notes)
+    (only_ends,) = trials_from_markers([Marker(1.0, "a end")], end_s=3.0)
+    assert only_ends.name == WHOLE and "closes no open trial" in only_ends.notes[0]
     mismatched = trials_from_markers([Marker(1.0, "a start"), Marker(2.0, "b end")], end_s=3.0)
     assert names(mismatched) == [("a", 1.0, 2.0)]
     assert "another name" in mismatched[0].notes[0]
@@ -457,3 +459,42 @@ def test_the_summary_benchmark_times_summary_beside_replay(tmp_path, capsys):
     (row,) = rows_of(tmp_path / "study", by="subject")  # S01: one relaxed, one active
     assert row["condition"] == "relaxed;active" and row["windows"] > 0
     assert row["K_median"] == pytest.approx(160.0, rel=0.1)  # 120 and 200
+
+
+def test_trials_are_numbered_over_the_recordings_of_one_session(tmp_path):
+    # a.mcap was started after b.mcap (a daemon restarted in the session): b's trial is #1
+    for name, hhmm, k in (("a.mcap", "10:30", 200.0), ("b.mcap", "10:00", 100.0)):
+        path = write_recording(
+            tmp_path / name,
+            windows(0.0, 2.0, lambda t, k=k: k),
+            session=SUBJECT,
+            markers=[(0.5, "walk")],
+        )
+        _restart(path, hhmm)
+    rows = rows_of(tmp_path)
+    assert [(r["recording"], r["repeat"], r["K_median"]) for r in rows] == [
+        ("b.mcap", 1, 100.0),
+        ("a.mcap", 2, 200.0),
+    ]
+    assert rows[1]["recording_start_utc"] == "2026-11-26T10:30:00Z"
+
+
+def _restart(path: Path, hhmm: str) -> None:
+    """Rewrite ``path``'s rtsid.session started_utc (a recording started at ``hhmm``)."""
+    text = path.read_bytes().replace(b"2026-11-26T10:00:00Z", f"2026-11-26T{hhmm}:00Z".encode())
+    path.write_bytes(text)
+
+
+def test_plot_without_matplotlib_refuses_before_any_work(tmp_path, monkeypatch, capsys):
+    import rtsid.plots
+    from rtsid.errors import InputDataError
+
+    def missing() -> None:
+        raise InputDataError("plots need matplotlib; install the extra with: pip install x")
+
+    monkeypatch.setattr(rtsid.plots, "require_matplotlib", missing)
+    rec = write_recording(tmp_path / "rec.mcap", windows(0.0, 1.0, lambda t: 100.0))
+    out = tmp_path / "t.csv"
+    assert main(["summary", str(rec), "-o", str(out), "--plot", str(tmp_path / "f.png")]) == 2
+    assert "plots need matplotlib" in capsys.readouterr().err
+    assert not out.exists()
