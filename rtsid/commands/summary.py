@@ -14,7 +14,7 @@ from rtsid.summary import BY
 TRIALS_HELP = (
     "Trials come from the /marker channel: markers are taken in time order and each ends the "
     "trial that is open; '<name> start' (or 'begin') opens trial <name>, '<name> end' (or "
-    "'stop') opens nothing, any other label opens a trial named by it; the last runs to the "
+    "'stop') closes it, any other label opens a trial named by it; the last runs to the "
     "end of the recording. A window belongs to the trial in force at its t_end_s. Trials of "
     "one name in a session are numbered (repeat). A recording without markers is one trial; "
     "one made before sessions existed has empty subject, session and condition (its notes say "
