@@ -49,6 +49,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "calibrate": ("rtsid.commands.calibrate", "identify the robot's own dynamics (no person)"),
     "convert": ("rtsid.commands.convert", "CAN captures and .npz/.csv files as rtsid recordings"),
     "plot": ("rtsid.commands.plot", "figure of K, B, I (95 % bands) and VAF from a recording"),
+    "summary": (
+        "rtsid.commands.summary",
+        "per-trial, condition or subject results from recordings' estimates (CSV, figure)",
+    ),
     "router": ("rtsid.commands.router", "a zenoh router for a lab of daemons (loopback default)"),
     "query": ("rtsid.commands.query", "latest estimates and recent history from running daemons"),
     "mark": ("rtsid.commands.mark", "a trial marker on the next sample of running daemons"),

@@ -19,6 +19,7 @@ __all__ = [
     "plot_cascade_windows",
     "plot_distributions",
     "plot_impedance_track",
+    "plot_summary",
     "require_matplotlib",
 ]
 
@@ -309,6 +310,122 @@ def plot_distributions(
     axes[0].set_ylabel("windows")
     axes[0].legend(fontsize=8)
     fig.suptitle(title)
+    return _save(plt, fig, out_png)
+
+
+#: Panels drawn at most by :func:`plot_summary` (the rest are named in the title).
+MAX_SUMMARY_PANELS = 16
+
+
+def _summary_panels(
+    rows: Sequence[Mapping[str, Any]], by: str
+) -> dict[str, list[tuple[str, Mapping[str, Any]]]]:
+    """Rows by panel (the key above ``by``: subject and session, subject, or all) with each
+    row's label on the x axis."""
+    panels: dict[str, list[tuple[str, Mapping[str, Any]]]] = {}
+    for row in rows:
+        who = f"{row['robot']}/{row['joint']} {row['subject'] or '(no subject)'}"
+        if by == "trial":
+            panel = f"{who} {row['session'] or row['recording']}"
+            repeat = f" #{row['repeat']}" if row.get("repeat") else ""
+            condition = f"\n{row['condition']}" if row["condition"] else ""
+            label = f"{row['trial']}{repeat}{condition}"
+        elif by == "condition":
+            panel, label = who, row["condition"] or "(none)"
+        else:
+            panel, label = f"{row['robot']}/{row['joint']}", row["subject"] or "(no subject)"
+        panels.setdefault(_label_text(panel, 60), []).append((_label_text(label), row))
+    return panels
+
+
+def _label_text(text: str, limit: int = 40) -> str:
+    """A name from a recording as plain figure text: cut to ``limit`` characters, and ``$``
+    escaped so that a label never starts matplotlib's mathtext (where ``$x^{$`` is a parse
+    error, not text)."""
+    cut = text if len(text) <= limit else text[: limit - 1] + "…"
+    return cut.replace("$", r"\$")
+
+
+def _number(row: Mapping[str, Any], key: str) -> float:
+    value = row.get(key)
+    return float(value) if isinstance(value, int | float) else float("nan")
+
+
+def _summary_stiffness(ax: Any, entries: Sequence[tuple[str, Mapping[str, Any]]]) -> None:
+    """K_track median with its IQR as bars, each window's K (median, IQR) beside it."""
+    x = np.arange(len(entries))
+    for key, dx, colour, name in (
+        ("K_track", -0.12, "C0", "K_track (median, IQR)"),
+        ("K", 0.12, "C7", "K, each window (median, IQR)"),
+    ):
+        mid = np.array([_number(r, f"{key}_median") for _, r in entries])
+        low = mid - np.array([_number(r, f"{key}_q25") for _, r in entries])
+        high = np.array([_number(r, f"{key}_q75") for _, r in entries]) - mid
+        ax.errorbar(x + dx, mid, yerr=[low, high], fmt="o", color=colour, capsize=3, label=name)
+    ax.set_ylabel("stiffness\n(N·m/rad)")
+    ax.set_xticks(x, [""] * len(x))
+    ax.set_xlim(-0.6, len(x) - 0.4)
+    _limits_from_zero(ax, [np.array([_number(r, "K_q75") for _, r in entries])])
+
+
+def _summary_vaf(ax: Any, entries: Sequence[tuple[str, Mapping[str, Any]]]) -> None:
+    x = np.arange(len(entries))
+    ax.bar(x, [_number(r, "vaf_median") for _, r in entries], width=0.5, color="C2", alpha=0.7)
+    ax.set_xlim(-0.6, len(x) - 0.4)
+    ax.set_ylim(0, 100)
+    ax.set_ylabel("median\nVAF (%)")
+    ax.set_xticks(x, [label for label, _ in entries], rotation=30, ha="right", fontsize=8)
+
+
+def plot_summary(
+    rows: Sequence[Mapping[str, Any]], out_png: str | Path, *, by: str, title: str = ""
+) -> Path:
+    """``rtsid summary --plot``: per panel (a subject and session with ``by = "trial"``, a
+    subject with ``"condition"``, a robot/joint with ``"subject"``), each row's K_track median
+    with its interquartile range as bars and the windows' K beside it, and its median VAF below.
+
+    Parameters
+    ----------
+    rows : sequence of mapping
+        :func:`rtsid.summary.summarise`'s rows.
+    out_png : str or Path
+        The PNG to write.
+    by : str
+        The grouping of the rows (``trial``, ``condition``, ``subject``).
+    title : str
+        Figure title (default: what is drawn).
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    plt = require_matplotlib()
+    panels = _summary_panels(rows, by)
+    if not panels:
+        raise InputDataError("no rows to plot: the recordings hold no trial with windows")
+    names = list(panels)[:MAX_SUMMARY_PANELS]
+    cols = min(len(names), 4)
+    grid_rows = -(-len(names) // cols)
+    widest = max(len(panels[n]) for n in names)
+    fig = plt.figure(
+        figsize=(max(4.0, min(3.0 + 0.6 * widest, 7.0)) * cols, 4.6 * grid_rows),
+        constrained_layout=True,
+    )
+    grid = fig.add_gridspec(2 * grid_rows, cols, height_ratios=[2, 1] * grid_rows)
+    for k, name in enumerate(names):
+        r, c = divmod(k, cols)
+        top, bottom = fig.add_subplot(grid[2 * r, c]), fig.add_subplot(grid[2 * r + 1, c])
+        _summary_stiffness(top, panels[name])
+        _summary_vaf(bottom, panels[name])
+        top.set_title(name, fontsize=9)
+        if k == 0:
+            top.legend(fontsize=7)
+    more = len(panels) - len(names)
+    fig.suptitle(
+        (title or f"rtsid summary by {by}: {len(rows)} rows")
+        + (f" ({more} more panels not drawn)" if more else "")
+    )
     return _save(plt, fig, out_png)
 
 

@@ -22,6 +22,10 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
         "intrinsic vs reflex: cascade, slow lane, known reflex",
     ),
     "lab": ("rtsid.benchmarks.lab", "router + 4 daemons + subscriber: e2e, rates, queries, CPU"),
+    "summary": (
+        "rtsid.benchmarks.summary",
+        "rtsid summary over a study folder, beside rtsid replay on the same recordings",
+    ),
     "inputs": ("rtsid.benchmarks.inputs", "peak memory of rtsid convert on hostile, large inputs"),
     "markers": (
         "rtsid.benchmarks.markers",

@@ -34,6 +34,7 @@ __all__ = [
     "iter_messages",
     "iter_sample_batches",
     "iter_status",
+    "read_json_topics",
     "read_metadata",
     "read_run_config",
     "recording_parts",
@@ -269,19 +270,6 @@ def iter_status(path: str | Path) -> Iterator[dict[str, Any]]:
         yield _json_object(message.data, path, "a status message")
 
 
-def iter_session_and_markers(
-    path: str | Path, report: ReadReport | None = None
-) -> Iterator[tuple[str, dict[str, Any]]]:
-    """``("session", message)`` and ``("marker", message)`` of one file in file order (dicts
-    following SESSION_SCHEMA / MARKER_SCHEMA). To read a recording's, use
-    :func:`rtsid.io.recording.read_session`."""
-    wanted = {TOPICS["session"]: "session", TOPICS["marker"]: "marker"}
-    for topic, _channel, message in iter_messages(path, report):
-        kind = wanted.get(topic)
-        if kind is not None:
-            yield kind, _json_object(message.data, path, f"a {topic} message")
-
-
 def iter_can_frames(path: str | Path) -> Iterator[Any]:
     """Raw CAN frames (``can.Message``) from the optional ``/can_frames`` channel."""
     import can
@@ -484,3 +472,55 @@ def summarize(path: str | Path) -> ReadReport:
     for _ in iter_messages(path, report):
         pass
     return report
+
+
+def read_json_topics(
+    path: str | Path, topics: Iterable[str], report: ReadReport | None = None
+) -> tuple[dict[str, list[dict[str, Any]]], dict[str, dict[str, str]]]:
+    """One pass over a file: the JSON messages of ``topics`` and every metadata record.
+
+    What ``rtsid summary`` needs of a recording (estimates, reflex fits, status, session and
+    markers) without a second pass for the metadata; other topics (the samples) are skipped
+    undecoded.
+
+    Parameters
+    ----------
+    path : str or Path
+        An MCAP file, complete or not.
+    topics : iterable of str
+        Topics to decode, e.g. ``"/estimate"``; each is a key of the result, possibly empty.
+    report : ReadReport, optional
+        As in :func:`iter_messages`.
+
+    Returns
+    -------
+    messages : dict[str, list[dict]]
+        The messages of each topic in file order, as JSON objects.
+    metadata : dict[str, dict[str, str]]
+        Metadata records by name (as :func:`read_metadata`).
+
+    Raises
+    ------
+    RecordingError
+        As :func:`iter_messages`, or a message that is not a JSON object.
+    """
+    from mcap.records import Channel, Message, Metadata
+
+    report = report if report is not None else ReadReport(Path(path))
+    messages: dict[str, list[dict[str, Any]]] = {t: [] for t in topics}
+    metadata: dict[str, dict[str, str]] = {}
+    channels: dict[int, str] = {}
+    for record in _iter_records(path, report):
+        if isinstance(record, Channel):
+            channels[record.id] = record.topic
+        elif isinstance(record, Message):
+            topic = channels.get(record.channel_id)
+            if topic is None:
+                continue  # its channel record was lost with a damaged chunk
+            report.messages += 1
+            report.by_topic[topic] = report.by_topic.get(topic, 0) + 1
+            if topic in messages:
+                messages[topic].append(_json_object(record.data, path, f"a {topic} message"))
+        elif isinstance(record, Metadata):
+            metadata[record.name] = dict(record.metadata)
+    return messages, metadata

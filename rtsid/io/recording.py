@@ -28,26 +28,30 @@ import numpy as np
 from rtsid.errors import IncompleteRecordingWarning, RecordingError, RtsidWarning
 from rtsid.io.files import MAX_ROWS
 from rtsid.io.mcap_read import (
+    TOPICS,
     ReadReport,
     holds_no_record,
     iter_estimates,
     iter_sample_batches,
-    iter_session_and_markers,
-    read_metadata,
+    read_json_topics,
     read_run_config,
     recording_parts,
 )
 from rtsid.io.schemas import SampleBatch
 
 __all__ = [
+    "SESSION_TOPICS",
+    "RecordedMessages",
     "Recording",
     "SampleGrid",
     "SessionRecord",
     "iter_batches",
     "read_estimates",
+    "read_messages",
     "read_recording",
     "read_session",
     "session_parts",
+    "session_record",
 ]
 
 Paths = str | Path | Sequence[str | Path]
@@ -410,27 +414,28 @@ def read_session(paths: Paths) -> SessionRecord:
     RecordingError
         Missing, empty or non-MCAP file.
     """
-    parts = session_parts(paths)
-    metadata: list[dict[str, str]] = []
+    return session_record(read_messages(session_parts(paths), SESSION_TOPICS))
+
+
+#: The topics a :class:`SessionRecord` is made from.
+SESSION_TOPICS = (TOPICS["session"], TOPICS["marker"])
+
+
+def session_record(read: RecordedMessages) -> SessionRecord:
+    """The :class:`SessionRecord` of messages already read (topics :data:`SESSION_TOPICS`
+    among them): each session state once, each ``marker_id`` once, by sample index."""
     sessions: dict[tuple[Any, ...], dict[str, Any]] = {}
+    for message in read.messages[TOPICS["session"]]:
+        state = tuple(message.get(k) for k in ("sample_index", "subject", "session", "condition"))
+        sessions.setdefault(state, message)
     markers: dict[str, dict[str, Any]] = {}
-    for part in parts:
-        tally = _Tally(part)
-        for kind, message in iter_session_and_markers(part, tally.report):
-            if kind == "marker":
-                markers.setdefault(str(message.get("marker_id")), message)
-            else:
-                state = tuple(
-                    message.get(k) for k in ("sample_index", "subject", "session", "condition")
-                )
-                sessions.setdefault(state, message)
-        tally.warn_if_incomplete()
-        metadata.append(read_metadata(part).get("rtsid.session", {}))
+    for message in read.messages[TOPICS["marker"]]:
+        markers.setdefault(str(message.get("marker_id")), message)
     return SessionRecord(
-        metadata=metadata,
+        metadata=[records.get("rtsid.session", {}) for records in read.metadata],
         sessions=sorted(sessions.values(), key=_by_sample),
         markers=sorted(markers.values(), key=_by_sample),
-        parts=parts,
+        parts=list(read.parts),
     )
 
 
@@ -444,3 +449,51 @@ def _by_sample(message: dict[str, Any]) -> tuple[int, int]:
 
 def _as_list(paths: Paths) -> list[Path]:
     return [Path(paths)] if isinstance(paths, str | Path) else [Path(p) for p in paths]
+
+
+@dataclass(frozen=True)
+class RecordedMessages:
+    """The JSON messages of chosen topics of a whole recording, with each part's metadata.
+
+    Attributes
+    ----------
+    parts : list of Path
+        The files read, in order.
+    messages : dict[str, list[dict]]
+        Each topic's messages, part after part in file order.
+    metadata : list of dict
+        Each part's metadata records by name (``rtsid``, ``config``, …), in the parts' order.
+    complete : bool
+        Every part was read to its footer.
+    """
+
+    parts: list[Path]
+    messages: dict[str, list[dict[str, Any]]]
+    metadata: list[dict[str, dict[str, str]]]
+    complete: bool
+
+
+def read_messages(paths: Paths, topics: Sequence[str]) -> RecordedMessages:
+    """The messages of ``topics`` from every part of a recording, one pass per part (warns
+    like :func:`iter_batches` for a part that ends early; ``rtsid summary`` reads this way).
+
+    Raises
+    ------
+    RecordingError
+        A part is missing, empty or not MCAP, or a message is not a JSON object.
+    """
+    parts = _as_list(paths)
+    messages: dict[str, list[dict[str, Any]]] = {t: [] for t in topics}
+    metadata: list[dict[str, dict[str, str]]] = []
+    complete = True
+    for part in parts:
+        tally = _Tally(part)
+        found, meta = read_json_topics(part, topics, tally.report)
+        for message in found.get("/estimate", []):
+            tally.add_estimate(message)
+        for topic in topics:
+            messages[topic] += found[topic]
+        metadata.append(meta)
+        complete = complete and tally.report.complete
+        tally.warn_if_incomplete()
+    return RecordedMessages(parts, messages, metadata, complete)
