@@ -15,6 +15,7 @@ import concurrent.futures as futures
 import logging
 import multiprocessing
 import os
+import signal
 import threading
 import time
 from collections.abc import Callable
@@ -72,7 +73,10 @@ def _exit_with(parent_pid: int) -> None:
 
 
 def _init_worker_process(parent_pid: int) -> None:
-    """Initializer of the slow lane's worker process: low priority, gone with its parent."""
+    """Initializer of the slow lane's worker process: low priority, gone with its parent, deaf
+    to Ctrl-C (the terminal sends SIGINT to the whole process group: the daemon stops the pool
+    itself, and a worker interrupted in its queue read printed a traceback)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     _lower_priority()
     threading.Thread(target=_exit_with, args=(parent_pid,), daemon=True).start()
 

@@ -180,3 +180,31 @@ def test_the_slow_lanes_worker_process_ends_with_a_killed_daemon(tmp_path, free_
     for p in alive:  # leave nothing behind, whatever the outcome
         os.kill(p, signal.SIGKILL)
     assert not alive, "the worker process outlived the killed daemon"
+
+
+def _worker_after_init(parent_pid: int, ready) -> None:
+    from rtsid.runtime.slow_lane import _init_worker_process
+
+    _init_worker_process(parent_pid)
+    ready.set()
+    time.sleep(1.0)  # a SIGINT in this sleep raises KeyboardInterrupt unless ignored
+
+
+def test_the_slow_lanes_worker_process_leaves_ctrl_c_to_the_daemon():
+    """Ctrl-C reaches the terminal's whole process group; the pool's worker must not die of it
+    (it printed a KeyboardInterrupt traceback under the daemon's clean stop)."""
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("spawn")
+    ready = ctx.Event()
+    worker = ctx.Process(target=_worker_after_init, args=(os.getpid(), ready))
+    worker.start()
+    try:
+        assert ready.wait(60)
+        os.kill(worker.pid, signal.SIGINT)
+        worker.join(30)
+        assert worker.exitcode == 0
+    finally:
+        if worker.is_alive():
+            worker.kill()
+            worker.join(10)
