@@ -42,20 +42,17 @@ import can
 from rtsid.errors import LinkError, LinkHandshakeError
 from rtsid.lifecycle import ThreadOwner
 from rtsid.link.markers import MarkerInbox, WireMarker
-from rtsid.link.protocol import (
-    COMMAND_ID,
-    COUNTER_MODULO,
-    DIAGNOSTICS_ID,
-    POSITION_SCALE_RAD,
-    STATE_ID,
-    TORQUE_SCALE_NM,
-    Command,
-    decode_diagnostics,
-    decode_state,
-    encode_command,
+from rtsid.link.mapping import (
+    FRAME_COMMAND,
+    FRAME_DIAGNOSTICS,
+    FRAME_STATE,
+    MappedProtocol,
+    builtin_protocol,
 )
+from rtsid.link.protocol import COUNTER_MODULO, Command
 from rtsid.link.ring import RingBuffer
 from rtsid.link.sequence import Sequencer
+from rtsid.link.udp import Datagram, UdpLayout
 
 __all__ = ["LINK_STATES", "Acquisition", "LinkCounters", "explain_link_state", "unwrap_counter"]
 
@@ -65,8 +62,11 @@ _CPU_EVERY = 512  # frames between thread CPU readings
 _WRAP_TOLERANCE = 0.1  # of a wrap period: how much earlier than expected a frame may arrive
 _HOST_SLACK_WRAPS = 0.3  # of a wrap period: how much longer than the host saw a silence may be
 _MAX_REJECTS_IN_ROW = 256  # rejected state frames in a row: a broken link, fatal to the thread
+_EXTENDED = 1 << 31  # frame key bit of a 29-bit identifier (rtsid.link.mapping.frame_key)
+RATE_WINDOW_S = 2.0  # sender-clock span over which the sample rate is measured
 
-_Sample = tuple[float, float, int, float, float]  # position rad, torque N·m, status, host s, bus s
+# position rad, torque N·m, status, host s, bus s, marker label (None: no marker)
+_Sample = tuple[float, float, int, float, float, str | None]
 
 #: Where the link stands (``link_state`` in the counters): why no samples come, or that they do.
 LINK_STATES = {
@@ -88,9 +88,14 @@ def _usable_time(stamp: Any) -> bool:
 
 
 def unwrap_counter(
-    counter: int, last: int, elapsed_s: float, fs_hz: float, reorder_window: int = 64
+    counter: int,
+    last: int,
+    elapsed_s: float,
+    fs_hz: float,
+    reorder_window: int = 64,
+    modulo: int = COUNTER_MODULO,
 ) -> int:
-    """Unwrapped sample index of a 12-bit frame ``counter`` given the newest index ``last``.
+    """Unwrapped sample index of a frame ``counter`` given the newest index ``last``.
 
     Whole wraps hidden in a silence are counted from the elapsed time, rounded towards
     fewer wraps: frames arrive late (a stalled sender catching up) far more often than
@@ -110,6 +115,8 @@ def unwrap_counter(
         Sample rate, Hz.
     reorder_window : int
         Counter distance behind the newest treated as a late frame rather than a wrap.
+    modulo : int
+        ``2**bits`` of the counter (4096 for the built-in 12-bit counter).
 
     Returns
     -------
@@ -117,15 +124,27 @@ def unwrap_counter(
         The index: ``last + 1`` for the next sample, more after lost samples, ``<= last``
         for a late (duplicate or reordered) frame.
     """
-    delta = (counter - last) % COUNTER_MODULO
-    wraps = math.floor((elapsed_s * fs_hz - delta) / COUNTER_MODULO + _WRAP_TOLERANCE)
+    delta = (counter - last) % modulo
+    wraps = math.floor((elapsed_s * fs_hz - delta) / modulo + _WRAP_TOLERANCE)
     if wraps >= 1:  # a silence of at least one whole wrap
-        return last + delta + wraps * COUNTER_MODULO
+        return last + delta + wraps * modulo
     if delta == 0:
         return last  # the newest sample again
-    if delta > COUNTER_MODULO - reorder_window:
-        return last + delta - COUNTER_MODULO  # behind the newest: late
+    if delta > modulo - reorder_window:
+        return last + delta - modulo  # behind the newest: late
     return last + delta
+
+
+def index_from_time(t_s: float, last: int, last_t_s: float, fs_hz: float) -> int:
+    """Sample index of a frame stamped ``t_s`` (no counter), given the newest sample's.
+
+    ``last + ceil((t_s - last_t_s)·fs_hz - 0.5)``: a frame within half a period of the
+    newest is the newest again (a duplicate), a timestamp jump of more than 1.5 periods
+    skips at least one sample (a gap), and one further back is late. Counting from the
+    newest sample, not from the first, keeps a sender clock a little off ``fs_hz`` from
+    drifting into phantom gaps.
+    """
+    return last + math.ceil((t_s - last_t_s) * fs_hz - 0.5)
 
 
 def explain_link_state(acquisition: Mapping[str, Any], where: str) -> str | None:
@@ -220,6 +239,14 @@ class LinkCounters:
         CPU time of the acquisition thread, s.
     newest_index : int
         Newest sample index in the ring (-1 if none).
+    unpaired : int
+        Frames of a two-frame sample whose partner never came (the sample is lost).
+    measured_rate_hz : float
+        Sample rate measured from the data: sample indices per second of the sender's
+        clock (frame timestamps) over the last >= 2 s; NaN until measured.
+    rate_mismatch : bool
+        ``measured_rate_hz`` differs from ``fs_hz`` by more than ``rate_tolerance_percent``
+        (``last_error`` says by how much and what to fix).
     """
 
     frames: int
@@ -247,6 +274,9 @@ class LinkCounters:
     last_error: str
     thread_cpu_s: float
     newest_index: int
+    unpaired: int = 0
+    measured_rate_hz: float = float("nan")
+    rate_mismatch: bool = False
 
 
 class Acquisition(ThreadOwner):
@@ -275,6 +305,13 @@ class Acquisition(ThreadOwner):
         Counter distance behind the newest sample treated as late rather than as a wrap.
     name : str
         Thread name.
+    protocol : MappedProtocol or UdpLayout, optional
+        What the bus speaks: a CAN mapping (:mod:`rtsid.link.mapping`; default the built-in
+        ankle protocol) or a UDP datagram layout (:mod:`rtsid.link.udp`, with a bus whose
+        ``recv`` gives :class:`~rtsid.link.udp.Datagram`). Either way the samples go through
+        the same sequencing, gap counting and ring writes.
+    rate_tolerance_percent : float
+        Measured rate vs ``fs_hz`` beyond which ``rate_mismatch`` is reported.
 
     Examples
     --------
@@ -296,8 +333,20 @@ class Acquisition(ThreadOwner):
         backoff_max_s: float = 5.0,
         reorder_window: int = 64,
         name: str = "rtsid-acquisition",
+        protocol: MappedProtocol | UdpLayout | None = None,
+        rate_tolerance_percent: float = 2.0,
     ) -> None:
         super().__init__(name)
+        self.protocol = builtin_protocol() if protocol is None else protocol
+        self._decoder = self.protocol.decoder()
+        if hasattr(self._decoder, "set_rate"):
+            self._decoder.set_rate(float(fs_hz))
+        self._modulo = self.protocol.counter_modulo
+        self._timestamps = self.protocol.uses_timestamps
+        self._udp = isinstance(self.protocol, UdpLayout)
+        self._kinds = {} if self._udp else dict(self.protocol.frame_kinds)  # type: ignore[union-attr]
+        self._lengths = {} if self._udp else dict(self.protocol.state_lengths)  # type: ignore[union-attr]
+        self.rate_tolerance = rate_tolerance_percent / 100.0
         if isinstance(bus, can.BusABC):
             self._factory: BusFactory | None = None
             self._bus: can.BusABC | None = bus
@@ -353,6 +402,9 @@ class Acquisition(ThreadOwner):
         self.last_diagnostics: dict[str, Any] = {}
         self.last_error: str = ""
         self.markers = MarkerInbox()  # trial markers decoded from the wire, for the daemon
+        self._rate_anchor = (-1, 0.0)  # (sample index, sender time s) the rate is measured from
+        self._rate_hz = float("nan")
+        self._rate_mismatch = False
 
     # ------------------------------------------------------------------ life cycle
     def start(self, *, require_bus: bool = True) -> Acquisition:
@@ -400,6 +452,9 @@ class Acquisition(ThreadOwner):
         connected = self._bus is not None
         return LinkCounters(
             **c,
+            unpaired=self._decoder.unpaired,
+            measured_rate_hz=self._rate_hz,
+            rate_mismatch=self._rate_mismatch,
             ring_overwrites=self.ring.reader_overruns,
             stale=age > self.stale_after_s,
             last_frame_age_s=age,
@@ -442,10 +497,22 @@ class Acquisition(ThreadOwner):
                 raise LinkError(f"could not send frame 0x{msg.arbitration_id:X}: {exc}") from exc
 
     def send_command(self, command: Command) -> None:
-        """Send a PerturbationCommand (enable, kind, amplitude, bandwidth) to the robot."""
+        """Send a PerturbationCommand (enable, kind, amplitude, bandwidth) to the robot.
+
+        Raises
+        ------
+        LinkError
+            The protocol maps no command message (or a UDP source), or the send failed.
+        """
+        protocol = self.protocol
+        if self._udp or protocol.command_message is None:  # type: ignore[union-attr]
+            raise LinkError(
+                "this link carries no perturbation command (a UDP source, or no "
+                "link.protocol.command message); drive the perturbation on the robot"
+            )
         self._command_counter = (self._command_counter + 1) & 0xFF
-        data = encode_command(Command(**{**command.__dict__, "counter": self._command_counter}))
-        self.send(can.Message(arbitration_id=COMMAND_ID, data=data, is_extended_id=False))
+        numbered = Command(**{**command.__dict__, "counter": self._command_counter})
+        self.send(protocol.encode_command(numbered))  # type: ignore[union-attr]
 
     # ------------------------------------------------------------------ the thread
     def _run(self) -> None:
@@ -479,7 +546,10 @@ class Acquisition(ThreadOwner):
                 self._cpu_s = time.thread_time()
         self._cpu_s = time.thread_time()
 
-    def _handle(self, msg: can.Message, now: float) -> None:
+    def _handle(self, msg: Any, now: float) -> None:
+        if self._udp:
+            self._on_datagram(msg, now)
+            return
         c = self._c
         c["frames"] += 1
         if msg.is_error_frame:
@@ -488,48 +558,64 @@ class Acquisition(ThreadOwner):
                 c["bus_off"] += 1
                 self._on_bus_error(LinkError("bus-off reported by the interface"))
             return
-        if msg.is_extended_id:
-            c["unknown_id"] += 1
-            return
-        frame_id = msg.arbitration_id
-        if frame_id == STATE_ID:
+        key = msg.arbitration_id | _EXTENDED if msg.is_extended_id else msg.arbitration_id
+        kind = self._kinds.get(key)
+        if kind == FRAME_STATE:
             data = msg.data
-            if msg.is_remote_frame or msg.dlc != 8 or len(data) != 8:
+            size = self._lengths[key]
+            if msg.is_remote_frame or msg.dlc != size or len(data) != size:
                 c["malformed"] += 1
                 return
-            self._on_state(data, msg.timestamp, now)
-        elif frame_id == DIAGNOSTICS_ID:
+            self._on_state(key, data, msg.timestamp, now)
+        elif kind == FRAME_DIAGNOSTICS:
             c["diagnostics"] += 1
-            decoded = decode_diagnostics(msg.data)
+            decoded = self.protocol.decode_diagnostics(msg.data)  # type: ignore[union-attr]
             if decoded is None:
                 c["malformed"] += 1
             else:
                 self.last_diagnostics.update(decoded)
-        elif frame_id == COMMAND_ID:
+        elif kind == FRAME_COMMAND:
             c["commands_seen"] += 1
         else:
             c["unknown_id"] += 1
 
-    def _on_state(self, data: bytearray, bus_time: Any, now: float) -> None:
-        decoded = decode_state(data)
+    def _on_state(self, key: int, data: bytearray, bus_time: Any, now: float) -> None:
+        if not _usable_time(bus_time) or (self._timestamps and bus_time <= 0):
+            self._reject(LinkError(f"state frame with bus timestamp {bus_time!r}"))
+            return
+        decoded = self._decoder.decode(key, data, bus_time)
         if decoded is None:
             self._c["malformed"] += 1
             return
-        if not _usable_time(bus_time):
-            self._reject(LinkError(f"state frame with bus timestamp {bus_time!r}"))
-            return
-        position, torque, counter, status = decoded
-        sample = (position * POSITION_SCALE_RAD, torque * TORQUE_SCALE_NM, status, now, bus_time)
-        if self._last_index < 0:
-            self.ring.start_at(counter)
-            self.anchor_index, self.anchor_host_time_s = counter, now
-            self._last_index = counter - 1
-            self._write(counter, sample)
-            self._sequence.last = counter
-        else:
-            self._place(counter, sample)
+        if decoded:  # () : the first frame of a pair, waiting for its partner
+            stamp, position, torque, status, marker = decoded
+            sender_time = stamp if self._timestamps else bus_time
+            self._on_sample(stamp, (position, torque, status, now, sender_time, marker))
 
-    def _place(self, counter: int, sample: _Sample) -> None:
+    def _on_datagram(self, datagram: Datagram, now: float) -> None:
+        c = self._c
+        c["frames"] += 1
+        samples = self._decoder.decode(datagram.data)
+        if samples is None:
+            c["malformed"] += 1
+            return
+        bus_time = datagram.timestamp
+        for counter, position, torque, status, marker in samples:
+            self._on_sample(counter, (position, torque, status, now, bus_time, marker))
+
+    def _on_sample(self, stamp: float, sample: _Sample) -> None:
+        """Place one decoded sample: ``stamp`` is its counter, or its time without one."""
+        if self._last_index < 0:
+            first = 0 if self._timestamps else int(stamp)
+            self.ring.start_at(first)
+            self.anchor_index, self.anchor_host_time_s = first, sample[3]
+            self._last_index = first - 1
+            self._write(first, sample)
+            self._sequence.last = first
+        else:
+            self._place(stamp, sample)
+
+    def _place(self, stamp: float, sample: _Sample) -> None:
         """Write the sample a frame carries, or hold it while it may be a stray.
 
         Late frames (at or behind the newest sample) are dropped and counted here; every
@@ -538,7 +624,10 @@ class Acquisition(ThreadOwner):
         dropped, counted, inventing no lost samples and never shifting the index).
         """
         last = self._last_index
-        index = self._unwrap(counter, last, sample[4], sample[3])
+        if self._timestamps:
+            index = index_from_time(stamp, last, self._last_bus_time, self.fs_hz)
+        else:
+            index = self._unwrap(int(stamp), last, sample[4], sample[3])
         if index <= last:
             self._late(index)
             return
@@ -547,7 +636,7 @@ class Acquisition(ThreadOwner):
 
     def _write(self, index: int, sample: _Sample) -> None:
         """Write sample ``index`` after the newest one, the skipped indices as a gap."""
-        position, torque, status, now, bus_time = sample
+        position, torque, status, now, bus_time, marker = sample
         lost = index - self._last_index - 1
         if lost > 0:
             self._c["gaps"] += 1
@@ -560,6 +649,29 @@ class Acquisition(ThreadOwner):
         self._stale = False
         self._backoff = self.backoff_min_s
         self._rejects_in_row = 0
+        if marker is not None:
+            self.markers.put(WireMarker(index, marker))
+        if bus_time - self._rate_anchor[1] >= RATE_WINDOW_S:
+            self._measure_rate(index, bus_time)
+
+    def _measure_rate(self, index: int, t_s: float) -> None:
+        """Sample indices per second of sender time since the anchor; flag a mismatch."""
+        first, t0 = self._rate_anchor
+        self._rate_anchor = (index, t_s)
+        if first < 0 or t_s - t0 > 10 * RATE_WINDOW_S:  # the first, or after a long silence
+            return
+        rate = (index - first) / (t_s - t0)
+        self._rate_hz = rate
+        mismatch = abs(rate / self.fs_hz - 1.0) > self.rate_tolerance
+        if mismatch and not self._rate_mismatch:
+            self._note_error(
+                LinkError(
+                    f"the data arrive at {rate:.1f} samples/s but link.fs_hz = {self.fs_hz:g} "
+                    f"(more than {100 * self.rate_tolerance:g} % apart); set link.fs_hz to "
+                    "the sender's rate"
+                )
+            )
+        self._rate_mismatch = mismatch
 
     def _reject(self, exc: BaseException) -> None:
         """Count a frame that could not be used; many in a row mean a fault, not a frame."""
@@ -583,9 +695,11 @@ class Acquisition(ThreadOwner):
         host_elapsed = now - self._last_frame_host
         elapsed = host_elapsed
         if bus_time > 0 and self._last_bus_time > 0 and bus_time >= self._last_bus_time:
-            slack_s = _HOST_SLACK_WRAPS * COUNTER_MODULO / self.fs_hz
+            slack_s = _HOST_SLACK_WRAPS * self._modulo / self.fs_hz
             elapsed = min(bus_time - self._last_bus_time, host_elapsed + slack_s)
-        return unwrap_counter(counter, last, elapsed, self.fs_hz, self.reorder_window)
+        return unwrap_counter(
+            counter, last, elapsed, self.fs_hz, self.reorder_window, self._modulo
+        )
 
     def _late(self, index: int) -> None:
         valid = self.ring.is_valid(index)
