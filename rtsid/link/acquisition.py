@@ -51,7 +51,7 @@ from rtsid.link.mapping import (
 )
 from rtsid.link.protocol import COUNTER_MODULO, Command
 from rtsid.link.ring import RingBuffer
-from rtsid.link.sequence import Sequencer
+from rtsid.link.sequence import CONTRADICTIONS, MAX_STRAY_RUN, Sequencer
 from rtsid.link.udp import Datagram, UdpLayout
 
 __all__ = ["LINK_STATES", "Acquisition", "LinkCounters", "explain_link_state", "unwrap_counter"]
@@ -392,7 +392,15 @@ class Acquisition(ThreadOwner):
         self._last_bus_time = 0.0
         self._last_index = -1
         self._open_failure = ""  # why the last opening of the bus failed ("" after success)
-        self._sequence: Sequencer[_Sample] = Sequencer(reach=reorder_window)
+        # A datagram carries many samples: judge jumps in whole datagrams (a reordered
+        # datagram must not read as a confirmed gap after 9 of the next one's samples).
+        per_unit = self.protocol.samples_per_unit if self._udp else 1  # type: ignore[union-attr]
+        self.reorder_window = max(reorder_window, 8 * per_unit)
+        self._sequence: Sequencer[_Sample] = Sequencer(
+            reach=self.reorder_window,
+            max_stray_run=MAX_STRAY_RUN * per_unit,
+            contradictions=CONTRADICTIONS * per_unit,
+        )
         self._rejects_in_row = 0
         self._backoff = backoff_min_s
         self._last_reopen = self._started

@@ -554,6 +554,9 @@ class PlantConfig:
         Rate of the Diagnostics frame (0: none).
     max_samples : int
         Stop producing after this many samples (0: run until stopped).
+    marker_every_s : float
+        Step the protocol's trial-marker signal (``[link.protocol] marker``, or a UDP
+        ``marker`` field) by one every this many seconds, from 0 (0: never; it stays 0).
     faults : FaultConfig
     stiffness_profile : StiffnessConfig
     torque_multisine : TorqueMultisineConfig
@@ -582,6 +585,7 @@ class PlantConfig:
     player_loop: bool = True
     diagnostics_hz: float = 10.0
     max_samples: int = 0
+    marker_every_s: float = 0.0
     faults: FaultConfig = field(default_factory=FaultConfig)
     stiffness_profile: StiffnessConfig = field(default_factory=StiffnessConfig)
     torque_multisine: TorqueMultisineConfig = field(default_factory=TorqueMultisineConfig)
@@ -613,6 +617,7 @@ class PlantConfig:
         ):
             require_range(name, getattr(self, name), 0.0)
         require_range("max_samples", self.max_samples, 0)
+        require_range("marker_every_s", self.marker_every_s, 0.0)
         require_choice("player_torque_sign", self.player_torque_sign, (1.0, -1.0))
         if self.mode == "torque_multisine":
             self._check_torque_multisine()

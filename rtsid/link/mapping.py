@@ -569,10 +569,13 @@ class MappedProtocol:
         torque_raw: NDArray[np.int64],
         status: NDArray[np.int64],
         *,
+        marker: NDArray[np.int64] | None = None,
         wall0_s: float = 0.0,
         fs_hz: float = 1.0,
     ) -> list[list[can.Message]]:
         """The frames of consecutive samples, one group per sample.
+
+        ``marker``: raw values of the marker signal, if the mapping has one.
 
         Without a counter, each frame is stamped with its sample's time ``wall0_s +
         index / fs_hz`` (a virtual bus must be opened with ``preserve_timestamps=True``).
@@ -597,6 +600,8 @@ class MappedProtocol:
                     values[id(m)][self.counter_signal] = int(index[k]) % self.counter_modulo
             for bit, f in self.status_fields:
                 values[id(f.message)][f.name] = int(bool(status[k] & bit))
+            if self.marker is not None and marker is not None:
+                values[id(self.marker.message)][self.marker.name] = int(marker[k])
             t = wall0_s + int(index[k]) / fs_hz if stamp else 0.0
             groups.append(
                 [

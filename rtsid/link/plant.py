@@ -526,8 +526,16 @@ class VirtualPlant(ThreadOwner):
         )
         self._c["saturated"] += int(np.count_nonzero(pos_sat | trq_sat))
         self._keep_record(index, pos_raw, trq_raw)
+        every = round(self.cfg.marker_every_s * self.cfg.fs_hz)
+        marker = (index // every) % 256 if every else np.zeros(n, dtype=np.int64)
         return self.wire.encode_samples(
-            index, pos_raw, trq_raw, status, wall0_s=self._wall0_s, fs_hz=self.cfg.fs_hz
+            index,
+            pos_raw,
+            trq_raw,
+            status,
+            marker=marker,
+            wall0_s=self._wall0_s,
+            fs_hz=self.cfg.fs_hz,
         )
 
     def _keep_record(self, index: NDArray[np.int64], pos: NDArray[Any], trq: NDArray[Any]) -> None:

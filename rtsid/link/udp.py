@@ -168,6 +168,8 @@ class UdpLayout:
         position_raw: NDArray[Any],
         torque_raw: NDArray[Any],
         status: NDArray[np.int64],
+        *,
+        marker: NDArray[np.int64] | None = None,
         **_: Any,
     ) -> list[list[bytes]]:
         """Datagrams of ``samples_per_datagram`` consecutive samples, one group each.
@@ -181,6 +183,8 @@ class UdpLayout:
         rows["torque"] = torque_raw
         if self.has_status:
             rows["status"] = status
+        if self.has_marker and marker is not None:
+            rows["marker"] = marker
         raw = rows.tobytes()
         size = self.datagram_bytes
         return [[raw[k : k + size]] for k in range(0, len(raw), size)]
