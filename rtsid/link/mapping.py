@@ -178,13 +178,14 @@ class _Resolver:
     def fail(self, what: str, fix: str) -> ConfigError:
         return ConfigError(f"[link.protocol] DBC {self.label}: {what}; {fix}")
 
-    def message(self, name: str, key: str) -> Any:
+    def message(self, name: str, key: str, signal: str = "") -> Any:
         try:
             return self.db.get_message_by_name(name)
         except KeyError:
             known = ", ".join(sorted(m.name for m in self.db.messages)[:12]) or "none"
+            what = f" (for signal {signal!r})" if signal else ""
             raise self.fail(
-                f"{key} names message {name!r}, which the DBC does not define",
+                f"{key} names message {name!r}{what}, which the DBC does not define",
                 f"use one of its messages ({known})",
             ) from None
 
@@ -194,7 +195,7 @@ class _Resolver:
                 f"{key} = {ref!r} is not 'Message.Signal'", "write e.g. 'AnkleState.Position'"
             )
         msg_name, sig_name = ref.split(".")
-        message = self.message(msg_name, key)
+        message = self.message(msg_name, key, sig_name)
         try:
             signal = message.get_signal_by_name(sig_name)
         except KeyError:
