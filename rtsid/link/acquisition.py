@@ -347,7 +347,7 @@ class Acquisition(ThreadOwner):
         self._kinds = {} if self._udp else dict(self.protocol.frame_kinds)  # type: ignore[union-attr]
         self._lengths = {} if self._udp else dict(self.protocol.state_lengths)  # type: ignore[union-attr]
         self.rate_tolerance = rate_tolerance_percent / 100.0
-        if isinstance(bus, can.BusABC):
+        if isinstance(bus, can.BusABC) or hasattr(bus, "recv"):  # an open bus or socket
             self._factory: BusFactory | None = None
             self._bus: can.BusABC | None = bus
         else:
@@ -433,6 +433,13 @@ class Acquisition(ThreadOwner):
         if self._bus is None and self._factory is not None and self._require_bus:
             try:
                 self._bus = self._factory()
+            except LinkError as exc:
+                if self._udp:  # already says which address and what to fix
+                    raise
+                raise LinkError(
+                    f"cannot open the CAN bus: {exc}; check [link] interface, channel, "
+                    "host and port, and that the adapter or server is up"
+                ) from exc
             except Exception as exc:
                 raise LinkError(
                     f"cannot open the CAN bus: {exc}; check [link] interface, channel, "
