@@ -41,7 +41,6 @@ import can
 
 from rtsid.errors import LinkError, LinkHandshakeError
 from rtsid.lifecycle import ThreadOwner
-from rtsid.link.markers import MarkerInbox, WireMarker
 from rtsid.link.mapping import (
     FRAME_COMMAND,
     FRAME_DIAGNOSTICS,
@@ -49,6 +48,7 @@ from rtsid.link.mapping import (
     MappedProtocol,
     builtin_protocol,
 )
+from rtsid.link.markers import MarkerInbox, WireMarker
 from rtsid.link.protocol import COUNTER_MODULO, Command
 from rtsid.link.ring import RingBuffer
 from rtsid.link.sequence import CONTRADICTIONS, MAX_STRAY_RUN, Sequencer
@@ -56,7 +56,9 @@ from rtsid.link.udp import Datagram, UdpLayout
 
 __all__ = ["LINK_STATES", "Acquisition", "LinkCounters", "explain_link_state", "unwrap_counter"]
 
-BusFactory = Callable[[], can.BusABC]
+#: Opens a bus: a python-can bus, or a :class:`~rtsid.link.udp.UdpReceiver` (``recv``,
+#: ``shutdown``, ``send``): the only part that differs between sources.
+BusFactory = Callable[[], Any]
 CAN_ERR_BUSOFF = 0x40
 _CPU_EVERY = 512  # frames between thread CPU readings
 _WRAP_TOLERANCE = 0.1  # of a wrap period: how much earlier than expected a frame may arrive
@@ -286,9 +288,10 @@ class Acquisition(ThreadOwner):
 
     Parameters
     ----------
-    bus : can.BusABC or callable
+    bus : can.BusABC, UdpReceiver or callable
         A bus factory (called to open and to reopen; the buses it returns are owned and
-        shut down here), or an open bus (not owned, never reopened).
+        shut down here), or an open bus (not owned, never reopened). A UDP source is a
+        :class:`~rtsid.link.udp.UdpReceiver` with the same ``recv``/``shutdown``.
     ring : RingBuffer
         Where samples go; this thread is its only writer.
     fs_hz : float
@@ -322,7 +325,7 @@ class Acquisition(ThreadOwner):
 
     def __init__(
         self,
-        bus: can.BusABC | BusFactory,
+        bus: Any,
         ring: RingBuffer,
         *,
         fs_hz: float = 2500.0,
@@ -338,7 +341,7 @@ class Acquisition(ThreadOwner):
     ) -> None:
         super().__init__(name)
         self.protocol = builtin_protocol() if protocol is None else protocol
-        self._decoder = self.protocol.decoder()
+        self._decoder: Any = self.protocol.decoder()
         if hasattr(self._decoder, "set_rate"):
             self._decoder.set_rate(float(fs_hz))
         self._modulo = self.protocol.counter_modulo
@@ -349,7 +352,7 @@ class Acquisition(ThreadOwner):
         self.rate_tolerance = rate_tolerance_percent / 100.0
         if isinstance(bus, can.BusABC) or hasattr(bus, "recv"):  # an open bus or socket
             self._factory: BusFactory | None = None
-            self._bus: can.BusABC | None = bus
+            self._bus: Any = bus
         else:
             self._factory = bus
             self._bus = None
@@ -712,9 +715,7 @@ class Acquisition(ThreadOwner):
         if bus_time > 0 and self._last_bus_time > 0 and bus_time >= self._last_bus_time:
             slack_s = _HOST_SLACK_WRAPS * self._modulo / self.fs_hz
             elapsed = min(bus_time - self._last_bus_time, host_elapsed + slack_s)
-        return unwrap_counter(
-            counter, last, elapsed, self.fs_hz, self.reorder_window, self._modulo
-        )
+        return unwrap_counter(counter, last, elapsed, self.fs_hz, self.reorder_window, self._modulo)
 
     def _late(self, index: int) -> None:
         valid = self.ring.is_valid(index)

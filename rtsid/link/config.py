@@ -27,14 +27,14 @@ from rtsid.sim.reflex import ReflexParameters
 __all__ = [
     "FaultConfig",
     "LinkConfig",
-    "ProtocolConfig",
-    "UdpConfig",
     "PlantConfig",
+    "ProtocolConfig",
     "StiffnessConfig",
     "TorqueMultisineConfig",
+    "UdpConfig",
+    "link_config_from_mapping",
     "link_configs_from_mapping",
     "load_link_configs",
-    "link_config_from_mapping",
     "plant_config_from_mapping",
 ]
 

@@ -162,7 +162,7 @@ class _Field:
         clipped = (raw < low) | (raw > high)
         return np.clip(raw, low, high).astype(np.int64), clipped
 
-    def to_si(self, raw: NDArray[np.int64]) -> NDArray[np.float64]:
+    def to_si(self, raw: NDArray[Any]) -> NDArray[np.float64]:
         """SI values of raw codes (as the decoder computes them)."""
         physical = raw * float(self.signal.scale) + float(self.signal.offset)
         return np.asarray(physical * self.factor, dtype=np.float64)
@@ -221,7 +221,9 @@ class _Resolver:
         unit = signal.unit or ""
         factor = units.get(unit) if key == "position" else units.get(_unit_key(unit))
         if factor is None:
-            accepted = "rad, mrad, urad, deg" if key == "position" else "N·m (N.m, N*m, Nm), mNm, Ncm"
+            accepted = (
+                "rad, mrad, urad, deg" if key == "position" else "N·m (N.m, N*m, Nm), mNm, Ncm"
+            )
             raise self.fail(
                 f"message {message.name} signal {signal.name} (for {key}) has unit {unit!r}, "
                 f"not convertible to {'rad' if key == 'position' else 'N·m'}",
@@ -361,8 +363,7 @@ def _counter(r: _Resolver, ref: str, data_messages: Sequence[Any]) -> tuple[str,
             twin = other.get_signal_by_name(signal.name)
         except KeyError:
             raise r.fail(
-                f"message {other.name} has no signal {signal.name!r} to pair its frames by "
-                "counter",
+                f"message {other.name} has no signal {signal.name!r} to pair its frames by counter",
                 "add the counter to both messages, or set link.protocol.counter = '' to pair "
                 "by time",
             ) from None
@@ -489,7 +490,7 @@ class MappedProtocol:
         clone.builtin = True
         return clone
 
-    def decoder(self) -> StateDecoder:
+    def decoder(self) -> StateDecoder | AnkleDecoder:
         """A fresh decoder (it holds the pairing state of one stream)."""
         if self.builtin:
             return AnkleDecoder()
@@ -514,9 +515,7 @@ class MappedProtocol:
                 },
                 padding=True,
             )
-        return can.Message(
-            arbitration_id=m.frame_id, data=data, is_extended_id=m.is_extended_frame
-        )
+        return can.Message(arbitration_id=m.frame_id, data=data, is_extended_id=m.is_extended_frame)
 
     def decode_command(self, msg: can.Message) -> Command | None:
         """A command frame's content; None if it is not this protocol's command or is bad."""
@@ -618,7 +617,7 @@ class MappedProtocol:
         return groups
 
     def to_si(
-        self, position_raw: NDArray[np.int64], torque_raw: NDArray[np.int64]
+        self, position_raw: NDArray[Any], torque_raw: NDArray[Any]
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Position (rad) and torque (N·m) of raw codes, exactly as the decoder gives them."""
         if self.builtin:
@@ -771,4 +770,3 @@ def builtin_protocol() -> MappedProtocol:
         diagnostics=ANKLE_MAPPING["diagnostics"],
         checksum="nibble_xor",
     ).as_builtin()
-

@@ -60,7 +60,7 @@ class LinkHandle:
     """
 
     config: LinkConfig
-    bus_factory: Callable[[], can.BusABC]
+    bus_factory: Callable[[], can.BusABC | UdpReceiver]
     plant: VirtualPlant | None
     channel: str | int
 
@@ -92,7 +92,9 @@ def link_protocol(cfg: LinkConfig) -> MappedProtocol | UdpLayout:
     return protocol_from_config(cfg.protocol)
 
 
-def bus_factory(cfg: LinkConfig, channel: str | int | None = None) -> Callable[[], can.BusABC]:
+def bus_factory(
+    cfg: LinkConfig, channel: str | int | None = None
+) -> Callable[[], can.BusABC | UdpReceiver]:
     """A function opening the bus ``cfg`` describes (``channel`` overrides the config's)."""
     chan = cfg.channel if channel is None else channel
     if cfg.interface == "udp":

@@ -173,7 +173,9 @@ class _FaultInjector:
         length = round(self.cfg.silence_s * self.fs_hz)
         return (index >= every) & (index % every < length)
 
-    def frames(self, index: NDArray[np.int64], groups: list[list[Any]], per_unit: int = 1) -> list[Any]:
+    def frames(
+        self, index: NDArray[np.int64], groups: list[list[Any]], per_unit: int = 1
+    ) -> list[Any]:
         """The frames (or datagrams) actually sent for units of samples.
 
         Parameters
@@ -328,8 +330,7 @@ class VirtualPlant(ThreadOwner):
             raise invalid(
                 "plant.block_s",
                 cfg.block_s,
-                f"a block of whole datagrams ({self._per_unit} samples each at "
-                f"{cfg.fs_hz:g} Hz)",
+                f"a block of whole datagrams ({self._per_unit} samples each at {cfg.fs_hz:g} Hz)",
             )
         self._wall0_s = time.time()
         if hasattr(bus, "send_frames"):

@@ -81,7 +81,10 @@ def one_line_naming(exc: pytest.ExceptionInfo[ConfigError], *names: str) -> None
         ({"torque": "AnkleState.Torq"}, ("ankle.dbc", "AnkleState", "Torq")),
         ({"position": "Diagnostics.Uptime"}, ("ankle.dbc", "Diagnostics", "Uptime", "multiplex")),
         ({"torque": "AnkleState.Counter"}, ("ankle.dbc", "AnkleState", "Counter", "unit")),
-        ({"position": "AnkleState.PositionSaturated"}, ("AnkleState", "PositionSaturated", "narrow")),
+        (
+            {"position": "AnkleState.PositionSaturated"},
+            ("AnkleState", "PositionSaturated", "narrow"),
+        ),
         ({"position": "Position"}, ("ankle.dbc", "Message.Signal")),
         ({"command": "Nothing"}, ("ankle.dbc", "Nothing")),
     ],
