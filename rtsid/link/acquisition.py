@@ -1,24 +1,36 @@
-"""The acquisition thread: CAN frames in, one ring-buffer row per sample out.
+"""The acquisition thread: frames (or datagrams) in, one ring-buffer row per sample out.
 
 :class:`Acquisition` owns a thread named "rtsid-acquisition" that loops
 ``bus.recv(receive_timeout_s)`` (so :meth:`Acquisition.stop` returns within about that
-time), decodes AnkleState frames with the precompiled decoder and writes the ring buffer.
+time), asks the link's protocol object to turn each frame into samples and writes the ring
+buffer. The protocol is a CAN mapping (:mod:`rtsid.link.mapping`: any DBC; the built-in
+ankle protocol, the default, keeps its fast integer decoder) or a UDP datagram layout
+(:mod:`rtsid.link.udp`, read from a :class:`~rtsid.link.udp.UdpReceiver`); everything below
+is done here, once, for all of them.
 
 Sample bookkeeping, in one place:
 
-* the 12-bit counter is unwrapped into a monotonic ``sample_index``; after a silence of one
-  or more whole wraps (1.64 s at 2500 Hz) the number of wraps comes from the frames' bus
-  timestamps (host clock when the interface gives none), rounded towards fewer wraps;
+* the counter (12-bit for the built-in protocol; its width is the protocol's) is unwrapped
+  into a monotonic ``sample_index``; after a silence of one or more whole wraps (1.64 s at
+  2500 Hz with 12 bits) the number of wraps comes from the frames' bus timestamps (host
+  clock when the interface gives none), rounded towards fewer wraps;
+* without a counter the index comes from the frames' timestamps (:func:`index_from_time`:
+  a jump of more than 1.5 periods is a gap);
 * a forward jump of ``d`` writes ``d - 1`` invalid rows (a *gap*; ``lost_samples`` += d - 1)
   once the frames after it confirm it; frames the next in-sequence frames refute are
   *strays*, dropped (:mod:`rtsid.link.sequence`: a run of up to ``MAX_STRAY_RUN``
-  consecutive strays is classified like one);
+  consecutive strays is classified like one; for UDP, runs are counted in datagrams);
 * a frame whose counter is at most ``reorder_window`` behind the newest is late: a
   *duplicate* if its row is valid already, otherwise *out of order*; both are dropped (rows
   already published are never rewritten);
-* a state frame of the wrong length, a failing checksum, a remote frame → *malformed*,
-  never decoded; other identifiers → *unknown_id*; error frames → *error_frames* (bus-off
-  also reopens the bus);
+* a state frame of the wrong length, a failing checksum, a remote frame, a datagram of the
+  wrong length → *malformed*, never decoded; a frame of a two-frame sample whose partner
+  never comes → *unpaired*; other identifiers → *unknown_id*; error frames →
+  *error_frames* (bus-off also reopens the bus);
+* a marker signal's change puts a :class:`~rtsid.link.markers.WireMarker` in
+  :attr:`Acquisition.markers`, stamped with its sample's index;
+* the rate is measured from the data (indices per second of sender time over >= 2 s) and
+  compared with ``fs_hz`` (``rate_mismatch``);
 * ``bus.recv`` raising → *bus_errors*, the bus is closed and reopened from the factory with
   exponential back-off (*reconnects* counts successes);
 * no state frame for ``stale_after_s`` → ``stale`` (and optionally reopen the bus after
@@ -414,6 +426,7 @@ class Acquisition(ThreadOwner):
         self.last_error: str = ""
         self.markers = MarkerInbox()  # trial markers decoded from the wire, for the daemon
         self._rate_anchor = (-1, 0.0)  # (sample index, sender time s) the rate is measured from
+        self._rate_due_s = 0.0  # sender time of the next rate measurement
         self._rate_hz = float("nan")
         self._rate_mismatch = False
 
@@ -669,13 +682,14 @@ class Acquisition(ThreadOwner):
         self._rejects_in_row = 0
         if marker is not None:
             self.markers.put(WireMarker(index, marker))
-        if bus_time - self._rate_anchor[1] >= RATE_WINDOW_S:
+        if bus_time >= self._rate_due_s:
             self._measure_rate(index, bus_time)
 
     def _measure_rate(self, index: int, t_s: float) -> None:
         """Sample indices per second of sender time since the anchor; flag a mismatch."""
         first, t0 = self._rate_anchor
         self._rate_anchor = (index, t_s)
+        self._rate_due_s = t_s + RATE_WINDOW_S
         if first < 0 or t_s - t0 > 10 * RATE_WINDOW_S:  # the first, or after a long silence
             return
         rate = (index - first) / (t_s - t0)

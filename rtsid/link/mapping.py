@@ -53,7 +53,6 @@ from rtsid.link.protocol import (
     dbc_path,
     decode_command,
     decode_diagnostics,
-    decode_state,
     encode_command,
     encode_state_block,
     quantise_position,
@@ -643,17 +642,37 @@ def _frame(frame_id: int, extended: bool, data: bytes, timestamp: float = 0.0) -
 
 
 class AnkleDecoder:
-    """The built-in protocol's decoder: :func:`decode_state` on the 8 bytes (≈ 1 µs)."""
+    """The built-in protocol's decoder: :func:`decode_state`'s integer arithmetic on the 8
+    bytes (≈ 1 µs), inlined here because it runs for every frame."""
 
     unpaired = 0
 
     def decode(self, key: int, data: bytes | bytearray, bus_time_s: float) -> Any:
-        """``(counter, position rad, torque N·m, status, None)``; None for a bad checksum."""
-        decoded = decode_state(data)
-        if decoded is None:
+        """``(counter, position rad, torque N·m, status, None)``; None for a bad checksum.
+
+        The same as :func:`decode_state` (a test keeps the two, and the cantools mapping of
+        the same DBC, equal).
+        """
+        word = int.from_bytes(data, "little")
+        fold = word ^ (word >> 32)
+        fold ^= fold >> 16
+        fold ^= fold >> 8
+        fold ^= fold >> 4
+        if fold & 0xF != 0xA:
             return None
-        position, torque, counter, status = decoded
-        return counter, position * POSITION_SCALE_RAD, torque * TORQUE_SCALE_NM, status, None
+        position = word & 0xFFFFFF
+        if position & 0x800000:
+            position -= 0x1000000
+        torque = (word >> 24) & 0xFFFFF
+        if torque & 0x80000:
+            torque -= 0x100000
+        return (
+            (word >> 44) & 0xFFF,
+            position * POSITION_SCALE_RAD,
+            torque * TORQUE_SCALE_NM,
+            (word >> 56) & 0xF,
+            None,
+        )
 
 
 class StateDecoder:

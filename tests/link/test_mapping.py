@@ -32,7 +32,12 @@ from rtsid.link.mapping import (
 )
 from rtsid.link.open import link_protocol
 from rtsid.link.plant import VirtualPlant
-from rtsid.link.protocol import STATUS_PERTURBATION_ON, Command, encode_state_block
+from rtsid.link.protocol import (
+    STATUS_PERTURBATION_ON,
+    Command,
+    decode_state,
+    encode_state_block,
+)
 from rtsid.link.ring import RingBuffer
 
 HW = Path(__file__).resolve().parents[2] / "hw"
@@ -168,6 +173,12 @@ def test_the_fast_builtin_decoder_equals_the_cantools_mapping(pos, trq, ctr, sta
     )[0].tobytes()
     assert fast.decode(0x100, payload, 1.0) == generic.decode(0x100, payload, 1.0)
     assert fast.decode(0x100, noise, 1.0) == generic.decode(0x100, noise, 1.0)  # checksum too
+    for data in (payload, noise):  # the inlined arithmetic is decode_state's
+        raw = decode_state(data)
+        decoded = fast.decode(0x100, data, 1.0)
+        assert (decoded is None) == (raw is None)
+        if raw is not None:
+            assert decoded == (raw[2], raw[0] * 1e-6, raw[1] * 1e-3, raw[3], None)
 
 
 def run_twoframe(
@@ -344,3 +355,10 @@ def test_the_shipped_configs_compile_their_protocols():
     assert wire.uses_timestamps and wire.frames_per_sample == 2 and not wire.builtin
     assert plant.fs_hz == link.fs_hz == 2000.0
     assert builtin_protocol().builtin
+
+
+def test_the_packaged_twoframe_dbc_is_the_one_in_hw():
+    from importlib import resources
+
+    packaged = resources.files("rtsid.link").joinpath("twoframe.dbc").read_bytes()
+    assert (HW / "protocols" / "twoframe.dbc").read_bytes() == packaged

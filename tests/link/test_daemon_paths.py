@@ -1,0 +1,80 @@
+"""The daemon over the two new paths (the second CAN protocol and the UDP source): its I, B,
+K of the simulated ankle (I 0.015, B 0.8, K 150) within 20 / 10 / 5 % of the truth."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rtsid.io.mcap_read import iter_estimates
+from rtsid.runtime.daemon import Daemon, DaemonConfig
+
+HW = Path(__file__).resolve().parents[2] / "hw"
+TRUTH_AND_TOLERANCE = {"I": (0.015, 0.20), "B": (0.8, 0.10), "K": (150.0, 0.05)}
+
+LINKS = {
+    "twoframe": f"""
+[link]
+interface = "embedded"
+fs_hz = 2000.0
+
+[link.protocol]
+dbc = "{HW / "protocols" / "twoframe.dbc"}"
+position = "JointPosition.Position"
+torque = "JointTorque.Torque"
+counter = ""
+position_saturated = "JointPosition.PositionSaturated"
+torque_saturated = "JointTorque.TorqueSaturated"
+perturbation_on = "JointPosition.PerturbationOn"
+discontinuity = "JointPosition.Discontinuity"
+marker = "JointPosition.TrialMarker"
+command = "PerturbationCommand"
+diagnostics = ""
+checksum = "none"
+
+[plant]
+fs_hz = 2000.0
+diagnostics_hz = 0.0
+""",
+    "udp": """
+[link]
+interface = "udp"
+
+[link.udp]
+port = 0
+sample_format = "Iiii"
+fields = ["counter", "position", "torque", "status"]
+samples_per_datagram = 10
+embedded_plant = true
+
+[plant]
+diagnostics_hz = 0.0
+""",
+}
+
+
+@pytest.mark.slow  # a real-time daemon run of seconds
+@pytest.mark.parametrize("path", sorted(LINKS))
+def test_the_daemon_identifies_the_ankle_over_the_new_paths(tmp_path, free_port, path):
+    config_file = tmp_path / "rtsid.toml"
+    config_file.write_text(
+        LINKS[path]
+        + f"""
+[zenoh]
+listen = ["tcp/127.0.0.1:{free_port}"]
+robot = "testbot"
+
+[mcap]
+directory = "{tmp_path / "rec"}"
+"""
+    )
+    summary = Daemon(DaemonConfig.load(config_file)).run(duration_s=3.0)
+    assert summary.clean_shutdown and summary.failure is None
+    assert summary.lost_samples == 0 and summary.samples > 4000
+    (recording,) = sorted((tmp_path / "rec").glob("*.mcap"))
+    ok = [e for e in iter_estimates(recording) if e["ok"]]
+    assert len(ok) > 40
+    for key, (truth, tolerance) in TRUTH_AND_TOLERANCE.items():
+        assert np.median([e[key] for e in ok]) == pytest.approx(truth, rel=tolerance), key
