@@ -232,7 +232,7 @@ class LinkConfig:
         No state frame for this long: the link reports ``stale`` (robot stopped).
     reconnect_after_stale_s : float
         Reopen the bus after this long without frames (0: never). Needed for socketcand,
-        whose python-can client does not report a closed connection.
+        whose python-can client does not report a closed connection. Not used by ``udp``.
     backoff_min_s, backoff_max_s : float
         Reconnection back-off: first wait, doubling up to the maximum.
     rx_queue_frames : int

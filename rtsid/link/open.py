@@ -77,7 +77,8 @@ class LinkHandle:
             fs_hz=cfg.fs_hz,
             stale_after_s=cfg.stale_after_s,
             receive_timeout_s=cfg.receive_timeout_s,
-            reconnect_after_stale_s=cfg.reconnect_after_stale_s,
+            # a UDP socket has no connection to lose: reopening it only risks a datagram
+            reconnect_after_stale_s=0.0 if cfg.interface == "udp" else cfg.reconnect_after_stale_s,
             backoff_min_s=cfg.backoff_min_s,
             backoff_max_s=cfg.backoff_max_s,
             protocol=link_protocol(cfg),
