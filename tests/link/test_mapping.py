@@ -362,3 +362,72 @@ def test_the_packaged_twoframe_dbc_is_the_one_in_hw():
 
     packaged = resources.files("rtsid.link").joinpath("twoframe.dbc").read_bytes()
     assert (HW / "protocols" / "twoframe.dbc").read_bytes() == packaged
+
+
+COUNTED_DBC = """VERSION ""
+NS_ :
+BS_:
+BU_: Robot
+BO_ 400 Pos: 8 Robot
+ SG_ Seq : 7|16@0+ (1,0) [0|65535] "" Robot
+ SG_ Angle : 23|32@0- (1E-006,0) [-2147|2147] "mrad" Robot
+BO_ 401 Trq: 8 Robot
+ SG_ Seq : 7|16@0+ (1,0) [0|65535] "" Robot
+ SG_ Torque : 23|32@0- (0.001,0) [-2147483|2147483] "N*m" Robot
+"""
+
+
+def test_two_frames_paired_by_a_counter_count_injected_faults_exactly(channel, tmp_path):
+    """Position and torque in two big-endian messages, each with the 16-bit counter."""
+    (tmp_path / "counted.dbc").write_text(COUNTED_DBC)
+    mapping = {
+        "dbc": "counted.dbc",
+        "position": "Pos.Angle",
+        "torque": "Trq.Torque",
+        "torque_sign": -1.0,
+        "counter": "Pos.Seq",
+        "position_saturated": "",
+        "torque_saturated": "",
+        "perturbation_on": "",
+        "discontinuity": "",
+        "command": "",
+        "diagnostics": "",
+        "checksum": "none",
+    }
+    document = {"link": {"fs_hz": 2000.0, "protocol": mapping}, "plant": {"fs_hz": 2000.0}}
+    link, _ = link_configs_from_mapping(document, tmp_path)
+    wire = link_protocol(link)
+    assert wire.counter_modulo == 1 << 16 and wire.frames_per_sample == 2
+    faults = FaultConfig(drop_rate=0.01, duplicate_rate=0.01, reorder_rate=0.01, seed=9)
+    cfg = twoframe_plant(faults=faults, marker_every_s=0.0)
+    ring = RingBuffer(50_000)
+    acq = Acquisition(
+        lambda: can.Bus(interface="virtual", channel=channel, rx_queue_size=60_000),
+        ring,
+        fs_hz=2000.0,
+        protocol=wire,
+    )
+    plant_bus = can.Bus(interface="virtual", channel=channel)
+    try:
+        with acq, VirtualPlant(cfg, plant_bus, wire=wire, record_samples=12_000) as plant:
+            assert plant.done.wait(WAIT_S) and plant.error is None
+            sent = plant.counters().frames_sent
+            deadline = time.monotonic() + WAIT_S
+            while acq.counters().frames < sent and time.monotonic() < deadline:
+                time.sleep(0.01)
+    finally:
+        plant_bus.shutdown()
+    c, p = acq.counters(), plant.counters()
+    snap = ring.read_since(0, 50_000)
+    first, last = int(snap.sample_index[0]), int(snap.sample_index[-1])
+    expected_lost = [k for k in plant.lost_indices().tolist() if first < k < last]
+    assert snap.sample_index[~snap.valid].tolist() == expected_lost and len(expected_lost) > 50
+    assert c.lost_samples == len(expected_lost) and c.duplicates == p.duplicated > 50
+    assert c.out_of_order == c.unpaired == c.malformed == 0
+    position, torque = plant.recorded()
+    rows = snap.sample_index[snap.valid]
+    assert np.array_equal(snap.position_rad[snap.valid], position[rows])  # mrad -> rad
+    assert np.array_equal(snap.torque_nm[snap.valid], torque[rows])  # sign -1 both ways
+    assert np.std(position) > 0.005 and np.std(torque) > 0.5
+    raw = wire.torque.quantise(torque[:100])[0]  # on the wire the torque is inverted
+    assert np.all(np.sign(raw) == -np.sign(np.rint(torque[:100] / 1e-3)))
