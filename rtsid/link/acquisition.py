@@ -175,7 +175,8 @@ def explain_link_state(acquisition: Mapping[str, Any], where: str) -> str | None
     -------
     str or None
         E.g. ``"connected to 127.0.0.1:29536 but socketcand has not greeted (bus errors
-        4)"``; None while state frames stream (or from a status without ``link_state``).
+        4)"``, or that the measured rate is not ``fs_hz``; None while state frames stream
+        at the configured rate (or from a status without ``link_state``).
     """
     state = acquisition.get("link_state", "streaming")
     errors = f"bus errors {acquisition.get('bus_errors', 0)}"
@@ -198,6 +199,12 @@ def explain_link_state(acquisition: Mapping[str, Any], where: str) -> str | None
     if state == "stale":
         age_s = float(acquisition.get("last_frame_age_s", 0.0))
         return f"stale: no state frame from {where} for {age_s:.1f} s"
+    if acquisition.get("rate_mismatch"):
+        rate = float(acquisition.get("measured_rate_hz", float("nan")))
+        return (
+            f"the data from {where} arrive at {rate:.1f} samples/s, not at link.fs_hz: set "
+            "link.fs_hz to the sender's rate"
+        )
     return None
 
 

@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rtsid.errors import ConfigError
-from rtsid.link.acquisition import Acquisition, index_from_time
+from rtsid.link.acquisition import Acquisition, explain_link_state, index_from_time
 from rtsid.link.config import (
     FaultConfig,
     PlantConfig,
@@ -261,6 +261,8 @@ def test_a_sender_at_another_rate_than_fs_hz_is_reported(channel):
     c = acq.counters()
     assert c.rate_mismatch and c.measured_rate_hz == pytest.approx(2000.0)
     assert "2000.0 samples/s" in c.last_error and "link.fs_hz" in c.last_error
+    said = explain_link_state({**dataclasses.asdict(c), "link_state": "streaming"}, "the plant")
+    assert said is not None and "2000.0 samples/s" in said and "link.fs_hz" in said
 
 
 def test_timestamp_index_rule_gap_after_more_than_one_and_a_half_periods():
