@@ -173,3 +173,24 @@ def test_a_port_in_use_is_one_clear_link_error():
             acq = handle.make_acquisition(RingBuffer(1000))
             with pytest.raises(LinkError, match=f"127.0.0.1:{port}.*bind_host/port"):
                 acq.start()
+
+
+def test_random_datagrams_never_end_the_thread():
+    layout = compile_layout(UdpConfig(samples_per_datagram=2))
+    receiver = UdpReceiver("127.0.0.1", 0, layout.datagram_bytes)
+    sender = UdpSender("127.0.0.1", receiver.port)
+    rng = np.random.default_rng(4)
+    junk = [rng.bytes(int(n)) for n in rng.integers(0, 100, 300)]
+    wrong_length = sum(len(d) != layout.datagram_bytes for d in junk)
+    ring = RingBuffer(100_000)
+    try:
+        with Acquisition(receiver, ring, protocol=layout) as acq:
+            for k in range(0, len(junk), 50):  # paced: loopback drops what overflows
+                sender.send_frames(junk[k : k + 50])
+                wait_for(lambda k=k: acq.counters().frames >= k + 50)
+            assert acq.counters().frames == len(junk)
+            assert acq.failure is None and acq.running
+    finally:
+        sender.close()
+        receiver.shutdown()
+    assert acq.counters().malformed == wrong_length > 250
