@@ -9,19 +9,21 @@ import numpy as np
 import pytest
 
 from rtsid.io.mcap_read import iter_estimates
+from rtsid.link.mapping import compile_protocol
+from rtsid.replay import recording_config
 from rtsid.runtime.daemon import Daemon, DaemonConfig
 
 HW = Path(__file__).resolve().parents[2] / "hw"
 TRUTH_AND_TOLERANCE = {"I": (0.015, 0.20), "B": (0.8, 0.10), "K": (150.0, 0.05)}
 
 LINKS = {
-    "twoframe": f"""
+    "twoframe": """
 [link]
 interface = "embedded"
 fs_hz = 2000.0
 
 [link.protocol]
-dbc = "{HW / "protocols" / "twoframe.dbc"}"
+dbc = "twoframe.dbc"                   # copied next to the config by the test
 position = "JointPosition.Position"
 torque = "JointTorque.Torque"
 counter = ""
@@ -58,6 +60,7 @@ diagnostics_hz = 0.0
 @pytest.mark.slow  # a real-time daemon run of seconds
 @pytest.mark.parametrize("path", sorted(LINKS))
 def test_the_daemon_identifies_the_ankle_over_the_new_paths(tmp_path, free_port, path):
+    (tmp_path / "twoframe.dbc").write_bytes((HW / "protocols" / "twoframe.dbc").read_bytes())
     config_file = tmp_path / "rtsid.toml"
     config_file.write_text(
         LINKS[path]
@@ -78,3 +81,7 @@ directory = "{tmp_path / "rec"}"
     assert len(ok) > 40
     for key, (truth, tolerance) in TRUTH_AND_TOLERANCE.items():
         assert np.median([e[key] for e in ok]) == pytest.approx(truth, rel=tolerance), key
+    (tmp_path / "twoframe.dbc").unlink()  # a replay elsewhere has the samples, not the DBC
+    compile_protocol.cache_clear()  # as in a fresh process
+    replayed = recording_config(recording)
+    assert replayed.link.fs_hz == (2000.0 if path == "twoframe" else 2500.0)
