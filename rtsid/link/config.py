@@ -708,7 +708,8 @@ def link_configs_from_mapping(
     """
     link = link_config_from_mapping(document.get("link"), base_dir)
     plant = plant_config_from_mapping(document.get("plant"), base_dir)
-    if link.interface == "embedded" and link.fs_hz != plant.fs_hz:
+    embedded = link.interface == "embedded" or (link.interface == "udp" and link.udp.embedded_plant)
+    if embedded and link.fs_hz != plant.fs_hz:
         raise invalid("plant.fs_hz", plant.fs_hz, f"link.fs_hz = {link.fs_hz} (the same rate)")
     return link, plant
 

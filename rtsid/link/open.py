@@ -41,6 +41,7 @@ __all__ = ["LinkHandle", "bus_factory", "open_link"]
 _NO_BITRATE = ("virtual", "embedded", "socketcand", "socketcan")
 _PROBE_TIMEOUT_S = 1.0
 _PLANT_RX_QUEUE = 1024
+_LOOPBACK = ("127.0.0.1", "::1", "localhost")
 
 
 @dataclass(frozen=True)
@@ -112,6 +113,13 @@ def bus_factory(
 
 def _open_udp(cfg: LinkConfig) -> UdpReceiver:
     udp = cfg.udp
+    if udp.bind_host not in _LOOPBACK:
+        logging.getLogger(__name__).warning(
+            "listening for UDP samples on %s:%d, beyond loopback: any host that reaches it "
+            "can send samples; bind the interface facing the target only",
+            udp.bind_host,
+            udp.port,
+        )
     try:
         return UdpReceiver(
             udp.bind_host,
