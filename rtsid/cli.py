@@ -51,6 +51,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "plot": ("rtsid.commands.plot", "figure of K, B, I (95 % bands) and VAF from a recording"),
     "router": ("rtsid.commands.router", "a zenoh router for a lab of daemons (loopback default)"),
     "query": ("rtsid.commands.query", "latest estimates and recent history from running daemons"),
+    "mark": ("rtsid.commands.mark", "a trial marker on the next sample of running daemons"),
+    "condition": ("rtsid.commands.condition", "change the condition of running daemons"),
     "certs": (
         "rtsid.commands.certs",
         "certificates and zenoh configs of a secure lab (mTLS, access control)",

@@ -60,6 +60,7 @@ def plot_impedance_track(
     truth: Mapping[str, ArrayLike] | None = None,
     flagged: ArrayLike | None = None,
     window_s: float = 0.3,
+    markers: Sequence[tuple[float, str]] = (),
 ) -> Path:
     """:func:`impedance_figure` saved as PNG; returns the file written."""
     plt = require_matplotlib()
@@ -71,6 +72,7 @@ def plot_impedance_track(
         truth=truth,
         flagged=flagged,
         window_s=window_s,
+        markers=markers,
     )
     return _save(plt, fig, out_png)
 
@@ -84,6 +86,7 @@ def impedance_figure(
     truth: Mapping[str, ArrayLike] | None = None,
     flagged: ArrayLike | None = None,
     window_s: float = 0.3,
+    markers: Sequence[tuple[float, str]] = (),
 ) -> Any:
     """K, B, I and VAF over time, one panel each (a matplotlib figure).
 
@@ -114,6 +117,9 @@ def impedance_figure(
         Windows whose estimate carries a flag.
     window_s : float
         Window length, s (for the window K's label).
+    markers : sequence of (float, str)
+        Trial markers (sample time, s; label): a vertical line on every panel, the label
+        along it in the top one (as plain text: ``$`` never starts mathtext).
 
     Returns
     -------
@@ -146,8 +152,33 @@ def impedance_figure(
         ax.legend(loc="upper right", fontsize=7)
     axes[-1].set_xlabel("time (s)")
     axes[-1].set_ylim(0, 100)
+    _draw_markers(axes, markers)
     fig.suptitle(title)
     return fig
+
+
+def _draw_markers(axes: Sequence[Any], markers: Sequence[tuple[float, str]]) -> None:
+    """A dotted vertical line per marker on every panel, its label along it in the top one."""
+    for t, label in markers:
+        for ax in axes:
+            ax.axvline(t, color="0.35", ls=":", lw=0.9)
+        axes[0].annotate(
+            _plain_text(label, 40),
+            xy=(t, 0.98),
+            xycoords=("data", "axes fraction"),
+            rotation=90,
+            va="top",
+            ha="right",
+            fontsize=6,
+            annotation_clip=False,
+        )
+
+
+def _plain_text(label: str, limit: int) -> str:
+    """``label`` cut to ``limit`` characters, ``$`` escaped (matplotlib reads ``$…$`` as
+    math, and a malformed one fails the whole figure)."""
+    text = label if len(label) <= limit else label[: limit - 1] + "…"
+    return text.replace("$", r"\$")
 
 
 #: What :func:`estimate_series` reads of each estimate message (NaN where withheld).

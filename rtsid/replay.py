@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +23,7 @@ from typing import IO, Any
 import numpy as np
 
 from rtsid import __version__
-from rtsid.errors import RecordingError
+from rtsid.errors import RecordingError, RtsidWarning
 from rtsid.ident.reflex_lane import ReflexModels, SlowLaneSettings, fit_reflex_update
 from rtsid.io.calibration import robot_calibration, with_recorded_calibration
 from rtsid.io.mcap_read import (
@@ -31,7 +32,7 @@ from rtsid.io.mcap_read import (
     run_config_from_metadata,
     sample_count,
 )
-from rtsid.io.recording import SampleGrid, iter_batches, session_parts
+from rtsid.io.recording import SampleGrid, iter_batches, read_session, session_parts
 from rtsid.io.schemas import SCHEMAS, SampleBatch, encode_estimate, encode_json
 from rtsid.link.ring import Snapshot
 from rtsid.runtime.daemon import DaemonConfig
@@ -273,6 +274,12 @@ class ReplayResult:
     parts: list[Path] = field(default_factory=list)
     messages: list[dict[str, Any]] = field(default_factory=list)
     reflex: list[dict[str, Any]] = field(default_factory=list)
+    #: The recording's /marker messages (each marker_id once) and /session messages, carried
+    #: through to the replay's MCAP output (:func:`rtsid.io.recording.read_session`).
+    markers: list[dict[str, Any]] = field(default_factory=list)
+    sessions: list[dict[str, Any]] = field(default_factory=list)
+    #: The first part's ``rtsid.session`` metadata ({} for older recordings).
+    session_metadata: dict[str, str] = field(default_factory=dict)
     samples: int = 0
     duration_s: float = 0.0
     elapsed_s: float = 0.0
@@ -339,6 +346,11 @@ def replay_file(
     replay_batches(batches, config, result, publish=publish, live=live)
     if result.samples == 0:
         raise RecordingError(f"{path}: no samples to replay (is it an rtsid recording?)")
+    with warnings.catch_warnings():  # what the parts lack was said once already
+        warnings.simplefilter("ignore", RtsidWarning)
+        session = read_session(parts)
+    result.markers, result.sessions = session.markers, session.sessions
+    result.session_metadata = next((m for m in session.metadata if m), {})
     return result
 
 
@@ -429,15 +441,20 @@ def write_estimates_mcap(
     source: str,
     config: DaemonConfig,
     reflex: Iterable[dict[str, Any]] = (),
+    markers: Iterable[dict[str, Any]] = (),
+    sessions: Iterable[dict[str, Any]] = (),
+    session_metadata: Mapping[str, str] | None = None,
 ) -> int:
     """Estimate messages (and the slow lane's fits, on ``/reflex``) as an MCAP file with the
-    daemon's layout; returns the number of estimates written."""
+    daemon's layout; returns the number of estimates written. The source's markers
+    (``/marker``), session changes (``/session``) and ``rtsid.session`` metadata are carried
+    through, each at its sample time."""
     from mcap.writer import CompressionType, Writer
 
     writer = Writer(fh, compression=CompressionType.ZSTD)
     writer.start(profile="", library=f"rtsid {__version__}")
     channels = {}
-    for kind in ("estimate", "reflex"):
+    for kind in ("estimate", "reflex", "session", "marker"):
         schema, topic = SCHEMAS[kind]
         schema_id = writer.register_schema(
             name=schema["title"], encoding="jsonschema", data=encode_json(schema)
@@ -447,6 +464,11 @@ def write_estimates_mcap(
         )
     writer.add_metadata("rtsid", {"software": "rtsid", "version": __version__, "replay_of": source})
     writer.add_metadata("config", {"json": encode_json(config.as_dict()).decode()})
+    if session_metadata:
+        writer.add_metadata("rtsid.session", dict(session_metadata))
+    for kind, carried in (("session", sessions), ("marker", markers)):
+        for k, message in enumerate(carried):
+            _add_message(writer, channels[kind], message["t_s"], encode_json(message), k)
     fs = config.link.fs_hz
     for fit in reflex:  # logged at the sample time from which it applies
         _add_message(

@@ -23,4 +23,8 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     ),
     "lab": ("rtsid.benchmarks.lab", "router + 4 daemons + subscriber: e2e, rates, queries, CPU"),
     "inputs": ("rtsid.benchmarks.inputs", "peak memory of rtsid convert on hostile, large inputs"),
+    "markers": (
+        "rtsid.benchmarks.markers",
+        "rtsid mark latency to a daemon, then kill -9: all kept",
+    ),
 }

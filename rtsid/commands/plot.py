@@ -4,13 +4,14 @@ window's K beside it), B and I (fitted with their bands, held values as held), a
 from __future__ import annotations
 
 import argparse
+import warnings
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from rtsid.commands.common import add_output
-from rtsid.errors import InputDataError
+from rtsid.errors import InputDataError, RtsidWarning
 from rtsid.plots import estimate_series
 
 
@@ -41,7 +42,7 @@ def _window_s(message: dict[str, Any]) -> float:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rtsid.io.recording import read_estimates, session_parts
+    from rtsid.io.recording import read_estimates, read_session, session_parts
     from rtsid.plots import plot_distributions, plot_impedance_track, require_matplotlib
 
     require_matplotlib()
@@ -70,8 +71,17 @@ def run(args: argparse.Namespace) -> int:
         )
     title = args.title or f"{name}: {int(ok.sum())} of {len(t)} windows"
     window_s = _window_s(messages[0])
+    with warnings.catch_warnings():  # what the parts lack was said once already
+        warnings.simplefilter("ignore", RtsidWarning)
+        markers = read_session(args.recording).markers
     out = plot_impedance_track(
-        t, series, args.output, title=title, flagged=flagged, window_s=window_s
+        t,
+        series,
+        args.output,
+        title=title,
+        flagged=flagged,
+        window_s=window_s,
+        markers=[(m["t_s"], str(m["label"])) for m in markers],
     )
     track = series["K_track"]
     tracked = (
@@ -81,7 +91,8 @@ def run(args: argparse.Namespace) -> int:
         f"wrote {out}: {tracked}median K {np.nanmedian(series['K']):.1f} N·m/rad, "
         f"B {np.nanmedian(series['B']):.3f} N·m·s/rad, I {np.nanmedian(series['I']):.4f} kg·m², "
         f"VAF {np.nanmedian(series['vaf']):.1f} % over {int(ok.sum())} windows "
-        f"({len(t) - int(ok.sum())} withheld, {int(flagged.sum())} flagged)"
+        f"({len(t) - int(ok.sum())} withheld, {int(flagged.sum())} flagged), "
+        f"{len(markers)} markers"
     )
     if args.hist:
         print(f"wrote {plot_distributions(series, args.hist, title=title)}")

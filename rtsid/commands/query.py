@@ -1,10 +1,11 @@
 """``rtsid query [KEY]``: the latest estimate of every daemon, or their recent history.
 
 Without a range: one query on ``KEY/estimate`` (each daemon answers its newest estimate; what
-a late-joining controller does first). With ``--since`` or ``--from``/``--to``: one query on
-``KEY/history`` (see :mod:`rtsid.io.history` for the parameters). Messages go to stdout as
-JSON lines, oldest first; a summary per daemon and channel (what it holds, where its history
-starts) goes to stderr.
+a late-joining controller does first). With ``--session``: one query on ``KEY/session`` (each
+daemon's subject, session and condition, and the sample they hold from). With ``--since``
+or ``--from``/``--to``: one query on ``KEY/history`` (see :mod:`rtsid.io.history` for the
+parameters). Messages go to stdout as JSON lines, oldest first; a summary per daemon and
+channel (what it holds, where its history starts) goes to stderr.
 """
 
 from __future__ import annotations
@@ -34,6 +35,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--kind", metavar="K[,K]", help="channels of the history (default: all held)"
     )
+    parser.add_argument(
+        "--session",
+        action="store_true",
+        help="each daemon's session instead (subject, session, condition and the sample it "
+        "holds from: the KEY/session queryable)",
+    )
     parser.add_argument("--timeout", type=float, default=5.0, help="wait at most S s (5)")
 
 
@@ -42,6 +49,10 @@ def selector(args: argparse.Namespace) -> str:
     from rtsid.io.zenoh_link import user_key_expr
 
     key = user_key_expr(args.key)
+    if getattr(args, "session", False):
+        if args.since is not None or args.from_ns is not None or args.to_ns is not None:
+            raise ConfigError("--session asks for the current session; drop --since/--from/--to")
+        return f"{key}/session"
     params = []
     if args.since is not None:
         try:

@@ -72,6 +72,9 @@ def _write(result: ReplayResult, out: Path, config: DaemonConfig) -> None:
                 source=result.source,
                 config=config,
                 reflex=result.reflex,
+                markers=result.markers,
+                sessions=result.sessions,
+                session_metadata=result.session_metadata,
             )
     else:
         raise InputDataError(f"-o {out}: use a .csv or .mcap file name")
@@ -94,6 +97,7 @@ def _summary_row(result: ReplayResult) -> list[Any]:
         med["B"],
         med["I"],
         med["vaf"],
+        len(result.markers),
         result.speed,
     ]
 
@@ -200,6 +204,7 @@ def run(args: argparse.Namespace) -> int:
             "median B",
             "median I",
             "median VAF %",
+            "markers",
             "× real time",
         ],
         rows,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import signal
 import sys
@@ -36,6 +37,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="address the Foxglove server binds to: loopback only (127.0.0.1 or ::1), as its "
         "protocol has no authentication; reach it from elsewhere through an SSH tunnel",
     )
+    for name, example in (("subject", "S01"), ("session", "2"), ("condition", "baseline")):
+        parser.add_argument(
+            f"--{name}",
+            metavar=name.upper(),
+            help=f"the {name} (e.g. {example}; overrides [session] {name}); names the "
+            "recording with [session] recording_pattern",
+        )
     parser.add_argument(
         "--print-config",
         action="store_true",
@@ -132,8 +140,20 @@ def _foxglove_server(args: argparse.Namespace, config: DaemonConfig) -> Any:
     return FoxgloveLive(kinds, host=args.foxglove_host, port=args.foxglove)
 
 
+def _who(config: DaemonConfig) -> str:
+    """``; subject S01, session 2, condition baseline`` (empty without a subject)."""
+    s = config.session
+    if not s.subject:
+        return ""
+    return f"; subject {s.subject}, session {s.session or '-'}, condition {s.condition or '-'}"
+
+
 def run(args: argparse.Namespace) -> int:
     config = DaemonConfig.load(args.config)
+    session = config.session.with_overrides(
+        subject=args.subject, session=args.session, condition=args.condition
+    )
+    config = dataclasses.replace(config, session=session)
     if args.print_config:
         print(to_toml(config.as_dict()), end="")
         return 0
@@ -159,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"rtsid run: {source}, {config.worker.window_s * 1e3:.0f} ms windows every "
         f"{config.worker.hop_s * 1e3:.0f} ms; zenoh {_zenoh_where(config)}; "
-        f"MCAP in {config.mcap.directory}. Ctrl-C stops.",
+        f"MCAP in {config.mcap.directory}{_who(config)}. Ctrl-C stops.",
         flush=True,
     )
     try:

@@ -24,7 +24,6 @@ import errno
 import logging
 import os
 import queue
-import re
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
@@ -46,13 +45,14 @@ from rtsid.io.schemas import (
     encode_samples,
     encode_status,
 )
+from rtsid.io.session import SessionConfig, recording_stem
 from rtsid.lifecycle import ThreadOwner
 
 __all__ = ["McapConfig", "McapLogger", "channel_kinds", "recording_name", "register_channels"]
 
 log = logging.getLogger("rtsid.io.mcap")
 
-_KINDS = ("samples", "estimate", "status", "reflex", "can_frames")
+_KINDS = ("samples", "estimate", "status", "reflex", "can_frames", "session", "marker")
 _STOP_POLL_S = 0.1
 
 
@@ -109,17 +109,22 @@ class McapConfig:
         return section_from_mapping(cls, mapping, "mcap")
 
 
-_SAFE = re.compile(r"[^A-Za-z0-9_.]+")
+def recording_name(
+    robot: str,
+    joint: str,
+    start: datetime,
+    part: int,
+    session: SessionConfig | None = None,
+) -> str:
+    """File name of part ``part`` of a recording (part 0: no suffix).
 
-
-def recording_name(robot: str, joint: str, start: datetime, part: int) -> str:
-    """File name ``rtsid-<robot>-<joint>-<YYYYmmddTHHMMSSZ>[-NNN].mcap`` (part 0: no suffix).
-
-    Characters other than letters, digits, ``_`` and ``.`` in robot/joint become ``_``.
+    With a subject in ``session``: its ``recording_pattern`` filled in, e.g.
+    ``S01_2_rig-ankle_20261126T184839Z[-NNN].mcap``; without:
+    ``rtsid-<robot>-<joint>-<YYYYmmddTHHMMSSZ>[-NNN].mcap`` (see
+    :func:`rtsid.io.session.recording_stem`).
     """
-    stamp = start.astimezone(UTC).strftime("%Y%m%dT%H%M%SZ")
     suffix = f"-{part:03d}" if part else ""
-    return f"rtsid-{_SAFE.sub('_', robot)}-{_SAFE.sub('_', joint)}-{stamp}{suffix}.mcap"
+    return f"{recording_stem(robot, joint, start, session)}{suffix}.mcap"
 
 
 def channel_kinds(*, can_frames: bool = False) -> tuple[str, ...]:
@@ -202,6 +207,12 @@ class McapLogger(ThreadOwner):
         ``tap(kind, log_time_ns, payload_bytes)``, called on the writer thread with every
         message as it is written (a live view sees exactly the recording's messages, off the
         caller's thread). It must not block nor raise.
+    session : SessionConfig, optional
+        Subject, session and condition: they name the files (``recording_pattern``) and fill
+        the ``rtsid.session`` metadata record of every part.
+    session_message : Mapping, optional
+        The first ``/session`` message (:class:`~rtsid.io.messages.SessionMessage` as a dict);
+        every part starts with the newest one logged (:meth:`log_session`).
 
     Examples
     --------
@@ -222,6 +233,8 @@ class McapLogger(ThreadOwner):
         records: Mapping[str, Mapping[str, str]] | None = None,
         open_file: Callable[[Path], IO[bytes]] = _open_exclusive,
         tap: Callable[[str, int, bytes], None] | None = None,
+        session: SessionConfig | None = None,
+        session_message: Mapping[str, Any] | None = None,
     ) -> None:
         if not fs_hz > 0:
             raise InputDataError(f"McapLogger fs_hz = {fs_hz!r}; expected the sample rate > 0 Hz")
@@ -234,6 +247,11 @@ class McapLogger(ThreadOwner):
         self._records = {name: dict(record) for name, record in (records or {}).items()}
         self._open_file = open_file
         self._tap = tap
+        self.session = session or SessionConfig()
+        # The newest /session message and its fields (writer thread after start()).
+        self._session_now: tuple[bytes, dict[str, Any]] | None = None
+        if session_message is not None:
+            self._session_now = (encode_json(session_message), dict(session_message))
         super().__init__("rtsid-mcap")
         self._queue: queue.Queue[tuple[str, int, Any]] = queue.Queue(maxsize=config.queue_size)
         self._accepting = False
@@ -371,6 +389,38 @@ class McapLogger(ThreadOwner):
         payload = message if isinstance(message, bytes) else encode_json(message)
         return self._put("reflex", log_time_ns, payload)
 
+    def log_session(self, message: Mapping[str, Any], *, log_time_ns: int | None = None) -> bool:
+        """Queue a ``/session`` message (a condition change); every later part starts with
+        it, and its ``rtsid.session`` metadata names its condition."""
+        fields = dict(message)
+        return self._put("session", log_time_ns, (encode_json(fields), fields))
+
+    def log_marker(
+        self,
+        message: Mapping[str, Any],
+        *,
+        log_time_ns: int | None = None,
+        on_written: Callable[[bool], None] | None = None,
+    ) -> bool:
+        """Queue a ``/marker`` message.
+
+        The writer thread writes it, closes the chunk and flushes the file at once (a marker
+        written is in the file even if the process is killed right after: nothing of it waits
+        for ``flush_interval_s``), then calls ``on_written(True)``; ``on_written(False)`` when
+        there was no file to write it to. The daemon acknowledges ``rtsid mark`` from there.
+
+        Returns
+        -------
+        bool
+            True if queued (``on_written`` will be called, unless the writer thread dies);
+            False if dropped (queue full, counted; or not recording): ``on_written`` is not
+            called.
+        """
+        payload = encode_json(dict(message))
+        if log_time_ns is None:
+            log_time_ns = int(message["host_time_ns"])
+        return self._put("marker", log_time_ns, (payload, on_written))
+
     def log_can_frames(self, frames: Iterable[Any], *, log_time_ns: int | None = None) -> bool:
         """Queue a batch of raw CAN frames (``can.Message``-like); ignored unless
         ``log_can_frames`` is on."""
@@ -479,15 +529,29 @@ class McapLogger(ThreadOwner):
 
     def _write(self, item: tuple[str, int, Any]) -> None:
         kind, t_ns, payload = item
+        on_written: Callable[[bool], None] | None = None
         if kind == "samples" and (self._writer is not None or self._tap is not None):
             first, pos, tq, ok, st = payload
             payload = encode_samples(first, self.fs_hz, pos, tq, ok, st)
+        elif kind == "session":
+            self._session_now = payload
+            payload = payload[0]
+        elif kind == "marker":
+            payload, on_written = payload
+        written = self._write_payload(kind, t_ns, payload)
+        if kind == "marker" and written:
+            self._flush()  # a marker is acknowledged only once it is in the file
+            written = self._writer is not None
+        if on_written is not None:
+            on_written(written)
+
+    def _write_payload(self, kind: str, t_ns: int, payload: bytes) -> bool:
         if self._tap is not None:
             self._tap(kind, t_ns, payload)
         if self._writer is None:
             with self._c.lock:
                 self._c.lost += 1
-            return
+            return False
         try:
             self._writer.add_message(
                 channel_id=self._channels[kind], log_time=t_ns, data=payload, publish_time=t_ns
@@ -496,9 +560,10 @@ class McapLogger(ThreadOwner):
             with self._c.lock:
                 self._c.lost += 1
             self._fail(exc, "writing")
-            return
+            return False
         with self._c.lock:
             self._c.written += 1
+        return True
 
     def _flush(self) -> None:
         if self._writer is None or self._stream is None:
@@ -526,7 +591,9 @@ class McapLogger(ThreadOwner):
     def _next_path(self) -> Path:
         directory = Path(self.config.directory)
         directory.mkdir(parents=True, exist_ok=True)
-        return directory / recording_name(self.robot, self.joint, self._session_start, self._part)
+        return directory / recording_name(
+            self.robot, self.joint, self._session_start, self._part, self.session
+        )
 
     def _try_open(self) -> None:
         """Open the next file; on error count it and retry after ``retry_interval_s``."""
@@ -553,6 +620,15 @@ class McapLogger(ThreadOwner):
             writer.add_metadata("config", {"json": self._run_config_json})
             for name, record in self._records.items():
                 writer.add_metadata(name, record)
+            writer.add_metadata("rtsid.session", self._session_metadata())
+            if self._session_now is not None:  # every part says who and what from its start
+                t_ns = time.time_ns()
+                writer.add_message(
+                    channel_id=self._channels["session"],
+                    log_time=t_ns,
+                    data=self._session_now[0],
+                    publish_time=t_ns,
+                )
             writer.flush()
             size = stream.tell()
         except OSError as exc:
@@ -599,6 +675,22 @@ class McapLogger(ThreadOwner):
             "part": str(self._part),
             "schemas": "see docs/io.md",
             **self._extra_metadata,
+        }
+
+    def _session_metadata(self) -> dict[str, str]:
+        """The ``rtsid.session`` record: subject, session, condition (the newest), robot,
+        joint, started_utc (the run's start, ISO 8601), rtsid_version."""
+        condition = self.session.condition
+        if self._session_now is not None:
+            condition = str(self._session_now[1].get("condition", condition))
+        return {
+            "subject": self.session.subject,
+            "session": self.session.session,
+            "condition": condition,
+            "robot": self.robot,
+            "joint": self.joint,
+            "started_utc": self._session_start.isoformat(),
+            "rtsid_version": __version__,
         }
 
     def _close_file(self, *, finish: bool) -> None:

@@ -269,6 +269,19 @@ def iter_status(path: str | Path) -> Iterator[dict[str, Any]]:
         yield _json_object(message.data, path, "a status message")
 
 
+def iter_session_and_markers(
+    path: str | Path, report: ReadReport | None = None
+) -> Iterator[tuple[str, dict[str, Any]]]:
+    """``("session", message)`` and ``("marker", message)`` of one file in file order (dicts
+    following SESSION_SCHEMA / MARKER_SCHEMA). To read a recording's, use
+    :func:`rtsid.io.recording.read_session`."""
+    wanted = {TOPICS["session"]: "session", TOPICS["marker"]: "marker"}
+    for topic, _channel, message in iter_messages(path, report):
+        kind = wanted.get(topic)
+        if kind is not None:
+            yield kind, _json_object(message.data, path, f"a {topic} message")
+
+
 def iter_can_frames(path: str | Path) -> Iterator[Any]:
     """Raw CAN frames (``can.Message``) from the optional ``/can_frames`` channel."""
     import can
@@ -286,7 +299,8 @@ def iter_can_frames(path: str | Path) -> Iterator[Any]:
 
 def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
     """Metadata records by name (``rtsid``: software version, robot, joint, fs_hz, …;
-    ``config``: the run configuration as JSON under key ``json``)."""
+    ``config``: the run configuration as JSON under key ``json``; ``rtsid.session``: subject,
+    session, condition, robot, joint, started_utc, rtsid_version)."""
     from mcap.records import Metadata
 
     out: dict[str, dict[str, str]] = {}
@@ -326,18 +340,17 @@ def _json_object(data: bytes | str, path: str | Path, what: str) -> dict[str, An
     return value
 
 
-_PART = re.compile(
-    r"^(?P<session>rtsid-.+-\d{8}T\d{6}Z)(?:-(?P<part>\d{3,}))?(?:-recovered)?\.mcap$"
-)
+_PART = re.compile(r"^(?P<session>.*\d{8}T\d{6}Z.*?)(?:-(?P<part>\d{3,}))?(?:-recovered)?\.mcap$")
 
 
 def recording_parts(path: str | Path) -> list[Path]:
     """Every part of the recording session ``path`` belongs to, in order.
 
-    A daemon's session is ``rtsid-<robot>-<joint>-<UTC>.mcap`` followed by ``-001``, ``-002``, …
-    after rotation (or after a write error). Given any part, returns the existing parts in the
-    same directory sorted by part number (a file not named that way is returned alone, and so
-    is a ``…-recovered.mcap`` written by ``rtsid recover``).
+    A daemon's session is ``rtsid-<robot>-<joint>-<UTC>.mcap`` (or the ``[session]``
+    ``recording_pattern``'s name, which always holds the UTC start) followed by ``-001``,
+    ``-002``, … after rotation (or after a write error). Given any part, returns the existing
+    parts in the same directory sorted by part number (a file not named that way is returned
+    alone, and so is a ``…-recovered.mcap`` written by ``rtsid recover``).
     """
     p = Path(path)
     match = _PART.match(p.name)

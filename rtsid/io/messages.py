@@ -29,10 +29,17 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ESTIMATE_SCHEMA",
+    "MARKER_SCHEMA",
+    "MARKER_SOURCES",
+    "MAX_LABEL_CHARS",
+    "MAX_MARKER_ID_CHARS",
     "REFLEX_SCHEMA",
+    "SESSION_SCHEMA",
     "STATUS_SCHEMA",
     "EstimateMessage",
+    "MarkerMessage",
     "ReflexMessage",
+    "SessionMessage",
     "StatusMessage",
     "schema_of",
 ]
@@ -355,6 +362,24 @@ _SLOW_LANE = {
 }
 
 
+_SESSION = {
+    "description": "session and markers (SessionCounters): subject, session, condition, "
+    "condition_changes, markers recorded by source, markers refused (inbox full, bad label, "
+    "not written) and duplicates (a resent marker_id, acknowledged again, recorded once); "
+    "null from daemons before sessions",
+    "properties": {
+        **{n: {"type": "string"} for n in ("subject", "session", "condition")},
+        **{
+            n: {"type": "integer"}
+            for n in ("condition_changes", "markers", "refused", "duplicates", "wire_dropped")
+        },
+        "markers_by_source": {"type": "object", "additionalProperties": {"type": "integer"}},
+        "refused_by_reason": {"type": "object", "additionalProperties": {"type": "integer"}},
+    },
+    "additionalProperties": True,
+}
+
+
 @dataclass(frozen=True, slots=True)
 class StatusMessage:
     """Health of the daemon, 1–2 Hz. Counters are totals since start."""
@@ -375,6 +400,7 @@ class StatusMessage:
     mcap: dict[str, Any] = field(metadata=_MCAP)
     zenoh: dict[str, Any] = field(metadata=_ZENOH)
     slow_lane: dict[str, Any] | None = field(default=None, metadata=_SLOW_LANE)
+    session: dict[str, Any] | None = field(default=None, metadata=_SESSION)
 
     def as_dict(self) -> dict[str, Any]:
         """The JSON object (non-finite top-level numbers as ``None``)."""
@@ -501,3 +527,72 @@ class ReflexMessage:
 
 #: The reflex message's schema, generated from :class:`ReflexMessage`.
 REFLEX_SCHEMA: dict[str, Any] = schema_of(ReflexMessage, "rtsid.Reflex")
+
+
+#: Longest marker label, characters (a trial name, not a note).
+MAX_LABEL_CHARS = 200
+#: Longest marker id, characters.
+MAX_MARKER_ID_CHARS = 64
+#: Where a marker came from.
+MARKER_SOURCES = ("zenoh", "wire")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SessionMessage:
+    """Who is measured and under what condition, from a sample on: written at the start of
+    every recording part and on every change of condition (``rtsid condition``)."""
+
+    robot: str = field(metadata=_meta("robot name from the config"))
+    joint: str = field(metadata=_meta("joint name from the config"))
+    t_s: float = field(metadata=_meta("sample time the session state holds from, s"))
+    sample_index: int = field(metadata=_meta("sample index it holds from"))
+    subject: str = field(metadata=_meta("subject ([session] subject, --subject)", maxLength=64))
+    session: str = field(metadata=_meta("session of that subject", maxLength=64))
+    condition: str = field(metadata=_meta("condition the subject is in", maxLength=64))
+    host_time_ns: int = field(metadata=_meta("host UNIX time, ns"))
+
+    def as_dict(self) -> dict[str, Any]:
+        """The JSON object."""
+        return _fields_as_json(self)
+
+
+#: The session message's schema, generated from :class:`SessionMessage`.
+SESSION_SCHEMA: dict[str, Any] = schema_of(SessionMessage, "rtsid.Session")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MarkerMessage:
+    """A trial marker: a label on one sample (``rtsid mark``, a zenoh put, or the wire)."""
+
+    robot: str = field(metadata=_meta("robot name from the config"))
+    joint: str = field(metadata=_meta("joint name from the config"))
+    t_s: float = field(metadata=_meta("sample time of the marked sample, s (index / fs)"))
+    sample_index: int = field(metadata=_meta("the marked sample's index"))
+    label: str = field(
+        metadata=_meta(
+            "what the marker says, e.g. 'trial 3 start' (plain text, never markup)",
+            maxLength=MAX_LABEL_CHARS,
+        )
+    )
+    source: str = field(
+        metadata=_meta(
+            "zenoh (rtsid mark, or a put on .../mark/in) or wire (a marker frame or datagram)",
+            enum=list(MARKER_SOURCES),
+        )
+    )
+    marker_id: str = field(
+        metadata=_meta(
+            "the sender's id for this marker (a resent marker keeps it, so readers drop "
+            "duplicates), or one the daemon made",
+            maxLength=MAX_MARKER_ID_CHARS,
+        )
+    )
+    host_time_ns: int = field(metadata=_meta("host UNIX time the daemon took the marker, ns"))
+
+    def as_dict(self) -> dict[str, Any]:
+        """The JSON object."""
+        return _fields_as_json(self)
+
+
+#: The marker message's schema, generated from :class:`MarkerMessage`.
+MARKER_SCHEMA: dict[str, Any] = schema_of(MarkerMessage, "rtsid.Marker")

@@ -32,6 +32,8 @@ from rtsid.io.mcap_read import (
     holds_no_record,
     iter_estimates,
     iter_sample_batches,
+    iter_session_and_markers,
+    read_metadata,
     read_run_config,
     recording_parts,
 )
@@ -40,9 +42,11 @@ from rtsid.io.schemas import SampleBatch
 __all__ = [
     "Recording",
     "SampleGrid",
+    "SessionRecord",
     "iter_batches",
     "read_estimates",
     "read_recording",
+    "read_session",
     "session_parts",
 ]
 
@@ -338,6 +342,104 @@ def read_recording(paths: Paths) -> Recording:
             "recording made by 'rtsid run' or 'rtsid convert'"
         )
     return Recording(grid, read_run_config(parts[0]), parts)
+
+
+@dataclass(frozen=True)
+class SessionRecord:
+    """Who was measured, under which conditions, and the trial markers of a recording.
+
+    Attributes
+    ----------
+    metadata : list of dict
+        The ``rtsid.session`` metadata record of each part, in part order (string values:
+        subject, session, condition — the one at the part's start —, robot, joint,
+        started_utc, rtsid_version); ``{}`` for a part without one (older recordings).
+    sessions : list of dict
+        The ``/session`` messages (SESSION_SCHEMA: robot, joint, t_s, sample_index, subject,
+        session, condition, host_time_ns), each state once (every part repeats the newest at
+        its start), by sample index: the first is the run's start, each next one a change of
+        condition.
+    markers : list of dict
+        The ``/marker`` messages (MARKER_SCHEMA: robot, joint, t_s, sample_index, label,
+        source, marker_id, host_time_ns), each ``marker_id`` once (a resent marker is
+        recorded again after a daemon restart), by sample index.
+    parts : list of Path
+        The files read, in order.
+    """
+
+    metadata: list[dict[str, str]]
+    sessions: list[dict[str, Any]]
+    markers: list[dict[str, Any]]
+    parts: list[Path]
+
+    @property
+    def subject(self) -> str:
+        """The subject (from the first part that names one; ``""`` when none)."""
+        return next((m["subject"] for m in self.metadata if m.get("subject")), "")
+
+    @property
+    def session(self) -> str:
+        """The session (from the first part that names one; ``""`` when none)."""
+        return next((m["session"] for m in self.metadata if m.get("session")), "")
+
+    def condition_at(self, sample_index: int) -> str:
+        """The condition in force at ``sample_index`` (``""`` before any is known)."""
+        condition = ""
+        for message in self.sessions:
+            if message["sample_index"] > sample_index:
+                break
+            condition = message["condition"]
+        return condition
+
+
+def read_session(paths: Paths) -> SessionRecord:
+    """The session metadata, condition changes and markers of a recording (all parts of its
+    session, like :func:`read_recording`; a truncated part warns the same way).
+
+    Parameters
+    ----------
+    paths : path or sequence of paths
+        Any part of a session, or several files.
+
+    Returns
+    -------
+    SessionRecord
+
+    Raises
+    ------
+    RecordingError
+        Missing, empty or non-MCAP file.
+    """
+    parts = session_parts(paths)
+    metadata: list[dict[str, str]] = []
+    sessions: dict[tuple[Any, ...], dict[str, Any]] = {}
+    markers: dict[str, dict[str, Any]] = {}
+    for part in parts:
+        tally = _Tally(part)
+        for kind, message in iter_session_and_markers(part, tally.report):
+            if kind == "marker":
+                markers.setdefault(str(message.get("marker_id")), message)
+            else:
+                state = tuple(
+                    message.get(k) for k in ("sample_index", "subject", "session", "condition")
+                )
+                sessions.setdefault(state, message)
+        tally.warn_if_incomplete()
+        metadata.append(read_metadata(part).get("rtsid.session", {}))
+    return SessionRecord(
+        metadata=metadata,
+        sessions=sorted(sessions.values(), key=_by_sample),
+        markers=sorted(markers.values(), key=_by_sample),
+        parts=parts,
+    )
+
+
+def _by_sample(message: dict[str, Any]) -> tuple[int, int]:
+    index, stamp = message.get("sample_index"), message.get("host_time_ns")
+    return (
+        int(index) if isinstance(index, int) else 0,
+        int(stamp) if isinstance(stamp, int) else 0,
+    )
 
 
 def _as_list(paths: Paths) -> list[Path]:

@@ -12,6 +12,10 @@ samples    ``rtsid/<robot>/<joint>/samples``      batches of raw samples (≈ 10
 status     ``rtsid/<robot>/<joint>/status``       1–2 Hz
            ``/status``
 can_frames ``/can_frames`` (MCAP only, optional)  batches of raw CAN frames
+session    ``rtsid/<robot>/<joint>/session``      at the start of each part, on a condition
+           ``/session``                           change (and the zenoh queryable)
+marker     ``rtsid/<robot>/<joint>/marker``       one per trial marker
+           ``/marker``
 ========== ====================================== ========================================
 
 All values are SI (rad, N·m, s, kg·m², N·m·s/rad, N·m/rad); JSON has no NaN, so a missing or
@@ -31,16 +35,24 @@ from typing import Any
 import numpy as np
 
 from rtsid.errors import InputDataError
-from rtsid.io.messages import ESTIMATE_SCHEMA, REFLEX_SCHEMA, STATUS_SCHEMA
+from rtsid.io.messages import (
+    ESTIMATE_SCHEMA,
+    MARKER_SCHEMA,
+    REFLEX_SCHEMA,
+    SESSION_SCHEMA,
+    STATUS_SCHEMA,
+)
 from rtsid.verdicts import Reason
 
 __all__ = [
     "CAN_FRAMES_SCHEMA",
     "ESTIMATE_FIELDS",
     "ESTIMATE_SCHEMA",
+    "MARKER_SCHEMA",
     "REFLEX_SCHEMA",
     "SAMPLES_SCHEMA",
     "SCHEMAS",
+    "SESSION_SCHEMA",
     "STATUS_SCHEMA",
     "WITHHELD_REASONS",
     "SampleBatch",
@@ -134,6 +146,8 @@ SCHEMAS: dict[str, tuple[dict[str, Any], str]] = {
     "status": (STATUS_SCHEMA, "/status"),
     "reflex": (REFLEX_SCHEMA, "/reflex"),
     "can_frames": (CAN_FRAMES_SCHEMA, "/can_frames"),
+    "session": (SESSION_SCHEMA, "/session"),
+    "marker": (MARKER_SCHEMA, "/marker"),
 }
 
 

@@ -19,8 +19,9 @@ or escape codes in a terminal. The checks, all documented bounds:
   on (``<prefix>/<robot>/<joint>/<channel>``): a daemon's channel cannot speak for another.
 
 The validator is a small interpreter of the JSON-schema keywords those schemas use (``type``,
-``enum``, ``minimum``, ``maxItems``, ``properties``, ``required``, ``additionalProperties``,
-``items``); ``jsonschema`` is only a test dependency (the tests check both agree).
+``enum``, ``minimum``, ``maxItems``, ``maxLength``, ``properties``, ``required``,
+``additionalProperties``, ``items``); ``jsonschema`` is only a test dependency (the tests check
+both agree).
 """
 
 from __future__ import annotations
@@ -34,7 +35,13 @@ from typing import Any
 
 from rtsid.errors import InputDataError
 from rtsid.io.history import HISTORY_PART_SCHEMA
-from rtsid.io.messages import ESTIMATE_SCHEMA, REFLEX_SCHEMA, STATUS_SCHEMA
+from rtsid.io.messages import (
+    ESTIMATE_SCHEMA,
+    MARKER_SCHEMA,
+    REFLEX_SCHEMA,
+    SESSION_SCHEMA,
+    STATUS_SCHEMA,
+)
 
 __all__ = [
     "MAX_ABS_NUMBER",
@@ -74,6 +81,8 @@ _SCHEMAS: dict[str, Mapping[str, Any]] = {
     "estimate": ESTIMATE_SCHEMA,
     "status": STATUS_SCHEMA,
     "reflex": REFLEX_SCHEMA,
+    "session": SESSION_SCHEMA,
+    "marker": MARKER_SCHEMA,
 }
 _ANY_CHANNEL: Mapping[str, Any] = {
     "type": "object",
@@ -168,6 +177,10 @@ def check_value(value: Any, schema: Mapping[str, Any], where: str = "", depth: i
     if "enum" in schema and value not in schema["enum"]:
         raise MalformedMessage(
             f"{where} = {printable(repr(value), 80)} is not one of the known values"
+        )
+    if actual == "string" and len(value) > schema.get("maxLength", MAX_STRING_CHARS):
+        raise MalformedMessage(
+            f"{where} is a string of {len(value)} characters, more than accepted"
         )
     if "minimum" in schema and actual in ("integer", "number") and value < schema["minimum"]:
         raise MalformedMessage(f"{where} = {value!r} is below {schema['minimum']}")

@@ -33,7 +33,16 @@ from rtsid.io.validate import (
     printable,
 )
 
-__all__ = ["FeedEvent", "LabFeed", "WatchState", "format_estimate_line", "render_view", "watch"]
+__all__ = [
+    "FeedEvent",
+    "LabFeed",
+    "WatchState",
+    "format_estimate_line",
+    "format_marker_line",
+    "format_session_line",
+    "render_view",
+    "watch",
+]
 
 _CLEAR = "\x1b[H\x1b[J"  # cursor home, clear to the end of the screen
 _REDRAW_S = 0.1
@@ -136,6 +145,8 @@ class JointView:
     withheld: int = 0
     last_age_ms: float | None = None
     alive: bool | None = None  # liveliness token seen (True) / withdrawn (False)
+    session: dict[str, Any] | None = None  # the newest /session message
+    markers: list[dict[str, Any]] = field(default_factory=list)  # the last few /marker
 
 
 def joint_name(key: str) -> str:
@@ -168,7 +179,8 @@ class WatchState:
 
     def update(self, key: str, payload: bytes, received_ns: int) -> dict[str, Any] | None:
         """Take one sample (key expression, JSON payload). Returns it if it is a new estimate
-        (not one already seen, e.g. from both the history and the live subscription)."""
+        (not one already seen, e.g. from both the history and the live subscription), a
+        session message or a new marker."""
         self.received += 1
         kind = key.rstrip("/").rsplit("/", 1)[-1]
         try:
@@ -182,6 +194,14 @@ class WatchState:
         view = self.joints.setdefault(name, JointView())
         if kind == "status":
             view.status = message
+            return None
+        if kind == "session":
+            view.session = message
+            return message
+        if kind == "marker":
+            if all(m.get("marker_id") != message["marker_id"] for m in view.markers):
+                view.markers = [*view.markers[-(MARKERS_SHOWN - 1) :], message]
+                return message
             return None
         if kind != "estimate":
             return None
@@ -221,6 +241,31 @@ def _seen_before(previous: Mapping[str, Any] | None, message: Mapping[str, Any])
         return False
 
 
+#: Markers each joint's view keeps (the newest).
+MARKERS_SHOWN = 5
+
+
+def format_session_line(message: Mapping[str, Any]) -> str:
+    """``rig/ankle subject S01  session 2  condition fatigue (from t=12.345s)``: one
+    printable line (names are checked, and cleaned of control characters again here)."""
+    return (
+        f"{message.get('robot')}/{message.get('joint')} "
+        f"subject {printable(str(message.get('subject') or '-'), 64)}  "
+        f"session {printable(str(message.get('session') or '-'), 64)}  "
+        f"condition {printable(str(message.get('condition') or '-'), 64)} "
+        f"(from t={_num(message.get('t_s'), '.3f')}s)"
+    )
+
+
+def format_marker_line(message: Mapping[str, Any]) -> str:
+    """``rig/ankle marker 'trial 3 start' at t=12.345s (sample 30862, zenoh)``."""
+    return (
+        f"{message.get('robot')}/{message.get('joint')} marker "
+        f"{printable(str(message.get('label')), 120)!r} at t={_num(message.get('t_s'), '.3f')}s "
+        f"(sample {message.get('sample_index')}, {message.get('source')})"
+    )
+
+
 def _status_line(name: str, s: Mapping[str, Any]) -> str:
     acq = s.get("acquisition") or {}
     wk = s.get("worker") or {}
@@ -239,8 +284,21 @@ def _status_line(name: str, s: Mapping[str, Any]) -> str:
             f"  overruns {wk.get('overruns', '-')}  misses {wk.get('deadline_misses', '-')}",
             f"    mcap {mc.get('state', '-')} {mcap_file}  dropped {mc.get('dropped', '-')}"
             f"  |  zenoh {zn.get('state', '-')}",
+            *_session_counters(s.get("session")),
         ]
     )
+
+
+def _session_counters(session: Any) -> list[str]:
+    """``markers 3 (refused 1, duplicates 0)  condition changes 1``, or nothing (a daemon
+    from before sessions)."""
+    if not isinstance(session, Mapping):
+        return []
+    return [
+        f"    markers {session.get('markers', '-')} (refused {session.get('refused', '-')}, "
+        f"duplicates {session.get('duplicates', '-')})  condition changes "
+        f"{session.get('condition_changes', '-')}"
+    ]
 
 
 def render_view(state: WatchState, *, title: str, now_s: float | None = None) -> str:
@@ -293,6 +351,13 @@ def render_view(state: WatchState, *, title: str, now_s: float | None = None) ->
             shown = True
     if not shown:
         lines.append("  (no status yet)")
+    sessions = [(n, v) for n, v in sorted(state.joints.items()) if v.session or v.markers]
+    if sessions:
+        lines += ["", "session:"]
+    for _name, view in sessions:
+        if view.session is not None:
+            lines.append(f"  {format_session_line(view.session)}")
+        lines += [f"    {format_marker_line(m)}" for m in view.markers]
     lines.append("")
     lines.append(
         f"received {state.received}  estimates "
@@ -402,6 +467,14 @@ class LabFeed:
             kind = "alive" if token.kind == zenoh.SampleKind.PUT else "gone"
             events.append(FeedEvent(kind, str(token.key_expr), b"", time.time_ns()))
         return events
+
+    def session(self, *, timeout_s: float = 2.0) -> HistoryEvents:
+        """Each daemon's current session message (its ``session`` queryable; a daemon from
+        before sessions does not answer), checked like :meth:`history`."""
+        from rtsid.io.zenoh_link import query
+
+        answer = query(self._session, f"{self.key}/session", timeout_s=timeout_s)
+        return history_events(answer.replies, answer.errors)
 
     def history(self, since_s: float, *, timeout_s: float = 5.0) -> HistoryEvents:
         """The messages of the last ``since_s`` that the daemons still hold, every reply
@@ -533,9 +606,14 @@ def watch(
                     flush=True,
                 )
             return
-        if event.kind not in ("estimate", "status"):
-            return  # another channel (the table shows estimates and status)
+        if event.kind not in ("estimate", "status", "session", "marker"):
+            return  # another channel (the table shows estimates, status and the session)
         est = state.update(event.key, event.payload, event.received_ns)
+        if est is not None and event.kind in ("session", "marker"):
+            if not live:
+                line = format_session_line if event.kind == "session" else format_marker_line
+                print(line(est), file=out, flush=True)
+            return
         if est is not None:
             seen += 1
             if not live:
@@ -548,6 +626,8 @@ def watch(
                 file=sys.stderr,
                 flush=True,
             )
+            for event in feed.session().events:  # who and what, however old
+                take(event)
             if since_s is not None:
                 past = feed.history(since_s)
                 for note in past.notes:

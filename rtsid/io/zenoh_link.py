@@ -12,6 +12,16 @@ Key expressions (``<prefix>`` defaults to ``rtsid``)::
     <prefix>/<robot>/<joint>/status     queryable: the latest status (JSON)
     <prefix>/<robot>/<joint>/history    queryable: estimates and status over the last
                                         ``history_s`` (parameters in :mod:`rtsid.io.history`)
+    <prefix>/<robot>/<joint>/session    JSON SessionMessage at start and on a condition change;
+                                        queryable: the current one (late joiners)
+    <prefix>/<robot>/<joint>/marker     JSON MarkerMessage, each marker as recorded
+    <prefix>/<robot>/<joint>/mark       queryable: record a marker on the next sample, reply
+                                        when it is in the MCAP file (``rtsid mark``)
+    <prefix>/<robot>/<joint>/mark/in    subscriber: a put records a marker (no acknowledgement)
+    <prefix>/<robot>/<joint>/condition  queryable: change the condition (``rtsid condition``)
+
+Marker and condition requests go into a bounded :class:`RequestInbox` (the callbacks never
+block); the daemon's session desk (:mod:`rtsid.runtime.session`) takes them from there.
 
 The default session is a peer listening on ``tcp/127.0.0.1:7447`` with multicast and gossip
 scouting off, so any zenoh client on this machine connects there; a lab names endpoints or a
@@ -35,6 +45,8 @@ import logging
 import os
 import re
 import threading
+import time
+from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,6 +60,8 @@ from rtsid.io.schemas import encode_estimate, encode_json, encode_samples, encod
 __all__ = [
     "VIEWER_CONFIG_ENV",
     "QueryAnswer",
+    "Request",
+    "RequestInbox",
     "RouterConfig",
     "ZenohConfig",
     "ZenohPublisher",
@@ -165,14 +179,91 @@ class ZenohConfig:
 #: Why a message was not published (``not_published_by_reason`` in the status).
 NOT_PUBLISHED_REASONS = ("session_down", "no_router")
 
-_KEYS = ("estimate", "status", "samples", "reflex", "alive", "config", "history")
+_KEYS = (
+    "estimate",
+    "status",
+    "samples",
+    "reflex",
+    "alive",
+    "config",
+    "history",
+    "session",
+    "marker",
+    "mark",
+    "condition",
+)
 
 
 def key_expressions(cfg: ZenohConfig) -> dict[str, str]:
     """The key expressions of one daemon: estimate, status, samples, reflex, alive, config,
-    history."""
+    history, session, marker, mark, condition, and ``mark_in`` (``…/mark/in``)."""
     base = f"{cfg.key_prefix}/{cfg.robot}/{cfg.joint}"
-    return {name: f"{base}/{name}" for name in _KEYS}
+    keys = {name: f"{base}/{name}" for name in _KEYS}
+    keys["mark_in"] = f"{base}/mark/in"
+    return keys
+
+
+#: Requests waiting for the session desk at most (beyond: refused, counted; a query is told).
+REQUEST_INBOX_SIZE = 256
+
+
+@dataclass(frozen=True)
+class Request:
+    """One marker or condition request from zenoh.
+
+    Attributes
+    ----------
+    kind : str
+        ``"mark"`` (a query: acknowledge it), ``"mark_in"`` (a put: nobody to tell) or
+        ``"condition"`` (a query).
+    payload : bytes
+        What the sender sent (JSON, or for a put also plain text: the label).
+    query : object or None
+        The zenoh query to reply to and drop (None for a put).
+    received_ns : int
+        Host UNIX time it arrived, ns.
+    """
+
+    kind: str
+    payload: bytes
+    query: Any
+    received_ns: int
+
+
+class RequestInbox:
+    """A bounded, thread-safe queue of :class:`Request` (zenoh's callbacks put, the session
+    desk takes). A full inbox refuses: a query gets an error reply at once, a put is
+    counted in ``refused`` — never silently lost."""
+
+    def __init__(self, capacity: int = REQUEST_INBOX_SIZE) -> None:
+        self._pending: deque[Request] = deque()
+        self._capacity = capacity
+        self._ready = threading.Condition()
+        self.refused = 0
+
+    def offer(self, request: Request) -> bool:
+        """Queue ``request``; False (counted in ``refused``) when the inbox is full."""
+        with self._ready:
+            if len(self._pending) >= self._capacity:
+                self.refused += 1
+                return False
+            self._pending.append(request)
+            self._ready.notify()
+        return True
+
+    def wake(self) -> None:
+        """Wake a :meth:`take` that is waiting (nothing queued, nothing counted)."""
+        with self._ready:
+            self._ready.notify_all()
+
+    def take(self, timeout_s: float) -> list[Request]:
+        """Every queued request, oldest first, waiting up to ``timeout_s`` for one."""
+        with self._ready:
+            if not self._pending:
+                self._ready.wait(timeout_s)
+            taken = list(self._pending)
+            self._pending.clear()
+        return taken
 
 
 def _base_config(mode: str, listen: tuple[str, ...], connect: tuple[str, ...], scout: bool) -> Any:
@@ -341,6 +432,9 @@ class ZenohPublisher:
     rates_hz : Mapping[str, float], optional
         Expected rate of each published channel, Hz (sizes the history rings; e.g.
         ``{"estimate": 50, "status": 2}``).
+    requests : RequestInbox, optional
+        Where marker and condition requests go (the ``mark``, ``mark/in`` and ``condition``
+        keys are declared only with it).
 
     Examples
     --------
@@ -355,8 +449,10 @@ class ZenohPublisher:
         *,
         run_config: Mapping[str, Any] | None = None,
         rates_hz: Mapping[str, float] | None = None,
+        requests: RequestInbox | None = None,
     ) -> None:
         self.cfg = cfg
+        self.requests = requests
         self.keys = key_expressions(cfg)
         #: Every published message but samples, kept for the ``history`` queryable.
         self.history = HistoryStore(cfg.history_s, rates_hz) if cfg.history_s > 0 else None
@@ -443,6 +539,17 @@ class ZenohPublisher:
         """Publish one slow-lane fit (REFLEX_SCHEMA)."""
         payload = message if isinstance(message, bytes) else encode_json(message)
         return self._put("reflex", payload)
+
+    def publish_session(self, message: Mapping[str, Any] | bytes) -> bool:
+        """Publish a session message (SESSION_SCHEMA); it also becomes the ``session``
+        queryable's answer."""
+        payload = message if isinstance(message, bytes) else encode_json(message)
+        return self._put("session", payload)
+
+    def publish_marker(self, message: Mapping[str, Any] | bytes) -> bool:
+        """Publish one recorded marker (MARKER_SCHEMA)."""
+        payload = message if isinstance(message, bytes) else encode_json(message)
+        return self._put("marker", payload)
 
     def publish_samples(
         self,
@@ -606,6 +713,15 @@ class ZenohPublisher:
             "reflex": session.declare_publisher(
                 self.keys["reflex"], encoding=json_enc, congestion_control=drop
             ),
+            # a marker or a session change is rare and must not be dropped on congestion
+            **{
+                name: session.declare_publisher(
+                    self.keys[name],
+                    encoding=json_enc,
+                    congestion_control=zenoh.CongestionControl.BLOCK,
+                )
+                for name in ("session", "marker")
+            },
         }
         others = [
             session.liveliness().declare_token(self.keys["alive"]),
@@ -613,8 +729,41 @@ class ZenohPublisher:
             session.declare_queryable(self.keys["status"], self._answer_latest_status),
             session.declare_queryable(self.keys["estimate"], self._answer_latest_estimate),
             session.declare_queryable(self.keys["history"], self._answer_history),
+            session.declare_queryable(self.keys["session"], self._answer_latest_session),
         ]
+        if self.requests is not None:
+            others += [
+                session.declare_queryable(self.keys["mark"], self._take_mark),
+                session.declare_queryable(self.keys["condition"], self._take_condition),
+                session.declare_subscriber(self.keys["mark_in"], self._take_mark_put),
+            ]
         return _Entities(session, publishers, others, client)
+
+    def _answer_latest_session(self, query: Any) -> None:
+        self._answer_latest(query, "session")
+
+    def _take_mark(self, query: Any) -> None:
+        self._take_query(query, "mark")
+
+    def _take_condition(self, query: Any) -> None:
+        self._take_query(query, "condition")
+
+    def _take_query(self, query: Any, kind: str) -> None:
+        """Queryable callback: hand the query to the session desk (which replies and drops
+        it), or refuse it at once when the inbox is full."""
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        assert self.requests is not None
+        if not self.requests.offer(Request(kind, payload, query, time.time_ns())):
+            self._answer_error(
+                query,
+                f"{self.keys[kind]}: too many requests waiting "
+                f"({REQUEST_INBOX_SIZE}); NOT recorded, send it again",
+            )
+
+    def _take_mark_put(self, sample: Any) -> None:
+        """Subscriber callback: a put on ``mark/in`` (refused ones are counted by the inbox)."""
+        assert self.requests is not None
+        self.requests.offer(Request("mark_in", sample.payload.to_bytes(), None, time.time_ns()))
 
     def _answer_latest_estimate(self, query: Any) -> None:
         self._answer_latest(query, "estimate")
@@ -738,11 +887,14 @@ class QueryAnswer:
     errors: list[str]
 
 
-def query(session: Any, selector: str, *, timeout_s: float = 2.0) -> QueryAnswer:
+def query(
+    session: Any, selector: str, *, timeout_s: float = 2.0, payload: bytes | None = None
+) -> QueryAnswer:
     """Ask every queryable matching ``selector`` (``key?param=value;...``) and collect the
     replies, with consolidation off (a history answer comes in several parts).
 
-    Returns when every matching daemon has finished answering, or after ``timeout_s``.
+    ``payload`` goes with the query (a marker's or a condition's JSON). Returns when every
+    matching daemon has finished answering, or after ``timeout_s``.
     """
     import zenoh
 
@@ -754,6 +906,7 @@ def query(session: Any, selector: str, *, timeout_s: float = 2.0) -> QueryAnswer
         consolidation=zenoh.ConsolidationMode.NONE,
         target=zenoh.QueryTarget.ALL,
         timeout=timeout_s,
+        payload=payload,
     )
     for reply in handler:
         if reply.ok is not None:

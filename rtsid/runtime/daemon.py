@@ -41,7 +41,8 @@ from rtsid.io.mcap_log import McapConfig, McapLogger
 from rtsid.io.messages import StatusMessage
 from rtsid.io.procstats import ProcessMeter
 from rtsid.io.schemas import encode_estimate, encode_json, encode_status
-from rtsid.io.zenoh_link import ZenohConfig, ZenohPublisher
+from rtsid.io.session import SessionConfig
+from rtsid.io.zenoh_link import RequestInbox, ZenohConfig, ZenohPublisher
 from rtsid.lifecycle import ThreadOwner
 from rtsid.link.acquisition import Acquisition
 from rtsid.link.config import LinkConfig, PlantConfig, link_configs_from_mapping
@@ -49,6 +50,7 @@ from rtsid.link.open import open_link
 from rtsid.link.ring import RingBuffer, Snapshot
 from rtsid.runtime.clock import Deadlines
 from rtsid.runtime.power import cpu_latency_request
+from rtsid.runtime.session import SessionDesk, session_message
 from rtsid.runtime.slow_lane import SlowLane
 from rtsid.runtime.worker import WindowEvaluator, WindowWorker, WorkerConfig
 from rtsid.verdicts import plain_counts
@@ -67,6 +69,7 @@ SECTIONS = (
     "tracker",
     "mcap",
     "zenoh",
+    "session",
 )
 
 
@@ -120,6 +123,7 @@ class DaemonConfig:
     tracker: TrackerOptions = field(default_factory=TrackerOptions)
     mcap: McapConfig = field(default_factory=McapConfig)
     zenoh: ZenohConfig = field(default_factory=ZenohConfig)
+    session: SessionConfig = field(default_factory=SessionConfig)
 
     def __post_init__(self) -> None:
         """Checks across sections (each section checked its own keys already)."""
@@ -212,6 +216,7 @@ class DaemonConfig:
             tracker=section_from_mapping(TrackerOptions, document.get("tracker"), "tracker"),
             mcap=McapConfig.from_mapping(document.get("mcap")),
             zenoh=ZenohConfig.from_mapping(document.get("zenoh")),
+            session=SessionConfig.from_mapping(document.get("session")),
         )
 
     @classmethod
@@ -285,6 +290,7 @@ class Daemon:
         self.worker: WindowWorker | None = None
         self.acquisition: Acquisition | None = None
         self.slow_lane: SlowLane | None = None
+        self.desk: SessionDesk | None = None
         self._components: list[ThreadOwner | None] = []
         self.failure: str | None = None
 
@@ -313,6 +319,10 @@ class Daemon:
         calibration = robot_calibration(cfg.worker.calibration_file, cfg.link.fs_hz)
         with open_link(cfg.link, cfg.plant, start_plant=False) as handle:
             ring = handle.make_ring()
+
+            def next_sample() -> int:
+                return max(ring.newest_index + 1, 0)
+
             mcap = McapLogger(
                 cfg.mcap,
                 robot=robot,
@@ -322,12 +332,35 @@ class Daemon:
                 metadata={"software": f"rtsid {__version__}"},
                 records=calibration_record(calibration, cfg.worker.calibration_file),
                 tap=self.message_tap,
+                session=cfg.session,
+                session_message=session_message(
+                    cfg.session, robot, joint, cfg.link.fs_hz, next_sample()
+                ),
             )
             mcap.start(require_file=True)  # a run that cannot be recorded must not start
             rates_hz = {"estimate": 1 / cfg.worker.hop_s, "status": 1 / cfg.daemon.status_period_s}
-            with mcap, ZenohPublisher(cfg.zenoh, run_config=run_config, rates_hz=rates_hz) as zenoh:
+            inbox = RequestInbox()
+            with (
+                mcap,
+                ZenohPublisher(
+                    cfg.zenoh, run_config=run_config, rates_hz=rates_hz, requests=inbox
+                ) as zenoh,
+            ):
                 acquisition = handle.make_acquisition(ring)
                 self.acquisition = acquisition
+                desk = SessionDesk(
+                    cfg.session,
+                    robot=robot,
+                    joint=joint,
+                    fs_hz=cfg.link.fs_hz,
+                    next_sample=next_sample,
+                    mcap=mcap,
+                    zenoh=zenoh,
+                    inbox=inbox,
+                    wire_markers=acquisition.drain_markers,
+                    wire_dropped=lambda: acquisition.markers.dropped,
+                )
+                self.desk = desk
                 # The embedded plant's in-process bus opens at once, before the plant sends;
                 # any other bus opens on the acquisition thread (retried with back-off), so
                 # a server that never answers cannot block this thread and its signals.
@@ -358,7 +391,8 @@ class Daemon:
                 worker.start()
                 if slow_lane is not None:
                     slow_lane.start()
-                self._components = [acquisition, worker, mcap, handle.plant, slow_lane]
+                desk.start()
+                self._components = [acquisition, worker, mcap, handle.plant, slow_lane, desk]
                 clean = True
                 try:
                     self._housekeeping(ring, mcap, zenoh, duration_s)
@@ -368,6 +402,7 @@ class Daemon:
                         clean &= slow_lane.stop(timeout)
                     clean &= worker.stop(timeout)
                     clean &= acquisition.stop(timeout)
+                    clean &= desk.stop(timeout)  # after the link: its last wire markers too
                     self._forward_samples(ring, mcap, zenoh)
                     self._publish_status(mcap, zenoh)
             clean &= mcap.stop(cfg.daemon.shutdown_timeout_s)
@@ -472,6 +507,7 @@ class Daemon:
             mcap=mcap.stats(),
             zenoh=zenoh.stats(),
             slow_lane=dataclasses.asdict(self.slow_lane.counters()) if self.slow_lane else None,
+            session=self.desk.counters() if self.desk else None,
         ).as_dict()
 
     def _publish_status(self, mcap: McapLogger, zenoh: ZenohPublisher) -> None:

@@ -61,3 +61,9 @@ def test_replay_benchmark_compares_replay_with_the_bare_estimator(capsys):
     rows = [line for line in out.splitlines() if line.startswith("|") and "windows" not in line]
     windows = [int(r.split("|")[2]) for r in rows if r.split("|")[2].strip().isdigit()]
     assert len(windows) == 2 and windows[0] == windows[1] == 286  # 6 s, 300 ms every 20 ms
+
+
+def test_bench_markers_quick_keeps_every_acknowledged_marker(capsys):
+    assert main(["bench", "markers", "--quick"]) == 0  # non-zero if one was lost or doubled
+    out = capsys.readouterr().out
+    assert "round trip (ms)" in out and "After kill -9 and rtsid recover" in out

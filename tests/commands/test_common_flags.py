@@ -60,7 +60,7 @@ def test_a_flag_means_the_same_thing_in_every_command():
             assert action.default == "peer", name
             seen["--mode"] += 1
     assert seen["-o"] >= 7 and seen["--fs"] >= 5 and seen["--duration"] >= 6
-    assert seen["--mode"] == 2  # watch and query, with one default
+    assert seen["--mode"] == 4  # watch, query, mark and condition, with one default
 
 
 @pytest.fixture

@@ -97,6 +97,8 @@ def test_foxglove_layout_shows_fields_the_recordings_have():
     leading = [p["value"] for p in panels[first]["paths"]]
     assert leading[:2] == ["/estimate.K_track", "/estimate.K"]
     assert any(p.startswith("/samples.") for p in plotted)
+    shown = {c["topicPath"] for i, c in panels.items() if i.startswith("RawMessages!")}
+    assert {"/marker", "/session"} <= shown  # trial markers and the session beside the plots
 
 
 def test_parts_of_a_rotated_session_plot_as_one(tmp_path, capsys):
@@ -243,3 +245,60 @@ def test_identify_plot_in_whole_record_cascade_mode_writes_the_figure(tmp_path):
     argv = ["identify", str(tmp_path / "r.npz"), "--model", "cascade", "--plot", str(png)]
     assert main([*argv, "-o", str(tmp_path / "c.csv")]) == 0
     assert png.read_bytes()[:8] == PNG_MAGIC and png.stat().st_size > 10_000
+
+
+def test_markers_are_carried_through_replay_and_drawn(tmp_path, capsys):
+    from rtsid.io.mcap_log import McapConfig, McapLogger
+    from rtsid.io.mcap_read import read_run_config
+    from rtsid.io.recording import iter_batches, read_session
+    from rtsid.io.session import SessionConfig
+    from rtsid.plots import impedance_figure
+
+    fs = 2500.0
+    labels = {2500: "trial $1$ start", 6250: "<b>trial 1 end</b>"}
+    logger = McapLogger(
+        McapConfig(directory=str(tmp_path / "rec")),
+        robot="rig",
+        joint="ankle",
+        fs_hz=fs,
+        run_config=read_run_config(REFERENCE),
+        session=SessionConfig("S01", "2", "baseline"),
+    )
+    with logger:
+        for batch in iter_batches(REFERENCE):
+            logger.log_samples(
+                batch.first_index, batch.position_rad, batch.torque_nm, batch.valid, batch.status
+            )
+        for k, (index, label) in enumerate(labels.items()):
+            marker = {
+                "robot": "rig",
+                "joint": "ankle",
+                "t_s": index / fs,
+                "sample_index": index,
+                "label": label,
+                "source": "zenoh",
+                "marker_id": f"m{k}",
+                "host_time_ns": k,
+            }
+            logger.log_marker(marker)
+    (recording,) = logger.files
+    replayed = tmp_path / "replayed.mcap"
+    capsys.readouterr()
+    assert main(["replay", str(recording), "-o", str(replayed)]) == 0
+    header, _, row = capsys.readouterr().out.splitlines()[2:5]
+    columns = dict(zip(header.split("|"), row.split("|"), strict=True))
+    assert columns[" markers "].strip() == "2"  # counted in the replay's summary
+    carried = read_session(replayed)
+    assert [(m["sample_index"], m["label"]) for m in carried.markers] == list(labels.items())
+    assert carried.subject == "S01" and carried.metadata[0]["condition"] == "baseline"
+    png = tmp_path / "m.png"
+    assert main(["plot", str(replayed), "-o", str(png)]) == 0
+    assert "2 markers" in capsys.readouterr().out and png.read_bytes()[:8] == PNG_MAGIC
+
+    t = np.array([0.5, 1.5, 2.5])
+    series = {k: np.ones(3) for k in ("K", "B", "I", "vaf")}
+    fig = impedance_figure(t, series, title="x", markers=[(1.0, "trial $1$ start")])
+    texts = [a.get_text() for a in fig.axes[0].texts]
+    assert texts == [r"trial \$1\$ start"]  # plain text, never mathtext
+    lines = [ln for ax in fig.axes for ln in ax.get_lines() if list(ln.get_xdata()) == [1, 1]]
+    assert len(lines) == len(fig.axes)  # one vertical line per panel

@@ -69,7 +69,12 @@ def test_truncated_file_yields_a_contiguous_prefix_and_recovers(
 
 def test_corrupted_chunk_stops_reading_there(recording: Path, tmp_path: Path) -> None:
     data = bytearray(recording.read_bytes())
-    middle = len(data) // 2
+    with recording.open("rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None
+    chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    chunk = chunks[len(chunks) // 2]  # the middle chunk, wherever the header's records end
+    middle = chunk.chunk_start_offset + chunk.chunk_length // 2
     data[middle : middle + 64] = bytes(64)  # zeroes inside a compressed chunk
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(bytes(data))

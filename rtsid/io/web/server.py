@@ -481,6 +481,8 @@ class WebView:
         try:
             with LabFeed(self.key, self.connect, self.mode) as feed:
                 self._feed_ready.set()
+                for event in feed.session().events:  # subject/condition, however old
+                    self.board.take(event)
                 if self.history_s > 0:
                     past = feed.history(self.history_s)
                     for note in past.notes:

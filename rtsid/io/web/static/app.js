@@ -202,6 +202,12 @@ function renderChannels(j) {
       j.fields.channels.appendChild(div);
       j.channelDivs.set(channel, div);
     }
+    if (channel === "marker") {
+      // the newest trial markers, as text: a label is data, never markup
+      const recent = (j.markers || [message]).map((m) => `"${m.label}" at t=${fmt(m.t_s, 3)} s`);
+      div.textContent = `/marker: ${recent.join(" · ")}`;
+      continue;
+    }
     const fields = Object.entries(message)
       .filter(([k, v]) => !skip.has(k) && (v === null || typeof v !== "object"))
       .map(([k, v]) => `${k} ${typeof v === "number" ? +v.toPrecision(4) : v}`);
@@ -244,6 +250,7 @@ function handle(msg) {
   } else if (msg.type === "channel") {
     const j = joint(msg.joint);
     j.channels[msg.channel] = msg.message;
+    if (msg.channel === "marker") j.markers = [...(j.markers || []), msg.message].slice(-5);
     j.dirty = true;
   } else if (msg.type === "gone") {
     const j = joints.get(msg.joint);
