@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rtsid.io.mcap_read import iter_estimates
+from rtsid.io.mcap_read import iter_estimates, iter_session_and_markers
 from rtsid.link.mapping import compile_protocol
 from rtsid.replay import recording_config
 from rtsid.runtime.daemon import Daemon, DaemonConfig
@@ -39,6 +39,7 @@ checksum = "none"
 [plant]
 fs_hz = 2000.0
 diagnostics_hz = 0.0
+marker_every_s = 1.0
 """,
     "udp": """
 [link]
@@ -46,13 +47,14 @@ interface = "udp"
 
 [link.udp]
 port = 0
-sample_format = "Iiii"
-fields = ["counter", "position", "torque", "status"]
+sample_format = "IiiiB"
+fields = ["counter", "position", "torque", "status", "marker"]
 samples_per_datagram = 10
 embedded_plant = true
 
 [plant]
 diagnostics_hz = 0.0
+marker_every_s = 1.0
 """,
 }
 
@@ -81,6 +83,13 @@ directory = "{tmp_path / "rec"}"
     assert len(ok) > 40
     for key, (truth, tolerance) in TRUTH_AND_TOLERANCE.items():
         assert np.median([e[key] for e in ok]) == pytest.approx(truth, rel=tolerance), key
+    markers = [m for kind, m in iter_session_and_markers(recording) if kind == "marker"]
+    fs = 2000.0 if path == "twoframe" else 2500.0
+    label = "TrialMarker" if path == "twoframe" else "marker"
+    assert [(m["sample_index"], m["label"], m["source"]) for m in markers] == [
+        (round(k * fs), f"{label}={k}", "wire") for k in range(1, len(markers) + 1)
+    ]
+    assert len(markers) >= 2  # the markers stepped on the wire reach the recording
     (tmp_path / "twoframe.dbc").unlink()  # a replay elsewhere has the samples, not the DBC
     compile_protocol.cache_clear()  # as in a fresh process
     replayed = recording_config(recording)
