@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 from pathlib import Path
 
@@ -30,7 +31,7 @@ from rtsid.link.mapping import (
     compile_protocol,
     protocol_from_config,
 )
-from rtsid.link.open import link_protocol
+from rtsid.link.open import link_protocol, open_link
 from rtsid.link.plant import VirtualPlant
 from rtsid.link.protocol import (
     STATUS_PERTURBATION_ON,
@@ -433,3 +434,48 @@ def test_two_frames_paired_by_a_counter_count_injected_faults_exactly(channel, t
     assert np.std(position) > 0.005 and np.std(torque) > 0.5
     raw = wire.torque.quantise(torque[:100])[0]  # on the wire the torque is inverted
     assert np.all(np.sign(raw) == -np.sign(np.rint(torque[:100] / 1e-3)))
+
+
+def test_rtsid_plant_speaks_the_second_protocol_over_socketcand():
+    """`rtsid plant --config twoframe-plant.toml`: the frames keep the plant's time stamps."""
+    import selectors
+    import signal
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-m", "rtsid.cli", "plant", "--port", "0", "--config"]
+    proc = subprocess.Popen(
+        [*cmd, str(TWOFRAME_TOML)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        with selectors.DefaultSelector() as sel:
+            sel.register(proc.stdout, selectors.EVENT_READ)
+            banner = proc.stdout.readline() if sel.select(30.0) else ""  # type: ignore[union-attr]
+        assert "127.0.0.1:" in banner and "2000 Hz" in banner, banner
+        port = int(banner.split("127.0.0.1:")[1].split()[0])
+        link, _ = load_link_configs(TWOFRAME_TOML)
+        link = dataclasses.replace(link, interface="socketcand", port=port, channel="can0")
+        with open_link(link) as handle:
+            ring = handle.make_ring()
+            with handle.make_acquisition(ring) as acq:
+                deadline = time.monotonic() + WAIT_S
+                while acq.counters().samples < 4000 and time.monotonic() < deadline:
+                    time.sleep(0.01)
+                acq.send_command(Command(enable=False))
+                while (
+                    ring.latest(10).status[-1] & STATUS_PERTURBATION_ON
+                    and time.monotonic() < deadline
+                ):
+                    time.sleep(0.01)
+                assert not ring.latest(10).status[-1] & STATUS_PERTURBATION_ON
+                c = acq.counters()
+        assert c.samples >= 4000 and c.lost_samples == c.unpaired == c.malformed == 0
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=20)
+        assert proc.returncode == 0
+        report = json.loads(out.strip().splitlines()[-1])
+        assert report["plant"]["commands"] == 1  # encoded and decoded by cantools
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=10)
