@@ -28,7 +28,8 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+import types
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -106,23 +107,25 @@ STATUS_SIGNALS = {
 _COMMAND_SIGNALS = ("Enable", "Kind", "Amplitude", "Bandwidth", "CommandCounter")
 
 #: The built-in mapping (``[link.protocol]`` defaults): the ankle robot's DBC.
-ANKLE_MAPPING: dict[str, Any] = {
-    "dbc": BUILTIN_DBC,
-    "position": "AnkleState.Position",
-    "position_sign": 1.0,
-    "torque": "AnkleState.Torque",
-    "torque_sign": 1.0,
-    "counter": "AnkleState.Counter",
-    "position_saturated": "AnkleState.PositionSaturated",
-    "torque_saturated": "AnkleState.TorqueSaturated",
-    "perturbation_on": "AnkleState.PerturbationOn",
-    "discontinuity": "AnkleState.Discontinuity",
-    "marker": "",
-    "marker_on": "change",
-    "command": "PerturbationCommand",
-    "diagnostics": "Diagnostics",
-    "checksum": "nibble_xor",
-}
+ANKLE_MAPPING: Mapping[str, Any] = types.MappingProxyType(
+    {
+        "dbc": BUILTIN_DBC,
+        "position": "AnkleState.Position",
+        "position_sign": 1.0,
+        "torque": "AnkleState.Torque",
+        "torque_sign": 1.0,
+        "counter": "AnkleState.Counter",
+        "position_saturated": "AnkleState.PositionSaturated",
+        "torque_saturated": "AnkleState.TorqueSaturated",
+        "perturbation_on": "AnkleState.PerturbationOn",
+        "discontinuity": "AnkleState.Discontinuity",
+        "marker": "",
+        "marker_on": "change",
+        "command": "PerturbationCommand",
+        "diagnostics": "Diagnostics",
+        "checksum": "nibble_xor",
+    }
+)
 
 
 def frame_key(arbitration_id: int, extended: bool) -> int:
