@@ -479,3 +479,19 @@ def test_rtsid_plant_speaks_the_second_protocol_over_socketcand():
         if proc.poll() is None:
             proc.kill()
             proc.communicate(timeout=10)
+
+
+@pytest.mark.parametrize(
+    ("link", "pattern"),
+    [
+        ({"protocol": {"postion": "AnkleState.Position"}}, "unknown config key link.protocol"),
+        ({"protocol": 5}, "link.protocol"),
+        ({"protocol": {"torque_sign": 2.0}}, "link.protocol.torque_sign"),
+        ({"protocol": {"marker_on": "rising"}}, "link.protocol.marker_on"),
+        ({"rate_tolerance_percent": -1.0}, "link.rate_tolerance_percent"),
+    ],
+)
+def test_protocol_keys_are_checked_like_every_section(link, pattern):
+    with pytest.raises(ConfigError) as exc:
+        link_configs_from_mapping({"link": link})
+    assert pattern in str(exc.value) and "\n" not in str(exc.value)
