@@ -65,6 +65,11 @@ def recording_config(path: str | Path) -> DaemonConfig:
         return DaemonConfig(slow_lane=SlowLaneSettings(enabled=False))
     # a recording made before the slow lane existed (or was on by default) ran without it
     document.setdefault("slow_lane", {"enabled": False})
+    # a replay reads samples, not frames: the wire protocol (whose DBC may not be on this
+    # machine) does not matter to it
+    link = document.get("link")
+    if isinstance(link, dict):
+        document["link"] = {k: v for k, v in link.items() if k != "protocol"}
     return DaemonConfig.from_mapping(
         with_recorded_calibration(document, metadata.get("calibration"))
     )

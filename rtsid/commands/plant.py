@@ -3,7 +3,9 @@
 A daemon (or ``cantools monitor``/python-can) then connects with python-can's
 ``socketcand`` interface to ``127.0.0.1:PORT``, channel ``can0``, exactly as to a real
 socketcand host. Runs until SIGINT/SIGTERM (or ``--duration``); prints one line with the
-address when ready and one line of counters (JSON) at the end.
+address when ready and one line of counters (JSON) at the end. The plant speaks the config's
+``[link.protocol]``; with ``[link] interface = "udp"`` it sends the ``[link.udp]``
+datagrams to ``--host``:``[link.udp] port`` instead.
 """
 
 from __future__ import annotations
@@ -17,7 +19,12 @@ PLANT_MODES = ("sim", "player", "torque_multisine")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", metavar="FILE", help="TOML file with [plant] (and [link])")
+    parser.add_argument(
+        "--config",
+        metavar="FILE",
+        help="TOML file with [plant] and [link] (its [link.protocol]; interface = 'udp': "
+        "send [link.udp] datagrams)",
+    )
     parser.add_argument("--host", default="127.0.0.1", help="loopback address (default 127.0.0.1)")
     parser.add_argument("--port", type=int, default=29536, help="TCP port, 0 = a free one")
     parser.add_argument("--channel", default="can0", help="bus name clients open (default can0)")

@@ -107,6 +107,8 @@ def link_where(link: LinkConfig) -> str:
         return f"{link.host}:{link.port}"
     if link.interface == "embedded":
         return "the embedded plant"
+    if link.interface == "udp":
+        return f"UDP {link.udp.bind_host}:{link.udp.port}"
     return f"{link.interface} channel {link.channel}"
 
 

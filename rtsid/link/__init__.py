@@ -1,5 +1,5 @@
-"""The hardware link: CAN protocol (DBC), ring buffer, acquisition thread, virtual plant and
-socketcand server.
+"""The hardware link: CAN protocol (any DBC mapped by ``[link.protocol]``; the ankle's built
+in), a UDP source, ring buffer, acquisition thread, virtual plant and socketcand server.
 
 Data path: ``bus (python-can) → Acquisition thread → RingBuffer → readers``. The virtual
 plant sits behind the same boundary (an in-process ``virtual`` bus, or a socketcand server
@@ -11,7 +11,9 @@ from rtsid.link.config import (
     FaultConfig,
     LinkConfig,
     PlantConfig,
+    ProtocolConfig,
     StiffnessConfig,
+    UdpConfig,
     link_configs_from_mapping,
     load_link_configs,
 )
@@ -29,10 +31,12 @@ __all__ = [
     "LinkCounters",
     "LinkHandle",
     "PlantConfig",
+    "ProtocolConfig",
     "RingBuffer",
     "Snapshot",
     "SocketcandServer",
     "StiffnessConfig",
+    "UdpConfig",
     "VirtualPlant",
     "bus_factory",
     "link_configs_from_mapping",

@@ -1,24 +1,36 @@
-"""The acquisition thread: CAN frames in, one ring-buffer row per sample out.
+"""The acquisition thread: frames (or datagrams) in, one ring-buffer row per sample out.
 
 :class:`Acquisition` owns a thread named "rtsid-acquisition" that loops
 ``bus.recv(receive_timeout_s)`` (so :meth:`Acquisition.stop` returns within about that
-time), decodes AnkleState frames with the precompiled decoder and writes the ring buffer.
+time), asks the link's protocol object to turn each frame into samples and writes the ring
+buffer. The protocol is a CAN mapping (:mod:`rtsid.link.mapping`: any DBC; the built-in
+ankle protocol, the default, keeps its fast integer decoder) or a UDP datagram layout
+(:mod:`rtsid.link.udp`, read from a :class:`~rtsid.link.udp.UdpReceiver`); everything below
+is done here, once, for all of them.
 
 Sample bookkeeping, in one place:
 
-* the 12-bit counter is unwrapped into a monotonic ``sample_index``; after a silence of one
-  or more whole wraps (1.64 s at 2500 Hz) the number of wraps comes from the frames' bus
-  timestamps (host clock when the interface gives none), rounded towards fewer wraps;
+* the counter (12-bit for the built-in protocol; its width is the protocol's) is unwrapped
+  into a monotonic ``sample_index``; after a silence of one or more whole wraps (1.64 s at
+  2500 Hz with 12 bits) the number of wraps comes from the frames' bus timestamps (host
+  clock when the interface gives none), rounded towards fewer wraps;
+* without a counter the index comes from the frames' timestamps (:func:`index_from_time`:
+  a jump of more than 1.5 periods is a gap);
 * a forward jump of ``d`` writes ``d - 1`` invalid rows (a *gap*; ``lost_samples`` += d - 1)
   once the frames after it confirm it; frames the next in-sequence frames refute are
   *strays*, dropped (:mod:`rtsid.link.sequence`: a run of up to ``MAX_STRAY_RUN``
-  consecutive strays is classified like one);
+  consecutive strays is classified like one; for UDP, runs are counted in datagrams);
 * a frame whose counter is at most ``reorder_window`` behind the newest is late: a
   *duplicate* if its row is valid already, otherwise *out of order*; both are dropped (rows
   already published are never rewritten);
-* a state frame of the wrong length, a failing checksum, a remote frame → *malformed*,
-  never decoded; other identifiers → *unknown_id*; error frames → *error_frames* (bus-off
-  also reopens the bus);
+* a state frame of the wrong length, a failing checksum, a remote frame, a datagram of the
+  wrong length → *malformed*, never decoded; a frame of a two-frame sample whose partner
+  never comes → *unpaired*; other identifiers → *unknown_id*; error frames →
+  *error_frames* (bus-off also reopens the bus);
+* a marker signal's change puts a :class:`~rtsid.link.markers.WireMarker` in
+  :attr:`Acquisition.markers`, stamped with its sample's index;
+* the rate is measured from the data (indices per second of sender time over >= 2 s) and
+  compared with ``fs_hz`` (``rate_mismatch``);
 * ``bus.recv`` raising → *bus_errors*, the bus is closed and reopened from the factory with
   exponential back-off (*reconnects* counts successes);
 * no state frame for ``stale_after_s`` → ``stale`` (and optionally reopen the bus after
@@ -41,32 +53,33 @@ import can
 
 from rtsid.errors import LinkError, LinkHandshakeError
 from rtsid.lifecycle import ThreadOwner
-from rtsid.link.markers import MarkerInbox, WireMarker
-from rtsid.link.protocol import (
-    COMMAND_ID,
-    COUNTER_MODULO,
-    DIAGNOSTICS_ID,
-    POSITION_SCALE_RAD,
-    STATE_ID,
-    TORQUE_SCALE_NM,
-    Command,
-    decode_diagnostics,
-    decode_state,
-    encode_command,
+from rtsid.link.mapping import (
+    FRAME_COMMAND,
+    FRAME_DIAGNOSTICS,
+    MappedProtocol,
+    builtin_protocol,
 )
+from rtsid.link.markers import MarkerInbox, WireMarker
+from rtsid.link.protocol import COUNTER_MODULO, Command
 from rtsid.link.ring import RingBuffer
-from rtsid.link.sequence import Sequencer
+from rtsid.link.sequence import CONTRADICTIONS, MAX_STRAY_RUN, Sequencer
+from rtsid.link.udp import Datagram, UdpLayout
 
 __all__ = ["LINK_STATES", "Acquisition", "LinkCounters", "explain_link_state", "unwrap_counter"]
 
-BusFactory = Callable[[], can.BusABC]
+#: Opens a bus: a python-can bus, or a :class:`~rtsid.link.udp.UdpReceiver` (``recv``,
+#: ``shutdown``, ``send``): the only part that differs between sources.
+BusFactory = Callable[[], Any]
 CAN_ERR_BUSOFF = 0x40
 _CPU_EVERY = 512  # frames between thread CPU readings
 _WRAP_TOLERANCE = 0.1  # of a wrap period: how much earlier than expected a frame may arrive
 _HOST_SLACK_WRAPS = 0.3  # of a wrap period: how much longer than the host saw a silence may be
 _MAX_REJECTS_IN_ROW = 256  # rejected state frames in a row: a broken link, fatal to the thread
+_EXTENDED = 1 << 31  # frame key bit of a 29-bit identifier (rtsid.link.mapping.frame_key)
+RATE_WINDOW_S = 2.0  # sender-clock span over which the sample rate is measured
 
-_Sample = tuple[float, float, int, float, float]  # position rad, torque N·m, status, host s, bus s
+# position rad, torque N·m, status, host s, bus s, marker label (None: no marker)
+_Sample = tuple[float, float, int, float, float, str | None]
 
 #: Where the link stands (``link_state`` in the counters): why no samples come, or that they do.
 LINK_STATES = {
@@ -88,9 +101,14 @@ def _usable_time(stamp: Any) -> bool:
 
 
 def unwrap_counter(
-    counter: int, last: int, elapsed_s: float, fs_hz: float, reorder_window: int = 64
+    counter: int,
+    last: int,
+    elapsed_s: float,
+    fs_hz: float,
+    reorder_window: int = 64,
+    modulo: int = COUNTER_MODULO,
 ) -> int:
-    """Unwrapped sample index of a 12-bit frame ``counter`` given the newest index ``last``.
+    """Unwrapped sample index of a frame ``counter`` given the newest index ``last``.
 
     Whole wraps hidden in a silence are counted from the elapsed time, rounded towards
     fewer wraps: frames arrive late (a stalled sender catching up) far more often than
@@ -110,6 +128,8 @@ def unwrap_counter(
         Sample rate, Hz.
     reorder_window : int
         Counter distance behind the newest treated as a late frame rather than a wrap.
+    modulo : int
+        ``2**bits`` of the counter (4096 for the built-in 12-bit counter).
 
     Returns
     -------
@@ -117,15 +137,27 @@ def unwrap_counter(
         The index: ``last + 1`` for the next sample, more after lost samples, ``<= last``
         for a late (duplicate or reordered) frame.
     """
-    delta = (counter - last) % COUNTER_MODULO
-    wraps = math.floor((elapsed_s * fs_hz - delta) / COUNTER_MODULO + _WRAP_TOLERANCE)
+    delta = (counter - last) % modulo
+    wraps = math.floor((elapsed_s * fs_hz - delta) / modulo + _WRAP_TOLERANCE)
     if wraps >= 1:  # a silence of at least one whole wrap
-        return last + delta + wraps * COUNTER_MODULO
+        return last + delta + wraps * modulo
     if delta == 0:
         return last  # the newest sample again
-    if delta > COUNTER_MODULO - reorder_window:
-        return last + delta - COUNTER_MODULO  # behind the newest: late
+    if delta > modulo - reorder_window:
+        return last + delta - modulo  # behind the newest: late
     return last + delta
+
+
+def index_from_time(t_s: float, last: int, last_t_s: float, fs_hz: float) -> int:
+    """Sample index of a frame stamped ``t_s`` (no counter), given the newest sample's.
+
+    ``last + ceil((t_s - last_t_s)·fs_hz - 0.5)``: a frame within half a period of the
+    newest is the newest again (a duplicate), a timestamp jump of more than 1.5 periods
+    skips at least one sample (a gap), and one further back is late. Counting from the
+    newest sample, not from the first, keeps a sender clock a little off ``fs_hz`` from
+    drifting into phantom gaps.
+    """
+    return last + math.ceil((t_s - last_t_s) * fs_hz - 0.5)
 
 
 def explain_link_state(acquisition: Mapping[str, Any], where: str) -> str | None:
@@ -142,7 +174,8 @@ def explain_link_state(acquisition: Mapping[str, Any], where: str) -> str | None
     -------
     str or None
         E.g. ``"connected to 127.0.0.1:29536 but socketcand has not greeted (bus errors
-        4)"``; None while state frames stream (or from a status without ``link_state``).
+        4)"``, or that the measured rate is not ``fs_hz``; None while state frames stream
+        at the configured rate (or from a status without ``link_state``).
     """
     state = acquisition.get("link_state", "streaming")
     errors = f"bus errors {acquisition.get('bus_errors', 0)}"
@@ -165,6 +198,12 @@ def explain_link_state(acquisition: Mapping[str, Any], where: str) -> str | None
     if state == "stale":
         age_s = float(acquisition.get("last_frame_age_s", 0.0))
         return f"stale: no state frame from {where} for {age_s:.1f} s"
+    if acquisition.get("rate_mismatch"):
+        rate = float(acquisition.get("measured_rate_hz", float("nan")))
+        return (
+            f"the data from {where} arrive at {rate:.1f} samples/s, not at link.fs_hz: set "
+            "link.fs_hz to the sender's rate"
+        )
     return None
 
 
@@ -220,6 +259,14 @@ class LinkCounters:
         CPU time of the acquisition thread, s.
     newest_index : int
         Newest sample index in the ring (-1 if none).
+    unpaired : int
+        Frames of a two-frame sample whose partner never came (the sample is lost).
+    measured_rate_hz : float
+        Sample rate measured from the data: sample indices per second of the sender's
+        clock (frame timestamps) over the last >= 2 s; NaN until measured.
+    rate_mismatch : bool
+        ``measured_rate_hz`` differs from ``fs_hz`` by more than ``rate_tolerance_percent``
+        (``last_error`` says by how much and what to fix).
     """
 
     frames: int
@@ -247,6 +294,9 @@ class LinkCounters:
     last_error: str
     thread_cpu_s: float
     newest_index: int
+    unpaired: int = 0
+    measured_rate_hz: float = float("nan")
+    rate_mismatch: bool = False
 
 
 class Acquisition(ThreadOwner):
@@ -256,9 +306,10 @@ class Acquisition(ThreadOwner):
 
     Parameters
     ----------
-    bus : can.BusABC or callable
+    bus : can.BusABC, UdpReceiver or callable
         A bus factory (called to open and to reopen; the buses it returns are owned and
-        shut down here), or an open bus (not owned, never reopened).
+        shut down here), or an open bus (not owned, never reopened). A UDP source is a
+        :class:`~rtsid.link.udp.UdpReceiver` with the same ``recv``/``shutdown``.
     ring : RingBuffer
         Where samples go; this thread is its only writer.
     fs_hz : float
@@ -275,6 +326,13 @@ class Acquisition(ThreadOwner):
         Counter distance behind the newest sample treated as late rather than as a wrap.
     name : str
         Thread name.
+    protocol : MappedProtocol or UdpLayout, optional
+        What the bus speaks: a CAN mapping (:mod:`rtsid.link.mapping`; default the built-in
+        ankle protocol) or a UDP datagram layout (:mod:`rtsid.link.udp`, with a bus whose
+        ``recv`` gives :class:`~rtsid.link.udp.Datagram`). Either way the samples go through
+        the same sequencing, gap counting and ring writes.
+    rate_tolerance_percent : float
+        Measured rate vs ``fs_hz`` beyond which ``rate_mismatch`` is reported.
 
     Examples
     --------
@@ -285,7 +343,7 @@ class Acquisition(ThreadOwner):
 
     def __init__(
         self,
-        bus: can.BusABC | BusFactory,
+        bus: Any,
         ring: RingBuffer,
         *,
         fs_hz: float = 2500.0,
@@ -296,11 +354,23 @@ class Acquisition(ThreadOwner):
         backoff_max_s: float = 5.0,
         reorder_window: int = 64,
         name: str = "rtsid-acquisition",
+        protocol: MappedProtocol | UdpLayout | None = None,
+        rate_tolerance_percent: float = 2.0,
     ) -> None:
         super().__init__(name)
-        if isinstance(bus, can.BusABC):
+        self.protocol = builtin_protocol() if protocol is None else protocol
+        self._decoder: Any = self.protocol.decoder()
+        if hasattr(self._decoder, "set_rate"):
+            self._decoder.set_rate(float(fs_hz))
+        self._modulo = self.protocol.counter_modulo
+        self._timestamps = self.protocol.uses_timestamps
+        self._udp = isinstance(self.protocol, UdpLayout)
+        self._kinds = {} if self._udp else dict(self.protocol.frame_kinds)  # type: ignore[union-attr]
+        self._lengths = {} if self._udp else dict(self.protocol.state_lengths)  # type: ignore[union-attr]
+        self.rate_tolerance = rate_tolerance_percent / 100.0
+        if isinstance(bus, can.BusABC) or hasattr(bus, "recv"):  # an open bus or socket
             self._factory: BusFactory | None = None
-            self._bus: can.BusABC | None = bus
+            self._bus: Any = bus
         else:
             self._factory = bus
             self._bus = None
@@ -343,7 +413,15 @@ class Acquisition(ThreadOwner):
         self._last_bus_time = 0.0
         self._last_index = -1
         self._open_failure = ""  # why the last opening of the bus failed ("" after success)
-        self._sequence: Sequencer[_Sample] = Sequencer(reach=reorder_window)
+        # A datagram carries many samples: judge jumps in whole datagrams (a reordered
+        # datagram must not read as a confirmed gap after 9 of the next one's samples).
+        per_unit = self.protocol.samples_per_unit if self._udp else 1  # type: ignore[union-attr]
+        self.reorder_window = max(reorder_window, 8 * per_unit)
+        self._sequence: Sequencer[_Sample] = Sequencer(
+            reach=self.reorder_window,
+            max_stray_run=MAX_STRAY_RUN * per_unit,
+            contradictions=CONTRADICTIONS * per_unit,
+        )
         self._rejects_in_row = 0
         self._backoff = backoff_min_s
         self._last_reopen = self._started
@@ -353,6 +431,10 @@ class Acquisition(ThreadOwner):
         self.last_diagnostics: dict[str, Any] = {}
         self.last_error: str = ""
         self.markers = MarkerInbox()  # trial markers decoded from the wire, for the daemon
+        self._rate_anchor = (-1, 0.0)  # (sample index, sender time s) the rate is measured from
+        self._rate_due_s = 0.0  # sender time of the next rate measurement
+        self._rate_hz = float("nan")
+        self._rate_mismatch = False
 
     # ------------------------------------------------------------------ life cycle
     def start(self, *, require_bus: bool = True) -> Acquisition:
@@ -373,6 +455,13 @@ class Acquisition(ThreadOwner):
         if self._bus is None and self._factory is not None and self._require_bus:
             try:
                 self._bus = self._factory()
+            except LinkError as exc:
+                if self._udp:  # already says which address and what to fix
+                    raise
+                raise LinkError(
+                    f"cannot open the CAN bus: {exc}; check [link] interface, channel, "
+                    "host and port, and that the adapter or server is up"
+                ) from exc
             except Exception as exc:
                 raise LinkError(
                     f"cannot open the CAN bus: {exc}; check [link] interface, channel, "
@@ -400,6 +489,9 @@ class Acquisition(ThreadOwner):
         connected = self._bus is not None
         return LinkCounters(
             **c,
+            unpaired=self._decoder.unpaired,
+            measured_rate_hz=self._rate_hz,
+            rate_mismatch=self._rate_mismatch,
             ring_overwrites=self.ring.reader_overruns,
             stale=age > self.stale_after_s,
             last_frame_age_s=age,
@@ -442,16 +534,28 @@ class Acquisition(ThreadOwner):
                 raise LinkError(f"could not send frame 0x{msg.arbitration_id:X}: {exc}") from exc
 
     def send_command(self, command: Command) -> None:
-        """Send a PerturbationCommand (enable, kind, amplitude, bandwidth) to the robot."""
+        """Send a PerturbationCommand (enable, kind, amplitude, bandwidth) to the robot.
+
+        Raises
+        ------
+        LinkError
+            The protocol maps no command message (or a UDP source), or the send failed.
+        """
+        protocol = self.protocol
+        if self._udp or protocol.command_message is None:  # type: ignore[union-attr]
+            raise LinkError(
+                "this link carries no perturbation command (a UDP source, or no "
+                "link.protocol.command message); drive the perturbation on the robot"
+            )
         self._command_counter = (self._command_counter + 1) & 0xFF
-        data = encode_command(Command(**{**command.__dict__, "counter": self._command_counter}))
-        self.send(can.Message(arbitration_id=COMMAND_ID, data=data, is_extended_id=False))
+        numbered = Command(**{**command.__dict__, "counter": self._command_counter})
+        self.send(protocol.encode_command(numbered))  # type: ignore[union-attr]
 
     # ------------------------------------------------------------------ the thread
     def _run(self) -> None:
         stop = self._stop
         timeout = self.receive_timeout_s
-        handle = self._handle
+        handle = self._on_datagram if self._udp else self._handle
         frames_since_cpu = 0
         if self._bus is None and self._factory is not None:
             self._open_bus()  # start(require_bus=False): the first try is at once, here
@@ -480,6 +584,7 @@ class Acquisition(ThreadOwner):
         self._cpu_s = time.thread_time()
 
     def _handle(self, msg: can.Message, now: float) -> None:
+        """Count and dispatch one CAN frame (the thread's hot path: keep it lean)."""
         c = self._c
         c["frames"] += 1
         if msg.is_error_frame:
@@ -488,48 +593,75 @@ class Acquisition(ThreadOwner):
                 c["bus_off"] += 1
                 self._on_bus_error(LinkError("bus-off reported by the interface"))
             return
-        if msg.is_extended_id:
-            c["unknown_id"] += 1
-            return
-        frame_id = msg.arbitration_id
-        if frame_id == STATE_ID:
+        key = msg.arbitration_id | _EXTENDED if msg.is_extended_id else msg.arbitration_id
+        size = self._lengths.get(key)
+        if size is not None:  # a state frame
             data = msg.data
-            if msg.is_remote_frame or msg.dlc != 8 or len(data) != 8:
+            if msg.is_remote_frame or msg.dlc != size or len(data) != size:
                 c["malformed"] += 1
                 return
-            self._on_state(data, msg.timestamp, now)
-        elif frame_id == DIAGNOSTICS_ID:
+            self._on_state(key, data, msg.timestamp, now)
+            return
+        kind = self._kinds.get(key)
+        if kind == FRAME_DIAGNOSTICS:
             c["diagnostics"] += 1
-            decoded = decode_diagnostics(msg.data)
+            decoded = self.protocol.decode_diagnostics(msg.data)  # type: ignore[union-attr]
             if decoded is None:
                 c["malformed"] += 1
             else:
                 self.last_diagnostics.update(decoded)
-        elif frame_id == COMMAND_ID:
+        elif kind == FRAME_COMMAND:
             c["commands_seen"] += 1
         else:
             c["unknown_id"] += 1
 
-    def _on_state(self, data: bytearray, bus_time: Any, now: float) -> None:
-        decoded = decode_state(data)
+    def _on_state(self, key: int, data: bytearray, bus_time: Any, now: float) -> None:
+        if not _usable_time(bus_time) or (self._timestamps and bus_time <= 0):
+            self._reject(LinkError(f"state frame with bus timestamp {bus_time!r}"))
+            return
+        decoded = self._decoder.decode(key, data, bus_time)
         if decoded is None:
             self._c["malformed"] += 1
             return
-        if not _usable_time(bus_time):
-            self._reject(LinkError(f"state frame with bus timestamp {bus_time!r}"))
-            return
-        position, torque, counter, status = decoded
-        sample = (position * POSITION_SCALE_RAD, torque * TORQUE_SCALE_NM, status, now, bus_time)
-        if self._last_index < 0:
-            self.ring.start_at(counter)
-            self.anchor_index, self.anchor_host_time_s = counter, now
-            self._last_index = counter - 1
-            self._write(counter, sample)
-            self._sequence.last = counter
-        else:
-            self._place(counter, sample)
+        if decoded:  # () : the first frame of a pair, waiting for its partner
+            stamp, position, torque, status, marker = decoded
+            sample = (
+                position,
+                torque,
+                status,
+                now,
+                stamp if self._timestamps else bus_time,
+                marker,
+            )
+            if self._last_index < 0:
+                self._on_sample(stamp, sample)
+            else:
+                self._place(stamp, sample)
 
-    def _place(self, counter: int, sample: _Sample) -> None:
+    def _on_datagram(self, datagram: Datagram, now: float) -> None:
+        c = self._c
+        c["frames"] += 1
+        samples = self._decoder.decode(datagram.data)
+        if samples is None:
+            c["malformed"] += 1
+            return
+        bus_time = datagram.timestamp
+        for counter, position, torque, status, marker in samples:
+            self._on_sample(counter, (position, torque, status, now, bus_time, marker))
+
+    def _on_sample(self, stamp: float, sample: _Sample) -> None:
+        """Place one decoded sample: ``stamp`` is its counter, or its time without one."""
+        if self._last_index < 0:
+            first = 0 if self._timestamps else int(stamp)
+            self.ring.start_at(first)
+            self.anchor_index, self.anchor_host_time_s = first, sample[3]
+            self._last_index = first - 1
+            self._write(first, sample)
+            self._sequence.last = first
+        else:
+            self._place(stamp, sample)
+
+    def _place(self, stamp: float, sample: _Sample) -> None:
         """Write the sample a frame carries, or hold it while it may be a stray.
 
         Late frames (at or behind the newest sample) are dropped and counted here; every
@@ -538,7 +670,10 @@ class Acquisition(ThreadOwner):
         dropped, counted, inventing no lost samples and never shifting the index).
         """
         last = self._last_index
-        index = self._unwrap(counter, last, sample[4], sample[3])
+        if self._timestamps:
+            index = index_from_time(stamp, last, self._last_bus_time, self.fs_hz)
+        else:
+            index = self._unwrap(int(stamp), last, sample[4], sample[3])
         if index <= last:
             self._late(index)
             return
@@ -547,7 +682,7 @@ class Acquisition(ThreadOwner):
 
     def _write(self, index: int, sample: _Sample) -> None:
         """Write sample ``index`` after the newest one, the skipped indices as a gap."""
-        position, torque, status, now, bus_time = sample
+        position, torque, status, now, bus_time, marker = sample
         lost = index - self._last_index - 1
         if lost > 0:
             self._c["gaps"] += 1
@@ -560,6 +695,30 @@ class Acquisition(ThreadOwner):
         self._stale = False
         self._backoff = self.backoff_min_s
         self._rejects_in_row = 0
+        if marker is not None:
+            self.markers.put(WireMarker(index, marker))
+        if bus_time >= self._rate_due_s:
+            self._measure_rate(index, bus_time)
+
+    def _measure_rate(self, index: int, t_s: float) -> None:
+        """Sample indices per second of sender time since the anchor; flag a mismatch."""
+        first, t0 = self._rate_anchor
+        self._rate_anchor = (index, t_s)
+        self._rate_due_s = t_s + RATE_WINDOW_S
+        if first < 0 or t_s - t0 > 10 * RATE_WINDOW_S:  # the first, or after a long silence
+            return
+        rate = (index - first) / (t_s - t0)
+        self._rate_hz = rate
+        mismatch = abs(rate / self.fs_hz - 1.0) > self.rate_tolerance
+        if mismatch and not self._rate_mismatch:
+            self._note_error(
+                LinkError(
+                    f"the data arrive at {rate:.1f} samples/s but link.fs_hz = {self.fs_hz:g} "
+                    f"(more than {100 * self.rate_tolerance:g} % apart); set link.fs_hz to "
+                    "the sender's rate"
+                )
+            )
+        self._rate_mismatch = mismatch
 
     def _reject(self, exc: BaseException) -> None:
         """Count a frame that could not be used; many in a row mean a fault, not a frame."""
@@ -583,9 +742,9 @@ class Acquisition(ThreadOwner):
         host_elapsed = now - self._last_frame_host
         elapsed = host_elapsed
         if bus_time > 0 and self._last_bus_time > 0 and bus_time >= self._last_bus_time:
-            slack_s = _HOST_SLACK_WRAPS * COUNTER_MODULO / self.fs_hz
+            slack_s = _HOST_SLACK_WRAPS * self._modulo / self.fs_hz
             elapsed = min(bus_time - self._last_bus_time, host_elapsed + slack_s)
-        return unwrap_counter(counter, last, elapsed, self.fs_hz, self.reorder_window)
+        return unwrap_counter(counter, last, elapsed, self.fs_hz, self.reorder_window, self._modulo)
 
     def _late(self, index: int) -> None:
         valid = self.ring.is_valid(index)

@@ -19,15 +19,20 @@ from typing import Any
 from rtsid.config import invalid, load_toml, require_choice, require_range, section_from_mapping
 from rtsid.errors import ConfigError, InputDataError
 from rtsid.ident.excitation import Multisine, multisine
+from rtsid.link.mapping import ANKLE_MAPPING, protocol_from_config
 from rtsid.link.protocol import PERTURBATION_KINDS
+from rtsid.link.udp import UDP_FIELDS, compile_layout
 from rtsid.sim.reflex import ReflexParameters
 
 __all__ = [
     "FaultConfig",
     "LinkConfig",
     "PlantConfig",
+    "ProtocolConfig",
     "StiffnessConfig",
     "TorqueMultisineConfig",
+    "UdpConfig",
+    "link_config_from_mapping",
     "link_configs_from_mapping",
     "load_link_configs",
     "plant_config_from_mapping",
@@ -56,6 +61,7 @@ INTERFACES = (
     "serial",
     "robotell",
     "etas",
+    "udp",
 )
 _DEFAULT_CHANNELS: dict[str, str | int] = {
     "embedded": "rtsid",
@@ -65,6 +71,135 @@ _DEFAULT_CHANNELS: dict[str, str | int] = {
     "vector": 0,
     "ixxat": 0,
 }
+
+
+@dataclass(frozen=True)
+class ProtocolConfig:
+    """``[link.protocol]``: which DBC the robot speaks and where each quantity is in it.
+
+    Signals are named ``"Message.Signal"``; ``""`` leaves an optional one out. The defaults
+    are the built-in ankle protocol (``rtsid/link/ankle.dbc``). The mapping is checked
+    against the DBC when the config loads (:func:`rtsid.link.mapping.compile_protocol`):
+    every error is one line naming the DBC, the message and the signal.
+
+    Attributes
+    ----------
+    dbc : str
+        Path of the DBC file, relative to the config file; ``""``: the built-in ankle DBC.
+    position, torque : str
+        The joint angle and torque signals; their DBC unit must convert to rad (rad, mrad,
+        urad, deg) / N·m (N·m, N.m, N*m, Nm, mNm, Ncm, kNm).
+    position_sign, torque_sign : float
+        +1 or -1, applied after the unit conversion.
+    counter : str
+        The sample counter (unsigned, >= 8 bits, width from the DBC; with two messages the
+        same signal name in both). ``""``: no counter, the sample index comes from the
+        frames' timestamps (a jump of more than 1.5 periods is a gap).
+    position_saturated, torque_saturated, perturbation_on, discontinuity : str
+        Status bits (in the position or torque message).
+    marker : str
+        A trial-marker signal: each change (``marker_on = "change"``) or each non-zero
+        value (``"nonzero"``) stamps a marker on that sample.
+    marker_on : str
+        ``"change"`` or ``"nonzero"``.
+    command : str
+        The perturbation command message (signals Enable, Kind, Amplitude, Bandwidth,
+        CommandCounter); ``""``: none.
+    diagnostics : str
+        A diagnostics message decoded into the acquisition's ``last_diagnostics``.
+    checksum : str
+        ``"nibble_xor"`` (the ankle's 8-byte frame checksum) or ``"none"``.
+    """
+
+    dbc: str = ANKLE_MAPPING["dbc"]
+    position: str = ANKLE_MAPPING["position"]
+    position_sign: float = 1.0
+    torque: str = ANKLE_MAPPING["torque"]
+    torque_sign: float = 1.0
+    counter: str = ANKLE_MAPPING["counter"]
+    position_saturated: str = ANKLE_MAPPING["position_saturated"]
+    torque_saturated: str = ANKLE_MAPPING["torque_saturated"]
+    perturbation_on: str = ANKLE_MAPPING["perturbation_on"]
+    discontinuity: str = ANKLE_MAPPING["discontinuity"]
+    marker: str = ""
+    marker_on: str = "change"
+    command: str = ANKLE_MAPPING["command"]
+    diagnostics: str = ANKLE_MAPPING["diagnostics"]
+    checksum: str = ANKLE_MAPPING["checksum"]
+
+    def __post_init__(self) -> None:
+        require_choice("position_sign", self.position_sign, (1.0, -1.0))
+        require_choice("torque_sign", self.torque_sign, (1.0, -1.0))
+        require_choice("marker_on", self.marker_on, ("change", "nonzero"))
+        require_choice("checksum", self.checksum, ("nibble_xor", "none"))
+        protocol_from_config(self)  # every mapping error now, not at the first frame
+
+
+@dataclass(frozen=True)
+class UdpConfig:
+    """``[link.udp]``: datagrams from a real-time target (``[link] interface = "udp"``).
+
+    A datagram holds ``samples_per_datagram`` samples back to back, each packed as
+    ``sample_format`` (Python :mod:`struct` codes without a byte-order character, e.g.
+    ``"Iiii"``) in ``byte_order``; ``fields`` names each code in order: ``counter``
+    (required, unsigned; its width gives the wrap), ``position``, ``torque`` (required),
+    ``status`` (the ``STATUS_*`` bits), ``marker`` (a change stamps a trial marker) or ``_``
+    (ignored). Position = value × ``position_scale`` × ``position_sign`` rad; torque
+    likewise in N·m. A datagram of another length is counted ``malformed``.
+
+    Attributes
+    ----------
+    bind_host : str
+        Address to listen on: loopback by default; a lab opens it explicitly (e.g. the
+        address of the interface facing the target).
+    port : int
+        UDP port (0: a free one, for tests).
+    byte_order : str
+        ``"little"`` or ``"big"``.
+    sample_format : str
+        :mod:`struct` codes of one sample.
+    fields : tuple of str
+        One name per code.
+    samples_per_datagram : int
+        Samples in each datagram.
+    position_scale, torque_scale : float
+        rad / N·m per unit of the field.
+    position_sign, torque_sign : float
+        +1 or -1.
+    receive_buffer_bytes : int
+        Socket receive buffer (``SO_RCVBUF``), bytes.
+    embedded_plant : bool
+        Run the virtual plant in this process as the sender (on loopback, to ``port``; port
+        0 picks a free one): the demo and tests, ``hw/configs/udp-plant.toml``.
+    """
+
+    bind_host: str = "127.0.0.1"
+    port: int = 25000
+    byte_order: str = "little"
+    sample_format: str = "Iiii"
+    fields: tuple[str, ...] = ("counter", "position", "torque", "status")
+    samples_per_datagram: int = 10
+    position_scale: float = 1e-6
+    torque_scale: float = 1e-3
+    position_sign: float = 1.0
+    torque_sign: float = 1.0
+    receive_buffer_bytes: int = 1 << 20
+    embedded_plant: bool = False
+
+    def __post_init__(self) -> None:
+        require_range("port", self.port, 0, 65535)
+        require_choice("byte_order", self.byte_order, ("little", "big"))
+        for name in self.fields:
+            require_choice("fields", name, UDP_FIELDS)
+        require_range("samples_per_datagram", self.samples_per_datagram, 1, 1000)
+        require_range("position_scale", self.position_scale, 0.0, None, low_inclusive=False)
+        require_range("torque_scale", self.torque_scale, 0.0, None, low_inclusive=False)
+        require_choice("position_sign", self.position_sign, (1.0, -1.0))
+        require_choice("torque_sign", self.torque_sign, (1.0, -1.0))
+        require_range("receive_buffer_bytes", self.receive_buffer_bytes, 4096, 1 << 28)
+        if not self.bind_host:
+            raise invalid("bind_host", self.bind_host, "an address such as '127.0.0.1'")
+        compile_layout(self)  # every layout error now, not at the first datagram
 
 
 @dataclass(frozen=True)
@@ -97,7 +232,7 @@ class LinkConfig:
         No state frame for this long: the link reports ``stale`` (robot stopped).
     reconnect_after_stale_s : float
         Reopen the bus after this long without frames (0: never). Needed for socketcand,
-        whose python-can client does not report a closed connection.
+        whose python-can client does not report a closed connection. Not used by ``udp``.
     backoff_min_s, backoff_max_s : float
         Reconnection back-off: first wait, doubling up to the maximum.
     rx_queue_frames : int
@@ -106,6 +241,14 @@ class LinkConfig:
         socketcand: TCP_NODELAY/QUICKACK for lower latency.
     options : dict
         Extra keyword arguments for ``can.Bus`` (e.g. ``{fd = true}``).
+    rate_tolerance_percent : float
+        The sample rate measured from the data (counter or timestamps over >= 2 s of the
+        sender's clock) may differ from ``fs_hz`` by this much before the acquisition
+        reports ``rate_mismatch``.
+    protocol : ProtocolConfig
+        ``[link.protocol]``: the DBC mapping (CAN interfaces).
+    udp : UdpConfig
+        ``[link.udp]``: the datagram layout (``interface = "udp"``).
     """
 
     interface: str = "embedded"
@@ -123,9 +266,13 @@ class LinkConfig:
     rx_queue_frames: int = 20000
     tcp_tune: bool = True
     options: Mapping[str, Any] = field(default_factory=dict)
+    rate_tolerance_percent: float = 2.0
+    protocol: ProtocolConfig = field(default_factory=ProtocolConfig)
+    udp: UdpConfig = field(default_factory=UdpConfig)
 
     def __post_init__(self) -> None:
         require_choice("interface", self.interface, INTERFACES)
+        require_range("rate_tolerance_percent", self.rate_tolerance_percent, 0.0, 100.0)
         require_range("bitrate", self.bitrate, 10_000, 8_000_000)
         require_range("port", self.port, 0, 65535)
         require_range("fs_hz", self.fs_hz, 1.0, 100_000.0)
@@ -407,6 +554,9 @@ class PlantConfig:
         Rate of the Diagnostics frame (0: none).
     max_samples : int
         Stop producing after this many samples (0: run until stopped).
+    marker_every_s : float
+        Step the protocol's trial-marker signal (``[link.protocol] marker``, or a UDP
+        ``marker`` field) by one every this many seconds, from 0 (0: never; it stays 0).
     faults : FaultConfig
     stiffness_profile : StiffnessConfig
     torque_multisine : TorqueMultisineConfig
@@ -435,6 +585,7 @@ class PlantConfig:
     player_loop: bool = True
     diagnostics_hz: float = 10.0
     max_samples: int = 0
+    marker_every_s: float = 0.0
     faults: FaultConfig = field(default_factory=FaultConfig)
     stiffness_profile: StiffnessConfig = field(default_factory=StiffnessConfig)
     torque_multisine: TorqueMultisineConfig = field(default_factory=TorqueMultisineConfig)
@@ -466,6 +617,7 @@ class PlantConfig:
         ):
             require_range(name, getattr(self, name), 0.0)
         require_range("max_samples", self.max_samples, 0)
+        require_range("marker_every_s", self.marker_every_s, 0.0)
         require_choice("player_torque_sign", self.player_torque_sign, (1.0, -1.0))
         if self.mode == "torque_multisine":
             self._check_torque_multisine()
@@ -526,6 +678,27 @@ def plant_config_from_mapping(
     return section_from_mapping(PlantConfig, {**values, **subs}, "plant")
 
 
+def link_config_from_mapping(
+    mapping: Mapping[str, Any] | None, base_dir: str | Path | None = None
+) -> LinkConfig:
+    """Build :class:`LinkConfig` from a ``[link]`` table with ``[link.protocol]`` and
+    ``[link.udp]``; a relative ``protocol.dbc`` is taken relative to ``base_dir``."""
+    if mapping is not None and not isinstance(mapping, Mapping):
+        raise ConfigError("config key 'link' must be a table [link]")
+    values = dict(mapping or {})
+    subs: dict[str, Any] = {}
+    for key, cls in (("protocol", ProtocolConfig), ("udp", UdpConfig)):
+        table = values.pop(key, None)
+        if table is not None and not isinstance(table, Mapping):
+            raise invalid(f"link.{key}", table, f"a table [link.{key}]")
+        table = dict(table or {})
+        dbc = table.get("dbc")
+        if key == "protocol" and base_dir is not None and isinstance(dbc, str) and dbc:
+            table["dbc"] = str(Path(base_dir) / Path(dbc).expanduser())
+        subs[key] = section_from_mapping(cls, table, f"link.{key}")
+    return section_from_mapping(LinkConfig, {**values, **subs}, "link")
+
+
 def link_configs_from_mapping(
     document: Mapping[str, Any], base_dir: str | Path | None = None
 ) -> tuple[LinkConfig, PlantConfig]:
@@ -533,12 +706,10 @@ def link_configs_from_mapping(
 
     ``base_dir``: folder that relative paths (``plant.player_file``) are relative to.
     """
-    link_table = document.get("link")
-    if link_table is not None and not isinstance(link_table, Mapping):
-        raise ConfigError("config key 'link' must be a table [link]")
-    link = section_from_mapping(LinkConfig, link_table, "link")
+    link = link_config_from_mapping(document.get("link"), base_dir)
     plant = plant_config_from_mapping(document.get("plant"), base_dir)
-    if link.interface == "embedded" and link.fs_hz != plant.fs_hz:
+    embedded = link.interface == "embedded" or (link.interface == "udp" and link.udp.embedded_plant)
+    if embedded and link.fs_hz != plant.fs_hz:
         raise invalid("plant.fs_hz", plant.fs_hz, f"link.fs_hz = {link.fs_hz} (the same rate)")
     return link, plant
 

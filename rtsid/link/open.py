@@ -17,6 +17,7 @@ python-can bus (``socketcand`` connects to ``host:port``, e.g. ``rtsid plant``).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import os
 import socket
@@ -30,14 +31,17 @@ from rtsid.config import invalid
 from rtsid.errors import LinkError, LinkHandshakeError
 from rtsid.link.acquisition import Acquisition
 from rtsid.link.config import LinkConfig, PlantConfig
+from rtsid.link.mapping import MappedProtocol, protocol_from_config
 from rtsid.link.plant import VirtualPlant
 from rtsid.link.ring import RingBuffer
+from rtsid.link.udp import UdpLayout, UdpReceiver, UdpSender, compile_layout
 
 __all__ = ["LinkHandle", "bus_factory", "open_link"]
 
 _NO_BITRATE = ("virtual", "embedded", "socketcand", "socketcan")
 _PROBE_TIMEOUT_S = 1.0
 _PLANT_RX_QUEUE = 1024
+_LOOPBACK = ("127.0.0.1", "::1", "localhost")
 
 
 @dataclass(frozen=True)
@@ -57,7 +61,7 @@ class LinkHandle:
     """
 
     config: LinkConfig
-    bus_factory: Callable[[], can.BusABC]
+    bus_factory: Callable[[], can.BusABC | UdpReceiver]
     plant: VirtualPlant | None
     channel: str | int
 
@@ -66,7 +70,7 @@ class LinkHandle:
         return RingBuffer(self.config.capacity_rows)
 
     def make_acquisition(self, ring: RingBuffer) -> Acquisition:
-        """An :class:`Acquisition` wired to this link with the config's timing."""
+        """An :class:`Acquisition` wired to this link with the config's timing and protocol."""
         cfg = self.config
         return Acquisition(
             self.bus_factory,
@@ -74,15 +78,29 @@ class LinkHandle:
             fs_hz=cfg.fs_hz,
             stale_after_s=cfg.stale_after_s,
             receive_timeout_s=cfg.receive_timeout_s,
-            reconnect_after_stale_s=cfg.reconnect_after_stale_s,
+            # a UDP socket has no connection to lose: reopening it only risks a datagram
+            reconnect_after_stale_s=0.0 if cfg.interface == "udp" else cfg.reconnect_after_stale_s,
             backoff_min_s=cfg.backoff_min_s,
             backoff_max_s=cfg.backoff_max_s,
+            protocol=link_protocol(cfg),
+            rate_tolerance_percent=cfg.rate_tolerance_percent,
         )
 
 
-def bus_factory(cfg: LinkConfig, channel: str | int | None = None) -> Callable[[], can.BusABC]:
+def link_protocol(cfg: LinkConfig) -> MappedProtocol | UdpLayout:
+    """What the link speaks: the ``[link.udp]`` layout for ``udp``, else the CAN mapping."""
+    if cfg.interface == "udp":
+        return compile_layout(cfg.udp)
+    return protocol_from_config(cfg.protocol)
+
+
+def bus_factory(
+    cfg: LinkConfig, channel: str | int | None = None
+) -> Callable[[], can.BusABC | UdpReceiver]:
     """A function opening the bus ``cfg`` describes (``channel`` overrides the config's)."""
     chan = cfg.channel if channel is None else channel
+    if cfg.interface == "udp":
+        return lambda: _open_udp(cfg)
     if cfg.interface in ("virtual", "embedded"):
         return lambda: can.Bus(interface="virtual", channel=chan, rx_queue_size=cfg.rx_queue_frames)
     if cfg.interface == "socketcand":
@@ -91,6 +109,29 @@ def bus_factory(cfg: LinkConfig, channel: str | int | None = None) -> Callable[[
     if cfg.interface not in _NO_BITRATE:
         kwargs.setdefault("bitrate", cfg.bitrate)
     return lambda: can.Bus(interface=cfg.interface, channel=chan, **kwargs)
+
+
+def _open_udp(cfg: LinkConfig) -> UdpReceiver:
+    udp = cfg.udp
+    if udp.bind_host not in _LOOPBACK:
+        logging.getLogger(__name__).warning(
+            "listening for UDP samples on %s:%d, beyond loopback: any host that reaches it "
+            "can send samples; bind the interface facing the target only",
+            udp.bind_host,
+            udp.port,
+        )
+    try:
+        return UdpReceiver(
+            udp.bind_host,
+            udp.port,
+            compile_layout(udp).datagram_bytes,
+            udp.receive_buffer_bytes,
+        )
+    except OSError as exc:
+        raise LinkError(
+            f"cannot listen for UDP on {udp.bind_host}:{udp.port} ({exc}); fix [link.udp] "
+            "bind_host/port or stop what holds the port"
+        ) from exc
 
 
 def _open_socketcand(cfg: LinkConfig, channel: str) -> can.BusABC:
@@ -154,16 +195,29 @@ def open_link(
     ------
     LinkHandle
     """
+    if link_cfg.interface == "udp" and link_cfg.udp.embedded_plant:
+        with _embedded_udp_plant(link_cfg, plant_cfg, start_plant) as handle:
+            yield handle
+        return
     if link_cfg.interface != "embedded":
         yield LinkHandle(link_cfg, bus_factory(link_cfg), None, link_cfg.channel)
         return
-    plant_cfg = plant_cfg or PlantConfig(fs_hz=link_cfg.fs_hz)
-    if plant_cfg.fs_hz != link_cfg.fs_hz:
-        same = f"link.fs_hz = {link_cfg.fs_hz} (the same rate)"
-        raise invalid("plant.fs_hz", plant_cfg.fs_hz, same)
+    plant_cfg = _plant_config(link_cfg, plant_cfg)
     channel = f"rtsid-embedded-{os.getpid()}-{uuid.uuid4().hex[:8]}"
-    plant_bus = can.Bus(interface="virtual", channel=channel, rx_queue_size=_PLANT_RX_QUEUE)
-    plant = VirtualPlant(plant_cfg, plant_bus)
+    wire = link_protocol(link_cfg)
+    # without a counter the sample index comes from the frames' timestamps: the plant stamps
+    # each frame with its sample's time and the virtual bus must keep that stamp
+    plant_bus = can.Bus(
+        interface="virtual",
+        channel=channel,
+        rx_queue_size=_PLANT_RX_QUEUE,
+        preserve_timestamps=wire.uses_timestamps,
+    )
+    try:
+        plant = VirtualPlant(plant_cfg, plant_bus, wire=wire)
+    except BaseException:
+        plant_bus.shutdown()
+        raise
     try:
         if start_plant:
             plant.start()
@@ -171,3 +225,40 @@ def open_link(
     finally:
         plant.stop()
         plant_bus.shutdown()
+
+
+def _plant_config(link_cfg: LinkConfig, plant_cfg: PlantConfig | None) -> PlantConfig:
+    plant_cfg = plant_cfg or PlantConfig(fs_hz=link_cfg.fs_hz)
+    if plant_cfg.fs_hz != link_cfg.fs_hz:
+        same = f"link.fs_hz = {link_cfg.fs_hz} (the same rate)"
+        raise invalid("plant.fs_hz", plant_cfg.fs_hz, same)
+    return plant_cfg
+
+
+@contextlib.contextmanager
+def _embedded_udp_plant(
+    link_cfg: LinkConfig, plant_cfg: PlantConfig | None, start_plant: bool
+) -> Iterator[LinkHandle]:
+    """``interface = "udp"`` with ``[link.udp] embedded_plant``: the virtual plant sends the
+    datagrams to the receiver's port on loopback (port 0: a free port, chosen here)."""
+    plant_cfg = _plant_config(link_cfg, plant_cfg)
+    udp = link_cfg.udp
+    if udp.port == 0:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            probe.bind((udp.bind_host, 0))
+            port = int(probe.getsockname()[1])
+        link_cfg = dataclasses.replace(link_cfg, udp=dataclasses.replace(udp, port=port))
+    target = "::1" if ":" in link_cfg.udp.bind_host else "127.0.0.1"
+    sender = UdpSender(target, link_cfg.udp.port)
+    try:
+        plant = VirtualPlant(plant_cfg, sender, wire=compile_layout(link_cfg.udp))
+    except BaseException:
+        sender.close()
+        raise
+    try:
+        if start_plant:
+            plant.start()
+        yield LinkHandle(link_cfg, bus_factory(link_cfg), plant, link_cfg.channel)
+    finally:
+        plant.stop()
+        sender.close()

@@ -23,27 +23,21 @@ import can
 import numpy as np
 from numpy.typing import NDArray
 
+from rtsid.config import invalid
 from rtsid.lifecycle import ThreadOwner
 from rtsid.link.config import FaultConfig, PlantConfig
+from rtsid.link.mapping import MappedProtocol, builtin_protocol
 from rtsid.link.protocol import (
-    COMMAND_ID,
-    COUNTER_MODULO,
     DIAGNOSTICS_ID,
-    POSITION_SCALE_RAD,
-    STATE_ID,
     STATUS_DISCONTINUITY,
     STATUS_PERTURBATION_ON,
     STATUS_POSITION_SATURATED,
     STATUS_TORQUE_SATURATED,
-    TORQUE_SCALE_NM,
     database,
-    decode_command,
     encode_diagnostics,
-    encode_state_block,
-    quantise_position,
-    quantise_torque,
 )
 from rtsid.link.signals import Block, PlantTruth, PlayerSource, SimSource, TorqueMultisineSource
+from rtsid.link.udp import UdpLayout
 
 __all__ = ["UNKNOWN_ID", "BusSink", "FrameSink", "PlantCounters", "VirtualPlant", "plant_fields"]
 
@@ -109,7 +103,9 @@ class PlantCounters:
     """What the plant did (snapshot). Lost samples = ``dropped + corrupted + shortened +
     silenced + skipped + tx_overflows``; reordered frames arrive late and are put back in
     place by the acquisition (it holds a jump until a later frame confirms it).
-    ``samples`` counts samples whose turn to be sent has come (sent or destroyed by a fault)."""
+    ``samples`` counts samples whose turn to be sent has come (sent or destroyed by a fault).
+    Fault counts are samples: a fault on a two-frame sample, or on a UDP datagram, counts
+    each sample it hit (a dropped datagram of 10 samples adds 10 to ``dropped``)."""
 
     samples: int
     frames_sent: int
@@ -177,13 +173,24 @@ class _FaultInjector:
         length = round(self.cfg.silence_s * self.fs_hz)
         return (index >= every) & (index % every < length)
 
-    def frames(self, index: NDArray[np.int64], payload: NDArray[np.uint8]) -> list[can.Message]:
-        n = index.size
+    def frames(
+        self, index: NDArray[np.int64], groups: list[list[Any]], per_unit: int = 1
+    ) -> list[Any]:
+        """The frames (or datagrams) actually sent for units of samples.
+
+        Parameters
+        ----------
+        index : numpy.ndarray of int, shape (n,)
+            First sample index of each unit (a sample, or a datagram's first sample).
+        groups : list of list
+            The frames of each unit (``can.Message``, or ``bytes`` for UDP).
+        per_unit : int
+            Samples per unit; >1 means UDP datagrams (no error or foreign CAN frames).
+        """
+        n = len(groups)
         cfg = self.cfg
-        make = _state_frame
         if not cfg.any:
-            raw = payload.tobytes()
-            return [make(raw[8 * k : 8 * k + 8]) for k in range(n)]
+            return [f for group in groups for f in group]
         r = self.rng.random((7, n))
         silenced = self._silenced(index)
         dropped = ~silenced & (r[0] < cfg.drop_rate)
@@ -195,29 +202,38 @@ class _FaultInjector:
         reorder[-1] = False
         reorder[:-1] &= intact[1:] & ~duplicate[1:]  # the partner is sent intact, once
         reorder[1:] &= ~reorder[:-1]  # a frame is in one swap at most
-        error_after = ~silenced & (r[5] < cfg.error_frame_rate)
-        unknown_after = ~silenced & (r[6] < cfg.unknown_id_rate)
+        can_frames = per_unit == 1
+        error_after = ~silenced & (r[5] < cfg.error_frame_rate) & can_frames
+        unknown_after = ~silenced & (r[6] < cfg.unknown_id_rate) & can_frames
         self._count(
-            silenced, dropped, corrupt, short, duplicate, reorder, error_after, unknown_after
+            per_unit,
+            silenced,
+            dropped,
+            corrupt,
+            short,
+            duplicate,
+            reorder,
+            error_after,
+            unknown_after,
         )
-        self._record_lost(index[silenced | dropped | corrupt | short])
-        out: list[can.Message] = []
+        lost = index[silenced | dropped | corrupt | short]
+        self._record_lost((lost[:, None] + np.arange(per_unit)).ravel())
+        out: list[Any] = []
         for k in range(n):
-            if reorder[k]:  # frame k goes out after frame k + 1 (it arrives late)
+            if reorder[k]:  # unit k goes out after unit k + 1 (it arrives late)
                 continue
             if intact[k]:
-                out.append(make(payload[k].tobytes()))
+                out.extend(groups[k])
                 if duplicate[k]:
-                    out.append(make(payload[k].tobytes()))
+                    out.extend(groups[k])
                 if k > 0 and reorder[k - 1]:
-                    out.append(make(payload[k - 1].tobytes()))
+                    out.extend(groups[k - 1])
             elif corrupt[k]:
-                data = bytearray(payload[k].tobytes())
-                bit = int(self.rng.integers(64))
-                data[bit // 8] ^= 1 << (bit % 8)
-                out.append(make(bytes(data)))
+                out.append(_flip_bit(groups[k][0], int(self.rng.integers(64))))
+                out.extend(groups[k][1:])
             elif short[k]:
-                out.append(make(payload[k, : int(self.rng.integers(0, 8))].tobytes()))
+                out.append(_shorten(groups[k][0], int(self.rng.integers(0, 8))))
+                out.extend(groups[k][1:])
             if error_after[k]:
                 out.append(
                     can.Message(
@@ -233,7 +249,7 @@ class _FaultInjector:
                 )
         return out
 
-    def _count(self, *masks: NDArray[np.bool_]) -> None:
+    def _count(self, per_unit: int, *masks: NDArray[np.bool_]) -> None:
         names = (
             "silenced",
             "dropped",
@@ -245,11 +261,31 @@ class _FaultInjector:
             "unknown_frames",
         )
         for name, mask in zip(names, masks, strict=True):
-            self.counts[name] += int(np.count_nonzero(mask))
+            self.counts[name] += int(np.count_nonzero(mask)) * per_unit
 
 
-def _state_frame(data: bytes) -> can.Message:
-    return can.Message(arbitration_id=STATE_ID, data=data, is_extended_id=False, check=False)
+def _flip_bit(frame: Any, bit: int) -> Any:
+    """A copy of a frame (or datagram) with one bit of its first 8 bytes flipped."""
+    data = bytearray(frame if isinstance(frame, bytes) else frame.data)
+    data[(bit // 8) % len(data)] ^= 1 << (bit % 8)
+    return bytes(data) if isinstance(frame, bytes) else _with_data(frame, bytes(data))
+
+
+def _shorten(frame: Any, length: int) -> Any:
+    """A copy of a frame (or datagram) cut to ``length`` bytes (< its length)."""
+    if isinstance(frame, bytes):
+        return frame[: min(length, len(frame) - 1)]
+    return _with_data(frame, bytes(frame.data[: min(length, len(frame.data) - 1)]))
+
+
+def _with_data(frame: can.Message, data: bytes) -> can.Message:
+    return can.Message(
+        arbitration_id=frame.arbitration_id,
+        data=data,
+        is_extended_id=frame.is_extended_id,
+        check=False,
+        timestamp=frame.timestamp,
+    )
 
 
 class VirtualPlant(ThreadOwner):
@@ -264,6 +300,11 @@ class VirtualPlant(ThreadOwner):
     record_samples : int
         Keep the quantised values of the first ``record_samples`` samples (before faults)
         for tests: :meth:`recorded`.
+    wire : MappedProtocol or UdpLayout, optional
+        What the plant speaks: a CAN protocol mapping (default: the built-in ankle
+        protocol; without a counter, frames are stamped with their sample's time, so a
+        virtual bus must preserve timestamps) or a UDP datagram layout (``bus`` is then a
+        :class:`~rtsid.link.udp.UdpSender`; blocks must hold whole datagrams).
 
     Examples
     --------
@@ -274,8 +315,24 @@ class VirtualPlant(ThreadOwner):
     ...         pass
     """
 
-    def __init__(self, cfg: PlantConfig, bus: Any, *, record_samples: int = 0) -> None:
+    def __init__(
+        self,
+        cfg: PlantConfig,
+        bus: Any,
+        *,
+        record_samples: int = 0,
+        wire: MappedProtocol | UdpLayout | None = None,
+    ) -> None:
         self.cfg = cfg
+        self.wire = builtin_protocol() if wire is None else wire
+        self._per_unit = self.wire.samples_per_unit if isinstance(self.wire, UdpLayout) else 1
+        if cfg.block_samples % self._per_unit:
+            raise invalid(
+                "plant.block_s",
+                cfg.block_s,
+                f"a block of whole datagrams ({self._per_unit} samples each at {cfg.fs_hz:g} Hz)",
+            )
+        self._wall0_s = time.time()
         if hasattr(bus, "send_frames"):
             self._sink: Any = bus
         else:
@@ -304,8 +361,9 @@ class VirtualPlant(ThreadOwner):
             0,
         )
         self._max_lag_s = 0.0
-        self._record = np.zeros((record_samples, 2), dtype=np.int64)
-        self._diag_every = round(cfg.fs_hz / cfg.diagnostics_hz) if cfg.diagnostics_hz else 0
+        self._record = np.zeros((record_samples, 2), dtype=np.float64)  # raw codes
+        diagnostics = getattr(self.wire, "builtin", False) and cfg.diagnostics_hz > 0
+        self._diag_every = round(cfg.fs_hz / cfg.diagnostics_hz) if diagnostics else 0
         self._t_start = time.monotonic()
         self.done = threading.Event()
         database()  # parse the DBC now, not in the middle of the first block
@@ -351,8 +409,7 @@ class VirtualPlant(ThreadOwner):
     def recorded(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Position (rad) and torque (N·m) of the first recorded samples, as encoded."""
         n = min(self._c["generated"], self._record.shape[0])
-        position = np.asarray(self._record[:n, 0] * POSITION_SCALE_RAD, dtype=np.float64)
-        return position, np.asarray(self._record[:n, 1] * TORQUE_SCALE_NM, dtype=np.float64)
+        return self.wire.to_si(self._record[:n, 0], self._record[:n, 1])
 
     # ------------------------------------------------------------------ the thread
     def _run(self) -> None:  # an error is kept in .error by ThreadOwner
@@ -366,6 +423,7 @@ class VirtualPlant(ThreadOwner):
         per_tick = cfg.frames_per_tick if cfg.realtime else cfg.block_samples
         tick_s = per_tick / cfg.fs_hz
         t0 = time.monotonic()
+        self._wall0_s = time.time()
         tick = 0
         pending: list[list[can.Message]] = []  # frames of each remaining sample of the block
         cursor = 0
@@ -424,9 +482,12 @@ class VirtualPlant(ThreadOwner):
         self._c["frames_sent"] += len(batch) - failed
 
     def _handle_commands(self) -> None:
+        wire = self.wire
+        if isinstance(wire, UdpLayout):
+            return
         for msg in self._sink.poll_received():
-            if msg.arbitration_id == COMMAND_ID and not msg.is_error_frame:
-                command = decode_command(msg.data)
+            if not msg.is_error_frame:
+                command = wire.decode_command(msg)
                 if command is not None:
                     self._source.apply(command)
                     self._c["commands"] += 1
@@ -439,21 +500,24 @@ class VirtualPlant(ThreadOwner):
             return []
         if self.cfg.max_samples:
             n = min(n, self.cfg.max_samples - self._c["generated"])
+        n -= n % self._per_unit  # whole datagrams (only max_samples can cut one)
+        if n <= 0:
+            return []
         index = block.first_index + np.arange(n, dtype=np.int64)
-        payload = self._encode(block, n, index)
-        frames = self._faults.frames(index, payload)
+        groups = self._encode(block, n, index)
+        frames = self._faults.frames(index[:: self._per_unit], groups, self._per_unit)
         self._c["generated"] += n
         return self._group(frames, index)
 
-    def _encode(self, block: Block, n: int, index: NDArray[np.int64]) -> NDArray[np.uint8]:
-        pos_raw, pos_sat = quantise_position(block.position_rad[:n])
+    def _encode(self, block: Block, n: int, index: NDArray[np.int64]) -> list[list[Any]]:
+        """Quantised, flagged and encoded samples: the frames (datagrams) of each unit."""
         torque = block.torque_nm[:n]
         limit = self.cfg.faults.saturate_torque_nm
         sensor_sat = np.zeros(n, dtype=bool)
         if limit > 0:
             sensor_sat = np.abs(torque) > limit
             torque = np.clip(torque, -limit, limit)
-        trq_raw, trq_sat = quantise_torque(torque)
+        pos_raw, pos_sat, trq_raw, trq_sat = self.wire.quantise(block.position_rad[:n], torque)
         trq_sat |= sensor_sat
         status = (
             np.where(pos_sat, STATUS_POSITION_SATURATED, 0)
@@ -463,11 +527,19 @@ class VirtualPlant(ThreadOwner):
         )
         self._c["saturated"] += int(np.count_nonzero(pos_sat | trq_sat))
         self._keep_record(index, pos_raw, trq_raw)
-        return encode_state_block(pos_raw, trq_raw, index % COUNTER_MODULO, status)
+        every = round(self.cfg.marker_every_s * self.cfg.fs_hz)
+        marker = (index // every) % 256 if every else np.zeros(n, dtype=np.int64)
+        return self.wire.encode_samples(
+            index,
+            pos_raw,
+            trq_raw,
+            status,
+            marker=marker,
+            wall0_s=self._wall0_s,
+            fs_hz=self.cfg.fs_hz,
+        )
 
-    def _keep_record(
-        self, index: NDArray[np.int64], pos: NDArray[np.int64], trq: NDArray[np.int64]
-    ) -> None:
+    def _keep_record(self, index: NDArray[np.int64], pos: NDArray[Any], trq: NDArray[Any]) -> None:
         cap = self._record.shape[0]
         keep = index < cap
         if np.any(keep):

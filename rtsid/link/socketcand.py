@@ -229,7 +229,8 @@ class SocketcandServer(ThreadOwner):
             clients = [c for c in self._clients if c.state == "raw" and mono >= c.stream_after]
         if not clients:
             return 0
-        data = "".join(format_frame(f, time.time()) for f in frames).encode("ascii")
+        now = time.time()  # a frame stamped by the plant (no-counter protocols) keeps its stamp
+        data = "".join(format_frame(f, f.timestamp or now) for f in frames).encode("ascii")
         for client in clients:
             with client.lock:
                 if len(client.outbuf) + len(data) > self.max_backlog_bytes:
