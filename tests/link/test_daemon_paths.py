@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rtsid.io.mcap_read import iter_estimates, iter_session_and_markers
+from rtsid.io.mcap_read import iter_estimates
+from rtsid.io.recording import read_session
 from rtsid.link.mapping import compile_protocol
 from rtsid.replay import recording_config
 from rtsid.runtime.daemon import Daemon, DaemonConfig
@@ -83,7 +84,7 @@ directory = "{tmp_path / "rec"}"
     assert len(ok) > 40
     for key, (truth, tolerance) in TRUTH_AND_TOLERANCE.items():
         assert np.median([e[key] for e in ok]) == pytest.approx(truth, rel=tolerance), key
-    markers = [m for kind, m in iter_session_and_markers(recording) if kind == "marker"]
+    markers = read_session(recording).markers
     fs = 2000.0 if path == "twoframe" else 2500.0
     label = "TrialMarker" if path == "twoframe" else "marker"
     assert [(m["sample_index"], m["label"], m["source"]) for m in markers] == [
