@@ -261,18 +261,9 @@ class Phase:
 
 
 def _open(endpoints: tuple[str, ...], mode: str, config_file: str = "") -> Any:
-    import zenoh
+    from rtsid.io.zenoh_link import open_when_reachable, subscriber_config
 
-    from rtsid.io.zenoh_link import subscriber_config
-
-    deadline = time.monotonic() + 30.0
-    while True:
-        try:
-            return zenoh.open(subscriber_config(endpoints, mode, config_file))
-        except zenoh.ZError:
-            if time.monotonic() > deadline:
-                raise
-            time.sleep(0.2)
+    return open_when_reachable(subscriber_config(endpoints, mode, config_file))
 
 
 def _wait_for_all(session: Any, joints: list[str], timeout_s: float = 60.0) -> None:

@@ -47,18 +47,11 @@ def _send_marks(port: int, marks: int, max_gap_s: float) -> list[tuple[str, int,
     """``(marker_id, sample_index, sent_ns, acked_ns, stamped_ns)`` of each acknowledged mark."""
     import zenoh
 
-    from rtsid.io.zenoh_link import query, subscriber_config
+    from rtsid.io.zenoh_link import open_when_reachable, query, subscriber_config
 
     conf = subscriber_config((f"tcp/127.0.0.1:{port}",), mode="client")
     deadline = time.monotonic() + 60.0
-    while True:
-        try:
-            session = zenoh.open(conf)
-            break
-        except zenoh.ZError:
-            if time.monotonic() > deadline:
-                raise RuntimeError("the daemon never listened") from None
-            time.sleep(0.1)
+    session = open_when_reachable(conf, timeout_s=60.0)
     rng = random.Random(1)
     acked = []
     with session:

@@ -231,19 +231,10 @@ def end_to_end_ms(message: dict[str, Any], received_ns: int) -> tuple[float, flo
 def _subscribe(port: int, seconds: float, phase: Phase) -> None:
     import zenoh
 
-    from rtsid.io.zenoh_link import subscriber_config
+    from rtsid.io.zenoh_link import open_when_reachable, subscriber_config
 
     conf = subscriber_config((f"tcp/127.0.0.1:{port}",), mode="client")
-    deadline = time.monotonic() + 30.0
-    while True:
-        try:
-            session = zenoh.open(conf)
-            break
-        except zenoh.ZError:
-            if time.monotonic() > deadline:
-                raise
-            time.sleep(0.2)
-    with session:
+    with open_when_reachable(conf) as session:
         est = session.declare_subscriber(
             "rtsid/bench/ankle/estimate", zenoh.handlers.FifoChannel(4096)
         )

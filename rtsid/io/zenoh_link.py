@@ -66,6 +66,7 @@ __all__ = [
     "ZenohConfig",
     "ZenohPublisher",
     "key_expressions",
+    "open_when_reachable",
     "query",
     "router_config",
     "subscriber_config",
@@ -355,6 +356,21 @@ class RouterConfig:
     def from_mapping(cls, mapping: Mapping[str, Any] | None) -> RouterConfig:
         """Build from the ``[router]`` TOML table (unknown keys and bad values rejected)."""
         return section_from_mapping(cls, mapping, "router")
+
+
+def open_when_reachable(conf: Any, timeout_s: float = 30.0) -> Any:
+    """``zenoh.open(conf)``, retried every 0.2 s while the endpoint it connects to is not yet
+    listening (a daemon or router still starting), until ``timeout_s``; then the error."""
+    import zenoh
+
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            return zenoh.open(conf)
+        except zenoh.ZError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.2)
 
 
 def router_config(cfg: RouterConfig) -> Any:

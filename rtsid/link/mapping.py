@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 
 from rtsid.errors import ConfigError
 from rtsid.link.protocol import (
+    CHECKSUM_SEED,
     COUNTER_MODULO,
     PERTURBATION_KINDS,
     POSITION_SCALE_RAD,
@@ -56,6 +57,7 @@ from rtsid.link.protocol import (
     decode_diagnostics,
     encode_command,
     encode_state_block,
+    fold_nibbles,
     quantise_position,
     quantise_torque,
 )
@@ -400,14 +402,6 @@ def _check_command(r: _Resolver, message: Any) -> None:
         )
 
 
-def _fold_nibbles(word: int) -> int:
-    word ^= word >> 32
-    word ^= word >> 16
-    word ^= word >> 8
-    word ^= word >> 4
-    return word & 0xF
-
-
 #: Decoded sample: (counter or timestamp s, position rad, torque N·m, status bits, marker label
 #: or None).
 DecodedSample = tuple[float, float, float, int, str | None]
@@ -705,7 +699,9 @@ class StateDecoder:
     def decode(self, key: int, data: bytes | bytearray, bus_time_s: float) -> Any:
         """A :data:`DecodedSample`, :data:`PENDING` (first frame of a pair) or None (bad)."""
         p = self.p
-        if p.checksum == "nibble_xor" and _fold_nibbles(int.from_bytes(data, "little")) != 0xA:
+        if p.checksum == "nibble_xor" and (
+            fold_nibbles(int.from_bytes(data, "little")) != CHECKSUM_SEED
+        ):
             return None
         message = self._by_key[key]
         try:

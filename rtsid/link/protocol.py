@@ -53,6 +53,7 @@ __all__ = [
     "encode_command",
     "encode_diagnostics",
     "encode_state_block",
+    "fold_nibbles",
     "quantise_position",
     "quantise_torque",
 ]
@@ -106,7 +107,7 @@ def database() -> Any:
     return cantools.database.load_string(dbc_path().read_text(encoding="utf-8"), "dbc")
 
 
-def _fold_nibbles(word: int) -> int:
+def fold_nibbles(word: int) -> int:
     """XOR of the sixteen nibbles of a 64-bit word."""
     word ^= word >> 32
     word ^= word >> 16
@@ -131,7 +132,7 @@ def decode_state(data: bytes | bytearray) -> tuple[int, int, int, int] | None:
         ``None`` when the checksum does not match (a corrupt frame: never decode it).
     """
     word = int.from_bytes(data, "little")
-    if _fold_nibbles(word) != CHECKSUM_SEED:
+    if fold_nibbles(word) != CHECKSUM_SEED:
         return None
     position = word & _POS_MASK
     if position & _POS_SIGN:
