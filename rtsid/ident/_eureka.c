@@ -838,6 +838,119 @@ static PyObject *py_oe_vafs(PyObject *self, PyObject *args)
     return result;
 }
 
+/* ------------------------------------------------------------------ reflex pathway input
+ * reflex_rect_input: the rectified stretch velocity of a segment at the reflex model's rate,
+ * what rtsid.ident.reflex.ReflexPathway.torque feeds its IRF for the "rect" variant (its numpy
+ * code is the reference): the segment's line removed, the velocity by the 9-point stencil
+ * (numpy.gradient's second-order formulas at the four samples of each end), max(v, 0), the
+ * zero-phase Chebyshev decimator (scipy's sosfiltfilt: odd extension of `edge` samples, steady
+ * state initial conditions, direct form II transposed sections) and every factor-th sample
+ * kept, its mean removed. O(n·sections).
+ */
+static void sos_run(const double *sos, const double *zi, Py_ssize_t ns, double *x, Py_ssize_t n,
+                    int backwards)
+{
+    double state[2 * 16];
+    const double first = backwards ? x[n - 1] : x[0];
+    for (Py_ssize_t s = 0; s < ns; s++) {
+        state[2 * s] = zi[2 * s] * first;
+        state[2 * s + 1] = zi[2 * s + 1] * first;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        Py_ssize_t at = backwards ? n - 1 - i : i;
+        double cur = x[at];
+        for (Py_ssize_t s = 0; s < ns; s++) {
+            const double *c = sos + 6 * s;
+            double out = c[0] * cur + state[2 * s];
+            state[2 * s] = c[1] * cur - c[4] * out + state[2 * s + 1];
+            state[2 * s + 1] = c[2] * cur - c[5] * out;
+            cur = out;
+        }
+        x[at] = cur;
+    }
+}
+
+static void reflex_rect_input(const double *pos, Py_ssize_t n, double fs, const double *sos,
+                              const double *zi, Py_ssize_t ns, Py_ssize_t edge,
+                              Py_ssize_t factor, double *out, Py_ssize_t m, double *work)
+{
+    double *x = work, *ext = work + n;
+    /* detrend(position, "linear"): x - (mean + slope·t), t centred */
+    const double centre = (double)(n - 1) / 2.0;
+    double sum = 0.0, tx = 0.0, tt = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double t = (double)i - centre;
+        sum += pos[i];
+        tx += t * pos[i];
+        tt += t * t;
+    }
+    const double mean = sum / (double)n, slope = tx / (tt > 1e-300 ? tt : 1e-300);
+    for (Py_ssize_t i = 0; i < n; i++) x[i] = pos[i] - (mean + slope * ((double)i - centre));
+    /* velocity (into ext + edge), rectified */
+    double *v = ext + edge;
+    const double dt = 1.0 / fs;
+    v[0] = (-1.5 / dt) * x[0] + (2. / dt) * x[1] + (-0.5 / dt) * x[2];
+    v[n - 1] = (0.5 / dt) * x[n - 3] + (-2. / dt) * x[n - 2] + (1.5 / dt) * x[n - 1];
+    for (Py_ssize_t i = 1; i < 4; i++) {
+        v[i] = (x[i + 1] - x[i - 1]) / (2. * dt);
+        v[n - 1 - i] = (x[n - i] - x[n - 2 - i]) / (2. * dt);
+    }
+    for (Py_ssize_t i = 4; i < n - 4; i++) {
+        double acc = 0.0;
+        for (int s = 0; s < 9; s++) acc += x[i - 4 + s] * STENCIL_D1[s];
+        v[i] = acc * fs;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) v[i] = v[i] > 0.0 ? v[i] : 0.0;
+    /* scipy's odd extension, then forwards and backwards */
+    for (Py_ssize_t j = 1; j <= edge; j++) {
+        ext[edge - j] = 2 * v[0] - v[j];
+        ext[edge + n - 1 + j] = 2 * v[n - 1] - v[n - 1 - j];
+    }
+    const Py_ssize_t total = n + 2 * edge;
+    sos_run(sos, zi, ns, ext, total, 0);
+    sos_run(sos, zi, ns, ext, total, 1);
+    double acc = 0.0;
+    for (Py_ssize_t k = 0; k < m; k++) {
+        out[k] = v[k * factor];
+        acc += out[k];
+    }
+    acc /= (double)m;
+    for (Py_ssize_t k = 0; k < m; k++) out[k] -= acc;
+}
+
+static PyObject *py_reflex_rect_input(PyObject *self, PyObject *args)
+{
+    PyObject *objs[4];
+    double fs;
+    Py_ssize_t edge, factor;
+    if (!PyArg_ParseTuple(args, "OdOOnnO", &objs[0], &fs, &objs[1], &objs[2], &edge, &factor,
+                          &objs[3])) {
+        return NULL;
+    }
+    const char *names[4] = {"position", "sos", "zi", "out"};
+    Py_buffer b[4];
+    if (get_buffers(objs, 4, 3, names, b) < 0) return NULL;
+    Py_ssize_t n = b[0].len / 8, ns = b[1].len / 48, m = b[3].len / 8;
+    PyObject *result = NULL;
+    if (ns < 1 || ns > 16 || b[1].len != 48 * ns || b[2].len != 16 * ns || factor < 1 ||
+        edge < 1 || n <= edge || n < 9 || m != (n + factor - 1) / factor) {
+        PyErr_SetString(PyExc_ValueError, "reflex_rect_input: inconsistent sizes");
+    } else {
+        double *work = PyMem_Malloc(sizeof(double) * (2 * n + 2 * edge));
+        if (work == NULL) {
+            PyErr_NoMemory();
+        } else {
+            reflex_rect_input(b[0].buf, n, fs, b[1].buf, b[2].buf, ns, edge, factor, b[3].buf,
+                              m, work);
+            PyMem_Free(work);
+            Py_INCREF(Py_None);
+            result = Py_None;
+        }
+    }
+    release_buffers(b, 4);
+    return result;
+}
+
 static PyObject *py_window_fit(PyObject *self, PyObject *args)
 {
     PyObject *objs[10];
@@ -1006,6 +1119,9 @@ static PyMethodDef methods[] = {
     {"oe_vafs", py_oe_vafs, METH_VARARGS,
      "oe_vafs(u, y, h, params, model, fs, explained, torque_slope, k_position_slope, kmax, "
      "tw_cos, tw_sin) -> (vaf, vaf_irf, vaf_fit) of an output-error fit."},
+    {"reflex_rect_input", py_reflex_rect_input, METH_VARARGS,
+     "reflex_rect_input(position, fs, sos, zi, edge, factor, out): the rect reflex pathway's "
+     "input at the model's rate (detrend, velocity, max(v, 0), zero-phase decimation)."},
     {"xcorr", py_xcorr, METH_VARARGS,
      "xcorr(u, y, first, last, norm, c): c[k-first] = sum_t u[t] y[t+k] / norm."},
     {NULL, NULL, 0, NULL},
