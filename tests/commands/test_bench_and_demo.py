@@ -21,8 +21,17 @@ def test_window_benchmark_lists_every_stage(capsys):
         "fit I, B, K",
         "standard errors",
         "baseline: source method",
+        "full path (reflex + estimate + tracker)",  # the stream's per-window path
+        "numpy / compiled",
+        "Floors: median",
+        "10 kHz robot",  # how the cost grows
+        "% of a core",
     ):
         assert stage in out
+    scaling = [
+        line.split("|")[2].strip() for line in out.splitlines() if "|       window |" in line
+    ]
+    assert scaling == ["0.1 s", "0.3 s", "1 s", "2 s"]
 
 
 def test_unknown_benchmark_option_is_refused(capsys):
