@@ -15,7 +15,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Any
 
@@ -194,10 +194,9 @@ def assess(
         vafs = _numpy_vafs(irf, u, y, fit, gaps, score)
     se_i, se_b, se_k = fit.se.tolist()
     lost = 0 if gaps is None else gaps.lost
-    estimate = assemble(irf, fit.params, (se_i, se_b, se_k), vafs, "output_error", options, lost)
-    if held.inertia is None:
-        return estimate
-    return replace(estimate, I_held=True, B_held=held.damping is not None)
+    held_flags = (held.inertia is not None, held.inertia is not None and held.damping is not None)
+    se = (se_i, se_b, se_k)
+    return assemble(irf, fit.params, se, vafs, "output_error", options, lost, held_flags)
 
 
 def _numpy_vafs(
@@ -328,7 +327,9 @@ def assemble(
     method: str,
     options: EstimatorOptions,
     lost: int = 0,
+    held: tuple[bool, bool] = (False, False),
 ) -> WindowEstimate:
+    """The :class:`WindowEstimate` of fitted ``params``; ``held``: whether I and B were held."""
     inertia, damping, stiffness = (float(v) for v in params)
     vaf_model, vaf_irf, vaf_fit = vafs
     return WindowEstimate(
@@ -347,6 +348,8 @@ def assemble(
         flags=window_flags((inertia, damping, stiffness), se, vafs, options),
         method=method,
         lost_samples=lost,
+        I_held=held[0],
+        B_held=held[1],
     )
 
 
