@@ -934,7 +934,7 @@ static void reflex_rect_input(const double *pos, Py_ssize_t n, double fs, const 
         for (int s = 0; s < 9; s++) acc += x[i - 4 + s] * STENCIL_D1[s];
         v[i] = acc * fs;
     }
-    for (Py_ssize_t i = 0; i < n; i++) v[i] = v[i] > 0.0 ? v[i] : 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) v[i] = (v[i] > 0.0 || v[i] != v[i]) ? v[i] : 0.0; /* NaN stays, as np.maximum */
     /* scipy's odd extension, then forwards and backwards */
     for (Py_ssize_t j = 1; j <= edge; j++) {
         ext[edge - j] = 2 * v[0] - v[j];

@@ -422,6 +422,8 @@ class ReflexPathway:
         pos = np.ascontiguousarray(position, dtype=np.float64)
         factor = self._factor(fs_hz)
         n_last = min(n_last, pos.size)
+        if n_last <= 0:
+            return np.empty(0)
         if factor == 1 or pos.size < 9:
             return self.torque(pos, fs_hz)[pos.size - n_last :]
         decimator = _decimator(factor)
