@@ -173,6 +173,34 @@ def test_replay_command_outputs_and_directories(tmp_path, capsys):
     assert len(list(iter_estimates(out_mcap))) == len(replay_file(folder / "a.mcap").messages)
 
 
+def test_a_directory_replays_the_same_with_one_job_or_two(tmp_path, capsys):
+    folder = tmp_path / "recs"
+    folder.mkdir()
+    for name in ("a.mcap", "b.mcap", "c.mcap"):
+        shutil.copy(REFERENCE / "sim_3s.mcap", folder / name)
+    tables = {}
+    for jobs in ("1", "2"):
+        assert main(["replay", str(folder), "-o", str(tmp_path / jobs), "--jobs", jobs]) == 0
+        captured = capsys.readouterr()
+        # every column but the last (× real time: how busy the computer was)
+        tables[jobs] = [line.rsplit("|", 2)[0] for line in captured.out.splitlines()]
+        progress = [line for line in captured.err.splitlines() if line.startswith("replayed")]
+        assert [line.split(" (")[0] for line in progress] == [
+            f"replayed {k}/3 recordings" for k in (1, 2, 3)
+        ]
+    assert tables["1"] == tables["2"]
+    for name in ("a.csv", "b.csv", "c.csv"):
+        one, two = (_without_compute_time(tmp_path / jobs / name) for jobs in ("1", "2"))
+        assert len(one) > 100 and one == two
+
+
+def _without_compute_time(path):
+    """The rows of an estimates CSV without ``compute_ms`` (how long this run took)."""
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    return [{k: v for k, v in row.items() if k != "compute_ms"} for row in rows]
+
+
 @pytest.mark.parametrize(
     "argv,message",
     [

@@ -163,7 +163,21 @@ def _replay_directory(folder: Path, args: argparse.Namespace) -> list[list[Any]]
             pool.submit(_replay_one, f, quiet, out_dir / f"{f.stem}.csv" if out_dir else None)
             for f in sessions
         ]
+        for done, future in enumerate(cf.as_completed(futures), start=1):
+            _recordings_done(done, len(futures), future.result()[0][0])
+        # the table keeps the recordings' order, whichever finished first
         return [_rewarn(*f.result()) for f in futures]
+
+
+def _recordings_done(done: int, total: int, name: str) -> None:
+    """One progress line for a directory: redrawn in place on a terminal, else one line per
+    finished recording (a log keeps them)."""
+    text = f"replayed {done}/{total} recordings (last: {name})"
+    if sys.stderr.isatty():
+        sys.stderr.write(f"\r{text}" + ("\n" if done == total else ""))
+    else:
+        sys.stderr.write(text + "\n")
+    sys.stderr.flush()
 
 
 def _sessions(files: list[Path]) -> list[Path]:

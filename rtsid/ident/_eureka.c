@@ -462,6 +462,529 @@ static Py_ssize_t window_fit(const double *u, const double *y, Py_ssize_t m, con
     return sandwich_errors(u + edge, by_model, n, phi, sens, nh, fs, out, by_model + n);
 }
 
+/* ------------------------------------------------------------------ output-error back end
+ * The default fit (rtsid.ident.second_order.OutputErrorDesign) and its assessment
+ * (rtsid.ident.assess) for a window without lost samples, in three calls; the numpy code is
+ * the reference they are tested against (RTSID_NUMPY_ONLY=1 runs it).
+ *
+ * oe_design: the regressors (θ̈, θ̇, θ by the 9-point stencils at samples 4 … m−5), each row and
+ *   the torque with its offset and trend projected out, and their 4 × 4 Gram matrix. O(m).
+ * oe_fit: (I, B, K) with the first k held, by the normalised normal equations (Gaussian
+ *   elimination with partial pivoting, as LAPACK's gesv), the sandwich standard errors with
+ *   the residual's Bartlett-tapered autocorrelation over `lags` lags (O(m·lags)), the model's
+ *   torque and its VAF against the measured torque.
+ * oe_vafs: vaf_irf and vaf_fit (the IRF's and the model's predictions over the fully supported
+ *   samples, O(m·L)), and the published VAF over the DFT bins 1 … kmax (O(m·kmax)).
+ */
+enum { OE_OK = -1, OE_ZERO_TORQUE = 1, OE_INSEPARABLE = 2 };
+
+/* rows[r] minus its offset and linear trend over n samples, into out[r] (as _without_trend). */
+static void without_trend(const double *row, double *out, Py_ssize_t n)
+{
+    const double centre = (double)(n - 1) / 2.0;
+    double mean = 0.0, tt = 0.0, tx = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) mean += row[i];
+    mean /= (double)n;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double t = (double)i - centre, c = row[i] - mean;
+        out[i] = c;
+        tt += t * t;
+        tx += c * t;
+    }
+    const double coef = tx / tt;
+    for (Py_ssize_t i = 0; i < n; i++) out[i] -= coef * ((double)i - centre);
+}
+
+static Py_ssize_t oe_design(const double *u, const double *y, Py_ssize_t m, double fs,
+                            double *regressors, double *projected, double *gram)
+{
+    const Py_ssize_t n = m - 8;
+    double *d2 = regressors, *d1 = regressors + n, *u0 = regressors + 2 * n;
+    for (Py_ssize_t t = 0; t < n; t++) {
+        double a1 = 0.0, a2 = 0.0;
+        for (int s = 0; s < 9; s++) {
+            a1 += u[t + s] * STENCIL_D1[s];
+            a2 += u[t + s] * STENCIL_D2[s];
+        }
+        d1[t] = a1 * fs;
+        d2[t] = a2 * (fs * fs);
+        u0[t] = u[t + 4];
+    }
+    for (int r = 0; r < 3; r++) without_trend(regressors + r * n, projected + r * n, n);
+    without_trend(y + 4, projected + 3 * n, n);
+    for (int a = 0; a < 4; a++) {
+        for (int b = a; b < 4; b++) {
+            gram[4 * a + b] = gram[4 * b + a] =
+                dot_unrolled(projected + a * n, projected + b * n, n);
+        }
+    }
+    return gram[15] > 0.0 ? OE_OK : OE_ZERO_TORQUE;
+}
+
+/* LU with partial pivoting of the p × p matrix a (row-major, in place); piv[i] the row swapped
+ * into place i; returns the determinant. */
+static double lu_factor(double *a, int p, int *piv)
+{
+    double det = 1.0;
+    for (int c = 0; c < p; c++) {
+        int best = c;
+        for (int r = c + 1; r < p; r++) {
+            if (fabs(a[r * p + c]) > fabs(a[best * p + c])) best = r;
+        }
+        piv[c] = best;
+        if (best != c) {
+            for (int j = 0; j < p; j++) {
+                double tmp = a[c * p + j];
+                a[c * p + j] = a[best * p + j];
+                a[best * p + j] = tmp;
+            }
+            det = -det;
+        }
+        double pivot = a[c * p + c];
+        det *= pivot;
+        if (pivot == 0.0) continue;
+        for (int r = c + 1; r < p; r++) {
+            double f = a[r * p + c] / pivot;
+            a[r * p + c] = f;
+            for (int j = c + 1; j < p; j++) a[r * p + j] -= f * a[c * p + j];
+        }
+    }
+    return det;
+}
+
+static void lu_solve(const double *lu, int p, const int *piv, double *x)
+{
+    for (int c = 0; c < p; c++) {
+        double tmp = x[c];
+        x[c] = x[piv[c]];
+        x[piv[c]] = tmp;
+    }
+    for (int r = 0; r < p; r++) {
+        for (int j = 0; j < r; j++) x[r] -= lu[r * p + j] * x[j];
+    }
+    for (int r = p - 1; r >= 0; r--) {
+        for (int j = r + 1; j < p; j++) x[r] -= lu[r * p + j] * x[j];
+        x[r] /= lu[r * p + r];
+    }
+}
+
+/* cov = G⁻¹·sym(M)·G⁻¹ for the free regressors x (p rows of n), G their Gram block; the
+ * diagonal's square roots into se. */
+static void oe_sandwich(const double *x, int p, const double *residual, Py_ssize_t n,
+                        const double *g_norm_lu, const int *piv, const double *scale,
+                        Py_ssize_t lags, double kept, double *se, double *scratch)
+{
+    if (lags > n - 1) lags = n - 1;
+    double *r = scratch, *smoothed = r + lags + 1;
+    for (Py_ssize_t k = 0; k <= lags; k++) {
+        r[k] = dot_unrolled(residual, residual + k, n - k) / (double)n *
+               (1.0 - (double)k / (double)(lags + 1)) / kept;
+    }
+    double middle[9], inv[9];
+    for (int b = 0; b < p; b++) {
+        const double *row = x + b * n;
+        for (Py_ssize_t t = 0; t < n; t++) {
+            Py_ssize_t lo = t - lags < 0 ? 0 : t - lags, hi = t + lags >= n ? n - 1 : t + lags;
+            double acc = 0.0;
+            for (Py_ssize_t j = lo; j <= hi; j++) acc += row[j] * r[t > j ? t - j : j - t];
+            smoothed[t] = acc;
+        }
+        for (int a = 0; a < p; a++) middle[a * p + b] = dot_unrolled(x + a * n, smoothed, n);
+    }
+    /* G⁻¹ = S⁻¹·N⁻¹·S⁻¹ with N the normalised Gram block (factored by the caller). */
+    for (int c = 0; c < p; c++) {
+        double col[3] = {0.0, 0.0, 0.0};
+        col[c] = 1.0;
+        lu_solve(g_norm_lu, p, piv, col);
+        for (int r2 = 0; r2 < p; r2++) inv[r2 * p + c] = col[r2] / (scale[r2] * scale[c]);
+    }
+    for (int i = 0; i < p; i++) {
+        double var = 0.0;
+        for (int a = 0; a < p; a++) {
+            for (int b = 0; b < p; b++) {
+                var += inv[i * p + a] * 0.5 * (middle[a * p + b] + middle[b * p + a]) * inv[b * p + i];
+            }
+        }
+        se[i] = var > 0.0 ? sqrt(var) : 0.0;
+    }
+}
+
+/* VAF, %, of `predicted` against `measured` (n samples), as rtsid.ident.vaf.vaf. */
+static double vaf_of(const double *measured, const double *predicted, Py_ssize_t n)
+{
+    double mm = 0.0, me = 0.0;
+    for (Py_ssize_t t = 0; t < n; t++) {
+        mm += measured[t];
+        me += measured[t] - predicted[t];
+    }
+    mm /= (double)n;
+    me /= (double)n;
+    double total = 0.0, left = 0.0;
+    for (Py_ssize_t t = 0; t < n; t++) {
+        double a = measured[t] - mm, e = measured[t] - predicted[t] - me;
+        total += a * a;
+        left += e * e;
+    }
+    if (!(total > 0.0)) return 0.0;
+    double v = 1.0 - left / total;
+    return (v > 0.0 ? v : 0.0) * 100.0;
+}
+
+static Py_ssize_t oe_fit(const double *regressors, const double *projected, const double *gram,
+                         const double *measured, Py_ssize_t n, int k, const double *held, int uncertainty,
+                         Py_ssize_t lags, double *params, double *se, double *model,
+                         double *vaf_out, double *scratch)
+{
+    const int p = 3 - k;
+    double norm[9], scale[3], rhs[3];
+    int piv[3];
+    for (int i = 0; i < p; i++) {
+        scale[i] = sqrt(gram[4 * (k + i) + (k + i)]);
+        if (!(scale[i] > 0.0)) return OE_INSEPARABLE;
+    }
+    for (int i = 0; i < p; i++) {
+        double b = gram[4 * (k + i) + 3];
+        for (int j = 0; j < k; j++) b -= gram[4 * (k + i) + j] * held[j];
+        rhs[i] = b / scale[i];
+        for (int j = 0; j < p; j++) {
+            norm[i * p + j] = gram[4 * (k + i) + (k + j)] / (scale[i] * scale[j]);
+        }
+    }
+    if (!(lu_factor(norm, p, piv) > 1e-12)) return OE_INSEPARABLE;
+    lu_solve(norm, p, piv, rhs);
+    for (int j = 0; j < k; j++) params[j] = held[j];
+    for (int i = 0; i < p; i++) params[k + i] = rhs[i] / scale[i];
+    for (int i = 0; i < 3; i++) se[i] = NAN;
+    for (Py_ssize_t t = 0; t < n; t++) {
+        model[t] = params[0] * regressors[t] + params[1] * regressors[n + t] +
+                   params[2] * regressors[2 * n + t];
+    }
+    *vaf_out = vaf_of(measured, model, n);
+    if (uncertainty) {
+        double *residual = scratch;
+        for (Py_ssize_t t = 0; t < n; t++) {
+            residual[t] = projected[3 * n + t] - (params[0] * projected[t] +
+                                                  params[1] * projected[n + t] +
+                                                  params[2] * projected[2 * n + t]);
+        }
+        oe_sandwich(projected + k * n, p, residual, n, norm, piv, scale, lags < 1 ? 1 : lags,
+                    1.0, se + k, residual + n);
+    }
+    return OE_OK;
+}
+
+/* Published VAF over the DFT bins 1 … kmax of the n = m − 8 stencil rows (samples 4 … m−5):
+ * measured y + torque trend + explained, model + K·position trend + explained, each centred
+ * (as assess.published_vaf with in_band). tw_cos/tw_sin: cos, sin of 2πj/n, j = 0 … n−1. */
+static double band_vaf(const double *y, const double *model, Py_ssize_t n, double torque_slope,
+                       double k_position_slope, const double *explained, Py_ssize_t kmax,
+                       const double *tw_cos, const double *tw_sin, double *scratch)
+{
+    double *meas = scratch, *err = scratch + n;
+    double mm = 0.0, me = 0.0;
+    for (Py_ssize_t t = 0; t < n; t++) {
+        double index = (double)(t + 4), extra = explained != NULL ? explained[t + 4] : 0.0;
+        double a = y[t + 4] + torque_slope * index + extra;
+        double b = model[t] + k_position_slope * index + extra;
+        meas[t] = a;
+        err[t] = a - b;
+        mm += a;
+        me += a - b;
+    }
+    mm /= (double)n;
+    me /= (double)n;
+    for (Py_ssize_t t = 0; t < n; t++) {
+        meas[t] -= mm;
+        err[t] -= me;
+    }
+    double total = 0.0, left = 0.0;
+    for (Py_ssize_t k = 1; k <= kmax; k++) {
+        double mr = 0.0, mi = 0.0, er = 0.0, ei = 0.0;
+        Py_ssize_t idx = 0;
+        for (Py_ssize_t t = 0; t < n; t++) {
+            mr += meas[t] * tw_cos[idx];
+            mi -= meas[t] * tw_sin[idx];
+            er += err[t] * tw_cos[idx];
+            ei -= err[t] * tw_sin[idx];
+            idx += k;
+            if (idx >= n) idx -= n;
+        }
+        total += mr * mr + mi * mi;
+        left += er * er + ei * ei;
+    }
+    if (!(total > 0.0)) return 0.0;
+    double v = 1.0 - left / total;
+    return (v > 0.0 ? v : 0.0) * 100.0;
+}
+
+/* Acquire `count` float64 buffers (those from `first_writable` on writable); on failure the
+ * ones acquired are released and -1 returned. */
+static int get_buffers(PyObject **objs, int count, int first_writable, const char **names,
+                       Py_buffer *b)
+{
+    for (int i = 0; i < count; i++) {
+        if (get_doubles(objs[i], &b[i], i >= first_writable, names[i]) < 0) {
+            for (int j = 0; j < i; j++) PyBuffer_Release(&b[j]);
+            return -1;
+        }
+    }
+    return 0;
+}
+
+static void release_buffers(Py_buffer *b, int count)
+{
+    for (int i = 0; i < count; i++) PyBuffer_Release(&b[i]);
+}
+
+static PyObject *py_oe_design(PyObject *self, PyObject *args)
+{
+    PyObject *objs[5];
+    double fs;
+    if (!PyArg_ParseTuple(args, "OOdOOO", &objs[0], &objs[1], &fs, &objs[2], &objs[3], &objs[4])) {
+        return NULL;
+    }
+    const char *names[5] = {"u", "y", "regressors", "projected", "gram"};
+    Py_buffer b[5];
+    if (get_buffers(objs, 5, 2, names, b) < 0) return NULL;
+    Py_ssize_t m = b[0].len / 8, n = m - 8;
+    PyObject *result = NULL;
+    if (b[1].len != b[0].len || n < 2 || b[2].len / 8 != 3 * n || b[3].len / 8 != 4 * n ||
+        b[4].len / 8 != 16) {
+        PyErr_SetString(PyExc_ValueError, "oe_design: inconsistent sizes");
+    } else {
+        result = PyLong_FromSsize_t(oe_design(b[0].buf, b[1].buf, m, fs, b[2].buf, b[3].buf,
+                                              b[4].buf));
+    }
+    release_buffers(b, 5);
+    return result;
+}
+
+static PyObject *py_oe_fit(PyObject *self, PyObject *args)
+{
+    PyObject *objs[8];
+    int k, uncertainty;
+    Py_ssize_t lags;
+    if (!PyArg_ParseTuple(args, "OOOOiOpnOOO", &objs[0], &objs[1], &objs[2], &objs[3], &k,
+                          &objs[4], &uncertainty, &lags, &objs[5], &objs[6], &objs[7])) {
+        return NULL;
+    }
+    const char *names[8] = {"regressors", "projected", "gram", "y", "held", "params", "se", "model"};
+    Py_buffer b[8];
+    if (get_buffers(objs, 8, 5, names, b) < 0) return NULL;
+    Py_ssize_t n = b[0].len / 24;
+    PyObject *result = NULL;
+    if (b[0].len != 24 * n || n < 2 || b[1].len / 8 != 4 * n || b[2].len / 8 != 16 ||
+        b[3].len / 8 != n + 8 || k < 0 || k > 2 || b[4].len / 8 < k || b[5].len / 8 != 3 ||
+        b[6].len / 8 != 3 || b[7].len / 8 != n) {
+        PyErr_SetString(PyExc_ValueError, "oe_fit: inconsistent sizes");
+    } else {
+        Py_ssize_t nl = lags < 1 ? 1 : (lags > n - 1 ? n - 1 : lags);
+        double *work = PyMem_Malloc(sizeof(double) * (2 * n + nl + 2));
+        if (work == NULL) {
+            PyErr_NoMemory();
+        } else {
+            double vaf = 0.0;
+            const double *y = b[3].buf;
+            Py_ssize_t status = oe_fit(b[0].buf, b[1].buf, b[2].buf, y + 4, n, k, b[4].buf,
+                                       uncertainty, lags, b[5].buf, b[6].buf, b[7].buf, &vaf,
+                                       work);
+            PyMem_Free(work);
+            result = Py_BuildValue("nd", status, vaf);
+        }
+    }
+    release_buffers(b, 8);
+    return result;
+}
+
+static PyObject *py_oe_vafs(PyObject *self, PyObject *args)
+{
+    PyObject *objs[8];
+    double fs, torque_slope, k_position_slope;
+    Py_ssize_t kmax;
+    if (!PyArg_ParseTuple(args, "OOOOOdOddnOO", &objs[0], &objs[1], &objs[2], &objs[3],
+                          &objs[4], &fs, &objs[5], &torque_slope, &k_position_slope, &kmax,
+                          &objs[6], &objs[7])) {
+        return NULL;
+    }
+    const char *names[8] = {"u", "y", "h", "params", "model", "explained", "tw_cos", "tw_sin"};
+    int has_explained = objs[5] != Py_None;
+    if (!has_explained) objs[5] = objs[1]; /* a stand-in buffer, not read */
+    Py_buffer b[8];
+    if (get_buffers(objs, 8, 8, names, b) < 0) return NULL;
+    Py_ssize_t m = b[0].len / 8, nh = b[2].len / 8, lag = (nh - 1) / 2, n = m - 8;
+    Py_ssize_t edge = lag > 4 ? lag : 4, inner = m - 2 * edge;
+    PyObject *result = NULL;
+    if (b[1].len != b[0].len || nh % 2 != 1 || lag < 1 || inner < 2 || n < 2 ||
+        b[3].len / 8 != 3 || b[4].len / 8 != n || b[5].len != b[0].len ||
+        b[6].len / 8 != n || b[7].len / 8 != n || kmax < 0 || kmax > n / 2) {
+        PyErr_SetString(PyExc_ValueError, "oe_vafs: inconsistent sizes");
+    } else {
+        double *work = PyMem_Malloc(sizeof(double) * (3 * inner + 2 * n));
+        if (work == NULL) {
+            PyErr_NoMemory();
+        } else {
+            double vafs[3];
+            predictions(b[0].buf, b[1].buf, m, b[2].buf, lag, fs, b[3].buf, edge, work,
+                        work + inner, work + 2 * inner);
+            three_vafs(work, work + inner, work + 2 * inner, inner, vafs);
+            double published = band_vaf(b[1].buf, b[4].buf, n, torque_slope, k_position_slope,
+                                        has_explained ? b[5].buf : NULL, kmax, b[6].buf,
+                                        b[7].buf, work);
+            PyMem_Free(work);
+            result = Py_BuildValue("ddd", published, vafs[1], vafs[2]);
+        }
+    }
+    release_buffers(b, 8);
+    return result;
+}
+
+/* ------------------------------------------------------------------ reflex pathway input
+ * reflex_rect_input: the rectified stretch velocity of a segment at the reflex model's rate,
+ * what rtsid.ident.reflex.ReflexPathway.torque feeds its IRF for the "rect" variant (its numpy
+ * code is the reference): the segment's line removed, the velocity by the 9-point stencil
+ * (numpy.gradient's second-order formulas at the four samples of each end), max(v, 0), the
+ * zero-phase Chebyshev decimator (scipy's sosfiltfilt: odd extension of `edge` samples, steady
+ * state initial conditions, direct form II transposed sections) and every factor-th sample
+ * kept, its mean removed. O(n·sections).
+ */
+/* sos_run for the decimator's four sections, the states in registers (the same operations
+ * in the same order: the same numbers). */
+static void sos_run4(const double *c, const double *zi, double *x, Py_ssize_t n, int backwards)
+{
+    const double first = backwards ? x[n - 1] : x[0];
+    double s00 = zi[0] * first, s01 = zi[1] * first, s10 = zi[2] * first, s11 = zi[3] * first;
+    double s20 = zi[4] * first, s21 = zi[5] * first, s30 = zi[6] * first, s31 = zi[7] * first;
+    const Py_ssize_t step = backwards ? -1 : 1;
+    double *p = backwards ? x + n - 1 : x;
+    for (Py_ssize_t i = 0; i < n; i++, p += step) {
+        double cur = *p, out;
+        out = c[0] * cur + s00;
+        s00 = c[1] * cur - c[4] * out + s01;
+        s01 = c[2] * cur - c[5] * out;
+        cur = out;
+        out = c[6] * cur + s10;
+        s10 = c[7] * cur - c[10] * out + s11;
+        s11 = c[8] * cur - c[11] * out;
+        cur = out;
+        out = c[12] * cur + s20;
+        s20 = c[13] * cur - c[16] * out + s21;
+        s21 = c[14] * cur - c[17] * out;
+        cur = out;
+        out = c[18] * cur + s30;
+        s30 = c[19] * cur - c[22] * out + s31;
+        s31 = c[20] * cur - c[23] * out;
+        *p = out;
+    }
+}
+
+static void sos_run(const double *sos, const double *zi, Py_ssize_t ns, double *x, Py_ssize_t n,
+                    int backwards)
+{
+    if (ns == 4) {
+        sos_run4(sos, zi, x, n, backwards);
+        return;
+    }
+    double state[2 * 16];
+    const double first = backwards ? x[n - 1] : x[0];
+    for (Py_ssize_t s = 0; s < ns; s++) {
+        state[2 * s] = zi[2 * s] * first;
+        state[2 * s + 1] = zi[2 * s + 1] * first;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        Py_ssize_t at = backwards ? n - 1 - i : i;
+        double cur = x[at];
+        for (Py_ssize_t s = 0; s < ns; s++) {
+            const double *c = sos + 6 * s;
+            double out = c[0] * cur + state[2 * s];
+            state[2 * s] = c[1] * cur - c[4] * out + state[2 * s + 1];
+            state[2 * s + 1] = c[2] * cur - c[5] * out;
+            cur = out;
+        }
+        x[at] = cur;
+    }
+}
+
+static void reflex_rect_input(const double *pos, Py_ssize_t n, double fs, const double *sos,
+                              const double *zi, Py_ssize_t ns, Py_ssize_t edge,
+                              Py_ssize_t factor, double *out, Py_ssize_t m, double *work)
+{
+    double *x = work, *ext = work + n;
+    /* detrend(position, "linear"): x - (mean + slope·t), t centred */
+    const double centre = (double)(n - 1) / 2.0;
+    double sum = 0.0, tx = 0.0, tt = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double t = (double)i - centre;
+        sum += pos[i];
+        tx += t * pos[i];
+        tt += t * t;
+    }
+    const double mean = sum / (double)n, slope = tx / (tt > 1e-300 ? tt : 1e-300);
+    for (Py_ssize_t i = 0; i < n; i++) x[i] = pos[i] - (mean + slope * ((double)i - centre));
+    /* velocity (into ext + edge), rectified */
+    double *v = ext + edge;
+    const double dt = 1.0 / fs;
+    v[0] = (-1.5 / dt) * x[0] + (2. / dt) * x[1] + (-0.5 / dt) * x[2];
+    v[n - 1] = (0.5 / dt) * x[n - 3] + (-2. / dt) * x[n - 2] + (1.5 / dt) * x[n - 1];
+    for (Py_ssize_t i = 1; i < 4; i++) {
+        v[i] = (x[i + 1] - x[i - 1]) / (2. * dt);
+        v[n - 1 - i] = (x[n - i] - x[n - 2 - i]) / (2. * dt);
+    }
+    for (Py_ssize_t i = 4; i < n - 4; i++) {
+        double acc = 0.0;
+        for (int s = 0; s < 9; s++) acc += x[i - 4 + s] * STENCIL_D1[s];
+        v[i] = acc * fs;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) v[i] = (v[i] > 0.0 || v[i] != v[i]) ? v[i] : 0.0; /* NaN stays, as np.maximum */
+    /* scipy's odd extension, then forwards and backwards */
+    for (Py_ssize_t j = 1; j <= edge; j++) {
+        ext[edge - j] = 2 * v[0] - v[j];
+        ext[edge + n - 1 + j] = 2 * v[n - 1] - v[n - 1 - j];
+    }
+    const Py_ssize_t total = n + 2 * edge;
+    sos_run(sos, zi, ns, ext, total, 0);
+    sos_run(sos, zi, ns, ext, total, 1);
+    double acc = 0.0;
+    for (Py_ssize_t k = 0; k < m; k++) {
+        out[k] = v[k * factor];
+        acc += out[k];
+    }
+    acc /= (double)m;
+    for (Py_ssize_t k = 0; k < m; k++) out[k] -= acc;
+}
+
+static PyObject *py_reflex_rect_input(PyObject *self, PyObject *args)
+{
+    PyObject *objs[4];
+    double fs;
+    Py_ssize_t edge, factor;
+    if (!PyArg_ParseTuple(args, "OdOOnnO", &objs[0], &fs, &objs[1], &objs[2], &edge, &factor,
+                          &objs[3])) {
+        return NULL;
+    }
+    const char *names[4] = {"position", "sos", "zi", "out"};
+    Py_buffer b[4];
+    if (get_buffers(objs, 4, 3, names, b) < 0) return NULL;
+    Py_ssize_t n = b[0].len / 8, ns = b[1].len / 48, m = b[3].len / 8;
+    PyObject *result = NULL;
+    if (ns < 1 || ns > 16 || b[1].len != 48 * ns || b[2].len != 16 * ns || factor < 1 ||
+        edge < 1 || n <= edge || n < 9 || m != (n + factor - 1) / factor) {
+        PyErr_SetString(PyExc_ValueError, "reflex_rect_input: inconsistent sizes");
+    } else {
+        double *work = PyMem_Malloc(sizeof(double) * (2 * n + 2 * edge));
+        if (work == NULL) {
+            PyErr_NoMemory();
+        } else {
+            reflex_rect_input(b[0].buf, n, fs, b[1].buf, b[2].buf, ns, edge, factor, b[3].buf,
+                              m, work);
+            PyMem_Free(work);
+            Py_INCREF(Py_None);
+            result = Py_None;
+        }
+    }
+    release_buffers(b, 4);
+    return result;
+}
+
 static PyObject *py_window_fit(PyObject *self, PyObject *args)
 {
     PyObject *objs[10];
@@ -622,6 +1145,17 @@ static PyMethodDef methods[] = {
     {"window_fit", py_window_fit, METH_VARARGS,
      "window_fit(u, y, h, phi, stacked, f, hann, fs, power, uncertainty, params, sens, out) -> "
      "status: linear fit, predictions, VAFs and standard errors of one window."},
+    {"oe_design", py_oe_design, METH_VARARGS,
+     "oe_design(u, y, fs, regressors, projected, gram) -> status: the output-error design."},
+    {"oe_fit", py_oe_fit, METH_VARARGS,
+     "oe_fit(regressors, projected, gram, y, k, held, uncertainty, lags, params, se, model) -> "
+     "(status, vaf): the output-error fit with the first k parameters held."},
+    {"oe_vafs", py_oe_vafs, METH_VARARGS,
+     "oe_vafs(u, y, h, params, model, fs, explained, torque_slope, k_position_slope, kmax, "
+     "tw_cos, tw_sin) -> (vaf, vaf_irf, vaf_fit) of an output-error fit."},
+    {"reflex_rect_input", py_reflex_rect_input, METH_VARARGS,
+     "reflex_rect_input(position, fs, sos, zi, edge, factor, out): the rect reflex pathway's "
+     "input at the model's rate (detrend, velocity, max(v, 0), zero-phase decimation)."},
     {"xcorr", py_xcorr, METH_VARARGS,
      "xcorr(u, y, first, last, norm, c): c[k-first] = sum_t u[t] y[t+k] / norm."},
     {NULL, NULL, 0, NULL},
@@ -640,7 +1174,10 @@ PyMODINIT_FUNC PyInit__eureka(void)
         PyModule_AddIntConstant(m, "FIT_FIRST_SINGULAR", FIT_FIRST_SINGULAR) < 0 ||
         PyModule_AddIntConstant(m, "FIT_FINAL_SINGULAR", FIT_FINAL_SINGULAR) < 0 ||
         PyModule_AddIntConstant(m, "FIT_NOT_PD", FIT_NOT_PD) < 0 ||
-        PyModule_AddIntConstant(m, "FIT_ZERO_RESPONSE", FIT_ZERO_RESPONSE) < 0) {
+        PyModule_AddIntConstant(m, "FIT_ZERO_RESPONSE", FIT_ZERO_RESPONSE) < 0 ||
+        PyModule_AddIntConstant(m, "OE_OK", OE_OK) < 0 ||
+        PyModule_AddIntConstant(m, "OE_ZERO_TORQUE", OE_ZERO_TORQUE) < 0 ||
+        PyModule_AddIntConstant(m, "OE_INSEPARABLE", OE_INSEPARABLE) < 0) {
         Py_DECREF(m);
         return NULL;
     }

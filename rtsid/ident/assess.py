@@ -15,7 +15,8 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -27,6 +28,7 @@ from rtsid.ident.fit import NOT_HELD, Held
 from rtsid.ident.front import ScoredBand
 from rtsid.ident.gaps import WindowGaps
 from rtsid.ident.irf import IRF
+from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.options import EstimatorOptions
 from rtsid.ident.second_order import OutputErrorFit
 from rtsid.ident.vaf import vaf
@@ -45,6 +47,8 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
+
+_eureka = compiled_kernel()
 
 
 @dataclass(frozen=True)
@@ -184,6 +188,27 @@ def assess(
     torque it was fitted to); ``vaf_irf`` and ``vaf_fit`` compare with the IRF's prediction.
     The standard errors are the fit's (NaN for held values, which are marked as held).
     """
+    if _eureka is not None and gaps is None and score is not None:
+        vafs = _compiled_vafs(irf, u, y, fit, score)
+    else:
+        vafs = _numpy_vafs(irf, u, y, fit, gaps, score)
+    se_i, se_b, se_k = fit.se.tolist()
+    lost = 0 if gaps is None else gaps.lost
+    held_flags = (held.inertia is not None, held.inertia is not None and held.damping is not None)
+    se = (se_i, se_b, se_k)
+    return assemble(irf, fit.params, se, vafs, "output_error", options, lost, held_flags)
+
+
+def _numpy_vafs(
+    irf: IRF,
+    u: FloatArray,
+    y: FloatArray,
+    fit: OutputErrorFit,
+    gaps: WindowGaps | None,
+    score: ScoredBand | None,
+) -> tuple[float, float, float]:
+    """``(vaf, vaf_irf, vaf_fit)`` of an output-error fit: the reference of
+    :func:`_compiled_vafs`, and the path of windows with lost samples."""
     _, vaf_irf, vaf_fit = three_vafs(predict_torque(irf, u, y, fit.params, gaps))
     if score is None:
         published = vaf(fit.measured, fit.model)
@@ -194,13 +219,48 @@ def assess(
         published = published_vaf(
             fit.measured, fit.model, stiffness, score, irf.fs_hz, index, in_band=rows is None
         )
-    vafs = (published, vaf_irf, vaf_fit)
-    se_i, se_b, se_k = fit.se.tolist()
-    lost = 0 if gaps is None else gaps.lost
-    estimate = assemble(irf, fit.params, (se_i, se_b, se_k), vafs, "output_error", options, lost)
-    if held.inertia is None:
-        return estimate
-    return replace(estimate, I_held=True, B_held=held.damping is not None)
+    return published, vaf_irf, vaf_fit
+
+
+def _compiled_vafs(
+    irf: IRF, u: FloatArray, y: FloatArray, fit: OutputErrorFit, score: ScoredBand
+) -> tuple[float, float, float]:
+    """:func:`_numpy_vafs` of a window without lost samples in one call into the compiled
+    kernel (``oe_vafs``): the same predictions, VAFs and in-band DFT sums."""
+    n = fit.model.size
+    cos, sin = _twiddles(n)
+    published, vaf_irf, vaf_fit = _eureka.oe_vafs(
+        np.ascontiguousarray(u),
+        np.ascontiguousarray(y),
+        np.ascontiguousarray(irf.h),
+        np.ascontiguousarray(fit.params),
+        fit.model,
+        irf.fs_hz,
+        None if score.explained is None else np.ascontiguousarray(score.explained),
+        score.torque_slope,
+        float(fit.params[2]) * score.position_slope,
+        _band_bins(n, irf.fs_hz, score.band_hz),
+        cos,
+        sin,
+    )
+    return round(published, 12), round(vaf_irf, 12), round(vaf_fit, 12)
+
+
+@lru_cache(maxsize=16)
+def _band_bins(n: int, fs_hz: float, band_hz: float) -> int:
+    """DFT bins 1 … k of ``n`` samples at ``fs_hz`` in ``(0, band_hz]``: k (as _band_vaf)."""
+    bins = np.fft.rfftfreq(n, 1.0 / fs_hz)
+    return int(np.count_nonzero((bins > 0) & (bins <= band_hz)))
+
+
+@lru_cache(maxsize=16)
+def _twiddles(n: int) -> tuple[FloatArray, FloatArray]:
+    """``cos`` and ``sin`` of ``2πj/n``, ``j = 0 … n−1`` (the compiled DFT's table)."""
+    angle = 2.0 * np.pi * np.arange(n) / n
+    cos, sin = np.cos(angle), np.sin(angle)
+    cos.setflags(write=False)
+    sin.setflags(write=False)
+    return cos, sin
 
 
 def fit_rows(gaps: WindowGaps | None) -> NDArray[np.intp] | None:
@@ -267,7 +327,9 @@ def assemble(
     method: str,
     options: EstimatorOptions,
     lost: int = 0,
+    held: tuple[bool, bool] = (False, False),
 ) -> WindowEstimate:
+    """The :class:`WindowEstimate` of fitted ``params``; ``held``: whether I and B were held."""
     inertia, damping, stiffness = (float(v) for v in params)
     vaf_model, vaf_irf, vaf_fit = vafs
     return WindowEstimate(
@@ -286,6 +348,8 @@ def assemble(
         flags=window_flags((inertia, damping, stiffness), se, vafs, options),
         method=method,
         lost_samples=lost,
+        I_held=held[0],
+        B_held=held[1],
     )
 
 

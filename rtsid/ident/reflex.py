@@ -42,7 +42,7 @@ from scipy import optimize, signal
 from rtsid.errors import InputDataError
 from rtsid.ident.correlation import auto_correlation, cross_correlation, detrend
 from rtsid.ident.filters import derivatives
-from rtsid.ident.levinson import eureka
+from rtsid.ident.levinson import compiled_kernel, eureka
 
 __all__ = [
     "REFLEX_VARIANTS",
@@ -60,6 +60,8 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
+
+_eureka = compiled_kernel()
 
 REFLEX_VARIANTS = ("rect", "hammerstein")
 POLYNOMIAL_DEGREE = 3
@@ -399,12 +401,7 @@ class ReflexPathway:
         prediction passes that much history before the samples it needs.
         """
         pos = np.asarray(position, dtype=np.float64)
-        factor = max(1, round(fs_hz / self.fs_hz))
-        if abs(fs_hz / factor - self.fs_hz) > 1e-6 * self.fs_hz:
-            raise InputDataError(
-                f"a reflex model at {self.fs_hz:g} Hz cannot predict data at {fs_hz:g} Hz "
-                "(not a whole multiple)"
-            )
+        factor = self._factor(fs_hz)
         pathway_input = _at_model_rate(self.nonlinearity(stretch_velocity(pos, fs_hz)), factor)
         low = convolve_causal(pathway_input, self.irf, self.fs_hz)
         if factor == 1:
@@ -412,6 +409,53 @@ class ReflexPathway:
         # back to the data's rate by linear interpolation between the model's samples (the
         # reflex torque is smooth at 100 Hz); after the last one it is held
         return np.interp(np.arange(pos.size), np.arange(low.size) * factor, low)
+
+    def torque_tail(self, position: ArrayLike, fs_hz: float, n_last: int) -> FloatArray:
+        """``torque(position, fs_hz)[-n_last:]`` — the same numbers, computed for the tail.
+
+        The pathway's input is formed over the whole segment (its detrending and zero-phase
+        decimation depend on all of it), by the compiled kernel for ``"rect"`` when it was
+        built (``reflex_rect_input``, tested equal to :meth:`torque`); only the model
+        samples the tail interpolates are convolved with the IRF, and only the tail is
+        interpolated.
+        """
+        pos = np.ascontiguousarray(position, dtype=np.float64)
+        factor = self._factor(fs_hz)
+        n_last = min(n_last, pos.size)
+        if n_last <= 0:
+            return np.empty(0)
+        if factor == 1 or pos.size < 9:
+            return self.torque(pos, fs_hz)[pos.size - n_last :]
+        decimator = _decimator(factor)
+        if _eureka is not None and self.variant == "rect" and pos.size > decimator.edge:
+            pathway_input = np.empty(-(-pos.size // factor))
+            _eureka.reflex_rect_input(
+                pos, fs_hz, decimator.sos, decimator.zi, decimator.edge, factor, pathway_input
+            )
+        else:
+            velocity = stretch_velocity(pos, fs_hz)
+            pathway_input = _at_model_rate(self.nonlinearity(velocity), factor)
+        first = (pos.size - n_last) // factor  # the model sample at or before the tail's first
+        low = _causal_outputs(pathway_input, self.irf / self.fs_hz, first)
+        times = np.arange(first, first + low.size) * factor
+        return np.interp(np.arange(pos.size - n_last, pos.size), times, low)
+
+    def _factor(self, fs_hz: float) -> int:
+        factor = max(1, round(fs_hz / self.fs_hz))
+        if abs(fs_hz / factor - self.fs_hz) > 1e-6 * self.fs_hz:
+            raise InputDataError(
+                f"a reflex model at {self.fs_hz:g} Hz cannot predict data at {fs_hz:g} Hz "
+                "(not a whole multiple)"
+            )
+        return factor
+
+
+def _causal_outputs(r: FloatArray, g: FloatArray, first: int) -> FloatArray:
+    """``np.convolve(r, g)[first : r.size]``: the causal convolution's outputs from ``first``
+    on, each over the IRF's span only (what :func:`convolve_causal` gives there)."""
+    span = g.size
+    start = max(0, first - span + 1)
+    return np.asarray(np.convolve(r[start:], g)[first - start : r.size - start], dtype=np.float64)
 
 
 class ReflexInputs:

@@ -421,4 +421,4 @@ def predict_reflex_torque(
         The history has more lost samples than the slow lane bridges.
     """
     pos = bridged(np.asarray(position, dtype=np.float64), valid, fs_hz, settings)
-    return pathway.torque(pos, fs_hz)[-n_last:]
+    return pathway.torque_tail(pos, fs_hz, n_last)

@@ -18,6 +18,7 @@ and every estimate after it — exactly.
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from collections.abc import Iterator
@@ -60,20 +61,46 @@ __all__ = [
 
 class RunningMedian:
     """Median of the last ``horizon`` values, once at least ``min_count`` were added (plain
-    data updated in window order: a replay reproduces it)."""
+    data updated in window order: a replay reproduces it).
+
+    The values are also kept sorted (insert and remove by bisection), so the median is read
+    in O(1) rather than by ``np.median`` over the whole horizon each window; it is the same
+    number (the middle value, or the mean of the two middle values). A NaN, which
+    ``np.median`` propagates, makes the median NaN while it is in the horizon.
+    """
 
     def __init__(self, horizon: int, min_count: int = 5) -> None:
         self._values: deque[float] = deque(maxlen=max(1, horizon))
+        self._sorted: list[float] = []
+        self._nans = 0
         self.min_count = max(1, min(min_count, horizon))
 
     def add(self, value: float) -> None:
+        value = float(value)
+        if len(self._values) == self._values.maxlen:
+            self._forget(self._values[0])
         self._values.append(value)
+        if math.isnan(value):
+            self._nans += 1
+        else:
+            bisect.insort(self._sorted, value)
+
+    def _forget(self, value: float) -> None:
+        if math.isnan(value):
+            self._nans -= 1
+        else:
+            del self._sorted[bisect.bisect_left(self._sorted, value)]
 
     def median(self) -> float | None:
         """None before ``min_count`` values."""
         if len(self._values) < self.min_count:
             return None
-        return float(np.median(self._values))
+        if self._nans:
+            return math.nan
+        values, half = self._sorted, len(self._sorted) // 2
+        if len(values) % 2:
+            return values[half]
+        return (values[half - 1] + values[half]) / 2.0
 
 
 class HeldParameters:

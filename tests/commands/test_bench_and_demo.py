@@ -21,8 +21,17 @@ def test_window_benchmark_lists_every_stage(capsys):
         "fit I, B, K",
         "standard errors",
         "baseline: source method",
+        "full path (reflex + estimate + tracker)",  # the stream's per-window path
+        "numpy / compiled",
+        "Floors: median",
+        "10 kHz robot",  # how the cost grows
+        "% of a core",
     ):
         assert stage in out
+    scaling = [
+        line.split("|")[2].strip() for line in out.splitlines() if "|       window |" in line
+    ]
+    assert scaling == ["0.1 s", "0.3 s", "1 s", "2 s"]
 
 
 def test_unknown_benchmark_option_is_refused(capsys):
@@ -60,7 +69,11 @@ def test_replay_benchmark_compares_replay_with_the_bare_estimator(capsys):
     out = capsys.readouterr().out
     rows = [line for line in out.splitlines() if line.startswith("|") and "windows" not in line]
     windows = [int(r.split("|")[2]) for r in rows if r.split("|")[2].strip().isdigit()]
-    assert len(windows) == 2 and windows[0] == windows[1] == 286  # 6 s, 300 ms every 20 ms
+    # replay, the same on the numpy path, the bare estimator: 6 s, 300 ms every 20 ms
+    assert windows == [286, 286, 286]
+    assert "numpy path" in out and "Floor (issue 22)" in out
+    jobs = [r.split("|")[1].strip() for r in rows if r.split("|")[1].strip() in ("1", "2")]
+    assert jobs == ["1", "2"] and "--jobs 2 ≥ 1.7× --jobs 1" in out
 
 
 def test_bench_markers_quick_keeps_every_acknowledged_marker(capsys):

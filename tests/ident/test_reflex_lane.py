@@ -106,3 +106,20 @@ def test_the_prediction_needs_only_the_window_and_its_history(pathway):
 
 def test_warm_up_runs_a_fit():
     assert warm_up(2500.0, SETTINGS)
+
+
+@pytest.mark.parametrize("n_last", [1, 750, 3000])
+def test_the_tail_prediction_equals_the_whole_segments_tail(pathway, n_last, monkeypatch):
+    from rtsid.ident import reflex
+
+    theta, _ = joint_with_reflex(seconds=4.0, seed=11)
+    for end in (4100, 7000, theta.size):
+        segment = theta[end - 4025 : end]
+        want = pathway.torque(segment, FS_SIM)[-n_last:]
+        got = pathway.torque_tail(segment, FS_SIM, n_last)  # compiled, when built
+        scale = np.abs(want).max()
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * scale)
+        with monkeypatch.context() as m:
+            m.setattr(reflex, "_eureka", None)
+            numpy_tail = pathway.torque_tail(segment, FS_SIM, n_last)
+        np.testing.assert_allclose(numpy_tail, want, rtol=1e-12, atol=1e-12 * scale)

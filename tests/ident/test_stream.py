@@ -145,3 +145,24 @@ def test_on_the_human_recording_the_paused_perturbation_is_withheld(reklab_path)
     paused = [r.t_end_s for r in results if r.reason == "no_excitation"]
     assert sum(9.9 < t < 10.15 for t in paused) >= 8 and len(paused) <= 12, paused
     assert sum(r.estimate is None for r in results) <= 12
+
+
+@pytest.mark.parametrize("horizon", [1, 2, 5, 50, 501])
+def test_running_median_equals_numpy_median_of_the_horizon(horizon):
+    from collections import deque
+
+    from rtsid.ident.stream import RunningMedian
+
+    rng = np.random.default_rng(horizon)
+    values = rng.standard_normal(2000)
+    values[rng.integers(0, values.size, 40)] = 1.5  # ties
+    values[rng.integers(0, values.size, 3)] = np.nan
+    running, horizon_values = RunningMedian(horizon, min_count=3), deque(maxlen=horizon)
+    for value in values:
+        running.add(value)
+        horizon_values.append(value)
+        got = running.median()
+        if len(horizon_values) < running.min_count:
+            assert got is None
+        else:
+            np.testing.assert_equal(got, float(np.median(horizon_values)))

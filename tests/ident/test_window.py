@@ -272,3 +272,52 @@ def test_every_status_of_the_compiled_fit_names_its_problem():
             legacy._raise_for_fit_status(status)
     with pytest.raises(NotPositiveDefiniteError):
         legacy._raise_for_fit_status(kernel.FIT_NOT_PD)
+
+
+@pytest.mark.parametrize(
+    "held",
+    [{}, {"inertia": 0.015}, {"inertia": 0.015, "damping": 0.8}],
+)
+@pytest.mark.parametrize("uncertainty", [True, False])
+def test_compiled_output_error_fit_matches_the_numpy_reference(held, uncertainty, monkeypatch):
+    from rtsid.ident import second_order, window
+
+    if second_order._eureka is None:
+        pytest.skip("compiled kernel not built")
+    options = EstimatorOptions()
+    theta, tau = simulated_window(25, noise=10.0)
+    plan = resolve_plan(theta, FS, options)
+    u, y, irf = window.front_end(theta, tau, FS, options, plan)
+    compiled = second_order.OutputErrorDesign(u, y, irf.fs_hz)
+    monkeypatch.setattr(second_order, "_eureka", None)
+    reference = second_order.OutputErrorDesign(u, y, irf.fs_hz)
+    np.testing.assert_allclose(compiled.gram, reference.gram, rtol=1e-9)
+    args = {"uncertainty": uncertainty, "noise_lags": 25, **held}
+    got, want = compiled.fit(**args), reference.fit(**args)
+    np.testing.assert_allclose(got.params, want.params, rtol=1e-9)
+    np.testing.assert_allclose(got.se, want.se, rtol=1e-9)  # NaN where held / not computed
+    np.testing.assert_allclose(
+        got.model, want.model, rtol=1e-9, atol=1e-9 * np.abs(want.model).max()
+    )
+    assert np.isnan(got.se[0]) == (bool(held) or not uncertainty)
+
+
+@pytest.mark.parametrize("explained", [False, True])
+def test_compiled_output_error_assessment_matches_the_numpy_reference(explained, monkeypatch):
+    from rtsid.ident import assess, second_order, window
+
+    if assess._eureka is None:
+        pytest.skip("compiled kernel not built")
+    options = EstimatorOptions()
+    theta, tau = simulated_window(26, noise=10.0)
+    reflex = 0.3 * np.sin(np.arange(theta.size) / 40.0) if explained else None
+    plan = resolve_plan(theta, FS, options)
+    analysed = window.analyse_window(theta, tau, FS, options, plan, explained=reflex)
+    irf, u, y = analysed.signals
+    fit = second_order.OutputErrorDesign(u, y, irf.fs_hz).fit(uncertainty=True, noise_lags=25)
+    compiled = assess.assess(irf, u, y, fit, options, score=analysed.score)
+    monkeypatch.setattr(assess, "_eureka", None)
+    reference = assess.assess(irf, u, y, fit, options, score=analysed.score)
+    for name in ("vaf", "vaf_irf", "vaf_fit"):
+        np.testing.assert_allclose(getattr(compiled, name), getattr(reference, name), rtol=1e-9)
+    assert compiled.flags == reference.flags
