@@ -47,7 +47,8 @@ def reflex_messages(path):
 @pytest.mark.slow  # a real-time daemon run of seconds
 @pytest.mark.parametrize("mode", ["process", "thread"])
 def test_the_slow_lane_fits_the_plants_reflex_and_replay_reproduces_live(tmp_path, free_port, mode):
-    summary = Daemon(lane_config(tmp_path, free_port, mode)).run(duration_s=7.0)
+    # 10 s: on a loaded 2-core machine 7 s sometimes held fewer live fits than checked below
+    summary = Daemon(lane_config(tmp_path, free_port, mode)).run(duration_s=10.0)
     assert summary.clean_shutdown and summary.failure is None
     recording = next(tmp_path.glob("*.mcap"))
     fits = reflex_messages(recording)
