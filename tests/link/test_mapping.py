@@ -18,6 +18,7 @@ from rtsid.errors import ConfigError
 from rtsid.link.acquisition import Acquisition, explain_link_state, index_from_time
 from rtsid.link.config import (
     FaultConfig,
+    LinkConfig,
     PlantConfig,
     ProtocolConfig,
     link_configs_from_mapping,
@@ -183,10 +184,16 @@ def test_the_fast_builtin_decoder_equals_the_cantools_mapping(pos, trq, ctr, sta
 
 
 def run_twoframe(
-    channel: str, cfg: PlantConfig, *, fs_hz: float = 2000.0, record: int = 0
+    channel: str,
+    cfg: PlantConfig,
+    *,
+    fs_hz: float = 2000.0,
+    record: int = 0,
+    link: LinkConfig | None = None,
 ) -> tuple[Acquisition, VirtualPlant, RingBuffer]:
-    """Stream ``cfg.max_samples`` of the second protocol through a virtual bus."""
-    link, _ = load_link_configs(TWOFRAME_TOML)
+    """Stream ``cfg.max_samples`` of the second protocol (or of ``link``'s mapping of it)
+    through a virtual bus."""
+    link = link or load_link_configs(TWOFRAME_TOML)[0]
     wire = link_protocol(link)
     ring = RingBuffer(50_000)
     acq = Acquisition(
@@ -403,23 +410,7 @@ def test_two_frames_paired_by_a_counter_count_injected_faults_exactly(channel, t
     assert wire.counter_modulo == 1 << 16 and wire.frames_per_sample == 2
     faults = FaultConfig(drop_rate=0.01, duplicate_rate=0.01, reorder_rate=0.01, seed=9)
     cfg = twoframe_plant(faults=faults, marker_every_s=0.0)
-    ring = RingBuffer(50_000)
-    acq = Acquisition(
-        lambda: can.Bus(interface="virtual", channel=channel, rx_queue_size=60_000),
-        ring,
-        fs_hz=2000.0,
-        protocol=wire,
-    )
-    plant_bus = can.Bus(interface="virtual", channel=channel)
-    try:
-        with acq, VirtualPlant(cfg, plant_bus, wire=wire, record_samples=12_000) as plant:
-            assert plant.done.wait(WAIT_S) and plant.error is None
-            sent = plant.counters().frames_sent
-            deadline = time.monotonic() + WAIT_S
-            while acq.counters().frames < sent and time.monotonic() < deadline:
-                time.sleep(0.01)
-    finally:
-        plant_bus.shutdown()
+    acq, plant, ring = run_twoframe(channel, cfg, record=12_000, link=link)
     c, p = acq.counters(), plant.counters()
     snap = ring.read_since(0, 50_000)
     first, last = int(snap.sample_index[0]), int(snap.sample_index[-1])
