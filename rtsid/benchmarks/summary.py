@@ -45,55 +45,58 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def make_study(folder: Path, recordings: int, seconds: float) -> list[Path]:
     """``recordings`` simulated recordings of ``seconds`` each under ``folder``: subjects of
     four recordings, alternately 'relaxed' (K 120 + 10·subject) and 'active' (K 200 + …)."""
+    return [f for i in range(recordings) for f in make_recording(folder, i, seconds)]
+
+
+def make_recording(folder: Path, i: int, seconds: float) -> list[Path]:
+    """Recording ``i`` of :func:`make_study` (its own seed, subject and condition), in
+    ``folder/<i>``; its files."""
     from rtsid import Identifier
     from rtsid.ident.excitation import filtered_noise
     from rtsid.io.mcap_log import McapConfig, McapLogger
     from rtsid.io.session import SessionConfig
     from rtsid.sim.joint import JointParameters, simulate_impedance
 
-    files: list[Path] = []
     n = round(seconds * FS_HZ)
     batch = round(0.1 * FS_HZ)
-    for i in range(recordings):
-        subject, condition = f"S{i // 4 + 1:02d}", ("relaxed", "active")[i % 2]
-        stiffness = (120.0 if condition == "relaxed" else 200.0) + 10.0 * (i // 4)
-        position = filtered_noise(n, FS_HZ, 30.0, peak=0.02, seed=i)
-        torque = simulate_impedance(
-            position, FS_HZ, JointParameters(0.015, 0.8, stiffness), noise_percent=5.0, seed=i
-        )
-        names = {"subject": subject, "session": "1", "condition": condition}
-        started = {"robot": "robot", "joint": "ankle", "t_s": 0.0, "sample_index": 0}
-        config = McapConfig(directory=str(folder / f"{i:03d}"), queue_size=1_000_000)
-        identifier = Identifier(FS_HZ, hop_s=0.02)
-        with McapLogger(
-            config,
-            robot="robot",
-            joint="ankle",
-            fs_hz=FS_HZ,
-            session=SessionConfig(**names),
-            session_message={**started, **names, "host_time_ns": time.time_ns()},
-        ) as logger:
-            fits = 0
-            for first in range(0, n, batch):
-                p, t = position[first : first + batch], torque[first : first + batch]
-                logger.log_samples(first, p, t)
-                for message in identifier.push(p, t):
-                    logger.log_estimate(message.as_dict())
-                for fit in identifier.reflex[fits:]:
-                    logger.log_reflex(fit)
-                fits = len(identifier.reflex)
-                if first % (5 * batch) == 0:
-                    logger.log_status(
-                        {
-                            "robot": "robot",
-                            "joint": "ankle",
-                            "host_time_ns": time.time_ns(),
-                            "uptime_s": first / FS_HZ,
-                            "acquisition": {"lost_samples": 0},
-                        }
-                    )
-        files += logger.files
-    return files
+    subject, condition = f"S{i // 4 + 1:02d}", ("relaxed", "active")[i % 2]
+    stiffness = (120.0 if condition == "relaxed" else 200.0) + 10.0 * (i // 4)
+    position = filtered_noise(n, FS_HZ, 30.0, peak=0.02, seed=i)
+    torque = simulate_impedance(
+        position, FS_HZ, JointParameters(0.015, 0.8, stiffness), noise_percent=5.0, seed=i
+    )
+    names = {"subject": subject, "session": "1", "condition": condition}
+    started = {"robot": "robot", "joint": "ankle", "t_s": 0.0, "sample_index": 0}
+    config = McapConfig(directory=str(folder / f"{i:03d}"), queue_size=1_000_000)
+    identifier = Identifier(FS_HZ, hop_s=0.02)
+    with McapLogger(
+        config,
+        robot="robot",
+        joint="ankle",
+        fs_hz=FS_HZ,
+        session=SessionConfig(**names),
+        session_message={**started, **names, "host_time_ns": time.time_ns()},
+    ) as logger:
+        fits = 0
+        for first in range(0, n, batch):
+            p, t = position[first : first + batch], torque[first : first + batch]
+            logger.log_samples(first, p, t)
+            for message in identifier.push(p, t):
+                logger.log_estimate(message.as_dict())
+            for fit in identifier.reflex[fits:]:
+                logger.log_reflex(fit)
+            fits = len(identifier.reflex)
+            if first % (5 * batch) == 0:
+                logger.log_status(
+                    {
+                        "robot": "robot",
+                        "joint": "ankle",
+                        "host_time_ns": time.time_ns(),
+                        "uptime_s": first / FS_HZ,
+                        "acquisition": {"lost_samples": 0},
+                    }
+                )
+    return list(logger.files)
 
 
 def _timed(argv: list[str]) -> float:

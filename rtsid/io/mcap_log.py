@@ -46,6 +46,7 @@ from rtsid.io.schemas import (
     encode_status,
 )
 from rtsid.io.session import SessionConfig, recording_stem
+from rtsid.io.summary_table import ATTACHMENT_NAME, MEDIA_TYPE, TableBuilder
 from rtsid.lifecycle import ThreadOwner
 
 __all__ = ["McapConfig", "McapLogger", "channel_kinds", "recording_name", "register_channels"]
@@ -266,6 +267,7 @@ class McapLogger(ThreadOwner):
         self._channels: dict[str, int] = {}
         self._file_opened_at = 0.0
         self._retry_at = 0.0
+        self._table: TableBuilder | None = None  # the current part's summary table
         if not config.enabled:
             self._c.state = "disabled"
 
@@ -561,6 +563,8 @@ class McapLogger(ThreadOwner):
                 self._c.lost += 1
             self._fail(exc, "writing")
             return False
+        if self._table is not None:
+            self._table.add_payload(kind, payload)
         with self._c.lock:
             self._c.written += 1
         return True
@@ -621,6 +625,7 @@ class McapLogger(ThreadOwner):
             for name, record in self._records.items():
                 writer.add_metadata(name, record)
             writer.add_metadata("rtsid.session", self._session_metadata())
+            table = TableBuilder()
             if self._session_now is not None:  # every part says who and what from its start
                 t_ns = time.time_ns()
                 writer.add_message(
@@ -629,6 +634,7 @@ class McapLogger(ThreadOwner):
                     data=self._session_now[0],
                     publish_time=t_ns,
                 )
+                table.add_payload("session", self._session_now[0])
             writer.flush()
             size = stream.tell()
         except OSError as exc:
@@ -638,6 +644,7 @@ class McapLogger(ThreadOwner):
                 self._remove_unstarted(path)
             return
         self._writer, self._stream = writer, stream
+        self._table = table
         self._file_opened_at = time.monotonic()
         with self._c.lock:
             self._c.file = str(path)
@@ -694,11 +701,12 @@ class McapLogger(ThreadOwner):
         }
 
     def _close_file(self, *, finish: bool) -> None:
-        writer, stream = self._writer, self._stream
-        self._writer, self._stream = None, None
+        writer, stream, table = self._writer, self._stream, self._table
+        self._writer, self._stream, self._table = None, None, None
         size = 0
         try:
             if writer is not None and finish:
+                _attach_table(writer, table)
                 writer.finish()
             if stream is not None:
                 stream.flush()
@@ -729,7 +737,7 @@ class McapLogger(ThreadOwner):
         if writer_had_file:
             self._part += 1  # the next try is a new file beside the damaged one
         stream = self._stream
-        self._writer, self._stream = None, None
+        self._writer, self._stream, self._table = None, None, None
         if stream is not None:
             try:
                 stream.close()
@@ -746,6 +754,21 @@ class McapLogger(ThreadOwner):
             self._c.file = None
         if first:
             log.error("%s", message)
+
+
+def _attach_table(writer: Any, table: TableBuilder | None) -> None:
+    """Write the part's summary table (:mod:`rtsid.io.summary_table`) as its attachment;
+    none when a message of the part was not a JSON object (the reader reads the messages)."""
+    if table is None or table.undecodable:
+        return
+    now = time.time_ns()
+    writer.add_attachment(
+        create_time=now,
+        log_time=now,
+        name=ATTACHMENT_NAME,
+        media_type=MEDIA_TYPE,
+        data=table.table().to_npz(),
+    )
 
 
 def _describe_os_error(exc: OSError, action: str, path: Path) -> str:

@@ -25,6 +25,7 @@ from rtsid import __version__
 from rtsid.errors import InputDataError, RecordingError
 from rtsid.io.files import atomic_write
 from rtsid.io.schemas import SCHEMAS, SampleBatch, decode_samples
+from rtsid.io.summary_table import ATTACHMENT_NAME, KINDS, SummaryTable, TableError
 
 __all__ = [
     "ReadReport",
@@ -37,6 +38,7 @@ __all__ = [
     "read_json_topics",
     "read_metadata",
     "read_run_config",
+    "read_summary_table",
     "recording_parts",
     "recover",
     "run_config_from_metadata",
@@ -524,3 +526,71 @@ def read_json_topics(
         elif isinstance(record, Metadata):
             metadata[record.name] = dict(record.metadata)
     return messages, metadata
+
+
+def read_summary_table(
+    path: str | Path,
+) -> tuple[SummaryTable, dict[str, dict[str, str]]] | None:
+    """A part's summary table (:mod:`rtsid.io.summary_table`) and its metadata records, read
+    through the file's summary section (a few seeks, no message decoded).
+
+    Returns
+    -------
+    (SummaryTable, dict) or None
+        The table and the metadata records by name (as :func:`read_metadata`); None when the
+        file has no footer or summary section, no table attachment, a table this version does
+        not read (another version, damaged, hostile), or one whose message counts differ from
+        the file's Statistics record (a stale table): the caller reads the messages instead.
+
+    Raises
+    ------
+    RecordingError
+        The file is missing or unreadable.
+    """
+    from mcap.records import Attachment, Metadata
+    from mcap.stream_reader import StreamReader
+
+    damage = (*_damage_errors(), TableError, OverflowError, MemoryError)
+    with _open(path) as fh:
+        try:
+            summary = _summary_section(fh)
+            if summary is None or summary.statistics is None:
+                return None
+            indexes = [a for a in summary.attachment_indexes if a.name == ATTACHMENT_NAME]
+            if len(indexes) != 1 or indexes[0].data_size > MAX_RECORD_BYTES:
+                return None
+            records = []
+            for offset in [indexes[0].offset, *(m.offset for m in summary.metadata_indexes)]:
+                fh.seek(offset)
+                reader = StreamReader(fh, skip_magic=True, record_size_limit=MAX_RECORD_BYTES)
+                records.append(next(reader.records))
+            attachment, metadata_records = records[0], records[1:]
+            if not isinstance(attachment, Attachment) or not all(
+                isinstance(m, Metadata) for m in metadata_records
+            ):
+                return None
+            table = SummaryTable.from_npz(bytes(attachment.data))
+        except damage:
+            return None
+        counts = _channel_counts(summary)
+    if any(table.counts[kind] != counts.get(TOPICS[kind], 0) for kind in KINDS):
+        return None  # stale: the file holds other messages than the table was made from
+    return table, {m.name: dict(m.metadata) for m in metadata_records}
+
+
+def _summary_section(fh: IO[bytes]) -> Any:
+    """The file's summary section (mcap ``Summary``), None when the footer says it has none;
+    raises mcap's errors when there is no footer."""
+    from mcap.reader import SeekingReader
+
+    return SeekingReader(fh, record_size_limit=MAX_RECORD_BYTES).get_summary()
+
+
+def _channel_counts(summary: Any) -> dict[str, int]:
+    """Messages per topic by the Statistics record."""
+    counts: dict[str, int] = {}
+    for channel_id, n in summary.statistics.channel_message_counts.items():
+        channel = summary.channels.get(channel_id)
+        if channel is not None:
+            counts[channel.topic] = counts.get(channel.topic, 0) + int(n)
+    return counts

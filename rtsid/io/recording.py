@@ -35,13 +35,16 @@ from rtsid.io.mcap_read import (
     iter_sample_batches,
     read_json_topics,
     read_run_config,
+    read_summary_table,
     recording_parts,
 )
 from rtsid.io.schemas import SampleBatch
+from rtsid.io.summary_table import KINDS, SummaryTable, TableBuilder
 
 __all__ = [
     "SESSION_TOPICS",
     "RecordedMessages",
+    "RecordedTable",
     "Recording",
     "SampleGrid",
     "SessionRecord",
@@ -50,6 +53,7 @@ __all__ = [
     "read_messages",
     "read_recording",
     "read_session",
+    "read_table",
     "session_parts",
     "session_record",
 ]
@@ -497,3 +501,61 @@ def read_messages(paths: Paths, topics: Sequence[str]) -> RecordedMessages:
         complete = complete and tally.report.complete
         tally.warn_if_incomplete()
     return RecordedMessages(parts, messages, metadata, complete)
+
+
+@dataclass(frozen=True)
+class RecordedTable:
+    """A recording's summary table (:mod:`rtsid.io.summary_table`) and what goes with it.
+
+    Attributes
+    ----------
+    table : SummaryTable
+        The parts' tables joined, rows in part order.
+    read : RecordedMessages
+        Its ``/session`` and ``/marker`` messages (those of the table), each part's metadata
+        records, the parts and whether every one was complete (for :func:`session_record`).
+    from_attachments : bool
+        Every part carried a consistent table (read without decoding a message); False: the
+        messages were read and the table made from them.
+    """
+
+    table: SummaryTable
+    read: RecordedMessages
+    from_attachments: bool
+
+
+def read_table(paths: Paths, *, from_messages: bool = False) -> RecordedTable:
+    """A recording's summary table: from its parts' table attachments when every part has a
+    consistent one (:func:`rtsid.io.mcap_read.read_summary_table`), else from its messages
+    (one pass per part, warning like :func:`read_messages` for a part that ends early) — the
+    same table either way.
+
+    Parameters
+    ----------
+    paths : path or sequence of paths
+        The parts of one recording, in order.
+    from_messages : bool
+        Read the messages even when the attachments are there (the reference path).
+
+    Raises
+    ------
+    RecordingError
+        As :func:`read_messages`.
+    """
+    parts = _as_list(paths)
+    found = [] if from_messages else [read_summary_table(p) for p in parts]
+    topics = [TOPICS["session"], TOPICS["marker"]]
+    if found and all(f is not None for f in found):
+        tables = [f[0] for f in found if f is not None]
+        table = SummaryTable.concatenate(tables)
+        messages = {TOPICS["session"]: table.sessions, TOPICS["marker"]: table.markers}
+        metadata = [f[1] for f in found if f is not None]
+        return RecordedTable(table, RecordedMessages(parts, messages, metadata, True), True)
+    read = read_messages(parts, [TOPICS[k] for k in KINDS])
+    builder = TableBuilder()
+    for kind in KINDS:
+        for message in read.messages[TOPICS[kind]]:
+            builder.add(kind, message)
+        if TOPICS[kind] not in topics:
+            read.messages[TOPICS[kind]].clear()  # a study holds millions of windows
+    return RecordedTable(builder.table(), read, False)
