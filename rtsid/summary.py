@@ -35,6 +35,7 @@ noted.
 from __future__ import annotations
 
 import csv
+import os
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,13 +46,13 @@ import numpy as np
 from rtsid.errors import InputDataError
 from rtsid.io.estimate_csv import encode_value
 from rtsid.io.recording import (
-    SESSION_TOPICS,
     RecordedMessages,
     SessionRecord,
-    read_messages,
+    read_table,
     session_parts,
     session_record,
 )
+from rtsid.io.summary_table import NO_INT, SummaryTable
 from rtsid.verdicts import Reason
 
 __all__ = [
@@ -71,8 +72,9 @@ __all__ = [
     "write_summary",
 ]
 
-#: The session contract (branch ``session``): metadata record, channels.
-TOPICS = ("/estimate", "/reflex", "/status", *SESSION_TOPICS)
+#: Set to 1, ``rtsid summary`` reads every recording's messages even when it carries its
+#: summary table (the reference path, for the bench and the tests).
+FROM_MESSAGES_ENV = "RTSID_SUMMARY_FROM_MESSAGES"
 
 #: Trial name of a recording without markers, and of the windows outside every trial.
 WHOLE = "(whole recording)"
@@ -191,10 +193,8 @@ class StudyRecording:
         Identity ('' when not recorded).
     start_utc : str
         When the session (or the recording) started, ISO 8601 ('' when not recorded).
-    estimates : list of dict
-        ``/estimate`` messages sorted by ``t_end_s``.
-    reflex : dict[int, dict]
-        ``/reflex`` fits by ``seq``.
+    windows : Windows
+        The ``/estimate`` windows as columns, sorted by ``t_end_s``.
     conditions : list of (float, str)
         Condition changes ``(t_s, condition)`` in time order; the first covers the start.
     markers : list of Marker
@@ -208,13 +208,12 @@ class StudyRecording:
     """
 
     parts: list[Path]
+    windows: Windows
     robot: str = ""
     joint: str = ""
     subject: str = ""
     session: str = ""
     start_utc: str = ""
-    estimates: list[dict[str, Any]] = field(default_factory=list)
-    reflex: dict[int, dict[str, Any]] = field(default_factory=dict)
     conditions: list[tuple[float, str]] = field(default_factory=list)
     markers: list[Marker] = field(default_factory=list)
     lost: tuple[np.ndarray, np.ndarray] | None = None
@@ -229,38 +228,123 @@ class StudyRecording:
     @property
     def end_s(self) -> float:
         """The last sample time known: the last window's end or the last marker."""
-        ends = [m.get("t_end_s") or 0.0 for m in self.estimates[-1:]]
+        ends = [float(t) for t in self.windows.t_end_s[-1:]]
         ends += [m.t_s for m in self.markers[-1:]]
         return float(max(ends, default=0.0))
 
     @property
     def begin_s(self) -> float:
         """The first window's first sample time (0 without windows)."""
-        return float(self.estimates[0].get("t_start_s") or 0.0) if self.estimates else 0.0
+        return float(self.windows.t_start_s[0]) if len(self.windows) else 0.0
 
 
-#: What a row needs of an estimate message.
-_KEPT = (
-    "robot",
-    "joint",
-    "t_start_s",
-    "t_end_s",
-    "ok",
-    "reason",
-    "K_track",
-    "K",
-    "B",
-    "B_held",
-    "I",
-    "I_held",
-    "vaf",
-    "reflex_seq",
-    "host_time_ns",
-)
+@dataclass(frozen=True)
+class Windows:
+    """A recording's estimate windows as columns (one row per ``/estimate`` message), sorted
+    by ``t_end_s``; what a row of the table needs of them.
+
+    Attributes
+    ----------
+    t_start_s, t_end_s : ndarray of float, shape (n,)
+        The window's first and last sample time, s (0 when not recorded).
+    ok : ndarray of bool
+        Published (not withheld).
+    reason : ndarray of int
+        Code of the withholding reason in ``reasons`` (-1: none).
+    reasons : tuple of str
+    values : dict[str, ndarray of float]
+        ``K_track``, ``K`` (N·m/rad), ``B`` (N·m·s/rad), ``I`` (kg·m²), ``vaf`` (%); NaN
+        where not a number.
+    held : dict[str, ndarray of int8]
+        ``B_held``, ``I_held``: 1, 0, or -1 when not said.
+    reflex_gain, reflex_delay_ms : ndarray of float
+        The fit the window names (``reflex_seq``) when the window is published and that fit
+        was applied (judged present); NaN otherwise.
+    reflex_applied : ndarray of bool
+        The window is published and its fit was applied.
+    """
+
+    t_start_s: np.ndarray
+    t_end_s: np.ndarray
+    ok: np.ndarray
+    reason: np.ndarray
+    reasons: tuple[str, ...]
+    values: dict[str, np.ndarray]
+    held: dict[str, np.ndarray]
+    reflex_applied: np.ndarray
+    reflex_gain: np.ndarray
+    reflex_delay_ms: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.t_end_s.size)
+
+    def column(self, name: str) -> np.ndarray:
+        """A value (``K``, …), held flag (``B_held``, …) or other column by name."""
+        if name in self.values:
+            return self.values[name]
+        if name in self.held:
+            return self.held[name]
+        column: np.ndarray = getattr(self, name)
+        return column
 
 
-def read_study_recording(parts: Sequence[Path]) -> StudyRecording:
+def _windows(table: SummaryTable, order: np.ndarray) -> Windows:
+    """The table's estimate rows in ``order``, with the reflex fit each names."""
+    c = table.columns
+    ok = c["ok"][order] == 1
+    seq = c["reflex_seq"][order]
+    applied, gain, delay = _reflex_of_windows(table, seq)
+    applied &= ok
+    return Windows(
+        t_start_s=np.nan_to_num(c["t_start_s"][order], nan=0.0),
+        t_end_s=np.nan_to_num(c["t_end_s"][order], nan=0.0),
+        ok=ok,
+        reason=c["reason"][order],
+        reasons=tuple(str(n) for n in c["reason_names"]),
+        values={k: c[k][order] for k in ("K_track", "K", "B", "I", "vaf")},
+        held={k: c[k][order] for k in ("B_held", "I_held")},
+        reflex_applied=applied,
+        reflex_gain=np.where(applied, gain, np.nan),
+        reflex_delay_ms=np.where(applied, delay, np.nan),
+    )
+
+
+def _reflex_of_windows(
+    table: SummaryTable, seq: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For each window's ``reflex_seq``: whether the ``/reflex`` fit of that seq (the last
+    one recorded, when several share it) was applied, its gain and delay (ms)."""
+    c = table.columns
+    ids = c["reflex_seq_id"]
+    applied = np.zeros(seq.size, dtype=bool)
+    gain = np.full(seq.size, np.nan)
+    delay = np.full(seq.size, np.nan)
+    if not ids.size:
+        return applied, gain, delay
+    last = ids.size - 1 - np.unique(ids[::-1], return_index=True)[1]  # each seq's last fit
+    keys = ids[last]
+    at = np.clip(np.searchsorted(keys, seq), 0, keys.size - 1)
+    found = (keys[at] == seq) & (seq != NO_INT)
+    fit = last[at]
+    applied = found & (c["reflex_applied"][fit] == 1)
+    return applied, c["reflex_gain"][fit], c["reflex_delay_ms"][fit]
+
+
+def read_study_recording(
+    parts: Sequence[Path], *, from_messages: bool | None = None
+) -> StudyRecording:
     """One recording's estimates, reflex fits, status counters, session and markers.
+
+    Read from the parts' summary tables when each carries a consistent one, else from their
+    messages (:func:`rtsid.io.recording.read_table`); the result is the same.
+
+    Parameters
+    ----------
+    parts : sequence of Path
+        The recording's files, in order.
+    from_messages : bool, optional
+        Read the messages even when the tables are there (default: when the environment
+        variable :data:`FROM_MESSAGES_ENV` is ``1``).
 
     Raises
     ------
@@ -269,21 +353,21 @@ def read_study_recording(parts: Sequence[Path]) -> StudyRecording:
     InputDataError
         The recording holds no ``/estimate`` message (raw samples only).
     """
-    read = read_messages(list(parts), TOPICS)
-    kept = [{k: m.get(k) for k in _KEPT} for m in read.messages["/estimate"]]
-    read.messages["/estimate"].clear()  # a study holds millions of windows: keep what is used
-    estimates = sorted(kept, key=lambda m: float(m.get("t_end_s") or 0.0))
-    if not estimates:
+    if from_messages is None:
+        from_messages = os.environ.get(FROM_MESSAGES_ENV, "") == "1"
+    recorded = read_table(list(parts), from_messages=from_messages)
+    table, read = recorded.table, recorded.read
+    if not len(table):
         raise InputDataError(
             f"{parts[0]} has no /estimate messages (raw samples only?); estimate them first "
             f"with: rtsid replay {parts[0]} -o OUT.mcap, then rtsid summary OUT.mcap"
         )
-    rec = StudyRecording(list(read.parts), estimates=estimates, complete=read.complete)
+    order = np.argsort(np.nan_to_num(table.columns["t_end_s"], nan=0.0), kind="stable")
+    rec = StudyRecording(list(read.parts), _windows(table, order), complete=read.complete)
     session = session_record(read)
-    _identity(rec, read, session)
-    rec.reflex = {int(f["seq"]): f for f in read.messages["/reflex"] if "seq" in f}
+    _identity(rec, table.text("robot")[order[0]], table.text("joint")[order[0]], read, session)
     rec.markers = _markers(session)
-    rec.lost = _lost_counter(read.messages["/status"], estimates)
+    rec.lost = _lost_counter(table, order)
     return rec
 
 
@@ -297,15 +381,22 @@ def _markers(session: SessionRecord) -> list[Marker]:
     return sorted(out, key=lambda m: m.t_s)
 
 
-def _identity(rec: StudyRecording, read: RecordedMessages, session: SessionRecord) -> None:
-    """Robot, joint, subject, session, start and the condition changes of ``rec``."""
+def _identity(
+    rec: StudyRecording,
+    robot: str | None,
+    joint: str | None,
+    read: RecordedMessages,
+    session: SessionRecord,
+) -> None:
+    """Robot, joint (of the first window, else the metadata), subject, session, start and
+    the condition changes of ``rec``."""
     session_meta = session.metadata[0] if session.metadata else {}
     rtsid_meta = read.metadata[0].get("rtsid", {}) if read.metadata else {}
     changes = [m for m in session.sessions if isinstance(m.get("t_s"), int | float)]
     first = changes[0] if changes else {}
     rec.has_session = bool(session_meta or changes)
-    rec.robot = str(rec.estimates[0].get("robot") or rtsid_meta.get("robot", ""))
-    rec.joint = str(rec.estimates[0].get("joint") or rtsid_meta.get("joint", ""))
+    rec.robot = str(robot or rtsid_meta.get("robot", ""))
+    rec.joint = str(joint or rtsid_meta.get("joint", ""))
     rec.subject = str(session_meta.get("subject", first.get("subject", "")))
     rec.session = str(session_meta.get("session", first.get("session", "")))
     rec.start_utc = str(
@@ -319,9 +410,7 @@ def _identity(rec: StudyRecording, read: RecordedMessages, session: SessionRecor
             rec.conditions.append((float(m["t_s"]), condition))
 
 
-def _lost_counter(
-    status: Sequence[Mapping[str, Any]], estimates: Sequence[Mapping[str, Any]]
-) -> tuple[np.ndarray, np.ndarray] | None:
+def _lost_counter(table: SummaryTable, order: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """Cumulative lost samples against sample time, from the status messages' link counters.
 
     A status carries host time only: it is placed in sample time through the estimates' own
@@ -329,25 +418,18 @@ def _lost_counter(
     down (a restarted daemon) starts again from its new value. None when there is no status
     with a ``lost_samples`` counter or no host time to place it by.
     """
-    rows = [
-        (int(s["host_time_ns"]), int(s["acquisition"]["lost_samples"]))
-        for s in status
-        if isinstance(s.get("acquisition"), dict)
-        and isinstance(s["acquisition"].get("lost_samples"), int)
-        and isinstance(s.get("host_time_ns"), int)
-    ]
-    clock = sorted(
-        (int(m["host_time_ns"]), float(m["t_end_s"]))
-        for m in estimates
-        if isinstance(m.get("host_time_ns"), int) and isinstance(m.get("t_end_s"), int | float)
-    )
-    if not rows or len(clock) < 2:
+    c = table.columns
+    host_ns, t_end = c["host_time_ns"][order], c["t_end_s"][order]
+    known = (host_ns != NO_INT) & ~np.isnan(t_end)
+    host_ns, t_end = host_ns[known], t_end[known]
+    status_ns, lost = c["status_host_time_ns"], c["status_lost_samples"]
+    if not status_ns.size or host_ns.size < 2:
         return None
-    rows.sort()
-    host = np.array([h for h, _ in clock], dtype=np.float64)
-    t_of_host = np.array([t for _, t in clock])
-    t = np.interp(np.array([h for h, _ in rows], dtype=np.float64), host, t_of_host)
-    values = np.array([v for _, v in rows], dtype=np.int64)
+    clock = np.lexsort((t_end, host_ns))
+    rows = np.lexsort((lost, status_ns))
+    host = host_ns[clock].astype(np.float64)
+    t = np.interp(status_ns[rows].astype(np.float64), host, t_end[clock])
+    values = lost[rows]
     steps = np.diff(values, prepend=0)
     steps = np.where(steps < 0, values, steps)  # a reset counter counts again from its value
     return t, np.cumsum(steps)
@@ -436,7 +518,7 @@ class Segment:
     condition: str
     t_start_s: float
     t_end_s: float
-    windows: list[dict[str, Any]]
+    windows: np.ndarray
     notes: list[str]
     span: tuple[float, float] = (-np.inf, np.inf)
 
@@ -499,7 +581,7 @@ def segments_of(
         pieces.append((trial, repeats[key]))
     if include_between:
         pieces += [(Trial(BETWEEN, lo, hi), None) for lo, hi in _gaps(trials, begin, end)]
-    t_end = np.array([float(m.get("t_end_s") or 0.0) for m in rec.estimates])
+    t_end = rec.windows.t_end_s
     segments = []
     for trial, repeat in sorted(pieces, key=lambda p: p[0].t_start_s):
         spans = _condition_spans(rec, trial.t_start_s, trial.t_end_s)
@@ -511,10 +593,10 @@ def segments_of(
                     f"condition changed during the trial: this row is its part under "
                     f"'{condition}' ({_clip(lo, begin, end):.2f}–{_clip(hi, begin, end):.2f} s)"
                 )
-            windows = [rec.estimates[i] for i in np.flatnonzero(inside)]
-            if not windows and trial.name != BETWEEN:
+            windows = np.flatnonzero(inside)
+            if not windows.size and trial.name != BETWEEN:
                 extra.append("no windows in this trial")
-            if windows or trial.name != BETWEEN:
+            if windows.size or trial.name != BETWEEN:
                 segments.append(
                     Segment(
                         rec,
@@ -588,7 +670,6 @@ def _joined(values: Iterable[Any]) -> str:
 
 def _row(segments: list[Segment], by: str) -> dict[str, Any]:
     first = segments[0]
-    windows = [w for s in segments for w in s.windows]
     lost = [s.lost_samples for s in segments]
     single = by == "trial"
     row: dict[str, Any] = {
@@ -609,59 +690,78 @@ def _row(segments: list[Segment], by: str) -> dict[str, Any]:
         "duration_s": round(sum(s.t_end_s - s.t_start_s for s in segments), 6),
         "lost_samples": None if all(v is None for v in lost) else sum(v or 0 for v in lost),
         "notes": _joined(n for s in segments for n in s.notes),
-        **_window_statistics(windows),
+        **_window_statistics(segments),
         **_reflex_statistics(segments),
     }
     return row
 
 
-def _quartiles(values: Sequence[Any]) -> tuple[float | None, float | None, float | None]:
-    x = np.array([v for v in values if isinstance(v, int | float)], dtype=np.float64)
-    x = x[np.isfinite(x)]
+def _quartiles(values: np.ndarray) -> tuple[float | None, float | None, float | None]:
+    """Median, 25th and 75th percentile of the finite ``values`` (None when there are none)."""
+    x = values[np.isfinite(values)]
     if not x.size:
         return None, None, None
     q25, q50, q75 = np.percentile(x, [25, 50, 75])
     return float(q50), float(q25), float(q75)
 
 
-def _share(values: Sequence[Any]) -> float | None:
-    known = [bool(v) for v in values if isinstance(v, bool)]
-    return sum(known) / len(known) if known else None
+def _share(flags: np.ndarray) -> float | None:
+    """The share of 1 among the flags said (1 or 0; -1 is not said), None when none is."""
+    known = int(np.count_nonzero(flags >= 0))
+    return int(np.count_nonzero(flags == 1)) / known if known else None
 
 
-def _window_statistics(windows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+def _column(segments: Sequence[Segment], name: str, *, ok: bool = False) -> np.ndarray:
+    """Column ``name`` of the recordings' :class:`Windows` at the segments' windows, segment
+    after segment (only the published windows with ``ok``)."""
+    parts = []
+    for s in segments:
+        rows = s.windows[s.rec.windows.ok[s.windows]] if ok else s.windows
+        parts.append(s.rec.windows.column(name)[rows])
+    return np.concatenate(parts) if parts else np.zeros(0)
+
+
+def _window_statistics(segments: Sequence[Segment]) -> dict[str, Any]:
     """Medians and quartiles over the published (``ok``) windows; withheld counts by reason."""
-    ok = [w for w in windows if w.get("ok")]
-    withheld = [w for w in windows if not w.get("ok")]
-    out: dict[str, Any] = {"windows": len(windows), "withheld": len(withheld)}
-    out["withheld_share"] = len(withheld) / len(windows) if windows else None
+    count = sum(int(s.windows.size) for s in segments)
+    ok = _column(segments, "ok")
+    withheld = count - int(np.count_nonzero(ok))
+    out: dict[str, Any] = {"windows": count, "withheld": withheld}
+    out["withheld_share"] = withheld / count if count else None
     for reason in _REASONS:
-        out[f"withheld_{reason}"] = sum(1 for w in withheld if w.get("reason") == reason)
+        out[f"withheld_{reason}"] = sum(
+            int(np.count_nonzero(_withheld_for(s, reason))) for s in segments
+        )
     for key in ("K_track", "K"):
-        med, q25, q75 = _quartiles([w.get(key) for w in ok])
+        med, q25, q75 = _quartiles(_column(segments, key, ok=True))
         out.update({f"{key}_median": med, f"{key}_q25": q25, f"{key}_q75": q75})
     for key in ("B", "I", "vaf"):
-        out[f"{key}_median"] = _quartiles([w.get(key) for w in ok])[0]
-    out["B_held_share"] = _share([w.get("B_held") for w in ok])
-    out["I_held_share"] = _share([w.get("I_held") for w in ok])
+        out[f"{key}_median"] = _quartiles(_column(segments, key, ok=True))[0]
+    out["B_held_share"] = _share(_column(segments, "B_held", ok=True))
+    out["I_held_share"] = _share(_column(segments, "I_held", ok=True))
     return out
+
+
+def _withheld_for(segment: Segment, reason: str) -> np.ndarray:
+    """Which of the segment's windows were withheld for ``reason``."""
+    w = segment.rec.windows
+    if reason not in w.reasons:
+        return np.zeros(0, dtype=bool)
+    rows = segment.windows
+    return ~w.ok[rows] & (w.reason[rows] == w.reasons.index(reason))
 
 
 def _reflex_statistics(segments: Sequence[Segment]) -> dict[str, Any]:
     """Windows whose slow-lane fit (``reflex_seq``) was applied — judged present, its torque
     subtracted — and the median gain and delay of those fits over the windows. A window
     naming a fit judged absent (``applied`` false) or missing from ``/reflex`` counts not."""
-    fits = []
-    for segment in segments:
-        for w in segment.windows:
-            seq = w.get("reflex_seq")
-            fit = segment.rec.reflex.get(seq, {}) if w.get("ok") and isinstance(seq, int) else {}
-            if fit.get("applied") is True:
-                fits.append(fit)
+    applied = _column(segments, "reflex_applied")
+    gain = _column(segments, "reflex_gain")
+    delay = _column(segments, "reflex_delay_ms")
     return {
-        "reflex_windows": len(fits),
-        "reflex_gain": _quartiles([f.get("gain") for f in fits])[0],
-        "reflex_delay_ms": _quartiles([f.get("delay_ms") for f in fits])[0],
+        "reflex_windows": int(np.count_nonzero(applied)),
+        "reflex_gain": _quartiles(gain[applied])[0],
+        "reflex_delay_ms": _quartiles(delay[applied])[0],
     }
 
 

@@ -550,7 +550,13 @@ def read_summary_table(
     from mcap.records import Attachment, Metadata
     from mcap.stream_reader import StreamReader
 
-    damage = (*_damage_errors(), TableError, OverflowError, MemoryError)
+    damage: tuple[type[BaseException], ...] = (
+        *_damage_errors(),
+        TableError,
+        OverflowError,
+        MemoryError,
+        StopIteration,
+    )
     with _open(path) as fh:
         try:
             summary = _summary_section(fh)
@@ -564,10 +570,9 @@ def read_summary_table(
                 fh.seek(offset)
                 reader = StreamReader(fh, skip_magic=True, record_size_limit=MAX_RECORD_BYTES)
                 records.append(next(reader.records))
-            attachment, metadata_records = records[0], records[1:]
-            if not isinstance(attachment, Attachment) or not all(
-                isinstance(m, Metadata) for m in metadata_records
-            ):
+            attachment = records[0]
+            metadata_records = [m for m in records[1:] if isinstance(m, Metadata)]
+            if not isinstance(attachment, Attachment) or len(metadata_records) != len(records) - 1:
                 return None
             table = SummaryTable.from_npz(bytes(attachment.data))
         except damage:

@@ -182,11 +182,12 @@ class TableBuilder:
         acquisition, host = m.get("acquisition"), m.get("host_time_ns")
         if not isinstance(acquisition, dict):
             return
-        lost = acquisition.get("lost_samples")
-        if _integer(lost) == NO_INT or _integer(host) == NO_INT:
+        lost = _integer(acquisition.get("lost_samples"))
+        host_ns = _integer(host)
+        if lost == NO_INT or host_ns == NO_INT:
             return
-        self._int["status_host_time_ns"].append(int(host))
-        self._int["status_lost_samples"].append(int(lost))
+        self._int["status_host_time_ns"].append(host_ns)
+        self._int["status_lost_samples"].append(lost)
 
     def table(self) -> SummaryTable:
         """The columns collected so far."""
@@ -248,15 +249,15 @@ class SummaryTable:
     def to_npz(self) -> bytes:
         """The table as ``.npz`` bytes (``savez_compressed``; no object arrays)."""
         out = io.BytesIO()
-        np.savez_compressed(
-            out,
-            version=np.array([VERSION], dtype=np.int64),
-            kinds=np.array(KINDS, dtype=np.str_),
-            counts=np.array([self.counts[k] for k in KINDS], dtype=np.int64),
-            sessions_json=_json_bytes(self.sessions),
-            markers_json=_json_bytes(self.markers),
+        members: dict[str, Any] = {
+            "version": np.array([VERSION], dtype=np.int64),
+            "kinds": np.array(KINDS, dtype=np.str_),
+            "counts": np.array([self.counts[k] for k in KINDS], dtype=np.int64),
+            "sessions_json": _json_bytes(self.sessions),
+            "markers_json": _json_bytes(self.markers),
             **self.columns,
-        )
+        }
+        np.savez_compressed(out, **members)
         return out.getvalue()
 
     @classmethod
