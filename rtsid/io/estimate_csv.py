@@ -23,14 +23,16 @@ import math
 import sys
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 
-from rtsid.ident.stream import WindowResult
 from rtsid.io.files import atomic_write
 from rtsid.io.messages import EstimateMessage
 from rtsid.verdicts import Reason
+
+if TYPE_CHECKING:  # the estimator (scipy) is imported only by who runs it, not by readers
+    from rtsid.ident.stream import WindowResult
 
 __all__ = [
     "COLUMNS",
