@@ -19,11 +19,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from rtsid.ident.reflex_lane import ReflexUpdate
 from rtsid.link.acquisition import LinkCounters
 from rtsid.verdicts import Flag, Reason
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # the numerics (scipy) are imported by who runs them, not by readers
+    from rtsid.ident.reflex_lane import ReflexUpdate
     from rtsid.ident.stream import Tracked
     from rtsid.ident.window import WindowEstimate
 
