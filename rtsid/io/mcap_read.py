@@ -11,6 +11,7 @@ Replay (issue 5) feeds :func:`iter_sample_batches` into the same window worker a
 
 from __future__ import annotations
 
+import io
 import itertools
 import json
 import math
@@ -548,7 +549,6 @@ def read_summary_table(
         The file is missing or unreadable.
     """
     from mcap.records import Attachment, Metadata
-    from mcap.stream_reader import StreamReader
 
     damage: tuple[type[BaseException], ...] = (
         *_damage_errors(),
@@ -559,17 +559,16 @@ def read_summary_table(
     )
     with _open(path) as fh:
         try:
-            summary = _summary_section(fh)
-            if summary is None or summary.statistics is None:
+            summary = _summary_records(fh)
+            if summary is None:
                 return None
-            indexes = [a for a in summary.attachment_indexes if a.name == ATTACHMENT_NAME]
+            indexes = [a for a in summary["attachment_indexes"] if a.name == ATTACHMENT_NAME]
             if len(indexes) != 1 or indexes[0].data_size > MAX_RECORD_BYTES:
                 return None
-            records = []
-            for offset in [indexes[0].offset, *(m.offset for m in summary.metadata_indexes)]:
-                fh.seek(offset)
-                reader = StreamReader(fh, skip_magic=True, record_size_limit=MAX_RECORD_BYTES)
-                records.append(next(reader.records))
+            records = [
+                _record_at(fh, offset)
+                for offset in [indexes[0].offset, *(m.offset for m in summary["metadata_indexes"])]
+            ]
             attachment = records[0]
             metadata_records = [m for m in records[1:] if isinstance(m, Metadata)]
             if not isinstance(attachment, Attachment) or len(metadata_records) != len(records) - 1:
@@ -577,25 +576,75 @@ def read_summary_table(
             table = SummaryTable.from_npz(bytes(attachment.data))
         except damage:
             return None
-        counts = _channel_counts(summary)
+    counts = _channel_counts(summary)
     if any(table.counts[kind] != counts.get(TOPICS[kind], 0) for kind in KINDS):
         return None  # stale: the file holds other messages than the table was made from
     return table, {m.name: dict(m.metadata) for m in metadata_records}
 
 
-def _summary_section(fh: IO[bytes]) -> Any:
-    """The file's summary section (mcap ``Summary``), None when the footer says it has none;
-    raises mcap's errors when there is no footer."""
-    from mcap.reader import SeekingReader
+def _record_at(fh: IO[bytes], offset: int) -> Any:
+    """The one record that starts at byte ``offset``."""
+    from mcap.stream_reader import StreamReader
 
-    return SeekingReader(fh, record_size_limit=MAX_RECORD_BYTES).get_summary()
+    fh.seek(offset)
+    return next(StreamReader(fh, skip_magic=True, record_size_limit=MAX_RECORD_BYTES).records)
 
 
-def _channel_counts(summary: Any) -> dict[str, int]:
+def _summary_records(fh: IO[bytes]) -> dict[str, list[Any]] | None:
+    """The channels, statistics, attachment and metadata indexes of a finished file, read
+    through its Summary Offset records (the chunk indexes, a thousand per 30 MiB, are
+    skipped); None when the footer points to no summary offsets. Raises mcap's errors when
+    there is no footer."""
+    from mcap.opcode import Opcode
+    from mcap.records import (
+        AttachmentIndex,
+        Channel,
+        Footer,
+        MetadataIndex,
+        Statistics,
+        SummaryOffset,
+    )
+    from mcap.stream_reader import MAGIC_SIZE, StreamReader
+
+    wanted: dict[int, tuple[str, type]] = {
+        Opcode.CHANNEL: ("channels", Channel),
+        Opcode.STATISTICS: ("statistics", Statistics),
+        Opcode.ATTACHMENT_INDEX: ("attachment_indexes", AttachmentIndex),
+        Opcode.METADATA_INDEX: ("metadata_indexes", MetadataIndex),
+    }
+    fh.seek(-(_FOOTER_BYTES + MAGIC_SIZE), 2)
+    footer = next(StreamReader(fh, skip_magic=True, record_size_limit=1024).records)
+    if not isinstance(footer, Footer) or footer.summary_offset_start == 0:
+        return None
+    fh.seek(footer.summary_offset_start)
+    offsets = list(StreamReader(fh, skip_magic=True, record_size_limit=1024).records)
+    out: dict[str, list[Any]] = {key: [] for key, _cls in wanted.values()}
+    for offset in offsets:
+        if not isinstance(offset, SummaryOffset) or offset.group_opcode not in wanted:
+            continue
+        key, cls = wanted[offset.group_opcode]
+        if not 0 < offset.group_length <= MAX_RECORD_BYTES:
+            return None
+        fh.seek(offset.group_start)
+        group = io.BytesIO(fh.read(offset.group_length))
+        records = StreamReader(group, skip_magic=True, record_size_limit=MAX_RECORD_BYTES).records
+        while group.tell() < offset.group_length:
+            record = next(records)
+            if not isinstance(record, cls):
+                return None
+            out[key].append(record)
+    return out if len(out["statistics"]) == 1 else None
+
+
+#: Bytes of an MCAP Footer record (opcode, length, three uint64 and a uint32).
+_FOOTER_BYTES = 1 + 8 + 8 + 8 + 4
+
+
+def _channel_counts(summary: dict[str, list[Any]]) -> dict[str, int]:
     """Messages per topic by the Statistics record."""
+    topics = {c.id: c.topic for c in summary["channels"]}
     counts: dict[str, int] = {}
-    for channel_id, n in summary.statistics.channel_message_counts.items():
-        channel = summary.channels.get(channel_id)
-        if channel is not None:
-            counts[channel.topic] = counts.get(channel.topic, 0) + int(n)
+    for channel_id, n in summary["statistics"][0].channel_message_counts.items():
+        if channel_id in topics:
+            counts[topics[channel_id]] = counts.get(topics[channel_id], 0) + int(n)
     return counts
