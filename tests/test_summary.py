@@ -80,6 +80,7 @@ def write_recording(
     status: Sequence[tuple[float, int]] = (),
     reflex: Sequence[dict[str, Any]] = (),
     finish: bool = True,
+    attachment: bytes | None = None,
 ) -> Path:
     """An rtsid recording: the daemon's channels (estimates, status, reflex) and, given
     ``session`` (subject, session, condition), the contract's metadata, ``/session`` at the
@@ -122,6 +123,8 @@ def write_recording(
     for message in estimates:
         put(channels["estimate"], message["t_end_s"], encode_estimate(message))
     written = fh.tell()  # the chunks closed so far
+    if attachment is not None:  # a summary table (rtsid.io.summary_table)
+        writer.add_attachment(T0_NS, T0_NS, "rtsid.summary.npz", "application/x-npz", attachment)
     writer.finish()
     fh.close()
     if not finish:  # cut inside the last closed chunk, as a kill -9 or a torn copy leaves it
@@ -498,3 +501,179 @@ def test_plot_without_matplotlib_refuses_before_any_work(tmp_path, monkeypatch, 
     assert main(["summary", str(rec), "-o", str(out), "--plot", str(tmp_path / "f.png")]) == 2
     assert "plots need matplotlib" in capsys.readouterr().err
     assert not out.exists()
+
+
+# ---------------------------------------------------------------------------- the summary table
+def log_recording(
+    folder: Path,
+    estimates: Sequence[dict[str, Any]],
+    *,
+    session: dict[str, str],
+    changes: Sequence[tuple[float, str]] = (),
+    markers: Sequence[tuple[float, str]] = (),
+    status: Sequence[tuple[float, int]] = (),
+    reflex: Sequence[dict[str, Any]] = (),
+    parts: int = 1,
+) -> list[Path]:
+    """A recording written by rtsid's MCAP logger (as the daemon writes one), its events in
+    time order; rotated into ``parts`` pieces or more (each piece waits for the logger to
+    rotate; a part is closed at each flush once it holds its header, so there may be more)."""
+    import time
+
+    from rtsid.io.mcap_log import McapConfig, McapLogger
+    from rtsid.io.session import SessionConfig
+
+    where = {"robot": "rig", "joint": "ankle"}
+    events: list[tuple[float, str, dict[str, Any]]] = []
+    for t_s, condition in changes:
+        body = {**where, **session, "condition": condition, "t_s": t_s}
+        events.append((t_s, "session", {**body, "sample_index": round(t_s * 1000)}))
+    for k, (t_s, label) in enumerate(markers):
+        body = {**where, "t_s": t_s, "sample_index": round(t_s * 1000), "label": label}
+        events.append((t_s, "marker", {**body, "source": "zenoh", "marker_id": f"m{k}"}))
+    for t_s, lost in status:
+        body = {**where, "uptime_s": t_s, "acquisition": {"lost_samples": lost}}
+        events.append((t_s, "status", {**body, "host_time_ns": T0_NS + round(t_s * 1e9)}))
+    events += [(fit["applies_from_index"] / 1000, "reflex", fit) for fit in reflex]
+    events += [(m["t_end_s"], "estimate", m) for m in estimates]
+    events.sort(key=lambda e: e[0])
+    config = McapConfig(
+        directory=str(folder),
+        flush_interval_s=0.01,
+        chunk_size=1024,
+        rotate_size_mb=0.001 if parts > 1 else 0.0,
+        queue_size=100_000,
+    )
+    start = {**where, **session, "t_s": 0.0, "sample_index": 0, "host_time_ns": T0_NS}
+    with McapLogger(
+        config,
+        robot="rig",
+        joint="ankle",
+        fs_hz=1000.0,
+        session=SessionConfig(**session),
+        session_message=start,
+    ) as logger:
+        logged = 0
+        for piece in np.array_split(np.arange(len(events)), parts):
+            for k in piece:
+                t_s, kind, message = events[k]
+                t_ns = T0_NS + round(t_s * 1e9)
+                if kind in ("session", "marker"):
+                    message = {**message, "host_time_ns": t_ns}
+                assert getattr(logger, f"log_{kind}")(message, log_time_ns=t_ns)
+            logged += len(piece)
+            for _ in range(1000):  # bounded: the piece is written, then its part closes
+                if logger.stats()["written"] >= logged:
+                    break
+                time.sleep(0.01)
+            opened = len(logger.files)
+            for _ in range(1000):  # bounded: the next piece goes into a later part
+                if parts == 1 or len(logger.files) > opened:
+                    break
+                time.sleep(0.01)
+    return logger.files
+
+
+def summary_csv(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
+    assert main(["summary", *argv]) == 0
+    return capsys.readouterr().out
+
+
+def test_the_loggers_table_gives_the_csv_the_messages_give(tmp_path, capsys, monkeypatch):
+    from rtsid.io.mcap_read import read_summary_table
+    from rtsid.io.recording import read_table
+    from rtsid.summary import BY, FROM_MESSAGES_ENV
+
+    fit = {"seq": 7, "applies_from_index": 2000, "applied": True, "ok": True}
+    fit.update(gain=12.5, delay_ms=42.0)
+    absent = {"seq": 6, "applies_from_index": 500, "applied": False, "ok": True, "gain": 0.1}
+    est = windows(0.0, 8.0, lambda t: 100.0 + 3 * t, reflex_seq=None)
+    for w in est:
+        w["reflex_seq"] = 7 if w["t_end_s"] >= 2.0 else 6 if w["t_end_s"] >= 0.5 else None
+    est[12].update(ok=False, reason="gap", K=None, K_track=None, B=None, I=None, vaf=None)
+    est[13].update(B_held=None, vaf=float("nan"))
+    study = tmp_path / "study"
+    rotated = log_recording(
+        study / "a",
+        est,
+        session=SUBJECT,
+        changes=[(2.0, "active")],
+        markers=[(1.0, "walk start"), (3.0, "walk end"), (4.0, "hop start"), (6.5, "rest")],
+        status=[(0.25, 0), (1.0, 5), (3.0, 12), (7.0, 20)],
+        reflex=[absent, fit],
+        parts=3,
+    )
+    other = {"subject": "S02", "session": "visit1", "condition": "relaxed"}
+    plain = log_recording(study / "b", windows(0.0, 3.0, lambda t: 150.0), session=other)
+    assert len(rotated) >= 3 and len(plain) == 1
+    for part in [*rotated, *plain]:
+        found = read_summary_table(part)
+        assert found is not None, part
+        assert found[1]["rtsid.session"]["subject"] in ("S01", "S02")
+    counts = [found[0].counts["estimate"] for found in map(read_summary_table, rotated) if found]
+    assert sum(counts) == len(est) and sum(n > 0 for n in counts) >= 3
+    assert read_table(rotated).from_attachments
+    assert not read_table(rotated, from_messages=True).from_attachments
+    for argv in ([str(study), "--by", by] for by in BY):
+        fast = summary_csv(argv, capsys)
+        monkeypatch.setenv(FROM_MESSAGES_ENV, "1")
+        slow = summary_csv(argv, capsys)
+        monkeypatch.delenv(FROM_MESSAGES_ENV)
+        assert fast == slow
+    fast = summary_csv([str(study), "--include-between"], capsys)
+    rows = list(csv.DictReader(io.StringIO(fast)))
+    relaxed, active = (r for r in rows if r["trial"] == "walk")
+    assert (relaxed["condition"], relaxed["withheld_gap"], relaxed["reflex_windows"]) == (
+        "relaxed",
+        "1",
+        "0",
+    )
+    assert (active["reflex_windows"], active["reflex_gain"], active["lost_samples"]) == (
+        "10",
+        "12.5",
+        "7",
+    )
+    assert "condition changed" in active["notes"]
+    assert len(rows) == 7  # walk ×2 conditions, hop, rest, S02's whole recording, 2 between
+
+
+def test_a_table_that_does_not_match_its_file_is_not_used(tmp_path):
+    from rtsid.io.mcap_read import read_summary_table
+    from rtsid.io.summary_table import TableBuilder
+
+    est = windows(0.0, 3.0, lambda t: 120.0)
+
+    def table_of(messages: Sequence[dict[str, Any]], **edit: Any) -> bytes:
+        builder = TableBuilder()
+        for m in messages:
+            builder.add("estimate", m)
+        table = builder.table()
+        table.columns.update(edit)
+        return table.to_npz()
+
+    whole = write_recording(tmp_path / "whole.mcap", est, attachment=table_of(est))
+    assert read_summary_table(whole) is not None
+    stale = write_recording(tmp_path / "stale.mcap", est, attachment=table_of(est[:-1]))
+    assert read_summary_table(stale) is None
+    bad_code = table_of(est, reason=np.full(len(est), 5, dtype=np.int32))
+    for attachment in (b"PK\x03\x04 not a zip", bad_code, table_of(est)[:-50]):
+        damaged = write_recording(tmp_path / "damaged.mcap", est, attachment=attachment)
+        assert read_summary_table(damaged) is None
+    reference = rows_of(write_recording(tmp_path / "plain.mcap", est))
+    for path in (stale, damaged):
+        rows = rows_of(path)
+        assert [{k: v for k, v in r.items() if k != "recording"} for r in rows] == [
+            {k: v for k, v in r.items() if k != "recording"} for r in reference
+        ]
+
+
+def test_a_killed_loggers_file_has_no_table_and_still_summarises(tmp_path, capsys):
+    from rtsid.io.mcap_read import read_summary_table
+
+    (path,) = log_recording(tmp_path, windows(0.0, 4.0, lambda t: 100.0), session=SUBJECT)
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) - 200])  # the footer and summary gone, as after kill -9
+    assert read_summary_table(path) is None
+    code, rows, err = cli_table([str(path)], capsys)
+    assert code == 3 and any("ends early" in line for line in err)
+    assert rows[0]["windows"] == "40" and rows[0]["subject"] == "S01"
