@@ -667,8 +667,9 @@ def test_a_table_that_does_not_match_its_file_is_not_used(tmp_path):
         ]
 
 
-def test_a_killed_loggers_file_has_no_table_and_still_summarises(tmp_path, capsys):
+def test_a_killed_loggers_file_has_no_table_and_still_summarises(tmp_path, capsys, monkeypatch):
     from rtsid.io.mcap_read import read_summary_table
+    from rtsid.summary import FROM_MESSAGES_ENV
 
     (path,) = log_recording(tmp_path, windows(0.0, 4.0, lambda t: 100.0), session=SUBJECT)
     data = path.read_bytes()
@@ -677,3 +678,12 @@ def test_a_killed_loggers_file_has_no_table_and_still_summarises(tmp_path, capsy
     code, rows, err = cli_table([str(path)], capsys)
     assert code == 3 and any("ends early" in line for line in err)
     assert rows[0]["windows"] == "40" and rows[0]["subject"] == "S01"
+    (tmp_path / "recovered").mkdir()
+    recovered = tmp_path / "recovered" / "cut.mcap"
+    assert main(["recover", str(path), "-o", str(recovered)]) == 0
+    capsys.readouterr()
+    assert read_summary_table(recovered) is not None  # rtsid recover writes the table too
+    fast = summary_csv([str(recovered)], capsys)
+    monkeypatch.setenv(FROM_MESSAGES_ENV, "1")
+    assert summary_csv([str(recovered)], capsys) == fast
+    assert next(csv.DictReader(io.StringIO(fast)))["windows"] == "40"

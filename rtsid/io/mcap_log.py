@@ -46,7 +46,7 @@ from rtsid.io.schemas import (
     encode_status,
 )
 from rtsid.io.session import SessionConfig, recording_stem
-from rtsid.io.summary_table import ATTACHMENT_NAME, MEDIA_TYPE, TableBuilder
+from rtsid.io.summary_table import TableBuilder, attach_table
 from rtsid.lifecycle import ThreadOwner
 
 __all__ = ["McapConfig", "McapLogger", "channel_kinds", "recording_name", "register_channels"]
@@ -706,7 +706,7 @@ class McapLogger(ThreadOwner):
         size = 0
         try:
             if writer is not None and finish:
-                _attach_table(writer, table)
+                attach_table(writer, table)  # rtsid summary reads this, not the messages
                 writer.finish()
             if stream is not None:
                 stream.flush()
@@ -754,21 +754,6 @@ class McapLogger(ThreadOwner):
             self._c.file = None
         if first:
             log.error("%s", message)
-
-
-def _attach_table(writer: Any, table: TableBuilder | None) -> None:
-    """Write the part's summary table (:mod:`rtsid.io.summary_table`) as its attachment;
-    none when a message of the part was not a JSON object (the reader reads the messages)."""
-    if table is None or table.undecodable:
-        return
-    now = time.time_ns()
-    writer.add_attachment(
-        create_time=now,
-        log_time=now,
-        name=ATTACHMENT_NAME,
-        media_type=MEDIA_TYPE,
-        data=table.table().to_npz(),
-    )
 
 
 def _describe_os_error(exc: OSError, action: str, path: Path) -> str:

@@ -26,7 +26,14 @@ from rtsid import __version__
 from rtsid.errors import InputDataError, RecordingError
 from rtsid.io.files import atomic_write
 from rtsid.io.schemas import SCHEMAS, SampleBatch, decode_samples
-from rtsid.io.summary_table import ATTACHMENT_NAME, KINDS, SummaryTable, TableError
+from rtsid.io.summary_table import (
+    ATTACHMENT_NAME,
+    KINDS,
+    SummaryTable,
+    TableBuilder,
+    TableError,
+    attach_table,
+)
 
 __all__ = [
     "ReadReport",
@@ -56,6 +63,8 @@ _STOPPED = (
     "the writer stopped before finishing the file: kill -9, a crash, a full disk or a torn copy"
 )
 TOPICS = {name: topic for name, (_schema, topic) in SCHEMAS.items()}
+#: The summary table's channels: kind by topic.
+_TABLE_KINDS = {TOPICS[kind]: kind for kind in KINDS}
 
 
 @dataclass
@@ -422,7 +431,10 @@ def recover(
     with atomic_write(dst_p, "wb", what="the recovered recording") as out:
         writer = Writer(out, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         writer.start(profile="", library=f"rtsid {__version__} (recover)")
-        _copy_records(itertools.chain([] if header is None else [header], records), writer, report)
+        table = TableBuilder()
+        _copy_records(
+            itertools.chain([] if header is None else [header], records), writer, report, table
+        )
         writer.add_metadata(
             "recovery",
             {
@@ -432,12 +444,16 @@ def recover(
                 "stopped_because": report.error or "",
             },
         )
+        attach_table(writer, table)  # as the logger does: rtsid summary reads it
         writer.finish()
     return report
 
 
-def _copy_records(records: Iterable[Any], writer: Any, report: ReadReport) -> None:
-    """Schemas, channels, messages and metadata into ``writer`` (ids renumbered)."""
+def _copy_records(
+    records: Iterable[Any], writer: Any, report: ReadReport, table: TableBuilder
+) -> None:
+    """Schemas, channels, messages and metadata into ``writer`` (ids renumbered); the
+    messages of the summary table's channels into ``table``."""
     from mcap.records import Channel, Message, Metadata, Schema
 
     schema_ids: dict[int, int] = {}
@@ -465,6 +481,8 @@ def _copy_records(records: Iterable[Any], writer: Any, report: ReadReport) -> No
             report.messages += 1
             topic = topic_of[new_id]
             report.by_topic[topic] = report.by_topic.get(topic, 0) + 1
+            if topic in _TABLE_KINDS:
+                table.add_payload(_TABLE_KINDS[topic], record.data)
         elif isinstance(record, Metadata):
             writer.add_metadata(record.name, dict(record.metadata))
 

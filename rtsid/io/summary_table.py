@@ -24,6 +24,7 @@ from __future__ import annotations
 import io
 import json
 import math
+import time
 import zipfile
 from array import array
 from collections.abc import Iterable, Mapping, Sequence
@@ -41,6 +42,7 @@ __all__ = [
     "SummaryTable",
     "TableBuilder",
     "TableError",
+    "attach_table",
 ]
 
 #: The attachment's name and media type.
@@ -422,3 +424,20 @@ def _read_npy(fh: Any, size: int) -> np.ndarray:
     if len(raw) != nbytes:
         raise TableError("summary table column is shorter than it declares")
     return np.frombuffer(raw, dtype=dtype).reshape(shape)
+
+
+def attach_table(writer: Any, builder: TableBuilder | None) -> bool:
+    """Write ``builder``'s table into a started ``mcap.writer.Writer`` as the file's summary
+    attachment (call it just before ``finish``); nothing when a message the builder saw was not
+    a JSON object (the reader would read the messages anyway). Returns whether it wrote."""
+    if builder is None or builder.undecodable:
+        return False
+    now = time.time_ns()
+    writer.add_attachment(
+        create_time=now,
+        log_time=now,
+        name=ATTACHMENT_NAME,
+        media_type=MEDIA_TYPE,
+        data=builder.table().to_npz(),
+    )
+    return True
