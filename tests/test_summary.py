@@ -458,7 +458,10 @@ def test_the_summary_benchmark_times_summary_beside_replay(tmp_path, capsys):
     assert module.run(args) == 0  # type: ignore[attr-defined]
     out = capsys.readouterr().out
     assert "study: 2 recordings" in out
-    assert "| rtsid replay SUBSET --jobs 1 |          1 |" in out
+    assert "rtsid replay SUBSET --jobs 1 |          1 |" in out
+    assert "rtsid summary FOLDER (summary tables) |          2 |" in out
+    assert "... from the messages (no table) |          2 |" in out
+    assert "the two tables are byte for byte the same: yes" in out
     (row,) = rows_of(tmp_path / "study", by="subject")  # S01: one relaxed, one active
     assert row["condition"] == "relaxed;active" and row["windows"] > 0
     assert row["K_median"] == pytest.approx(160.0, rel=0.1)  # 120 and 200

@@ -1,26 +1,29 @@
-"""``rtsid bench summary``: how long ``rtsid summary`` takes over a study's folder, beside
-``rtsid replay`` on the same recordings (the reference: replay estimates again, summary only
-reads).
+"""``rtsid bench summary``: how long ``rtsid summary`` takes over a study's folder — from the
+recordings' summary tables, and from their messages (the path of files without a table) in
+the same run — beside ``rtsid replay`` on some of the recordings (replay estimates again,
+summary only reads).
 
 The study is made as the daemon makes recordings: a simulated ankle per recording (2500 Hz,
 filtered-noise perturbation, its own stiffness) through :class:`rtsid.Identifier` at the
 daemon's 20 ms hop, written by rtsid's MCAP logger — samples, estimates, the slow lane's fits,
-2 Hz status and the ``rtsid.session`` metadata record — one subfolder per recording. Both
-commands run as a user runs them, in a fresh interpreter (its start-up included).
+2 Hz status, the ``rtsid.session`` metadata record and the summary table — one subfolder per
+recording. Every command runs as a user runs it, in a fresh interpreter (its start-up
+included): wall time (median and p99 of ``--runs``) and peak RSS of that process. Made once,
+a study is reused with ``--folder`` (one ten-minute recording takes 5–10 min to make on one
+core).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
-from rtsid.benchmarks.table import print_table
+from rtsid.benchmarks.table import median_p99, print_table
 
 FS_HZ = 2500.0
 
@@ -33,7 +36,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=4,
         metavar="N",
-        help="replay only the first N, on one core (4; replay costs ~7 s per minute recorded)",
+        help="replay only the first N, on one core (4; 0: no replay; replay costs ~7 s per "
+        "minute recorded)",
+    )
+    parser.add_argument(
+        "--runs", type=int, default=5, help="runs of each summary command (5; median, p99)"
+    )
+    parser.add_argument(
+        "--reference-runs",
+        type=int,
+        default=1,
+        metavar="N",
+        help="runs of the summary from the messages (1; ~2 s per ten-minute recording)",
     )
     parser.add_argument(
         "--folder",
@@ -99,25 +113,37 @@ def make_recording(folder: Path, i: int, seconds: float) -> list[Path]:
     return list(logger.files)
 
 
-def _timed(argv: list[str]) -> float:
-    """Wall time of ``rtsid ARGV`` in a fresh interpreter, s."""
-    started = time.perf_counter()
-    done = subprocess.run(
-        [sys.executable, "-m", "rtsid.cli", *argv],
-        capture_output=True,
-        text=True,
-        timeout=3600,
-        check=False,
-    )
-    wall = time.perf_counter() - started
-    if done.returncode != 0:
-        raise RuntimeError(f"rtsid {' '.join(argv)} exited {done.returncode}: {done.stderr}")
-    return wall
+#: ``rtsid summary`` reads every recording's messages, as for files without a summary table.
+FROM_MESSAGES = {"RTSID_SUMMARY_FROM_MESSAGES": "1"}
+
+
+def _timed(argv: list[str], env: dict[str, str] | None = None) -> tuple[float, float]:
+    """Wall time (s) and peak RSS (MiB) of ``rtsid ARGV`` in a fresh interpreter (``env``
+    added to this one's)."""
+    with tempfile.TemporaryFile() as err:
+        started = time.perf_counter()
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "rtsid.cli", *argv],
+            stdout=subprocess.DEVNULL,
+            stderr=err,
+            env={**os.environ, **(env or {})},
+        )
+        _pid, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - started
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        if proc.returncode != 0:
+            err.seek(0)
+            raise RuntimeError(
+                f"rtsid {' '.join(argv)} exited {proc.returncode}: {err.read().decode()[-2000:]}"
+            )
+    return wall, usage.ru_maxrss / 1024
 
 
 def run(args: argparse.Namespace) -> int:
     count, seconds = (2, 5.0) if args.quick else (args.recordings, args.seconds)
-    replayed = 1 if args.quick else max(1, min(args.replay_recordings, count))
+    replayed = 1 if args.quick else max(0, min(args.replay_recordings, count))
+    runs = 1 if args.quick else max(1, args.runs)
+    reference_runs = 1 if args.quick else max(1, args.reference_runs)
     with tempfile.TemporaryDirectory(prefix="rtsid-bench-summary-") as tmp:
         folder = args.folder or Path(tmp) / "study"
         existing = sorted(folder.rglob("*.mcap")) if folder.exists() else []
@@ -133,20 +159,43 @@ def run(args: argparse.Namespace) -> int:
             f"study: {len(files)} recordings in {folder} ({mib:.1f} MiB)"
             + (f", made in {made_s:.1f} s" if made_s else ", reused")
         )
-        rows = []
-        for name, argv, n in (
-            ("rtsid summary FOLDER", ["summary", str(folder), "-o", f"{tmp}/t.csv"], len(files)),
-            ("rtsid summary SUBSET", ["summary", str(subset), "-o", f"{tmp}/s.csv"], replayed),
-            ("rtsid replay SUBSET --jobs 1", ["replay", str(subset), "--jobs", "1"], replayed),
-        ):
-            wall = _timed(argv)
-            rows.append([name, n, wall, wall / n])
+        table = ["summary", str(folder), "-o", f"{tmp}/tables.csv"]
+        messages = ["summary", str(folder), "-o", f"{tmp}/messages.csv"]
+        cases: list[tuple[str, list[str], dict[str, str] | None, int, int]] = [
+            ("rtsid summary FOLDER (summary tables)", table, None, len(files), runs),
+            (
+                "... from the messages (no table)",
+                messages,
+                FROM_MESSAGES,
+                len(files),
+                reference_runs,
+            ),
+        ]
+        if replayed:
+            subset_csv = ["summary", str(subset), "-o", f"{tmp}/s.csv"]
+            cases.append(("rtsid summary SUBSET", subset_csv, None, replayed, runs))
+            replay = ["replay", str(subset), "--jobs", "1"]
+            cases.append(("rtsid replay SUBSET --jobs 1", replay, None, replayed, 1))
+        rows: list[list[object]] = []
+        medians: list[float] = []
+        for name, argv, env, n, repeat in cases:
+            measured = [_timed(argv, env) for _ in range(repeat)]
+            median, p99 = median_p99([wall for wall, _rss in measured])
+            rss = max(rss for _wall, rss in measured)
+            rows.append([name, n, repeat, median, p99, median / n, rss])
+            medians.append(median)
         print_table(
-            "rtsid summary (reads the estimates) against rtsid replay (estimates again), wall "
-            "time in a fresh interpreter",
-            ["command", "recordings", "wall s", "s per recording"],
+            "rtsid summary from the recordings' summary tables, from their messages, and rtsid "
+            "replay (estimates again): wall time and peak RSS of a fresh interpreter",
+            ["command", "recordings", "runs", "median s", "p99 s", "s per recording", "RSS MiB"],
             rows,
         )
-        per = np.array([rows[1][3], rows[2][3]])
-        print(f"replay / summary per recording (same subset): {per[1] / per[0]:.1f}×")
-    return 0
+        same = Path(f"{tmp}/tables.csv").read_bytes() == Path(f"{tmp}/messages.csv").read_bytes()
+        print(f"the two tables are byte for byte the same: {'yes' if same else 'NO'}")
+        print(
+            "from the messages / from the tables (medians, same run): "
+            f"{medians[1] / medians[0]:.1f}×"
+        )
+        if replayed:
+            print(f"replay / summary per recording (same subset): {medians[3] / medians[2]:.1f}×")
+    return 0 if same else 1
