@@ -17,6 +17,7 @@
 from __future__ import annotations
 
 import contextlib
+import io
 import math
 import os
 import tempfile
@@ -161,7 +162,9 @@ def _write_error(dest: Path, what: str, exc: OSError) -> RecordingError:
     )
 
 
-def read_npz(path: str | Path, required: Iterable[str], *, hint: str) -> dict[str, np.ndarray]:
+def read_npz(
+    path: str | Path, required: Iterable[str], *, hint: str, content: bytes | None = None
+) -> dict[str, np.ndarray]:
     """Every array of an ``.npz`` file, after checking the ``required`` ones are there.
 
     Parameters
@@ -172,6 +175,9 @@ def read_npz(path: str | Path, required: Iterable[str], *, hint: str) -> dict[st
         Arrays the caller needs.
     hint : str
         How to make a good file, appended to the error about missing arrays.
+    content : bytes, optional
+        The ``.npz`` itself, already in memory (e.g. an MCAP attachment); ``path`` then only
+        names it in errors.
 
     Returns
     -------
@@ -183,10 +189,10 @@ def read_npz(path: str | Path, required: Iterable[str], *, hint: str) -> dict[st
         Missing, empty, truncated or not an ``.npz`` file, or a required array missing.
     """
     p = Path(path)
-    if not p.is_file():
+    if content is None and not p.is_file():
         raise InputDataError(f"{str(p)!r} does not exist or is not a file; check the path")
     try:
-        with p.open("rb") as fh:
+        with p.open("rb") if content is None else io.BytesIO(content) as fh:
             check_file_size(p, _npz_declared_bytes(fh), "arrays", "split it into smaller files")
             fh.seek(0)
             loaded = np.load(fh, allow_pickle=False)

@@ -25,13 +25,15 @@ import io
 import json
 import math
 import time
-import zipfile
 from array import array
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from rtsid.errors import InputDataError
+from rtsid.io.files import read_npz
 
 __all__ = [
     "ATTACHMENT_NAME",
@@ -65,10 +67,6 @@ _TEXT = ("robot", "joint", "reason")
 #: Reflex and status columns.
 _REFLEX_FLOAT = ("reflex_gain", "reflex_delay_ms")
 _STATUS_INT = ("status_host_time_ns", "status_lost_samples")
-
-#: Largest table read back: rows per column, and uncompressed bytes of a member.
-MAX_TABLE_ROWS = 50_000_000
-_MAX_MEMBER_BYTES = 1 << 30
 
 
 class TableError(ValueError):
@@ -273,7 +271,10 @@ class SummaryTable:
             dtype, a column missing or of the wrong length, another version, a code outside its
             vocabulary, or session/marker JSON that is not a list of objects.
         """
-        arrays = _load_npz(data)
+        try:
+            arrays = read_npz(ATTACHMENT_NAME, (), hint="", content=data)
+        except InputDataError as exc:
+            raise TableError(str(exc)) from None
         version = _member(arrays, "version", "i")
         if version.shape != (1,) or int(version[0]) != VERSION:
             raise TableError(
@@ -380,50 +381,6 @@ def _member(arrays: Mapping[str, np.ndarray], name: str, kinds: str) -> np.ndarr
     if value.dtype.kind not in allowed:
         raise TableError(f"summary table column {name} has dtype {value.dtype}")
     return value
-
-
-def _load_npz(data: bytes) -> dict[str, np.ndarray]:
-    """The members of an ``.npz`` as arrays, each checked before it is allocated: a plain
-    dtype (no object, no structured), a shape whose bytes are those the member holds, at most
-    :data:`MAX_TABLE_ROWS` elements. Never unpickles."""
-    try:
-        archive = zipfile.ZipFile(io.BytesIO(data))
-    except (zipfile.BadZipFile, ValueError, OSError) as exc:
-        raise TableError(f"summary table is not an npz archive ({exc})") from None
-    out: dict[str, np.ndarray] = {}
-    with archive:
-        for info in archive.infolist():
-            if not info.filename.endswith(".npy") or info.file_size > _MAX_MEMBER_BYTES:
-                raise TableError(f"summary table member {info.filename!r} is not a column")
-            try:
-                with archive.open(info) as fh:
-                    out[info.filename[:-4]] = _read_npy(fh, info.file_size)
-            except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as exc:
-                if isinstance(exc, TableError):
-                    raise
-                raise TableError(f"summary table member {info.filename!r} does not read") from None
-    return out
-
-
-def _read_npy(fh: Any, size: int) -> np.ndarray:
-    fmt = np.lib.format
-    version = fmt.read_magic(fh)
-    if version == (1, 0):
-        shape, fortran, dtype = fmt.read_array_header_1_0(fh)
-    elif version == (2, 0):
-        shape, fortran, dtype = fmt.read_array_header_2_0(fh)
-    else:
-        raise TableError(f"summary table column of npy version {version}")
-    if dtype.hasobject or dtype.kind not in "biufU" or fortran or len(shape) > 1:
-        raise TableError(f"summary table column of dtype {dtype} and shape {shape}")
-    count = int(np.prod(shape, dtype=np.int64)) if shape else 1
-    nbytes = count * dtype.itemsize
-    if count > MAX_TABLE_ROWS or nbytes > size:
-        raise TableError(f"summary table column declares {count} values in {size} bytes")
-    raw = fh.read(nbytes)
-    if len(raw) != nbytes:
-        raise TableError("summary table column is shorter than it declares")
-    return np.frombuffer(raw, dtype=dtype).reshape(shape)
 
 
 def attach_table(writer: Any, builder: TableBuilder | None) -> bool:
