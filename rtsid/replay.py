@@ -34,6 +34,7 @@ from rtsid.io.mcap_read import (
 )
 from rtsid.io.recording import SampleGrid, iter_batches, read_session, session_parts
 from rtsid.io.schemas import SCHEMAS, SampleBatch, encode_estimate, encode_json
+from rtsid.io.summary_table import TableBuilder, attach_table
 from rtsid.link.ring import Snapshot
 from rtsid.runtime.daemon import DaemonConfig
 from rtsid.runtime.worker import WindowEvaluator
@@ -466,24 +467,23 @@ def write_estimates_mcap(
     writer.add_metadata("config", {"json": encode_json(config.as_dict()).decode()})
     if session_metadata:
         writer.add_metadata("rtsid.session", dict(session_metadata))
+    table = TableBuilder()  # rtsid summary reads it instead of the messages, as the logger's
+
+    def put(kind: str, t_s: float, data: bytes, seq: int) -> None:
+        _add_message(writer, channels[kind], t_s, data, seq)
+        table.add_payload(kind, data)
+
     for kind, carried in (("session", sessions), ("marker", markers)):
         for k, message in enumerate(carried):
-            _add_message(writer, channels[kind], message["t_s"], encode_json(message), k)
+            put(kind, message["t_s"], encode_json(message), k)
     fs = config.link.fs_hz
     for fit in reflex:  # logged at the sample time from which it applies
-        _add_message(
-            writer, channels["reflex"], fit["applies_from_index"] / fs, encode_json(fit), fit["seq"]
-        )
+        put("reflex", fit["applies_from_index"] / fs, encode_json(fit), fit["seq"])
     count = 0
     for message in messages:
-        _add_message(
-            writer,
-            channels["estimate"],
-            message["t_end_s"],
-            encode_estimate(message),
-            message["seq"],
-        )
+        put("estimate", message["t_end_s"], encode_estimate(message), message["seq"])
         count += 1
+    attach_table(writer, table)
     writer.finish()
     return count
 

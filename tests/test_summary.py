@@ -690,3 +690,18 @@ def test_a_killed_loggers_file_has_no_table_and_still_summarises(tmp_path, capsy
     monkeypatch.setenv(FROM_MESSAGES_ENV, "1")
     assert summary_csv([str(recovered)], capsys) == fast
     assert next(csv.DictReader(io.StringIO(fast)))["windows"] == "40"
+
+
+def test_a_replays_mcap_output_carries_the_table(tmp_path, capsys, monkeypatch):
+    from rtsid.io.mcap_read import read_summary_table
+    from rtsid.summary import FROM_MESSAGES_ENV
+
+    source = Path(__file__).resolve().parents[1] / "replay" / "reference" / "sim_3s.mcap"
+    out = tmp_path / "replayed.mcap"
+    assert main(["replay", str(source), "-o", str(out), "--rate", "max"]) == 0
+    capsys.readouterr()
+    assert read_summary_table(out) is not None
+    fast = summary_csv([str(out)], capsys)
+    monkeypatch.setenv(FROM_MESSAGES_ENV, "1")
+    assert summary_csv([str(out)], capsys) == fast
+    assert int(next(csv.DictReader(io.StringIO(fast)))["windows"]) > 0
