@@ -239,12 +239,6 @@ class SummaryTable:
         names = [str(n) for n in self.columns[f"{key}_names"]]
         return [names[c] if c >= 0 else None for c in self.columns[key].tolist()]
 
-    def code_of(self, key: str, text: str) -> int:
-        """The code of ``text`` in text column ``key`` (-2 when it never occurs)."""
-        names = self.columns[f"{key}_names"]
-        hits = np.flatnonzero(names == text)
-        return int(hits[0]) if hits.size else -2
-
     # ------------------------------------------------------------------ npz
     def to_npz(self) -> bytes:
         """The table as ``.npz`` bytes (``savez_compressed``; no object arrays)."""
@@ -348,8 +342,6 @@ def _checked_columns(arrays: Mapping[str, np.ndarray], counts: dict[str, int]) -
     lengths: dict[str, int] = {}
     for key, (dtype_kind, kind, rule) in _SHAPES.items():
         column = _member(arrays, key, dtype_kind)
-        if column.ndim != 1:
-            raise TableError(f"summary table column {key} is not 1-D")
         n = column.size
         if (rule == "==" and n != counts[kind]) or n > counts[kind]:
             raise TableError(f"summary table column {key} has {n} rows for {counts[kind]} {kind}")
@@ -377,6 +369,8 @@ def _member(arrays: Mapping[str, np.ndarray], name: str, kinds: str) -> np.ndarr
     if name not in arrays:
         raise TableError(f"summary table has no column {name}")
     value = arrays[name]
+    if value.ndim != 1:
+        raise TableError(f"summary table member {name} has shape {value.shape}, not 1-D")
     allowed = set(kinds) | ({"u", "b"} if "i" in kinds else set())
     if value.dtype.kind not in allowed:
         raise TableError(f"summary table column {name} has dtype {value.dtype}")

@@ -101,6 +101,7 @@ def test_hostile_or_foreign_tables_are_refused_never_unpickled() -> None:
         "bad npy header": with_member(good, "K.npy", header),
         "another version": with_member(good, "version.npy", npz_member(VERSION + 1)),
         "a column missing": npz(version=np.array([VERSION])),
+        "counts of two dimensions": with_member(good, "counts.npy", npz_member_2d()),
         "pickle itself": pickle.dumps(_Boom()),
     }
     for what, data in cases.items():
@@ -109,6 +110,12 @@ def test_hostile_or_foreign_tables_are_refused_never_unpickled() -> None:
         except TableError:
             continue
         pytest.fail(f"{what}: accepted")
+
+
+def npz_member_2d() -> bytes:
+    out = io.BytesIO()
+    np.save(out, np.zeros((5, 2), dtype=np.int64))
+    return out.getvalue()
 
 
 def npz_member(version: int) -> bytes:
