@@ -170,10 +170,10 @@ def parse_history_query(
     to_ns = _parse_ns("to", parameters["to"]) if "to" in parameters else 2**63 - 1
     if to_ns < from_ns:
         raise QueryError(f"to={to_ns} is before the range's start {from_ns}; swap them")
-    kinds = None
-    if parameters.get("kind"):
-        kinds = tuple(k.strip() for k in parameters["kind"].split(",") if k.strip())
-    return HistoryQuery(kinds, from_ns, to_ns)
+    # ``kind=`` naming no channel (empty, blanks, commas) means every channel, as if left out:
+    # an empty tuple would ask for nothing and the query would get no reply at all.
+    names = tuple(k.strip() for k in parameters.get("kind", "").split(",") if k.strip())
+    return HistoryQuery(names or None, from_ns, to_ns)
 
 
 class MessageRing:
