@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import csv
 import os
+import warnings
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,7 +44,13 @@ from typing import IO, Any
 
 import numpy as np
 
-from rtsid.errors import InputDataError
+from rtsid.errors import (
+    IncompleteRecordingWarning,
+    InputDataError,
+    RecordingError,
+    RtsidError,
+    RtsidWarning,
+)
 from rtsid.io.estimate_csv import encode_value
 from rtsid.io.recording import (
     RecordedMessages,
@@ -154,13 +161,61 @@ def find_recordings(paths: Sequence[str | Path]) -> list[list[Path]]:
             raise InputDataError(f"{p}: no such file or folder; check the path")
     recordings: list[list[Path]] = []
     seen: set[Path] = set()
-    for f in files:
+    # originals first, so that a recovered copy is taken in its original's place, once
+    for f in sorted(files, key=lambda f: f.stem.endswith("-recovered")):
         if f in seen:
             continue
         parts = session_parts(f)
         seen.update(parts)
+        parts = [_recovered_copy(p) for p in parts]
+        seen.update(parts)
         recordings.append(parts)
     return recordings
+
+
+def _recovered_copy(part: Path) -> Path:
+    """``part``, or the copy ``rtsid recover`` made of it beside it (``…-recovered.mcap``).
+
+    The copy holds everything the damaged original still had; reading both would count the
+    same windows twice, so the original is left out with a note.
+    """
+    copy = part.with_name(part.stem + "-recovered.mcap")
+    if not copy.is_file():
+        return part
+    warnings.warn(
+        RtsidWarning(f"read {copy.name} in place of {part.name}, the damaged file it recovers"),
+        stacklevel=3,
+    )
+    return copy
+
+
+def read_study(
+    recordings: Sequence[Sequence[Path]], *, from_messages: bool | None = None
+) -> list[StudyRecording]:
+    """Every recording of a study that can be read (:func:`read_study_recording`).
+
+    One that cannot (not MCAP, no ``/estimate`` message, …) is skipped with an
+    :class:`~rtsid.errors.IncompleteRecordingWarning` naming it and why, so that one bad file
+    in a study's folder does not cost the table of all the others; ``rtsid summary`` then
+    exits with status 3.
+
+    Raises
+    ------
+    RecordingError, InputDataError
+        No recording could be read (the first one's error).
+    """
+    read: list[StudyRecording] = []
+    errors: list[RtsidError] = []
+    for parts in recordings:
+        try:
+            read.append(read_study_recording(parts, from_messages=from_messages))
+        except (RecordingError, InputDataError) as exc:
+            errors.append(exc)
+            if len(recordings) > 1:
+                warnings.warn(IncompleteRecordingWarning(f"skipped: {exc}"), stacklevel=2)
+    if not read and errors:
+        raise errors[0]
+    return read
 
 
 @dataclass(frozen=True)

@@ -415,6 +415,36 @@ def test_bad_inputs_are_one_line_and_exit_2(tmp_path, capsys):
     assert len(err) == 1 and "no /estimate messages" in err[0] and "rtsid replay" in err[0]
 
 
+def test_one_bad_file_in_a_study_is_skipped_by_name_and_the_rest_summarised(tmp_path, capsys):
+    folder = tmp_path / "study"
+    folder.mkdir()
+    write_recording(folder / "a.mcap", windows(0.0, 4.0, lambda t: 100.0), session=SUBJECT)
+    (folder / "notes.mcap").write_text("not a recording\n")
+    write_recording(folder / "raw.mcap", [])
+    code, rows, err = cli_table([str(folder)], capsys)
+    assert code == 3  # the table is not the whole folder
+    warnings = [line for line in err if "warning" in line]
+    assert len(warnings) == 2, err
+    assert any("notes.mcap" in w and "not an MCAP file" in w for w in warnings)
+    assert any("raw.mcap" in w and "no /estimate messages" in w for w in warnings)
+    assert [r["subject"] for r in rows] == ["S01"] and int(rows[0]["windows"]) == 40
+
+
+def test_a_recovered_copy_is_read_in_place_of_its_damaged_original(tmp_path, capsys):
+    # rtsid recover writes X-recovered.mcap beside a damaged X.mcap: a folder holding both
+    # counted every window twice
+    folder = tmp_path / "study"
+    folder.mkdir()
+    estimates = windows(0.0, 6.0, lambda t: 100.0)
+    write_recording(folder / "s1.mcap", estimates, session=SUBJECT, finish=False)
+    write_recording(folder / "s1-recovered.mcap", estimates, session=SUBJECT)
+    code, rows, err = cli_table([str(folder)], capsys)
+    assert code == 0, err
+    assert len(rows) == 1 and int(rows[0]["windows"]) == 60
+    assert rows[0]["recording"] == "s1-recovered.mcap"
+    assert any("s1-recovered.mcap in place of s1.mcap" in line for line in err)
+
+
 def test_plot_writes_a_figure_per_subject(tmp_path, capsys):
     study(tmp_path / "study")
     fig = tmp_path / "fig.png"
@@ -662,6 +692,13 @@ def test_a_table_that_does_not_match_its_file_is_not_used(tmp_path):
     for attachment in (b"PK\x03\x04 not a zip", bad_code, table_of(est)[:-50]):
         damaged = write_recording(tmp_path / "damaged.mcap", est, attachment=attachment)
         assert read_summary_table(damaged) is None
+    # every cut of a whole file: no table (the message reader then says what is wrong), never
+    # an exception (a file shorter than a footer raised OSError from the footer's seek)
+    data = whole.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    for size in (0, 1, 8, 20, 37, len(data) // 2, len(data) - 1):
+        cut.write_bytes(data[:size])
+        assert read_summary_table(cut) is None, size
     reference = rows_of(write_recording(tmp_path / "plain.mcap", est))
     for path in (stale, damaged):
         rows = rows_of(path)

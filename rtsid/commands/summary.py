@@ -51,13 +51,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from rtsid.io.estimate_csv import open_output
-    from rtsid.summary import find_recordings, read_study_recording, summarise, write_summary
+    from rtsid.summary import find_recordings, read_study, summarise, write_summary
 
     if args.plot:
         from rtsid.plots import require_matplotlib
 
         require_matplotlib()
-    recordings = [read_study_recording(parts) for parts in find_recordings(args.recording)]
+    recordings = read_study(find_recordings(args.recording))
     rows = summarise(recordings, args.by, include_between=args.include_between)
     with open_output(args.output) as fh:
         write_summary(rows, fh)

@@ -630,6 +630,8 @@ def _summary_records(fh: IO[bytes]) -> dict[str, list[Any]] | None:
         Opcode.ATTACHMENT_INDEX: ("attachment_indexes", AttachmentIndex),
         Opcode.METADATA_INDEX: ("metadata_indexes", MetadataIndex),
     }
+    if fh.seek(0, 2) < 2 * MAGIC_SIZE + _FOOTER_BYTES:
+        return None  # too short to hold a footer: the message reader says what the file is
     fh.seek(-(_FOOTER_BYTES + MAGIC_SIZE), 2)
     footer = next(StreamReader(fh, skip_magic=True, record_size_limit=1024).records)
     if not isinstance(footer, Footer) or footer.summary_offset_start == 0:
