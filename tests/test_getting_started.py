@@ -180,3 +180,18 @@ def test_the_columns_a_cut_shows_are_the_summarys():
             assert lines[n + 1] == ",".join(COLUMNS[f - 1] for f in fields), line
             checked += 1
     assert checked >= 3
+
+
+def test_every_link_of_the_guide_reaches_a_file_and_heading():
+    """``[text](file.md#anchor)``: the file exists and has that heading (GitHub's anchors)."""
+    links = re.findall(r"\]\(([^)#\s]+)(?:#([\w-]+))?\)", guide_text())
+    assert len(links) >= 5
+    for target, anchor in links:
+        path = (GUIDE.parent / target).resolve()
+        assert path.exists(), f"({target}): no such file"
+        if anchor:
+            headings = re.findall(r"^#+ (.+)$", path.read_text(encoding="utf-8"), re.MULTILINE)
+            anchors = {
+                re.sub(r"[^\w -]", "", h).strip().lower().replace(" ", "-") for h in headings
+            }
+            assert anchor in anchors, f"({target}#{anchor}): no such heading"
