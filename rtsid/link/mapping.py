@@ -172,6 +172,14 @@ class _Field:
         return np.asarray(physical * self.factor, dtype=np.float64)
 
 
+def _or_leave_out(key: str, fix: str) -> str:
+    """``fix``, and for an optional key the other fix: leave it out with ``""`` (a key left
+    out of the section takes the built-in ankle protocol's name, which another DBC lacks)."""
+    if key in ("position", "torque"):
+        return fix
+    return f'{fix}, or link.protocol.{key} = "" to leave it out'
+
+
 class _Resolver:
     """Looks signals up in one DBC, every failure one line naming DBC, message and signal."""
 
@@ -190,7 +198,7 @@ class _Resolver:
             what = f" (for signal {signal!r})" if signal else ""
             raise self.fail(
                 f"{key} names message {name!r}{what}, which the DBC does not define",
-                f"use one of its messages ({known})",
+                _or_leave_out(key, f"use one of its messages ({known})"),
             ) from None
 
     def signal(self, ref: str, key: str, min_bits: int = 1) -> tuple[Any, Any]:
@@ -206,7 +214,7 @@ class _Resolver:
             known = ", ".join(s.name for s in message.signals) or "none"
             raise self.fail(
                 f"message {msg_name} has no signal {sig_name!r} (for {key})",
-                f"use one of {known}",
+                _or_leave_out(key, f"use one of {known}"),
             ) from None
         where = f"message {msg_name} signal {sig_name}"
         if signal.multiplexer_ids is not None or signal.is_multiplexer:

@@ -104,6 +104,22 @@ def test_a_bad_mapping_of_the_builtin_dbc_is_one_line_naming_dbc_message_and_sig
     one_line_naming(exc, *names)
 
 
+def test_an_optional_key_left_out_of_another_dbcs_mapping_says_how_to_leave_it_out():
+    """A key left out takes the ankle DBC's name; the fix names the key and its "" (found
+    by a new user following docs/getting-started.md with the two-frame DBC)."""
+    mapping = {k: v for k, v in TWOFRAME.items() if k != "position_saturated"}
+    with pytest.raises(ConfigError) as exc:
+        ProtocolConfig(**mapping)
+    one_line_naming(exc, "twoframe.dbc", "AnkleState", 'link.protocol.position_saturated = ""')
+    with pytest.raises(ConfigError) as exc:
+        ProtocolConfig(**{**TWOFRAME, "marker": "JointPosition.Trial"})
+    one_line_naming(exc, "JointPosition", "'Trial'", 'link.protocol.marker = "" to leave it out')
+    with pytest.raises(ConfigError) as exc:  # a required key has no such way out
+        ProtocolConfig(**{**TWOFRAME, "torque": "JointTorque.Torq"})
+    one_line_naming(exc, "JointTorque", "'Torq'", "use one of Torque, TorqueSaturated")
+    assert "leave it out" not in str(exc.value)
+
+
 def test_a_counter_too_narrow_and_a_unit_rad_cannot_hold_are_named(tmp_path):
     dbc = tmp_path / "narrow.dbc"
     dbc.write_text(NARROW_DBC)
