@@ -57,3 +57,20 @@ def test_an_unexpected_exception_is_one_line_and_exit_70(monkeypatch, capsys, er
     if isinstance(error, TypeError):
         with pytest.raises(TypeError):
             main(["recover", "x.mcap"])
+
+
+def test_the_desk_commands_start_without_the_numerics():
+    # `rtsid mark` took 2–6 s on a busy machine, most of it importing scipy through
+    # rtsid.io.messages and rtsid.link: the experimenter waits on it at every trial
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, rtsid.cli, rtsid.commands.mark, rtsid.commands.condition, "
+        "rtsid.commands.summary, rtsid.summary, rtsid.commands.query; "
+        "print(sorted(m for m in ('scipy', 'rtsid.sim', 'rtsid.ident.stream') if m in sys.modules))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True
+    )
+    assert out.stdout.strip() == "[]", out.stdout
