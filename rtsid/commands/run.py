@@ -148,6 +148,25 @@ def _who(config: DaemonConfig) -> str:
     return f"; subject {s.subject}, session {s.session or '-'}, condition {s.condition or '-'}"
 
 
+class _ConsoleFormat(logging.Formatter):
+    """``rtsid run: …`` lines, with ``warning:`` or ``error:`` said as the CLI says them."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        text = super().format(record)
+        if record.levelno >= logging.ERROR:
+            return f"rtsid run: error: {text}"
+        if record.levelno >= logging.WARNING:
+            return f"rtsid run: warning: {text}"
+        return f"rtsid run: {text}"
+
+
+def _log_to_console(level: int) -> None:
+    """The daemon's log records on standard error as one prefixed line each."""
+    handler = logging.StreamHandler()
+    handler.setFormatter(_ConsoleFormat("%(message)s"))
+    logging.basicConfig(level=level, handlers=[handler])
+
+
 def run(args: argparse.Namespace) -> int:
     config = DaemonConfig.load(args.config)
     session = config.session.with_overrides(
@@ -161,8 +180,8 @@ def run(args: argparse.Namespace) -> int:
     def show(status: dict[str, Any], estimate: dict[str, Any] | None) -> None:
         print(status_line(status, estimate, link_where(config.link)), flush=True)
 
-    if not args.quiet:  # the worker says once which analysis it chose, and so on
-        logging.basicConfig(level=logging.INFO, format="rtsid run: %(message)s")
+    # the worker says once which analysis it chose, and so on; --quiet keeps the warnings
+    _log_to_console(logging.WARNING if args.quiet else logging.INFO)
     foxglove = _foxglove_server(args, config)
     daemon = Daemon(
         config,

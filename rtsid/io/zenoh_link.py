@@ -373,6 +373,15 @@ def open_when_reachable(conf: Any, timeout_s: float = 30.0) -> Any:
             time.sleep(0.2)
 
 
+_RUST_SOURCE = re.compile(r"\s+at \S+\.rs:\d+\.?")
+
+
+def zenoh_error_text(exc: BaseException) -> str:
+    """zenoh's error message without the Rust source locations it appends (`` at
+    /root/.cargo/…/unicast.rs:338.``): they name zenoh's code, not the user's problem."""
+    return _RUST_SOURCE.sub("", str(exc)).strip()
+
+
 def router_config(cfg: RouterConfig) -> Any:
     """The ``zenoh.Config`` of a router (eclipse-zenoh's router mode) for ``cfg``.
 
@@ -693,17 +702,18 @@ class ZenohPublisher:
         return True
 
     def _open_failure(self, exc: Exception) -> str:
+        exc_text = zenoh_error_text(exc)
         retry = f"estimates are still logged, retrying every {self.cfg.retry_interval_s:g} s"
         if self.cfg.config_file:
-            return f"zenoh session from {self.cfg.config_file} could not open: {exc}; {retry}"
+            return f"zenoh session from {self.cfg.config_file} could not open: {exc_text}; {retry}"
         if self.cfg.mode == "client":
             return (
-                f"zenoh router at {', '.join(self.cfg.connect)} is unreachable: {exc}; {retry} "
-                "(is `rtsid router` or zenohd running there? check zenoh.connect)"
+                f"zenoh router at {', '.join(self.cfg.connect)} is unreachable: {exc_text}; "
+                f"{retry} (is `rtsid router` or zenohd running there? check zenoh.connect)"
             )
         where = ", ".join(self.cfg.listen + self.cfg.connect)
         return (
-            f"zenoh session on {where} could not open: {exc}; {retry} (is another rtsid on "
+            f"zenoh session on {where} could not open: {exc_text}; {retry} (is another rtsid on "
             "this port? set zenoh.listen to a free one)"
         )
 

@@ -23,7 +23,7 @@ from typing import Any
 from rtsid.config import load_toml
 from rtsid.errors import ConfigError, ServiceError
 from rtsid.io.access_token import is_loopback
-from rtsid.io.zenoh_link import RouterConfig, router_config
+from rtsid.io.zenoh_link import RouterConfig, router_config, zenoh_error_text
 
 __all__ = ["RouterConfig", "load_router_config", "open_to_anyone", "run_router"]
 
@@ -127,8 +127,9 @@ def run_router(
         session = zenoh.open(conf)
     except zenoh.ZError as exc:
         raise ServiceError(
-            f"zenoh router on {where} could not open: {exc}; is another router or daemon "
-            "listening there? choose a free endpoint with --listen or [router] listen"
+            f"zenoh router on {where} could not open: {zenoh_error_text(exc)}; is another "
+            "router or daemon listening there? choose a free endpoint with --listen or "
+            "[router] listen"
         ) from None
     seen: set[str] = set()
     end = None if duration_s is None else time.monotonic() + duration_s

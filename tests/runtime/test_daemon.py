@@ -477,3 +477,31 @@ def test_the_run_summary_prints_reasons_as_their_values(tmp_path, free_port, cap
     err = capsys.readouterr().err
     assert re.search(r"withheld (gap: \d+|stale: \d+)", err), err
     assert "Reason" not in err and "{" not in err
+
+
+def test_a_taken_zenoh_port_is_one_prefixed_warning_without_zenohs_source_paths(
+    tmp_path, free_port
+):
+    # `rtsid run --quiet` printed zenoh's failure bare (no `rtsid run:`), with the Rust source
+    # locations zenoh appends (`at /root/.cargo/…/unicast.rs:338.`)
+    import socket
+
+    config = write_config(tmp_path, free_port)
+    argv = ["run", "--config", str(config), "--quiet", "--duration", "1.5"]
+    with socket.socket() as taken:
+        taken.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        taken.bind(("127.0.0.1", free_port))
+        taken.listen()
+        done = subprocess.run(
+            [sys.executable, "-m", "rtsid.cli", *argv],
+            capture_output=True,
+            text=True,
+            timeout=90,
+        )
+    assert done.returncode == 0, done.stderr  # acquisition and recording go on
+    lines = [line for line in done.stderr.splitlines() if "could not open" in line]
+    assert len(lines) == 1, done.stderr
+    assert lines[0].startswith("rtsid run: warning: zenoh session on tcp/127.0.0.1:")
+    assert "Address already in use" in lines[0] and "set zenoh.listen to a free one" in lines[0]
+    assert ".rs:" not in lines[0]
+    assert only_recording(tmp_path).stat().st_size > 0
