@@ -283,3 +283,16 @@ def test_the_joint_check_sees_a_weak_ankle_and_not_a_noisy_robot_alone(plant):
     position, torque = simulate(alone, 4.0)
     found = baseline_stiffness([(position, torque)], FS)
     assert not found.joint_attached and abs(found.t) < 2.0
+
+
+def test_a_calibration_of_another_rate_is_refused_when_the_config_loads(tmp_path):
+    # it was refused only once the daemon had started, after its start-up line
+    position, torque = simulate(NO_PERSON, 1.0)
+    save_calibration(Calibration(identify_robot([(position, torque)], FS)), tmp_path / "c.json")
+    config = tmp_path / "rig.toml"
+    worker = f'[worker]\ncalibration_file = "{tmp_path / "c.json"}"\n'
+    config.write_text("[link]\nfs_hz = 2000.0\n[plant]\nfs_hz = 2000.0\n" + worker)
+    with pytest.raises(ConfigError, match=f"identified at {FS:g} Hz but the samples are at 2000"):
+        DaemonConfig.load(config)
+    config.write_text(worker)  # the calibration's own rate
+    assert DaemonConfig.load(config).worker.calibration_file == str(tmp_path / "c.json")

@@ -138,6 +138,9 @@ class DaemonConfig:
             )
         self._check_analysis_fits_the_window()
         self._check_the_ring_holds_the_slow_lane()
+        # a calibration made at another rate is refused when the config loads, before the
+        # daemon announces itself and opens the link
+        robot_calibration(self.worker.calibration_file, self.link.fs_hz)
 
     def _check_the_ring_holds_the_slow_lane(self) -> None:
         lane = self.slow_lane
