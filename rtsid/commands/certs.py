@@ -1,4 +1,9 @@
-"""``rtsid certs DIR``: the secure lab profile (zenoh mTLS, access control) and certificates."""
+"""``rtsid certs DIR``: the secure lab profile (zenoh mTLS, access control) and certificates.
+
+Who gets which file: each daemon's machine its ``daemon-ROBOT-JOINT`` files; the experimenter's
+desk (marks trials, changes the condition) its ``operator-NAME`` files; a display, a student's
+laptop or a controller that only reads its ``viewer-NAME`` files.
+"""
 
 from __future__ import annotations
 
@@ -9,6 +14,12 @@ from rtsid.runtime.lab_security import LabProfile, participants, write_lab_profi
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Write a lab CA, certificates and zenoh json5 files (mutual TLS, access control, "
+        "default deny). Hand out: each daemon's machine its daemon-ROBOT-JOINT files; the "
+        "experimenter's desk its operator-NAME files (reads, and may mark trials and change "
+        "the condition); a display or a student its viewer-NAME files (reads only)."
+    )
     parser.add_argument("directory", metavar="DIR", help="a new (or empty) directory to write")
     parser.add_argument(
         "--daemon",
@@ -22,7 +33,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="NAME",
-        help="a viewer allowed to subscribe and query rtsid/** (repeatable)",
+        help="a viewer (a display, a student): subscribes and queries the daemons' read-only "
+        "queryables (config, estimate, status, history, session); cannot mark or change the "
+        "condition; gets viewer-NAME.json5 (repeatable)",
+    )
+    parser.add_argument(
+        "--operator",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="an operator (the experimenter's desk): a viewer's rights plus `rtsid mark` and "
+        "`rtsid condition` (queries on rtsid/**/mark and rtsid/**/condition); gets "
+        "operator-NAME.json5 (repeatable)",
     )
     parser.add_argument(
         "--listen",
@@ -36,8 +58,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--connect",
         default="",
         metavar="ENDPOINT",
-        help="the endpoint daemons and viewers connect to (default: the first --listen); its "
-        "host is written into the router's certificate",
+        help="the endpoint daemons, operators and viewers connect to (default: the first "
+        "--listen); its host is written into the router's certificate",
     )
     parser.add_argument("--key-prefix", default="rtsid", help="first key chunk (default rtsid)")
     parser.add_argument("--days", type=int, default=825, help="certificate validity (825 days)")
@@ -56,6 +78,7 @@ def run(args: argparse.Namespace) -> int:
     profile = LabProfile(
         daemons=tuple(_daemon(d) for d in args.daemon),
         viewers=tuple(args.viewer),
+        operators=tuple(args.operator),
         listen=tuple(args.listen or LabProfile.listen),
         connect=args.connect,
         key_prefix=args.key_prefix,

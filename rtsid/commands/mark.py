@@ -10,6 +10,7 @@ keeps its ``--id`` and is recorded once.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import uuid
 from typing import Any
@@ -110,13 +111,29 @@ def ask_daemons(
         acks.append(ack)
     errors = [error_reply_text(e) for e in answer.errors] + rejected
     if not acks and not errors:
-        what = "marker" if channel == "mark" else "condition"
-        raise ServiceError(
-            f"no daemon answered on {key} within {args.timeout:g} s via {', '.join(connect)}; "
-            f"the {what} was NOT recorded (is the daemon running, and --connect its endpoint "
-            "or the lab's router?)"
-        )
+        raise ServiceError(_no_answer(channel, key, args.timeout, connect))
     return acks, errors
+
+
+def _no_answer(channel: str, key: str, timeout_s: float, connect: tuple[str, ...]) -> str:
+    """The one line of a request no daemon answered: through the lab's secure router (a zenoh
+    file in ``RTSID_ZENOH_CONFIG``) a viewer's certificate is the likely cause."""
+    from rtsid.io.zenoh_link import VIEWER_CONFIG_ENV
+
+    what = "marker" if channel == "mark" else "condition"
+    config_file = os.environ.get(VIEWER_CONFIG_ENV, "")
+    if config_file:
+        return (
+            f"no daemon answered on {key} within {timeout_s:g} s via {VIEWER_CONFIG_ENV}="
+            f"{printable(config_file, 200)}; the {what} was NOT recorded (is the daemon "
+            "running? in the secure lab only an operator's certificate may mark or change the "
+            "condition: use your operator-NAME.json5, see docs/lab.md)"
+        )
+    return (
+        f"no daemon answered on {key} within {timeout_s:g} s via {', '.join(connect)}; "
+        f"the {what} was NOT recorded (is the daemon running, and --connect its endpoint "
+        "or the lab's router?)"
+    )
 
 
 def run(args: argparse.Namespace) -> int:

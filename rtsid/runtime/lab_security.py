@@ -1,15 +1,16 @@
 """The secure lab profile: zenoh's own mutual TLS and access control, and its certificates.
 
-``rtsid certs DIR --daemon ROBOT/JOINT … --viewer NAME …`` writes, into a new directory,
+``rtsid certs DIR --daemon ROBOT/JOINT … --operator NAME … --viewer NAME …`` writes, into a
+new directory,
 
 - a lab certificate authority (``ca.pem``, ``ca-key.pem``) made with the ``openssl`` CLI;
 - one certificate per participant, signed by it, whose common name says who it is:
-  ``router``, ``daemon:<robot>:<joint>``, ``viewer:<name>`` (``:`` cannot appear in a name,
-  so no two participants can share a common name);
+  ``router``, ``daemon:<robot>:<joint>``, ``operator:<name>``, ``viewer:<name>`` (``:``
+  cannot appear in a name, so no two participants can share a common name);
 - the zenoh json5 files that use them: ``router.json5`` (router mode, ``tls/`` listener with
-  ``enable_mtls``, and the ``access_control`` rules below), ``daemon-<robot>-<joint>.json5`` and
-  ``viewer-<name>.json5`` (client mode, ``tls/`` connect endpoint, the participant's certificate),
-  and ``router.toml`` for ``rtsid router --config``.
+  ``enable_mtls``, and the ``access_control`` rules below), ``daemon-<robot>-<joint>.json5``,
+  ``operator-<name>.json5`` and ``viewer-<name>.json5`` (client mode, ``tls/`` connect
+  endpoint, the participant's certificate), and ``router.toml`` for ``rtsid router --config``.
 
 Nothing is home-made: authentication is zenoh's mutual TLS (a client without a certificate
 signed by the lab's CA cannot complete the handshake), and authorisation is zenoh's
@@ -22,12 +23,23 @@ who             allowed (everything else is denied)
 daemon R/J      ingress ``put``, ``delete``, ``declare_queryable``, ``reply``,
                 ``liveliness_token`` on ``<prefix>/R/J/**`` only; egress ``query`` and
                 ``declare_subscriber`` on ``<prefix>/**`` (the router may ask it)
-viewer          ingress ``declare_subscriber``, ``query``, ``declare_liveliness_subscriber``,
-                ``liveliness_query`` on ``<prefix>/**``; egress ``put``, ``delete``,
+viewer          ingress ``declare_subscriber``, ``declare_liveliness_subscriber``,
+                ``liveliness_query`` on ``<prefix>/**``; ingress ``query`` on the daemons'
+                read-only queryables only (``<prefix>/**/config``, ``…/estimate``,
+                ``…/status``, ``…/history``, ``…/session``); egress ``put``, ``delete``,
                 ``reply``, ``declare_queryable``, ``liveliness_token`` on ``<prefix>/**``
+operator        a viewer's rights, plus ingress ``query`` on ``<prefix>/**/mark`` and
+                ``<prefix>/**/condition`` (``rtsid mark``, ``rtsid condition``)
 anyone else     nothing (a certificate of the lab's CA with another common name connects
                 and is refused every message)
 ==============  =====================================================================
+
+zenoh allows a message only when an allow rule's key expression *includes* the message's
+(``nodes_including`` in zenoh's policy decision point; a rule cannot negate), so the
+queries a viewer may send are listed one queryable name at a time; a viewer's query on a
+wider key (``<prefix>/**``, ``<prefix>/*/*/*``) is refused whole. No one but a daemon may put:
+``…/mark/in`` (a marker put with no acknowledgement) stays closed, so in the secure lab every
+marker is an acknowledged one.
 
 Certificates rather than user/password: a certificate both encrypts the link and names the
 peer, the private keys never cross the network, and zenoh's user/password dictionary would
@@ -54,6 +66,7 @@ __all__ = [
     "LabProfile",
     "access_control",
     "daemon_common_name",
+    "operator_common_name",
     "profile_texts",
     "viewer_common_name",
     "write_lab_profile",
@@ -65,9 +78,13 @@ _TLS_ENDPOINT = re.compile(r"^tls/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.\-]+):[0-9]{1,
 #: What a daemon sends on its own keys, and what it may be sent.
 DAEMON_SENDS = ("put", "delete", "declare_queryable", "reply", "liveliness_token")
 DAEMON_RECEIVES = ("query", "declare_subscriber")
-#: What a viewer asks for, and what it may be sent.
-VIEWER_ASKS = ("declare_subscriber", "query", "declare_liveliness_subscriber", "liveliness_query")
+#: What a viewer (and an operator) follows, and what it may be sent.
+VIEWER_FOLLOWS = ("declare_subscriber", "declare_liveliness_subscriber", "liveliness_query")
 VIEWER_RECEIVES = ("put", "delete", "reply", "declare_queryable", "liveliness_token")
+#: The daemons' read-only queryables (rtsid.io.zenoh_link): a viewer may query these only.
+READ_ONLY_QUERYABLES = ("config", "estimate", "status", "history", "session")
+#: The queryables that change a recording (a marker, the condition): operators only.
+OPERATOR_QUERYABLES = ("mark", "condition")
 
 
 def daemon_common_name(robot: str, joint: str) -> str:
@@ -80,6 +97,11 @@ def viewer_common_name(name: str) -> str:
     return f"viewer:{name}"
 
 
+def operator_common_name(name: str) -> str:
+    """The certificate common name of operator ``name``."""
+    return f"operator:{name}"
+
+
 @dataclass(frozen=True)
 class LabProfile:
     """Who is in the lab and where the router listens.
@@ -88,7 +110,11 @@ class LabProfile:
     ----------
     daemons : tuple of (robot, joint)
     viewers : tuple of str
-        Names of the viewers (``rtsid watch``, ``rtsid query``, the web page, controllers).
+        Names of the viewers (``rtsid watch``, ``rtsid query``, the web page, a display, a
+        student's laptop): they read, and cannot mark or change the condition.
+    operators : tuple of str
+        Names of the operators (the experimenter's desk): a viewer's rights plus ``rtsid
+        mark`` and ``rtsid condition``.
     listen : tuple of str
         The router's ``tls/`` endpoints (default loopback only).
     connect : str
@@ -102,29 +128,30 @@ class LabProfile:
 
     daemons: tuple[tuple[str, str], ...]
     viewers: tuple[str, ...]
+    operators: tuple[str, ...] = ()
     listen: tuple[str, ...] = ("tls/127.0.0.1:7447",)
     connect: str = ""
     key_prefix: str = "rtsid"
     days: int = 825
 
     def __post_init__(self) -> None:
-        if not self.daemons and not self.viewers:
-            raise ConfigError("name at least one --daemon ROBOT/JOINT or --viewer NAME")
+        if not self.daemons and not self.viewers and not self.operators:
+            raise ConfigError(
+                "name at least one --daemon ROBOT/JOINT, --operator NAME or --viewer NAME"
+            )
         for robot, joint in self.daemons:
             for what, value in (("robot", robot), ("joint", joint)):
-                if not _NAME.match(value):
-                    raise ConfigError(
-                        f"{what} {value!r} is not accepted; expected letters, digits, '_', '.', '-'"
-                    )
-        for name in self.viewers:
-            if not _NAME.match(name):
-                raise ConfigError(
-                    f"viewer {name!r} is not accepted; expected letters, digits, '_', '.', '-'"
-                )
-        if len(set(self.daemons)) != len(self.daemons) or len(set(self.viewers)) != len(
-            self.viewers
-        ):
-            raise ConfigError("a daemon or viewer is named twice; name each once")
+                _check_name(what, value)
+        for role, names in (("viewer", self.viewers), ("operator", self.operators)):
+            for name in names:
+                _check_name(role, name)
+        if len(set(self.daemons)) != len(self.daemons):
+            raise ConfigError("a daemon is named twice; name each once")
+        people = [*self.viewers, *self.operators]
+        if len(set(people)) != len(people):
+            raise ConfigError(
+                "a viewer or operator is named twice (or is both); name each once, in one role"
+            )
         for endpoint in (*self.listen, self.connect_endpoint):
             if not _TLS_ENDPOINT.match(endpoint):
                 raise ConfigError(
@@ -148,6 +175,13 @@ class LabProfile:
         return [f"IP:{h}" if _is_ip(h) else f"DNS:{h}" for h in hosts]
 
 
+def _check_name(what: str, value: str) -> None:
+    if not _NAME.match(value):
+        raise ConfigError(
+            f"{what} {value!r} is not accepted; expected letters, digits, '_', '.', '-'"
+        )
+
+
 def _is_ip(host: str) -> bool:
     try:
         ipaddress.ip_address(host)
@@ -163,23 +197,44 @@ def access_control(profile: LabProfile) -> dict[str, Any]:
     subjects: list[dict[str, Any]] = []
     policies: list[dict[str, Any]] = []
     if profile.daemons:
-        rules.append(_rule("daemons-are-asked", "egress", DAEMON_RECEIVES, everything))
+        rules.append(_rule("daemons-are-asked", "egress", DAEMON_RECEIVES, [everything]))
     for robot, joint in profile.daemons:
         ident = f"daemon-{robot}-{joint}"
         own = f"{profile.key_prefix}/{robot}/{joint}/**"
-        rules.append(_rule(f"{ident}-sends", "ingress", DAEMON_SENDS, own))
+        rules.append(_rule(f"{ident}-sends", "ingress", DAEMON_SENDS, [own]))
         subjects.append({"id": ident, "cert_common_names": [daemon_common_name(robot, joint)]})
         policies.append(
             {"id": ident, "rules": [f"{ident}-sends", "daemons-are-asked"], "subjects": [ident]}
         )
+    if profile.viewers or profile.operators:
+        rules.append(_rule("viewers-follow", "ingress", VIEWER_FOLLOWS, [everything]))
+        rules.append(
+            _rule("viewers-read", "ingress", ("query",), _queryables(profile, READ_ONLY_QUERYABLES))
+        )
+        rules.append(_rule("viewers-are-sent", "egress", VIEWER_RECEIVES, [everything]))
+    reads = ["viewers-follow", "viewers-read", "viewers-are-sent"]
     if profile.viewers:
-        rules.append(_rule("viewers-ask", "ingress", VIEWER_ASKS, everything))
-        rules.append(_rule("viewers-are-sent", "egress", VIEWER_RECEIVES, everything))
         subjects.append(
             {"id": "viewers", "cert_common_names": [viewer_common_name(v) for v in profile.viewers]}
         )
+        policies.append({"id": "viewers", "rules": reads, "subjects": ["viewers"]})
+    if profile.operators:
+        rules.append(
+            _rule(
+                "operators-command",
+                "ingress",
+                ("query",),
+                _queryables(profile, OPERATOR_QUERYABLES),
+            )
+        )
+        subjects.append(
+            {
+                "id": "operators",
+                "cert_common_names": [operator_common_name(o) for o in profile.operators],
+            }
+        )
         policies.append(
-            {"id": "viewers", "rules": ["viewers-ask", "viewers-are-sent"], "subjects": ["viewers"]}
+            {"id": "operators", "rules": [*reads, "operators-command"], "subjects": ["operators"]}
         )
     return {
         "enabled": True,
@@ -190,13 +245,19 @@ def access_control(profile: LabProfile) -> dict[str, Any]:
     }
 
 
-def _rule(ident: str, flow: str, messages: Sequence[str], key: str) -> dict[str, Any]:
+def _queryables(profile: LabProfile, names: Sequence[str]) -> list[str]:
+    """``<prefix>/**/<name>`` for each queryable name: any daemon's, and a wider query such as
+    ``<prefix>/rig1/**/history`` too, since the last chunk alone says what is asked."""
+    return [f"{profile.key_prefix}/**/{name}" for name in names]
+
+
+def _rule(ident: str, flow: str, messages: Sequence[str], keys: Sequence[str]) -> dict[str, Any]:
     return {
         "id": ident,
         "permission": "allow",
         "flows": [flow],
         "messages": list(messages),
-        "key_exprs": [key],
+        "key_exprs": list(keys),
     }
 
 
@@ -227,7 +288,8 @@ def router_json5(profile: LabProfile, certs: Path) -> dict[str, Any]:
 
 
 def client_json5(profile: LabProfile, certs: Path, stem: str) -> dict[str, Any]:
-    """A daemon's or a viewer's zenoh configuration: a client of the router over mutual TLS."""
+    """A daemon's, an operator's or a viewer's zenoh configuration: a client of the router
+    over mutual TLS."""
     return {
         "mode": "client",
         "connect": {"endpoints": [profile.connect_endpoint]},
@@ -326,8 +388,9 @@ def _make_leaf(cwd: Path, stem: str, common_name: str, names: Sequence[str], day
 
 
 def participants(profile: LabProfile) -> list[tuple[str, str]]:
-    """``(file stem, certificate common name)`` of every daemon and viewer."""
+    """``(file stem, certificate common name)`` of every daemon, operator and viewer."""
     out = [(f"daemon-{r}-{j}", daemon_common_name(r, j)) for r, j in profile.daemons]
+    out += [(f"operator-{o}", operator_common_name(o)) for o in profile.operators]
     return out + [(f"viewer-{v}", viewer_common_name(v)) for v in profile.viewers]
 
 

@@ -27,6 +27,7 @@ import zenoh
 from rtsid.cli import main
 from rtsid.errors import ConfigError, ServiceError
 from rtsid.io.messages import EstimateMessage
+from rtsid.io.recording import read_session
 from rtsid.io.schemas import encode_json
 from rtsid.io.watch import LabFeed
 from rtsid.io.zenoh_link import (
@@ -34,12 +35,21 @@ from rtsid.io.zenoh_link import (
     RouterConfig,
     ZenohConfig,
     ZenohPublisher,
+    key_expressions,
     query,
     router_config,
     subscriber_config,
 )
-from rtsid.runtime.daemon import DaemonConfig
-from rtsid.runtime.lab_security import LabProfile, _make_leaf, profile_texts, write_lab_profile
+from rtsid.runtime.daemon import Daemon, DaemonConfig
+from rtsid.runtime.lab_security import (
+    OPERATOR_QUERYABLES,
+    READ_ONLY_QUERYABLES,
+    LabProfile,
+    _make_leaf,
+    access_control,
+    profile_texts,
+    write_lab_profile,
+)
 from rtsid.runtime.router import load_router_config, open_to_anyone, run_router
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -91,8 +101,9 @@ class RouterProcess:
 
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
-    """A profile for rig1/ankle, rig2/ankle and viewers desk and wall on a free TLS port, plus
-    ``stranger`` (a certificate of the lab's CA that no rule names), served by a real router."""
+    """A profile for rig1/ankle, rig2/ankle, operator bench and viewers desk and wall on a free
+    TLS port, plus ``stranger`` (a certificate of the lab's CA that no rule names), served by a
+    real router."""
     import socket
 
     with socket.socket() as s:
@@ -102,6 +113,7 @@ def lab(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     profile = LabProfile(
         daemons=(("rig1", "ankle"), ("rig2", "ankle")),
         viewers=("desk", "wall"),
+        operators=("bench",),
         listen=(f"tls/127.0.0.1:{port}",),
     )
     write_lab_profile(where, profile)
@@ -145,8 +157,9 @@ def wait_for_payload(subscriber: Any, payload: bytes, got: list[tuple[str, bytes
         time.sleep(0.01)
 
 
-def replies(sess: Any, selector: str, timeout_s: float = 1.0) -> list[bytes]:
-    return [r.ok.payload.to_bytes() for r in sess.get(selector, timeout=timeout_s) if r.ok]
+def replies(sess: Any, selector: str, timeout_s: float = 1.0, payload: Any = None) -> list[bytes]:
+    answers = sess.get(selector, timeout=timeout_s, payload=payload)
+    return [r.ok.payload.to_bytes() for r in answers if r.ok]
 
 
 def answer_estimate(key: str, payload: bytes) -> Any:
@@ -162,10 +175,12 @@ def test_certs_writes_keys_0600_and_refuses_bad_input_in_one_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     where = tmp_path / "lab"
-    code = main(["certs", str(where), "--daemon", "rig1/ankle", "--viewer", "desk"])
+    argv = ["certs", str(where), "--daemon", "rig1/ankle", "--viewer", "wall", "--operator", "desk"]
+    code = main(argv)
     assert code == 0, capsys.readouterr()
     names = {p.name for p in where.iterdir()}
     assert {"ca.pem", "router.json5", "router.toml", "daemon-rig1-ankle.json5"} <= names
+    assert {"viewer-wall.json5", "operator-desk.json5", "operator-desk.pem"} <= names
     for key in where.glob("*-key.pem"):
         assert stat.S_IMODE(key.stat().st_mode) == 0o600, key
     subject = subprocess.run(
@@ -175,6 +190,13 @@ def test_certs_writes_keys_0600_and_refuses_bad_input_in_one_line(
         check=True,
     ).stdout
     assert "daemon:rig1:ankle" in subject
+    subject = subprocess.run(
+        ["openssl", "x509", "-in", str(where / "operator-desk.pem"), "-noout", "-subject"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    assert "operator:desk" in subject
     router = json.loads(_strip_comments((where / "router.json5").read_text()))
     assert router["transport"]["link"]["tls"]["enable_mtls"] is True
     assert router["access_control"]["default_permission"] == "deny"
@@ -183,6 +205,8 @@ def test_certs_writes_keys_0600_and_refuses_bad_input_in_one_line(
         (["certs", str(where), "--viewer", "x"], "not an empty directory"),
         (["certs", str(tmp_path / "b"), "--daemon", "rig1"], "ROBOT/JOINT"),
         (["certs", str(tmp_path / "b"), "--viewer", "a b"], "viewer 'a b'"),
+        (["certs", str(tmp_path / "b"), "--operator", "a:b"], "operator 'a:b'"),
+        (["certs", str(tmp_path / "b"), "--operator", "x", "--viewer", "x"], "in one role"),
         (["certs", str(tmp_path / "b"), "--viewer", "x", "--listen", "tcp/0.0.0.0:1"], "tls/"),
         (["certs", str(tmp_path / "b")], "at least one"),
     ]:
@@ -254,6 +278,147 @@ def test_access_control_lets_daemons_publish_only_their_own_keys_to_viewers(lab:
             entity.undeclare()
 
 
+def test_every_daemon_key_is_read_only_published_or_an_operators_command() -> None:
+    """A new key in rtsid.io.zenoh_link fails here until someone decides who may query it."""
+    keys = set(key_expressions(ZenohConfig(robot="r", joint="j")))
+    published_only = {"samples", "reflex", "alive", "marker", "mark_in"}
+    assert keys == {*READ_ONLY_QUERYABLES, *OPERATOR_QUERYABLES, *published_only}
+    rules = {
+        r["id"]: r
+        for r in access_control(LabProfile(daemons=(), viewers=("v",), operators=("o",)))["rules"]
+    }
+    assert rules["viewers-read"]["key_exprs"] == [f"rtsid/**/{n}" for n in READ_ONLY_QUERYABLES]
+    for rule in rules.values():  # no allow rule but the operators' reaches a command
+        if rule["id"] != "operators-command" and "query" in rule["messages"]:
+            assert not any(k.endswith(("/mark", "/condition")) for k in rule["key_exprs"]), rule
+
+
+def test_a_viewer_queries_only_what_reads_and_an_operator_also_mark_and_condition(
+    lab: Path,
+) -> None:
+    """zenoh allows a query only when an allow rule's key expression includes the query's."""
+    asked: list[tuple[str, bytes]] = []
+
+    def answer(name: str) -> Any:
+        def reply(q: Any) -> None:
+            asked.append((name, q.payload.to_bytes() if q.payload is not None else b""))
+            q.reply(f"rtsid/rig1/ankle/{name}", name.encode())
+
+        return reply
+
+    with (
+        session(lab, "daemon-rig1-ankle") as rig1,
+        session(lab, "operator-bench") as bench,
+        session(lab, "viewer-wall") as wall,
+    ):
+        names = (*READ_ONLY_QUERYABLES, *OPERATOR_QUERYABLES)
+        queryables = [rig1.declare_queryable(f"rtsid/rig1/ankle/{n}", answer(n)) for n in names]
+        deadline = time.monotonic() + 10
+        while replies(bench, "rtsid/*/*/condition", 1.0, b"bench") != [b"condition"]:
+            assert time.monotonic() < deadline, "the operator's query never reached the daemon"
+        for name in READ_ONLY_QUERYABLES:
+            assert replies(wall, f"rtsid/*/*/{name}", 5.0) == [name.encode()], name
+            assert replies(bench, f"rtsid/*/*/{name}", 5.0) == [name.encode()], name
+        assert replies(wall, "rtsid/rig1/**/history", 5.0) == [b"history"], "wider, same name"
+        for name in OPERATOR_QUERYABLES:
+            for key in (f"rtsid/*/*/{name}", f"rtsid/rig1/ankle/{name}"):
+                assert replies(wall, key, 1.0, b"wall") == [], f"a viewer reached {key}"
+        assert replies(wall, "rtsid/**", 1.0, b"wall") == [], "a query wider than a rule"
+        for name in OPERATOR_QUERYABLES:  # allowed, and sent after the refused ones
+            assert replies(bench, f"rtsid/rig1/ankle/{name}", 5.0, b"bench") == [name.encode()]
+        for entity in queryables:
+            entity.undeclare()
+    commands = [(name, who) for name, who in asked if name in OPERATOR_QUERYABLES]
+    assert ("mark", b"bench") in commands and ("condition", b"bench") in commands, asked
+    assert {who for _, who in commands} == {b"bench"}, "a viewer's command reached the daemon"
+    assert b"wall" not in {who for _, who in asked}, "nor did its query on rtsid/**"
+
+
+def lab_daemon_config(lab: Path, tmp_path: Path) -> Path:
+    """An embedded-plant daemon of rig1/ankle through the lab's router with its certificate."""
+    path = tmp_path / "rig1-ankle.toml"
+    path.write_text(
+        f"""
+[zenoh]
+config_file = "{lab / "daemon-rig1-ankle.json5"}"
+robot = "rig1"
+joint = "ankle"
+history_s = 60.0
+
+[mcap]
+directory = "{tmp_path / "rec"}"
+flush_interval_s = 0.2
+
+[plant]
+perturbation = "filtered_noise"
+bandwidth_hz = 30.0
+
+[session]
+subject = "S01"
+session = "1"
+condition = "baseline"
+"""
+    )
+    return path
+
+
+def test_a_viewers_mark_and_condition_are_refused_and_an_operators_are_recorded(
+    lab: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    daemon = Daemon(DaemonConfig.load(lab_daemon_config(lab, tmp_path)))
+    runner = threading.Thread(target=daemon.run, kwargs={"duration_s": 60.0}, name="lab-daemon")
+    runner.start()
+    target = ["--robot", "rig1", "--joint", "ankle"]
+    try:
+        deadline = time.monotonic() + 20
+        while not (daemon.desk is not None and daemon.desk.next_sample() > 0):
+            assert runner.is_alive() and time.monotonic() < deadline, "the daemon never started"
+            time.sleep(0.02)
+        desk = daemon.desk
+        monkeypatch.setenv(VIEWER_CONFIG_ENV, str(lab / "viewer-wall.json5"))
+        with LabFeed("rtsid/*/*", ()) as feed:  # a viewer still watches
+            got: list[Any] = []
+            while {"alive", "estimate"} - {e.kind for e in got}:
+                assert time.monotonic() < deadline + 20, f"nothing reached the viewer: {got}"
+                got += feed.poll()
+                time.sleep(0.05)
+        capsys.readouterr()
+        for argv, what in [
+            (["mark", "viewer trial", "--id", "v1"], "marker"),
+            (["condition", "viewerchoice"], "condition"),
+        ]:
+            assert main([*argv, *target, "--timeout", "2"]) == 2
+            err = capsys.readouterr().err.strip()
+            assert len(err.splitlines()) == 1, err
+            assert f"the {what} was NOT recorded" in err and "operator" in err, err
+        assert main(["query", "rtsid/rig1/ankle", "--since", "60s", "--timeout", "5"]) == 0
+        history = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+        assert history and all(m["robot"] == "rig1" for m in history)
+        monkeypatch.setenv(VIEWER_CONFIG_ENV, str(lab / "operator-bench.json5"))
+        assert main(["mark", "operator trial", "--id", "o1", *target]) == 0
+        acked = int(capsys.readouterr().out.split(" at sample ")[1].split()[0])
+        assert main(["condition", "fatigue", *target]) == 0
+        changed = int(capsys.readouterr().out.split(" from sample ")[1].split()[0])
+        counters = desk.counters() if desk is not None else {}
+    finally:
+        daemon.request_stop()
+        runner.join(30)
+    assert not runner.is_alive()
+    (path,) = sorted((tmp_path / "rec").glob("*.mcap"))
+    recorded = read_session(path)
+    assert [(m["sample_index"], m["label"]) for m in recorded.markers] == [
+        (acked, "operator trial")
+    ]
+    conditions = [(s["sample_index"], s["condition"]) for s in recorded.sessions]
+    assert conditions[0][1] == "baseline" and conditions[-1] == (changed, "fatigue"), conditions
+    assert "viewerchoice" not in {c for _, c in conditions}
+    assert counters["refused"] == 0, "the viewer's requests never reached the daemon"
+    assert counters["markers"] == 1 and counters["condition_changes"] == 1, counters
+
+
 def test_a_daemon_and_the_viewers_commands_work_through_the_secure_router(
     lab: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -293,13 +458,17 @@ def test_a_daemon_and_the_viewers_commands_work_through_the_secure_router(
 
 def test_the_shipped_profile_is_what_rtsid_certs_writes() -> None:
     shipped = ROOT / "hw" / "lab-secure"
-    profile = LabProfile(
+    profile = LabProfile(  # rtsid certs … --operator desk --viewer wall (docs/lab.md)
         daemons=(("rig1", "ankle"), ("rig2", "ankle")),
-        viewers=("desk",),
+        viewers=("wall",),
+        operators=("desk",),
         listen=("tls/192.168.10.2:7447",),
     )
-    for name, text in profile_texts(profile, Path("/etc/rtsid/lab")).items():
+    texts = profile_texts(profile, Path("/etc/rtsid/lab"))
+    for name, text in texts.items():
         assert (shipped / name).read_text() == text, f"hw/lab-secure/{name} is out of date"
+    stale = {p.name for p in shipped.glob("*.json5")} - set(texts)
+    assert not stale, f"hw/lab-secure holds files rtsid certs no longer writes: {stale}"
     conf = router_config(load_router_config(shipped / "router.toml"))
     assert json.loads(conf.get_json("access_control/enabled")) is True
     assert open_to_anyone(conf) == []
