@@ -283,6 +283,9 @@ class ReplayResult:
     samples: int = 0
     duration_s: float = 0.0
     elapsed_s: float = 0.0
+    #: The evaluator's compute over every window, summed: wall time and CPU time, s.
+    compute_s: float = 0.0
+    compute_cpu_s: float = 0.0
 
     @property
     def estimates(self) -> int:
@@ -398,6 +401,7 @@ def replay_batches(
             evaluated(evaluator)
     result.elapsed_s = time.perf_counter() - started
     result.duration_s = result.samples / config.link.fs_hz
+    result.compute_s, result.compute_cpu_s = evaluator.compute_s, evaluator.compute_cpu_s
     return result
 
 
