@@ -205,6 +205,7 @@ class ReplayedSlowLane:
         self.models = evaluator.reflex
         self.publish = publish
         self._next: int | None = None
+        self.fit_cpu_s = 0.0  # CPU time of the fits so far, s
 
     def oldest_needed(self, first: int) -> int:
         """The first sample the next fit uses."""
@@ -222,6 +223,7 @@ class ReplayedSlowLane:
         while (seq := self._next_seq(first)) <= due:
             span = self.models.fit_span(seq, first)
             assert span is not None  # first_seq leaves enough data
+            started_cpu = time.thread_time()
             rows = grid.rows(*span)
             update = fit_reflex_update(
                 seq,
@@ -233,6 +235,7 @@ class ReplayedSlowLane:
                 self.models.settings,
             )
             self.models.add(update)
+            self.fit_cpu_s += time.thread_time() - started_cpu
             self.publish(self.evaluator.reflex_message(update, None))
             self._next = seq + 1
 
@@ -286,6 +289,8 @@ class ReplayResult:
     #: The evaluator's compute over every window, summed: wall time and CPU time, s.
     compute_s: float = 0.0
     compute_cpu_s: float = 0.0
+    #: CPU time of the slow lane's fits (run in line), s.
+    fit_cpu_s: float = 0.0
 
     @property
     def estimates(self) -> int:
@@ -402,6 +407,7 @@ def replay_batches(
     result.elapsed_s = time.perf_counter() - started
     result.duration_s = result.samples / config.link.fs_hz
     result.compute_s, result.compute_cpu_s = evaluator.compute_s, evaluator.compute_cpu_s
+    result.fit_cpu_s = slow_lane.fit_cpu_s if slow_lane is not None else 0.0
     return result
 
 
