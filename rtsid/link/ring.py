@@ -276,19 +276,31 @@ class RingBuffer:
                 self.reader_overruns += n
 
     def _copy(self, lo: int, hi: int) -> Snapshot:
-        """Copy rows ``lo .. hi - 1`` (``hi - lo < capacity``) in index order."""
+        """Copy rows ``lo .. hi - 1`` (``hi - lo < capacity``) in index order.
+
+        One or two slice copies per column (two when the rows wrap around the end of the
+        arrays), not a gather through an index array: a window with the slow lane's history
+        (4025 rows, seven columns) took 0.11 ms that way, on the worker, every hop.
+        """
         if hi <= lo:
             return self._empty(0)
-        rows = np.arange(lo, hi) % self.capacity
-        return Snapshot(
-            self._index[rows],
-            self._position[rows],
-            self._torque[rows],
-            self._valid[rows],
-            self._status[rows],
-            self._host_time[rows],
-            self._bus_time[rows],
+        start = lo % self.capacity
+        stop = start + (hi - lo)
+        columns = (
+            self._index,
+            self._position,
+            self._torque,
+            self._valid,
+            self._status,
+            self._host_time,
+            self._bus_time,
         )
+        if stop <= self.capacity:
+            copies = [column[start:stop].copy() for column in columns]
+        else:
+            wrapped = stop - self.capacity
+            copies = [np.concatenate((column[start:], column[:wrapped])) for column in columns]
+        return Snapshot(*copies)
 
     @staticmethod
     def _empty(overwritten: int) -> Snapshot:
