@@ -50,6 +50,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the daemon's [worker] hop_s in ms (20; 4: 250 estimates/s)",
     )
     parser.add_argument(
+        "--lowpass-hz",
+        type=float,
+        default=None,
+        help="the daemon's [estimator] lowpass_hz (default: chosen from the data; the virtual "
+        "plant's signal then makes the plan analyse at the full 2500 Hz)",
+    )
+    parser.add_argument(
         "--switch-interval-ms",
         type=float,
         default=None,
@@ -194,8 +201,10 @@ def _config_file(
     plant_reflex: bool = True,
     hop_s: float = 0.02,
     switch_interval_s: float | None = None,
+    lowpass_hz: float | None = None,
 ) -> Path:
     path = folder / "bench.toml"
+    estimator = f"[estimator]\nlowpass_hz = {lowpass_hz!r}\n" if lowpass_hz is not None else ""
     switch = (
         f"gil_switch_interval_s = {switch_interval_s!r}\n" if switch_interval_s is not None else ""
     )
@@ -208,7 +217,7 @@ def _config_file(
         f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\nrobot = "bench"\n'
         f'[mcap]\ndirectory = "{folder / "rec"}"\n{link}'
         f"[daemon]\ncpu_latency_us = {cpu_latency_us}\n{switch}"
-        f"[worker]\nhop_s = {hop_s!r}\n" + _slow_lane_section(slow_lane, plant_reflex)
+        f"[worker]\nhop_s = {hop_s!r}\n{estimator}" + _slow_lane_section(slow_lane, plant_reflex)
     )
     return path
 
@@ -302,6 +311,7 @@ def _run_phase(
     plant_reflex: bool = True,
     hop_s: float = 0.02,
     switch_interval_s: float | None = None,
+    lowpass_hz: float | None = None,
 ) -> Phase:
     phase = Phase(name)
     with tempfile.TemporaryDirectory(prefix="rtsid-bench-") as tmp:
@@ -316,6 +326,7 @@ def _run_phase(
             plant_reflex,
             hop_s,
             switch_interval_s,
+            lowpass_hz,
         )
         plant = _start_plant(can_port, config) if can_port is not None else None
         daemon = subprocess.Popen(
@@ -488,7 +499,7 @@ def run(args: argparse.Namespace) -> int:
             suffix += ", plant reflex" if reflex else ", plant without reflex"
         idle = _run_phase(
             f"idle machine{suffix}",
-            *(seconds, False, args.transport, qos, mode, reflex, hop_s, switch_s),
+            *(seconds, False, args.transport, qos, mode, reflex, hop_s, switch_s, args.lowpass_hz),
         )
         rows.append(_row(idle, None))
         lanes.append(_lane_row(idle, mode))
@@ -496,7 +507,17 @@ def run(args: argparse.Namespace) -> int:
         if not args.no_load_phase:
             loaded = _run_phase(
                 f"other core loaded{suffix}",
-                *(seconds, True, args.transport, qos, mode, reflex, hop_s, switch_s),
+                *(
+                    seconds,
+                    True,
+                    args.transport,
+                    qos,
+                    mode,
+                    reflex,
+                    hop_s,
+                    switch_s,
+                    args.lowpass_hz,
+                ),
             )
             rows.append(_row(loaded, idle))
             lanes.append(_lane_row(loaded, mode))
@@ -506,6 +527,7 @@ def run(args: argparse.Namespace) -> int:
         f"(virtual plant via {args.transport}; subscriber in another process; "
         f"cpu_latency_us = {qos}"
         + ("" if switch_s is None else f"; GIL switch interval {args.switch_interval_ms:g} ms")
+        + ("" if args.lowpass_hz is None else f"; [estimator] lowpass_hz = {args.lowpass_hz:g}")
         + ")",
         [
             "phase",

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -24,6 +25,7 @@ from numpy.typing import NDArray
 __all__ = ["RingBuffer", "Snapshot"]
 
 _MAX_READ_ATTEMPTS = 8
+_Row = TypeVar("_Row", bound=np.generic)  # a column's element type
 
 
 @dataclass(frozen=True)
@@ -286,21 +288,22 @@ class RingBuffer:
             return self._empty(0)
         start = lo % self.capacity
         stop = start + (hi - lo)
-        columns = (
-            self._index,
-            self._position,
-            self._torque,
-            self._valid,
-            self._status,
-            self._host_time,
-            self._bus_time,
+        wrapped = stop - self.capacity  # rows taken from the arrays' start (<= 0: none)
+
+        def rows(column: NDArray[_Row]) -> NDArray[_Row]:
+            if wrapped <= 0:
+                return column[start:stop].copy()
+            return np.concatenate((column[start:], column[:wrapped]))
+
+        return Snapshot(
+            rows(self._index),
+            rows(self._position),
+            rows(self._torque),
+            rows(self._valid),
+            rows(self._status),
+            rows(self._host_time),
+            rows(self._bus_time),
         )
-        if stop <= self.capacity:
-            copies = [column[start:stop].copy() for column in columns]
-        else:
-            wrapped = stop - self.capacity
-            copies = [np.concatenate((column[start:], column[:wrapped])) for column in columns]
-        return Snapshot(*copies)
 
     @staticmethod
     def _empty(overwritten: int) -> Snapshot:
