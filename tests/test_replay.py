@@ -327,3 +327,28 @@ def test_replay_refuses_an_inverted_torque_sign_as_live_does(tmp_path, capsys):
     assert len(err) == 1 and "the torque sign is inverted" in err[0]
     assert "[estimator] torque_sign = 1 " in err[0]
     assert not out.exists()
+
+
+def test_the_python_api_pins_blas_to_one_thread_as_the_command_line_does():
+    # A multi-threaded BLAS sums in another order: a replay through the Python API gave other
+    # numbers than the live run it replays (the slow lane's fits use BLAS).
+    import os
+    import subprocess
+    import sys
+
+    blas = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+    env = {k: v for k, v in os.environ.items() if k not in blas}
+    code = f"import os, rtsid.replay; print(*(os.environ[k] for k in {blas!r}))"
+    done = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["1", "1", "1"]
+    kept = subprocess.run(
+        [sys.executable, "-c", code],
+        env={**env, "OPENBLAS_NUM_THREADS": "2"},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert kept.stdout.split() == ["2", "1", "1"]  # a user's own setting stays
