@@ -50,6 +50,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the daemon's [worker] hop_s in ms (20; 4: 250 estimates/s)",
     )
     parser.add_argument(
+        "--no-replay",
+        action="store_true",
+        help="skip replaying each phase's recording afterwards (the baseline table; it takes "
+        "about the phase's CPU time again)",
+    )
+    parser.add_argument(
         "--lowpass-hz",
         type=float,
         default=None,
@@ -312,6 +318,8 @@ def _run_phase(
     hop_s: float = 0.02,
     switch_interval_s: float | None = None,
     lowpass_hz: float | None = None,
+    *,
+    replay: bool = True,
 ) -> Phase:
     phase = Phase(name)
     with tempfile.TemporaryDirectory(prefix="rtsid-bench-") as tmp:
@@ -355,7 +363,7 @@ def _run_phase(
                 burner.terminate()
                 burner.join(10)
         recordings = sorted((Path(tmp) / "rec").glob("*.mcap"))
-        if recordings:  # the same windows again, on one thread of this process
+        if replay and recordings:  # the same windows again, on one thread of this process
             phase.replay = replay_file(recordings[0])
     return phase
 
@@ -500,6 +508,7 @@ def run(args: argparse.Namespace) -> int:
         idle = _run_phase(
             f"idle machine{suffix}",
             *(seconds, False, args.transport, qos, mode, reflex, hop_s, switch_s, args.lowpass_hz),
+            replay=not args.no_replay,
         )
         rows.append(_row(idle, None))
         lanes.append(_lane_row(idle, mode))
@@ -518,6 +527,7 @@ def run(args: argparse.Namespace) -> int:
                     switch_s,
                     args.lowpass_hz,
                 ),
+                replay=not args.no_replay,
             )
             rows.append(_row(loaded, idle))
             lanes.append(_lane_row(loaded, mode))
@@ -572,26 +582,27 @@ def run(args: argparse.Namespace) -> int:
             f"others). {_floors(hop_s)}"
         ),
     )
-    print_table(
-        "The same windows replayed on one thread of this process after each phase (the "
-        "daemon's recording, its own configuration)",
-        [
-            "phase",
-            "windows",
-            "K, B, I equal to live",
-            "compute p50 ms",
-            "compute p99 ms",
-            "CPU ms/window",
-            "live / replay compute p50",
-            "live / replay CPU",
-            "replay × real time",
-        ],
-        replays,
-        note="The replay's compute is the window path's cost on the plant's own signal with "
-        "nothing else in the process; the live / replay ratios are what running inside the "
-        "daemon adds (other threads, the GIL, the machine's other work). Replay × real time "
-        "includes the slow lane's fits, run in line.",
-    )
+    if not args.no_replay:
+        print_table(
+            "The same windows replayed on one thread of this process after each phase (the "
+            "daemon's recording, its own configuration)",
+            [
+                "phase",
+                "windows",
+                "K, B, I equal to live",
+                "compute p50 ms",
+                "compute p99 ms",
+                "CPU ms/window",
+                "live / replay compute p50",
+                "live / replay CPU",
+                "replay × real time",
+            ],
+            replays,
+            note="The replay's compute is the window path's cost on the plant's own signal with "
+            "nothing else in the process; the live / replay ratios are what running inside the "
+            "daemon adds (other threads, the GIL, the machine's other work). Replay × real time "
+            "includes the slow lane's fits, run in line.",
+        )
     if any(mode != "off" for mode in _slow_lane_modes(args.slow_lane)):
         print_table(
             "The slow lane in the same phases (from the daemon's last status)",
