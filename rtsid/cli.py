@@ -14,23 +14,17 @@ memory: one line says which; ``RTSID_TRACEBACK=1`` shows the traceback); 130 int
 
 from __future__ import annotations
 
+# BLAS is pinned to one thread by the package's __init__ (it runs before this module).
+import argparse
+import contextlib
+import importlib
 import os
+import sys
+import warnings
+from collections.abc import Iterator, Sequence
 
-# Before numpy loads: BLAS worker threads spin against the acquisition thread and make a
-# 1 ms window cost 10 ms under load (measured with `rtsid bench window`). Windows are small;
-# one thread is fastest. A user can still override these from the environment.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
-
-import argparse  # noqa: E402
-import contextlib  # noqa: E402
-import importlib  # noqa: E402
-import sys  # noqa: E402
-import warnings  # noqa: E402
-from collections.abc import Iterator, Sequence  # noqa: E402
-
-from rtsid import __version__  # noqa: E402
-from rtsid.errors import IncompleteRecordingWarning, RtsidError, RtsidWarning  # noqa: E402
+from rtsid import __version__
+from rtsid.errors import IncompleteRecordingWarning, RtsidError, RtsidWarning
 
 # name -> (module, one-line help). Add a command by adding a line here.
 COMMANDS: dict[str, tuple[str, str]] = {

@@ -206,6 +206,7 @@ class ReplayedSlowLane:
         self.models = evaluator.reflex
         self.publish = publish
         self._next: int | None = None
+        self.fit_cpu_s = 0.0  # CPU time of the fits so far, s
 
     def oldest_needed(self, first: int) -> int:
         """The first sample the next fit uses."""
@@ -223,6 +224,7 @@ class ReplayedSlowLane:
         while (seq := self._next_seq(first)) <= due:
             span = self.models.fit_span(seq, first)
             assert span is not None  # first_seq leaves enough data
+            started_cpu = time.thread_time()
             rows = grid.rows(*span)
             update = fit_reflex_update(
                 seq,
@@ -234,6 +236,7 @@ class ReplayedSlowLane:
                 self.models.settings,
             )
             self.models.add(update)
+            self.fit_cpu_s += time.thread_time() - started_cpu
             self.publish(self.evaluator.reflex_message(update, None))
             self._next = seq + 1
 
@@ -284,6 +287,11 @@ class ReplayResult:
     samples: int = 0
     duration_s: float = 0.0
     elapsed_s: float = 0.0
+    #: The evaluator's compute over every window, summed: wall time and CPU time, s.
+    compute_s: float = 0.0
+    compute_cpu_s: float = 0.0
+    #: CPU time of the slow lane's fits (run in line), s.
+    fit_cpu_s: float = 0.0
 
     @property
     def estimates(self) -> int:
@@ -399,6 +407,8 @@ def replay_batches(
             evaluated(evaluator)
     result.elapsed_s = time.perf_counter() - started
     result.duration_s = result.samples / config.link.fs_hz
+    result.compute_s, result.compute_cpu_s = evaluator.compute_s, evaluator.compute_cpu_s
+    result.fit_cpu_s = slow_lane.fit_cpu_s if slow_lane is not None else 0.0
     return result
 
 

@@ -75,6 +75,33 @@ def test_replay_gives_the_live_daemons_windows_and_numbers_exactly(tmp_path, fre
 
 
 @pytest.mark.slow  # a real-time daemon run of seconds
+def test_a_4_ms_hop_with_the_slow_lane_replays_exactly_as_live(tmp_path, free_port):
+    config = DaemonConfig.from_mapping(
+        {
+            "zenoh": {"listen": [f"tcp/127.0.0.1:{free_port}"]},
+            "mcap": {"directory": str(tmp_path)},
+            "worker": {"hop_s": 0.004},
+            "slow_lane": {
+                "enabled": True,
+                "mode": "thread",
+                "horizon_s": 3.0,
+                "update_s": 0.5,
+                "apply_after_s": 0.3,
+            },
+            "plant": {"reflex": {"enabled": True}},
+        }
+    )
+    Daemon(config).run(duration_s=5.0)
+    recording = next(tmp_path.glob("*.mcap"))
+    live = live_windows(iter_estimates(recording))
+    replayed = replay_file(recording)
+    assert {(end + 1) % 10 for end in live} == {0}  # a window every 10 samples at 2500 Hz
+    assert len(live) > 150 and set(live) <= set(by_window(replayed.messages))
+    assert replayed.reflex and any(m["reflex_seq"] is not None for m in live.values())
+    assert_same_estimates(live, by_window(replayed.messages))  # bit for bit
+
+
+@pytest.mark.slow  # a real-time daemon run of seconds
 def test_replay_follows_a_live_worker_that_started_late(tmp_path, free_port, monkeypatch):
     # Under load the live worker can start after the first windows' samples are in: it begins
     # at the newest window (earlier ones are history). The replay must not learn from those.
@@ -300,3 +327,28 @@ def test_replay_refuses_an_inverted_torque_sign_as_live_does(tmp_path, capsys):
     assert len(err) == 1 and "the torque sign is inverted" in err[0]
     assert "[estimator] torque_sign = 1 " in err[0]
     assert not out.exists()
+
+
+def test_the_python_api_pins_blas_to_one_thread_as_the_command_line_does():
+    # A multi-threaded BLAS sums in another order: a replay through the Python API gave other
+    # numbers than the live run it replays (the slow lane's fits use BLAS).
+    import os
+    import subprocess
+    import sys
+
+    blas = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+    env = {k: v for k, v in os.environ.items() if k not in blas}
+    code = f"import os, rtsid.replay; print(*(os.environ[k] for k in {blas!r}))"
+    done = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["1", "1", "1"]
+    kept = subprocess.run(
+        [sys.executable, "-c", code],
+        env={**env, "OPENBLAS_NUM_THREADS": "2"},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert kept.stdout.split() == ["2", "1", "1"]  # a user's own setting stays

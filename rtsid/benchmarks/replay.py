@@ -15,6 +15,7 @@ import argparse
 import contextlib
 import io
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -29,7 +30,7 @@ from rtsid.ident.excitation import filtered_noise
 from rtsid.ident.levinson import HAVE_COMPILED_KERNEL
 from rtsid.ident.stream import sliding_estimates
 from rtsid.io.convert import ImportedSamples, read_sample_file, write_recording
-from rtsid.replay import replay_file
+from rtsid.replay import ReplayResult, replay_file
 from rtsid.runtime.daemon import DaemonConfig
 from rtsid.sim.joint import JointParameters, StiffnessProfile, simulate_impedance
 
@@ -66,7 +67,7 @@ def _numpy_replay_s(path: Path) -> float | None:
     if not HAVE_COMPILED_KERNEL:
         return None
     code = (
-        "import sys; from pathlib import Path; from rtsid.replay import replay_file; "
+        "import sys; from pathlib import Path; from rtsid.replay import ReplayResult, replay_file; "
         "print(replay_file(Path(sys.argv[1])).elapsed_s)"
     )
     env = {**os.environ, "RTSID_NUMPY_ONLY": "1"}
@@ -79,6 +80,12 @@ def _numpy_replay_s(path: Path) -> float | None:
         check=True,
     )
     return float(done.stdout.strip().splitlines()[-1])
+
+
+def _children_cpu_s() -> float:
+    """User + system CPU seconds of this process's finished children."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
 
 
 #: Floors of issue 22: replay with the slow lane, × real time on one core; --jobs 2 / --jobs 1.
@@ -97,24 +104,45 @@ def _folder_table(folder: Path, seconds: float, count: int) -> Callable[[], None
         path, _, _ = _recording(build, seconds)
         path.rename(folder / f"rec{k}.mcap")
     wall: dict[int, float] = {}
+    cpu: dict[int, float] = {}
     for jobs in (1, 2):
-        started = time.perf_counter()
+        started, started_cpu = time.perf_counter(), _children_cpu_s()
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
             main(["replay", str(folder), "--jobs", str(jobs)])
         wall[jobs] = time.perf_counter() - started
+        cpu[jobs] = _children_cpu_s() - started_cpu
     total = count * seconds
-    rows = [[jobs, wall[jobs], total / wall[jobs], wall[1] / wall[jobs]] for jobs in (1, 2)]
+    rows = [
+        [
+            jobs,
+            wall[jobs],
+            total / wall[jobs],
+            wall[1] / wall[jobs],
+            cpu[jobs],
+            cpu[jobs] / wall[jobs],
+        ]
+        for jobs in (1, 2)
+    ]
     ratio = wall[1] / wall[2]
     return lambda: print_table(
         f"rtsid replay DIR: {count} recordings of {seconds / 60:g} min, --jobs 1 and 2 "
         f"({os.cpu_count()} cores)",
-        ["--jobs", "seconds", "× real time", "speed-up"],
+        [
+            "--jobs",
+            "seconds",
+            "× real time",
+            "speed-up",
+            "CPU s, the pool's processes",
+            "cores used",
+        ],
         rows,
         note=(
             f"Floor: --jobs 2 ≥ {JOBS_FLOOR}× --jobs 1 "
             f"({'met' if ratio >= JOBS_FLOOR else 'NOT met'}: {ratio:.2f}×). Wall time of the "
-            "whole command (spawning the pool included); on a machine other work shares, the "
-            "second core is not all this run's."
+            "whole command (spawning the pool included); cores used = the pool's CPU seconds "
+            "(/proc, reaped children) over the wall time: below the job count, the processes "
+            "waited for a CPU (on a machine other work shares, the second core is not all "
+            "this run's)."
         ),
     )
 
@@ -126,7 +154,9 @@ def run(args: argparse.Namespace) -> int:
         path, theta, tau = _recording(Path(tmp), seconds)
         build_s = time.perf_counter() - started
         size_mb = path.stat().st_size / 2**20
+        started_cpu = time.thread_time()
         result = replay_file(path)
+        replay_cpu_s = time.thread_time() - started_cpu
         numpy_s = _numpy_replay_s(path)
         config = DaemonConfig()
         start = time.perf_counter()
@@ -175,5 +205,31 @@ def run(args: argparse.Namespace) -> int:
             f"{REPLAY_FLOOR:g}× real time on one core ({met}: {result.speed:.3g}×)."
         ),
     )
+    print_split(result, replay_cpu_s, seconds)
     print_folder()
     return 0
+
+
+def print_split(result: ReplayResult, cpu_s: float, seconds: float) -> None:
+    """Where the replay's CPU time went, per window: the evaluator, the slow lane's fits and
+    everything else replay does (reading the MCAP, cutting windows, building messages)."""
+    windows = len(result.messages)
+    parts = [
+        ("window path (evaluator: reflex prediction + estimate + tracker)", result.compute_cpu_s),
+        ("slow-lane fits, in line", result.fit_cpu_s),
+        (
+            "the rest: reading the MCAP, the window grid, building messages",
+            cpu_s - result.compute_cpu_s - result.fit_cpu_s,
+        ),
+        ("replay, all of it", cpu_s),
+    ]
+    print_table(
+        "Where the replay's CPU time goes (the same run, this thread's CPU time)",
+        ["part", "CPU s", "ms per window", "share", "× real time if it were alone"],
+        [
+            [name, part_s, part_s / windows * 1e3, part_s / cpu_s, seconds / part_s]
+            for name, part_s in parts
+        ],
+        note=f"{windows} windows, {len(result.reflex)} slow-lane fits. The floor of 150× real "
+        f"time leaves {seconds / 150 / windows * 1e3:.3f} ms per window for all of it.",
+    )

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -24,6 +25,7 @@ from numpy.typing import NDArray
 __all__ = ["RingBuffer", "Snapshot"]
 
 _MAX_READ_ATTEMPTS = 8
+_Row = TypeVar("_Row", bound=np.generic)  # a column's element type
 
 
 @dataclass(frozen=True)
@@ -276,18 +278,31 @@ class RingBuffer:
                 self.reader_overruns += n
 
     def _copy(self, lo: int, hi: int) -> Snapshot:
-        """Copy rows ``lo .. hi - 1`` (``hi - lo < capacity``) in index order."""
+        """Copy rows ``lo .. hi - 1`` (``hi - lo < capacity``) in index order.
+
+        One or two slice copies per column (two when the rows wrap around the end of the
+        arrays), not a gather through an index array: a window with the slow lane's history
+        (4025 rows, seven columns) took 0.11 ms that way, on the worker, every hop.
+        """
         if hi <= lo:
             return self._empty(0)
-        rows = np.arange(lo, hi) % self.capacity
+        start = lo % self.capacity
+        stop = start + (hi - lo)
+        wrapped = stop - self.capacity  # rows taken from the arrays' start (<= 0: none)
+
+        def rows(column: NDArray[_Row]) -> NDArray[_Row]:
+            if wrapped <= 0:
+                return column[start:stop].copy()
+            return np.concatenate((column[start:], column[:wrapped]))
+
         return Snapshot(
-            self._index[rows],
-            self._position[rows],
-            self._torque[rows],
-            self._valid[rows],
-            self._status[rows],
-            self._host_time[rows],
-            self._bus_time[rows],
+            rows(self._index),
+            rows(self._position),
+            rows(self._torque),
+            rows(self._valid),
+            rows(self._status),
+            rows(self._host_time),
+            rows(self._bus_time),
         )
 
     @staticmethod

@@ -110,7 +110,13 @@ class WorkerConfig:
 
 @dataclass(frozen=True)
 class WorkerCounters:
-    """Totals since start (the ``worker`` object of the status message)."""
+    """Totals since start (the ``worker`` object of the status message).
+
+    ``compute_ms_last`` and ``compute_s`` are wall time (``perf_counter``: what the deadline
+    is about); ``compute_cpu_ms_last`` and ``compute_cpu_s`` the worker thread's CPU time over
+    the same spans (``thread_time``). Wall minus CPU is time the worker was ready but did not
+    run: waiting for the GIL, or for a CPU the kernel or the hypervisor gave to others.
+    """
 
     estimates: int
     withheld: dict[str, int]
@@ -118,6 +124,9 @@ class WorkerCounters:
     deadline_misses: int
     compute_ms_last: float
     reflex_flagged: dict[str, int] = field(default_factory=dict)
+    compute_cpu_ms_last: float = 0.0
+    compute_s: float = 0.0
+    compute_cpu_s: float = 0.0
 
 
 def assess_window(snap: Snapshot, now_s: float, max_age_s: float) -> Reason | None:
@@ -255,7 +264,10 @@ class WindowEvaluator:
         self.withheld: Counter[str] = Counter()
         self.estimates = 0
         self.misses = 0
-        self.compute_ms = 0.0
+        self.compute_ms = 0.0  # the latest window's, wall time
+        self.compute_cpu_ms = 0.0  # the latest window's, this thread's CPU time
+        self.compute_s = 0.0  # every window's wall time, summed
+        self.compute_cpu_s = 0.0  # every window's CPU time, summed
         self.sign = SignCount()  # windows reading K, B, I < 0 (rtsid.ident.sign)
 
     def first_window_end(self, first_index: int) -> int:
@@ -282,7 +294,13 @@ class WindowEvaluator:
             fit_ms=fit_ms,
         ).as_dict()
 
-    def evaluate(self, snap: Snapshot, *, started_s: float | None = None) -> dict[str, Any]:
+    def evaluate(
+        self,
+        snap: Snapshot,
+        *,
+        started_s: float | None = None,
+        started_cpu_s: float | None = None,
+    ) -> dict[str, Any]:
         """Estimate one window of samples and publish its message.
 
         Parameters
@@ -292,8 +310,11 @@ class WindowEvaluator:
             history (with a slow lane).
         started_s : float, optional
             ``perf_counter()`` when work on the window began (default: now).
+        started_cpu_s : float, optional
+            ``thread_time()`` then, on this thread (default: now).
         """
         started = time.perf_counter() if started_s is None else started_s
+        started_cpu = time.thread_time() if started_cpu_s is None else started_cpu_s
         window = snap.tail(self.window_samples)
         arrival = float(window.host_time_s[-1]) if self.live else None
         now = time.monotonic() if arrival is not None else math.inf
@@ -309,12 +330,19 @@ class WindowEvaluator:
         first, last = int(window.sample_index[0]), int(window.sample_index[-1])
         track = self.stream.track(last / self.fs_hz, estimate)  # every evaluated window steps it
         compute_s = time.perf_counter() - started
-        self.compute_ms = compute_s * 1e3
+        self._count_compute(compute_s, time.thread_time() - started_cpu)
         if self._over_budget(compute_s):
             self.misses += 1
         message = self._message(first, last, estimate, reason, compute_s, arrival, reflex, track)
         self.publish(message)
         return message
+
+    def _count_compute(self, wall_s: float, cpu_s: float) -> None:
+        """Add one window's compute time: wall (the deadline's) and this thread's CPU."""
+        self.compute_ms = wall_s * 1e3
+        self.compute_cpu_ms = cpu_s * 1e3
+        self.compute_s += wall_s
+        self.compute_cpu_s += cpu_s
 
     def _over_budget(self, compute_s: float) -> bool:
         """A live window whose compute overran the budget (recorded samples have no deadline:
@@ -489,6 +517,9 @@ class WindowWorker(ThreadOwner):
             deadline_misses=e.misses,
             compute_ms_last=e.compute_ms,
             reflex_flagged=dict(e.reflex_flagged),
+            compute_cpu_ms_last=e.compute_cpu_ms,
+            compute_s=e.compute_s,
+            compute_cpu_s=e.compute_cpu_s,
         )
 
     # ------------------------------------------------------------------ the grid
@@ -551,7 +582,7 @@ class WindowWorker(ThreadOwner):
         dict or None
             The message, or None when those samples are no longer (or not yet) in the ring.
         """
-        started = time.perf_counter()
+        started, started_cpu = time.perf_counter(), time.thread_time()
         start = end_index - self.window_samples + 1
         # history before the window, but never before the stream's first sample
         first = max(start - self.evaluator.history_samples, min(self._first_index, start))
@@ -560,4 +591,4 @@ class WindowWorker(ThreadOwner):
         if len(snap) != count or int(snap.sample_index[0]) != first:
             self._overruns += 1  # overwritten before we got to it
             return None
-        return self.evaluator.evaluate(snap, started_s=started)
+        return self.evaluator.evaluate(snap, started_s=started, started_cpu_s=started_cpu)

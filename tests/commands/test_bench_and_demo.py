@@ -1,3 +1,5 @@
+import pytest
+
 from rtsid.cli import main
 
 
@@ -68,12 +70,55 @@ def test_replay_benchmark_compares_replay_with_the_bare_estimator(capsys):
     assert main(["bench", "replay", "--minutes", "0.1"]) == 0
     out = capsys.readouterr().out
     rows = [line for line in out.splitlines() if line.startswith("|") and "windows" not in line]
-    windows = [int(r.split("|")[2]) for r in rows if r.split("|")[2].strip().isdigit()]
+    paths = ("rtsid replay", "same replay", "baseline")
+    windows = [int(r.split("|")[2]) for r in rows if r.split("|")[1].strip().startswith(paths)]
     # replay, the same on the numpy path, the bare estimator: 6 s, 300 ms every 20 ms
     assert windows == [286, 286, 286]
     assert "numpy path" in out and "Floor (issue 22)" in out
     jobs = [r.split("|")[1].strip() for r in rows if r.split("|")[1].strip() in ("1", "2")]
     assert jobs == ["1", "2"] and "--jobs 2 ≥ 1.7× --jobs 1" in out
+    # where the replay's CPU went: the three parts add up to the whole
+    split = {r.split("|")[1].strip(): r.split("|") for r in rows}
+    parts = [v for k, v in split.items() if k.startswith(("window path", "slow-lane", "the rest"))]
+    total = split["replay, all of it"]
+    assert len(parts) == 3 and all(float(p[2]) >= 0 for p in parts)
+    assert sum(float(p[2]) for p in parts) == pytest.approx(float(total[2]), rel=0.02)
+
+
+def test_service_benchmark_config_runs_the_daemon_at_the_hop_asked(tmp_path):
+    from rtsid.benchmarks.service import _config_file
+    from rtsid.runtime.daemon import DaemonConfig
+
+    path = _config_file(tmp_path, 7447, 29536, -1, "process", True, 0.004, 0.001)
+    config = DaemonConfig.load(path)
+    assert config.worker.hop_s == 0.004 and config.daemon.gil_switch_interval_s == 0.001
+    assert config.slow_lane.enabled and config.plant.reflex.enabled
+    assert config.link.interface == "socketcand" and config.link.port == 29536
+
+
+def test_service_benchmark_counts_worker_cpu_and_replayed_equality():
+    from rtsid.benchmarks.service import Phase, identical_to_live, worker_cpu_per_window_ms
+    from rtsid.replay import ReplayResult
+
+    status = {
+        "worker": {
+            "estimates": 8,
+            "withheld": {"gap": 2},
+            "compute_s": 0.03,
+            "compute_cpu_s": 0.02,
+        }
+    }
+    assert worker_cpu_per_window_ms(status) == pytest.approx((2.0, 3.0))
+    phase = Phase("idle")
+    phase.live_values = {49: (150.0, 0.8, 0.015), 99: (151.0, 0.8, 0.015)}
+    phase.replay = ReplayResult(
+        source="x",
+        messages=[
+            {"window_end_index": 49, "K": 150.0, "B": 0.8, "I": 0.015},
+            {"window_end_index": 99, "K": 151.5, "B": 0.8, "I": 0.015},
+        ],
+    )
+    assert identical_to_live(phase) == (1, 2)
 
 
 def test_bench_markers_quick_keeps_every_acknowledged_marker(capsys):

@@ -125,3 +125,22 @@ def test_wake_at_sets_the_event_when_the_row_is_published():
     event.clear()
     ring.wake_at(7, event)  # already published: set at once
     assert event.is_set()
+
+
+def test_every_column_of_every_span_comes_out_in_index_order_across_the_wrap():
+    ring = RingBuffer(16)
+    fill(ring, 20)
+    ring.append_gap(2, 5.0)  # rows 20, 21: lost
+    fill(ring, 5)  # newest 26; the ring holds 11 .. 26, its slots wrap after 15
+    for lo in range(11, 27):
+        for n in range(1, min(27 - lo, ring.capacity - 1) + 1):  # read_since: < capacity
+            snap = ring.read_since(lo, n)
+            index = np.arange(lo, lo + n)
+            lost = (index == 20) | (index == 21)
+            assert snap.sample_index.tolist() == index.tolist()
+            assert np.array_equal(snap.valid, ~lost)
+            assert np.array_equal(snap.position_rad, np.where(lost, 0.0, index))
+            assert np.array_equal(snap.torque_nm, np.where(lost, 0.0, -index))
+            assert np.array_equal(snap.status, np.where(lost, 0, index % 16))
+            assert np.array_equal(snap.host_time_s, np.where(lost, 5.0, 1.0))
+            assert np.array_equal(np.isnan(snap.bus_time_s), lost)

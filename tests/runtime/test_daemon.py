@@ -81,6 +81,46 @@ def test_daemon_logs_every_sample_and_every_estimate(tmp_path, free_port):
     assert all(type(reason) is str for reason in summary.withheld)  # values, not Reason members
 
 
+class Sink:
+    """Records what the daemon hands to a publisher or logger, in order."""
+
+    def __init__(self) -> None:
+        self.got: list[bytes] = []
+
+    def publish_estimate(self, payload: bytes) -> None:
+        self.got.append(payload)
+
+    def log_estimate(self, payload: bytes, *, log_time_ns: int) -> bool:
+        self.got.append(payload)
+        return True
+
+
+def estimate_message(seq: int) -> dict:
+    return {"seq": seq, "host_time_ns": 1_000 + seq, "ok": False, "reason": "stale"}
+
+
+def test_estimates_reach_zenoh_at_once_and_the_mcap_writer_on_the_housekeeping_tick(
+    monkeypatch,
+):
+    import rtsid.runtime.daemon as daemon_module
+
+    monkeypatch.setattr(daemon_module, "encode_estimate", lambda m: str(m["seq"]).encode())
+    monkeypatch.setattr(daemon_module, "ESTIMATES_HELD", 3)
+    daemon, zenoh_sink, mcap_sink = Daemon(DaemonConfig()), Sink(), Sink()
+    for seq in range(2):
+        daemon._publish_estimate(estimate_message(seq), mcap_sink, zenoh_sink)
+    assert zenoh_sink.got == [b"0", b"1"] and mcap_sink.got == []  # no writer wake-up yet
+    daemon._log_estimates(mcap_sink)
+    assert mcap_sink.got == [b"0", b"1"]
+    for seq in range(2, 6):  # housekeeping stuck: past the hold the worker hands them over
+        daemon._publish_estimate(estimate_message(seq), mcap_sink, zenoh_sink)
+    assert mcap_sink.got == [b"0", b"1", b"5"]
+    daemon._log_estimates(mcap_sink)
+    assert sorted(mcap_sink.got) == [str(k).encode() for k in range(6)]
+    assert zenoh_sink.got == [str(k).encode() for k in range(6)]
+    assert daemon.last_estimate == estimate_message(5)
+
+
 def open_files() -> set[str]:
     return {os.path.realpath(f"/proc/self/fd/{fd}") for fd in os.listdir("/proc/self/fd")}
 

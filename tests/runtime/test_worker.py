@@ -46,6 +46,38 @@ def test_windows_end_on_a_grid_of_sample_indices():
     assert all((worker.first_window_end(k) + 1) % 50 == 0 for k in range(0, 200, 7))
 
 
+def test_a_4_ms_hop_puts_a_window_end_every_10_samples():
+    worker = make_worker(filled_ring(), [], hop_s=0.004)
+    assert worker.hop_samples == 10
+    ends = [worker.first_window_end(k) for k in range(0, 100, 3)]
+    assert all((end + 1) % 10 == 0 for end in ends)
+    assert worker.first_window_end(0) == 749 and worker.first_window_end(1) == 759
+
+
+def test_compute_is_counted_as_wall_time_and_as_the_threads_cpu_time(monkeypatch):
+    # A window whose estimate waits (here: sleeps, as when the GIL or the CPU is elsewhere)
+    # costs wall time but little CPU: the counters tell the two apart.
+    published = []
+    worker = make_worker(filled_ring(), published)
+    busy = worker.process_window(1449)
+    after_busy = worker.counters()
+    assert after_busy.compute_cpu_ms_last > 0
+    assert after_busy.compute_s == pytest.approx(busy["compute_ms"] / 1e3)
+    estimate = worker.evaluator.stream.estimate
+
+    def waits_then_estimates(*args, **kwargs):
+        time.sleep(0.05)
+        return estimate(*args, **kwargs)
+
+    monkeypatch.setattr(worker.evaluator.stream, "estimate", waits_then_estimates)
+    waited = worker.process_window(1499)
+    c = worker.counters()
+    assert waited["ok"] and c.compute_ms_last >= 50.0
+    assert c.compute_cpu_ms_last < 0.5 * c.compute_ms_last  # the sleep is not CPU
+    assert c.compute_s == pytest.approx((busy["compute_ms"] + waited["compute_ms"]) / 1e3)
+    assert c.compute_cpu_s == pytest.approx(after_busy.compute_cpu_s + c.compute_cpu_ms_last / 1e3)
+
+
 def test_process_window_publishes_a_complete_estimate_message():
     published = []
     msg = make_worker(filled_ring(), published).process_window(1449)
