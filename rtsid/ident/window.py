@@ -47,6 +47,7 @@ from rtsid.ident.assess import (
 from rtsid.ident.check import check_relative_excitation, check_window, without_lost
 from rtsid.ident.fit import NOT_HELD, Held, held_values, output_error_design, output_error_fit
 from rtsid.ident.front import analyse_irf, front_end, prepare_window, scored_band
+from rtsid.ident.fused import fusable, fused_back_end
 from rtsid.ident.gaps import WindowGaps
 from rtsid.ident.irf import IRF
 from rtsid.ident.legacy import fit_parameters, legacy_back_end, numpy_back_end, standard_errors
@@ -278,5 +279,7 @@ def output_error_back_end(
 ) -> WindowEstimate:
     """Steps 4–5 with the output-error fit (the default criterion); ``design`` when the
     caller has already formed this window's (:class:`WindowStream` fits it twice)."""
+    if design is None and score is not None and fusable(options, score, gaps is not None):
+        return fused_back_end(irf, u, y, options, plan, held, score).estimate  # 4–5 compiled
     fit = output_error_fit(irf, u, y, options, plan, held, design, gaps)  # 4. fit
     return assess(irf, u, y, fit, options, held, gaps, score)  # 5. assess
