@@ -1248,6 +1248,40 @@ static PyObject *py_reflex_rect_tail(PyObject *self, PyObject *args)
     return result;
 }
 
+/* band_limit(x, taps, factor, sign, out): sign·x with its mean removed, through the FIR over
+ * the fully supported samples, every factor-th kept (rtsid.ident.front.scored_band's band
+ * limiting of the torque explained elsewhere; its numpy code is the reference). O(N·T/factor). */
+static PyObject *py_band_limit(PyObject *self, PyObject *args)
+{
+    PyObject *objs[3];
+    Py_ssize_t factor;
+    double sign;
+    if (!PyArg_ParseTuple(args, "OOndO", &objs[0], &objs[1], &factor, &sign, &objs[2])) {
+        return NULL;
+    }
+    const char *names[3] = {"x", "taps", "out"};
+    Py_buffer b[3];
+    if (get_buffers(objs, 3, 2, names, b) < 0) return NULL;
+    Py_ssize_t n = b[0].len / 8, nt = b[1].len / 8, m = b[2].len / 8;
+    PyObject *result = NULL;
+    if (factor < 1 || nt < 1 || n < nt || m != (n - nt) / factor + 1) {
+        PyErr_SetString(PyExc_ValueError, "band_limit: inconsistent sizes");
+    } else {
+        double *work = PyMem_Malloc(sizeof(double) * n);
+        if (work == NULL) {
+            PyErr_NoMemory();
+        } else {
+            detrend_into(b[0].buf, work, n, sign, 1);
+            fir_decimate(work, n, b[1].buf, nt, factor, b[2].buf, m);
+            PyMem_Free(work);
+            Py_INCREF(Py_None);
+            result = Py_None;
+        }
+    }
+    release_buffers(b, 3);
+    return result;
+}
+
 static PyObject *py_window_fit(PyObject *self, PyObject *args)
 {
     PyObject *objs[10];
@@ -1423,6 +1457,8 @@ static PyMethodDef methods[] = {
     {"reflex_rect_tail", py_reflex_rect_tail, METH_VARARGS,
      "reflex_rect_tail(position, fs, sos, zi, edge, factor, g, out): the rect pathway's torque "
      "over the segment's last len(out) samples (input, causal IRF, interpolation)."},
+    {"band_limit", py_band_limit, METH_VARARGS,
+     "band_limit(x, taps, factor, sign, out): sign·x, mean removed, FIR-decimated."},
     {"reflex_rect_input", py_reflex_rect_input, METH_VARARGS,
      "reflex_rect_input(position, fs, sos, zi, edge, factor, out): the rect reflex pathway's "
      "input at the model's rate (detrend, velocity, max(v, 0), zero-phase decimation)."},

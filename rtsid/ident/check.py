@@ -97,14 +97,17 @@ def check_analysis_length(m: int, fs_a: float, max_lag: int) -> None:
         )
 
 
-def check_band_limited_excitation(u: FloatArray, options: EstimatorOptions) -> None:
-    """Withhold a window whose perturbation has no power left in the analysed band."""
-    if float(np.std(u)) < options.min_excitation_rad:
+def check_band_limited_excitation(u: FloatArray, options: EstimatorOptions) -> float:
+    """Withhold a window whose perturbation has no power left in the analysed band; else
+    its band-limited standard deviation, rad."""
+    level = float(np.std(u))
+    if level < options.min_excitation_rad:
         raise WindowError(
             f"the position varies by less than {options.min_excitation_rad} rad in the "
             "analysed band: no usable perturbation, nothing to identify",
             Reason.NO_EXCITATION,
         )
+    return level
 
 
 def check_relative_excitation(

@@ -51,7 +51,7 @@ class ScoredBand:
     explained: FloatArray | None = None
 
 
-__all__ = ["analyse_irf", "front_end", "prepare_window"]
+__all__ = ["analyse_checked", "analyse_irf", "front_end", "prepare_window"]
 
 FloatArray = NDArray[np.float64]
 
@@ -66,12 +66,26 @@ def analyse_irf(
 ) -> tuple[FloatArray, FloatArray, IRF, WindowGaps | None]:
     """Step 3 of a checked window: :func:`front_end`, or for a window with lost samples
     the numpy path with the lost samples' reach zeroed and the IRF fitted on clean rows."""
+    u, y, irf, gaps, _ = analyse_checked(position, torque, fs, options, plan, lost)
+    return u, y, irf, gaps
+
+
+def analyse_checked(
+    position: FloatArray,
+    torque: FloatArray,
+    fs: float,
+    options: EstimatorOptions,
+    plan: AnalysisPlan,
+    lost: LostSamples | None,
+) -> tuple[FloatArray, FloatArray, IRF, WindowGaps | None, float]:
+    """:func:`analyse_irf`'s ``(u, y, irf, gaps)`` and the band-limited position's standard
+    deviation (rad; the stream's excitation level), computed once."""
     if lost is None:
-        return (*front_end(position, torque, fs, options, plan), None)
-    u, y = prepare_window(position, torque, options, plan)
-    bad = contaminated(lost.valid, plan.taps.size, plan.factor)
-    u[bad], y[bad] = 0.0, 0.0
-    gaps = WindowGaps(bad=bad, lost=lost.count)
+        u, y, irf, level = _front_end(position, torque, fs, options, plan)
+        return u, y, irf, None, level
+    u, y, _ = _prepared(position, torque, options, plan)
+    gaps = _gaps(lost, plan)
+    u[gaps.bad], y[gaps.bad] = 0.0, 0.0
     rows = gaps.rows(plan.lag)
     # Refinement needs rows whose whole lag span is clean; without enough of them the IRF is
     # the plain Wiener–Hopf solution from correlations over valid pairs, and the checks that
@@ -80,7 +94,13 @@ def analyse_irf(
     irf = estimate_irf(
         u, y, plan.analysis_fs_hz, plan.lag, ridge=options.ridge, refine=refine, rows=rows
     )
-    return u, y, irf, gaps
+    return u, y, irf, gaps, float(np.std(u))  # the zeroed samples included
+
+
+def _gaps(lost: LostSamples, plan: AnalysisPlan) -> WindowGaps:
+    """The analysis samples the lost ones reach (through the FIR), and their count."""
+    bad = contaminated(lost.valid, plan.taps.size, plan.factor)
+    return WindowGaps(bad=bad, lost=lost.count)
 
 
 _DETREND_CODES = {"none": 0, "mean": 1, "linear": 2}
@@ -99,12 +119,24 @@ def front_end(
     correlations, EUREKA and refinement in C); otherwise :func:`prepare_window` and
     :func:`rtsid.ident.irf.estimate_irf` in numpy, the reference it is tested against.
     """
+    u, y, irf, _ = _front_end(position, torque, fs, options, plan)
+    return u, y, irf
+
+
+def _front_end(
+    position: ArrayLike,
+    torque: ArrayLike,
+    fs: float,
+    options: EstimatorOptions,
+    plan: AnalysisPlan,
+) -> tuple[FloatArray, FloatArray, IRF, float]:
+    """:func:`front_end` and the band-limited position's standard deviation, rad."""
     if _eureka is None:
-        u, y = prepare_window(position, torque, options, plan)
+        u, y, level = _prepared(position, torque, options, plan)
         irf = estimate_irf(
             u, y, plan.analysis_fs_hz, plan.lag, ridge=options.ridge, refine=options.refine
         )
-        return u, y, irf
+        return u, y, irf, level
     pos = np.ascontiguousarray(position, dtype=np.float64)
     tor = np.ascontiguousarray(torque, dtype=np.float64)
     taps, factor, lag, fs_a = plan.taps, plan.factor, plan.lag, plan.analysis_fs_hz
@@ -130,20 +162,27 @@ def front_end(
     )
     if status >= 0:
         raise not_positive_definite(status, alpha)
-    check_band_limited_excitation(u, options)
-    return u, y, IRF(h=h, fs_hz=fs_a, phi_uu=phi)
+    level = check_band_limited_excitation(u, options)
+    return u, y, IRF(h=h, fs_hz=fs_a, phi_uu=phi), level
 
 
 def prepare_window(
     position: ArrayLike, torque: ArrayLike, options: EstimatorOptions, plan: AnalysisPlan
 ) -> tuple[FloatArray, FloatArray]:
     """Step 3, first half: sign, detrend, band-limit and decimate a checked window; ``(u, y)``."""
+    u, y, _ = _prepared(position, torque, options, plan)
+    return u, y
+
+
+def _prepared(
+    position: ArrayLike, torque: ArrayLike, options: EstimatorOptions, plan: AnalysisPlan
+) -> tuple[FloatArray, FloatArray, float]:
+    """:func:`prepare_window` and the band-limited position's standard deviation, rad."""
     pos = np.asarray(position, dtype=np.float64)
     tor = np.asarray(torque, dtype=np.float64)
     u, y = _preprocess(pos, tor, plan, options)
     check_analysis_length(u.size, plan.analysis_fs_hz, plan.lag)
-    check_band_limited_excitation(u, options)
-    return u, y
+    return u, y, check_band_limited_excitation(u, options)
 
 
 def _preprocess(
@@ -181,7 +220,11 @@ def scored_band(
         sign = options.torque_sign
         slopes = (trend_slope(position) * plan.factor, sign * trend_slope(torque) * plan.factor)
     extra = None
-    if explained is not None:
+    if explained is not None and _eureka is not None and position.size >= plan.taps.size:
+        extra = np.empty((position.size - plan.taps.size) // plan.factor + 1)
+        source = np.ascontiguousarray(explained, dtype=np.float64)
+        _eureka.band_limit(source, np.ascontiguousarray(plan.taps), plan.factor, float(options.torque_sign), extra)
+    elif explained is not None:  # the numpy reference
         signed = options.torque_sign * np.asarray(explained, dtype=np.float64)
         extra = _band_limit(signed - signed.mean(), plan)
     return ScoredBand(band, *slopes, explained=extra)

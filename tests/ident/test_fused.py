@@ -102,3 +102,20 @@ def test_a_window_without_torque_raises_as_the_numpy_fit():
     irf, u, y = window.signals
     with pytest.raises(NumericalError, match="torque does not follow position"):
         fused.fused_back_end(irf, u, y, options, plan, Held(), window.score, learn=True)
+
+
+@pytest.mark.parametrize("sign", [1, -1])
+def test_the_explained_torque_is_band_limited_as_in_numpy(sign, monkeypatch):
+    from rtsid.ident import front
+
+    theta, tau = _recording(0.3, 13)
+    options = EstimatorOptions(torque_sign=sign)
+    plan = resolve_plan(theta, FS, options)
+    reflex = 0.3 * np.sin(np.arange(theta.size) / 40.0) + 0.1
+    got = front.scored_band(theta, tau, options, plan, reflex)
+    monkeypatch.setattr(front, "_eureka", None)
+    want = front.scored_band(theta, tau, options, plan, reflex)
+    assert got.explained is not None and want.explained is not None
+    scale = np.abs(want.explained).max()
+    np.testing.assert_allclose(got.explained, want.explained, rtol=1e-9, atol=1e-12 * scale)
+    assert (got.position_slope, got.torque_slope) == (want.position_slope, want.torque_slope)
