@@ -1326,6 +1326,29 @@ static PyObject *py_window_fit(PyObject *self, PyObject *args)
     return result;
 }
 
+/* Slope of the least-squares line through sign·x, per sample (correlation.trend_slope). */
+static double line_slope(const double *x, Py_ssize_t n, double sign)
+{
+    const double centre = (double)(n - 1) / 2.0;
+    double tt = 0.0, tx = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double t = (double)i - centre;
+        tt += t * t;
+        tx += t * sign * x[i];
+    }
+    return tt > 0.0 ? tx / tt : 0.0;
+}
+
+/* Population standard deviation of x (numpy.std). */
+static double standard_deviation(const double *x, Py_ssize_t n)
+{
+    double mean = 0.0, ss = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) mean += x[i];
+    mean /= (double)n;
+    for (Py_ssize_t i = 0; i < n; i++) ss += (x[i] - mean) * (x[i] - mean);
+    return sqrt(ss / (double)n);
+}
+
 static PyObject *py_window_irf(PyObject *self, PyObject *args)
 {
     PyObject *po, *to, *tapso, *uo, *yo, *ho, *phio;
@@ -1363,7 +1386,9 @@ static PyObject *py_window_irf(PyObject *self, PyObject *args)
                                     ridge, sweeps, fs, b[3].buf, b[4].buf, m, b[5].buf,
                                     b[6].buf, work, &alpha);
                 PyMem_Free(work);
-                result = Py_BuildValue("nd", status, alpha);
+                result = Py_BuildValue("ndddd", status, alpha, standard_deviation(b[3].buf, m),
+                                       line_slope(b[0].buf, n, 1.0),
+                                       line_slope(b[1].buf, n, sign));
             }
         }
     }
@@ -1438,7 +1463,8 @@ static PyMethodDef methods[] = {
      "solve(r, b, x, work) -> (status, alpha): symmetric Toeplitz R x = b by EUREKA."},
     {"window_irf", py_window_irf, METH_VARARGS,
      "window_irf(position, torque, taps, factor, sign, detrend, lag, sweeps, ridge, fs, u, y, h, "
-     "phi) -> (status, alpha): detrend, FIR-decimate, correlate, EUREKA and refine one window."},
+     "phi) -> (status, alpha, std(u), position slope, signed torque slope): detrend, "
+     "FIR-decimate, correlate, EUREKA and refine one window."},
     {"window_fit", py_window_fit, METH_VARARGS,
      "window_fit(u, y, h, phi, stacked, f, hann, fs, power, uncertainty, params, sens, out) -> "
      "status: linear fit, predictions, VAFs and standard errors of one window."},

@@ -216,8 +216,8 @@ def analyse_window(
     lost = check_window(pos, tor, options, mask, fs)  # 1. check
     pos, tor = without_lost(pos, tor, lost)
     plan = plan or resolve_plan(plan_source(pos, lost), fs, options, max_lowpass_hz)  # 2. plan
-    u, y, irf, gaps, level = analyse_checked(pos, tor, fs, options, plan, lost)  # 3. IRF
-    score = scored_band(pos, tor, options, plan, explained)
+    u, y, irf, gaps, level, slopes = analyse_checked(pos, tor, fs, options, plan, lost)  # 3.
+    score = scored_band(pos, tor, options, plan, explained, slopes)
     return AnalysedWindow(plan, u, y, irf, gaps, score, level)
 
 

@@ -119,3 +119,20 @@ def test_the_explained_torque_is_band_limited_as_in_numpy(sign, monkeypatch):
     scale = np.abs(want.explained).max()
     np.testing.assert_allclose(got.explained, want.explained, rtol=1e-9, atol=1e-12 * scale)
     assert (got.position_slope, got.torque_slope) == (want.position_slope, want.torque_slope)
+
+
+def test_the_compiled_front_ends_level_and_slopes_are_numpys(monkeypatch):
+    # window_irf also returns std(u) (the excitation level) and the trends' slopes
+    from rtsid.ident import front
+
+    theta, tau = _recording(0.3, 14)
+    theta = theta + np.linspace(0.0, 0.01, theta.size)  # a trend to score
+    options = EstimatorOptions(torque_sign=-1)
+    plan = resolve_plan(theta, FS, options)
+    got = analyse_window(theta, -tau, FS, options, plan)
+    monkeypatch.setattr(front, "_eureka", None)
+    want = analyse_window(theta, -tau, FS, options, plan)
+    assert got.excitation_rad == pytest.approx(want.excitation_rad, rel=1e-12)
+    assert got.score.position_slope == pytest.approx(want.score.position_slope, rel=1e-9)
+    assert got.score.torque_slope == pytest.approx(want.score.torque_slope, rel=1e-9)
+    assert abs(want.score.position_slope) > 0
