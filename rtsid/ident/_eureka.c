@@ -6,9 +6,13 @@
  * protocol is used (no numpy headers). The GIL is released only for large systems: for the
  * small per-window systems, handing it over costs the caller a switch interval.
  *
- * Also the per-window pipeline of rtsid.ident.window in two calls: window_irf (front end:
- * detrend, FIR decimation, correlations, EUREKA and refinement) and window_fit (back end: fit,
- * predictions, VAFs, standard errors); window.py's numpy stages are their tested reference.
+ * Also the per-window pipeline of rtsid.ident.window: window_irf (front end: detrend, FIR
+ * decimation, correlations, EUREKA and refinement, with std(u) and the trends' slopes),
+ * band_limit (a torque explained elsewhere, band-limited like the window's), window_fit (the
+ * relative fit's back end), oe_design / oe_fit / oe_vafs (the output-error back end in three
+ * calls) and oe_window (the same in one call, with the full fit the held parameters learn
+ * from and the newest hop's K: rtsid.ident.fused), reflex_rect_input / reflex_rect_tail (the
+ * fast lane's reflex prediction); the numpy stages are their tested reference.
  *
  * solve(r, b, x, work) -> (status, alpha)
  *   r     float64[n]  first column of R (r[0] > 0)
