@@ -6,9 +6,13 @@
  * protocol is used (no numpy headers). The GIL is released only for large systems: for the
  * small per-window systems, handing it over costs the caller a switch interval.
  *
- * Also the per-window pipeline of rtsid.ident.window in two calls: window_irf (front end:
- * detrend, FIR decimation, correlations, EUREKA and refinement) and window_fit (back end: fit,
- * predictions, VAFs, standard errors); window.py's numpy stages are their tested reference.
+ * Also the per-window pipeline of rtsid.ident.window: window_irf (front end: detrend, FIR
+ * decimation, correlations, EUREKA and refinement, with std(u) and the trends' slopes),
+ * band_limit (a torque explained elsewhere, band-limited like the window's), window_fit (the
+ * relative fit's back end), oe_design / oe_fit / oe_vafs (the output-error back end in three
+ * calls) and oe_window (the same in one call, with the full fit the held parameters learn
+ * from and the newest hop's K: rtsid.ident.fused), reflex_rect_input / reflex_rect_tail (the
+ * fast lane's reflex prediction); the numpy stages are their tested reference.
  *
  * solve(r, b, x, work) -> (status, alpha)
  *   r     float64[n]  first column of R (r[0] > 0)
@@ -838,6 +842,202 @@ static PyObject *py_oe_vafs(PyObject *self, PyObject *args)
     return result;
 }
 
+/* ------------------------------------------------------------------ the stream's back end
+ * oe_window: one window's whole output-error back end in one call, what
+ * rtsid.ident.stream.WindowStream runs in numpy (its tested reference): the design (oe_design);
+ * the full fit the held parameters learn from, and its VAF (oe_fit, k = 0, no SEs; skipped
+ * when nothing is held: the published fit is then the full fit); the published fit with the
+ * first k held and its SEs (oe_fit); its VAFs (as oe_vafs); and the K of the window's newest
+ * rows (split_newest, as rtsid.ident.split.SplitProblem.newest).
+ */
+enum {
+    OW_WHOLE = 0,       /* I, B, K of the full fit, then its VAF (4) */
+    OW_PARAMS = 4,      /* I, B, K published (3) */
+    OW_SE = 7,          /* their standard errors (3) */
+    OW_VAFS = 10,       /* vaf, vaf_irf, vaf_fit (3) */
+    OW_NEWEST = 13,     /* K of the newest rows, its relative variance, their centre row (3) */
+    OW_SIZE = 16,
+};
+
+/* The inverse of the p × p matrix a (row-major) by LU with partial pivoting, into inv;
+ * 0 when a pivot is zero (singular). */
+static int invert(const double *a, int p, double *inv)
+{
+    double lu[36];
+    int piv[6];
+    for (int i = 0; i < p * p; i++) lu[i] = a[i];
+    lu_factor(lu, p, piv);
+    for (int i = 0; i < p; i++) {
+        if (lu[i * p + i] == 0.0) return 0;
+    }
+    for (int c = 0; c < p; c++) {
+        double col[6] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+        col[c] = 1.0;
+        lu_solve(lu, p, piv, col);
+        for (int r = 0; r < p; r++) inv[r * p + c] = col[r];
+    }
+    return 1;
+}
+
+/* K of the newest rows `first` … n−1 of the window's split problem (rtsid.ident.split): the
+ * free regressors offset, trend, the fitted derivatives (of the k held, none), u, over the
+ * torque minus the held terms. out: K, its variance relative to σ_K², the rows' centre; NaN
+ * when SplitProblem.of or newest gives None. */
+static void split_newest(const double *regressors, const double *measured, Py_ssize_t n, int k,
+                         const double *held, Py_ssize_t first, double *out, double *target)
+{
+    out[0] = out[1] = out[2] = NAN;
+    if (n < 2 * 3 + 4) return;
+    const int p = 5 - k;
+    const double *rows[5];
+    for (Py_ssize_t t = 0; t < n; t++) {
+        double v = measured[t];
+        if (k >= 1) v -= held[0] * regressors[t];
+        if (k >= 2) v -= held[1] * regressors[n + t];
+        target[t] = v;
+    }
+    /* rows[0], rows[1]: offset and trend (computed in the sums), then the fitted ones */
+    for (int j = 2; j < p - 1; j++) rows[j] = regressors + (Py_ssize_t)(k + j - 2) * n;
+    rows[p - 1] = regressors + 2 * n;
+    double gram[25], xr[5], inv[25];
+    const double centre = (double)(n - 1) / 2.0;
+    for (int a = 0; a < p; a++) {
+        for (int b = a; b < p; b++) {
+            double acc = 0.0;
+            for (Py_ssize_t t = 0; t < n; t++) {
+                double va = a == 0 ? 1.0 : (a == 1 ? (double)t - centre : rows[a][t]);
+                double vb = b == 0 ? 1.0 : (b == 1 ? (double)t - centre : rows[b][t]);
+                acc += va * vb;
+            }
+            gram[a * p + b] = gram[b * p + a] = acc;
+        }
+        double acc = 0.0;
+        for (Py_ssize_t t = 0; t < n; t++) {
+            double va = a == 0 ? 1.0 : (a == 1 ? (double)t - centre : rows[a][t]);
+            acc += va * target[t];
+        }
+        xr[a] = acc;
+    }
+    if (!invert(gram, p, inv)) return;
+    const double gkk = inv[(p - 1) * p + (p - 1)];
+    if (!(gkk > 0.0)) return;
+    double k_hat = 0.0;
+    for (int a = 0; a < p; a++) k_hat += inv[(p - 1) * p + a] * xr[a];
+    if (first < 3) first = 3;
+    if (n - first < 3) return;
+    const double *u = rows[p - 1];
+    double c[5], sr = 0.0, w[5];
+    for (int a = 0; a < p; a++) {
+        double acc = 0.0;
+        for (Py_ssize_t t = first; t < n; t++) {
+            double va = a == 0 ? 1.0 : (a == 1 ? (double)t - centre : rows[a][t]);
+            acc += va * u[t];
+        }
+        c[a] = acc;
+    }
+    for (Py_ssize_t t = first; t < n; t++) sr += target[t] * u[t];
+    double cw = 0.0, xw = 0.0;
+    for (int a = 0; a < p; a++) {
+        double acc = 0.0;
+        for (int b = 0; b < p; b++) acc += inv[a * p + b] * c[b];
+        w[a] = acc;
+        cw += c[a] * acc;
+        xw += xr[a] * acc;
+    }
+    const double pvv = c[p - 1] - cw;
+    if (!(pvv > 1e-12 * c[p - 1])) return;
+    const double delta = (sr - xw) / pvv, after_k = 1.0 - w[p - 1];
+    out[0] = k_hat + delta * after_k;
+    out[1] = 1.0 + after_k * after_k / (pvv * gkk);
+    out[2] = 0.5 * (double)(first + n - 1);
+}
+
+static Py_ssize_t oe_window(const double *u, const double *y, Py_ssize_t m, const double *h,
+                            Py_ssize_t lag, double fs, int k, const double *held, int learn,
+                            int uncertainty, Py_ssize_t lags, const double *explained,
+                            double torque_slope, double position_slope, Py_ssize_t kmax,
+                            const double *tw_cos, const double *tw_sin, Py_ssize_t newest_rows,
+                            double *regressors, double *projected, double *gram, double *model,
+                            double *out, double *work)
+{
+    const Py_ssize_t n = m - 8, edge = lag > 4 ? lag : 4, inner = m - 2 * edge;
+    for (int i = 0; i < OW_SIZE; i++) out[i] = NAN;
+    Py_ssize_t status = oe_design(u, y, m, fs, regressors, projected, gram);
+    if (status != OE_OK) return status;
+    double se[3], vaf = 0.0;
+    if (learn && k > 0) {
+        status = oe_fit(regressors, projected, gram, y + 4, n, 0, held, 0, lags, out + OW_WHOLE,
+                        se, model, &vaf, work);
+        if (status != OE_OK) return status;
+        out[OW_WHOLE + 3] = vaf;
+    }
+    status = oe_fit(regressors, projected, gram, y + 4, n, k, held, uncertainty, lags,
+                    out + OW_PARAMS, out + OW_SE, model, &vaf, work);
+    if (status != OE_OK) return status;
+    if (learn && k == 0) {
+        for (int i = 0; i < 3; i++) out[OW_WHOLE + i] = out[OW_PARAMS + i];
+        out[OW_WHOLE + 3] = vaf;
+    }
+    predictions(u, y, m, h, lag, fs, out + OW_PARAMS, edge, work, work + inner, work + 2 * inner);
+    double vafs[3];
+    three_vafs(work, work + inner, work + 2 * inner, inner, vafs);
+    out[OW_VAFS] = band_vaf(y, model, n, torque_slope, out[OW_PARAMS + 2] * position_slope,
+                            explained, kmax, tw_cos, tw_sin, work);
+    out[OW_VAFS + 1] = vafs[1];
+    out[OW_VAFS + 2] = vafs[2];
+    if (newest_rows > 0) {
+        split_newest(regressors, y + 4, n, k, held, n - newest_rows, out + OW_NEWEST, work);
+    }
+    return OE_OK;
+}
+
+static PyObject *py_oe_window(PyObject *self, PyObject *args)
+{
+    PyObject *objs[12];
+    double fs, torque_slope, position_slope;
+    int k, learn, uncertainty;
+    Py_ssize_t lags, kmax, newest_rows;
+    if (!PyArg_ParseTuple(args, "OOOdiOppnOddnOOnOOOOO", &objs[0], &objs[1], &objs[2], &fs, &k,
+                          &objs[3], &learn, &uncertainty, &lags, &objs[4], &torque_slope,
+                          &position_slope, &kmax, &objs[5], &objs[6], &newest_rows, &objs[7],
+                          &objs[8], &objs[9], &objs[10], &objs[11])) {
+        return NULL;
+    }
+    const char *names[12] = {"u", "y", "h", "held", "explained", "tw_cos", "tw_sin",
+                             "regressors", "projected", "gram", "model", "out"};
+    int has_explained = objs[4] != Py_None;
+    if (!has_explained) objs[4] = objs[1]; /* a stand-in buffer, not read */
+    Py_buffer b[12];
+    if (get_buffers(objs, 12, 7, names, b) < 0) return NULL;
+    Py_ssize_t m = b[0].len / 8, nh = b[2].len / 8, lag = (nh - 1) / 2, n = m - 8;
+    Py_ssize_t edge = lag > 4 ? lag : 4, inner = m - 2 * edge;
+    PyObject *result = NULL;
+    if (b[1].len != b[0].len || nh % 2 != 1 || lag < 1 || inner < 2 || n < 2 || k < 0 ||
+        k > 2 || b[3].len / 8 < 2 || b[4].len != b[0].len || b[5].len / 8 != n ||
+        b[6].len / 8 != n || kmax < 0 || kmax > n / 2 || b[7].len / 8 != 3 * n ||
+        b[8].len / 8 != 4 * n || b[9].len / 8 != 16 || b[10].len / 8 != n ||
+        b[11].len / 8 != OW_SIZE) {
+        PyErr_SetString(PyExc_ValueError, "oe_window: inconsistent sizes");
+    } else {
+        Py_ssize_t nl = lags < 1 ? 1 : (lags > n - 1 ? n - 1 : lags);
+        Py_ssize_t size = 3 * inner + 2 * n + nl + 2;
+        double *work = PyMem_Malloc(sizeof(double) * size);
+        if (work == NULL) {
+            PyErr_NoMemory();
+        } else {
+            Py_ssize_t status = oe_window(
+                b[0].buf, b[1].buf, m, b[2].buf, lag, fs, k, b[3].buf, learn, uncertainty,
+                lags, has_explained ? b[4].buf : NULL, torque_slope, position_slope, kmax,
+                b[5].buf, b[6].buf, newest_rows, b[7].buf, b[8].buf, b[9].buf, b[10].buf,
+                b[11].buf, work);
+            PyMem_Free(work);
+            result = PyLong_FromSsize_t(status);
+        }
+    }
+    release_buffers(b, 12);
+    return result;
+}
+
 /* ------------------------------------------------------------------ reflex pathway input
  * reflex_rect_input: the rectified stretch velocity of a segment at the reflex model's rate,
  * what rtsid.ident.reflex.ReflexPathway.torque feeds its IRF for the "rect" variant (its numpy
@@ -847,32 +1047,50 @@ static PyObject *py_oe_vafs(PyObject *self, PyObject *args)
  * state initial conditions, direct form II transposed sections) and every factor-th sample
  * kept, its mean removed. O(n·sections).
  */
-/* sos_run for the decimator's four sections, the states in registers (the same operations
- * in the same order: the same numbers). */
+/* sos_run for the decimator's four sections, the states in registers and each section's
+ * output substituted into its state updates (s0 ← (b1 − a1·b0)·x − a1·s0 + s1,
+ * s1 ← (b2 − a2·b0)·x − a2·s0): the same filter with a recurrence of one multiply and one add
+ * per sample instead of three operations after the output, so the four sections' chains
+ * overlap; the numbers differ from scipy's by rounding only (tested to 1e-9). */
 static void sos_run4(const double *c, const double *zi, double *x, Py_ssize_t n, int backwards)
 {
     const double first = backwards ? x[n - 1] : x[0];
-    double s00 = zi[0] * first, s01 = zi[1] * first, s10 = zi[2] * first, s11 = zi[3] * first;
-    double s20 = zi[4] * first, s21 = zi[5] * first, s30 = zi[6] * first, s31 = zi[7] * first;
+    double s[4][2], b0[4], k1[4], k2[4], a1[4], a2[4];
+    for (int q = 0; q < 4; q++) {
+        const double *cq = c + 6 * q;
+        s[q][0] = zi[2 * q] * first;
+        s[q][1] = zi[2 * q + 1] * first;
+        b0[q] = cq[0];
+        a1[q] = cq[4];
+        a2[q] = cq[5];
+        k1[q] = cq[1] - cq[4] * cq[0];
+        k2[q] = cq[2] - cq[5] * cq[0];
+    }
+    double s00 = s[0][0], s01 = s[0][1], s10 = s[1][0], s11 = s[1][1];
+    double s20 = s[2][0], s21 = s[2][1], s30 = s[3][0], s31 = s[3][1];
     const Py_ssize_t step = backwards ? -1 : 1;
     double *p = backwards ? x + n - 1 : x;
     for (Py_ssize_t i = 0; i < n; i++, p += step) {
-        double cur = *p, out;
-        out = c[0] * cur + s00;
-        s00 = c[1] * cur - c[4] * out + s01;
-        s01 = c[2] * cur - c[5] * out;
+        double cur = *p, out, t;
+        out = b0[0] * cur + s00;
+        t = k1[0] * cur + s01;
+        s01 = k2[0] * cur - a2[0] * s00;
+        s00 = t - a1[0] * s00;
         cur = out;
-        out = c[6] * cur + s10;
-        s10 = c[7] * cur - c[10] * out + s11;
-        s11 = c[8] * cur - c[11] * out;
+        out = b0[1] * cur + s10;
+        t = k1[1] * cur + s11;
+        s11 = k2[1] * cur - a2[1] * s10;
+        s10 = t - a1[1] * s10;
         cur = out;
-        out = c[12] * cur + s20;
-        s20 = c[13] * cur - c[16] * out + s21;
-        s21 = c[14] * cur - c[17] * out;
+        out = b0[2] * cur + s20;
+        t = k1[2] * cur + s21;
+        s21 = k2[2] * cur - a2[2] * s20;
+        s20 = t - a1[2] * s20;
         cur = out;
-        out = c[18] * cur + s30;
-        s30 = c[19] * cur - c[22] * out + s31;
-        s31 = c[20] * cur - c[23] * out;
+        out = b0[3] * cur + s30;
+        t = k1[3] * cur + s31;
+        s31 = k2[3] * cur - a2[3] * s30;
+        s30 = t - a1[3] * s30;
         *p = out;
     }
 }
@@ -985,6 +1203,107 @@ static PyObject *py_reflex_rect_input(PyObject *self, PyObject *args)
     return result;
 }
 
+/* The causal convolution's outputs low[j] = Σ_i g[i]·r[first + j − i] (0 ≤ first + j − i,
+ * i < ng), j = 0 … m − 1 − first (reflex._causal_outputs), at the data's rate by linear
+ * interpolation at samples n − n_last … n − 1, the model's samples at (first + j)·factor and
+ * the last one held after it (as numpy.interp). */
+static void causal_tail(const double *r, Py_ssize_t m, const double *g, Py_ssize_t ng,
+                        Py_ssize_t first, Py_ssize_t factor, Py_ssize_t n, Py_ssize_t n_last,
+                        double *out, double *low)
+{
+    const Py_ssize_t nlow = m - first;
+    for (Py_ssize_t j = 0; j < nlow; j++) {
+        const Py_ssize_t at = first + j;
+        const Py_ssize_t top = at + 1 < ng ? at + 1 : ng;
+        double acc = 0.0;
+        for (Py_ssize_t i = 0; i < top; i++) acc += g[i] * r[at - i];
+        low[j] = acc;
+    }
+    for (Py_ssize_t q = 0; q < n_last; q++) {
+        const Py_ssize_t x = n - n_last + q;
+        const Py_ssize_t j = x / factor - first; /* the model sample at or before x */
+        if (j >= nlow - 1) {
+            out[q] = low[nlow - 1];
+        } else if (x == (first + j) * factor) {
+            out[q] = low[j];
+        } else {
+            const double slope = (low[j + 1] - low[j]) / (double)factor;
+            out[q] = slope * (double)(x - (first + j) * factor) + low[j];
+        }
+    }
+}
+
+static PyObject *py_reflex_rect_tail(PyObject *self, PyObject *args)
+{
+    PyObject *objs[5];
+    double fs;
+    Py_ssize_t edge, factor;
+    if (!PyArg_ParseTuple(args, "OdOOnnOO", &objs[0], &fs, &objs[1], &objs[2], &edge, &factor,
+                          &objs[3], &objs[4])) {
+        return NULL;
+    }
+    const char *names[5] = {"position", "sos", "zi", "g", "out"};
+    Py_buffer b[5];
+    if (get_buffers(objs, 5, 4, names, b) < 0) return NULL;
+    Py_ssize_t n = b[0].len / 8, ns = b[1].len / 48, ng = b[3].len / 8, n_last = b[4].len / 8;
+    Py_ssize_t m = factor >= 1 ? (n + factor - 1) / factor : 0;
+    PyObject *result = NULL;
+    if (ns < 1 || ns > 16 || b[1].len != 48 * ns || b[2].len != 16 * ns || factor < 2 ||
+        edge < 1 || n <= edge || n < 9 || ng < 1 || n_last < 1 || n_last > n) {
+        PyErr_SetString(PyExc_ValueError, "reflex_rect_tail: inconsistent sizes");
+    } else {
+        double *work = PyMem_Malloc(sizeof(double) * (2 * n + 2 * edge + 2 * m));
+        if (work == NULL) {
+            PyErr_NoMemory();
+        } else {
+            double *input = work + 2 * n + 2 * edge, *low = input + m;
+            reflex_rect_input(b[0].buf, n, fs, b[1].buf, b[2].buf, ns, edge, factor, input, m,
+                              work);
+            causal_tail(input, m, b[3].buf, ng, (n - n_last) / factor, factor, n, n_last,
+                        b[4].buf, low);
+            PyMem_Free(work);
+            Py_INCREF(Py_None);
+            result = Py_None;
+        }
+    }
+    release_buffers(b, 5);
+    return result;
+}
+
+/* band_limit(x, taps, factor, sign, out): sign·x with its mean removed, through the FIR over
+ * the fully supported samples, every factor-th kept (rtsid.ident.front.scored_band's band
+ * limiting of the torque explained elsewhere; its numpy code is the reference). O(N·T/factor). */
+static PyObject *py_band_limit(PyObject *self, PyObject *args)
+{
+    PyObject *objs[3];
+    Py_ssize_t factor;
+    double sign;
+    if (!PyArg_ParseTuple(args, "OOndO", &objs[0], &objs[1], &factor, &sign, &objs[2])) {
+        return NULL;
+    }
+    const char *names[3] = {"x", "taps", "out"};
+    Py_buffer b[3];
+    if (get_buffers(objs, 3, 2, names, b) < 0) return NULL;
+    Py_ssize_t n = b[0].len / 8, nt = b[1].len / 8, m = b[2].len / 8;
+    PyObject *result = NULL;
+    if (factor < 1 || nt < 1 || n < nt || m != (n - nt) / factor + 1) {
+        PyErr_SetString(PyExc_ValueError, "band_limit: inconsistent sizes");
+    } else {
+        double *work = PyMem_Malloc(sizeof(double) * n);
+        if (work == NULL) {
+            PyErr_NoMemory();
+        } else {
+            detrend_into(b[0].buf, work, n, sign, 1);
+            fir_decimate(work, n, b[1].buf, nt, factor, b[2].buf, m);
+            PyMem_Free(work);
+            Py_INCREF(Py_None);
+            result = Py_None;
+        }
+    }
+    release_buffers(b, 3);
+    return result;
+}
+
 static PyObject *py_window_fit(PyObject *self, PyObject *args)
 {
     PyObject *objs[10];
@@ -1029,6 +1348,29 @@ static PyObject *py_window_fit(PyObject *self, PyObject *args)
     return result;
 }
 
+/* Slope of the least-squares line through sign·x, per sample (correlation.trend_slope). */
+static double line_slope(const double *x, Py_ssize_t n, double sign)
+{
+    const double centre = (double)(n - 1) / 2.0;
+    double tt = 0.0, tx = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double t = (double)i - centre;
+        tt += t * t;
+        tx += t * sign * x[i];
+    }
+    return tt > 0.0 ? tx / tt : 0.0;
+}
+
+/* Population standard deviation of x (numpy.std). */
+static double standard_deviation(const double *x, Py_ssize_t n)
+{
+    double mean = 0.0, ss = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) mean += x[i];
+    mean /= (double)n;
+    for (Py_ssize_t i = 0; i < n; i++) ss += (x[i] - mean) * (x[i] - mean);
+    return sqrt(ss / (double)n);
+}
+
 static PyObject *py_window_irf(PyObject *self, PyObject *args)
 {
     PyObject *po, *to, *tapso, *uo, *yo, *ho, *phio;
@@ -1066,7 +1408,9 @@ static PyObject *py_window_irf(PyObject *self, PyObject *args)
                                     ridge, sweeps, fs, b[3].buf, b[4].buf, m, b[5].buf,
                                     b[6].buf, work, &alpha);
                 PyMem_Free(work);
-                result = Py_BuildValue("nd", status, alpha);
+                result = Py_BuildValue("ndddd", status, alpha, standard_deviation(b[3].buf, m),
+                                       line_slope(b[0].buf, n, 1.0),
+                                       line_slope(b[1].buf, n, sign));
             }
         }
     }
@@ -1141,7 +1485,8 @@ static PyMethodDef methods[] = {
      "solve(r, b, x, work) -> (status, alpha): symmetric Toeplitz R x = b by EUREKA."},
     {"window_irf", py_window_irf, METH_VARARGS,
      "window_irf(position, torque, taps, factor, sign, detrend, lag, sweeps, ridge, fs, u, y, h, "
-     "phi) -> (status, alpha): detrend, FIR-decimate, correlate, EUREKA and refine one window."},
+     "phi) -> (status, alpha, std(u), position slope, signed torque slope): detrend, "
+     "FIR-decimate, correlate, EUREKA and refine one window."},
     {"window_fit", py_window_fit, METH_VARARGS,
      "window_fit(u, y, h, phi, stacked, f, hann, fs, power, uncertainty, params, sens, out) -> "
      "status: linear fit, predictions, VAFs and standard errors of one window."},
@@ -1153,6 +1498,15 @@ static PyMethodDef methods[] = {
     {"oe_vafs", py_oe_vafs, METH_VARARGS,
      "oe_vafs(u, y, h, params, model, fs, explained, torque_slope, k_position_slope, kmax, "
      "tw_cos, tw_sin) -> (vaf, vaf_irf, vaf_fit) of an output-error fit."},
+    {"oe_window", py_oe_window, METH_VARARGS,
+     "oe_window(u, y, h, fs, k, held, learn, uncertainty, lags, explained, torque_slope, "
+     "position_slope, kmax, tw_cos, tw_sin, newest_rows, regressors, projected, gram, model, "
+     "out) -> status: a stream window's output-error back end (OW_* index out)."},
+    {"reflex_rect_tail", py_reflex_rect_tail, METH_VARARGS,
+     "reflex_rect_tail(position, fs, sos, zi, edge, factor, g, out): the rect pathway's torque "
+     "over the segment's last len(out) samples (input, causal IRF, interpolation)."},
+    {"band_limit", py_band_limit, METH_VARARGS,
+     "band_limit(x, taps, factor, sign, out): sign·x, mean removed, FIR-decimated."},
     {"reflex_rect_input", py_reflex_rect_input, METH_VARARGS,
      "reflex_rect_input(position, fs, sos, zi, edge, factor, out): the rect reflex pathway's "
      "input at the model's rate (detrend, velocity, max(v, 0), zero-phase decimation)."},
@@ -1177,7 +1531,13 @@ PyMODINIT_FUNC PyInit__eureka(void)
         PyModule_AddIntConstant(m, "FIT_ZERO_RESPONSE", FIT_ZERO_RESPONSE) < 0 ||
         PyModule_AddIntConstant(m, "OE_OK", OE_OK) < 0 ||
         PyModule_AddIntConstant(m, "OE_ZERO_TORQUE", OE_ZERO_TORQUE) < 0 ||
-        PyModule_AddIntConstant(m, "OE_INSEPARABLE", OE_INSEPARABLE) < 0) {
+        PyModule_AddIntConstant(m, "OE_INSEPARABLE", OE_INSEPARABLE) < 0 ||
+        PyModule_AddIntConstant(m, "OW_WHOLE", OW_WHOLE) < 0 ||
+        PyModule_AddIntConstant(m, "OW_PARAMS", OW_PARAMS) < 0 ||
+        PyModule_AddIntConstant(m, "OW_SE", OW_SE) < 0 ||
+        PyModule_AddIntConstant(m, "OW_VAFS", OW_VAFS) < 0 ||
+        PyModule_AddIntConstant(m, "OW_NEWEST", OW_NEWEST) < 0 ||
+        PyModule_AddIntConstant(m, "OW_SIZE", OW_SIZE) < 0) {
         Py_DECREF(m);
         return NULL;
     }

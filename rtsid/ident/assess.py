@@ -39,9 +39,11 @@ __all__ = [
     "WindowEstimate",
     "assemble",
     "assess",
+    "band_bins",
     "predict_torque",
     "published_vaf",
     "three_vafs",
+    "twiddles",
     "window_flags",
     "withhold_unidentifiable",
 ]
@@ -228,7 +230,7 @@ def _compiled_vafs(
     """:func:`_numpy_vafs` of a window without lost samples in one call into the compiled
     kernel (``oe_vafs``): the same predictions, VAFs and in-band DFT sums."""
     n = fit.model.size
-    cos, sin = _twiddles(n)
+    cos, sin = twiddles(n)
     published, vaf_irf, vaf_fit = _eureka.oe_vafs(
         np.ascontiguousarray(u),
         np.ascontiguousarray(y),
@@ -239,7 +241,7 @@ def _compiled_vafs(
         None if score.explained is None else np.ascontiguousarray(score.explained),
         score.torque_slope,
         float(fit.params[2]) * score.position_slope,
-        _band_bins(n, irf.fs_hz, score.band_hz),
+        band_bins(n, irf.fs_hz, score.band_hz),
         cos,
         sin,
     )
@@ -247,14 +249,14 @@ def _compiled_vafs(
 
 
 @lru_cache(maxsize=16)
-def _band_bins(n: int, fs_hz: float, band_hz: float) -> int:
+def band_bins(n: int, fs_hz: float, band_hz: float) -> int:
     """DFT bins 1 … k of ``n`` samples at ``fs_hz`` in ``(0, band_hz]``: k (as _band_vaf)."""
     bins = np.fft.rfftfreq(n, 1.0 / fs_hz)
     return int(np.count_nonzero((bins > 0) & (bins <= band_hz)))
 
 
 @lru_cache(maxsize=16)
-def _twiddles(n: int) -> tuple[FloatArray, FloatArray]:
+def twiddles(n: int) -> tuple[FloatArray, FloatArray]:
     """``cos`` and ``sin`` of ``2πj/n``, ``j = 0 … n−1`` (the compiled DFT's table)."""
     angle = 2.0 * np.pi * np.arange(n) / n
     cos, sin = np.cos(angle), np.sin(angle)

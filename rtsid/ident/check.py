@@ -28,6 +28,7 @@ from rtsid.verdicts import Reason
 __all__ = [
     "check_analysis_length",
     "check_band_limited_excitation",
+    "check_band_limited_level",
     "check_relative_excitation",
     "check_window",
     "without_lost",
@@ -65,9 +66,10 @@ def check_window(
         lost = count_lost(valid, fs, options.max_lost_percent, options.max_gap_s)
         position, torque = position[valid], torque[valid]
     # One pass each: a sum is finite only if every term is (rad and N·m never overflow).
-    if not (math.isfinite(position.sum()) and math.isfinite(torque.sum())):
+    total = position.sum()
+    if not (math.isfinite(total) and math.isfinite(torque.sum())):
         raise WindowError("window contains NaN or inf samples; it is withheld", Reason.NAN)
-    mean = position.sum() / position.size
+    mean = total / position.size
     variance = max(0.0, float(position @ position) / position.size - mean * mean)
     if math.sqrt(variance) < options.min_excitation_rad:
         raise WindowError(
@@ -97,14 +99,22 @@ def check_analysis_length(m: int, fs_a: float, max_lag: int) -> None:
         )
 
 
-def check_band_limited_excitation(u: FloatArray, options: EstimatorOptions) -> None:
-    """Withhold a window whose perturbation has no power left in the analysed band."""
-    if float(np.std(u)) < options.min_excitation_rad:
+def check_band_limited_excitation(u: FloatArray, options: EstimatorOptions) -> float:
+    """Withhold a window whose perturbation has no power left in the analysed band; else
+    its band-limited standard deviation, rad."""
+    return check_band_limited_level(float(np.std(u)), options)
+
+
+def check_band_limited_level(level: float, options: EstimatorOptions) -> float:
+    """:func:`check_band_limited_excitation` of the band-limited position's standard
+    deviation ``level`` (rad), already computed; returns it."""
+    if level < options.min_excitation_rad:
         raise WindowError(
             f"the position varies by less than {options.min_excitation_rad} rad in the "
             "analysed band: no usable perturbation, nothing to identify",
             Reason.NO_EXCITATION,
         )
+    return level
 
 
 def check_relative_excitation(

@@ -22,7 +22,14 @@ from rtsid.ident.irf import IRF
 from rtsid.ident.options import EstimatorOptions
 from rtsid.ident.second_order import OutputErrorDesign, OutputErrorFit
 
-__all__ = ["NOT_HELD", "Held", "held_values", "output_error_design", "output_error_fit"]
+__all__ = [
+    "NOT_HELD",
+    "Held",
+    "held_values",
+    "noise_lags",
+    "output_error_design",
+    "output_error_fit",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -72,7 +79,7 @@ def output_error_fit(
         inertia=held.inertia,
         damping=held.damping if held.inertia is not None else None,
         uncertainty=options.uncertainty,
-        noise_lags=_noise_lags(irf, plan),
+        noise_lags=noise_lags(irf, plan),
     )
 
 
@@ -87,7 +94,7 @@ def output_error_design(
     return OutputErrorDesign(u, y, irf.fs_hz, rows)
 
 
-def _noise_lags(irf: IRF, plan: AnalysisPlan) -> int:
+def noise_lags(irf: IRF, plan: AnalysisPlan) -> int:
     """Residual autocorrelation lags for the sandwich: the FIR's span at the analysis rate
     (filtered noise is correlated over it) plus the stencils', and at least the IRF's."""
     return max(irf.h.size, -(-plan.taps.size // plan.factor) + 8)

@@ -18,7 +18,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from rtsid.errors import WindowError
 from rtsid.ident.analysis import AnalysisPlan
-from rtsid.ident.check import check_analysis_length, check_band_limited_excitation
+from rtsid.ident.check import (
+    check_analysis_length,
+    check_band_limited_excitation,
+    check_band_limited_level,
+)
 from rtsid.ident.correlation import detrend, trend_slope
 from rtsid.ident.gaps import LostSamples, WindowGaps, contaminated
 from rtsid.ident.irf import IRF, estimate_irf
@@ -51,7 +55,7 @@ class ScoredBand:
     explained: FloatArray | None = None
 
 
-__all__ = ["analyse_irf", "front_end", "prepare_window"]
+__all__ = ["analyse_checked", "analyse_irf", "front_end", "prepare_window"]
 
 FloatArray = NDArray[np.float64]
 
@@ -66,12 +70,31 @@ def analyse_irf(
 ) -> tuple[FloatArray, FloatArray, IRF, WindowGaps | None]:
     """Step 3 of a checked window: :func:`front_end`, or for a window with lost samples
     the numpy path with the lost samples' reach zeroed and the IRF fitted on clean rows."""
+    u, y, irf, gaps, _, _ = analyse_checked(position, torque, fs, options, plan, lost)
+    return u, y, irf, gaps
+
+
+#: The position's and the signed torque's trend slopes, per sample (None: not computed).
+Slopes = tuple[float, float] | None
+
+
+def analyse_checked(
+    position: FloatArray,
+    torque: FloatArray,
+    fs: float,
+    options: EstimatorOptions,
+    plan: AnalysisPlan,
+    lost: LostSamples | None,
+) -> tuple[FloatArray, FloatArray, IRF, WindowGaps | None, float, Slopes]:
+    """:func:`analyse_irf`'s ``(u, y, irf, gaps)``, the band-limited position's standard
+    deviation (rad; the stream's excitation level), computed once, and the trend slopes
+    the compiled front end found (:func:`scored_band` reads them)."""
     if lost is None:
-        return (*front_end(position, torque, fs, options, plan), None)
-    u, y = prepare_window(position, torque, options, plan)
-    bad = contaminated(lost.valid, plan.taps.size, plan.factor)
-    u[bad], y[bad] = 0.0, 0.0
-    gaps = WindowGaps(bad=bad, lost=lost.count)
+        u, y, irf, level, slopes = _front_end(position, torque, fs, options, plan)
+        return u, y, irf, None, level, slopes
+    u, y, _ = _prepared(position, torque, options, plan)
+    gaps = _gaps(lost, plan)
+    u[gaps.bad], y[gaps.bad] = 0.0, 0.0
     rows = gaps.rows(plan.lag)
     # Refinement needs rows whose whole lag span is clean; without enough of them the IRF is
     # the plain Wiener–Hopf solution from correlations over valid pairs, and the checks that
@@ -80,7 +103,13 @@ def analyse_irf(
     irf = estimate_irf(
         u, y, plan.analysis_fs_hz, plan.lag, ridge=options.ridge, refine=refine, rows=rows
     )
-    return u, y, irf, gaps
+    return u, y, irf, gaps, float(np.std(u)), None  # the zeroed samples included
+
+
+def _gaps(lost: LostSamples, plan: AnalysisPlan) -> WindowGaps:
+    """The analysis samples the lost ones reach (through the FIR), and their count."""
+    bad = contaminated(lost.valid, plan.taps.size, plan.factor)
+    return WindowGaps(bad=bad, lost=lost.count)
 
 
 _DETREND_CODES = {"none": 0, "mean": 1, "linear": 2}
@@ -99,12 +128,25 @@ def front_end(
     correlations, EUREKA and refinement in C); otherwise :func:`prepare_window` and
     :func:`rtsid.ident.irf.estimate_irf` in numpy, the reference it is tested against.
     """
+    u, y, irf, _, _ = _front_end(position, torque, fs, options, plan)
+    return u, y, irf
+
+
+def _front_end(
+    position: ArrayLike,
+    torque: ArrayLike,
+    fs: float,
+    options: EstimatorOptions,
+    plan: AnalysisPlan,
+) -> tuple[FloatArray, FloatArray, IRF, float, Slopes]:
+    """:func:`front_end`, the band-limited position's standard deviation (rad) and, compiled,
+    the trend slopes of the position and the signed torque (per sample)."""
     if _eureka is None:
-        u, y = prepare_window(position, torque, options, plan)
+        u, y, level = _prepared(position, torque, options, plan)
         irf = estimate_irf(
             u, y, plan.analysis_fs_hz, plan.lag, ridge=options.ridge, refine=options.refine
         )
-        return u, y, irf
+        return u, y, irf, level, None
     pos = np.ascontiguousarray(position, dtype=np.float64)
     tor = np.ascontiguousarray(torque, dtype=np.float64)
     taps, factor, lag, fs_a = plan.taps, plan.factor, plan.lag, plan.analysis_fs_hz
@@ -112,7 +154,7 @@ def front_end(
     check_analysis_length(m, fs_a, lag)
     u, y = np.empty(m), np.empty(m)
     h, phi = np.empty(2 * lag + 1), np.empty(2 * lag + 1)
-    status, alpha = _eureka.window_irf(
+    status, alpha, level, position_slope, torque_slope = _eureka.window_irf(
         pos,
         tor,
         np.ascontiguousarray(taps),
@@ -130,20 +172,28 @@ def front_end(
     )
     if status >= 0:
         raise not_positive_definite(status, alpha)
-    check_band_limited_excitation(u, options)
-    return u, y, IRF(h=h, fs_hz=fs_a, phi_uu=phi)
+    check_band_limited_level(level, options)
+    irf = IRF(h=h, fs_hz=fs_a, phi_uu=phi)
+    return u, y, irf, level, (position_slope, torque_slope)
 
 
 def prepare_window(
     position: ArrayLike, torque: ArrayLike, options: EstimatorOptions, plan: AnalysisPlan
 ) -> tuple[FloatArray, FloatArray]:
     """Step 3, first half: sign, detrend, band-limit and decimate a checked window; ``(u, y)``."""
+    u, y, _ = _prepared(position, torque, options, plan)
+    return u, y
+
+
+def _prepared(
+    position: ArrayLike, torque: ArrayLike, options: EstimatorOptions, plan: AnalysisPlan
+) -> tuple[FloatArray, FloatArray, float]:
+    """:func:`prepare_window` and the band-limited position's standard deviation, rad."""
     pos = np.asarray(position, dtype=np.float64)
     tor = np.asarray(torque, dtype=np.float64)
     u, y = _preprocess(pos, tor, plan, options)
     check_analysis_length(u.size, plan.analysis_fs_hz, plan.lag)
-    check_band_limited_excitation(u, options)
-    return u, y
+    return u, y, check_band_limited_excitation(u, options)
 
 
 def _preprocess(
@@ -171,17 +221,27 @@ def scored_band(
     options: EstimatorOptions,
     plan: AnalysisPlan,
     explained: ArrayLike | None = None,
+    slopes: Slopes = None,
 ) -> ScoredBand:
     """What the published VAF scores besides ``(u, y)`` (:func:`rtsid.ident.assess.
     published_vaf`): the trends the detrending removed, at the analysis rate, and the torque
-    ``explained`` elsewhere (same samples and sign as ``torque``) band-limited like it."""
+    ``explained`` elsewhere (same samples and sign as ``torque``) band-limited like it;
+    ``slopes``: the trend slopes of the position and the signed torque when the front end
+    computed them (per sample)."""
     band = plan.edge_hz if plan.edge_hz is not None else plan.lowpass_hz / 1.5
-    slopes = (0.0, 0.0)
+    trends = (0.0, 0.0)
     if options.detrend == "linear":
-        sign = options.torque_sign
-        slopes = (trend_slope(position) * plan.factor, sign * trend_slope(torque) * plan.factor)
+        if slopes is None:
+            slopes = (trend_slope(position), options.torque_sign * trend_slope(torque))
+        trends = (slopes[0] * plan.factor, slopes[1] * plan.factor)
     extra = None
-    if explained is not None:
+    if explained is not None and _eureka is not None and position.size >= plan.taps.size:
+        extra = np.empty((position.size - plan.taps.size) // plan.factor + 1)
+        source = np.ascontiguousarray(explained, dtype=np.float64)
+        _eureka.band_limit(
+            source, np.ascontiguousarray(plan.taps), plan.factor, float(options.torque_sign), extra
+        )
+    elif explained is not None:  # the numpy reference
         signed = options.torque_sign * np.asarray(explained, dtype=np.float64)
         extra = _band_limit(signed - signed.mean(), plan)
-    return ScoredBand(band, *slopes, explained=extra)
+    return ScoredBand(band, *trends, explained=extra)

@@ -33,7 +33,7 @@ real record the fit ends at the lower bound at every model rate tried (10.0 ms a
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -414,10 +414,10 @@ class ReflexPathway:
         """``torque(position, fs_hz)[-n_last:]`` — the same numbers, computed for the tail.
 
         The pathway's input is formed over the whole segment (its detrending and zero-phase
-        decimation depend on all of it), by the compiled kernel for ``"rect"`` when it was
-        built (``reflex_rect_input``, tested equal to :meth:`torque`); only the model
-        samples the tail interpolates are convolved with the IRF, and only the tail is
-        interpolated.
+        decimation depend on all of it); only the model samples the tail interpolates are
+        convolved with the IRF, and only the tail is interpolated. For ``"rect"`` the
+        compiled kernel, when built, does all three in one call (``reflex_rect_tail``,
+        tested equal to :meth:`torque`).
         """
         pos = np.ascontiguousarray(position, dtype=np.float64)
         factor = self._factor(fs_hz)
@@ -428,17 +428,29 @@ class ReflexPathway:
             return self.torque(pos, fs_hz)[pos.size - n_last :]
         decimator = _decimator(factor)
         if _eureka is not None and self.variant == "rect" and pos.size > decimator.edge:
-            pathway_input = np.empty(-(-pos.size // factor))
-            _eureka.reflex_rect_input(
-                pos, fs_hz, decimator.sos, decimator.zi, decimator.edge, factor, pathway_input
+            tail = np.empty(n_last)
+            _eureka.reflex_rect_tail(
+                pos,
+                fs_hz,
+                decimator.sos,
+                decimator.zi,
+                decimator.edge,
+                factor,
+                self._per_sample_irf,
+                tail,
             )
-        else:
-            velocity = stretch_velocity(pos, fs_hz)
-            pathway_input = _at_model_rate(self.nonlinearity(velocity), factor)
+            return tail
+        velocity = stretch_velocity(pos, fs_hz)
+        pathway_input = _at_model_rate(self.nonlinearity(velocity), factor)
         first = (pos.size - n_last) // factor  # the model sample at or before the tail's first
-        low = _causal_outputs(pathway_input, self.irf / self.fs_hz, first)
+        low = _causal_outputs(pathway_input, self._per_sample_irf, first)
         times = np.arange(first, first + low.size) * factor
         return np.interp(np.arange(pos.size - n_last, pos.size), times, low)
+
+    @cached_property
+    def _per_sample_irf(self) -> FloatArray:
+        """The IRF per model sample (``irf / fs_hz``), formed once per pathway."""
+        return np.ascontiguousarray(self.irf / self.fs_hz)
 
     def _factor(self, fs_hz: float) -> int:
         factor = max(1, round(fs_hz / self.fs_hz))

@@ -399,6 +399,20 @@ class OutputErrorDesign:
         if not self.gram[3, 3] > 0:
             raise zero_response()
 
+    @classmethod
+    def formed(
+        cls, regressors: FloatArray, projected: FloatArray, gram: FloatArray, y: FloatArray
+    ) -> OutputErrorDesign:
+        """The design the compiled kernel already formed (``oe_design``, run by
+        :func:`rtsid.ident.fused.fused_back_end`) over a window ``y`` without lost samples."""
+        design = cls.__new__(cls)
+        design.keep = None
+        design.measured = y[4:-4]
+        design._kernel = _eureka
+        design._y = y
+        design.regressors, design.projected, design.gram = regressors, projected, gram
+        return design
+
     def fit(
         self,
         *,

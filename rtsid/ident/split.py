@@ -35,6 +35,7 @@ takes those as independent measurements.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -47,7 +48,7 @@ FloatArray = NDArray[np.float64]
 #: Rows a split leaves on each side at least (analysis samples).
 MIN_SIDE_ROWS = 3
 
-__all__ = ["NewestPart", "SplitProblem", "SplitScan", "split_scan"]
+__all__ = ["NewestPart", "SplitProblem", "SplitScan", "row_offsets_s", "split_scan"]
 
 
 @dataclass(frozen=True)
@@ -248,6 +249,11 @@ class SplitProblem:
 
     def _offsets_s(self, rows: FloatArray) -> FloatArray:
         """Each (fractional) row's time before the window's last sample, s."""
-        plan = self.plan
-        delay = (plan.taps.size - 1) / 2.0
-        return (self.window_samples - 1 - ((rows + 4.0) * plan.factor + delay)) / plan.fs_hz
+        return row_offsets_s(rows, self.plan, self.window_samples)
+
+
+def row_offsets_s(rows: Any, plan: AnalysisPlan, window_samples: int) -> Any:
+    """Each (fractional) design row's time before the window's last sample, s (``rows`` a
+    float or an array)."""
+    delay = (plan.taps.size - 1) / 2.0
+    return (window_samples - 1 - ((rows + 4.0) * plan.factor + delay)) / plan.fs_hz

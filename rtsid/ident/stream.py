@@ -30,9 +30,10 @@ from numpy.typing import ArrayLike
 from rtsid.errors import InputDataError, NumericalError, WindowError
 from rtsid.ident.analysis import AnalysisPlan
 from rtsid.ident.assess import withhold_unidentifiable
+from rtsid.ident.fused import BackEndBuffers, fusable, fused_back_end
 from rtsid.ident.grid import window_ends
 from rtsid.ident.second_order import OutputErrorDesign
-from rtsid.ident.split import NewestPart, SplitProblem, SplitScan
+from rtsid.ident.split import NewestPart, SplitProblem, SplitScan, row_offsets_s
 from rtsid.ident.tracker import ParameterTracker, SplitSource, TrackerOptions, TrackEstimate
 from rtsid.ident.vaf import vaf
 from rtsid.ident.window import (
@@ -283,6 +284,7 @@ class WindowStream:
         self.excitation = RunningMedian(horizon)
         self.tracker = StreamTracker(window_s, hop_s, tracker or TrackerOptions())
         self._split_source: _SplitSource | None = None
+        self._buffers = BackEndBuffers()
 
     def track(self, t_end_s: float, estimate: WindowEstimate | None) -> Tracked:
         """Step the tracker with this window (its end time, s; None: withheld), and with the
@@ -349,12 +351,31 @@ class WindowStream:
             if held.inertia is None:
                 return full
             return back_end(irf, u, y, options, plan, held, gaps, score)
+        window_samples = np.shape(position)[0]
+        if fusable(options, score, gaps is not None):  # the same steps in one compiled call
+            rows = round(self.tracker.hop_s * plan.analysis_fs_hz)
+            fused = fused_back_end(
+                irf,
+                u,
+                y,
+                options,
+                plan,
+                held,
+                score,
+                learn=True,
+                newest_rows=rows,
+                buffers=self._buffers,
+            )
+            self.held.learn(fused.whole_inertia, fused.whole_damping, fused.whole_explained)
+            self._split_source = _SplitSource(
+                fused.estimate, fused.design, held, plan, window_samples, fused.newest
+            )
+            return fused.estimate
         design = output_error_design(u, y, irf, gaps)
         whole = design.fit()
         explained = vaf(whole.measured, whole.model) >= options.low_vaf_percent
         self.held.learn(float(whole.params[0]), float(whole.params[1]), explained)
         result = output_error_back_end(irf, u, y, options, plan, held, design, gaps, score)
-        window_samples = np.shape(position)[0]
         self._split_source = _SplitSource(result, design, held, plan, window_samples)
         return result
 
@@ -371,10 +392,13 @@ class _SplitSource:
         held: Held,
         plan: AnalysisPlan,
         window_samples: int,
+        newest: tuple[float, float, float] | bool | None = False,
     ) -> None:
         self.estimate = estimate
         self._args = (design, held.inertia, held.damping, plan, window_samples)
         self._problem: SplitProblem | bool | None = False  # False: not built yet
+        # the compiled back end's (K, variance, centre row) of the newest hop (False: not read)
+        self._newest = newest
 
     def problem(self) -> SplitProblem | None:
         if self._problem is False:
@@ -386,6 +410,13 @@ class _SplitSource:
         return None if problem is None else problem.scan()
 
     def newest(self, span_s: float) -> NewestPart | None:
+        """The newest hop's K (the compiled back end read it for the stream's hop)."""
+        if self._newest is None:
+            return None
+        if self._newest is not False:
+            k, var, row = self._newest  # type: ignore[misc]
+            _, _, _, plan, window_samples = self._args
+            return NewestPart(k, var, row_offsets_s(row, plan, window_samples))
         problem = self.problem()
         return None if problem is None else problem.newest(span_s)
 

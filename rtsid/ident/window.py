@@ -46,7 +46,8 @@ from rtsid.ident.assess import (
 )
 from rtsid.ident.check import check_relative_excitation, check_window, without_lost
 from rtsid.ident.fit import NOT_HELD, Held, held_values, output_error_design, output_error_fit
-from rtsid.ident.front import analyse_irf, front_end, prepare_window, scored_band
+from rtsid.ident.front import analyse_checked, front_end, prepare_window, scored_band
+from rtsid.ident.fused import fusable, fused_back_end
 from rtsid.ident.gaps import WindowGaps
 from rtsid.ident.irf import IRF
 from rtsid.ident.legacy import fit_parameters, legacy_back_end, numpy_back_end, standard_errors
@@ -180,16 +181,13 @@ class AnalysedWindow:
     irf: IRF
     gaps: WindowGaps | None
     score: ScoredBand
+    #: The band-limited position's standard deviation, rad.
+    excitation_rad: float
 
     @property
     def signals(self) -> tuple[IRF, FloatArray, FloatArray]:
         """``(irf, u, y)``, the back ends' first arguments."""
         return self.irf, self.u, self.y
-
-    @property
-    def excitation_rad(self) -> float:
-        """The band-limited position's standard deviation, rad."""
-        return float(np.std(self.u))
 
 
 def analyse_window(
@@ -218,9 +216,9 @@ def analyse_window(
     lost = check_window(pos, tor, options, mask, fs)  # 1. check
     pos, tor = without_lost(pos, tor, lost)
     plan = plan or resolve_plan(plan_source(pos, lost), fs, options, max_lowpass_hz)  # 2. plan
-    u, y, irf, gaps = analyse_irf(pos, tor, fs, options, plan, lost)  # 3. IRF
-    score = scored_band(pos, tor, options, plan, explained)
-    return AnalysedWindow(plan, u, y, irf, gaps, score)
+    u, y, irf, gaps, level, slopes = analyse_checked(pos, tor, fs, options, plan, lost)  # 3.
+    score = scored_band(pos, tor, options, plan, explained, slopes)
+    return AnalysedWindow(plan, u, y, irf, gaps, score, level)
 
 
 def back_end(
@@ -278,5 +276,7 @@ def output_error_back_end(
 ) -> WindowEstimate:
     """Steps 4–5 with the output-error fit (the default criterion); ``design`` when the
     caller has already formed this window's (:class:`WindowStream` fits it twice)."""
+    if design is None and score is not None and fusable(options, score, gaps is not None):
+        return fused_back_end(irf, u, y, options, plan, held, score).estimate  # 4–5 compiled
     fit = output_error_fit(irf, u, y, options, plan, held, design, gaps)  # 4. fit
     return assess(irf, u, y, fit, options, held, gaps, score)  # 5. assess

@@ -1,0 +1,193 @@
+"""Steps 4–5 of a window without lost samples in one compiled call (``oe_window``).
+
+What :func:`rtsid.ident.window.output_error_back_end` and
+:class:`rtsid.ident.stream.WindowStream` do in several calls — the output-error design, the
+full fit the held parameters learn from and its VAF, the published fit with its standard
+errors, its three VAFs, and the K of the window's newest hop
+(:meth:`rtsid.ident.split.SplitProblem.newest`) — the compiled kernel does in one, into
+buffers a stream allocates once (:class:`BackEndBuffers`). The same C functions run in the
+same order as the separate calls (``oe_design``, ``oe_fit``, ``oe_vafs``), so the numbers
+are theirs; the numpy code stays the reference (``RTSID_NUMPY_ONLY=1`` runs it) and the
+tests hold the two equal to 1e-9.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rtsid.ident.analysis import AnalysisPlan
+from rtsid.ident.assess import WindowEstimate, assemble, band_bins, twiddles
+from rtsid.ident.fit import Held, noise_lags
+from rtsid.ident.front import ScoredBand
+from rtsid.ident.irf import IRF
+from rtsid.ident.levinson import compiled_kernel
+from rtsid.ident.options import EstimatorOptions
+from rtsid.ident.second_order import OutputErrorDesign, inseparable_fit, zero_response
+
+__all__ = ["BackEndBuffers", "FusedWindow", "fusable", "fused_back_end"]
+
+FloatArray = NDArray[np.float64]
+
+_eureka: Any = compiled_kernel()
+
+
+def fusable(options: EstimatorOptions, score: ScoredBand | None, lost: bool) -> bool:
+    """Whether :func:`fused_back_end` can fit this window: the kernel was built, the
+    criterion is output error, the window has no lost samples and is scored."""
+    return (
+        _eureka is not None
+        and options.fit_method == "output_error"
+        and score is not None
+        and not lost
+    )
+
+
+class BackEndBuffers:
+    """The kernel's output arrays, allocated once per window size (a stream's windows are
+    all alike) instead of once per window."""
+
+    def __init__(self) -> None:
+        self._m = -1
+        self.regressors = self.projected = self.gram = self.model = self.out = np.empty(0)
+        self.held = np.zeros(2)
+
+    def for_samples(self, m: int) -> BackEndBuffers:
+        """These buffers sized for ``m`` analysis samples."""
+        if m != self._m:
+            n = m - 8
+            self.regressors, self.projected = np.empty((3, n)), np.empty((4, n))
+            self.gram, self.model, self.out = np.empty((4, 4)), np.empty(n), np.empty(16)
+            self._m = m
+        return self
+
+
+@dataclass(frozen=True)
+class FusedWindow:
+    """:func:`fused_back_end`'s answer.
+
+    Attributes
+    ----------
+    estimate : WindowEstimate
+        The published estimate (held values marked as held).
+    whole_inertia, whole_damping : float
+        I and B of the full fit (nothing held), for the held parameters to learn from.
+    whole_explained : bool
+        The full fit's VAF reaches ``low_vaf_percent``.
+    newest : tuple of float or None
+        ``(K, relative variance, centre row)`` of the window's newest rows
+        (:meth:`rtsid.ident.split.SplitProblem.newest`); None when not asked or none.
+    design : OutputErrorDesign
+        The window's design (its split scan reads it), over the buffers' arrays.
+    """
+
+    estimate: WindowEstimate
+    whole_inertia: float
+    whole_damping: float
+    whole_explained: bool
+    newest: tuple[float, float, float] | None
+    design: OutputErrorDesign
+
+
+def fused_back_end(
+    irf: IRF,
+    u: FloatArray,
+    y: FloatArray,
+    options: EstimatorOptions,
+    plan: AnalysisPlan,
+    held: Held,
+    score: ScoredBand,
+    *,
+    learn: bool = False,
+    newest_rows: int = 0,
+    buffers: BackEndBuffers | None = None,
+) -> FusedWindow:
+    """Steps 4–5 of a window (:func:`fusable`) in one call into the compiled kernel.
+
+    Parameters
+    ----------
+    irf, u, y
+        The analysed window (IRF, band-limited position rad and torque N·m).
+    options : EstimatorOptions
+    plan : AnalysisPlan
+        The window's analysis (the sandwich's noise lags).
+    held : Held
+        Values held in the published fit.
+    score : ScoredBand
+        What the published VAF scores.
+    learn : bool
+        Also fit the full model (nothing held) for the held parameters to learn from (with
+        nothing held the published fit is that fit).
+    newest_rows : int
+        Rows of the window's newest hop whose K to read (0: none).
+    buffers : BackEndBuffers, optional
+        A stream's buffers (default: allocated for this call).
+
+    Raises
+    ------
+    NumericalError
+        Zero torque, or free regressors that cannot be separated (as the numpy fit).
+    """
+    m = u.shape[0]
+    buf = (buffers or BackEndBuffers()).for_samples(m)
+    k = 0 if held.inertia is None else (1 if held.damping is None else 2)
+    if k:
+        buf.held[0] = held.inertia
+        buf.held[1] = 0.0 if held.damping is None else held.damping
+    n = m - 8
+    cos, sin = twiddles(n)
+    y_c = np.ascontiguousarray(y)
+    status = _eureka.oe_window(
+        np.ascontiguousarray(u),
+        y_c,
+        np.ascontiguousarray(irf.h),
+        irf.fs_hz,
+        k,
+        buf.held,
+        learn,
+        options.uncertainty,
+        noise_lags(irf, plan),
+        None if score.explained is None else np.ascontiguousarray(score.explained),
+        score.torque_slope,
+        score.position_slope,
+        band_bins(n, irf.fs_hz, score.band_hz),
+        cos,
+        sin,
+        newest_rows,
+        buf.regressors,
+        buf.projected,
+        buf.gram,
+        buf.model,
+        buf.out,
+    )
+    if status == _eureka.OE_ZERO_TORQUE:
+        raise zero_response()
+    if status != _eureka.OE_OK:
+        raise inseparable_fit()
+    out = buf.out.tolist()
+    p, s, v, w, z = (
+        _eureka.OW_PARAMS,
+        _eureka.OW_SE,
+        _eureka.OW_VAFS,
+        _eureka.OW_WHOLE,
+        _eureka.OW_NEWEST,
+    )
+    vafs = (round(out[v], 12), round(out[v + 1], 12), round(out[v + 2], 12))
+    held_flags = (k >= 1, k == 2)
+    estimate = assemble(
+        irf,
+        buf.out[p : p + 3],
+        (out[s], out[s + 1], out[s + 2]),
+        vafs,
+        "output_error",
+        options,
+        0,
+        held_flags,
+    )
+    newest = None if out[z] != out[z] else (out[z], out[z + 1], out[z + 2])
+    design = OutputErrorDesign.formed(buf.regressors, buf.projected, buf.gram, y_c)
+    explained = round(out[w + 3], 12) >= options.low_vaf_percent if learn else False
+    return FusedWindow(estimate, out[w], out[w + 1], explained, newest, design)
