@@ -375,6 +375,9 @@ class Daemon:
                 # any other bus opens on the acquisition thread (retried with back-off), so
                 # a server that never answers cannot block this thread and its signals.
                 acquisition.start(require_bus=handle.plant is not None)
+                # --duration counts from here: samples flow from now on, not from the end of
+                # the start-up below (a slow lane's process takes seconds on a busy machine)
+                end = None if duration_s is None else time.monotonic() + duration_s
                 if handle.plant is not None:
                     handle.plant.start()
                 models = (
@@ -405,7 +408,7 @@ class Daemon:
                 self._components = [acquisition, worker, mcap, handle.plant, slow_lane, desk]
                 clean = True
                 try:
-                    self._housekeeping(ring, mcap, zenoh, duration_s)
+                    self._housekeeping(ring, mcap, zenoh, end)
                 finally:
                     timeout = cfg.daemon.shutdown_timeout_s
                     if slow_lane is not None:
@@ -431,12 +434,13 @@ class Daemon:
 
     # ------------------------------------------------------------------ housekeeping
     def _housekeeping(
-        self, ring: RingBuffer, mcap: McapLogger, zenoh: ZenohPublisher, duration_s: float | None
+        self, ring: RingBuffer, mcap: McapLogger, zenoh: ZenohPublisher, end: float | None
     ) -> None:
+        """Forward samples, estimates and status each tick until a stop, a failure or ``end``
+        (``time.monotonic()``; None: no end)."""
         settings = self.config.daemon
         ticks = Deadlines(settings.sample_batch_s)
         status_every = max(1, round(settings.status_period_s / settings.sample_batch_s))
-        end = None if duration_s is None else time.monotonic() + duration_s
         tick = 0
         while ticks.wait(self.stop_event):
             self._log_estimates(mcap)

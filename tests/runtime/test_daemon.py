@@ -545,3 +545,22 @@ def test_a_taken_zenoh_port_is_one_prefixed_warning_without_zenohs_source_paths(
     assert "Address already in use" in lines[0] and "set zenoh.listen to a free one" in lines[0]
     assert ".rs:" not in lines[0]
     assert only_recording(tmp_path).stat().st_size > 0
+
+
+def test_the_duration_counts_from_the_first_samples_not_from_the_end_of_start_up(
+    tmp_path, free_port, monkeypatch
+):
+    # `rtsid run --duration 8` recorded 12 s on a busy machine: the plant sent while the rest
+    # started, and the duration was counted only after that
+    from rtsid.runtime import daemon as daemon_module
+
+    def slow_start(*args, **kwargs):
+        time.sleep(1.5)  # a slow start-up (a slow lane's process on a busy machine)
+        return None
+
+    monkeypatch.setattr(daemon_module.Daemon, "_slow_lane", slow_start)
+    config = DaemonConfig.load(write_config(tmp_path, free_port))
+    summary = Daemon(config).run(duration_s=2.0)
+    assert summary.clean_shutdown
+    fs = config.link.fs_hz
+    assert 1.5 * fs < summary.samples < 3.2 * fs  # the 2 s asked for (and the stop), not 3.5 s
