@@ -57,6 +57,7 @@ __all__ = [
     "mdl_projection",
     "prediction_history_s",
     "stretch_velocity",
+    "to_data_rate",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -404,11 +405,7 @@ class ReflexPathway:
         factor = self._factor(fs_hz)
         pathway_input = _at_model_rate(self.nonlinearity(stretch_velocity(pos, fs_hz)), factor)
         low = convolve_causal(pathway_input, self.irf, self.fs_hz)
-        if factor == 1:
-            return low
-        # back to the data's rate by linear interpolation between the model's samples (the
-        # reflex torque is smooth at 100 Hz); after the last one it is held
-        return np.interp(np.arange(pos.size), np.arange(low.size) * factor, low)
+        return to_data_rate(low, factor, pos.size)
 
     def torque_tail(self, position: ArrayLike, fs_hz: float, n_last: int) -> FloatArray:
         """``torque(position, fs_hz)[-n_last:]`` — the same numbers, computed for the tail.
@@ -460,6 +457,15 @@ class ReflexPathway:
                 "(not a whole multiple)"
             )
         return factor
+
+
+def to_data_rate(low: FloatArray, factor: int, n: int) -> FloatArray:
+    """A prediction on the model's samples (every ``factor``-th data sample) on the ``n``
+    samples of the data: linear interpolation between the model's samples (the reflex torque
+    is smooth at 100 Hz), held after the last one; ``low`` itself when ``factor`` is 1."""
+    if factor == 1:
+        return low
+    return np.interp(np.arange(n), np.arange(low.size) * factor, low)
 
 
 def _causal_outputs(r: FloatArray, g: FloatArray, first: int) -> FloatArray:

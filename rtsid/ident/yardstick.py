@@ -95,10 +95,24 @@ class WindowVafBasis:
         ``(I, B, K)`` (offset and trend as nuisance terms) fitted to the torque minus
         ``extra``, with ``extra`` (the same length; a smooth torque such as a reflex
         prediction) counted as part of the model."""
-        n = stop - start
         target = self.torque[start:stop] if extra is None else self.torque[start:stop] - extra
-        design = np.column_stack(
+        params = np.linalg.lstsq(self._design(start, stop), target, rcond=None)[0][:3]
+        return self.vaf(params, start, stop, extra)
+
+    def least_squares_vaf_gain(self, start: int, stop: int, extra: FloatArray) -> float:
+        """``least_squares_vaf(start, stop, extra) − least_squares_vaf(start, stop)``,
+        percentage points: the VAF that counting ``extra`` (N·m) as part of the model adds to
+        the window's own least-squares fit. Both fits share one design matrix and one
+        least-squares call (the two targets as its two right-hand sides)."""
+        torque = self.torque[start:stop]
+        targets = np.column_stack((torque - extra, torque))
+        params = np.linalg.lstsq(self._design(start, stop), targets, rcond=None)[0][:3]
+        return self.vaf(params[:, 0], start, stop, extra) - self.vaf(params[:, 1], start, stop)
+
+    def _design(self, start: int, stop: int) -> FloatArray:
+        """Least-squares design on samples ``start … stop − 1``: the regressors, an offset and
+        a trend."""
+        n = stop - start
+        return np.column_stack(
             (self.regressors[:, start:stop].T, np.ones(n), np.linspace(-1.0, 1.0, n))
         )
-        params = np.linalg.lstsq(design, target, rcond=None)[0][:3]
-        return self.vaf(params, start, stop, extra)

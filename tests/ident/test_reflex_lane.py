@@ -123,3 +123,64 @@ def test_the_tail_prediction_equals_the_whole_segments_tail(pathway, n_last, mon
             m.setattr(reflex, "_eureka", None)
             numpy_tail = pathway.torque_tail(segment, FS_SIM, n_last)
         np.testing.assert_allclose(numpy_tail, want, rtol=1e-12, atol=1e-12 * scale)
+
+
+# ----------------------------------------------------------------- a fit's shared work (issue 22)
+def _whole_horizon_gains(position, torque, reflex_torque, first):
+    """The evidence as it was computed before issue 22: the basis over the whole horizon and
+    two separate least-squares fits per window."""
+    from rtsid.ident import reflex_lane
+    from rtsid.ident.yardstick import WindowVafBasis
+
+    basis = WindowVafBasis(position, torque, FS_SIM)
+    n = round(reflex_lane.EVIDENCE_WINDOW_S * FS_SIM)
+    first = max(first, position.size - round(reflex_lane.EVIDENCE_SPAN_S * FS_SIM))
+    step = round(reflex_lane.EVIDENCE_STEP_S * FS_SIM)
+    return np.array(
+        [
+            basis.least_squares_vaf(a, a + n, reflex_torque[a : a + n])
+            - basis.least_squares_vaf(a, a + n)
+            for a in range(first, position.size - n + 1, step)
+        ]
+    )
+
+
+@pytest.mark.parametrize(("seconds", "first"), [(20.0, 0), (12.0, 2700), (4.0, 2700)])
+def test_the_evidence_on_the_scored_span_equals_the_whole_horizons(seconds, first):
+    from rtsid.ident.reflex_lane import window_vaf_gain, window_vaf_gains
+
+    theta, torque = joint_with_reflex(seconds=seconds, seed=5)
+    fit = fit_reflex_update(0, 0, theta, torque, None, FS_SIM, SETTINGS)
+    reflex = fit.pathway.torque(theta, FS_SIM)
+    want = _whole_horizon_gains(theta, torque, reflex, first)
+    assert want.size >= 3 and np.ptp(want) > 1.0  # the windows differ: a real check
+    np.testing.assert_allclose(
+        window_vaf_gains(theta, torque, reflex, FS_SIM, first), want, rtol=0, atol=1e-9
+    )
+    median, improved = window_vaf_gain(theta, torque, reflex, FS_SIM, first)
+    assert abs(median - np.median(want)) < 1e-9 and improved == np.mean(want > 0)
+
+
+def test_one_least_squares_call_gives_both_window_fits():
+    from rtsid.ident.yardstick import WindowVafBasis
+
+    theta, torque = joint_with_reflex(seconds=4.0, seed=6)
+    basis = WindowVafBasis(theta, torque, FS_SIM)
+    extra = np.random.default_rng(0).standard_normal(theta.size)
+    for a in range(0, theta.size - 750, 1250):
+        want = basis.least_squares_vaf(a, a + 750, extra[a : a + 750]) - basis.least_squares_vaf(
+            a, a + 750
+        )
+        assert abs(basis.least_squares_vaf_gain(a, a + 750, extra[a : a + 750]) - want) < 1e-9
+
+
+@pytest.mark.parametrize("variant", ["rect", "hammerstein"])
+def test_the_cascades_own_reflex_prediction_is_the_pathways(variant):
+    from rtsid.ident.cascade import CascadeSettings, fit_parallel_cascade
+
+    theta, torque = joint_with_reflex(seconds=6.0, seed=8)
+    fit = fit_parallel_cascade(theta, torque, FS_SIM, CascadeSettings(variant=variant))
+    # the rectifier's prediction is reused as it is: the very numbers
+    np.testing.assert_array_equal(
+        fit.record_reflex_torque(theta, FS_SIM), fit.reflex.torque(theta, FS_SIM)
+    )
