@@ -184,3 +184,18 @@ def test_the_cascades_own_reflex_prediction_is_the_pathways(variant):
     np.testing.assert_array_equal(
         fit.record_reflex_torque(theta, FS_SIM), fit.reflex.torque(theta, FS_SIM)
     )
+
+
+def test_the_window_vaf_basis_is_scipys_low_pass_of_each_signal():
+    from scipy import signal
+
+    from rtsid.ident.yardstick import WindowVafBasis, savgol_derivatives
+
+    theta, torque = joint_with_reflex(seconds=4.0, seed=9)
+    for _ in range(2):  # the second basis uses the cached filter design
+        basis = WindowVafBasis(theta, torque, FS_SIM)
+        sos = signal.butter(4, 40.0, fs=FS_SIM, output="sos")
+        d1, d2 = savgol_derivatives(theta, FS_SIM)
+        np.testing.assert_array_equal(basis.torque, signal.sosfiltfilt(sos, torque))
+        want = [signal.sosfiltfilt(sos, x) for x in (d2, d1, theta)]
+        np.testing.assert_array_equal(basis.regressors, np.vstack(want))
