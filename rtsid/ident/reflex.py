@@ -49,6 +49,7 @@ __all__ = [
     "ReflexDynamics",
     "ReflexInputs",
     "ReflexPathway",
+    "ToeplitzSystem",
     "convolve_causal",
     "decimated",
     "delay_search_s",
@@ -128,8 +129,45 @@ def stretch_velocity(position: FloatArray, fs_hz: float) -> FloatArray:
     return velocity
 
 
+@dataclass(frozen=True)
+class ToeplitzSystem:
+    """An IRF input's symmetric Toeplitz matrix and its eigendecomposition, formed once per
+    input and lag span (a cascade's ``rect`` alternations all fit the same input).
+
+    Attributes
+    ----------
+    phi_rr : numpy.ndarray, shape (L+1,)
+        First column: the input's autocorrelation at lags ``0 … L``.
+    eigenvalues : numpy.ndarray, shape (L+1,)
+        Of the matrix, ascending (``numpy.linalg.eigh``).
+    vectors : numpy.ndarray, shape (L+1, L+1)
+        The eigenvectors, by column.
+    """
+
+    phi_rr: FloatArray
+    eigenvalues: FloatArray
+    vectors: FloatArray
+
+    @classmethod
+    def of(cls, phi_rr: FloatArray) -> ToeplitzSystem:
+        """The system whose first column is ``phi_rr``."""
+        lags = phi_rr.size
+        index = np.abs(np.arange(lags)[:, None] - np.arange(lags)[None, :])
+        eigenvalues, vectors = np.linalg.eigh(phi_rr[index])
+        return cls(phi_rr, eigenvalues, vectors)
+
+    @classmethod
+    def of_input(cls, r: FloatArray, lags: int) -> ToeplitzSystem:
+        """The system of a one-sided IRF ``g(0 … lags)`` with input ``r``."""
+        return cls.of(auto_correlation(r, lags))
+
+
 def mdl_projection(
-    phi_rr: FloatArray, phi_re: FloatArray, power_e: float, n: int
+    phi_rr: FloatArray,
+    phi_re: FloatArray,
+    power_e: float,
+    n: int,
+    system: ToeplitzSystem | None = None,
 ) -> tuple[FloatArray, int]:
     """The minimum-description-length rank of a Toeplitz system and its projected solution.
 
@@ -143,6 +181,8 @@ def mdl_projection(
         Mean square of the output (``φ_ee(0)``).
     n : int
         Samples behind the correlations.
+    system : ToeplitzSystem, optional
+        ``ToeplitzSystem.of(phi_rr)``, when already formed (the same numbers either way).
 
     Returns
     -------
@@ -152,10 +192,11 @@ def mdl_projection(
     """
     full = eureka(phi_rr, phi_re)
     lags = phi_rr.size
-    index = np.abs(np.arange(lags)[:, None] - np.arange(lags)[None, :])
-    eigenvalues, vectors = np.linalg.eigh(phi_rr[index])
+    if system is None:
+        system = ToeplitzSystem.of(phi_rr)
+    vectors = system.vectors
     coefficients = vectors.T @ full
-    explained = np.maximum(eigenvalues, 0.0) * coefficients**2
+    explained = np.maximum(system.eigenvalues, 0.0) * coefficients**2
     order = np.argsort(explained)[::-1]
     residual = power_e - np.cumsum(explained[order])
     ranks = np.arange(1, lags + 1)
@@ -165,11 +206,14 @@ def mdl_projection(
     return np.asarray(vectors[:, kept] @ coefficients[kept], dtype=np.float64), rank
 
 
-def _causal_irf(r: FloatArray, e: FloatArray, lags: int, fs_hz: float) -> tuple[FloatArray, int]:
-    """One-sided IRF ``g(0 … lags)`` from ``r`` to ``e`` at its MDL rank, and the rank."""
-    phi_rr = auto_correlation(r, lags)
+def _causal_irf(
+    r: FloatArray, e: FloatArray, lags: int, fs_hz: float, system: ToeplitzSystem | None = None
+) -> tuple[FloatArray, int]:
+    """One-sided IRF ``g(0 … lags)`` from ``r`` to ``e`` at its MDL rank, and the rank
+    (``system``: ``r``'s, when already formed)."""
+    system = system or ToeplitzSystem.of_input(r, lags)
     phi_re = cross_correlation(r, e, lags)[lags:]
-    projected, rank = mdl_projection(phi_rr, phi_re, float(e @ e) / e.size, e.size)
+    projected, rank = mdl_projection(system.phi_rr, phi_re, float(e @ e) / e.size, e.size, system)
     return projected * fs_hz, rank
 
 
@@ -491,6 +535,14 @@ class ReflexInputs:
             if variant == "hammerstein"
             else []
         )
+        self._systems: dict[int, ToeplitzSystem] = {}
+
+    def rectified_system(self, lags: int) -> ToeplitzSystem:
+        """The rectified input's Toeplitz system for ``lags`` (formed on first use, then
+        reused by every alternation)."""
+        if lags not in self._systems:
+            self._systems[lags] = ToeplitzSystem.of_input(self.rectified, lags)
+        return self._systems[lags]
 
 
 def fit_reflex_pathway(
@@ -515,7 +567,7 @@ def fit_reflex_pathway(
     (ReflexPathway, numpy.ndarray)
         The pathway, and its torque on the record (N·m, model's rate).
     """
-    irf, rank = _causal_irf(inputs.rectified, residual, lags, fs_hz)
+    irf, rank = _causal_irf(inputs.rectified, residual, lags, fs_hz, inputs.rectified_system(lags))
     coefficients = np.zeros(0)
     pathway_input = inputs.rectified
     if inputs.variant == "hammerstein":

@@ -199,3 +199,32 @@ def test_the_window_vaf_basis_is_scipys_low_pass_of_each_signal():
         np.testing.assert_array_equal(basis.torque, signal.sosfiltfilt(sos, torque))
         want = [signal.sosfiltfilt(sos, x) for x in (d2, d1, theta)]
         np.testing.assert_array_equal(basis.regressors, np.vstack(want))
+
+
+def test_a_formed_toeplitz_system_gives_the_same_projection_and_rect_forms_it_once(monkeypatch):
+    from rtsid.ident import reflex
+    from rtsid.ident.cascade import CascadeSettings, fit_parallel_cascade
+    from rtsid.ident.correlation import auto_correlation, cross_correlation
+
+    rng = np.random.default_rng(4)
+    r = np.maximum(rng.standard_normal(3000), 0.0)
+    e = np.convolve(r, np.exp(-np.arange(30) / 5.0))[: r.size] + rng.standard_normal(r.size)
+    phi_rr, phi_re = auto_correlation(r, 60), cross_correlation(r, e, 60)[60:]
+    power = float(e @ e) / e.size
+    alone = reflex.mdl_projection(phi_rr, phi_re, power, e.size)
+    shared = reflex.mdl_projection(
+        phi_rr, phi_re, power, e.size, reflex.ToeplitzSystem.of_input(r, 60)
+    )
+    np.testing.assert_array_equal(shared[0], alone[0])
+    assert shared[1] == alone[1] < 61
+
+    formed = []
+    original = reflex.ToeplitzSystem.of_input.__func__
+    monkeypatch.setattr(
+        reflex.ToeplitzSystem,
+        "of_input",
+        classmethod(lambda cls, r, lags: formed.append(lags) or original(cls, r, lags)),
+    )
+    theta, torque = joint_with_reflex(seconds=6.0, seed=8)
+    fit = fit_parallel_cascade(theta, torque, FS_SIM, CascadeSettings(variant="rect"))
+    assert fit.iterations >= 2 and formed == [100]  # every alternation, one system
