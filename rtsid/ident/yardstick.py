@@ -95,9 +95,20 @@ class WindowVafBasis:
     ) -> float:
         """VAF (%) of ``(I, B, K)`` on samples ``start … stop − 1`` (NaN params: NaN), with
         ``extra`` torque (e.g. the slow lane's reflex prediction) added to the model's."""
+        measured = self.torque[start:stop] - self.torque[start:stop].mean()
+        return self._vaf_of(params, measured, start, stop, extra)
+
+    def _vaf_of(
+        self,
+        params: FloatArray,
+        measured: FloatArray,
+        start: int,
+        stop: int,
+        extra: FloatArray | None = None,
+    ) -> float:
+        """:meth:`vaf` with the window's mean-free measured torque given."""
         if not np.all(np.isfinite(params)):
             return float("nan")
-        measured = self.torque[start:stop] - self.torque[start:stop].mean()
         predicted = np.asarray(params) @ self.regressors[:, start:stop]
         if extra is not None:
             predicted = predicted + extra
@@ -122,7 +133,9 @@ class WindowVafBasis:
         torque = self.torque[start:stop]
         targets = np.column_stack((torque - extra, torque))
         params = np.linalg.lstsq(self._design(start, stop), targets, rcond=None)[0][:3]
-        return self.vaf(params[:, 0], start, stop, extra) - self.vaf(params[:, 1], start, stop)
+        measured = torque - torque.mean()
+        with_extra = self._vaf_of(params[:, 0], measured, start, stop, extra)
+        return with_extra - self._vaf_of(params[:, 1], measured, start, stop)
 
     def _design(self, start: int, stop: int) -> FloatArray:
         """Least-squares design on samples ``start … stop − 1``: the regressors, an offset and
