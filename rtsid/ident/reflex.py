@@ -106,7 +106,9 @@ def decimated(x: FloatArray, factor: int) -> FloatArray:
     """``x`` at ``1/factor`` of its rate: MATLAB's and scipy's default decimator (8th-order
     Chebyshev I at 0.8 × the new Nyquist rate, run forwards and backwards; the same numbers as
     ``scipy.signal.decimate(x, factor)``: scipy's ``sosfiltfilt`` step by step, its filter
-    and initial conditions computed once per factor instead of on every call)."""
+    and initial conditions computed once per factor instead of on every call; the two passes
+    by the compiled kernel's ``sos_filtfilt`` when built, scipy's ``sosfilt`` loop bit for
+    bit)."""
     if factor == 1:
         return np.array(x, dtype=np.float64)
     d = _decimator(factor)
@@ -116,6 +118,9 @@ def decimated(x: FloatArray, factor: int) -> FloatArray:
     ext = np.concatenate(
         (2 * x[0] - x[d.edge : 0 : -1], x, 2 * x[-1] - x[-2 : -d.edge - 2 : -1])
     )  # scipy's odd extension
+    if _eureka is not None:  # the same two passes compiled, bit for bit (tested)
+        _eureka.sos_filtfilt(d.sos, d.zi, ext)
+        return np.asarray(ext[d.edge : -d.edge][::factor], dtype=np.float64)
     y, _ = signal.sosfilt(d.sos, ext, zi=d.zi * ext[0])
     y, _ = signal.sosfilt(d.sos, y[::-1], zi=d.zi * y[-1])
     return np.asarray(y[::-1][d.edge : -d.edge][::factor], dtype=np.float64)

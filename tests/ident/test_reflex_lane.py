@@ -228,3 +228,16 @@ def test_a_formed_toeplitz_system_gives_the_same_projection_and_rect_forms_it_on
     theta, torque = joint_with_reflex(seconds=6.0, seed=8)
     fit = fit_parallel_cascade(theta, torque, FS_SIM, CascadeSettings(variant="rect"))
     assert fit.iterations >= 2 and formed == [100]  # every alternation, one system
+
+
+@pytest.mark.parametrize("factor", [2, 25])
+def test_the_decimator_is_scipys_bit_for_bit_compiled_or_not(factor, monkeypatch):
+    from scipy import signal
+
+    from rtsid.ident import reflex
+
+    x = np.random.default_rng(factor).standard_normal(20_000).cumsum()
+    want = signal.decimate(x, factor)
+    np.testing.assert_array_equal(reflex.decimated(x, factor), want)  # compiled, when built
+    monkeypatch.setattr(reflex, "_eureka", None)
+    np.testing.assert_array_equal(reflex.decimated(x, factor), want)
