@@ -327,9 +327,14 @@ def _grid(n_lags: int, fs_hz: float) -> tuple[FloatArray, FloatArray]:
         axis=1,
     )
     lags_s = np.arange(n_lags) / fs_hz
-    shapes = _low_pass_response(
-        lags_s[None, :] - params[:, :1], 2 * np.pi * params[:, 1:2], params[:, 2:3]
-    )
+    # each (f_c, ζ) evaluated once per distinct time t = lag − δ (the 2 ms delay grid and the
+    # model's lags make the same t recur) and gathered: every element depends on its own t,
+    # f_c and ζ only, so these are the numbers of evaluating every grid point (tested)
+    times, time_of = np.unique(lags_s[None, :] - delays[:, None], return_inverse=True)
+    shapes_of = params[: CORNER_GRID_HZ.size * DAMPING_GRID.size, 1:]  # δ = delays[0]: all pairs
+    table = _low_pass_response(times[None, :], 2 * np.pi * shapes_of[:, :1], shapes_of[:, 1:])
+    gathered = table[:, time_of.reshape(delays.size, n_lags)]  # (pairs, delays, lags)
+    shapes = np.ascontiguousarray(gathered.transpose(1, 0, 2).reshape(params.shape[0], n_lags))
     shapes /= np.maximum(np.linalg.norm(shapes, axis=1, keepdims=True), 1e-300)
     params.setflags(write=False)
     shapes.setflags(write=False)

@@ -241,3 +241,17 @@ def test_the_decimator_is_scipys_bit_for_bit_compiled_or_not(factor, monkeypatch
     np.testing.assert_array_equal(reflex.decimated(x, factor), want)  # compiled, when built
     monkeypatch.setattr(reflex, "_eureka", None)
     np.testing.assert_array_equal(reflex.decimated(x, factor), want)
+
+
+@pytest.mark.parametrize(("n_lags", "fs_model"), [(101, 100.0), (41, 200.0)])
+def test_the_dynamics_grid_equals_every_grid_point_evaluated(n_lags, fs_model):
+    from rtsid.ident import reflex
+
+    params, shapes = reflex._grid(n_lags, fs_model)
+    lags_s = np.arange(n_lags) / fs_model
+    want = reflex._low_pass_response(
+        lags_s[None, :] - params[:, :1], 2 * np.pi * params[:, 1:2], params[:, 2:3]
+    )
+    want /= np.maximum(np.linalg.norm(want, axis=1, keepdims=True), 1e-300)
+    assert np.unique(params, axis=0).shape == params.shape  # every (δ, f_c, ζ) once
+    np.testing.assert_array_equal(shapes, want)
