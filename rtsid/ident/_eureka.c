@@ -1095,11 +1095,16 @@ static void sos_run4(const double *c, const double *zi, double *x, Py_ssize_t n,
     }
 }
 
-static void sos_run(const double *sos, const double *zi, Py_ssize_t ns, double *x, Py_ssize_t n,
-                    int backwards)
+/* scipy's sosfilt (direct form II transposed, its _sosfilt loop's operations in its order, so
+ * the same numbers bit for bit), in place, the states starting at zi·(first sample run). */
+static void sos_run_exact4(const double *c, const double *zi, double *x, Py_ssize_t n,
+                           int backwards);
+
+static void sos_run_exact(const double *sos, const double *zi, Py_ssize_t ns, double *x,
+                          Py_ssize_t n, int backwards)
 {
     if (ns == 4) {
-        sos_run4(sos, zi, x, n, backwards);
+        sos_run_exact4(sos, zi, x, n, backwards);
         return;
     }
     double state[2 * 16];
@@ -1120,6 +1125,69 @@ static void sos_run(const double *sos, const double *zi, Py_ssize_t ns, double *
         }
         x[at] = cur;
     }
+}
+
+/* sos_run_exact for four sections (the decimator's), the states in registers so that the
+ * sections' chains of successive samples overlap: the same operations in the same order. */
+#define EXACT_SECTION(q, s0, s1)                           \
+    do {                                                   \
+        const double out = c[6 * q] * cur + s0;            \
+        s0 = c[6 * q + 1] * cur - c[6 * q + 4] * out + s1; \
+        s1 = c[6 * q + 2] * cur - c[6 * q + 5] * out;      \
+        cur = out;                                         \
+    } while (0)
+
+static void sos_run_exact4(const double *c, const double *zi, double *x, Py_ssize_t n,
+                           int backwards)
+{
+    const double first = backwards ? x[n - 1] : x[0];
+    double s00 = zi[0] * first, s01 = zi[1] * first, s10 = zi[2] * first, s11 = zi[3] * first;
+    double s20 = zi[4] * first, s21 = zi[5] * first, s30 = zi[6] * first, s31 = zi[7] * first;
+    const Py_ssize_t step = backwards ? -1 : 1;
+    double *p = backwards ? x + n - 1 : x;
+    for (Py_ssize_t i = 0; i < n; i++, p += step) {
+        double cur = *p;
+        EXACT_SECTION(0, s00, s01);
+        EXACT_SECTION(1, s10, s11);
+        EXACT_SECTION(2, s20, s21);
+        EXACT_SECTION(3, s30, s31);
+        *p = cur;
+    }
+}
+#undef EXACT_SECTION
+
+static void sos_run(const double *sos, const double *zi, Py_ssize_t ns, double *x, Py_ssize_t n,
+                    int backwards)
+{
+    if (ns == 4) {
+        sos_run4(sos, zi, x, n, backwards);
+        return;
+    }
+    sos_run_exact(sos, zi, ns, x, n, backwards);
+}
+
+/* sos_filtfilt(sos, zi, x): scipy's sosfiltfilt on an already extended x, in place: forwards
+ * from zi·x[0], then backwards from zi·(the last output), each pass scipy's sosfilt bit for
+ * bit (rtsid.ident.reflex.decimated; its scipy code is the reference). O(n·sections). */
+static PyObject *py_sos_filtfilt(PyObject *self, PyObject *args)
+{
+    PyObject *objs[3];
+    if (!PyArg_ParseTuple(args, "OOO", &objs[0], &objs[1], &objs[2])) return NULL;
+    const char *names[3] = {"sos", "zi", "x"};
+    Py_buffer b[3];
+    if (get_buffers(objs, 3, 2, names, b) < 0) return NULL;
+    Py_ssize_t ns = b[0].len / 48, n = b[2].len / 8;
+    PyObject *result = NULL;
+    if (ns < 1 || ns > 16 || b[0].len != 48 * ns || b[1].len != 16 * ns || n < 1) {
+        PyErr_SetString(PyExc_ValueError, "sos_filtfilt: inconsistent sizes");
+    } else {
+        sos_run_exact(b[0].buf, b[1].buf, ns, b[2].buf, n, 0);
+        sos_run_exact(b[0].buf, b[1].buf, ns, b[2].buf, n, 1);
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+    release_buffers(b, 3);
+    return result;
 }
 
 static void reflex_rect_input(const double *pos, Py_ssize_t n, double fs, const double *sos,
@@ -1510,6 +1578,8 @@ static PyMethodDef methods[] = {
     {"reflex_rect_input", py_reflex_rect_input, METH_VARARGS,
      "reflex_rect_input(position, fs, sos, zi, edge, factor, out): the rect reflex pathway's "
      "input at the model's rate (detrend, velocity, max(v, 0), zero-phase decimation)."},
+    {"sos_filtfilt", py_sos_filtfilt, METH_VARARGS,
+     "sos_filtfilt(sos, zi, x): scipy's sosfiltfilt passes over an extended x, in place."},
     {"xcorr", py_xcorr, METH_VARARGS,
      "xcorr(u, y, first, last, norm, c): c[k-first] = sum_t u[t] y[t+k] / norm."},
     {NULL, NULL, 0, NULL},

@@ -40,6 +40,7 @@ from rtsid.ident.reflex import (
     decimated,
     fit_reflex_dynamics,
     fit_reflex_pathway,
+    to_data_rate,
 )
 from rtsid.ident.vaf import vaf
 from rtsid.ident.window import EstimatorOptions, WindowEstimate, estimate_window
@@ -125,6 +126,8 @@ class CascadeFit:
         Decimation factor from the input rate.
     first_scored : int
         Index (at ``fs_hz``) of the first scored sample.
+    reflex_torque_all : numpy.ndarray, shape (n_model,)
+        The kept pathway's torque (N·m) on every model sample of the record, scored or not.
     """
 
     fs_hz: float
@@ -140,6 +143,20 @@ class CascadeFit:
     iterations: int
     factor: int
     first_scored: int
+    reflex_torque_all: FloatArray
+
+    def record_reflex_torque(self, position: FloatArray, fs_hz: float) -> FloatArray:
+        """``self.reflex.torque(position, fs_hz)`` for the ``position`` this cascade was fitted
+        to (rad, at its rate ``fs_hz``): the same numbers.
+
+        For ``"rect"`` the cascade already convolved the same pathway input (the rectified
+        velocity of this record, decimated) with the kept IRF, so only the interpolation back to
+        the record's rate is left to do; the Hammerstein pathway's prediction is formed anew
+        (its polynomial acts before the decimation there, after it inside the cascade).
+        """
+        if self.reflex.variant != "rect":
+            return self.reflex.torque(position, fs_hz)
+        return to_data_rate(self.reflex_torque_all, self.factor, np.size(position))
 
 
 def _check_length(n: int, fs_hz: float, settings: CascadeSettings) -> None:
@@ -228,6 +245,7 @@ def fit_parallel_cascade(
         iterations=iterations,
         factor=factor,
         first_scored=reflex_lags,
+        reflex_torque_all=reflex_torque,
     )
 
 

@@ -49,6 +49,7 @@ __all__ = [
     "ReflexDynamics",
     "ReflexInputs",
     "ReflexPathway",
+    "ToeplitzSystem",
     "convolve_causal",
     "decimated",
     "delay_search_s",
@@ -57,6 +58,7 @@ __all__ = [
     "mdl_projection",
     "prediction_history_s",
     "stretch_velocity",
+    "to_data_rate",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -104,7 +106,9 @@ def decimated(x: FloatArray, factor: int) -> FloatArray:
     """``x`` at ``1/factor`` of its rate: MATLAB's and scipy's default decimator (8th-order
     Chebyshev I at 0.8 × the new Nyquist rate, run forwards and backwards; the same numbers as
     ``scipy.signal.decimate(x, factor)``: scipy's ``sosfiltfilt`` step by step, its filter
-    and initial conditions computed once per factor instead of on every call)."""
+    and initial conditions computed once per factor instead of on every call; the two passes
+    by the compiled kernel's ``sos_filtfilt`` when built, scipy's ``sosfilt`` loop bit for
+    bit)."""
     if factor == 1:
         return np.array(x, dtype=np.float64)
     d = _decimator(factor)
@@ -114,6 +118,9 @@ def decimated(x: FloatArray, factor: int) -> FloatArray:
     ext = np.concatenate(
         (2 * x[0] - x[d.edge : 0 : -1], x, 2 * x[-1] - x[-2 : -d.edge - 2 : -1])
     )  # scipy's odd extension
+    if _eureka is not None:  # the same two passes compiled, bit for bit (tested)
+        _eureka.sos_filtfilt(d.sos, d.zi, ext)
+        return np.asarray(ext[d.edge : -d.edge][::factor], dtype=np.float64)
     y, _ = signal.sosfilt(d.sos, ext, zi=d.zi * ext[0])
     y, _ = signal.sosfilt(d.sos, y[::-1], zi=d.zi * y[-1])
     return np.asarray(y[::-1][d.edge : -d.edge][::factor], dtype=np.float64)
@@ -127,8 +134,45 @@ def stretch_velocity(position: FloatArray, fs_hz: float) -> FloatArray:
     return velocity
 
 
+@dataclass(frozen=True)
+class ToeplitzSystem:
+    """An IRF input's symmetric Toeplitz matrix and its eigendecomposition, formed once per
+    input and lag span (a cascade's ``rect`` alternations all fit the same input).
+
+    Attributes
+    ----------
+    phi_rr : numpy.ndarray, shape (L+1,)
+        First column: the input's autocorrelation at lags ``0 … L``.
+    eigenvalues : numpy.ndarray, shape (L+1,)
+        Of the matrix, ascending (``numpy.linalg.eigh``).
+    vectors : numpy.ndarray, shape (L+1, L+1)
+        The eigenvectors, by column.
+    """
+
+    phi_rr: FloatArray
+    eigenvalues: FloatArray
+    vectors: FloatArray
+
+    @classmethod
+    def of(cls, phi_rr: FloatArray) -> ToeplitzSystem:
+        """The system whose first column is ``phi_rr``."""
+        lags = phi_rr.size
+        index = np.abs(np.arange(lags)[:, None] - np.arange(lags)[None, :])
+        eigenvalues, vectors = np.linalg.eigh(phi_rr[index])
+        return cls(phi_rr, eigenvalues, vectors)
+
+    @classmethod
+    def of_input(cls, r: FloatArray, lags: int) -> ToeplitzSystem:
+        """The system of a one-sided IRF ``g(0 … lags)`` with input ``r``."""
+        return cls.of(auto_correlation(r, lags))
+
+
 def mdl_projection(
-    phi_rr: FloatArray, phi_re: FloatArray, power_e: float, n: int
+    phi_rr: FloatArray,
+    phi_re: FloatArray,
+    power_e: float,
+    n: int,
+    system: ToeplitzSystem | None = None,
 ) -> tuple[FloatArray, int]:
     """The minimum-description-length rank of a Toeplitz system and its projected solution.
 
@@ -142,6 +186,8 @@ def mdl_projection(
         Mean square of the output (``φ_ee(0)``).
     n : int
         Samples behind the correlations.
+    system : ToeplitzSystem, optional
+        ``ToeplitzSystem.of(phi_rr)``, when already formed (the same numbers either way).
 
     Returns
     -------
@@ -151,10 +197,11 @@ def mdl_projection(
     """
     full = eureka(phi_rr, phi_re)
     lags = phi_rr.size
-    index = np.abs(np.arange(lags)[:, None] - np.arange(lags)[None, :])
-    eigenvalues, vectors = np.linalg.eigh(phi_rr[index])
+    if system is None:
+        system = ToeplitzSystem.of(phi_rr)
+    vectors = system.vectors
     coefficients = vectors.T @ full
-    explained = np.maximum(eigenvalues, 0.0) * coefficients**2
+    explained = np.maximum(system.eigenvalues, 0.0) * coefficients**2
     order = np.argsort(explained)[::-1]
     residual = power_e - np.cumsum(explained[order])
     ranks = np.arange(1, lags + 1)
@@ -164,11 +211,14 @@ def mdl_projection(
     return np.asarray(vectors[:, kept] @ coefficients[kept], dtype=np.float64), rank
 
 
-def _causal_irf(r: FloatArray, e: FloatArray, lags: int, fs_hz: float) -> tuple[FloatArray, int]:
-    """One-sided IRF ``g(0 … lags)`` from ``r`` to ``e`` at its MDL rank, and the rank."""
-    phi_rr = auto_correlation(r, lags)
+def _causal_irf(
+    r: FloatArray, e: FloatArray, lags: int, fs_hz: float, system: ToeplitzSystem | None = None
+) -> tuple[FloatArray, int]:
+    """One-sided IRF ``g(0 … lags)`` from ``r`` to ``e`` at its MDL rank, and the rank
+    (``system``: ``r``'s, when already formed)."""
+    system = system or ToeplitzSystem.of_input(r, lags)
     phi_re = cross_correlation(r, e, lags)[lags:]
-    projected, rank = mdl_projection(phi_rr, phi_re, float(e @ e) / e.size, e.size)
+    projected, rank = mdl_projection(system.phi_rr, phi_re, float(e @ e) / e.size, e.size, system)
     return projected * fs_hz, rank
 
 
@@ -277,9 +327,14 @@ def _grid(n_lags: int, fs_hz: float) -> tuple[FloatArray, FloatArray]:
         axis=1,
     )
     lags_s = np.arange(n_lags) / fs_hz
-    shapes = _low_pass_response(
-        lags_s[None, :] - params[:, :1], 2 * np.pi * params[:, 1:2], params[:, 2:3]
-    )
+    # each (f_c, ζ) evaluated once per distinct time t = lag − δ (the 2 ms delay grid and the
+    # model's lags make the same t recur) and gathered: every element depends on its own t,
+    # f_c and ζ only, so these are the numbers of evaluating every grid point (tested)
+    times, time_of = np.unique(lags_s[None, :] - delays[:, None], return_inverse=True)
+    shapes_of = params[: CORNER_GRID_HZ.size * DAMPING_GRID.size, 1:]  # δ = delays[0]: all pairs
+    table = _low_pass_response(times[None, :], 2 * np.pi * shapes_of[:, :1], shapes_of[:, 1:])
+    gathered = table[:, time_of.reshape(delays.size, n_lags)]  # (pairs, delays, lags)
+    shapes = np.ascontiguousarray(gathered.transpose(1, 0, 2).reshape(params.shape[0], n_lags))
     shapes /= np.maximum(np.linalg.norm(shapes, axis=1, keepdims=True), 1e-300)
     params.setflags(write=False)
     shapes.setflags(write=False)
@@ -404,11 +459,7 @@ class ReflexPathway:
         factor = self._factor(fs_hz)
         pathway_input = _at_model_rate(self.nonlinearity(stretch_velocity(pos, fs_hz)), factor)
         low = convolve_causal(pathway_input, self.irf, self.fs_hz)
-        if factor == 1:
-            return low
-        # back to the data's rate by linear interpolation between the model's samples (the
-        # reflex torque is smooth at 100 Hz); after the last one it is held
-        return np.interp(np.arange(pos.size), np.arange(low.size) * factor, low)
+        return to_data_rate(low, factor, pos.size)
 
     def torque_tail(self, position: ArrayLike, fs_hz: float, n_last: int) -> FloatArray:
         """``torque(position, fs_hz)[-n_last:]`` — the same numbers, computed for the tail.
@@ -462,6 +513,15 @@ class ReflexPathway:
         return factor
 
 
+def to_data_rate(low: FloatArray, factor: int, n: int) -> FloatArray:
+    """A prediction on the model's samples (every ``factor``-th data sample) on the ``n``
+    samples of the data: linear interpolation between the model's samples (the reflex torque
+    is smooth at 100 Hz), held after the last one; ``low`` itself when ``factor`` is 1."""
+    if factor == 1:
+        return low
+    return np.interp(np.arange(n), np.arange(low.size) * factor, low)
+
+
 def _causal_outputs(r: FloatArray, g: FloatArray, first: int) -> FloatArray:
     """``np.convolve(r, g)[first : r.size]``: the causal convolution's outputs from ``first``
     on, each over the IRF's span only (what :func:`convolve_causal` gives there)."""
@@ -485,6 +545,14 @@ class ReflexInputs:
             if variant == "hammerstein"
             else []
         )
+        self._systems: dict[int, ToeplitzSystem] = {}
+
+    def rectified_system(self, lags: int) -> ToeplitzSystem:
+        """The rectified input's Toeplitz system for ``lags`` (formed on first use, then
+        reused by every alternation)."""
+        if lags not in self._systems:
+            self._systems[lags] = ToeplitzSystem.of_input(self.rectified, lags)
+        return self._systems[lags]
 
 
 def fit_reflex_pathway(
@@ -509,7 +577,7 @@ def fit_reflex_pathway(
     (ReflexPathway, numpy.ndarray)
         The pathway, and its torque on the record (N·m, model's rate).
     """
-    irf, rank = _causal_irf(inputs.rectified, residual, lags, fs_hz)
+    irf, rank = _causal_irf(inputs.rectified, residual, lags, fs_hz, inputs.rectified_system(lags))
     coefficients = np.zeros(0)
     pathway_input = inputs.rectified
     if inputs.variant == "hammerstein":

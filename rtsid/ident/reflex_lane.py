@@ -41,6 +41,7 @@ __all__ = [
     "predict_reflex_torque",
     "warm_up",
     "window_vaf_gain",
+    "window_vaf_gains",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -221,9 +222,12 @@ def fit_reflex_update(
         if not (np.isfinite(pos).all() and np.isfinite(tor).all()):
             raise InputDataError("a valid sample is NaN or infinite")
         cascade = fit_parallel_cascade(pos, tor, fs_hz, settings.cascade())
-        reflex = cascade.reflex
         evidence = window_vaf_gain(
-            pos, tor, reflex.torque(pos, fs_hz), fs_hz, round(reflex.history_s * fs_hz)
+            pos,
+            tor,
+            cascade.record_reflex_torque(pos, fs_hz),
+            fs_hz,
+            round(cascade.reflex.history_s * fs_hz),
         )
     except (InputDataError, ArithmeticError, np.linalg.LinAlgError) as exc:
         return ReflexUpdate.failed(seq, start_index, end_index, str(exc))
@@ -235,6 +239,11 @@ def fit_reflex_update(
 #: the windows to come, so the newest data judge it: a reflex that switched on or off part-way
 #: through the horizon is judged by what it does now).
 EVIDENCE_WINDOW_S, EVIDENCE_STEP_S, EVIDENCE_SPAN_S = 0.3, 0.25, 10.0
+#: Data before the first evidence window that the window VAF basis is formed over, s: its
+#: 40 Hz low-pass (forwards and backwards) forgets where it started within this (its slowest
+#: pole decays ≈ 96 /s: e^-96 after 1 s), so forming it over the scored span and this much
+#: before gives the numbers of the whole horizon's basis (to rounding) at half the cost.
+EVIDENCE_SETTLING_S = 1.0
 
 
 def window_vaf_gain(
@@ -269,20 +278,36 @@ def window_vaf_gain(
     (float, float)
         The median VAF gain, percentage points, and the share of windows it raises.
     """
-    basis = WindowVafBasis(position, torque, fs_hz)
-    n = round(EVIDENCE_WINDOW_S * fs_hz)
-    first = max(first, position.size - round(EVIDENCE_SPAN_S * fs_hz))
-    starts = range(first, position.size - n + 1, max(1, round(EVIDENCE_STEP_S * fs_hz)))
-    gains = np.array(
-        [
-            basis.least_squares_vaf(a, a + n, reflex_torque[a : a + n])
-            - basis.least_squares_vaf(a, a + n)
-            for a in starts
-        ]
-    )
+    gains = window_vaf_gains(position, torque, reflex_torque, fs_hz, first)
     if gains.size == 0:
         raise InputDataError("the horizon is shorter than one evidence window")
     return float(np.median(gains)), float(np.mean(gains > 0))
+
+
+def window_vaf_gains(
+    position: FloatArray,
+    torque: FloatArray,
+    reflex_torque: FloatArray,
+    fs_hz: float,
+    first: int = 0,
+) -> FloatArray:
+    """The VAF gain of each evidence window (:func:`window_vaf_gain`), percentage points, in
+    time order (empty when the horizon holds none).
+
+    The basis is formed over the scored span and the ``EVIDENCE_SETTLING_S`` before it, not
+    over the whole horizon: the same numbers to rounding, at the cost of what is scored.
+    """
+    n = round(EVIDENCE_WINDOW_S * fs_hz)
+    first = max(first, position.size - round(EVIDENCE_SPAN_S * fs_hz))
+    lead = max(0, first - round(EVIDENCE_SETTLING_S * fs_hz))  # the basis starts here
+    basis = WindowVafBasis(position[lead:], torque[lead:], fs_hz)
+    step = max(1, round(EVIDENCE_STEP_S * fs_hz))
+    reflex = reflex_torque[lead:]
+    starts = range(first - lead, position.size - lead - n + 1, step)
+    return np.array(
+        [basis.least_squares_vaf_gain(a, a + n, reflex[a : a + n]) for a in starts],
+        dtype=np.float64,
+    )
 
 
 def warm_up(fs_hz: float, settings: SlowLaneSettings) -> bool:

@@ -16,6 +16,8 @@ judge, from its own data, whether subtracting a reflex model helps the windows
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from numpy.typing import NDArray
 from scipy import signal
@@ -58,6 +60,16 @@ def least_squares_window(
     return np.asarray(np.linalg.lstsq(x, torque, rcond=None)[0][:3], dtype=np.float64)
 
 
+@lru_cache(maxsize=8)
+def _basis_lowpass(fs_hz: float) -> FloatArray:
+    """The basis's low-pass (second-order sections) at ``fs_hz``, designed once per rate (the
+    design costs about a millisecond, as much as filtering a second of data); read-only:
+    scipy's filters take a writable copy."""
+    sos = np.asarray(signal.butter(4, BASIS_LOWPASS_HZ, fs=fs_hz, output="sos"))
+    sos.setflags(write=False)
+    return sos
+
+
 class WindowVafBasis:
     """The window VAF basis over one whole record (see the module notes).
 
@@ -70,19 +82,33 @@ class WindowVafBasis:
     """
 
     def __init__(self, position: FloatArray, torque: FloatArray, fs_hz: float) -> None:
-        sos = signal.butter(4, BASIS_LOWPASS_HZ, fs=fs_hz, output="sos")
         d1, d2 = savgol_derivatives(position, fs_hz)
-        self.torque = signal.sosfiltfilt(sos, torque)
-        self.regressors = np.vstack([signal.sosfiltfilt(sos, x) for x in (d2, d1, position)])
+        # one zero-phase run over the four rows (row by row the same numbers as four runs)
+        low = signal.sosfiltfilt(
+            _basis_lowpass(float(fs_hz)).copy(), np.vstack((torque, d2, d1, position))
+        )
+        self.torque = low[0]
+        self.regressors = low[1:]
 
     def vaf(
         self, params: FloatArray, start: int, stop: int, extra: FloatArray | None = None
     ) -> float:
         """VAF (%) of ``(I, B, K)`` on samples ``start … stop − 1`` (NaN params: NaN), with
         ``extra`` torque (e.g. the slow lane's reflex prediction) added to the model's."""
+        measured = self.torque[start:stop] - self.torque[start:stop].mean()
+        return self._vaf_of(params, measured, start, stop, extra)
+
+    def _vaf_of(
+        self,
+        params: FloatArray,
+        measured: FloatArray,
+        start: int,
+        stop: int,
+        extra: FloatArray | None = None,
+    ) -> float:
+        """:meth:`vaf` with the window's mean-free measured torque given."""
         if not np.all(np.isfinite(params)):
             return float("nan")
-        measured = self.torque[start:stop] - self.torque[start:stop].mean()
         predicted = np.asarray(params) @ self.regressors[:, start:stop]
         if extra is not None:
             predicted = predicted + extra
@@ -95,10 +121,26 @@ class WindowVafBasis:
         ``(I, B, K)`` (offset and trend as nuisance terms) fitted to the torque minus
         ``extra``, with ``extra`` (the same length; a smooth torque such as a reflex
         prediction) counted as part of the model."""
-        n = stop - start
         target = self.torque[start:stop] if extra is None else self.torque[start:stop] - extra
-        design = np.column_stack(
+        params = np.linalg.lstsq(self._design(start, stop), target, rcond=None)[0][:3]
+        return self.vaf(params, start, stop, extra)
+
+    def least_squares_vaf_gain(self, start: int, stop: int, extra: FloatArray) -> float:
+        """``least_squares_vaf(start, stop, extra) − least_squares_vaf(start, stop)``,
+        percentage points: the VAF that counting ``extra`` (N·m) as part of the model adds to
+        the window's own least-squares fit. Both fits share one design matrix and one
+        least-squares call (the two targets as its two right-hand sides)."""
+        torque = self.torque[start:stop]
+        targets = np.column_stack((torque - extra, torque))
+        params = np.linalg.lstsq(self._design(start, stop), targets, rcond=None)[0][:3]
+        measured = torque - torque.mean()
+        with_extra = self._vaf_of(params[:, 0], measured, start, stop, extra)
+        return with_extra - self._vaf_of(params[:, 1], measured, start, stop)
+
+    def _design(self, start: int, stop: int) -> FloatArray:
+        """Least-squares design on samples ``start … stop − 1``: the regressors, an offset and
+        a trend."""
+        n = stop - start
+        return np.column_stack(
             (self.regressors[:, start:stop].T, np.ones(n), np.linspace(-1.0, 1.0, n))
         )
-        params = np.linalg.lstsq(design, target, rcond=None)[0][:3]
-        return self.vaf(params, start, stop, extra)

@@ -1,3 +1,5 @@
+import re
+
 import pytest
 
 from rtsid.cli import main
@@ -83,6 +85,8 @@ def test_replay_benchmark_compares_replay_with_the_bare_estimator(capsys):
     total = split["replay, all of it"]
     assert len(parts) == 3 and all(float(p[2]) >= 0 for p in parts)
     assert sum(float(p[2]) for p in parts) == pytest.approx(float(total[2]), rel=0.02)
+    fits = re.search(r"(\d+) slow-lane fits \(([\d.]+) ms of CPU each\)", out)
+    assert fits and int(fits[1]) >= 1 and float(fits[2]) > 0  # one fit's cost, named
 
 
 def test_service_benchmark_config_runs_the_daemon_at_the_hop_asked(tmp_path):

@@ -123,3 +123,135 @@ def test_the_tail_prediction_equals_the_whole_segments_tail(pathway, n_last, mon
             m.setattr(reflex, "_eureka", None)
             numpy_tail = pathway.torque_tail(segment, FS_SIM, n_last)
         np.testing.assert_allclose(numpy_tail, want, rtol=1e-12, atol=1e-12 * scale)
+
+
+# ----------------------------------------------------------------- a fit's shared work (issue 22)
+def _whole_horizon_gains(position, torque, reflex_torque, first):
+    """The evidence as it was computed before issue 22: the basis over the whole horizon and
+    two separate least-squares fits per window."""
+    from rtsid.ident import reflex_lane
+    from rtsid.ident.yardstick import WindowVafBasis
+
+    basis = WindowVafBasis(position, torque, FS_SIM)
+    n = round(reflex_lane.EVIDENCE_WINDOW_S * FS_SIM)
+    first = max(first, position.size - round(reflex_lane.EVIDENCE_SPAN_S * FS_SIM))
+    step = round(reflex_lane.EVIDENCE_STEP_S * FS_SIM)
+    return np.array(
+        [
+            basis.least_squares_vaf(a, a + n, reflex_torque[a : a + n])
+            - basis.least_squares_vaf(a, a + n)
+            for a in range(first, position.size - n + 1, step)
+        ]
+    )
+
+
+@pytest.mark.parametrize(("seconds", "first"), [(20.0, 0), (12.0, 2700), (4.0, 2700)])
+def test_the_evidence_on_the_scored_span_equals_the_whole_horizons(seconds, first):
+    from rtsid.ident.reflex_lane import window_vaf_gain, window_vaf_gains
+
+    theta, torque = joint_with_reflex(seconds=seconds, seed=5)
+    fit = fit_reflex_update(0, 0, theta, torque, None, FS_SIM, SETTINGS)
+    reflex = fit.pathway.torque(theta, FS_SIM)
+    want = _whole_horizon_gains(theta, torque, reflex, first)
+    assert want.size >= 3 and np.ptp(want) > 1.0  # the windows differ: a real check
+    np.testing.assert_allclose(
+        window_vaf_gains(theta, torque, reflex, FS_SIM, first), want, rtol=0, atol=1e-9
+    )
+    median, improved = window_vaf_gain(theta, torque, reflex, FS_SIM, first)
+    assert abs(median - np.median(want)) < 1e-9 and improved == np.mean(want > 0)
+
+
+def test_one_least_squares_call_gives_both_window_fits():
+    from rtsid.ident.yardstick import WindowVafBasis
+
+    theta, torque = joint_with_reflex(seconds=4.0, seed=6)
+    basis = WindowVafBasis(theta, torque, FS_SIM)
+    extra = np.random.default_rng(0).standard_normal(theta.size)
+    for a in range(0, theta.size - 750, 1250):
+        want = basis.least_squares_vaf(a, a + 750, extra[a : a + 750]) - basis.least_squares_vaf(
+            a, a + 750
+        )
+        assert abs(basis.least_squares_vaf_gain(a, a + 750, extra[a : a + 750]) - want) < 1e-9
+
+
+@pytest.mark.parametrize("variant", ["rect", "hammerstein"])
+def test_the_cascades_own_reflex_prediction_is_the_pathways(variant):
+    from rtsid.ident.cascade import CascadeSettings, fit_parallel_cascade
+
+    theta, torque = joint_with_reflex(seconds=6.0, seed=8)
+    fit = fit_parallel_cascade(theta, torque, FS_SIM, CascadeSettings(variant=variant))
+    # the rectifier's prediction is reused as it is: the very numbers
+    np.testing.assert_array_equal(
+        fit.record_reflex_torque(theta, FS_SIM), fit.reflex.torque(theta, FS_SIM)
+    )
+
+
+def test_the_window_vaf_basis_is_scipys_low_pass_of_each_signal():
+    from scipy import signal
+
+    from rtsid.ident.yardstick import WindowVafBasis, savgol_derivatives
+
+    theta, torque = joint_with_reflex(seconds=4.0, seed=9)
+    for _ in range(2):  # the second basis uses the cached filter design
+        basis = WindowVafBasis(theta, torque, FS_SIM)
+        sos = signal.butter(4, 40.0, fs=FS_SIM, output="sos")
+        d1, d2 = savgol_derivatives(theta, FS_SIM)
+        np.testing.assert_array_equal(basis.torque, signal.sosfiltfilt(sos, torque))
+        want = [signal.sosfiltfilt(sos, x) for x in (d2, d1, theta)]
+        np.testing.assert_array_equal(basis.regressors, np.vstack(want))
+
+
+def test_a_formed_toeplitz_system_gives_the_same_projection_and_rect_forms_it_once(monkeypatch):
+    from rtsid.ident import reflex
+    from rtsid.ident.cascade import CascadeSettings, fit_parallel_cascade
+    from rtsid.ident.correlation import auto_correlation, cross_correlation
+
+    rng = np.random.default_rng(4)
+    r = np.maximum(rng.standard_normal(3000), 0.0)
+    e = np.convolve(r, np.exp(-np.arange(30) / 5.0))[: r.size] + rng.standard_normal(r.size)
+    phi_rr, phi_re = auto_correlation(r, 60), cross_correlation(r, e, 60)[60:]
+    power = float(e @ e) / e.size
+    alone = reflex.mdl_projection(phi_rr, phi_re, power, e.size)
+    shared = reflex.mdl_projection(
+        phi_rr, phi_re, power, e.size, reflex.ToeplitzSystem.of_input(r, 60)
+    )
+    np.testing.assert_array_equal(shared[0], alone[0])
+    assert shared[1] == alone[1] < 61
+
+    formed = []
+    original = reflex.ToeplitzSystem.of_input.__func__
+    monkeypatch.setattr(
+        reflex.ToeplitzSystem,
+        "of_input",
+        classmethod(lambda cls, r, lags: formed.append(lags) or original(cls, r, lags)),
+    )
+    theta, torque = joint_with_reflex(seconds=6.0, seed=8)
+    fit = fit_parallel_cascade(theta, torque, FS_SIM, CascadeSettings(variant="rect"))
+    assert fit.iterations >= 2 and formed == [100]  # every alternation, one system
+
+
+@pytest.mark.parametrize("factor", [2, 25])
+def test_the_decimator_is_scipys_bit_for_bit_compiled_or_not(factor, monkeypatch):
+    from scipy import signal
+
+    from rtsid.ident import reflex
+
+    x = np.random.default_rng(factor).standard_normal(20_000).cumsum()
+    want = signal.decimate(x, factor)
+    np.testing.assert_array_equal(reflex.decimated(x, factor), want)  # compiled, when built
+    monkeypatch.setattr(reflex, "_eureka", None)
+    np.testing.assert_array_equal(reflex.decimated(x, factor), want)
+
+
+@pytest.mark.parametrize(("n_lags", "fs_model"), [(101, 100.0), (41, 200.0)])
+def test_the_dynamics_grid_equals_every_grid_point_evaluated(n_lags, fs_model):
+    from rtsid.ident import reflex
+
+    params, shapes = reflex._grid(n_lags, fs_model)
+    lags_s = np.arange(n_lags) / fs_model
+    want = reflex._low_pass_response(
+        lags_s[None, :] - params[:, :1], 2 * np.pi * params[:, 1:2], params[:, 2:3]
+    )
+    want /= np.maximum(np.linalg.norm(want, axis=1, keepdims=True), 1e-300)
+    assert np.unique(params, axis=0).shape == params.shape  # every (δ, f_c, ζ) once
+    np.testing.assert_array_equal(shapes, want)
