@@ -30,7 +30,8 @@ Sample bookkeeping, in one place:
 * a marker signal's change puts a :class:`~rtsid.link.markers.WireMarker` in
   :attr:`Acquisition.markers`, stamped with its sample's index;
 * the rate is measured from the data (indices per second of sender time over >= 2 s) and
-  compared with ``fs_hz`` (``rate_mismatch``);
+  compared with ``fs_hz`` (``rate_mismatch``: two measurements in a row off on the same
+  side, so that a sender catching up after a stall — slow, then fast — is not a wrong rate);
 * ``bus.recv`` raising → *bus_errors*, the bus is closed and reopened from the factory with
   exponential back-off (*reconnects* counts successes);
 * no state frame for ``stale_after_s`` → ``stale`` (and optionally reopen the bus after
@@ -434,6 +435,7 @@ class Acquisition(ThreadOwner):
         self._rate_anchor = (-1, 0.0)  # (sample index, sender time s) the rate is measured from
         self._rate_due_s = 0.0  # sender time of the next rate measurement
         self._rate_hz = float("nan")
+        self._rate_side = 0  # the last measurement's side of fs_hz beyond tolerance: -1, 0, 1
         self._rate_mismatch = False
 
     # ------------------------------------------------------------------ life cycle
@@ -709,7 +711,10 @@ class Acquisition(ThreadOwner):
             return
         rate = (index - first) / (t_s - t0)
         self._rate_hz = rate
-        mismatch = abs(rate / self.fs_hz - 1.0) > self.rate_tolerance
+        off = rate / self.fs_hz - 1.0
+        side = 0 if abs(off) <= self.rate_tolerance else (1 if off > 0 else -1)
+        mismatch = side != 0 and side == self._rate_side
+        self._rate_side = side
         if mismatch and not self._rate_mismatch:
             self._note_error(
                 LinkError(

@@ -400,3 +400,19 @@ def test_windows_from_the_ring_identify_the_plants_true_joint(channel, fast_plan
     assert stiffness == pytest.approx(float(truth.stiffness_at(0.0)), rel=0.15)
     assert damping == pytest.approx(truth.damping, rel=0.15)
     assert inertia == pytest.approx(truth.inertia + truth.robot_inertia, rel=0.25)
+
+
+def test_a_sender_catching_up_after_a_stall_is_not_a_wrong_rate(channel):
+    # the embedded plant, stalled by the daemon's start-up, catches up in a burst: one 2 s
+    # measurement read 2553.7 samples/s and the quick start told the user to change fs_hz
+    fs, n = 2500.0, 17_500
+    times = np.arange(n) / fs
+    times[5000:7500] = np.linspace(2.6, 3.0, 2500)  # 0.6 s of silence, then a burst
+    ring = RingBuffer(20_000)
+    with virtual_bus(channel, preserve_timestamps=True) as tx:
+        with Acquisition(lambda: virtual_bus(channel), ring, fs_hz=fs) as acq:
+            send_states(tx, [k % 4096 for k in range(n)], (100.0 + times).tolist())
+            assert wait_for(lambda: acq.counters().samples == n)
+            c = acq.counters()
+    assert c.lost_samples == 0
+    assert not c.rate_mismatch and "link.fs_hz" not in (c.last_error or "")
