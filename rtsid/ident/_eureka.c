@@ -1195,17 +1195,7 @@ static void reflex_rect_input(const double *pos, Py_ssize_t n, double fs, const 
                               Py_ssize_t factor, double *out, Py_ssize_t m, double *work)
 {
     double *x = work, *ext = work + n;
-    /* detrend(position, "linear"): x - (mean + slope·t), t centred */
-    const double centre = (double)(n - 1) / 2.0;
-    double sum = 0.0, tx = 0.0, tt = 0.0;
-    for (Py_ssize_t i = 0; i < n; i++) {
-        double t = (double)i - centre;
-        sum += pos[i];
-        tx += t * pos[i];
-        tt += t * t;
-    }
-    const double mean = sum / (double)n, slope = tx / (tt > 1e-300 ? tt : 1e-300);
-    for (Py_ssize_t i = 0; i < n; i++) x[i] = pos[i] - (mean + slope * ((double)i - centre));
+    detrend_into(pos, x, n, 1.0, 2); /* detrend(position, "linear") */
     /* velocity (into ext + edge), rectified */
     double *v = ext + edge;
     const double dt = 1.0 / fs;
