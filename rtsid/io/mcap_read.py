@@ -303,6 +303,15 @@ def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
     session, condition, robot, joint, started_utc, rtsid_version)."""
     from mcap.records import Metadata
 
+    damage: tuple[type[BaseException], ...] = (*_damage_errors(), OverflowError, StopIteration)
+    with _open(path) as fh:
+        try:
+            summary = _summary_records(fh)
+            indexed = None if summary is None else _indexed_metadata(fh, summary)
+        except damage:
+            indexed = None
+    if indexed:  # a finished file: its metadata index, no chunk read (none indexed: scan)
+        return indexed
     out: dict[str, dict[str, str]] = {}
     for record in _iter_records(path, ReadReport(Path(path))):
         if isinstance(record, Metadata):
@@ -566,7 +575,7 @@ def read_summary_table(
     RecordingError
         The file is missing or unreadable.
     """
-    from mcap.records import Attachment, Metadata
+    from mcap.records import Attachment
 
     damage: tuple[type[BaseException], ...] = (
         *_damage_errors(),
@@ -583,13 +592,9 @@ def read_summary_table(
             indexes = [a for a in summary["attachment_indexes"] if a.name == ATTACHMENT_NAME]
             if len(indexes) != 1 or indexes[0].data_size > MAX_RECORD_BYTES:
                 return None
-            records = [
-                _record_at(fh, offset)
-                for offset in [indexes[0].offset, *(m.offset for m in summary["metadata_indexes"])]
-            ]
-            attachment = records[0]
-            metadata_records = [m for m in records[1:] if isinstance(m, Metadata)]
-            if not isinstance(attachment, Attachment) or len(metadata_records) != len(records) - 1:
+            attachment = _record_at(fh, indexes[0].offset)
+            metadata = _indexed_metadata(fh, summary)
+            if not isinstance(attachment, Attachment) or metadata is None:
                 return None
             table = SummaryTable.from_npz(bytes(attachment.data))
         except damage:
@@ -597,7 +602,23 @@ def read_summary_table(
     counts = _channel_counts(summary)
     if any(table.counts[kind] != counts.get(TOPICS[kind], 0) for kind in KINDS):
         return None  # stale: the file holds other messages than the table was made from
-    return table, {m.name: dict(m.metadata) for m in metadata_records}
+    return table, metadata
+
+
+def _indexed_metadata(
+    fh: IO[bytes], summary: dict[str, list[Any]]
+) -> dict[str, dict[str, str]] | None:
+    """The metadata records by name, read at the offsets of the summary's metadata index
+    (as :func:`read_metadata` gives them); None when an offset holds no Metadata record."""
+    from mcap.records import Metadata
+
+    out: dict[str, dict[str, str]] = {}
+    for index in summary["metadata_indexes"]:
+        record = _record_at(fh, index.offset)
+        if not isinstance(record, Metadata):
+            return None
+        out[record.name] = dict(record.metadata)
+    return out
 
 
 def _record_at(fh: IO[bytes], offset: int) -> Any:
@@ -643,8 +664,8 @@ def _summary_records(fh: IO[bytes]) -> dict[str, list[Any]] | None:
         if not isinstance(offset, SummaryOffset) or offset.group_opcode not in wanted:
             continue
         key, cls = wanted[offset.group_opcode]
-        if not 0 < offset.group_length <= MAX_RECORD_BYTES:
-            return None
+        if offset.group_length > MAX_RECORD_BYTES:
+            return None  # an empty group (no attachment, say) is read as none below
         fh.seek(offset.group_start)
         group = io.BytesIO(fh.read(offset.group_length))
         records = StreamReader(group, skip_magic=True, record_size_limit=MAX_RECORD_BYTES).records

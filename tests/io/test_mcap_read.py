@@ -169,3 +169,31 @@ def test_files_open_in_the_typescript_mcap_reader(recording: Path, tmp_path: Pat
         report = json.loads(result.stdout)
         assert report["counts"] == {"/samples": expected}
         assert report["encodings"]["/samples"] == ["jsonschema", "json"]
+
+
+def test_metadata_comes_from_the_index_of_a_finished_file_and_from_a_scan_of_a_cut_one(
+    tmp_path, monkeypatch
+):
+    from mcap.writer import CompressionType, Writer
+
+    path = tmp_path / "meta.mcap"
+    with path.open("wb") as fh:
+        writer = Writer(fh, compression=CompressionType.ZSTD)
+        writer.start(profile="", library="test")
+        writer.add_metadata("rtsid", {"robot": "rig"})
+        channel = writer.register_channel(topic="/x", message_encoding="json", schema_id=0)
+        for k in range(2000):
+            writer.add_message(channel_id=channel, log_time=k, data=b"{}" * 50, publish_time=k)
+        writer.add_metadata("config", {"json": "{}"})
+        writer.finish()
+    expected = {"rtsid": {"robot": "rig"}, "config": {"json": "{}"}}
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    scans = []
+    scan = mcap_read._iter_records
+    with monkeypatch.context() as m:  # a cut file has no index: it is scanned
+        m.setattr(mcap_read, "_iter_records", lambda *a: scans.append(1) or scan(*a))
+        assert mcap_read.read_metadata(cut)["rtsid"] == {"robot": "rig"} and scans
+    with monkeypatch.context() as m:  # a finished file needs no scan
+        m.setattr(mcap_read, "_iter_records", lambda *a: pytest.fail("scanned"))
+        assert mcap_read.read_metadata(path) == expected
