@@ -15,6 +15,7 @@ import io
 import itertools
 import json
 import math
+import os
 import re
 import struct
 from collections.abc import Generator, Iterable, Iterator
@@ -107,10 +108,26 @@ def _damage_errors() -> tuple[type[BaseException], ...]:
     return tuple(errors)
 
 
+#: Reads larger than this are first clamped to what the file still holds.
+_LARGE_READ = 1 << 20
+
+
+class _FileBoundReader(io.BufferedReader):
+    """A recording opened for reading whose large reads never ask for more than the file
+    still holds: mcap's record parsers read a length field and then that many bytes, so one
+    flipped bit in a chunk's inner length (fuzzed: 1 TB) was a MemoryError before the file
+    could prove too short. Short data then fails as damage, and the read says so."""
+
+    def read(self, size: int | None = -1) -> bytes:
+        if size is not None and size > _LARGE_READ:
+            size = min(size, max(0, os.fstat(self.fileno()).st_size - self.tell()))
+        return super().read(size)
+
+
 def _open(path: str | Path) -> IO[bytes]:
     p = Path(path)
     try:
-        return p.open("rb")
+        return _FileBoundReader(io.FileIO(p, "rb"))
     except FileNotFoundError:
         raise RecordingError(f"recording {str(p)!r} does not exist; check the path") from None
     except OSError as exc:

@@ -197,3 +197,29 @@ def test_metadata_comes_from_the_index_of_a_finished_file_and_from_a_scan_of_a_c
     with monkeypatch.context() as m:  # a finished file needs no scan
         m.setattr(mcap_read, "_iter_records", lambda *a: pytest.fail("scanned"))
         assert mcap_read.read_metadata(path) == expected
+
+
+def test_a_chunk_claiming_a_terabyte_inside_its_record_is_damage_not_a_memory_error(tmp_path):
+    # hypothesis flipped a byte of a chunk's inner records length to ≈ 1 TB: mcap's parser read
+    # that many bytes at once and the reader died of MemoryError instead of reporting damage
+    import struct
+
+    from mcap.writer import CompressionType, Writer
+
+    path = tmp_path / "big.mcap"
+    with path.open("wb") as fh:
+        writer = Writer(fh, compression=CompressionType.NONE)
+        writer.start(profile="", library="test")
+        channel = writer.register_channel(topic="/x", message_encoding="json", schema_id=0)
+        for k in range(100):
+            writer.add_message(channel_id=channel, log_time=k, data=b"{}", publish_time=k)
+        writer.finish()
+    data = bytearray(path.read_bytes())
+    at = data.index(b"\x06", 8)  # the chunk's opcode, after the header
+    length_at = at + 1 + 8 + 8 + 8 + 8 + 4 + 4  # opcode, length, times, size, crc, "" (none)
+    assert struct.unpack_from("<Q", data, length_at)[0] < 10_000  # the records' length
+    struct.pack_into("<Q", data, length_at, 1 << 40)
+    path.write_bytes(bytes(data))
+    report = mcap_read.ReadReport(path)
+    records = list(mcap_read._iter_records(path, report))
+    assert report.error and not report.complete and len(records) < 10
