@@ -190,8 +190,10 @@ def test_plant_subprocess_serves_a_daemon_and_stops_on_sigterm(tmp_path):
         assert c.lost_samples == 0 and c.malformed == 0 and snap.valid.all()
         assert np.std(snap.position_rad) > 0.003
         proc.send_signal(signal.SIGTERM)
-        out, _ = proc.communicate(timeout=20)
-        assert proc.returncode == 0
+        # 60 s: its stop is bounded (2 s per thread), but a fresh-clone CI run on a machine
+        # loaded by other work once waited more than 20 s (not reproduced since, under load)
+        out, err = proc.communicate(timeout=60)
+        assert proc.returncode == 0, err
         report = json.loads(out.strip().splitlines()[-1])
         assert report["plant"]["commands"] == 1 and report["server"]["clients_total"] >= 2
     finally:
