@@ -1538,6 +1538,142 @@ static PyObject *py_solve(PyObject *self, PyObject *args)
     return result;
 }
 
+/* ------------------------------------------------------------------ the tracker's split scan
+ * split_scan: every split of one window's K into a value before and a value after, what
+ * rtsid.ident.split.SplitProblem.of and .scan compute in numpy (their tested reference): the
+ * free regressors offset, trend, the fitted derivatives (of the k held, none) and u over the
+ * torque minus the held terms, (XᵀX)⁻¹ and the unsplit K̂; then, from the last row back, the
+ * suffix sums c_s = Xᵀv_s and v_sᵀr (summed in numpy's cumsum order) and each split's K_after,
+ * K_before, z ratio and relative variance, and the most significant usable split. O(n·p²).
+ */
+enum {
+    SS_OFFSETS = 0,   /* each row's time before the window's last sample, s */
+    SS_K_AFTER = 1,   /* K fitted to the rows from this one on */
+    SS_K_BEFORE = 2,  /* K fitted to the rows before it */
+    SS_Z_RATIO = 3,   /* Δ over its standard error relative to K̂'s */
+    SS_AFTER_VAR = 4, /* var K_after / σ_K² */
+    SS_USABLE = 5,    /* 1.0: at least 3 rows on each side, 0.0: not */
+    SS_ROWS = 6,      /* out holds SS_ROWS rows of n */
+    SS_NO_PROBLEM = -2, /* SplitProblem.of gives None (too few rows, singular, gkk <= 0) */
+    SS_NONE_USABLE = -1,
+};
+
+static Py_ssize_t split_scan(const double *regressors, const double *measured, Py_ssize_t n,
+                             int k, const double *held, double factor, double delay,
+                             double window_samples, double fs, double *out, double *target)
+{
+    if (n < 2 * 3 + 4) return SS_NO_PROBLEM;
+    const int p = 5 - k;
+    const double *rows[5];
+    for (Py_ssize_t t = 0; t < n; t++) {
+        double v = measured[t];
+        if (k >= 1) v -= held[0] * regressors[t];
+        if (k >= 2) v -= held[1] * regressors[n + t];
+        target[t] = v;
+    }
+    for (int j = 2; j < p - 1; j++) rows[j] = regressors + (Py_ssize_t)(k + j - 2) * n;
+    rows[p - 1] = regressors + 2 * n;
+    const double *u = rows[p - 1];
+    const double centre = (double)(n - 1) / 2.0;
+    double gram[25], xr[5], inv[25];
+    for (int a = 0; a < p; a++) {
+        for (int b = a; b < p; b++) {
+            double acc = 0.0;
+            for (Py_ssize_t t = 0; t < n; t++) {
+                double va = a == 0 ? 1.0 : (a == 1 ? (double)t - centre : rows[a][t]);
+                double vb = b == 0 ? 1.0 : (b == 1 ? (double)t - centre : rows[b][t]);
+                acc += va * vb;
+            }
+            gram[a * p + b] = gram[b * p + a] = acc;
+        }
+        double acc = 0.0;
+        for (Py_ssize_t t = 0; t < n; t++) {
+            double va = a == 0 ? 1.0 : (a == 1 ? (double)t - centre : rows[a][t]);
+            acc += va * target[t];
+        }
+        xr[a] = acc;
+    }
+    if (!invert(gram, p, inv)) return SS_NO_PROBLEM;
+    const double gkk = inv[(p - 1) * p + (p - 1)];
+    if (!(gkk > 0.0)) return SS_NO_PROBLEM;
+    double k_hat = 0.0;
+    for (int a = 0; a < p; a++) k_hat += inv[(p - 1) * p + a] * xr[a];
+    double total = 0.0; /* Σ u² over every row, summed from the last (numpy's c[-1, 0]) */
+    for (Py_ssize_t t = n - 1; t >= 0; t--) total += u[t] * u[t];
+    double *offsets = out + SS_OFFSETS * n, *k_after = out + SS_K_AFTER * n;
+    double *k_before = out + SS_K_BEFORE * n, *z_ratio = out + SS_Z_RATIO * n;
+    double *after_var = out + SS_AFTER_VAR * n, *usable = out + SS_USABLE * n;
+    double c[5] = {0.0, 0.0, 0.0, 0.0, 0.0}, sr = 0.0, best_z = -1.0;
+    Py_ssize_t best = SS_NONE_USABLE, first_nan = -1;
+    for (Py_ssize_t s = n - 1; s >= 0; s--) {
+        const double us = u[s];
+        for (int a = 0; a < p; a++) {
+            double va = a == 0 ? 1.0 : (a == 1 ? (double)s - centre : rows[a][s]);
+            c[a] += va * us;
+        }
+        sr += target[s] * us;
+        double w[5], cw = 0.0, xw = 0.0;
+        for (int a = 0; a < p; a++) {
+            double acc = 0.0;
+            for (int b = 0; b < p; b++) acc += inv[a * p + b] * c[b];
+            w[a] = acc;
+            cw += c[a] * acc;
+            xw += xr[a] * acc;
+        }
+        const double pvv = c[p - 1] - cw, pvr = sr - xw, after_k = 1.0 - w[p - 1];
+        const int ok = s >= 3 && s <= n - 3 && pvv > 1e-12 * total;
+        const double safe = ok ? pvv : 1.0, delta = ok ? pvr / safe : 0.0;
+        offsets[s] = (window_samples - 1.0 - (((double)s + 4.0) * factor + delay)) / fs;
+        k_after[s] = k_hat + delta * after_k;
+        k_before[s] = k_after[s] - delta;
+        z_ratio[s] = delta * sqrt(safe * gkk);
+        after_var[s] = 1.0 + after_k * after_k / (safe * gkk);
+        usable[s] = ok ? 1.0 : 0.0;
+        if (ok) { /* numpy's argmax: the first largest, or the first NaN */
+            const double z = fabs(z_ratio[s]);
+            if (z != z) {
+                first_nan = s;
+            } else if (z >= best_z) {
+                best_z = z;
+                best = s;
+            }
+        }
+    }
+    return first_nan >= 0 ? first_nan : best;
+}
+
+static PyObject *py_split_scan(PyObject *self, PyObject *args)
+{
+    PyObject *objs[4];
+    int k;
+    double factor, delay, window_samples, fs;
+    if (!PyArg_ParseTuple(args, "OOiOddddO", &objs[0], &objs[1], &k, &objs[2], &factor, &delay,
+                          &window_samples, &fs, &objs[3])) {
+        return NULL;
+    }
+    const char *names[4] = {"regressors", "measured", "held", "out"};
+    Py_buffer b[4];
+    if (get_buffers(objs, 4, 3, names, b) < 0) return NULL;
+    Py_ssize_t n = b[1].len / 8;
+    PyObject *result = NULL;
+    if (k < 0 || k > 2 || b[0].len / 8 != 3 * n || b[2].len / 8 < 2 ||
+        b[3].len / 8 != SS_ROWS * n || !(fs > 0.0)) {
+        PyErr_SetString(PyExc_ValueError, "split_scan: inconsistent sizes");
+    } else {
+        double *target = PyMem_Malloc(sizeof(double) * (n > 0 ? n : 1));
+        if (target == NULL) {
+            PyErr_NoMemory();
+        } else {
+            Py_ssize_t best = split_scan(b[0].buf, b[1].buf, n, k, b[2].buf, factor, delay,
+                                         window_samples, fs, b[3].buf, target);
+            PyMem_Free(target);
+            result = PyLong_FromSsize_t(best);
+        }
+    }
+    release_buffers(b, 4);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
      "solve(r, b, x, work) -> (status, alpha): symmetric Toeplitz R x = b by EUREKA."},
@@ -1572,6 +1708,7 @@ static PyMethodDef methods[] = {
      "sos_filtfilt(sos, zi, x): scipy's sosfiltfilt passes over an extended x, in place."},
     {"xcorr", py_xcorr, METH_VARARGS,
      "xcorr(u, y, first, last, norm, c): c[k-first] = sum_t u[t] y[t+k] / norm."},
+    {"split_scan", py_split_scan, METH_VARARGS, "split_scan(regressors, measured, k, held, factor, delay, window_samples, fs, out) -> best row (-1: none usable, -2: no problem): every split of a window's K (SS_* rows of out)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -1597,7 +1734,9 @@ PyMODINIT_FUNC PyInit__eureka(void)
         PyModule_AddIntConstant(m, "OW_SE", OW_SE) < 0 ||
         PyModule_AddIntConstant(m, "OW_VAFS", OW_VAFS) < 0 ||
         PyModule_AddIntConstant(m, "OW_NEWEST", OW_NEWEST) < 0 ||
-        PyModule_AddIntConstant(m, "OW_SIZE", OW_SIZE) < 0) {
+        PyModule_AddIntConstant(m, "OW_SIZE", OW_SIZE) < 0 ||
+        PyModule_AddIntConstant(m, "SS_ROWS", SS_ROWS) < 0 ||
+        PyModule_AddIntConstant(m, "SS_NO_PROBLEM", SS_NO_PROBLEM) < 0) {
         Py_DECREF(m);
         return NULL;
     }

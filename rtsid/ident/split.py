@@ -30,6 +30,11 @@ own standard error balloons with the step it does not model; the calm windows' d
 it reads the one split at the window's newest hop (:meth:`~SplitProblem.newest`): K of the
 last hop's rows alone, which consecutive windows never share — the tracker's fast filter
 takes those as independent measurements.
+
+:func:`split_scan` makes one call into the compiled kernel when it was built
+(``split_scan``: the problem and every split, into a stream's :class:`ScanBuffers`);
+:class:`SplitProblem` in numpy is the reference it is tested against (``RTSID_NUMPY_ONLY=1``
+runs it).
 """
 
 from __future__ import annotations
@@ -41,14 +46,24 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rtsid.ident.analysis import AnalysisPlan
+from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.second_order import OutputErrorDesign
+
+_eureka: Any = compiled_kernel()
 
 FloatArray = NDArray[np.float64]
 
 #: Rows a split leaves on each side at least (analysis samples).
 MIN_SIDE_ROWS = 3
 
-__all__ = ["NewestPart", "SplitProblem", "SplitScan", "row_offsets_s", "split_scan"]
+__all__ = [
+    "NewestPart",
+    "ScanBuffers",
+    "SplitProblem",
+    "SplitScan",
+    "row_offsets_s",
+    "split_scan",
+]
 
 
 @dataclass(frozen=True)
@@ -70,6 +85,9 @@ class SplitScan:
         ``var K_after / σ_K²``.
     usable : numpy.ndarray of bool
         Splits with at least :data:`MIN_SIDE_ROWS` rows on each side.
+    best_row : int
+        :meth:`best`'s answer when already found (the compiled scan finds it; -1: no usable
+        split), -2 when not.
     """
 
     offsets_s: FloatArray
@@ -78,9 +96,12 @@ class SplitScan:
     z_ratio: FloatArray
     after_var: FloatArray
     usable: NDArray[np.bool_]
+    best_row: int = -2
 
     def best(self) -> int | None:
         """The most significant split's row (None: no usable split)."""
+        if self.best_row != -2:
+            return None if self.best_row < 0 else self.best_row
         if not self.usable.any():
             return None
         return int(np.argmax(np.where(self.usable, np.abs(self.z_ratio), -1.0)))
@@ -98,6 +119,7 @@ def split_scan(
     damping: float | None,
     plan: AnalysisPlan,
     window_samples: int,
+    buffers: ScanBuffers | None = None,
 ) -> SplitScan | None:
     """Every split of the window's ``K`` with the held ``inertia`` (and ``damping``).
 
@@ -112,13 +134,66 @@ def split_scan(
     window_samples : int
         Samples in the window at the data rate.
 
+    buffers : ScanBuffers, optional
+        Where the compiled scan writes (a stream's, reused every window: the scan's arrays
+        are then valid until its next scan); default: new arrays.
+
     Returns
     -------
     SplitScan or None
         None for a window with lost samples (its rows are not contiguous) or too few rows.
     """
+    if _eureka is not None and design.keep is None:
+        return _compiled_scan(design, inertia, damping, plan, window_samples, buffers)
     problem = SplitProblem.of(design, inertia, damping, plan, window_samples)
     return None if problem is None else problem.scan()
+
+
+class ScanBuffers:
+    """The compiled scan's output rows (``SS_ROWS`` × n) and held values, allocated once per
+    window size (a stream's windows are all alike) instead of once per scan."""
+
+    def __init__(self) -> None:
+        self.out = np.empty((0, 0))
+        self.held = np.zeros(2)
+
+    def for_rows(self, n: int) -> ScanBuffers:
+        """These buffers sized for ``n`` design rows."""
+        if self.out.shape[1] != n:
+            self.out = np.empty((_eureka.SS_ROWS, n))
+        return self
+
+
+def _compiled_scan(
+    design: OutputErrorDesign,
+    inertia: float | None,
+    damping: float | None,
+    plan: AnalysisPlan,
+    window_samples: int,
+    buffers: ScanBuffers | None,
+) -> SplitScan | None:
+    """:meth:`SplitProblem.of` and :meth:`SplitProblem.scan` in one compiled call."""
+    regressors = design.regressors
+    buf = (buffers or ScanBuffers()).for_rows(regressors.shape[1])
+    k = 0 if inertia is None else (1 if damping is None else 2)
+    held = buf.held
+    held[0] = 0.0 if inertia is None else inertia
+    held[1] = 0.0 if damping is None or k < 2 else damping
+    best = _eureka.split_scan(
+        regressors,
+        np.ascontiguousarray(design.measured),
+        k,
+        held,
+        float(plan.factor),
+        (plan.taps.size - 1) / 2.0,
+        float(window_samples),
+        plan.fs_hz,
+        buf.out,
+    )
+    if best == _eureka.SS_NO_PROBLEM:
+        return None
+    offsets, k_after, k_before, z_ratio, after_var, usable = buf.out
+    return SplitScan(offsets, k_after, k_before, z_ratio, after_var, usable > 0.0, best)
 
 
 @dataclass(frozen=True)

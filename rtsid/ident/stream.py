@@ -33,7 +33,14 @@ from rtsid.ident.assess import withhold_unidentifiable
 from rtsid.ident.fused import BackEndBuffers, fusable, fused_back_end
 from rtsid.ident.grid import window_ends
 from rtsid.ident.second_order import OutputErrorDesign
-from rtsid.ident.split import NewestPart, SplitProblem, SplitScan, row_offsets_s
+from rtsid.ident.split import (
+    NewestPart,
+    ScanBuffers,
+    SplitProblem,
+    SplitScan,
+    row_offsets_s,
+    split_scan,
+)
 from rtsid.ident.tracker import ParameterTracker, SplitSource, TrackerOptions, TrackEstimate
 from rtsid.ident.vaf import vaf
 from rtsid.ident.window import (
@@ -285,6 +292,7 @@ class WindowStream:
         self.tracker = StreamTracker(window_s, hop_s, tracker or TrackerOptions())
         self._split_source: _SplitSource | None = None
         self._buffers = BackEndBuffers()
+        self._scan_buffers = ScanBuffers()  # the split scan's, reused every window
 
     def track(self, t_end_s: float, estimate: WindowEstimate | None) -> Tracked:
         """Step the tracker with this window (its end time, s; None: withheld), and with the
@@ -368,7 +376,13 @@ class WindowStream:
             )
             self.held.learn(fused.whole_inertia, fused.whole_damping, fused.whole_explained)
             self._split_source = _SplitSource(
-                fused.estimate, fused.design, held, plan, window_samples, fused.newest
+                fused.estimate,
+                fused.design,
+                held,
+                plan,
+                window_samples,
+                fused.newest,
+                self._scan_buffers,
             )
             return fused.estimate
         design = output_error_design(u, y, irf, gaps)
@@ -376,14 +390,16 @@ class WindowStream:
         explained = vaf(whole.measured, whole.model) >= options.low_vaf_percent
         self.held.learn(float(whole.params[0]), float(whole.params[1]), explained)
         result = output_error_back_end(irf, u, y, options, plan, held, design, gaps, score)
-        self._split_source = _SplitSource(result, design, held, plan, window_samples)
+        self._split_source = _SplitSource(
+            result, design, held, plan, window_samples, buffers=self._scan_buffers
+        )
         return result
 
 
 class _SplitSource:
     """What :meth:`WindowStream.track` reads from an estimate's samples: the splits of its K
     and its newest hop's K, from one :class:`~rtsid.ident.split.SplitProblem` built when
-    first asked for."""
+    first asked for (the scan in one compiled call when the kernel was built)."""
 
     def __init__(
         self,
@@ -393,12 +409,14 @@ class _SplitSource:
         plan: AnalysisPlan,
         window_samples: int,
         newest: tuple[float, float, float] | bool | None = False,
+        buffers: ScanBuffers | None = None,
     ) -> None:
         self.estimate = estimate
         self._args = (design, held.inertia, held.damping, plan, window_samples)
         self._problem: SplitProblem | bool | None = False  # False: not built yet
         # the compiled back end's (K, variance, centre row) of the newest hop (False: not read)
         self._newest = newest
+        self._buffers = buffers
 
     def problem(self) -> SplitProblem | None:
         if self._problem is False:
@@ -406,8 +424,7 @@ class _SplitSource:
         return self._problem  # type: ignore[return-value]
 
     def scan(self) -> SplitScan | None:
-        problem = self.problem()
-        return None if problem is None else problem.scan()
+        return split_scan(*self._args, self._buffers)
 
     def newest(self, span_s: float) -> NewestPart | None:
         """The newest hop's K (the compiled back end read it for the stream's hop)."""

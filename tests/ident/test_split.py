@@ -7,8 +7,9 @@ import math
 import numpy as np
 import pytest
 
+from rtsid.ident import split
 from rtsid.ident.excitation import filtered_noise
-from rtsid.ident.split import SplitProblem, SplitScan, split_scan
+from rtsid.ident.split import ScanBuffers, SplitProblem, SplitScan, split_scan
 from rtsid.ident.stream import WindowStream, sliding_estimates
 from rtsid.ident.tracker import ParameterTracker, TrackerOptions
 from rtsid.ident.window import (
@@ -88,6 +89,45 @@ def test_the_newest_hop_is_the_scans_split_there_and_reads_the_new_value_after_a
     assert part.var == pytest.approx(scan.after_var[row], rel=1e-9)
     assert scan.offsets_s[-1] < part.centre_s < scan.offsets_s[row]
     assert abs(part.k - 300.0) < 40.0, part.k  # the window's own estimate is still near 150
+
+
+@pytest.mark.skipif(split._eureka is None, reason="compiled kernel not built")
+@pytest.mark.parametrize(
+    ("inertia", "damping"), [(None, None), (INERTIA, None), (INERTIA, DAMPING)]
+)
+@pytest.mark.parametrize("after_s", [0.06, 0.2, -1.0])
+def test_the_compiled_scan_is_the_numpy_problems(inertia, damping, after_s):
+    step_s = 1.5
+    theta, torque = _step_record(2.0, step_s, seed=4)
+    end = round((step_s + after_s) * FS)  # straddling the step, or a calm window before it
+    window = analyse_window(theta[end - 750 : end], torque[end - 750 : end], FS, EstimatorOptions())
+    design = output_error_design(window.u, window.y, window.irf)
+    buffers = ScanBuffers()
+    got = split_scan(design, inertia, damping, window.plan, 750, buffers)
+    problem = SplitProblem.of(design, inertia, damping, window.plan, 750)
+    assert got is not None and problem is not None
+    want = problem.scan()
+    np.testing.assert_array_equal(got.usable, want.usable)
+    assert got.usable.sum() == want.offsets_s.size - 2 * 3 + 1
+    for name in ("offsets_s", "k_after", "k_before", "z_ratio", "after_var"):
+        value, reference = getattr(got, name), getattr(want, name)
+        scale = float(np.abs(reference).max())  # z crosses zero: 1e-9 of the array's scale
+        np.testing.assert_allclose(value, reference, rtol=1e-9, atol=1e-9 * scale, err_msg=name)
+    assert want.best_row == -2  # numpy's scan leaves the best split to best()
+    assert got.best() == want.best() is not None
+    # a second window through the same buffers: the first one's arrays are overwritten
+    again = split_scan(design, inertia, damping, window.plan, 750, buffers)
+    assert again is not None and np.shares_memory(again.k_after, got.k_after)
+
+
+@pytest.mark.skipif(split._eureka is None, reason="compiled kernel not built")
+def test_the_compiled_scan_has_no_problem_where_numpys_has_none():
+    theta, torque = _step_record(1.0, 10.0, seed=5)
+    window = analyse_window(theta[:750], torque[:750], FS, EstimatorOptions())
+    design = output_error_design(window.u, window.y, window.irf)
+    design.regressors[2] = 0.0  # u gone: K is not separable from nothing
+    assert SplitProblem.of(design, INERTIA, DAMPING, window.plan, 750) is None
+    assert split_scan(design, INERTIA, DAMPING, window.plan, 750) is None
 
 
 def _sine_record(seconds: float, freq_hz: float, seed: int):
