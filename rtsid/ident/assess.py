@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Any
@@ -323,7 +324,7 @@ def three_vafs(p: TorquePredictions) -> tuple[float, float, float]:
 
 def assemble(
     irf: IRF,
-    params: FloatArray,
+    params: FloatArray | Sequence[float],
     se: tuple[float, float, float],
     vafs: tuple[float, float, float],
     method: str,
@@ -331,8 +332,9 @@ def assemble(
     lost: int = 0,
     held: tuple[bool, bool] = (False, False),
 ) -> WindowEstimate:
-    """The :class:`WindowEstimate` of fitted ``params``; ``held``: whether I and B were held."""
-    inertia, damping, stiffness = (float(v) for v in params)
+    """The :class:`WindowEstimate` of fitted ``params`` (a sequence of three, I, B, K);
+    ``held``: whether I and B were held."""
+    inertia, damping, stiffness = float(params[0]), float(params[1]), float(params[2])
     vaf_model, vaf_irf, vaf_fit = vafs
     return WindowEstimate(
         I=inertia,
@@ -355,24 +357,38 @@ def assemble(
     )
 
 
+_LOW_VAF, _MISMATCH = Flag.LOW_VAF, Flag.MODEL_MISMATCH
+_NEGATIVE = (Flag.NEGATIVE_STIFFNESS, Flag.NEGATIVE_DAMPING, Flag.NEGATIVE_INERTIA)
+_UNCERTAIN = (Flag.INERTIA_UNCERTAIN, Flag.STIFFNESS_UNCERTAIN)
+
+
 def window_flags(
     params: tuple[float, float, float],
     se: tuple[float, float, float],
     vafs: tuple[float, float, float],
     options: EstimatorOptions,
 ) -> tuple[Flag, ...]:
+    """The flags that do not withhold an estimate, in a fixed order: ``low_vaf``,
+    ``model_mismatch``, ``negative_stiffness``, ``negative_damping``, ``negative_inertia``,
+    ``inertia_uncertain``, ``stiffness_uncertain`` (see :class:`WindowEstimate`)."""
     inertia, damping, stiffness = params
-    vaf_model, _, vaf_fit = vafs
-    checks = (
-        (vaf_model < options.low_vaf_percent, Flag.LOW_VAF),
-        (vaf_fit < 50.0, Flag.MODEL_MISMATCH),  # NaN (not checkable): no flag
-        (stiffness <= 0, Flag.NEGATIVE_STIFFNESS),
-        (damping <= 0, Flag.NEGATIVE_DAMPING),
-        (inertia <= 0, Flag.NEGATIVE_INERTIA),
-        (math.isfinite(se[0]) and se[0] > 0.25 * abs(inertia), Flag.INERTIA_UNCERTAIN),
-        (math.isfinite(se[2]) and se[2] > 0.1 * abs(stiffness), Flag.STIFFNESS_UNCERTAIN),
-    )
-    return tuple(flag for raised, flag in checks if raised)
+    se_i, se_k = se[0], se[2]
+    flags: list[Flag] = []
+    if vafs[0] < options.low_vaf_percent:
+        flags.append(_LOW_VAF)
+    if vafs[2] < 50.0:  # NaN (not checkable): no flag
+        flags.append(_MISMATCH)
+    if stiffness <= 0:
+        flags.append(_NEGATIVE[0])
+    if damping <= 0:
+        flags.append(_NEGATIVE[1])
+    if inertia <= 0:
+        flags.append(_NEGATIVE[2])
+    if math.isfinite(se_i) and se_i > 0.25 * abs(inertia):
+        flags.append(_UNCERTAIN[0])
+    if math.isfinite(se_k) and se_k > 0.1 * abs(stiffness):
+        flags.append(_UNCERTAIN[1])
+    return tuple(flags) if flags else ()
 
 
 #: An estimate carrying all of these is no joint's impedance: withheld, not published.

@@ -48,12 +48,16 @@ def fusable(options: EstimatorOptions, score: ScoredBand | None, lost: bool) -> 
 
 class BackEndBuffers:
     """The kernel's output arrays, allocated once per window size (a stream's windows are
-    all alike) instead of once per window."""
+    all alike) instead of once per window, and what every window of one plan shares: the
+    DFT's twiddles, the scored band's last bin and the sandwich's noise lags."""
 
     def __init__(self) -> None:
         self._m = -1
         self.regressors = self.projected = self.gram = self.model = self.out = np.empty(0)
         self.held = np.zeros(2)
+        self._shared: tuple[Any, ...] = (None,)  # (plan, fs_hz, band_hz, m), then its values
+        self.cos = self.sin = np.empty(0)
+        self.kmax = self.lags = 0
 
     def for_samples(self, m: int) -> BackEndBuffers:
         """These buffers sized for ``m`` analysis samples."""
@@ -62,6 +66,18 @@ class BackEndBuffers:
             self.regressors, self.projected = np.empty((3, n)), np.empty((4, n))
             self.gram, self.model, self.out = np.empty((4, 4)), np.empty(n), np.empty(16)
             self._m = m
+        return self
+
+    def for_window(self, m: int, irf: IRF, plan: AnalysisPlan, band_hz: float) -> BackEndBuffers:
+        """:meth:`for_samples`, with the twiddles, band and lags of ``plan``'s windows."""
+        self.for_samples(m)
+        shared = self._shared
+        if shared[0] is not plan or shared[1:] != (irf.fs_hz, band_hz, m, irf.h.size):
+            n = m - 8
+            self.cos, self.sin = twiddles(n)
+            self.kmax = band_bins(n, irf.fs_hz, band_hz)
+            self.lags = noise_lags(irf, plan)
+            self._shared = (plan, irf.fs_hz, band_hz, m, irf.h.size)
         return self
 
 
@@ -132,14 +148,14 @@ def fused_back_end(
         Zero torque, or free regressors that cannot be separated (as the numpy fit).
     """
     m = u.shape[0]
-    buf = (buffers or BackEndBuffers()).for_samples(m)
-    k = 0 if held.inertia is None else (1 if held.damping is None else 2)
+    buf = (buffers or BackEndBuffers()).for_window(m, irf, plan, score.band_hz)
+    inertia, damping = held.inertia, held.damping
+    k = 0 if inertia is None else (1 if damping is None else 2)
     if k:
-        buf.held[0] = held.inertia
-        buf.held[1] = 0.0 if held.damping is None else held.damping
-    n = m - 8
-    cos, sin = twiddles(n)
+        buf.held[0] = inertia
+        buf.held[1] = 0.0 if damping is None else damping
     y_c = np.ascontiguousarray(y)
+    explained = score.explained
     status = _eureka.oe_window(
         np.ascontiguousarray(u),
         y_c,
@@ -149,13 +165,13 @@ def fused_back_end(
         buf.held,
         learn,
         options.uncertainty,
-        noise_lags(irf, plan),
-        None if score.explained is None else np.ascontiguousarray(score.explained),
+        buf.lags,
+        None if explained is None else np.ascontiguousarray(explained),
         score.torque_slope,
         score.position_slope,
-        band_bins(n, irf.fs_hz, score.band_hz),
-        cos,
-        sin,
+        buf.kmax,
+        buf.cos,
+        buf.sin,
         newest_rows,
         buf.regressors,
         buf.projected,
@@ -163,31 +179,33 @@ def fused_back_end(
         buf.model,
         buf.out,
     )
-    if status == _eureka.OE_ZERO_TORQUE:
-        raise zero_response()
-    if status != _eureka.OE_OK:
-        raise inseparable_fit()
+    if status != _OK:
+        raise zero_response() if status == _eureka.OE_ZERO_TORQUE else inseparable_fit()
     out = buf.out.tolist()
-    p, s, v, w, z = (
-        _eureka.OW_PARAMS,
-        _eureka.OW_SE,
-        _eureka.OW_VAFS,
-        _eureka.OW_WHOLE,
-        _eureka.OW_NEWEST,
-    )
+    p, s, v, w, z = _OUT
     vafs = (round(out[v], 12), round(out[v + 1], 12), round(out[v + 2], 12))
-    held_flags = (k >= 1, k == 2)
     estimate = assemble(
         irf,
-        buf.out[p : p + 3],
+        out[p : p + 3],
         (out[s], out[s + 1], out[s + 2]),
         vafs,
         "output_error",
         options,
         0,
-        held_flags,
+        _HELD_FLAGS[k],
     )
     newest = None if out[z] != out[z] else (out[z], out[z + 1], out[z + 2])
     design = OutputErrorDesign.formed(buf.regressors, buf.projected, buf.gram, y_c)
-    explained = round(out[w + 3], 12) >= options.low_vaf_percent if learn else False
-    return FusedWindow(estimate, out[w], out[w + 1], explained, newest, design)
+    whole_explained = round(out[w + 3], 12) >= options.low_vaf_percent if learn else False
+    return FusedWindow(estimate, out[w], out[w + 1], whole_explained, newest, design)
+
+
+#: The kernel's status for a fitted window, and where ``oe_window`` writes each result.
+_OK = None if _eureka is None else _eureka.OE_OK
+_OUT: tuple[int, int, int, int, int] = (
+    (0, 0, 0, 0, 0)
+    if _eureka is None
+    else (_eureka.OW_PARAMS, _eureka.OW_SE, _eureka.OW_VAFS, _eureka.OW_WHOLE, _eureka.OW_NEWEST)
+)
+#: Whether I and B were held, by the number of held parameters.
+_HELD_FLAGS = ((False, False), (True, False), (True, True))

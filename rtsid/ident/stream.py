@@ -163,6 +163,7 @@ class Tracked:
 
 
 _UNTRACKED = TrackEstimate(float("nan"), float("nan"), float("nan"), False, False)
+_NOT_TRACKED = Tracked(*(float("nan"),) * 4)
 #: An estimate carrying one of these flags is not a measurement for the tracker.
 _NOT_MEASURED = frozenset({"low_vaf", "model_mismatch"})
 #: ... nor, of K (of B), one that reads K <= 0 (B <= 0): not a joint held by a robot (on the
@@ -201,7 +202,7 @@ class StreamTracker:
         self.damping = ParameterTracker(
             window_s, hop_s, options.damping_noise, options.damping_rate_noise, options
         )
-        self._latest = Tracked(*(float("nan"),) * 4)
+        self._latest = _NOT_TRACKED
 
     @property
     def latest(self) -> Tracked:
@@ -219,31 +220,24 @@ class StreamTracker:
         ``split`` computes its window's splits of K, ``newest`` is K of its newest hop
         (:mod:`rtsid.ident.split`)."""
         if not self.options.enabled:
-            return Tracked(*(float("nan"),) * 4)
-        if estimate is not None and _NOT_MEASURED.intersection(estimate.flags):
-            estimate = None  # not a measurement: the prediction only advances
-        k_measured = estimate is not None and _NOT_STIFFNESS not in estimate.flags
-        k = self.stiffness.step(
-            t_end_s,
-            estimate.K if k_measured and estimate is not None else None,
-            estimate.K_se if k_measured and estimate is not None else None,
-            split if k_measured else None,
-            newest if k_measured else None,
-        )
+            return _NOT_TRACKED
+        flags = () if estimate is None else estimate.flags
+        if flags and not _NOT_MEASURED.isdisjoint(flags):
+            estimate, flags = None, ()  # not a measurement: the prediction only advances
+        if estimate is not None and _NOT_STIFFNESS not in flags:
+            k = self.stiffness.step(t_end_s, estimate.K, estimate.K_se, split, newest)
+        else:
+            k = self.stiffness.step(t_end_s)
         b = _UNTRACKED
-        b_measured = (
-            estimate is not None
-            and not estimate.B_held
-            and math.isfinite(estimate.B_se)
-            and _NOT_DAMPING not in estimate.flags
-        )
         b_held = estimate is not None and estimate.B_held
-        if (b_measured or self.damping.started) and not b_held:
-            b = self.damping.step(
-                t_end_s,
-                estimate.B if b_measured and estimate is not None else None,
-                estimate.B_se if b_measured and estimate is not None else None,
+        if not b_held:
+            b_measured = (
+                estimate is not None and math.isfinite(estimate.B_se) and _NOT_DAMPING not in flags
             )
+            if b_measured and estimate is not None:
+                b = self.damping.step(t_end_s, estimate.B, estimate.B_se)
+            elif self.damping.started:
+                b = self.damping.step(t_end_s)
         self._latest = Tracked(k.value, k.se, b.value, b.se)
         return self._latest
 

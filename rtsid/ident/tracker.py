@@ -126,6 +126,7 @@ change).
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -312,6 +313,10 @@ def transition(dt: float, tau: float, level_q: float, rate_q: float) -> tuple[fl
     return b, a, level_q * level_q * dt + rq2 * max(i_bb, 0.0), rq2 * i_ab, rq2 * i_aa
 
 
+#: What :meth:`ParameterTracker.step` returns before the first measurement.
+_NOT_STARTED = TrackEstimate(math.nan, math.nan, math.nan, False, False)
+
+
 class _LevelRateFilter:
     """Kalman filter of ``(p, ṗ)`` with the window-centre measurement (plain floats)."""
 
@@ -320,6 +325,7 @@ class _LevelRateFilter:
         self.overlap = overlap
         self.x0 = self.x1 = self.p00 = self.p01 = self.p11 = math.nan
         self._steps: dict[float, tuple[float, ...]] = {}
+        self._last: tuple[float, tuple[float, ...]] = (math.nan, ())  # (dt, its transition)
 
     def reset(self, level: float, variance: float) -> None:
         """Start at ``level ± √variance`` with no rate (its stationary spread)."""
@@ -330,12 +336,16 @@ class _LevelRateFilter:
     def predict(self, dt: float) -> None:
         if dt <= 0:
             return
-        key = round(dt, 9)
-        steps = self._steps.get(key)
-        if steps is None:
-            steps = transition(dt, self.tau, self.level_q, self.rate_q)
-            if len(self._steps) < 64:
-                self._steps[key] = steps
+        last_dt, steps = self._last
+        if dt != last_dt:  # a stream's hops are all alike: the last interval's, usually
+            key = round(dt, 9)
+            cached = self._steps.get(key)
+            if cached is None:
+                cached = transition(dt, self.tau, self.level_q, self.rate_q)
+                if len(self._steps) < 64:
+                    self._steps[key] = cached
+            self._last = (dt, cached)
+            steps = cached
         b, a, q00, q01, q11 = steps
         p00, p01, p11 = self.p00, self.p01, self.p11
         self.x0 += b * self.x1
@@ -415,6 +425,8 @@ class ParameterTracker:
         self.fast = None
         if acceleration_noise > 0:
             self.fast = _LevelRateFilter(0.0, level_noise, acceleration_noise, tau, 1.0)
+        both = (self.quiet, self.trend)
+        self._all = both if self.fast is None else (*both, self.fast)  # every filter, in order
         self.fast_cusum = 0.0
         self.fast_on = False
         self.fast_scale2 = 1.0  # learned scale of the newest hops' variance
@@ -444,7 +456,8 @@ class ParameterTracker:
         self._outlier = 0.0  # the sign of the last window's departure beyond change_gate
         self.calm_after = 0  # windows until the scale learns again
         self._recent: tuple[tuple[float, float, float], ...] = ()  # (t, z, se) of the last two
-        self._history: list[tuple[float, float]] = []  # (trend innovation / σ_ref, level before)
+        # (trend innovation / σ_ref, level before) of the last ramp_hops + 1 windows
+        self._history: deque[tuple[float, float]] = deque(maxlen=self.ramp_hops + 1)
 
     @property
     def started(self) -> bool:
@@ -473,15 +486,17 @@ class ParameterTracker:
         the change mode reads the window estimates' ramp). ``newest``: the window's newest
         hop's K, the fast filter's measurement.
         """
-        usable = z is not None and se is not None and math.isfinite(z) and se > 0
-        usable = usable and math.isfinite(se)  # type: ignore[arg-type]
+        usable = (
+            z is not None and se is not None and math.isfinite(z) and se > 0 and math.isfinite(se)
+        )
         if not self.started:
             if not usable:
-                return TrackEstimate(math.nan, math.nan, math.nan, False, False)
+                return _NOT_STARTED
             return self._start(t_s, float(z), float(se))  # type: ignore[arg-type]
         dt = t_s - self.t_s
-        self.t_s = max(self.t_s, t_s)
-        for f in self._filters():
+        if t_s > self.t_s:
+            self.t_s = t_s
+        for f in self._all:
             f.predict(dt)
         if not usable:
             self._recent = ()
@@ -542,8 +557,7 @@ class ParameterTracker:
                 return during
         level_before = self._published_level()
         u = (z - self.trend.predicted_window()) / math.sqrt(self.scale2 * self.se_ref**2)
-        self._history.append((u, level_before))
-        del self._history[: -self.ramp_hops - 1]
+        self._history.append((u, level_before))  # the oldest beyond ramp_hops + 1 drops
         if abs(u) > self.gate:
             if split is None:
                 return self._start_change(z, sigma2, u)
@@ -757,8 +771,7 @@ class ParameterTracker:
         return self.fast_scale2
 
     def _filters(self) -> tuple[_LevelRateFilter, ...]:
-        both = (self.quiet, self.trend)
-        return both if self.fast is None else (*both, self.fast)
+        return self._all
 
     def _end_change(self, level: float, variance: float) -> None:
         """The windows are past the change: both filters restart at ``level``."""
