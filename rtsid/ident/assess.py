@@ -331,9 +331,10 @@ def assemble(
     options: EstimatorOptions,
     lost: int = 0,
     held: tuple[bool, bool] = (False, False),
+    lags_s: FloatArray | None = None,
 ) -> WindowEstimate:
     """The :class:`WindowEstimate` of fitted ``params`` (a sequence of three, I, B, K);
-    ``held``: whether I and B were held."""
+    ``held``: whether I and B were held; ``lags_s``: ``irf.lags_s`` when the caller has it."""
     inertia, damping, stiffness = float(params[0]), float(params[1]), float(params[2])
     vaf_model, vaf_irf, vaf_fit = vafs
     return WindowEstimate(
@@ -347,7 +348,7 @@ def assemble(
         vaf_irf=vaf_irf,
         vaf_fit=vaf_fit,
         irf=irf.h,
-        lags_s=irf.lags_s,
+        lags_s=irf.lags_s if lags_s is None else lags_s,
         fs_hz=irf.fs_hz,
         flags=window_flags((inertia, damping, stiffness), se, vafs, options),
         method=method,

@@ -65,9 +65,10 @@ def check_window(
     if valid is not None and not valid.all():
         lost = count_lost(valid, fs, options.max_lost_percent, options.max_gap_s)
         position, torque = position[valid], torque[valid]
-    # One pass each: a sum is finite only if every term is (rad and N·m never overflow).
-    total = position.sum()
-    if not (math.isfinite(total) and math.isfinite(torque.sum())):
+    # One pass each: a sum is finite only if every term is (rad and N·m never overflow);
+    # np.add.reduce is ndarray.sum without its Python wrapper.
+    total = np.add.reduce(position)
+    if not (math.isfinite(total) and math.isfinite(np.add.reduce(torque))):
         raise WindowError("window contains NaN or inf samples; it is withheld", Reason.NAN)
     mean = total / position.size
     variance = max(0.0, float(position @ position) / position.size - mean * mean)

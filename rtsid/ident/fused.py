@@ -56,7 +56,7 @@ class BackEndBuffers:
         self.regressors = self.projected = self.gram = self.model = self.out = np.empty(0)
         self.held = np.zeros(2)
         self._shared: tuple[Any, ...] = (None,)  # (plan, fs_hz, band_hz, m), then its values
-        self.cos = self.sin = np.empty(0)
+        self.cos = self.sin = self.lags_s = np.empty(0)
         self.kmax = self.lags = 0
 
     def for_samples(self, m: int) -> BackEndBuffers:
@@ -77,6 +77,7 @@ class BackEndBuffers:
             self.cos, self.sin = twiddles(n)
             self.kmax = band_bins(n, irf.fs_hz, band_hz)
             self.lags = noise_lags(irf, plan)
+            self.lags_s = irf.lags_s  # read-only, shared by the IRFs of this lag grid
             self._shared = (plan, irf.fs_hz, band_hz, m, irf.h.size)
         return self
 
@@ -193,6 +194,7 @@ def fused_back_end(
         options,
         0,
         _HELD_FLAGS[k],
+        buf.lags_s,
     )
     newest = None if out[z] != out[z] else (out[z], out[z + 1], out[z + 2])
     design = OutputErrorDesign.formed(buf.regressors, buf.projected, buf.gram, y_c)

@@ -78,26 +78,26 @@ class RunningMedian:
     """
 
     def __init__(self, horizon: int, min_count: int = 5) -> None:
-        self._values: deque[float] = deque(maxlen=max(1, horizon))
+        self._horizon = max(1, horizon)
+        self._values: deque[float] = deque(maxlen=self._horizon)
         self._sorted: list[float] = []
         self._nans = 0
         self.min_count = max(1, min(min_count, horizon))
 
     def add(self, value: float) -> None:
         value = float(value)
-        if len(self._values) == self._values.maxlen:
-            self._forget(self._values[0])
-        self._values.append(value)
+        values = self._values
+        if len(values) == self._horizon:  # the oldest leaves the horizon
+            oldest = values[0]
+            if math.isnan(oldest):
+                self._nans -= 1
+            else:
+                del self._sorted[bisect.bisect_left(self._sorted, oldest)]
+        values.append(value)
         if math.isnan(value):
             self._nans += 1
         else:
             bisect.insort(self._sorted, value)
-
-    def _forget(self, value: float) -> None:
-        if math.isnan(value):
-            self._nans -= 1
-        else:
-            del self._sorted[bisect.bisect_left(self._sorted, value)]
 
     def median(self) -> float | None:
         """None before ``min_count`` values."""

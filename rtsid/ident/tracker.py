@@ -450,6 +450,8 @@ class ParameterTracker:
         self.change_value = self.change_se = math.nan
         # change mode read from the windows' samples: the change's instant (s; NaN: none)
         self.split_at = self.split_value = self.split_se = math.nan
+        #: In a change mode read from the windows' samples (``split_at`` not NaN).
+        self.splitting = False
         # a change found by one window, to confirm: (instant, K_after, found at), s and N·m/rad
         self._candidate: tuple[float, float, float] | None = None
         self.updates = 0  # windows taken as measurements
@@ -463,11 +465,6 @@ class ParameterTracker:
     def started(self) -> bool:
         """A measurement has been taken."""
         return not math.isnan(self.quiet.x0)
-
-    @property
-    def splitting(self) -> bool:
-        """In a change mode read from the windows' samples."""
-        return not math.isnan(self.split_at)
 
     def step(
         self,
@@ -618,7 +615,7 @@ class ParameterTracker:
             if row is None:
                 return TrackEstimate(self.split_value, self.split_se, 0.0, False, False, "change")
             if abs(split.z_ratio[row]) < SPLIT_FADE * self.split_gate * ref:
-                self.split_at = math.nan
+                self.split_at, self.splitting = math.nan, False
                 self.calm_after = self.end_hops
                 return None
         return self._read(split, row, ref, started=False)
@@ -672,6 +669,7 @@ class ParameterTracker:
     def _read(self, split: SplitScan, row: int, ref: float, started: bool) -> TrackEstimate:
         """Publish ``K_after`` of ``row``'s split (the change mode)."""
         self.split_at = self.t_s - float(split.offsets_s[row])
+        self.splitting = not math.isnan(self.split_at)
         self.split_value = float(split.k_after[row])
         self.split_se = ref * math.sqrt(float(split.after_var[row]))
         self._history.clear()
@@ -718,7 +716,7 @@ class ParameterTracker:
         """The windows are past a change read from the samples: all three filters restart
         at ``level`` (the fast filter followed the step only as far as its Student-t
         weights let the hops move it)."""
-        self.split_at = math.nan
+        self.split_at, self.splitting = math.nan, False
         self._end_change(level, variance)
         if self.fast is not None:
             self.fast.reset(level, variance)

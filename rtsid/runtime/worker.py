@@ -26,6 +26,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from rtsid.config import require_range, section_from_mapping
 from rtsid.errors import (
     ConfigError,
@@ -151,20 +153,22 @@ def assess_window(snap: Snapshot, now_s: float, max_age_s: float) -> Reason | No
     """
     if now_s - float(snap.host_time_s[-1]) > max_age_s:
         return Reason.STALE
-    if (snap.status & STATUS_DISCONTINUITY).any():
+    raised = int(np.bitwise_or.reduce(snap.status))  # every row's status bits, one pass
+    if raised & STATUS_DISCONTINUITY:
         return Reason.GAP  # the signal itself jumps: no sum over valid samples bridges that
-    if (snap.status & _SATURATED).any():
+    if raised & _SATURATED:
         return Reason.SATURATED
     valid = snap.valid  # lost rows hold no value (a recording stores NaN there)
     position, torque = (
         (snap.position_rad, snap.torque_nm)
-        if valid.all()
+        if np.logical_and.reduce(valid)
         else (
             snap.position_rad[valid],
             snap.torque_nm[valid],
         )
     )
-    if not (math.isfinite(position.sum()) and math.isfinite(torque.sum())):
+    # a sum is finite only if every term is (add.reduce: ndarray.sum without its wrapper)
+    if not (math.isfinite(np.add.reduce(position)) and math.isfinite(np.add.reduce(torque))):
         return Reason.NAN
     return None
 
