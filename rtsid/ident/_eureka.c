@@ -1674,6 +1674,36 @@ static PyObject *py_split_scan(PyObject *self, PyObject *args)
     return result;
 }
 
+/* ------------------------------------------------------------------ the window's check sums
+ * window_sums(position, torque) -> (Σ position, Σ torque, Σ position²): what
+ * rtsid.ident.check.window_sums computes with numpy (its tested reference) in one pass over
+ * a window instead of three reductions, for the checks of finite samples and excitation.
+ */
+static PyObject *py_window_sums(PyObject *self, PyObject *args)
+{
+    PyObject *objs[2];
+    if (!PyArg_ParseTuple(args, "OO", &objs[0], &objs[1])) return NULL;
+    const char *names[2] = {"position", "torque"};
+    Py_buffer b[2];
+    if (get_buffers(objs, 2, 2, names, b) < 0) return NULL;
+    PyObject *result = NULL;
+    if (b[0].len != b[1].len) {
+        PyErr_SetString(PyExc_ValueError, "window_sums: position and torque differ in length");
+    } else {
+        const double *p = b[0].buf, *t = b[1].buf;
+        const Py_ssize_t n = b[0].len / 8;
+        double sp = 0.0, st = 0.0, spp = 0.0;
+        for (Py_ssize_t i = 0; i < n; i++) {
+            sp += p[i];
+            st += t[i];
+            spp += p[i] * p[i];
+        }
+        result = Py_BuildValue("(ddd)", sp, st, spp);
+    }
+    release_buffers(b, 2);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
      "solve(r, b, x, work) -> (status, alpha): symmetric Toeplitz R x = b by EUREKA."},
@@ -1708,6 +1738,7 @@ static PyMethodDef methods[] = {
      "sos_filtfilt(sos, zi, x): scipy's sosfiltfilt passes over an extended x, in place."},
     {"xcorr", py_xcorr, METH_VARARGS,
      "xcorr(u, y, first, last, norm, c): c[k-first] = sum_t u[t] y[t+k] / norm."},
+    {"window_sums", py_window_sums, METH_VARARGS, "window_sums(position, torque) -> (sum of position, sum of torque, sum of position squared)."},
     {"split_scan", py_split_scan, METH_VARARGS, "split_scan(regressors, measured, k, held, factor, delay, window_samples, fs, out) -> best row (-1: none usable, -2: no problem): every split of a window's K (SS_* rows of out)."},
     {NULL, NULL, 0, NULL},
 };

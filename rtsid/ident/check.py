@@ -16,12 +16,14 @@ withheld, never estimated:
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from rtsid.errors import InputDataError, WindowError
 from rtsid.ident.gaps import LostSamples, count_lost
+from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.options import EstimatorOptions
 from rtsid.verdicts import Reason
 
@@ -31,10 +33,13 @@ __all__ = [
     "check_band_limited_level",
     "check_relative_excitation",
     "check_window",
+    "window_sums",
     "without_lost",
 ]
 
 FloatArray = NDArray[np.float64]
+
+_eureka: Any = compiled_kernel()
 
 
 def check_window(
@@ -65,13 +70,12 @@ def check_window(
     if valid is not None and not valid.all():
         lost = count_lost(valid, fs, options.max_lost_percent, options.max_gap_s)
         position, torque = position[valid], torque[valid]
-    # One pass each: a sum is finite only if every term is (rad and N·m never overflow);
-    # np.add.reduce is ndarray.sum without its Python wrapper.
-    total = np.add.reduce(position)
-    if not (math.isfinite(total) and math.isfinite(np.add.reduce(torque))):
+    # A sum is finite only if every term is (rad and N·m never overflow).
+    total, torque_total, squares = window_sums(position, torque)
+    if not (math.isfinite(total) and math.isfinite(torque_total)):
         raise WindowError("window contains NaN or inf samples; it is withheld", Reason.NAN)
     mean = total / position.size
-    variance = max(0.0, float(position @ position) / position.size - mean * mean)
+    variance = max(0.0, squares / position.size - mean * mean)
     if math.sqrt(variance) < options.min_excitation_rad:
         raise WindowError(
             f"position varies by less than {options.min_excitation_rad} rad in this window: "
@@ -79,6 +83,15 @@ def check_window(
             Reason.NO_EXCITATION,
         )
     return lost
+
+
+def window_sums(position: FloatArray, torque: FloatArray) -> tuple[float, float, float]:
+    """``(Σ position, Σ torque, Σ position²)`` of a window, plain floats: one pass in the
+    compiled kernel when it was built (``window_sums``), numpy's reductions otherwise (the
+    reference, equal to 1e-9 of the sums' scale)."""
+    if _eureka is not None and position.dtype == np.float64 and torque.dtype == np.float64:
+        return _eureka.window_sums(np.ascontiguousarray(position), np.ascontiguousarray(torque))
+    return float(np.add.reduce(position)), float(np.add.reduce(torque)), float(position @ position)
 
 
 def without_lost(

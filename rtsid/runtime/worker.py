@@ -36,6 +36,7 @@ from rtsid.errors import (
     TorqueSignError,
     WindowError,
 )
+from rtsid.ident.check import window_sums
 from rtsid.ident.grid import first_window_end
 from rtsid.ident.reflex_lane import ReflexModels, ReflexUpdate, predict_reflex_torque
 from rtsid.ident.sign import SignCount, inverted_torque_message
@@ -167,8 +168,8 @@ def assess_window(snap: Snapshot, now_s: float, max_age_s: float) -> Reason | No
             snap.torque_nm[valid],
         )
     )
-    # a sum is finite only if every term is (add.reduce: ndarray.sum without its wrapper)
-    if not (math.isfinite(np.add.reduce(position)) and math.isfinite(np.add.reduce(torque))):
+    position_sum, torque_sum, _ = window_sums(position, torque)  # finite iff every term is
+    if not (math.isfinite(position_sum) and math.isfinite(torque_sum)):
         return Reason.NAN
     return None
 
@@ -419,7 +420,7 @@ class WindowEvaluator:
             torque = torque - reflex_torque
         planned = self.stream.plan is not None
         try:
-            valid = None if snap.valid.all() else snap.valid
+            valid = None if np.logical_and.reduce(snap.valid) else snap.valid
             estimate = self.stream.estimate(snap.position_rad, torque, valid, reflex_torque)
         except WindowError as exc:
             self.withheld[exc.reason] += 1

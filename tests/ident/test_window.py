@@ -1,8 +1,11 @@
+import math
+
 import numpy as np
 import pytest
 
 import rtsid
 from rtsid.errors import ConfigError, WindowError
+from rtsid.ident import check
 from rtsid.ident.excitation import filtered_noise
 from rtsid.ident.window import EstimatorOptions, estimate_window, resolve_plan
 from rtsid.sim.joint import JointParameters, StiffnessProfile, simulate_impedance
@@ -321,3 +324,19 @@ def test_compiled_output_error_assessment_matches_the_numpy_reference(explained,
     for name in ("vaf", "vaf_irf", "vaf_fit"):
         np.testing.assert_allclose(getattr(compiled, name), getattr(reference, name), rtol=1e-9)
     assert compiled.flags == reference.flags
+
+
+@pytest.mark.skipif(check._eureka is None, reason="compiled kernel not built")
+def test_the_compiled_window_sums_are_numpys(monkeypatch):
+    rng = np.random.default_rng(21)
+    position = 0.03 * rng.standard_normal(750) + 0.2  # an offset: the squares' sum is large
+    torque = 40.0 * rng.standard_normal(750) - 3.0
+    lost = torque.copy()
+    lost[100] = np.nan  # a lost sample recorded as NaN: the torque's sum says so
+    got, got_lost = check.window_sums(position, torque), check.window_sums(position, lost)
+    monkeypatch.setattr(check, "_eureka", None)
+    want = check.window_sums(position, torque)
+    assert all(type(v) is float for v in got + want)
+    assert got == pytest.approx(want, rel=1e-9, abs=1e-9 * float(np.abs(torque).sum()))
+    assert math.isnan(got_lost[1]) and math.isnan(check.window_sums(position, lost)[1])
+    assert got_lost[0] == got[0] and got_lost[2] == got[2]
