@@ -31,6 +31,7 @@ from rtsid.ident.gaps import WindowGaps
 from rtsid.ident.irf import IRF
 from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.options import EstimatorOptions
+from rtsid.ident.records import built
 from rtsid.ident.second_order import OutputErrorFit
 from rtsid.ident.vaf import vaf
 from rtsid.verdicts import Flag, Reason
@@ -337,7 +338,8 @@ def assemble(
     ``held``: whether I and B were held; ``lags_s``: ``irf.lags_s`` when the caller has it."""
     inertia, damping, stiffness = float(params[0]), float(params[1]), float(params[2])
     vaf_model, vaf_irf, vaf_fit = vafs
-    return WindowEstimate(
+    return built(
+        WindowEstimate,
         I=inertia,
         B=damping,
         K=stiffness,
@@ -401,7 +403,7 @@ def withhold_unidentifiable(estimate: WindowEstimate) -> WindowEstimate:
     own IRF: then :class:`~rtsid.errors.WindowError` (``"unidentifiable"``). On the shared
     human recording such windows read K = −1316 N·m/rad (a torque burst) or, planned from a
     window alone, −5580; a stream and a lone call withhold them alike."""
-    if UNIDENTIFIABLE.issubset(estimate.flags):
+    if estimate.flags and UNIDENTIFIABLE.issubset(estimate.flags):
         raise WindowError(
             f"the window's fit reads K = {estimate.K:.4g} N·m/rad and the second-order model "
             f"explains {estimate.vaf_fit:.0f} % of its own IRF: not a joint's impedance, "

@@ -28,6 +28,7 @@ from rtsid.ident.gaps import LostSamples, WindowGaps, contaminated
 from rtsid.ident.irf import IRF, estimate_irf
 from rtsid.ident.levinson import compiled_kernel, not_positive_definite
 from rtsid.ident.options import EstimatorOptions
+from rtsid.ident.records import built
 from rtsid.verdicts import Reason
 
 _eureka = compiled_kernel()
@@ -173,7 +174,7 @@ def _front_end(
     if status >= 0:
         raise not_positive_definite(status, alpha)
     check_band_limited_level(level, options)
-    irf = IRF(h=h, fs_hz=fs_a, phi_uu=phi)
+    irf = built(IRF, h=h, fs_hz=fs_a, phi_uu=phi)
     return u, y, irf, level, (position_slope, torque_slope)
 
 
@@ -244,4 +245,10 @@ def scored_band(
     elif explained is not None:  # the numpy reference
         signed = options.torque_sign * np.asarray(explained, dtype=np.float64)
         extra = _band_limit(signed - signed.mean(), plan)
-    return ScoredBand(band, *trends, explained=extra)
+    return built(
+        ScoredBand,
+        band_hz=band,
+        position_slope=trends[0],
+        torque_slope=trends[1],
+        explained=extra,
+    )

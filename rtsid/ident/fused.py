@@ -26,6 +26,7 @@ from rtsid.ident.front import ScoredBand
 from rtsid.ident.irf import IRF
 from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.options import EstimatorOptions
+from rtsid.ident.records import built
 from rtsid.ident.second_order import OutputErrorDesign, inseparable_fit, zero_response
 
 __all__ = ["BackEndBuffers", "FusedWindow", "fusable", "fused_back_end"]
@@ -199,7 +200,15 @@ def fused_back_end(
     newest = None if out[z] != out[z] else (out[z], out[z + 1], out[z + 2])
     design = OutputErrorDesign.formed(buf.regressors, buf.projected, buf.gram, y_c)
     whole_explained = round(out[w + 3], 12) >= options.low_vaf_percent if learn else False
-    return FusedWindow(estimate, out[w], out[w + 1], whole_explained, newest, design)
+    return built(
+        FusedWindow,
+        estimate=estimate,
+        whole_inertia=out[w],
+        whole_damping=out[w + 1],
+        whole_explained=whole_explained,
+        newest=newest,
+        design=design,
+    )
 
 
 #: The kernel's status for a fitted window, and where ``oe_window`` writes each result.

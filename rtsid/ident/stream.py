@@ -32,6 +32,7 @@ from rtsid.ident.analysis import AnalysisPlan
 from rtsid.ident.assess import withhold_unidentifiable
 from rtsid.ident.fused import BackEndBuffers, fusable, fused_back_end
 from rtsid.ident.grid import window_ends
+from rtsid.ident.records import built
 from rtsid.ident.second_order import OutputErrorDesign
 from rtsid.ident.split import (
     NewestPart,
@@ -238,7 +239,7 @@ class StreamTracker:
                 b = self.damping.step(t_end_s, estimate.B, estimate.B_se)
             elif self.damping.started:
                 b = self.damping.step(t_end_s)
-        self._latest = Tracked(k.value, k.se, b.value, b.se)
+        self._latest = built(Tracked, K=k.value, K_se=k.se, B=b.value, B_se=b.se)
         return self._latest
 
 
@@ -353,7 +354,7 @@ class WindowStream:
             if held.inertia is None:
                 return full
             return back_end(irf, u, y, options, plan, held, gaps, score)
-        window_samples = np.shape(position)[0]
+        window_samples = len(position)  # type: ignore[arg-type]  # checked 1-D above
         if fusable(options, score, gaps is not None):  # the same steps in one compiled call
             rows = round(self.tracker.hop_s * plan.analysis_fs_hz)
             fused = fused_back_end(
@@ -427,7 +428,9 @@ class _SplitSource:
         if self._newest is not False:
             k, var, row = self._newest  # type: ignore[misc]
             _, _, _, plan, window_samples = self._args
-            return NewestPart(k, var, row_offsets_s(row, plan, window_samples))
+            return built(
+                NewestPart, k=k, var=var, centre_s=row_offsets_s(row, plan, window_samples)
+            )
         problem = self.problem()
         return None if problem is None else problem.newest(span_s)
 

@@ -131,6 +131,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from rtsid.errors import invalid, require_range
+from rtsid.ident.records import built
 from rtsid.ident.split import NewestPart, SplitScan
 
 #: Memory of the filters' likelihood-ratio CUSUM, s.
@@ -813,4 +814,7 @@ class ParameterTracker:
 
     def _published(self, updated: bool, change: bool) -> TrackEstimate:
         f, mode = self._published_filter()
-        return TrackEstimate(f.x0, math.sqrt(max(f.p00, 0.0)), f.x1, updated, change, mode)
+        se = math.sqrt(max(f.p00, 0.0))
+        return built(
+            TrackEstimate, value=f.x0, se=se, rate=f.x1, updated=updated, change=change, mode=mode
+        )

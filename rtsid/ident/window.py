@@ -52,6 +52,7 @@ from rtsid.ident.gaps import WindowGaps
 from rtsid.ident.irf import IRF
 from rtsid.ident.legacy import fit_parameters, legacy_back_end, numpy_back_end, standard_errors
 from rtsid.ident.options import FIT_METHODS, HOLD_CHOICES, EstimatorOptions
+from rtsid.ident.records import built
 from rtsid.ident.second_order import OutputErrorDesign
 
 __all__ = [
@@ -218,7 +219,16 @@ def analyse_window(
     plan = plan or resolve_plan(plan_source(pos, lost), fs, options, max_lowpass_hz)  # 2. plan
     u, y, irf, gaps, level, slopes = analyse_checked(pos, tor, fs, options, plan, lost)  # 3.
     score = scored_band(pos, tor, options, plan, explained, slopes)
-    return AnalysedWindow(plan, u, y, irf, gaps, score, level)
+    return built(
+        AnalysedWindow,
+        plan=plan,
+        u=u,
+        y=y,
+        irf=irf,
+        gaps=gaps,
+        score=score,
+        excitation_rad=level,
+    )
 
 
 def back_end(
