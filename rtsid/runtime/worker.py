@@ -35,6 +35,7 @@ from rtsid.errors import (
     WindowError,
 )
 from rtsid.ident.grid import first_window_end
+from rtsid.ident.reflex import ReflexStream
 from rtsid.ident.reflex_lane import ReflexModels, ReflexUpdate, predict_reflex_torque
 from rtsid.ident.sign import SignCount, inverted_torque_message
 from rtsid.ident.stream import Tracked, WindowStream
@@ -254,6 +255,7 @@ class WindowEvaluator:
         self.hop_samples = max(1, round(config.hop_s * fs_hz))
         self.reflex = reflex
         self.history_samples = reflex.history_samples if reflex is not None else 0
+        self.reflex_stream = ReflexStream()  # the reflex prediction carried from hop to hop
         self.reflex_flagged: Counter[str] = Counter()
         self.last_reflex = _NO_REFLEX  # the slow lane's part in the latest window
         # a replay following a live run: window end -> (reflex_seq, absent, stale) as live had
@@ -382,6 +384,8 @@ class WindowEvaluator:
                 self.fs_hz,
                 self.window_samples,
                 self.reflex.settings,
+                first_index=int(snap.sample_index[0]),
+                stream=self.reflex_stream,
             )
         except InputDataError:  # the history has too many lost samples to predict from
             self.reflex_flagged[Flag.REFLEX_ABSENT] += 1
