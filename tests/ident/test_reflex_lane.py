@@ -169,6 +169,23 @@ def test_the_stream_gives_the_numbers_of_each_window_formed_afresh(
     np.testing.assert_array_equal(got, want)
 
 
+def test_a_polynomial_pathway_streams_its_own_inputs(pathway):
+    # a Hammerstein pathway's input depends on its polynomial: its values are its own, and a
+    # switch between the variants forms the inputs anew (the numpy reference runs it)
+    polynomial = replace(pathway, variant="hammerstein", polynomial=np.array([0.5, 0.2, -0.1]))
+    theta, _ = joint_with_reflex(seconds=5.0, seed=14)
+    n, history = 750, round(pathway.history_s * FS_SIM)
+    ends = list(range(n + history, theta.size, 50))[:12]
+    stream = ReflexStream()
+    for k, end in enumerate(ends):
+        model = polynomial if k % 4 < 2 else pathway
+        carried = _windows(theta, [end], n, history, model, stream)[0]
+        afresh = _windows(theta, [end], n, history, model)[0]
+        np.testing.assert_array_equal(carried, afresh)
+    rectified = _windows(theta, ends[-1:], n, history, pathway)[0]
+    assert np.abs(_windows(theta, ends[-1:], n, history, polynomial)[0] - rectified).max() > 0
+
+
 @pytest.mark.parametrize("n_last", [1, 750, 3000])
 def test_the_compiled_hop_equals_the_numpy_reference(pathway, n_last, monkeypatch):
     from rtsid.ident.levinson import HAVE_COMPILED_KERNEL
