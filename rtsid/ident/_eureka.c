@@ -1499,7 +1499,9 @@ static PyObject *py_reflex_rect_hop(PyObject *self, PyObject *args)
     }
     double *r = work, *y = work + nr, *x = work + nr + ny;
     /* the inputs: kept where kept, formed elsewhere */
-    Py_ssize_t a = in_first > low ? in_first : low;
+    /* a kept value is used only where this segment would form it final too */
+    Py_ssize_t a = in_first > final_low ? in_first : final_low;
+    if (a < low) a = low;
     Py_ssize_t z = in_first + in_count - 1 < last ? in_first + in_count - 1 : last;
     if (in_count == 0 || a > z) {
         a = last + 1;
@@ -1512,7 +1514,9 @@ static PyObject *py_reflex_rect_hop(PyObject *self, PyObject *args)
         rect_rates(pos, n, first, fs, taps, ntaps, factor, z + 1, last, r + (z + 1 - low), x);
     }
     /* the outputs, likewise */
-    a = out_first > window_first ? out_first : window_first;
+    const Py_ssize_t first_output =
+        final_low + lags > window_first ? final_low + lags : window_first;
+    a = out_first > first_output ? out_first : first_output;
     z = out_first + out_count - 1 < last ? out_first + out_count - 1 : last;
     if (out_count == 0 || a > z) {
         a = last + 1;
@@ -1551,7 +1555,7 @@ static PyObject *py_reflex_rect_hop(PyObject *self, PyObject *args)
         in_first = a;
         in_count = z >= a ? z - a + 1 : 0;
         if (in_count > 0) memcpy(kept_r, r + (a - low), sizeof(double) * in_count);
-        a = final_low + lags > window_first ? final_low + lags : window_first;
+        a = first_output;
         out_first = a;
         out_count = z >= a ? z - a + 1 : 0;
         if (out_count > 0) memcpy(kept_y, y + (a - window_first), sizeof(double) * out_count);

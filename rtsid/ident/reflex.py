@@ -582,15 +582,18 @@ class _Kept:
             self.values = grown
         return self
 
-    def gather(self, low: int, high: int, form: Callable[[int, int], FloatArray]) -> FloatArray:
-        """Values at ``low … high``: the kept ones, the others by ``form(a, b)`` (``a … b``)."""
+    def gather(
+        self, low: int, high: int, usable: int, form: Callable[[int, int], FloatArray]
+    ) -> FloatArray:
+        """Values at ``low … high``: the kept ones from ``usable`` on (where this segment
+        would form them final too), the others by ``form(a, b)`` (``a … b``)."""
         out = np.empty(high - low + 1)
-        kept_low, kept_high = self.first, self.first + self.count - 1
-        if self.count == 0 or kept_high < low or kept_low > high:
+        kept_low, kept_high = max(self.first, usable), self.first + self.count - 1
+        if self.count == 0 or kept_low > kept_high or kept_high < low or kept_low > high:
             out[:] = form(low, high)
             return out
         a, b = max(low, kept_low), min(high, kept_high)
-        out[a - low : b - low + 1] = self.values[a - kept_low : b - kept_low + 1]
+        out[a - low : b - low + 1] = self.values[a - self.first : b - self.first + 1]
         if low < a:
             out[: a - low] = form(low, a - 1)
         if b < high:
@@ -654,20 +657,22 @@ def _hop(
             position, first_index, fs_hz, taps, factor, a, b, pathway.nonlinearity
         )
 
-    r = (inputs if reuse else _Kept()).gather(low, grid.last, rates)
+    r = (inputs if reuse else _Kept()).gather(low, grid.last, grid.final_low, rates)
 
     def convolved(a: int, b: int) -> FloatArray:  # y(m) = Σ_k g_k·r(m − k), r = 0 before low
         start = max(0, a - low - lags)
         full = np.convolve(r[start : b - low + 1], g)
         return full[a - low - start : b - low - start + 1]
 
-    y = (outputs if reuse else _Kept()).gather(grid.window_first, grid.last, convolved)
+    first_output = max(grid.final_low + lags, grid.window_first)  # all inputs final
+    y = (outputs if reuse else _Kept()).gather(
+        grid.window_first, grid.last, first_output, convolved
+    )
     offset = math.fsum(r) / r.size * math.fsum(g)  # exact sums: alike whatever r's memory
     z = y - offset
     out = _interpolated(z, grid.window_first, factor, first_index + position.size - n_last, n_last)
     if reuse:
         inputs.keep(r, low, max(grid.final_low, low), min(grid.final_high, grid.last))
-        first_output = max(grid.final_low + lags, grid.window_first)
         outputs.keep(y, grid.window_first, first_output, min(grid.final_high, grid.last))
     return out
 

@@ -111,12 +111,13 @@ def test_warm_up_runs_a_fit():
     assert warm_up(2500.0, SETTINGS)
 
 
-def _windows(theta, ends, n, history, pathway, stream=None, lost_at=()):
+def _windows(theta, ends, n, history, pathway, stream=None, lost_at=(), short_at=()):
     """The stream's window torque at each window end (``stream``: one carried through all;
-    None: a fresh one per window)."""
+    None: a fresh one per window); ``short_at``: windows given a third of their history."""
     out = []
     for end in ends:
-        first = max(0, end - n - history + 1)  # the recording's first windows: less history
+        given = history // 3 if end in short_at else history
+        first = max(0, end - n - given + 1)  # the recording's first windows: less history
         segment = theta[first : end + 1].copy()
         valid = None
         if end in lost_at:  # a lost sample in the history: bridged, nothing kept
@@ -149,12 +150,12 @@ def test_the_stream_gives_the_numbers_of_each_window_formed_afresh(
     n, history = 750, round(pathway.history_s * FS_SIM)
     ends = list(range(n + history + 3, theta.size, hop))[:40]
     del ends[7:10]  # windows the fast lane skipped (late) or withheld
-    lost = {ends[12]}
+    lost, short = {ends[12]}, {ends[20]}  # short: values kept from before are not used
     if numpy_only:
         _numpy_path(monkeypatch)
     stream = ReflexStream()
-    carried = _windows(theta, ends, n, history, pathway, stream, lost)
-    afresh = _windows(theta, ends, n, history, pathway, None, lost)
+    carried = _windows(theta, ends, n, history, pathway, stream, lost, short)
+    afresh = _windows(theta, ends, n, history, pathway, None, lost, short)
     for got, want in zip(carried, afresh, strict=True):
         np.testing.assert_array_equal(got, want)
     assert stream._inputs.count > 0 and stream._outputs.count > 0  # values were carried
