@@ -27,6 +27,8 @@ from rtsid.errors import RecordingError, RtsidWarning
 from rtsid.ident.reflex_lane import ReflexModels, SlowLaneSettings, fit_reflex_update
 from rtsid.io.calibration import robot_calibration, with_recorded_calibration
 from rtsid.io.mcap_read import (
+    TOPICS,
+    holds_topics,
     iter_estimates,
     read_metadata,
     run_config_from_metadata,
@@ -113,6 +115,8 @@ class LiveDecisions:
         reflex: dict[int, tuple[int | None, bool, bool]] = {}
         stale: set[int] = set()
         for part in parts:
+            if not holds_topics(part, (TOPICS["estimate"],)):
+                continue  # a finished part without estimates (a converted recording)
             for m in iter_estimates(part):
                 if is_announcement(m):
                     continue

@@ -31,9 +31,11 @@ from rtsid.io.mcap_read import (
     TOPICS,
     ReadReport,
     holds_no_record,
+    holds_topics,
     iter_estimates,
     iter_sample_batches,
     read_json_topics,
+    read_metadata,
     read_run_config,
     read_summary_table,
     recording_parts,
@@ -492,7 +494,11 @@ def read_messages(paths: Paths, topics: Sequence[str]) -> RecordedMessages:
     complete = True
     for part in parts:
         tally = _Tally(part)
-        found, meta = read_json_topics(part, topics, tally.report)
+        if holds_topics(part, topics):
+            found, meta = read_json_topics(part, topics, tally.report)
+        else:  # a finished part whose statistics say it holds none of them
+            found, meta = {t: [] for t in topics}, read_metadata(part)
+            tally.report.complete = True
         for message in found.get("/estimate", []):
             tally.add_estimate(message)
         for topic in topics:
