@@ -215,7 +215,7 @@ class EstimateMessage:
         if track is not None:
             tracked = (track.K, track.K_se, track.B, track.B_se)
         k_track, k_track_se, b_track, b_track_se = tracked
-        values = (
+        values = [
             robot,
             joint,
             last / fs_hz,
@@ -246,8 +246,13 @@ class EstimateMessage:
             latency_ms,
             reflex_seq,
             time.time_ns(),
-        )
-        return _json_object(values)
+        ]
+        isfinite = math.isfinite
+        for j in _NUMBER_POSITIONS:  # the number fields: JSON has no NaN
+            value = values[j]
+            if value is not None and not isfinite(value):
+                values[j] = None
+        return dict(zip(_ESTIMATE_NAMES, values, strict=True))
 
     def as_dict(self) -> dict[str, Any]:
         """The JSON object: non-finite numbers as ``None``, flags as a list."""
@@ -256,7 +261,7 @@ class EstimateMessage:
         return out
 
 
-def _json_object(values: tuple[Any, ...]) -> dict[str, Any]:
+def _json_object(values: Sequence[Any]) -> dict[str, Any]:
     """An estimate message's field values as its JSON object: non-finite floats (JSON has no
     NaN) as None."""
     isfinite = math.isfinite
@@ -270,6 +275,12 @@ def _json_object(values: tuple[Any, ...]) -> dict[str, Any]:
 _ESTIMATE_NAMES = tuple(f.name for f in dataclasses.fields(EstimateMessage))
 #: An estimate message's field values, in that order.
 _estimate_values = operator.attrgetter(*_ESTIMATE_NAMES)
+#: Where the fields typed ``float`` (or ``float | None``) are in that order.
+_NUMBER_POSITIONS = tuple(
+    j
+    for j, f in enumerate(dataclasses.fields(EstimateMessage))
+    if f.type in ("float", "float | None")
+)
 
 
 #: What an estimate message takes from the window's estimate (None when withheld).
