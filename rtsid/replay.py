@@ -183,28 +183,30 @@ class WindowCutter:
             if self.slow_lane is not None:
                 self.slow_lane.catch_up(grid, self.first, end)
             if self.live is None or not self.live.skipped(end):
-                yield self._snapshot(grid.rows(max(end - self.reach + 1, self.first), end + 1))
+                yield self._snapshot(grid, max(end - self.reach + 1, self.first), end + 1)
             self.next_end += self.evaluator.hop_samples
         keep = self.next_end - self.reach + 1
         if self.slow_lane is not None:
             keep = min(keep, self.slow_lane.oldest_needed(self.first))
         grid.drop_before(keep)
 
-    def _snapshot(self, rows: SampleBatch) -> Snapshot:
-        """The rows as the ring's snapshot: recorded samples have no host or bus times (zeros
-        and NaN, read-only columns shared by every window of the same length)."""
-        n = len(rows)
+    def _snapshot(self, grid: SampleGrid, start: int, stop: int) -> Snapshot:
+        """Rows ``start .. stop − 1`` as the ring's snapshot (views): recorded samples have no
+        host or bus times (zeros and NaN, read-only columns shared by every window of the
+        same length)."""
+        n = stop - start
         times = self._times.get(n)
         if times is None:
             times = self._times[n] = (_read_only(np.zeros(n)), _read_only(np.full(n, np.nan)))
+        position, torque, valid, status = grid.columns(start, stop)
         return Snapshot(
-            sample_index=np.arange(rows.first_index, rows.end_index, dtype=np.int64),
-            position_rad=rows.position_rad,
-            torque_nm=rows.torque_nm,
-            valid=rows.valid,
-            status=rows.status,
-            host_time_s=times[0],
-            bus_time_s=times[1],
+            np.arange(start, stop, dtype=np.int64),
+            position,
+            torque,
+            valid,
+            status,
+            times[0],
+            times[1],
         )
 
 

@@ -181,6 +181,25 @@ class SampleGrid:
             self._status[sl],
         )
 
+    def columns(
+        self, start_index: int, stop_index: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Position, torque, valid and status of rows ``start_index .. stop_index − 1``: what
+        :meth:`rows` holds, as views without the batch around them (replay cuts a window's
+        columns every hop).
+
+        Raises
+        ------
+        IndexError
+            Rows outside what the grid holds.
+        """
+        if not self._first <= start_index <= stop_index <= self._first + self._hi - self._lo:
+            raise IndexError(
+                f"rows {start_index}..{stop_index} are outside {self.first_index}..{self.end_index}"
+            )
+        sl = slice(self._lo + start_index - self._first, self._lo + stop_index - self._first)
+        return self._position[sl], self._torque[sl], self._valid[sl], self._status[sl]
+
     def all_rows(self) -> SampleBatch:
         """Every row kept, as views."""
         return self.rows(self.first_index, self.end_index)
