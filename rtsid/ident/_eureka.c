@@ -26,6 +26,7 @@
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <float.h>
 #include <math.h>
 
 /* Release the GIL only for systems this large (≈ 1 ms and up); shorter calls keep it so that
@@ -1564,6 +1565,7 @@ static PyObject *py_reflex_rect_hop(PyObject *self, PyObject *args)
     release_buffers(b, 6);
     return Py_BuildValue("nnnn", in_first, in_count, out_first, out_count);
 }
+static PyObject *py_json_array(PyObject *self, PyObject *args); /* sample batches, below */
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1594,6 +1596,7 @@ static PyMethodDef methods[] = {
     {"xcorr", py_xcorr, METH_VARARGS,
      "xcorr(u, y, first, last, norm, c): c[k-first] = sum_t u[t] y[t+k] / norm."},
     {"reflex_rect_hop", py_reflex_rect_hop, METH_VARARGS, "reflex_rect_hop(position, first, fs, taps, factor, g, reuse, inputs, in_first, in_count, outputs, out_first, out_count, out) -> (in_first, in_count, out_first, out_count): one hop of the rect reflex stream."},
+    {"json_array", py_json_array, METH_VARARGS, "json_array(data, start, stop, kind, out): compact JSON array items into out."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -1624,4 +1627,191 @@ PyMODINIT_FUNC PyInit__eureka(void)
         return NULL;
     }
     return m;
+}
+
+
+/* ------------------------------------------------------------------ sample batches (replay)
+ * json_array(data, start, stop, kind, out) -> None: the items of a compact JSON array,
+ * data[start:stop] (between its brackets, no whitespace: what rtsid's sample logger writes),
+ * into out:
+ *   kind 0  numbers or null (NaN) -> float64; a number is converted by Python's own
+ *           correctly rounded conversion (PyOS_string_to_double, as float() and json.loads
+ *           do), so the doubles are json.loads's bit for bit;
+ *   kind 1  true / false -> bool (one byte each);
+ *   kind 2  integers -> int64.
+ * Anything else (whitespace, another token, an integer in a float column, an integer beyond
+ * int64, more or fewer items than len(out)) raises ValueError: rtsid.io.schemas then reads
+ * the payload with json.loads, the reference, which accepts it or says what is wrong.
+ */
+#define JSON_NUMBER_MAX 64
+
+/* End of the JSON number at s[i] (before stop), or -1; *integer: no fraction, no exponent. */
+static Py_ssize_t json_number_end(const char *s, Py_ssize_t i, Py_ssize_t stop, int *integer)
+{
+    Py_ssize_t k = i, d;
+    *integer = 1;
+    if (k < stop && s[k] == '-') k++;
+    if (k >= stop) return -1;
+    if (s[k] == '0') {
+        k++;
+    } else if (s[k] >= '1' && s[k] <= '9') {
+        while (k < stop && s[k] >= '0' && s[k] <= '9') k++;
+    } else {
+        return -1;
+    }
+    if (k < stop && s[k] == '.') {
+        *integer = 0;
+        d = ++k;
+        while (k < stop && s[k] >= '0' && s[k] <= '9') k++;
+        if (k == d) return -1;
+    }
+    if (k < stop && (s[k] == 'e' || s[k] == 'E')) {
+        *integer = 0;
+        k++;
+        if (k < stop && (s[k] == '+' || s[k] == '-')) k++;
+        d = k;
+        while (k < stop && s[k] >= '0' && s[k] <= '9') k++;
+        if (k == d) return -1;
+    }
+    return k;
+}
+
+static int json_literal(const char *s, Py_ssize_t i, Py_ssize_t stop, const char *word)
+{
+    Py_ssize_t n = (Py_ssize_t)strlen(word);
+    return stop - i >= n && memcmp(s + i, word, (size_t)n) == 0 ? (int)n : 0;
+}
+
+/* The number s[i:k] (JSON grammar checked) by one correctly rounded extended-precision
+ * operation, digits (< 2^64, exact) times or over a power of ten (10^0..10^27: exact in a
+ * 64-bit significand), then rounded to double. Rounding twice can differ from rounding once
+ * only when the extended result lies exactly halfway between two doubles; then, and for
+ * anything else this does not cover (more digits, a larger exponent, a subnormal result, a
+ * long double that is not x87's), returns 0 and the caller uses PyOS_string_to_double. */
+static int decimal_fast(const char *s, Py_ssize_t i, Py_ssize_t k, double *out)
+{
+#if LDBL_MANT_DIG == 64
+    static const long double pow10[28] = {
+        1e0L, 1e1L, 1e2L, 1e3L, 1e4L, 1e5L, 1e6L, 1e7L, 1e8L, 1e9L, 1e10L, 1e11L, 1e12L, 1e13L,
+        1e14L, 1e15L, 1e16L, 1e17L, 1e18L, 1e19L, 1e20L, 1e21L, 1e22L, 1e23L, 1e24L, 1e25L,
+        1e26L, 1e27L};
+    int negative = s[i] == '-';
+    unsigned long long w = 0;
+    long scale = 0, exponent = 0;
+    Py_ssize_t j = i + negative;
+    for (; j < k && s[j] >= '0' && s[j] <= '9'; j++) {
+        if (w > (ULLONG_MAX - 9) / 10) return 0;
+        w = w * 10 + (unsigned)(s[j] - '0');
+    }
+    if (j < k && s[j] == '.') {
+        for (j++; j < k && s[j] >= '0' && s[j] <= '9'; j++) {
+            if (w > (ULLONG_MAX - 9) / 10) return 0;
+            w = w * 10 + (unsigned)(s[j] - '0');
+            scale--;
+        }
+    }
+    if (j < k) { /* e / E, sign, digits */
+        int minus = 0;
+        j++;
+        if (s[j] == '+' || s[j] == '-') minus = s[j++] == '-';
+        for (; j < k; j++) {
+            if (exponent > 1000) return 0;
+            exponent = exponent * 10 + (s[j] - '0');
+        }
+        scale += minus ? -exponent : exponent;
+    }
+    if (w == 0) {
+        *out = negative ? -0.0 : 0.0;
+        return 1;
+    }
+    if (scale < -27 || scale > 27) return 0;
+    long double r = (long double)w;
+    r = scale < 0 ? r / pow10[-scale] : r * pow10[scale];
+    double d = (double)r;
+    if ((long double)d != r) {
+        double other = r > (long double)d ? nextafter(d, INFINITY) : nextafter(d, -INFINITY);
+        if (((long double)d + (long double)other) * 0.5L == r) return 0; /* halfway */
+    }
+    if (!(d >= DBL_MIN && d <= DBL_MAX)) return 0;
+    *out = negative ? -d : d;
+    return 1;
+#else
+    (void)s; (void)i; (void)k; (void)out;
+    return 0;
+#endif
+}
+
+/* One item at s[i]; returns its end or -1. */
+static Py_ssize_t json_item(const char *s, Py_ssize_t i, Py_ssize_t stop, int kind, char *out)
+{
+    int integer, n;
+    Py_ssize_t k;
+    if (kind == 1) {
+        if ((n = json_literal(s, i, stop, "true")) > 0) { *(unsigned char *)out = 1; return i + n; }
+        if ((n = json_literal(s, i, stop, "false")) > 0) { *(unsigned char *)out = 0; return i + n; }
+        return -1;
+    }
+    if (kind == 0 && (n = json_literal(s, i, stop, "null")) > 0) {
+        *(double *)out = NAN;
+        return i + n;
+    }
+    k = json_number_end(s, i, stop, &integer);
+    if (k < 0 || k - i >= JSON_NUMBER_MAX) return -1;
+    if (kind == 2) {
+        if (!integer) return -1;
+        long long value = 0;
+        int negative = s[i] == '-';
+        for (Py_ssize_t j = i + negative; j < k; j++) {
+            int digit = s[j] - '0';
+            if (value > (LLONG_MAX - digit) / 10) return -1; /* beyond int64: the reference says */
+            value = value * 10 + digit;
+        }
+        *(long long *)out = negative ? -value : value;
+        return k;
+    }
+    if (integer) return -1; /* json.loads makes an int of it ("-0" is +0.0): the reference */
+    if (decimal_fast(s, i, k, (double *)out)) return k;
+    char token[JSON_NUMBER_MAX];
+    memcpy(token, s + i, (size_t)(k - i));
+    token[k - i] = '\0';
+    char *end = NULL;
+    double value = PyOS_string_to_double(token, &end, NULL);
+    if (end != token + (k - i)) {
+        PyErr_Clear();
+        return -1;
+    }
+    *(double *)out = value;
+    return k;
+}
+
+static PyObject *py_json_array(PyObject *self, PyObject *args)
+{
+    Py_buffer data, out;
+    Py_ssize_t start, stop;
+    int kind;
+    if (!PyArg_ParseTuple(args, "y*nniw*", &data, &start, &stop, &kind, &out)) return NULL;
+    const Py_ssize_t size = kind == 1 ? 1 : 8;
+    const Py_ssize_t count = out.len / size;
+    const char *s = (const char *)data.buf;
+    char *o = (char *)out.buf;
+    Py_ssize_t i = start, items = 0;
+    int ok = kind >= 0 && kind <= 2 && out.len % size == 0 && 0 <= start && start <= stop &&
+             stop <= data.len;
+    while (ok && i < stop) {
+        if (items > 0) {
+            if (s[i] != ',') { ok = 0; break; }
+            i++;
+        }
+        if (items >= count) { ok = 0; break; }
+        i = json_item(s, i, stop, kind, o + items * size);
+        ok = i >= 0;
+        items++;
+    }
+    PyBuffer_Release(&data);
+    PyBuffer_Release(&out);
+    if (!ok || items != count) {
+        PyErr_SetString(PyExc_ValueError, "json_array: not a compact JSON array of this kind");
+        return NULL;
+    }
+    Py_RETURN_NONE;
 }

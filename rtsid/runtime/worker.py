@@ -459,7 +459,7 @@ class WindowEvaluator:
         latency = None if last_arrival_s is None else (time.monotonic() - last_arrival_s) * 1e3
         seq = self._seq
         self._seq += 1
-        return EstimateMessage.of_window(
+        return EstimateMessage.window_dict(
             estimate,
             reason,
             track,
@@ -473,7 +473,7 @@ class WindowEvaluator:
             compute_ms=compute_s * 1e3,
             latency_ms=latency,
             reflex_seq=reflex.seq,
-        ).as_dict()
+        )
 
 
 class WindowWorker(ThreadOwner):
