@@ -445,6 +445,7 @@ class Daemon:
         while ticks.wait(self.stop_event):
             self._log_estimates(mcap)
             self._forward_samples(ring, mcap, zenoh)
+            zenoh.compact_history()  # deflate the history's sealed blocks here, off the worker
             tick += 1
             if tick % status_every == 0:
                 self._publish_status(mcap, zenoh)
