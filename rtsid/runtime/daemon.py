@@ -295,8 +295,9 @@ class Daemon:
         self.meter = ProcessMeter()
         self._cursor = -1
         self._overwritten = 0
-        # (payload, log time ns) of estimates published but not yet handed to the MCAP writer
-        self._unlogged: collections.deque[tuple[bytes, int]] = collections.deque()
+        # (payload, log time ns, message) of estimates published but not yet handed to the
+        # MCAP writer
+        self._unlogged: collections.deque[tuple[bytes, int, dict[str, Any]]] = collections.deque()
         self.worker: WindowWorker | None = None
         self.acquisition: Acquisition | None = None
         self.slow_lane: SlowLane | None = None
@@ -517,16 +518,18 @@ class Daemon:
         zenoh.publish_estimate(payload)
         log_time_ns = message["host_time_ns"]
         if len(self._unlogged) < ESTIMATES_HELD:
-            self._unlogged.append((payload, log_time_ns))
+            self._unlogged.append((payload, log_time_ns, message))
         else:  # housekeeping is stuck: the writer's own bounded queue counts what it drops
             mcap.log_estimate(payload, log_time_ns=log_time_ns)
         self.last_estimate = message
 
     def _log_estimates(self, mcap: McapLogger) -> None:
-        """Hand the estimates the worker left to the MCAP writer, oldest first."""
-        while self._unlogged:
-            payload, log_time_ns = self._unlogged.popleft()
-            mcap.log_estimate(payload, log_time_ns=log_time_ns)
+        """Hand the estimates the worker left to the MCAP writer, oldest first, as one batch
+        (one queue item and one writer wake-up per tick, not one per estimate)."""
+        batch = []
+        while self._unlogged:  # popleft: the worker may append meanwhile
+            batch.append(self._unlogged.popleft())
+        mcap.log_estimates(batch)
 
     def _status(self, mcap: McapLogger, zenoh: ZenohPublisher) -> dict[str, Any]:
         acq = dataclasses.asdict(self.acquisition.counters()) if self.acquisition else {}

@@ -86,12 +86,18 @@ class Sink:
 
     def __init__(self) -> None:
         self.got: list[bytes] = []
+        self.batches = 0
 
     def publish_estimate(self, payload: bytes) -> None:
         self.got.append(payload)
 
     def log_estimate(self, payload: bytes, *, log_time_ns: int) -> bool:
         self.got.append(payload)
+        return True
+
+    def log_estimates(self, batch: list[tuple[bytes, int, dict]]) -> bool:
+        self.batches += 1
+        self.got.extend(payload for payload, _, _ in batch)
         return True
 
 
@@ -111,7 +117,7 @@ def test_estimates_reach_zenoh_at_once_and_the_mcap_writer_on_the_housekeeping_t
         daemon._publish_estimate(estimate_message(seq), mcap_sink, zenoh_sink)
     assert zenoh_sink.got == [b"0", b"1"] and mcap_sink.got == []  # no writer wake-up yet
     daemon._log_estimates(mcap_sink)
-    assert mcap_sink.got == [b"0", b"1"]
+    assert mcap_sink.got == [b"0", b"1"] and mcap_sink.batches == 1  # one hand-over a tick
     for seq in range(2, 6):  # housekeeping stuck: past the hold the worker hands them over
         daemon._publish_estimate(estimate_message(seq), mcap_sink, zenoh_sink)
     assert mcap_sink.got == [b"0", b"1", b"5"]
