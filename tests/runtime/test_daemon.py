@@ -81,6 +81,43 @@ def test_daemon_logs_every_sample_and_every_estimate(tmp_path, free_port):
     assert all(type(reason) is str for reason in summary.withheld)  # values, not Reason members
 
 
+@pytest.mark.slow  # a real-time daemon run of seconds
+def test_the_history_holds_the_recorded_estimates_deflated_on_the_housekeeping_thread(
+    tmp_path, free_port, monkeypatch
+):
+    """At a 4 ms hop the history seals blocks of estimates; the housekeeping tick (never the
+    worker) deflates them, and what the history gives back is byte for byte the file's."""
+    import threading
+
+    from rtsid.io import history
+
+    stores: list[history.HistoryStore] = []
+    packed_on: set[str] = set()
+    original_init, original_pack = history.HistoryStore.__init__, history._PackedBlock.__init__
+
+    def keep(self, *args, **kw):
+        original_init(self, *args, **kw)
+        stores.append(self)
+
+    def pack(self, block):
+        packed_on.add(threading.current_thread().name)
+        original_pack(self, block)
+
+    monkeypatch.setattr(history.HistoryStore, "__init__", keep)
+    monkeypatch.setattr(history._PackedBlock, "__init__", pack)
+    monkeypatch.setattr(history.MessageRing, "BLOCK_MESSAGES", 32)  # blocks within seconds
+    extra = "[worker]\nhop_s = 0.004\n[slow_lane]\nenabled = false\n"
+    summary = Daemon(DaemonConfig.load(write_config(tmp_path, free_port, extra))).run(3.0)
+    assert summary.clean_shutdown
+    (store,) = stores
+    with only_recording(tmp_path).open("rb") as fh:
+        recorded = [m.data for _, c, m in make_reader(fh).iter_messages() if c.topic == "/estimate"]
+    held, _, _ = store._rings["estimate"].snapshot(0, 2**63 - 1)
+    assert len(recorded) > 2 * 32
+    assert held == recorded
+    assert packed_on == {"MainThread"}  # the housekeeping loop runs on the calling thread
+
+
 class Sink:
     """Records what the daemon hands to a publisher or logger, in order."""
 
