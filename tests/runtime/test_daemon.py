@@ -118,6 +118,39 @@ def test_the_history_holds_the_recorded_estimates_deflated_on_the_housekeeping_t
     assert packed_on == {"MainThread"}  # the housekeeping loop runs on the calling thread
 
 
+@pytest.mark.slow  # a real-time daemon run of seconds
+def test_realtime_priority_puts_the_acquisition_and_the_worker_first(tmp_path, free_port):
+    extra = "[daemon]\nrealtime_priority = 7\n[slow_lane]\nenabled = false\n"
+    seen: list[tuple[int, int, int]] = []
+
+    def on_status(status, estimate):
+        worker, acquisition = daemon.worker, daemon.acquisition
+        if worker is None or acquisition is None or not (worker.running and acquisition.running):
+            return  # the last status comes after the threads stopped
+        tids = (worker.native_id, acquisition.native_id, 0)
+        seen.append(tuple(os.sched_getscheduler(tid) for tid in tids))  # type: ignore[arg-type]
+
+    daemon = Daemon(DaemonConfig.load(write_config(tmp_path, free_port, extra)), on_status)
+    try:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except OSError:
+        pytest.skip("no scheduling control here")
+    try:
+        summary = daemon.run(duration_s=1.5)
+    except ConfigError as exc:  # an unprivileged machine: the one-line refusal
+        assert "daemon.realtime_priority" in str(exc)
+        pytest.skip("this machine does not allow real-time scheduling (not root)")
+    assert summary.clean_shutdown and seen
+    assert set(seen) == {(os.SCHED_FIFO, os.SCHED_FIFO, os.SCHED_OTHER)}
+
+
+def test_realtime_priority_is_1_to_99_or_0(tmp_path):
+    path = tmp_path / "rtsid.toml"
+    path.write_text("[daemon]\nrealtime_priority = 100\n")
+    with pytest.raises(ConfigError, match=r"daemon\.realtime_priority.*<= 99"):
+        DaemonConfig.load(path)
+
+
 class Sink:
     """Records what the daemon hands to a publisher or logger, in order."""
 
