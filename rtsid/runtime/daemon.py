@@ -50,7 +50,7 @@ from rtsid.link.config import LinkConfig, PlantConfig, link_configs_from_mapping
 from rtsid.link.open import open_link
 from rtsid.link.ring import RingBuffer, Snapshot
 from rtsid.runtime.clock import Deadlines
-from rtsid.runtime.power import cpu_latency_request, realtime_process
+from rtsid.runtime.power import cpu_latency_request, set_realtime_priority
 from rtsid.runtime.session import SessionDesk, session_message
 from rtsid.runtime.slow_lane import SlowLane
 from rtsid.runtime.worker import WindowEvaluator, WindowWorker, WorkerConfig
@@ -100,11 +100,10 @@ class DaemonSettings:
         cuts the wake-up tail of every thread on the machine, subscribers included (see
         :mod:`rtsid.runtime.power`). -1: no request (the default; it costs power).
     realtime_priority : int
-        0 (the default): normal scheduling. 1–99: once started, every thread of the daemon
-        (acquisition, worker, MCAP writer, housekeeping, zenoh's) runs in Linux's
-        ``SCHED_FIFO`` class at this priority, ahead of every normal process on the machine;
-        the slow lane's process keeps normal scheduling (needs root, or ``LimitRTPRIO=`` in
-        the systemd unit; see :func:`rtsid.runtime.power.realtime_process`).
+        0 (the default): normal scheduling. 1–99: the acquisition and window-worker threads
+        run in Linux's ``SCHED_FIFO`` class at this priority, ahead of every normal process
+        on the machine (needs root, or ``LimitRTPRIO=`` in the systemd unit; see
+        :func:`rtsid.runtime.power.set_realtime_priority`).
     """
 
     status_period_s: float = 0.5
@@ -417,8 +416,8 @@ class Daemon:
                 self._components = [acquisition, worker, mcap, handle.plant, slow_lane, desk]
                 clean = True
                 try:
-                    with realtime_process(cfg.daemon.realtime_priority):
-                        self._housekeeping(ring, mcap, zenoh, end)
+                    self._raise_priority(acquisition, worker)
+                    self._housekeeping(ring, mcap, zenoh, end)
                 finally:
                     timeout = cfg.daemon.shutdown_timeout_s
                     if slow_lane is not None:
@@ -433,6 +432,14 @@ class Daemon:
             clean &= not mcap.stats().get("errors", 0)
         self.failure = self.failure or self._first_failure()
         return self._summary(mcap, clean and self.failure is None)
+
+    def _raise_priority(self, *owners: ThreadOwner) -> None:
+        """Real-time scheduling for the threads on the estimate's path (``[daemon]
+        realtime_priority``; 0: none)."""
+        priority = self.config.daemon.realtime_priority
+        for owner in owners:
+            if owner.native_id is not None:
+                set_realtime_priority(owner.native_id, priority, owner.thread_name)
 
     def _first_failure(self) -> str | None:
         """The first component (acquisition, worker, MCAP writer, plant) whose thread died."""

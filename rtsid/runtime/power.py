@@ -12,9 +12,9 @@ real-time Linux tools do; it costs power, so it is opt-in (``[daemon] cpu_latenc
 
 A woken thread also waits for a CPU when other work on the machine holds both: on a shared
 2-core machine at a 4 ms hop that wait, not the computation, made most deadline misses.
-``[daemon] realtime_priority`` (opt-in too) puts the daemon's threads in the ``SCHED_FIFO``
-class (:func:`realtime_process`): they then run as soon as they are woken, ahead of every
-normal process. The kernel's real-time throttling
+``[daemon] realtime_priority`` (opt-in too) puts the acquisition and window-worker threads in
+the ``SCHED_FIFO`` class (:func:`set_realtime_priority`): they then run as soon as they are
+woken, ahead of every normal process. The kernel's real-time throttling
 (``/proc/sys/kernel/sched_rt_runtime_us``, 95 % by default) still leaves the rest of the
 machine a share should one of them spin.
 """
@@ -23,14 +23,12 @@ from __future__ import annotations
 
 import os
 import struct
-import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Any
 
 from rtsid.errors import ConfigError
 
-__all__ = ["PM_QOS_DEVICE", "cpu_latency_request", "realtime_process"]
+__all__ = ["PM_QOS_DEVICE", "cpu_latency_request", "set_realtime_priority"]
 
 PM_QOS_DEVICE = "/dev/cpu_dma_latency"
 
@@ -81,74 +79,33 @@ def cpu_latency_request(latency_us: int, device: str | None = None) -> Iterator[
         os.close(fd)
 
 
-def _thread_ids() -> list[int]:
-    """Kernel ids of this process's threads (Python's and native ones, zenoh's included)."""
-    try:
-        return [int(tid) for tid in os.listdir("/proc/self/task")]
-    except OSError:
-        return [threading.get_native_id()]
-
-
-def _refusal(priority: int, reason: str) -> ConfigError:
-    return ConfigError(
-        f"config key 'daemon.realtime_priority' = {priority}: the kernel refused real-time "
-        f"scheduling ({reason}); run as root, allow it to the service user (LimitRTPRIO= in "
-        "the systemd unit, or rtprio in /etc/security/limits.conf), or set realtime_priority = 0"
-    )
-
-
-@contextmanager
-def realtime_process(priority: int) -> Iterator[int]:
-    """Run every thread of this process in ``SCHED_FIFO`` at ``priority`` for the ``with``
-    block, then give each back its previous scheduling.
-
-    Every thread that exists when the block starts is raised: the daemon's Python threads
-    (they share the GIL: one left at normal priority and preempted while holding it would
-    hold up the worker) and zenoh's native ones (the estimate's way out). With
-    ``SCHED_RESET_ON_FORK``, whatever they start later (the slow lane's process, a thread)
-    starts with normal scheduling.
+def set_realtime_priority(native_id: int, priority: int, thread_name: str = "") -> None:
+    """Run the thread ``native_id`` (of this process) in ``SCHED_FIFO`` at ``priority``.
 
     Parameters
     ----------
+    native_id : int
+        The thread's kernel id (``threading.Thread.native_id``).
     priority : int
-        1–99 (higher runs first); 0: nothing changes (yields 0).
-
-    Yields
-    ------
-    int
-        Threads raised.
+        1–99 (higher runs first); 0 leaves the thread's scheduling alone.
+    thread_name : str
+        Named in the error.
 
     Raises
     ------
     ConfigError
         The kernel refused (no ``CAP_SYS_NICE`` / ``RLIMIT_RTPRIO``, or no such scheduling
-        class here); the message names the key and the fixes. Nothing stays raised.
+        class here); the message names the key and the fixes.
     """
     if priority <= 0:
-        yield 0
         return
-    previous: dict[int, tuple[int, Any]] = {}
     try:
-        policy = os.SCHED_FIFO | os.SCHED_RESET_ON_FORK
-        for tid in _thread_ids():
-            try:
-                before = (os.sched_getscheduler(tid), os.sched_getparam(tid))
-                os.sched_setscheduler(tid, policy, os.sched_param(priority))
-            except ProcessLookupError:
-                continue  # ended meanwhile
-            previous[tid] = before
+        os.sched_setscheduler(native_id, os.SCHED_FIFO, os.sched_param(priority))
     except (OSError, AttributeError) as exc:
-        _restore(previous)
-        raise _refusal(priority, getattr(exc, "strerror", None) or "not supported here") from None
-    try:
-        yield len(previous)
-    finally:
-        _restore(previous)
-
-
-def _restore(previous: dict[int, tuple[int, Any]]) -> None:
-    for tid, (policy, param) in previous.items():
-        try:
-            os.sched_setscheduler(tid, policy, param)
-        except OSError:
-            pass  # ended, or not ours to change back
+        reason = getattr(exc, "strerror", None) or "not supported on this system"
+        raise ConfigError(
+            f"config key 'daemon.realtime_priority' = {priority}: the kernel refused real-time "
+            f"scheduling for {thread_name or f'thread {native_id}'} ({reason}); run as root, "
+            "allow it to the service user (LimitRTPRIO= in the systemd unit, or rtprio in "
+            "/etc/security/limits.conf), or set realtime_priority = 0"
+        ) from None

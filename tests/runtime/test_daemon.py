@@ -119,36 +119,29 @@ def test_the_history_holds_the_recorded_estimates_deflated_on_the_housekeeping_t
 
 
 @pytest.mark.slow  # a real-time daemon run of seconds
-def test_realtime_priority_runs_the_daemons_threads_first_and_gives_it_back(tmp_path, free_port):
-    extra = "[daemon]\nrealtime_priority = 7\n"
-    seen: list[tuple[bool, bool, bool]] = []
-    children: dict[int, bool] = {}  # child process -> real-time
-
-    def fifo(tid: int | None) -> bool:
-        assert tid is not None
-        return os.sched_getscheduler(tid) & ~os.SCHED_RESET_ON_FORK == os.SCHED_FIFO
+def test_realtime_priority_puts_the_acquisition_and_the_worker_first(tmp_path, free_port):
+    extra = "[daemon]\nrealtime_priority = 7\n[slow_lane]\nenabled = false\n"
+    seen: list[tuple[int, int, int]] = []
 
     def on_status(status, estimate):
         worker, acquisition = daemon.worker, daemon.acquisition
         if worker is None or acquisition is None or not (worker.running and acquisition.running):
             return  # the last status comes after the threads stopped
-        threads = (worker._thread, acquisition._thread)
-        seen.append((fifo(threads[0].native_id), fifo(threads[1].native_id), fifo(0)))
-        for task in os.listdir("/proc/self/task"):  # the slow lane's process among them
-            with open(f"/proc/self/task/{task}/children") as fh:
-                pids = [int(pid) for pid in fh.read().split()]
-            children.update((pid, fifo(pid)) for pid in pids)
+        tids = (worker.native_id, acquisition.native_id, 0)
+        seen.append(tuple(os.sched_getscheduler(tid) for tid in tids))  # type: ignore[arg-type]
 
     daemon = Daemon(DaemonConfig.load(write_config(tmp_path, free_port, extra)), on_status)
     try:
-        summary = daemon.run(duration_s=2.0)
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except OSError:
+        pytest.skip("no scheduling control here")
+    try:
+        summary = daemon.run(duration_s=1.5)
     except ConfigError as exc:  # an unprivileged machine: the one-line refusal
         assert "daemon.realtime_priority" in str(exc)
         pytest.skip("this machine does not allow real-time scheduling (not root)")
     assert summary.clean_shutdown and seen
-    assert set(seen) == {(True, True, True)}  # worker, acquisition, housekeeping
-    assert not fifo(0)  # the caller's thread is given its scheduling back
-    assert children and not any(children.values())  # the slow lane's process: normal
+    assert set(seen) == {(os.SCHED_FIFO, os.SCHED_FIFO, os.SCHED_OTHER)}
 
 
 def test_realtime_priority_is_1_to_99_or_0(tmp_path):

@@ -35,33 +35,25 @@ def test_unopenable_device_is_a_config_error_naming_the_key_and_the_fix(tmp_path
             pass
 
 
-def fifo(tid: int) -> bool:
-    return os.sched_getscheduler(tid) & ~os.SCHED_RESET_ON_FORK == os.SCHED_FIFO
-
-
-def test_every_thread_runs_real_time_for_the_block_only_and_a_refusal_names_the_key(
-    monkeypatch,
-):
+def test_a_thread_is_put_in_the_real_time_class_and_a_refusal_names_the_key(monkeypatch):
     import threading
 
-    from rtsid.runtime.power import realtime_process
+    from rtsid.runtime.power import set_realtime_priority
 
     release = threading.Event()
     thread = threading.Thread(target=release.wait, args=(10,))
     thread.start()
     try:
-        tid = thread.native_id
-        assert tid is not None
-        with realtime_process(0) as raised:  # 0: nothing changes
-            assert raised == 0 and not fifo(tid) and not fifo(0)
+        assert thread.native_id is not None
+        set_realtime_priority(thread.native_id, 0)  # 0: left alone
+        assert os.sched_getscheduler(thread.native_id) == os.SCHED_OTHER
         try:
-            with realtime_process(5) as raised:
-                assert raised >= 2 and fifo(tid) and fifo(0)
-                assert os.sched_getparam(tid).sched_priority == 5
-                assert os.sched_getscheduler(tid) & os.SCHED_RESET_ON_FORK  # children: normal
+            set_realtime_priority(thread.native_id, 5, "rtsid-worker")
         except ConfigError:
             pytest.skip("this machine does not allow real-time scheduling (not root)")
-        assert not fifo(tid) and not fifo(0)  # given back
+        assert os.sched_getscheduler(thread.native_id) == os.SCHED_FIFO
+        assert os.sched_getparam(thread.native_id).sched_priority == 5
+        assert os.sched_getscheduler(0) == os.SCHED_OTHER  # only that thread
     finally:
         release.set()
         thread.join(10)
@@ -70,6 +62,7 @@ def test_every_thread_runs_real_time_for_the_block_only_and_a_refusal_names_the_
         raise PermissionError(1, "Operation not permitted")
 
     monkeypatch.setattr(os, "sched_setscheduler", refuse)
-    with pytest.raises(ConfigError, match=r"daemon\.realtime_priority.*LimitRTPRIO.*= 0"):
-        with realtime_process(10):
-            pass
+    with pytest.raises(
+        ConfigError, match=r"daemon\.realtime_priority.*rtsid-worker.*LimitRTPRIO.*= 0"
+    ):
+        set_realtime_priority(12345, 10, "rtsid-worker")
