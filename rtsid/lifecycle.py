@@ -104,6 +104,11 @@ class ThreadOwner:
         return ended and self.error is None
 
     @property
+    def native_id(self) -> int | None:
+        """The thread's kernel id once started (for scheduling it; None before)."""
+        return None if self._thread is None else self._thread.native_id
+
+    @property
     def running(self) -> bool:
         """Whether the thread is alive."""
         return self._thread is not None and self._thread.is_alive()

@@ -27,6 +27,8 @@ from rtsid.errors import RecordingError, RtsidWarning
 from rtsid.ident.reflex_lane import ReflexModels, SlowLaneSettings, fit_reflex_update
 from rtsid.io.calibration import robot_calibration, with_recorded_calibration
 from rtsid.io.mcap_read import (
+    TOPICS,
+    holds_topics,
     iter_estimates,
     read_metadata,
     run_config_from_metadata,
@@ -113,6 +115,8 @@ class LiveDecisions:
         reflex: dict[int, tuple[int | None, bool, bool]] = {}
         stale: set[int] = set()
         for part in parts:
+            if not holds_topics(part, (TOPICS["estimate"],)):
+                continue  # a finished part without estimates (a converted recording)
             for m in iter_estimates(part):
                 if is_announcement(m):
                     continue
@@ -164,6 +168,7 @@ class WindowCutter:
         self.reach = evaluator.window_samples + evaluator.history_samples
         self.grid: SampleGrid | None = None
         self.first = self.next_end = 0
+        self._times: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # rows -> host, bus times
 
     def add(self, batch: SampleBatch) -> Iterator[Snapshot]:
         """The windows ``batch`` completes (it follows the previous batch on the grid)."""
@@ -178,12 +183,36 @@ class WindowCutter:
             if self.slow_lane is not None:
                 self.slow_lane.catch_up(grid, self.first, end)
             if self.live is None or not self.live.skipped(end):
-                yield _snapshot(grid.rows(max(end - self.reach + 1, self.first), end + 1))
+                yield self._snapshot(grid, max(end - self.reach + 1, self.first), end + 1)
             self.next_end += self.evaluator.hop_samples
         keep = self.next_end - self.reach + 1
         if self.slow_lane is not None:
             keep = min(keep, self.slow_lane.oldest_needed(self.first))
         grid.drop_before(keep)
+
+    def _snapshot(self, grid: SampleGrid, start: int, stop: int) -> Snapshot:
+        """Rows ``start .. stop − 1`` as the ring's snapshot (views): recorded samples have no
+        host or bus times (zeros and NaN, read-only columns shared by every window of the
+        same length)."""
+        n = stop - start
+        times = self._times.get(n)
+        if times is None:
+            times = self._times[n] = (_read_only(np.zeros(n)), _read_only(np.full(n, np.nan)))
+        position, torque, valid, status = grid.columns(start, stop)
+        return Snapshot(
+            np.arange(start, stop, dtype=np.int64),
+            position,
+            torque,
+            valid,
+            status,
+            times[0],
+            times[1],
+        )
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    array.flags.writeable = False
+    return array
 
 
 class ReplayedSlowLane:
@@ -239,19 +268,6 @@ class ReplayedSlowLane:
             self.fit_cpu_s += time.thread_time() - started_cpu
             self.publish(self.evaluator.reflex_message(update, None))
             self._next = seq + 1
-
-
-def _snapshot(rows: SampleBatch) -> Snapshot:
-    n = len(rows)
-    return Snapshot(
-        sample_index=np.arange(rows.first_index, rows.end_index, dtype=np.int64),
-        position_rad=rows.position_rad,
-        torque_nm=rows.torque_nm,
-        valid=rows.valid,
-        status=rows.status,
-        host_time_s=np.zeros(n),
-        bus_time_s=np.full(n, np.nan),
-    )
 
 
 def paced(

@@ -353,3 +353,19 @@ def test_the_python_api_pins_blas_to_one_thread_as_the_command_line_does():
         timeout=120,
     )
     assert kept.stdout.split() == ["2", "1", "1"]  # a user's own setting stays
+
+
+def test_a_directory_goes_to_the_pool_largest_recording_first(tmp_path):
+    """A long recording started last would leave the other processes idle while it ends: the
+    pool takes them by size (a rotated session's parts summed), the table keeps their names'
+    order (tested above)."""
+    from rtsid.commands.replay import _longest_first
+
+    sizes = {"a.mcap": 10, "b.mcap": 300, "c.mcap": 40}
+    for name, size in sizes.items():
+        (tmp_path / name).write_bytes(b"x" * size)
+    session = "rtsid-r-j-20261127T010000Z"
+    (tmp_path / f"{session}.mcap").write_bytes(b"x" * 200)
+    (tmp_path / f"{session}-001.mcap").write_bytes(b"x" * 200)  # 400 bytes in all
+    order = _longest_first([tmp_path / n for n in (*sizes, f"{session}.mcap")])
+    assert [p.name for p in order] == [f"{session}.mcap", "b.mcap", "c.mcap", "a.mcap"]

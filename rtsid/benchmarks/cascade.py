@@ -18,6 +18,8 @@
 from __future__ import annotations
 
 import argparse
+import itertools
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -28,7 +30,7 @@ from rtsid.benchmarks.real import DEFAULT_DATA, TORQUE_SIGN
 from rtsid.benchmarks.table import median_p99, print_table, time_calls
 from rtsid.errors import InputDataError
 from rtsid.ident.cascade import CascadeSettings, fit_parallel_cascade, intrinsic_parameters
-from rtsid.ident.reflex import decimated
+from rtsid.ident.reflex import ReflexPathway, ReflexStream, decimated
 from rtsid.ident.reflex_lane import SlowLaneSettings, fit_reflex_update, predict_reflex_torque
 from rtsid.ident.vaf import vaf
 from rtsid.ident.window import EstimatorOptions, estimate_window
@@ -359,6 +361,30 @@ def _first_decision_s(fits: list[dict[str, Any]], present: bool) -> float:
 
 
 # ----------------------------------------------------------------------------- 4. cost
+def _streamed_hops(
+    pathway: ReflexPathway,
+    theta: np.ndarray,
+    n: int,
+    history: int,
+    settings: SlowLaneSettings,
+) -> Callable[[], object]:
+    """One call: the fast lane's next 20 ms hop of the reflex prediction (the stream carries
+    what the earlier hops formed; back to the record's start after its end)."""
+    stream = ReflexStream()
+    hop = round(0.02 * SIM_FS)
+    ends = itertools.cycle(range(n + history, theta.size + 1, hop))
+
+    def next_hop() -> object:
+        end = next(ends)
+        first = end - n - history
+        segment = theta[first:end]
+        return predict_reflex_torque(
+            pathway, segment, None, SIM_FS, n, settings, first_index=first, stream=stream
+        )
+
+    return next_hop
+
+
 def _cost_table() -> None:
     settings = SlowLaneSettings(enabled=True)
     theta, torque = prbs_ankle_with_reflex(20.0, SIM_FS, SIM_JOINT, SIM_REFLEX, seed=0)
@@ -374,7 +400,10 @@ def _cost_table() -> None:
         "one window estimate (baseline)": time_calls(
             lambda: estimate_window(*window, SIM_FS, options), min_calls=50
         ),
-        "reflex prediction per window (fast lane)": time_calls(
+        "reflex prediction per 20 ms hop (fast lane, streamed)": time_calls(
+            _streamed_hops(pathway, theta, n, history, settings), min_calls=50
+        ),
+        "reflex prediction of one window formed afresh (lost samples)": time_calls(
             lambda: predict_reflex_torque(pathway, segment, None, SIM_FS, n, settings),
             min_calls=50,
         ),

@@ -91,6 +91,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "and the plant's defaults, the lane judges it absent)",
     )
     parser.add_argument(
+        "--realtime-priority",
+        type=int,
+        default=0,
+        help="the daemon's [daemon] realtime_priority (0: normal scheduling; 1-99: its "
+        "acquisition and worker threads in SCHED_FIFO, ahead of the machine's other work)",
+    )
+    parser.add_argument(
         "--cpu-latency-us",
         type=int,
         default=0,
@@ -208,6 +215,7 @@ def _config_file(
     hop_s: float = 0.02,
     switch_interval_s: float | None = None,
     lowpass_hz: float | None = None,
+    realtime_priority: int = 0,
 ) -> Path:
     path = folder / "bench.toml"
     estimator = f"[estimator]\nlowpass_hz = {lowpass_hz!r}\n" if lowpass_hz is not None else ""
@@ -222,7 +230,8 @@ def _config_file(
     path.write_text(
         f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\nrobot = "bench"\n'
         f'[mcap]\ndirectory = "{folder / "rec"}"\n{link}'
-        f"[daemon]\ncpu_latency_us = {cpu_latency_us}\n{switch}"
+        f"[daemon]\ncpu_latency_us = {cpu_latency_us}\nrealtime_priority = {realtime_priority}\n"
+        f"{switch}"
         f"[worker]\nhop_s = {hop_s!r}\n{estimator}" + _slow_lane_section(slow_lane, plant_reflex)
     )
     return path
@@ -320,6 +329,7 @@ def _run_phase(
     lowpass_hz: float | None = None,
     *,
     replay: bool = True,
+    realtime_priority: int = 0,
 ) -> Phase:
     phase = Phase(name)
     with tempfile.TemporaryDirectory(prefix="rtsid-bench-") as tmp:
@@ -335,6 +345,7 @@ def _run_phase(
             hop_s,
             switch_interval_s,
             lowpass_hz,
+            realtime_priority,
         )
         plant = _start_plant(can_port, config) if can_port is not None else None
         daemon = subprocess.Popen(
@@ -509,6 +520,7 @@ def run(args: argparse.Namespace) -> int:
             f"idle machine{suffix}",
             *(seconds, False, args.transport, qos, mode, reflex, hop_s, switch_s, args.lowpass_hz),
             replay=not args.no_replay,
+            realtime_priority=args.realtime_priority,
         )
         rows.append(_row(idle, None))
         lanes.append(_lane_row(idle, mode))
@@ -528,6 +540,7 @@ def run(args: argparse.Namespace) -> int:
                     args.lowpass_hz,
                 ),
                 replay=not args.no_replay,
+                realtime_priority=args.realtime_priority,
             )
             rows.append(_row(loaded, idle))
             lanes.append(_lane_row(loaded, mode))
@@ -538,6 +551,11 @@ def run(args: argparse.Namespace) -> int:
         f"cpu_latency_us = {qos}"
         + ("" if switch_s is None else f"; GIL switch interval {args.switch_interval_ms:g} ms")
         + ("" if args.lowpass_hz is None else f"; [estimator] lowpass_hz = {args.lowpass_hz:g}")
+        + (
+            ""
+            if not args.realtime_priority
+            else f"; [daemon] realtime_priority = {args.realtime_priority}"
+        )
         + ")",
         [
             "phase",

@@ -201,8 +201,10 @@ def _scaling_table(quick: bool) -> None:
         note=(
             "O(·) per stage, N = window samples, H = reflex history samples (≈ 1.3 s), "
             "M = analysis samples (N/factor), L = IRF lags, T = FIR taps: reflex prediction "
-            "O((N + H)·sections) (the zero-phase decimator runs over the whole segment) + "
-            "O(M·L_reflex) for the tail's convolution; estimate: detrend and FIR decimation "
+            "streamed, per hop O((hop/factor + R)·(T_r + L_reflex)) for the model samples the "
+            "hop adds and the R ≈ 11 newest formed again (T_r = 20·factor + 1 decimator taps: "
+            "it grows with the rate) + O(N) to hand out the window's torque, not with H; "
+            "estimate: detrend and FIR decimation "
             "O(N) (T/factor is fixed by the plan), correlations and 3 refinement sweeps "
             "O(M·L), EUREKA O(L²), output-error fit O(M) + sandwich O(M·(L + T/factor)), "
             "in-band published VAF O(M·k_band) = O(M²·band/analysis rate); tracker O(1) + "

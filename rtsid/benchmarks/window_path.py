@@ -25,7 +25,7 @@ from rtsid.benchmarks.table import median_p99
 from rtsid.ident.excitation import filtered_noise
 from rtsid.ident.levinson import HAVE_COMPILED_KERNEL
 from rtsid.ident.options import EstimatorOptions
-from rtsid.ident.reflex import ReflexPathway
+from rtsid.ident.reflex import ReflexPathway, ReflexStream
 from rtsid.ident.reflex_lane import (
     ReflexModels,
     SlowLaneSettings,
@@ -112,14 +112,18 @@ def path_times(case: PathCase, skip_windows: int = 10) -> PathTimes:
         window_s=n_win / fs,
         tracker=TrackerOptions(),
     )
+    reflex = ReflexStream()  # carried from hop to hop, as the fast lane's
     stages: dict[str, list[float]] = {name: [] for name in STAGES}
     total: list[float] = []
     for k, end in enumerate(range(n_win + history, theta.size + 1, n_hop)):
         t0 = time.perf_counter()
         predicted = None
         if pathway is not None:
-            segment = theta[end - n_win - history : end]
-            predicted = predict_reflex_torque(pathway, segment, None, fs, n_win, settings)
+            first = end - n_win - history
+            segment = theta[first:end]
+            predicted = predict_reflex_torque(
+                pathway, segment, None, fs, n_win, settings, first_index=first, stream=reflex
+            )
         t1 = time.perf_counter()
         position, torque = theta[end - n_win : end], tau[end - n_win : end]
         if predicted is not None:

@@ -154,19 +154,26 @@ def _replay_directory(folder: Path, args: argparse.Namespace) -> list[list[Any]]
     out_dir = Path(args.output) if args.output else None
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
-    jobs = args.jobs or mp.cpu_count()
+    # a child more than there are recordings would only import rtsid (≈ 2 s of CPU) and wait
+    jobs = min(args.jobs or mp.cpu_count(), len(sessions))
     ctx = mp.get_context("spawn")
     # Only plain options cross to the spawned children; they publish nothing and draw no bar.
     quiet = argparse.Namespace(config=args.config, rate=args.rate, publish=False, progress=False)
     with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-        futures = [
-            pool.submit(_replay_one, f, quiet, out_dir / f"{f.stem}.csv" if out_dir else None)
-            for f in sessions
-        ]
-        for done, future in enumerate(cf.as_completed(futures), start=1):
+        futures = {
+            f: pool.submit(_replay_one, f, quiet, out_dir / f"{f.stem}.csv" if out_dir else None)
+            for f in _longest_first(sessions)
+        }
+        for done, future in enumerate(cf.as_completed(futures.values()), start=1):
             _recordings_done(done, len(futures), future.result()[0][0])
         # the table keeps the recordings' order, whichever finished first
-        return [_rewarn(*f.result()) for f in futures]
+        return [_rewarn(*futures[f].result()) for f in sessions]
+
+
+def _longest_first(sessions: list[Path]) -> list[Path]:
+    """The recordings by size, largest first (the pool takes them in this order): a long
+    recording started last would leave the other processes idle while it ends."""
+    return sorted(sessions, key=lambda f: -sum(p.stat().st_size for p in session_parts(f)))
 
 
 def _recordings_done(done: int, total: int, name: str) -> None:

@@ -11,8 +11,9 @@
  * band_limit (a torque explained elsewhere, band-limited like the window's), window_fit (the
  * relative fit's back end), oe_design / oe_fit / oe_vafs (the output-error back end in three
  * calls) and oe_window (the same in one call, with the full fit the held parameters learn
- * from and the newest hop's K: rtsid.ident.fused), reflex_rect_input / reflex_rect_tail (the
- * fast lane's reflex prediction); the numpy stages are their tested reference.
+ * from and the newest hop's K: rtsid.ident.fused), reflex_rect_hop (the fast lane's reflex
+ * prediction, one hop of rtsid.ident.reflex.ReflexStream); the numpy stages are their tested
+ * reference.
  *
  * solve(r, b, x, work) -> (status, alpha)
  *   r     float64[n]  first column of R (r[0] > 0)
@@ -25,6 +26,7 @@
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <float.h>
 #include <math.h>
 
 /* Release the GIL only for systems this large (≈ 1 ms and up); shorter calls keep it so that
@@ -1038,14 +1040,10 @@ static PyObject *py_oe_window(PyObject *self, PyObject *args)
     return result;
 }
 
-/* ------------------------------------------------------------------ reflex pathway input
- * reflex_rect_input: the rectified stretch velocity of a segment at the reflex model's rate,
- * what rtsid.ident.reflex.ReflexPathway.torque feeds its IRF for the "rect" variant (its numpy
- * code is the reference): the segment's line removed, the velocity by the 9-point stencil
- * (numpy.gradient's second-order formulas at the four samples of each end), max(v, 0), the
- * zero-phase Chebyshev decimator (scipy's sosfiltfilt: odd extension of `edge` samples, steady
- * state initial conditions, direct form II transposed sections) and every factor-th sample
- * kept, its mean removed. O(n·sections).
+/* ------------------------------------------------------------------ the reflex decimator
+ * sos_filtfilt: the zero-phase Chebyshev decimator of rtsid.ident.reflex.decimated (scipy's
+ * sosfiltfilt: odd extension, steady state initial conditions, direct form II transposed
+ * sections), what the slow lane's fit feeds the reflex IRF. O(n·sections).
  */
 /* sos_run for the decimator's four sections, the states in registers and each section's
  * output substituted into its state updates (s0 ← (b1 − a1·b0)·x − a1·s0 + s1,
@@ -1187,144 +1185,6 @@ static PyObject *py_sos_filtfilt(PyObject *self, PyObject *args)
         result = Py_None;
     }
     release_buffers(b, 3);
-    return result;
-}
-
-static void reflex_rect_input(const double *pos, Py_ssize_t n, double fs, const double *sos,
-                              const double *zi, Py_ssize_t ns, Py_ssize_t edge,
-                              Py_ssize_t factor, double *out, Py_ssize_t m, double *work)
-{
-    double *x = work, *ext = work + n;
-    detrend_into(pos, x, n, 1.0, 2); /* detrend(position, "linear") */
-    /* velocity (into ext + edge), rectified */
-    double *v = ext + edge;
-    const double dt = 1.0 / fs;
-    v[0] = (-1.5 / dt) * x[0] + (2. / dt) * x[1] + (-0.5 / dt) * x[2];
-    v[n - 1] = (0.5 / dt) * x[n - 3] + (-2. / dt) * x[n - 2] + (1.5 / dt) * x[n - 1];
-    for (Py_ssize_t i = 1; i < 4; i++) {
-        v[i] = (x[i + 1] - x[i - 1]) / (2. * dt);
-        v[n - 1 - i] = (x[n - i] - x[n - 2 - i]) / (2. * dt);
-    }
-    for (Py_ssize_t i = 4; i < n - 4; i++) {
-        double acc = 0.0;
-        for (int s = 0; s < 9; s++) acc += x[i - 4 + s] * STENCIL_D1[s];
-        v[i] = acc * fs;
-    }
-    for (Py_ssize_t i = 0; i < n; i++) v[i] = (v[i] > 0.0 || v[i] != v[i]) ? v[i] : 0.0; /* NaN stays, as np.maximum */
-    /* scipy's odd extension, then forwards and backwards */
-    for (Py_ssize_t j = 1; j <= edge; j++) {
-        ext[edge - j] = 2 * v[0] - v[j];
-        ext[edge + n - 1 + j] = 2 * v[n - 1] - v[n - 1 - j];
-    }
-    const Py_ssize_t total = n + 2 * edge;
-    sos_run(sos, zi, ns, ext, total, 0);
-    sos_run(sos, zi, ns, ext, total, 1);
-    double acc = 0.0;
-    for (Py_ssize_t k = 0; k < m; k++) {
-        out[k] = v[k * factor];
-        acc += out[k];
-    }
-    acc /= (double)m;
-    for (Py_ssize_t k = 0; k < m; k++) out[k] -= acc;
-}
-
-static PyObject *py_reflex_rect_input(PyObject *self, PyObject *args)
-{
-    PyObject *objs[4];
-    double fs;
-    Py_ssize_t edge, factor;
-    if (!PyArg_ParseTuple(args, "OdOOnnO", &objs[0], &fs, &objs[1], &objs[2], &edge, &factor,
-                          &objs[3])) {
-        return NULL;
-    }
-    const char *names[4] = {"position", "sos", "zi", "out"};
-    Py_buffer b[4];
-    if (get_buffers(objs, 4, 3, names, b) < 0) return NULL;
-    Py_ssize_t n = b[0].len / 8, ns = b[1].len / 48, m = b[3].len / 8;
-    PyObject *result = NULL;
-    if (ns < 1 || ns > 16 || b[1].len != 48 * ns || b[2].len != 16 * ns || factor < 1 ||
-        edge < 1 || n <= edge || n < 9 || m != (n + factor - 1) / factor) {
-        PyErr_SetString(PyExc_ValueError, "reflex_rect_input: inconsistent sizes");
-    } else {
-        double *work = PyMem_Malloc(sizeof(double) * (2 * n + 2 * edge));
-        if (work == NULL) {
-            PyErr_NoMemory();
-        } else {
-            reflex_rect_input(b[0].buf, n, fs, b[1].buf, b[2].buf, ns, edge, factor, b[3].buf,
-                              m, work);
-            PyMem_Free(work);
-            Py_INCREF(Py_None);
-            result = Py_None;
-        }
-    }
-    release_buffers(b, 4);
-    return result;
-}
-
-/* The causal convolution's outputs low[j] = Σ_i g[i]·r[first + j − i] (0 ≤ first + j − i,
- * i < ng), j = 0 … m − 1 − first (reflex._causal_outputs), at the data's rate by linear
- * interpolation at samples n − n_last … n − 1, the model's samples at (first + j)·factor and
- * the last one held after it (as numpy.interp). */
-static void causal_tail(const double *r, Py_ssize_t m, const double *g, Py_ssize_t ng,
-                        Py_ssize_t first, Py_ssize_t factor, Py_ssize_t n, Py_ssize_t n_last,
-                        double *out, double *low)
-{
-    const Py_ssize_t nlow = m - first;
-    for (Py_ssize_t j = 0; j < nlow; j++) {
-        const Py_ssize_t at = first + j;
-        const Py_ssize_t top = at + 1 < ng ? at + 1 : ng;
-        double acc = 0.0;
-        for (Py_ssize_t i = 0; i < top; i++) acc += g[i] * r[at - i];
-        low[j] = acc;
-    }
-    for (Py_ssize_t q = 0; q < n_last; q++) {
-        const Py_ssize_t x = n - n_last + q;
-        const Py_ssize_t j = x / factor - first; /* the model sample at or before x */
-        if (j >= nlow - 1) {
-            out[q] = low[nlow - 1];
-        } else if (x == (first + j) * factor) {
-            out[q] = low[j];
-        } else {
-            const double slope = (low[j + 1] - low[j]) / (double)factor;
-            out[q] = slope * (double)(x - (first + j) * factor) + low[j];
-        }
-    }
-}
-
-static PyObject *py_reflex_rect_tail(PyObject *self, PyObject *args)
-{
-    PyObject *objs[5];
-    double fs;
-    Py_ssize_t edge, factor;
-    if (!PyArg_ParseTuple(args, "OdOOnnOO", &objs[0], &fs, &objs[1], &objs[2], &edge, &factor,
-                          &objs[3], &objs[4])) {
-        return NULL;
-    }
-    const char *names[5] = {"position", "sos", "zi", "g", "out"};
-    Py_buffer b[5];
-    if (get_buffers(objs, 5, 4, names, b) < 0) return NULL;
-    Py_ssize_t n = b[0].len / 8, ns = b[1].len / 48, ng = b[3].len / 8, n_last = b[4].len / 8;
-    Py_ssize_t m = factor >= 1 ? (n + factor - 1) / factor : 0;
-    PyObject *result = NULL;
-    if (ns < 1 || ns > 16 || b[1].len != 48 * ns || b[2].len != 16 * ns || factor < 2 ||
-        edge < 1 || n <= edge || n < 9 || ng < 1 || n_last < 1 || n_last > n) {
-        PyErr_SetString(PyExc_ValueError, "reflex_rect_tail: inconsistent sizes");
-    } else {
-        double *work = PyMem_Malloc(sizeof(double) * (2 * n + 2 * edge + 2 * m));
-        if (work == NULL) {
-            PyErr_NoMemory();
-        } else {
-            double *input = work + 2 * n + 2 * edge, *low = input + m;
-            reflex_rect_input(b[0].buf, n, fs, b[1].buf, b[2].buf, ns, edge, factor, input, m,
-                              work);
-            causal_tail(input, m, b[3].buf, ng, (n - n_last) / factor, factor, n, n_last,
-                        b[4].buf, low);
-            PyMem_Free(work);
-            Py_INCREF(Py_None);
-            result = Py_None;
-        }
-    }
-    release_buffers(b, 5);
     return result;
 }
 
@@ -1538,6 +1398,175 @@ static PyObject *py_solve(PyObject *self, PyObject *args)
     return result;
 }
 
+/* ------------------------------------------------------------------ reflex stream (issue 22)
+ * reflex_rect_hop: one hop of rtsid.ident.reflex.ReflexStream for the "rect" pathway (its numpy
+ * code, reflex._hop, is the reference). Model sample m sits at data sample m·factor (absolute
+ * indices). Its pathway input r(m) = Σ_j taps_j·max(v(m·factor − R + j), 0), v the 9-point
+ * stencil's velocity of the position point-reflected beyond the segment's ends; its IRF output
+ * y(m) = Σ_k g_k·r(m − k) (r = 0 before the first input the segment gives). Values kept from
+ * earlier hops are used where they are; the others are formed. The window's torque is
+ * y − mean(r)·Σg, linear between model samples and the last one held. With reuse, this hop's
+ * final values (their stencils and taps within the segment) replace the kept ones.
+ * O(hop + taps·reach/factor) per hop in the steady state.
+ */
+static Py_ssize_t floor_div(Py_ssize_t a, Py_ssize_t b)
+{
+    const Py_ssize_t q = a / b;
+    return (a % b != 0 && ((a < 0) != (b < 0))) ? q - 1 : q;
+}
+
+/* r(m) for m = m_from … m_to into out; x: scratch of (m_to − m_from)·factor + ntaps + 8 */
+static void rect_rates(const double *pos, Py_ssize_t n, Py_ssize_t first, double fs,
+                       const double *taps, Py_ssize_t ntaps, Py_ssize_t factor,
+                       Py_ssize_t m_from, Py_ssize_t m_to, double *out, double *x)
+{
+    const Py_ssize_t reach = (ntaps - 1) / 2;
+    const Py_ssize_t nu = (m_to - m_from) * factor + ntaps;
+    const Py_ssize_t low = m_from * factor - reach - 4 - first; /* relative to the segment */
+    for (Py_ssize_t i = 0; i < nu + 8; i++) {
+        const Py_ssize_t at = low + i;
+        x[i] = at < 0 ? 2 * pos[0] - pos[-at]
+               : at > n - 1 ? 2 * pos[n - 1] - pos[2 * (n - 1) - at]
+                            : pos[at];
+    }
+    double *u = x; /* the velocity overwrites the positions it no longer needs */
+    for (Py_ssize_t i = 0; i < nu; i++) {
+        double acc = 0.0;
+        for (int s = 0; s < 9; s++) acc += x[i + s] * STENCIL_D1[s];
+        const double v = acc * fs;
+        u[i] = (v > 0.0 || v != v) ? v : 0.0; /* NaN stays, as np.maximum */
+    }
+    for (Py_ssize_t k = 0; k <= m_to - m_from; k++) {
+        out[k] = dot_unrolled(taps, u + k * factor, ntaps);
+    }
+}
+
+/* y(m) for m = m_from … m_to into out, from r at model samples r_low … */
+static void irf_outputs(const double *r, Py_ssize_t r_low, const double *g, Py_ssize_t ng,
+                        Py_ssize_t m_from, Py_ssize_t m_to, double *out)
+{
+    for (Py_ssize_t m = m_from; m <= m_to; m++) {
+        const Py_ssize_t top = m - r_low < ng - 1 ? m - r_low : ng - 1;
+        double acc = 0.0;
+        for (Py_ssize_t k = 0; k <= top; k++) acc += g[k] * r[m - k - r_low];
+        out[m - m_from] = acc;
+    }
+}
+
+static PyObject *py_reflex_rect_hop(PyObject *self, PyObject *args)
+{
+    PyObject *objs[6];
+    Py_ssize_t first, factor, in_first, in_count, out_first, out_count;
+    double fs;
+    int reuse;
+    if (!PyArg_ParseTuple(args, "OndOnOiOnnOnnO", &objs[0], &first, &fs, &objs[1], &factor,
+                          &objs[2], &reuse, &objs[3], &in_first, &in_count, &objs[4],
+                          &out_first, &out_count, &objs[5])) {
+        return NULL;
+    }
+    const char *names[6] = {"position", "taps", "g", "inputs", "outputs", "out"};
+    Py_buffer b[6];
+    if (get_buffers(objs, 6, 3, names, b) < 0) return NULL;
+    const double *pos = b[0].buf, *taps = b[1].buf, *g = b[2].buf;
+    double *kept_r = b[3].buf, *kept_y = b[4].buf, *out = b[5].buf;
+    const Py_ssize_t n = b[0].len / 8, ntaps = b[1].len / 8, ng = b[2].len / 8;
+    const Py_ssize_t cap_r = b[3].len / 8, cap_y = b[4].len / 8, n_last = b[5].len / 8;
+    const Py_ssize_t lags = ng - 1, reach = (ntaps - 1) / 2 + 4;
+    PyObject *result = NULL;
+    if (factor < 1 || ntaps % 2 != 1 || ng < 1 || n < reach + 1 || n_last < 1 || n_last > n ||
+        in_count < 0 || in_count > cap_r || out_count < 0 || out_count > cap_y) {
+        PyErr_SetString(PyExc_ValueError, "reflex_rect_hop: inconsistent sizes");
+        release_buffers(b, 6);
+        return NULL;
+    }
+    const Py_ssize_t end = first + n - 1;
+    const Py_ssize_t last = floor_div(end, factor);
+    const Py_ssize_t window_first = floor_div(end - n_last + 1, factor);
+    const Py_ssize_t first_model = -floor_div(-first, factor);
+    const Py_ssize_t low = window_first - lags > first_model ? window_first - lags : first_model;
+    const Py_ssize_t final_low = -floor_div(-(first + reach), factor);
+    const Py_ssize_t final_high = floor_div(end - reach, factor);
+    const Py_ssize_t nr = last - low + 1, ny = last - window_first + 1;
+    if (!reuse) in_count = out_count = 0;
+    if (nr > cap_r || ny > cap_y) {
+        PyErr_SetString(PyExc_ValueError, "reflex_rect_hop: kept buffers too small");
+        release_buffers(b, 6);
+        return NULL;
+    }
+    double *work = PyMem_Malloc(sizeof(double) * (nr + ny + (nr + 1) * factor + ntaps + 8));
+    if (work == NULL) {
+        release_buffers(b, 6);
+        return PyErr_NoMemory();
+    }
+    double *r = work, *y = work + nr, *x = work + nr + ny;
+    /* the inputs: kept where kept, formed elsewhere */
+    /* a kept value is used only where this segment would form it final too */
+    Py_ssize_t a = in_first > final_low ? in_first : final_low;
+    if (a < low) a = low;
+    Py_ssize_t z = in_first + in_count - 1 < last ? in_first + in_count - 1 : last;
+    if (in_count == 0 || a > z) {
+        a = last + 1;
+        z = last;
+    } else {
+        memcpy(r + (a - low), kept_r + (a - in_first), sizeof(double) * (z - a + 1));
+    }
+    if (low < a) rect_rates(pos, n, first, fs, taps, ntaps, factor, low, a - 1, r, x);
+    if (z < last && z + 1 >= low) {
+        rect_rates(pos, n, first, fs, taps, ntaps, factor, z + 1, last, r + (z + 1 - low), x);
+    }
+    /* the outputs, likewise */
+    const Py_ssize_t first_output =
+        final_low + lags > window_first ? final_low + lags : window_first;
+    a = out_first > first_output ? out_first : first_output;
+    z = out_first + out_count - 1 < last ? out_first + out_count - 1 : last;
+    if (out_count == 0 || a > z) {
+        a = last + 1;
+        z = last;
+    } else {
+        memcpy(y + (a - window_first), kept_y + (a - out_first), sizeof(double) * (z - a + 1));
+    }
+    if (window_first < a) irf_outputs(r, low, g, ng, window_first, a - 1, y);
+    if (z < last && z + 1 >= window_first) {
+        irf_outputs(r, low, g, ng, z + 1, last, y + (z + 1 - window_first));
+    }
+    /* the window's torque */
+    double sum_r = 0.0, sum_g = 0.0;
+    for (Py_ssize_t i = 0; i < nr; i++) sum_r += r[i];
+    for (Py_ssize_t k = 0; k < ng; k++) sum_g += g[k];
+    const double offset = sum_r / (double)nr * sum_g;
+    double *zz = x; /* y − offset, scratch */
+    for (Py_ssize_t j = 0; j < ny; j++) zz[j] = y[j] - offset;
+    Py_ssize_t j = 0, phase = end - n_last + 1 - window_first * factor; /* no division per sample */
+    for (Py_ssize_t q = 0; q < n_last; q++, phase++) {
+        if (phase == factor) {
+            phase = 0;
+            j++;
+        }
+        if (j >= ny - 1) {
+            out[q] = zz[ny - 1];
+        } else {
+            const double t = (double)phase / (double)factor;
+            out[q] = zz[j] + (zz[j + 1] - zz[j]) * t;
+        }
+    }
+    /* keep this hop's final values */
+    if (reuse) {
+        a = final_low > low ? final_low : low;
+        z = final_high < last ? final_high : last;
+        in_first = a;
+        in_count = z >= a ? z - a + 1 : 0;
+        if (in_count > 0) memcpy(kept_r, r + (a - low), sizeof(double) * in_count);
+        a = first_output;
+        out_first = a;
+        out_count = z >= a ? z - a + 1 : 0;
+        if (out_count > 0) memcpy(kept_y, y + (a - window_first), sizeof(double) * out_count);
+    }
+    PyMem_Free(work);
+    release_buffers(b, 6);
+    return Py_BuildValue("nnnn", in_first, in_count, out_first, out_count);
+}
+static PyObject *py_json_array(PyObject *self, PyObject *args); /* sample batches, below */
+
 /* ------------------------------------------------------------------ the tracker's split scan
  * split_scan: every split of one window's K into a value before and a value after, what
  * rtsid.ident.split.SplitProblem.of and .scan compute in numpy (their tested reference): the
@@ -1726,18 +1755,14 @@ static PyMethodDef methods[] = {
      "oe_window(u, y, h, fs, k, held, learn, uncertainty, lags, explained, torque_slope, "
      "position_slope, kmax, tw_cos, tw_sin, newest_rows, regressors, projected, gram, model, "
      "out) -> status: a stream window's output-error back end (OW_* index out)."},
-    {"reflex_rect_tail", py_reflex_rect_tail, METH_VARARGS,
-     "reflex_rect_tail(position, fs, sos, zi, edge, factor, g, out): the rect pathway's torque "
-     "over the segment's last len(out) samples (input, causal IRF, interpolation)."},
     {"band_limit", py_band_limit, METH_VARARGS,
      "band_limit(x, taps, factor, sign, out): sign·x, mean removed, FIR-decimated."},
-    {"reflex_rect_input", py_reflex_rect_input, METH_VARARGS,
-     "reflex_rect_input(position, fs, sos, zi, edge, factor, out): the rect reflex pathway's "
-     "input at the model's rate (detrend, velocity, max(v, 0), zero-phase decimation)."},
     {"sos_filtfilt", py_sos_filtfilt, METH_VARARGS,
      "sos_filtfilt(sos, zi, x): scipy's sosfiltfilt passes over an extended x, in place."},
     {"xcorr", py_xcorr, METH_VARARGS,
      "xcorr(u, y, first, last, norm, c): c[k-first] = sum_t u[t] y[t+k] / norm."},
+    {"reflex_rect_hop", py_reflex_rect_hop, METH_VARARGS, "reflex_rect_hop(position, first, fs, taps, factor, g, reuse, inputs, in_first, in_count, outputs, out_first, out_count, out) -> (in_first, in_count, out_first, out_count): one hop of the rect reflex stream."},
+    {"json_array", py_json_array, METH_VARARGS, "json_array(data, start, stop, kind, out): compact JSON array items into out."},
     {"window_sums", py_window_sums, METH_VARARGS, "window_sums(position, torque) -> (sum of position, sum of torque, sum of position squared)."},
     {"split_scan", py_split_scan, METH_VARARGS, "split_scan(regressors, measured, k, held, factor, delay, window_samples, fs, out) -> best row (-1: none usable, -2: no problem): every split of a window's K (SS_* rows of out)."},
     {NULL, NULL, 0, NULL},
@@ -1772,4 +1797,191 @@ PyMODINIT_FUNC PyInit__eureka(void)
         return NULL;
     }
     return m;
+}
+
+
+/* ------------------------------------------------------------------ sample batches (replay)
+ * json_array(data, start, stop, kind, out) -> None: the items of a compact JSON array,
+ * data[start:stop] (between its brackets, no whitespace: what rtsid's sample logger writes),
+ * into out:
+ *   kind 0  numbers or null (NaN) -> float64; a number is converted by Python's own
+ *           correctly rounded conversion (PyOS_string_to_double, as float() and json.loads
+ *           do), so the doubles are json.loads's bit for bit;
+ *   kind 1  true / false -> bool (one byte each);
+ *   kind 2  integers -> int64.
+ * Anything else (whitespace, another token, an integer in a float column, an integer beyond
+ * int64, more or fewer items than len(out)) raises ValueError: rtsid.io.schemas then reads
+ * the payload with json.loads, the reference, which accepts it or says what is wrong.
+ */
+#define JSON_NUMBER_MAX 64
+
+/* End of the JSON number at s[i] (before stop), or -1; *integer: no fraction, no exponent. */
+static Py_ssize_t json_number_end(const char *s, Py_ssize_t i, Py_ssize_t stop, int *integer)
+{
+    Py_ssize_t k = i, d;
+    *integer = 1;
+    if (k < stop && s[k] == '-') k++;
+    if (k >= stop) return -1;
+    if (s[k] == '0') {
+        k++;
+    } else if (s[k] >= '1' && s[k] <= '9') {
+        while (k < stop && s[k] >= '0' && s[k] <= '9') k++;
+    } else {
+        return -1;
+    }
+    if (k < stop && s[k] == '.') {
+        *integer = 0;
+        d = ++k;
+        while (k < stop && s[k] >= '0' && s[k] <= '9') k++;
+        if (k == d) return -1;
+    }
+    if (k < stop && (s[k] == 'e' || s[k] == 'E')) {
+        *integer = 0;
+        k++;
+        if (k < stop && (s[k] == '+' || s[k] == '-')) k++;
+        d = k;
+        while (k < stop && s[k] >= '0' && s[k] <= '9') k++;
+        if (k == d) return -1;
+    }
+    return k;
+}
+
+static int json_literal(const char *s, Py_ssize_t i, Py_ssize_t stop, const char *word)
+{
+    Py_ssize_t n = (Py_ssize_t)strlen(word);
+    return stop - i >= n && memcmp(s + i, word, (size_t)n) == 0 ? (int)n : 0;
+}
+
+/* The number s[i:k] (JSON grammar checked) by one correctly rounded extended-precision
+ * operation, digits (< 2^64, exact) times or over a power of ten (10^0..10^27: exact in a
+ * 64-bit significand), then rounded to double. Rounding twice can differ from rounding once
+ * only when the extended result lies exactly halfway between two doubles; then, and for
+ * anything else this does not cover (more digits, a larger exponent, a subnormal result, a
+ * long double that is not x87's), returns 0 and the caller uses PyOS_string_to_double. */
+static int decimal_fast(const char *s, Py_ssize_t i, Py_ssize_t k, double *out)
+{
+#if LDBL_MANT_DIG == 64
+    static const long double pow10[28] = {
+        1e0L, 1e1L, 1e2L, 1e3L, 1e4L, 1e5L, 1e6L, 1e7L, 1e8L, 1e9L, 1e10L, 1e11L, 1e12L, 1e13L,
+        1e14L, 1e15L, 1e16L, 1e17L, 1e18L, 1e19L, 1e20L, 1e21L, 1e22L, 1e23L, 1e24L, 1e25L,
+        1e26L, 1e27L};
+    int negative = s[i] == '-';
+    unsigned long long w = 0;
+    long scale = 0, exponent = 0;
+    Py_ssize_t j = i + negative;
+    for (; j < k && s[j] >= '0' && s[j] <= '9'; j++) {
+        if (w > (ULLONG_MAX - 9) / 10) return 0;
+        w = w * 10 + (unsigned)(s[j] - '0');
+    }
+    if (j < k && s[j] == '.') {
+        for (j++; j < k && s[j] >= '0' && s[j] <= '9'; j++) {
+            if (w > (ULLONG_MAX - 9) / 10) return 0;
+            w = w * 10 + (unsigned)(s[j] - '0');
+            scale--;
+        }
+    }
+    if (j < k) { /* e / E, sign, digits */
+        int minus = 0;
+        j++;
+        if (s[j] == '+' || s[j] == '-') minus = s[j++] == '-';
+        for (; j < k; j++) {
+            if (exponent > 1000) return 0;
+            exponent = exponent * 10 + (s[j] - '0');
+        }
+        scale += minus ? -exponent : exponent;
+    }
+    if (w == 0) {
+        *out = negative ? -0.0 : 0.0;
+        return 1;
+    }
+    if (scale < -27 || scale > 27) return 0;
+    long double r = (long double)w;
+    r = scale < 0 ? r / pow10[-scale] : r * pow10[scale];
+    double d = (double)r;
+    if ((long double)d != r) {
+        double other = r > (long double)d ? nextafter(d, INFINITY) : nextafter(d, -INFINITY);
+        if (((long double)d + (long double)other) * 0.5L == r) return 0; /* halfway */
+    }
+    if (!(d >= DBL_MIN && d <= DBL_MAX)) return 0;
+    *out = negative ? -d : d;
+    return 1;
+#else
+    (void)s; (void)i; (void)k; (void)out;
+    return 0;
+#endif
+}
+
+/* One item at s[i]; returns its end or -1. */
+static Py_ssize_t json_item(const char *s, Py_ssize_t i, Py_ssize_t stop, int kind, char *out)
+{
+    int integer, n;
+    Py_ssize_t k;
+    if (kind == 1) {
+        if ((n = json_literal(s, i, stop, "true")) > 0) { *(unsigned char *)out = 1; return i + n; }
+        if ((n = json_literal(s, i, stop, "false")) > 0) { *(unsigned char *)out = 0; return i + n; }
+        return -1;
+    }
+    if (kind == 0 && (n = json_literal(s, i, stop, "null")) > 0) {
+        *(double *)out = NAN;
+        return i + n;
+    }
+    k = json_number_end(s, i, stop, &integer);
+    if (k < 0 || k - i >= JSON_NUMBER_MAX) return -1;
+    if (kind == 2) {
+        if (!integer) return -1;
+        long long value = 0;
+        int negative = s[i] == '-';
+        for (Py_ssize_t j = i + negative; j < k; j++) {
+            int digit = s[j] - '0';
+            if (value > (LLONG_MAX - digit) / 10) return -1; /* beyond int64: the reference says */
+            value = value * 10 + digit;
+        }
+        *(long long *)out = negative ? -value : value;
+        return k;
+    }
+    if (integer) return -1; /* json.loads makes an int of it ("-0" is +0.0): the reference */
+    if (decimal_fast(s, i, k, (double *)out)) return k;
+    char token[JSON_NUMBER_MAX];
+    memcpy(token, s + i, (size_t)(k - i));
+    token[k - i] = '\0';
+    char *end = NULL;
+    double value = PyOS_string_to_double(token, &end, NULL);
+    if (end != token + (k - i)) {
+        PyErr_Clear();
+        return -1;
+    }
+    *(double *)out = value;
+    return k;
+}
+
+static PyObject *py_json_array(PyObject *self, PyObject *args)
+{
+    Py_buffer data, out;
+    Py_ssize_t start, stop;
+    int kind;
+    if (!PyArg_ParseTuple(args, "y*nniw*", &data, &start, &stop, &kind, &out)) return NULL;
+    const Py_ssize_t size = kind == 1 ? 1 : 8;
+    const Py_ssize_t count = out.len / size;
+    const char *s = (const char *)data.buf;
+    char *o = (char *)out.buf;
+    Py_ssize_t i = start, items = 0;
+    int ok = kind >= 0 && kind <= 2 && out.len % size == 0 && 0 <= start && start <= stop &&
+             stop <= data.len;
+    while (ok && i < stop) {
+        if (items > 0) {
+            if (s[i] != ',') { ok = 0; break; }
+            i++;
+        }
+        if (items >= count) { ok = 0; break; }
+        i = json_item(s, i, stop, kind, o + items * size);
+        ok = i >= 0;
+        items++;
+    }
+    PyBuffer_Release(&data);
+    PyBuffer_Release(&out);
+    if (!ok || items != count) {
+        PyErr_SetString(PyExc_ValueError, "json_array: not a compact JSON array of this kind");
+        return NULL;
+    }
+    Py_RETURN_NONE;
 }

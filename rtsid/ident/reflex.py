@@ -32,7 +32,9 @@ real record the fit ends at the lower bound at every model rate tried (10.0 ms a
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from functools import cached_property, lru_cache
 
 import numpy as np
@@ -41,7 +43,7 @@ from scipy import optimize, signal
 
 from rtsid.errors import InputDataError
 from rtsid.ident.correlation import auto_correlation, cross_correlation, detrend
-from rtsid.ident.filters import derivatives
+from rtsid.ident.filters import derivatives, stencil_derivatives
 from rtsid.ident.levinson import compiled_kernel, eureka
 
 __all__ = [
@@ -49,6 +51,7 @@ __all__ = [
     "ReflexDynamics",
     "ReflexInputs",
     "ReflexPathway",
+    "ReflexStream",
     "ToeplitzSystem",
     "convolve_causal",
     "decimated",
@@ -57,6 +60,7 @@ __all__ = [
     "fit_reflex_pathway",
     "mdl_projection",
     "prediction_history_s",
+    "stream_taps",
     "stretch_velocity",
     "to_data_rate",
 ]
@@ -461,43 +465,6 @@ class ReflexPathway:
         low = convolve_causal(pathway_input, self.irf, self.fs_hz)
         return to_data_rate(low, factor, pos.size)
 
-    def torque_tail(self, position: ArrayLike, fs_hz: float, n_last: int) -> FloatArray:
-        """``torque(position, fs_hz)[-n_last:]`` — the same numbers, computed for the tail.
-
-        The pathway's input is formed over the whole segment (its detrending and zero-phase
-        decimation depend on all of it); only the model samples the tail interpolates are
-        convolved with the IRF, and only the tail is interpolated. For ``"rect"`` the
-        compiled kernel, when built, does all three in one call (``reflex_rect_tail``,
-        tested equal to :meth:`torque`).
-        """
-        pos = np.ascontiguousarray(position, dtype=np.float64)
-        factor = self._factor(fs_hz)
-        n_last = min(n_last, pos.size)
-        if n_last <= 0:
-            return np.empty(0)
-        if factor == 1 or pos.size < 9:
-            return self.torque(pos, fs_hz)[pos.size - n_last :]
-        decimator = _decimator(factor)
-        if _eureka is not None and self.variant == "rect" and pos.size > decimator.edge:
-            tail = np.empty(n_last)
-            _eureka.reflex_rect_tail(
-                pos,
-                fs_hz,
-                decimator.sos,
-                decimator.zi,
-                decimator.edge,
-                factor,
-                self._per_sample_irf,
-                tail,
-            )
-            return tail
-        velocity = stretch_velocity(pos, fs_hz)
-        pathway_input = _at_model_rate(self.nonlinearity(velocity), factor)
-        first = (pos.size - n_last) // factor  # the model sample at or before the tail's first
-        low = _causal_outputs(pathway_input, self._per_sample_irf, first)
-        times = np.arange(first, first + low.size) * factor
-        return np.interp(np.arange(pos.size - n_last, pos.size), times, low)
-
     @cached_property
     def _per_sample_irf(self) -> FloatArray:
         """The IRF per model sample (``irf / fs_hz``), formed once per pathway."""
@@ -522,12 +489,321 @@ def to_data_rate(low: FloatArray, factor: int, n: int) -> FloatArray:
     return np.interp(np.arange(n), np.arange(low.size) * factor, low)
 
 
-def _causal_outputs(r: FloatArray, g: FloatArray, first: int) -> FloatArray:
-    """``np.convolve(r, g)[first : r.size]``: the causal convolution's outputs from ``first``
-    on, each over the IRF's span only (what :func:`convolve_causal` gives there)."""
-    span = g.size
-    start = max(0, first - span + 1)
-    return np.asarray(np.convolve(r[start:], g)[first - start : r.size - start], dtype=np.float64)
+# ----------------------------------------------------------------------------- the stream
+#: Model samples of position a streamed pathway input reaches either side of its own time:
+#: the decimator's zero-phase response is kept over ±this many model samples (±0.1 s at
+#: 100 Hz), so a model sample's input is final once this much newer data has arrived.
+STREAM_REACH_MODEL_SAMPLES = 10
+#: Data samples the velocity stencil reaches either side (9-point central differences).
+_STENCIL_HALF = 4
+
+
+@lru_cache(maxsize=8)
+def stream_taps(factor: int) -> FloatArray:
+    """The streamed decimator: the zero-phase response of :func:`decimated`'s filter (its
+    impulse response correlated with itself: what a forward-and-backward run applies far from
+    a record's ends), kept over ``±STREAM_REACH_MODEL_SAMPLES·factor`` samples with a
+    cos² taper, scaled to the same static gain; ``[1.0]`` when ``factor`` is 1.
+
+    Returns
+    -------
+    numpy.ndarray, shape (2N+1,)
+        Symmetric taps at the data's rate, lag ``−N … N``.
+    """
+    if factor == 1:
+        return np.ones(1)
+    d = _decimator(factor)
+    reach = STREAM_REACH_MODEL_SAMPLES * factor
+    impulse = np.zeros(400 * factor)  # the slowest pole (|p| ≈ 0.993 at 25) decays to 1e-12
+    impulse[0] = 1.0
+    h = signal.sosfilt(d.sos, impulse)
+    half = np.array([h[: h.size - j] @ h[j:] for j in range(reach + 1)])
+    half *= np.cos(0.5 * np.pi * np.arange(reach + 1) / (reach + 1)) ** 2
+    taps = np.concatenate((half[:0:-1], half))
+    static = np.prod(d.sos[:, :3].sum(axis=1) / d.sos[:, 3:].sum(axis=1)) ** 2
+    taps *= static / taps.sum()
+    taps.setflags(write=False)
+    return taps
+
+
+def _extended(position: FloatArray, first_index: int, low: int, high: int) -> FloatArray:
+    """Position at the absolute sample indices ``low … high``, the segment point-reflected
+    about its first and last samples beyond its ends (``θ(e + j) = 2θ(e) − θ(e − j)``: the
+    velocity continues mirrored, so a rectifier sees no jump)."""
+    n = position.size
+    at = np.arange(low - first_index, high - first_index + 1)
+    before, after = at < 0, at > n - 1
+    inside = np.clip(at, 0, n - 1)
+    out = position[inside]
+    out[before] = 2 * position[0] - position[-at[before]]
+    out[after] = 2 * position[n - 1] - position[2 * (n - 1) - at[after]]
+    return out
+
+
+def _pathway_rates(
+    position: FloatArray,
+    first_index: int,
+    fs_hz: float,
+    taps: FloatArray,
+    factor: int,
+    m_from: int,
+    m_to: int,
+    nonlinearity: Callable[[FloatArray], FloatArray],
+) -> FloatArray:
+    """The streamed pathway input at model samples ``m_from … m_to`` (at absolute data
+    samples ``m·factor``): the velocity by the 9-point stencil of the (point-reflected)
+    position, the static nonlinearity, and the decimator's taps centred on each model
+    sample. Each value is its own dot product, the same whichever run it is computed in."""
+    reach = (taps.size - 1) // 2
+    low, high = m_from * factor - reach, m_to * factor + reach
+    x = _extended(position, first_index, low - _STENCIL_HALF, high + _STENCIL_HALF)
+    velocity, _ = stencil_derivatives(x, fs_hz)
+    u = nonlinearity(velocity)
+    return np.array(
+        [taps @ u[k * factor : k * factor + taps.size] for k in range(m_to - m_from + 1)],
+        dtype=np.float64,
+    )
+
+
+@dataclass
+class _Kept:
+    """Final values from earlier hops at model samples ``first … first + count − 1`` (in
+    ``values[:count]``; ``values`` has room for a segment's model samples)."""
+
+    first: int = 0
+    count: int = 0
+    values: FloatArray = field(default_factory=lambda: np.empty(0))
+
+    def with_room(self, capacity: int) -> _Kept:
+        """Itself, its buffer grown to ``capacity`` values when smaller."""
+        if self.values.size < capacity:
+            grown = np.empty(capacity)
+            grown[: self.count] = self.values[: self.count]
+            self.values = grown
+        return self
+
+    def gather(
+        self, low: int, high: int, usable: int, form: Callable[[int, int], FloatArray]
+    ) -> FloatArray:
+        """Values at ``low … high``: the kept ones from ``usable`` on (where this segment
+        would form them final too), the others by ``form(a, b)`` (``a … b``)."""
+        out = np.empty(high - low + 1)
+        kept_low, kept_high = max(self.first, usable), self.first + self.count - 1
+        if self.count == 0 or kept_low > kept_high or kept_high < low or kept_low > high:
+            out[:] = form(low, high)
+            return out
+        a, b = max(low, kept_low), min(high, kept_high)
+        out[a - low : b - low + 1] = self.values[a - self.first : b - self.first + 1]
+        if low < a:
+            out[: a - low] = form(low, a - 1)
+        if b < high:
+            out[b - low + 1 :] = form(b + 1, high)
+        return out
+
+    def keep(self, values: FloatArray, low: int, a: int, b: int) -> None:
+        """Keep ``values`` (at ``low …``) from ``a`` to ``b`` (nothing when ``b < a``)."""
+        self.first, self.count = a, max(0, b - a + 1)
+        self.values = values[a - low : a - low + self.count].copy()
+
+
+@dataclass(frozen=True)
+class _HopGrid:
+    """Where one hop's model samples lie (absolute model-sample indices; see ReflexStream)."""
+
+    last: int  # the model sample at or before the segment's last data sample
+    window_first: int  # the model sample at or before the first sample wanted
+    inputs_low: int  # the first pathway input the window's outputs convolve
+    final_low: int  # pathway inputs final from here …
+    final_high: int  # … to here (their taps and stencils within the segment)
+
+    @classmethod
+    def of(
+        cls, first_index: int, n: int, n_last: int, factor: int, reach: int, lags: int
+    ) -> _HopGrid:
+        end = first_index + n - 1
+        window_first = (end - n_last + 1) // factor
+        inputs_low = max(window_first - lags, -(-first_index // factor))
+        return cls(
+            end // factor,
+            window_first,
+            inputs_low,
+            -(-(first_index + reach) // factor),
+            (end - reach) // factor,
+        )
+
+
+def _hop(
+    pathway: ReflexPathway,
+    position: FloatArray,
+    first_index: int,
+    fs_hz: float,
+    n_last: int,
+    taps: FloatArray,
+    factor: int,
+    inputs: _Kept,
+    outputs: _Kept,
+    reuse: bool,
+) -> FloatArray:
+    """One hop of :class:`ReflexStream` (the numpy reference of ``reflex_rect_hop``)."""
+    g = pathway._per_sample_irf
+    lags = g.size - 1
+    grid = _HopGrid.of(
+        first_index, position.size, n_last, factor, taps.size // 2 + _STENCIL_HALF, lags
+    )
+    low = grid.inputs_low
+
+    def rates(a: int, b: int) -> FloatArray:
+        return _pathway_rates(
+            position, first_index, fs_hz, taps, factor, a, b, pathway.nonlinearity
+        )
+
+    r = (inputs if reuse else _Kept()).gather(low, grid.last, grid.final_low, rates)
+
+    def convolved(a: int, b: int) -> FloatArray:  # y(m) = Σ_k g_k·r(m − k), r = 0 before low
+        start = max(0, a - low - lags)
+        full = np.convolve(r[start : b - low + 1], g)
+        return full[a - low - start : b - low - start + 1]
+
+    first_output = max(grid.final_low + lags, grid.window_first)  # all inputs final
+    y = (outputs if reuse else _Kept()).gather(
+        grid.window_first, grid.last, first_output, convolved
+    )
+    offset = math.fsum(r) / r.size * math.fsum(g)  # exact sums: alike whatever r's memory
+    z = y - offset
+    out = _interpolated(z, grid.window_first, factor, first_index + position.size - n_last, n_last)
+    if reuse:
+        inputs.keep(r, low, max(grid.final_low, low), min(grid.final_high, grid.last))
+        outputs.keep(y, grid.window_first, first_output, min(grid.final_high, grid.last))
+    return out
+
+
+def _interpolated(z: FloatArray, z_first: int, factor: int, first: int, n: int) -> FloatArray:
+    """``z`` (at model samples ``z_first …``) at data samples ``first … first + n − 1``:
+    linear between model samples, the last one held after it."""
+    at = np.arange(first, first + n)
+    model = at // factor
+    j = model - z_first
+    last = z.size - 1
+    if last == 0:
+        return np.full(n, z[0])
+    below = np.minimum(j, last - 1)
+    z0, z1 = z[below], z[below + 1]
+    out = z0 + (z1 - z0) * ((at - model * factor) / factor)
+    out[j >= last] = z[last]
+    return out
+
+
+class ReflexStream:
+    """The fast lane's reflex prediction, hop by hop: each model sample's pathway input and
+    IRF output are computed once and carried to the next hop.
+
+    The prediction is defined on the absolute sample grid (model sample ``m`` at data sample
+    ``m·factor``) as a function of the position samples alone, so carrying values from hop
+    to hop gives the very numbers of computing them afresh (tested): a replay that evaluates
+    the same windows, or skips some, reproduces a live run bit for bit.
+
+    * Pathway input ``r(m)``: the velocity by the 9-point stencil (no detrending: the fit's
+      line over 20 s is a velocity offset of ≈ 0), the static nonlinearity, and the fit's
+      zero-phase decimator as taps over ``±STREAM_REACH_MODEL_SAMPLES`` model samples
+      (:func:`stream_taps`). Final once that much newer data has arrived; the newest are
+      formed again each hop, from the position point-reflected about its last sample.
+    * IRF output ``y(m) = Σ_k g_k·r(m − k)``: final once all its inputs are.
+    * Torque: ``y − c·Σ g``, ``c`` the mean of the inputs the window's outputs convolve (the
+      fit's input is mean-free; a window's offset, as before), linear between model samples
+      and held after the last one.
+
+    Per hop the cost is the new model samples and the ``≈ STREAM_REACH_MODEL_SAMPLES`` newest
+    formed again: it grows with the hop, not with the window and history (plus copying the
+    window's torque out). Compiled for ``"rect"`` (``reflex_rect_hop``); the numpy code is
+    the reference.
+    """
+
+    def __init__(self) -> None:
+        self._rates: tuple[int, float] = (0, 0.0)  # (factor, fs_hz) of the kept inputs
+        self._inputs_of: ReflexPathway | None = None  # their polynomial's pathway (rect: None)
+        self._outputs_of: ReflexPathway | None = None  # the pathway of the kept outputs
+        self._inputs = _Kept()
+        self._outputs = _Kept()
+
+    def torque_tail(
+        self,
+        pathway: ReflexPathway,
+        position: ArrayLike,
+        first_index: int,
+        fs_hz: float,
+        n_last: int,
+        *,
+        reuse: bool = True,
+    ) -> FloatArray:
+        """The reflex torque (N·m) at the last ``n_last`` samples of ``position``.
+
+        Parameters
+        ----------
+        pathway : ReflexPathway
+            The model the window uses.
+        position : array_like, shape (n,)
+            Joint angle (rad) at samples ``first_index … first_index + n − 1``: the window
+            and the pathway's history before it (:attr:`ReflexPathway.history_s`).
+        first_index : int
+            Absolute index of the first sample.
+        fs_hz : float
+            Sampling rate, Hz (a whole multiple of the model's).
+        n_last : int
+            Samples wanted.
+        reuse : bool
+            The samples are the recorded ones (none bridged): values from earlier hops may be
+            used, and this hop's final ones are kept. Otherwise all are formed from
+            ``position`` and nothing is kept.
+
+        Raises
+        ------
+        InputDataError
+            The rates do not match, or ``position`` is shorter than the decimator's reach.
+        """
+        pos = np.ascontiguousarray(position, dtype=np.float64)
+        factor = pathway._factor(fs_hz)
+        taps = stream_taps(factor)
+        shortest = taps.size // 2 + _STENCIL_HALF + 1
+        n_last = min(n_last, pos.size)
+        if n_last <= 0:
+            return np.empty(0)
+        if pos.size < shortest:
+            raise InputDataError(
+                f"a reflex prediction needs at least {shortest} samples of position, got {pos.size}"
+            )
+        # the rectifier's inputs serve every rect pathway of a rate; a polynomial's are its own
+        owner = None if pathway.variant == "rect" else pathway
+        if (factor, fs_hz) != self._rates or owner is not self._inputs_of:
+            self._rates, self._inputs_of, self._inputs = (factor, fs_hz), owner, _Kept()
+            self._outputs_of = None
+        if pathway is not self._outputs_of:
+            self._outputs_of, self._outputs = pathway, _Kept()
+        inputs, outputs = (self._inputs, self._outputs) if reuse else (_Kept(), _Kept())
+        if _eureka is None or pathway.variant != "rect":
+            return _hop(
+                pathway, pos, first_index, fs_hz, n_last, taps, factor, inputs, outputs, reuse
+            )
+        capacity = pos.size // factor + 2
+        inputs.with_room(capacity)
+        outputs.with_room(capacity)
+        out = np.empty(n_last)
+        inputs.first, inputs.count, outputs.first, outputs.count = _eureka.reflex_rect_hop(
+            pos,
+            first_index,
+            fs_hz,
+            taps,
+            factor,
+            pathway._per_sample_irf,
+            int(reuse),
+            inputs.values,
+            inputs.first,
+            inputs.count,
+            outputs.values,
+            outputs.first,
+            outputs.count,
+            out,
+        )
+        return out
 
 
 class ReflexInputs:

@@ -30,7 +30,12 @@ from numpy.typing import NDArray
 
 from rtsid.errors import ConfigError, InputDataError, invalid, require_choice, require_range
 from rtsid.ident.cascade import CascadeFit, CascadeSettings, cascade_minimum_s, fit_parallel_cascade
-from rtsid.ident.reflex import REFLEX_VARIANTS, ReflexPathway, prediction_history_s
+from rtsid.ident.reflex import (
+    REFLEX_VARIANTS,
+    ReflexPathway,
+    ReflexStream,
+    prediction_history_s,
+)
 from rtsid.ident.yardstick import WindowVafBasis
 
 __all__ = [
@@ -436,9 +441,32 @@ def predict_reflex_torque(
     fs_hz: float,
     n_last: int,
     settings: SlowLaneSettings,
+    *,
+    first_index: int = 0,
+    stream: ReflexStream | None = None,
 ) -> FloatArray:
     """The reflex torque over the last ``n_last`` samples of ``position`` (the window), from
     the window and the history before it.
+
+    Parameters
+    ----------
+    pathway : ReflexPathway
+        The due model.
+    position : numpy.ndarray, shape (n,)
+        Joint angle (rad): the window and up to :attr:`ReflexModels.history_samples` before.
+    valid : numpy.ndarray of bool, shape (n,), or None
+        Samples received (None: all); lost ones are bridged (:func:`bridged`).
+    fs_hz : float
+        Sampling rate, Hz.
+    n_last : int
+        Samples of the window.
+    settings : SlowLaneSettings
+    first_index : int
+        Absolute index of ``position[0]`` (the stream's model samples sit on the absolute
+        grid, so that every hop, live or replayed, forms the same numbers).
+    stream : ReflexStream, optional
+        The stream that carries the pathway's inputs and outputs from hop to hop (the fast
+        lane's); without it, the window is formed afresh (the same numbers).
 
     Raises
     ------
@@ -446,4 +474,7 @@ def predict_reflex_torque(
         The history has more lost samples than the slow lane bridges.
     """
     pos = bridged(np.asarray(position, dtype=np.float64), valid, fs_hz, settings)
-    return pathway.torque_tail(pos, fs_hz, n_last)
+    reuse = stream is not None and (valid is None or bool(np.all(valid)))
+    return (stream or ReflexStream()).torque_tail(
+        pathway, pos, first_index, fs_hz, n_last, reuse=reuse
+    )

@@ -39,6 +39,7 @@ from rtsid.io.summary_table import (
 __all__ = [
     "ReadReport",
     "holds_no_record",
+    "holds_topics",
     "iter_can_frames",
     "iter_estimates",
     "iter_messages",
@@ -53,6 +54,7 @@ __all__ = [
     "run_config_from_metadata",
     "sample_count",
     "summarize",
+    "topic_counts",
 ]
 
 #: Largest MCAP record or chunk (uncompressed) read, bytes: rtsid writes chunks of at most
@@ -334,6 +336,26 @@ def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
         if isinstance(record, Metadata):
             out[record.name] = dict(record.metadata)
     return out
+
+
+def topic_counts(path: str | Path) -> dict[str, int] | None:
+    """Messages per topic by a finished file's Statistics record, without reading a message
+    (None when the file has no summary to say: no footer, damaged, or not indexed)."""
+    damage: tuple[type[BaseException], ...] = (*_damage_errors(), OverflowError, StopIteration)
+    with _open(path) as fh:
+        try:
+            summary = _summary_records(fh)
+        except damage:
+            return None
+    return None if summary is None else _channel_counts(summary)
+
+
+def holds_topics(path: str | Path, topics: Iterable[str]) -> bool:
+    """Whether the file may hold messages of ``topics``: False only when its Statistics record
+    says it holds none (a pass over the file for them would decompress every chunk for
+    nothing: a converted recording has samples alone)."""
+    counts = topic_counts(path)
+    return counts is None or any(counts.get(t, 0) for t in topics)
 
 
 def read_run_config(path: str | Path) -> dict[str, Any]:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import operator
 import time
 import types
 import typing
@@ -182,15 +183,104 @@ class EstimateMessage:
             host_time_ns=time.time_ns(),
         )
 
+    @classmethod
+    def window_dict(
+        cls,
+        estimate: WindowEstimate | None,
+        reason: Reason | None,
+        track: Tracked | None,
+        *,
+        seq: int,
+        first: int,
+        last: int,
+        fs_hz: float,
+        robot: str = "",
+        joint: str = "",
+        flags: Sequence[Flag] = (),
+        compute_ms: float | None = None,
+        latency_ms: float | None = None,
+        reflex_seq: int | None = None,
+    ) -> dict[str, Any]:
+        """``of_window(...).as_dict()`` without building the message: the same JSON object,
+        keys in field order, at a fraction of the cost (the evaluator publishes one every
+        window; a replay builds tens of thousands a minute)."""
+        numbers: tuple[Any, ...] = _NO_NUMBERS
+        all_flags: list[Flag] = []
+        if estimate is not None:
+            numbers, all_flags = _window_numbers(estimate), [*estimate.flags, *flags]
+        else:
+            reflex_seq = None
+        i, b, k, i_se, b_se, k_se, vaf, vaf_irf, vaf_fit, lost, i_held, b_held = numbers
+        tracked: tuple[Any, ...] = (None,) * 4
+        if track is not None:
+            tracked = (track.K, track.K_se, track.B, track.B_se)
+        k_track, k_track_se, b_track, b_track_se = tracked
+        values = [
+            robot,
+            joint,
+            last / fs_hz,
+            k_track,
+            k_track_se,
+            k,
+            k_se,
+            b,
+            b_se,
+            b_held,
+            i,
+            i_se,
+            i_held,
+            vaf,
+            estimate is not None,
+            reason,
+            all_flags,
+            b_track,
+            b_track_se,
+            vaf_irf,
+            vaf_fit,
+            lost,
+            seq,
+            first,
+            last,
+            first / fs_hz,
+            compute_ms,
+            latency_ms,
+            reflex_seq,
+            time.time_ns(),
+        ]
+        isfinite = math.isfinite
+        for j in _NUMBER_POSITIONS:  # the number fields: JSON has no NaN
+            value = values[j]
+            if value is not None and not isfinite(value):
+                values[j] = None
+        return dict(zip(_ESTIMATE_NAMES, values, strict=True))
+
     def as_dict(self) -> dict[str, Any]:
         """The JSON object: non-finite numbers as ``None``, flags as a list."""
-        out: dict[str, Any] = {}
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, float) and not math.isfinite(value):
-                value = None
-            out[f.name] = list(value) if f.name == "flags" else value
+        out = _json_object(_estimate_values(self))
+        out["flags"] = list(self.flags)
         return out
+
+
+def _json_object(values: Sequence[Any]) -> dict[str, Any]:
+    """An estimate message's field values as its JSON object: non-finite floats (JSON has no
+    NaN) as None."""
+    isfinite = math.isfinite
+    return {
+        name: None if isinstance(value, float) and not isfinite(value) else value
+        for name, value in zip(_ESTIMATE_NAMES, values, strict=True)
+    }
+
+
+#: The estimate message's field names, in order (the JSON keys, the CSV columns).
+_ESTIMATE_NAMES = tuple(f.name for f in dataclasses.fields(EstimateMessage))
+#: An estimate message's field values, in that order.
+_estimate_values = operator.attrgetter(*_ESTIMATE_NAMES)
+#: Where the fields typed ``float`` (or ``float | None``) are in that order.
+_NUMBER_POSITIONS = tuple(
+    j
+    for j, f in enumerate(dataclasses.fields(EstimateMessage))
+    if f.type in ("float", "float | None")
+)
 
 
 #: What an estimate message takes from the window's estimate (None when withheld).
@@ -208,6 +298,8 @@ _WINDOW_NUMBERS = (
     "I_held",
     "B_held",
 )
+_window_numbers = operator.attrgetter(*_WINDOW_NUMBERS)
+_NO_NUMBERS = (None,) * len(_WINDOW_NUMBERS)
 
 
 def _fields_as_json(message: Any) -> dict[str, Any]:

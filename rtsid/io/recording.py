@@ -31,9 +31,11 @@ from rtsid.io.mcap_read import (
     TOPICS,
     ReadReport,
     holds_no_record,
+    holds_topics,
     iter_estimates,
     iter_sample_batches,
     read_json_topics,
+    read_metadata,
     read_run_config,
     read_summary_table,
     recording_parts,
@@ -178,6 +180,25 @@ class SampleGrid:
             self._valid[sl],
             self._status[sl],
         )
+
+    def columns(
+        self, start_index: int, stop_index: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Position, torque, valid and status of rows ``start_index .. stop_index − 1``: what
+        :meth:`rows` holds, as views without the batch around them (replay cuts a window's
+        columns every hop).
+
+        Raises
+        ------
+        IndexError
+            Rows outside what the grid holds.
+        """
+        if not self._first <= start_index <= stop_index <= self._first + self._hi - self._lo:
+            raise IndexError(
+                f"rows {start_index}..{stop_index} are outside {self.first_index}..{self.end_index}"
+            )
+        sl = slice(self._lo + start_index - self._first, self._lo + stop_index - self._first)
+        return self._position[sl], self._torque[sl], self._valid[sl], self._status[sl]
 
     def all_rows(self) -> SampleBatch:
         """Every row kept, as views."""
@@ -492,7 +513,11 @@ def read_messages(paths: Paths, topics: Sequence[str]) -> RecordedMessages:
     complete = True
     for part in parts:
         tally = _Tally(part)
-        found, meta = read_json_topics(part, topics, tally.report)
+        if holds_topics(part, topics):
+            found, meta = read_json_topics(part, topics, tally.report)
+        else:  # a finished part whose statistics say it holds none of them
+            found, meta = {t: [] for t in topics}, read_metadata(part)
+            tally.report.complete = True
         for message in found.get("/estimate", []):
             tally.add_estimate(message)
         for topic in topics:

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from rtsid.errors import InputDataError
+from rtsid.ident.levinson import compiled_kernel
 from rtsid.io.messages import (
     ESTIMATE_SCHEMA,
     MARKER_SCHEMA,
@@ -57,6 +58,7 @@ __all__ = [
     "WITHHELD_REASONS",
     "SampleBatch",
     "decode_samples",
+    "decode_samples_json",
     "encode_can_frames",
     "encode_estimate",
     "encode_json",
@@ -373,6 +375,71 @@ def encode_samples(
 
 def decode_samples(data: bytes | str, log_time_ns: int = 0) -> SampleBatch:
     """Decode a samples payload into numpy arrays (null → NaN).
+
+    A payload in the logger's own compact layout (:func:`encode_samples`) is read by the
+    compiled kernel's ``json_array`` (the same doubles as ``json.loads``, bit for bit, about
+    ten times faster: what replay spends reading a recording); any other payload, or every
+    payload with ``RTSID_NUMPY_ONLY=1``, by ``json.loads``, the reference.
+
+    Raises
+    ------
+    InputDataError
+        Not JSON or not a samples message.
+    """
+    fast = _decode_compact_samples(data, log_time_ns)
+    if fast is not None:
+        return fast
+    return decode_samples_json(data, log_time_ns)
+
+
+#: What separates the columns of a compact samples payload, in :func:`encode_samples`'s order.
+_COLUMN_SEPARATORS = (b',"position_rad":[', b'],"torque_nm":[', b'],"valid":[', b'],"status":[')
+#: Each column's kind for the kernel's ``json_array`` and its dtype.
+_COLUMN_KINDS = ((0, np.float64), (0, np.float64), (1, np.bool_), (2, np.int64))
+
+
+def _decode_compact_samples(data: bytes | str, log_time_ns: int) -> SampleBatch | None:
+    """A payload in :func:`encode_samples`'s exact layout, its columns read by the compiled
+    kernel; None (the caller reads it with ``json.loads``) for anything else, or without the
+    kernel."""
+    kernel = compiled_kernel()
+    if kernel is None or type(data) is not bytes:
+        return None
+    head_end = data.find(_COLUMN_SEPARATORS[0])
+    if head_end < 0:
+        return None
+    columns: list[np.ndarray] = []
+    stop = head_end
+    rows = -1  # counted in the first column; the kernel refuses a column of another length
+    for separator, (kind, dtype) in zip(_COLUMN_SEPARATORS, _COLUMN_KINDS, strict=True):
+        if not data.startswith(separator, stop):
+            return None
+        start = stop + len(separator)
+        stop = data.find(b"]", start)
+        if stop < 0:
+            return None
+        if rows < 0:
+            rows = data.count(b",", start, stop) + 1 if stop > start else 0
+        column: np.ndarray = np.empty(rows, dtype)
+        try:
+            kernel.json_array(data, start, stop, kind, column)
+        except ValueError:
+            return None
+        columns.append(column)
+    if stop != len(data) - 2 or data[stop + 1 :] != b"}":
+        return None
+    try:
+        head = json.loads(data[:head_end] + b"}")
+        first_index, fs_hz = int(head["first_index"]), float(head["fs_hz"])
+    except (ValueError, KeyError, TypeError, OverflowError, RecursionError):
+        return None
+    position, torque, valid, status = columns
+    return SampleBatch(first_index, fs_hz, position, torque, valid, status, int(log_time_ns))
+
+
+def decode_samples_json(data: bytes | str, log_time_ns: int = 0) -> SampleBatch:
+    """:func:`decode_samples` by ``json.loads`` alone: the reference (and the reader of any
+    payload not in the compact layout).
 
     Raises
     ------

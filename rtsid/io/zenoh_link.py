@@ -112,7 +112,8 @@ class ZenohConfig:
     history_s : float
         Estimates and status kept in memory for the ``history`` queryable, s (0: no
         history; the ``estimate`` and ``status`` queryables still answer the latest).
-        About 1 KiB per estimate: 10 min at 50 Hz is ≈ 25 MiB.
+        About 0.17 kB per estimate once deflated (:meth:`ZenohPublisher.compact_history`):
+        10 min at 250 Hz (a 4 ms hop) is ≈ 25 MiB, at 50 Hz ≈ 5 MiB.
     """
 
     enabled: bool = True
@@ -595,6 +596,12 @@ class ZenohPublisher:
             return False
         payload = encode_samples(first_index, fs_hz, position_rad, torque_nm, valid, status)
         return self._put("samples", payload)
+
+    def compact_history(self) -> int:
+        """Deflate the history's sealed blocks (:meth:`rtsid.io.history.HistoryStore.compact`);
+        call it from a housekeeping thread, never from a publishing one. Returns the blocks
+        packed."""
+        return 0 if self.history is None else self.history.compact()
 
     def set_run_config(self, run_config: Mapping[str, Any]) -> None:
         """Replace what the ``config`` queryable answers."""

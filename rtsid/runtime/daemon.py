@@ -50,7 +50,7 @@ from rtsid.link.config import LinkConfig, PlantConfig, link_configs_from_mapping
 from rtsid.link.open import open_link
 from rtsid.link.ring import RingBuffer, Snapshot
 from rtsid.runtime.clock import Deadlines
-from rtsid.runtime.power import cpu_latency_request
+from rtsid.runtime.power import cpu_latency_request, set_realtime_priority
 from rtsid.runtime.session import SessionDesk, session_message
 from rtsid.runtime.slow_lane import SlowLane
 from rtsid.runtime.worker import WindowEvaluator, WindowWorker, WorkerConfig
@@ -99,6 +99,11 @@ class DaemonSettings:
         CPUs only use states that wake within this many µs; 0 keeps them polling, which
         cuts the wake-up tail of every thread on the machine, subscribers included (see
         :mod:`rtsid.runtime.power`). -1: no request (the default; it costs power).
+    realtime_priority : int
+        0 (the default): normal scheduling. 1–99: the acquisition and window-worker threads
+        run in Linux's ``SCHED_FIFO`` class at this priority, ahead of every normal process
+        on the machine (needs root, or ``LimitRTPRIO=`` in the systemd unit; see
+        :func:`rtsid.runtime.power.set_realtime_priority`).
     """
 
     status_period_s: float = 0.5
@@ -106,6 +111,7 @@ class DaemonSettings:
     shutdown_timeout_s: float = 3.0
     gil_switch_interval_s: float = 0.0001
     cpu_latency_us: int = -1
+    realtime_priority: int = 0
 
     def __post_init__(self) -> None:
         require_range("status_period_s", self.status_period_s, 0.05, 60.0)
@@ -113,6 +119,7 @@ class DaemonSettings:
         require_range("shutdown_timeout_s", self.shutdown_timeout_s, 0.1, 60.0)
         require_range("gil_switch_interval_s", self.gil_switch_interval_s, 1e-5, 0.1)
         require_range("cpu_latency_us", self.cpu_latency_us, -1, 1_000_000)
+        require_range("realtime_priority", self.realtime_priority, 0, 99)
 
 
 @dataclass(frozen=True)
@@ -295,8 +302,9 @@ class Daemon:
         self.meter = ProcessMeter()
         self._cursor = -1
         self._overwritten = 0
-        # (payload, log time ns) of estimates published but not yet handed to the MCAP writer
-        self._unlogged: collections.deque[tuple[bytes, int]] = collections.deque()
+        # (payload, log time ns, message) of estimates published but not yet handed to the
+        # MCAP writer
+        self._unlogged: collections.deque[tuple[bytes, int, dict[str, Any]]] = collections.deque()
         self.worker: WindowWorker | None = None
         self.acquisition: Acquisition | None = None
         self.slow_lane: SlowLane | None = None
@@ -408,6 +416,7 @@ class Daemon:
                 self._components = [acquisition, worker, mcap, handle.plant, slow_lane, desk]
                 clean = True
                 try:
+                    self._raise_priority(acquisition, worker)
                     self._housekeeping(ring, mcap, zenoh, end)
                 finally:
                     timeout = cfg.daemon.shutdown_timeout_s
@@ -423,6 +432,14 @@ class Daemon:
             clean &= not mcap.stats().get("errors", 0)
         self.failure = self.failure or self._first_failure()
         return self._summary(mcap, clean and self.failure is None)
+
+    def _raise_priority(self, *owners: ThreadOwner) -> None:
+        """Real-time scheduling for the threads on the estimate's path (``[daemon]
+        realtime_priority``; 0: none)."""
+        priority = self.config.daemon.realtime_priority
+        for owner in owners:
+            if owner.native_id is not None:
+                set_realtime_priority(owner.native_id, priority, owner.thread_name)
 
     def _first_failure(self) -> str | None:
         """The first component (acquisition, worker, MCAP writer, plant) whose thread died."""
@@ -445,6 +462,7 @@ class Daemon:
         while ticks.wait(self.stop_event):
             self._log_estimates(mcap)
             self._forward_samples(ring, mcap, zenoh)
+            zenoh.compact_history()  # deflate the history's sealed blocks here, off the worker
             tick += 1
             if tick % status_every == 0:
                 self._publish_status(mcap, zenoh)
@@ -516,16 +534,18 @@ class Daemon:
         zenoh.publish_estimate(payload)
         log_time_ns = message["host_time_ns"]
         if len(self._unlogged) < ESTIMATES_HELD:
-            self._unlogged.append((payload, log_time_ns))
+            self._unlogged.append((payload, log_time_ns, message))
         else:  # housekeeping is stuck: the writer's own bounded queue counts what it drops
             mcap.log_estimate(payload, log_time_ns=log_time_ns)
         self.last_estimate = message
 
     def _log_estimates(self, mcap: McapLogger) -> None:
-        """Hand the estimates the worker left to the MCAP writer, oldest first."""
-        while self._unlogged:
-            payload, log_time_ns = self._unlogged.popleft()
-            mcap.log_estimate(payload, log_time_ns=log_time_ns)
+        """Hand the estimates the worker left to the MCAP writer, oldest first, as one batch
+        (one queue item and one writer wake-up per tick, not one per estimate)."""
+        batch = []
+        while self._unlogged:  # popleft: the worker may append meanwhile
+            batch.append(self._unlogged.popleft())
+        mcap.log_estimates(batch)
 
     def _status(self, mcap: McapLogger, zenoh: ZenohPublisher) -> dict[str, Any]:
         acq = dataclasses.asdict(self.acquisition.counters()) if self.acquisition else {}

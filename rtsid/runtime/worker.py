@@ -38,6 +38,7 @@ from rtsid.errors import (
 )
 from rtsid.ident.check import window_sums
 from rtsid.ident.grid import first_window_end
+from rtsid.ident.reflex import ReflexStream
 from rtsid.ident.reflex_lane import ReflexModels, ReflexUpdate, predict_reflex_torque
 from rtsid.ident.sign import SignCount, inverted_torque_message
 from rtsid.ident.stream import Tracked, WindowStream
@@ -259,6 +260,7 @@ class WindowEvaluator:
         self.hop_samples = max(1, round(config.hop_s * fs_hz))
         self.reflex = reflex
         self.history_samples = reflex.history_samples if reflex is not None else 0
+        self.reflex_stream = ReflexStream()  # the reflex prediction carried from hop to hop
         self.reflex_flagged: Counter[str] = Counter()
         self.last_reflex = _NO_REFLEX  # the slow lane's part in the latest window
         # a replay following a live run: window end -> (reflex_seq, absent, stale) as live had
@@ -387,6 +389,8 @@ class WindowEvaluator:
                 self.fs_hz,
                 self.window_samples,
                 self.reflex.settings,
+                first_index=int(snap.sample_index[0]),
+                stream=self.reflex_stream,
             )
         except InputDataError:  # the history has too many lost samples to predict from
             self.reflex_flagged[Flag.REFLEX_ABSENT] += 1
@@ -460,7 +464,7 @@ class WindowEvaluator:
         latency = None if last_arrival_s is None else (time.monotonic() - last_arrival_s) * 1e3
         seq = self._seq
         self._seq += 1
-        return EstimateMessage.of_window(
+        return EstimateMessage.window_dict(
             estimate,
             reason,
             track,
@@ -474,7 +478,7 @@ class WindowEvaluator:
             compute_ms=compute_s * 1e3,
             latency_ms=latency,
             reflex_seq=reflex.seq,
-        ).as_dict()
+        )
 
 
 class WindowWorker(ThreadOwner):

@@ -98,6 +98,9 @@ def test_service_benchmark_config_runs_the_daemon_at_the_hop_asked(tmp_path):
     assert config.worker.hop_s == 0.004 and config.daemon.gil_switch_interval_s == 0.001
     assert config.slow_lane.enabled and config.plant.reflex.enabled
     assert config.link.interface == "socketcand" and config.link.port == 29536
+    assert config.daemon.realtime_priority == 0
+    path = _config_file(tmp_path, 7447, None, -1, "off", realtime_priority=10)
+    assert DaemonConfig.load(path).daemon.realtime_priority == 10
 
 
 def test_service_benchmark_counts_worker_cpu_and_replayed_equality():

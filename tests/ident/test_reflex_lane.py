@@ -1,7 +1,10 @@
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from rtsid.errors import ConfigError, InputDataError
+from rtsid.ident.reflex import ReflexStream
 from rtsid.ident.reflex_lane import (
     ReflexModels,
     ReflexUpdate,
@@ -108,21 +111,136 @@ def test_warm_up_runs_a_fit():
     assert warm_up(2500.0, SETTINGS)
 
 
-@pytest.mark.parametrize("n_last", [1, 750, 3000])
-def test_the_tail_prediction_equals_the_whole_segments_tail(pathway, n_last, monkeypatch):
+def _windows(theta, ends, n, history, pathway, stream=None, lost_at=(), short_at=()):
+    """The stream's window torque at each window end (``stream``: one carried through all;
+    None: a fresh one per window); ``short_at``: windows given a third of their history."""
+    out = []
+    for end in ends:
+        given = history // 3 if end in short_at else history
+        first = max(0, end - n - given + 1)  # the recording's first windows: less history
+        segment = theta[first : end + 1].copy()
+        valid = None
+        if end in lost_at:  # a lost sample in the history: bridged, nothing kept
+            valid = np.ones(segment.size, bool)
+            valid[100] = False
+            segment[100] = 0.0
+        out.append(
+            predict_reflex_torque(
+                pathway, segment, valid, FS_SIM, n, SETTINGS, first_index=first, stream=stream
+            )
+        )
+    return out
+
+
+def _numpy_path(monkeypatch):
     from rtsid.ident import reflex
 
-    theta, _ = joint_with_reflex(seconds=4.0, seed=11)
-    for end in (4100, 7000, theta.size):
-        segment = theta[end - 4025 : end]
-        want = pathway.torque(segment, FS_SIM)[-n_last:]
-        got = pathway.torque_tail(segment, FS_SIM, n_last)  # compiled, when built
+    monkeypatch.setattr(reflex, "_eureka", None)
+
+
+@pytest.mark.parametrize("numpy_only", [False, True])
+@pytest.mark.parametrize("hop", [50, 10, 37])
+def test_the_stream_gives_the_numbers_of_each_window_formed_afresh(
+    pathway, hop, numpy_only, monkeypatch
+):
+    # issue 22: each model sample's input and output are computed once and carried; the
+    # numbers are those of forming every window from its samples alone, bit for bit, so a
+    # replay reproduces live whichever windows either evaluated
+    theta, _ = joint_with_reflex(seconds=6.0, seed=11)
+    n, history = 750, round(pathway.history_s * FS_SIM)
+    ends = list(range(n + history + 3, theta.size, hop))[:40]
+    del ends[7:10]  # windows the fast lane skipped (late) or withheld
+    lost, short = {ends[12]}, {ends[20]}  # short: values kept from before are not used
+    if numpy_only:
+        _numpy_path(monkeypatch)
+    stream = ReflexStream()
+    carried = _windows(theta, ends, n, history, pathway, stream, lost, short)
+    afresh = _windows(theta, ends, n, history, pathway, None, lost, short)
+    for got, want in zip(carried, afresh, strict=True):
+        np.testing.assert_array_equal(got, want)
+    assert stream._inputs.count > 0 and stream._outputs.count > 0  # values were carried
+    # a new model (the slow lane's next fit) switches the outputs at once, not the inputs
+    other = replace(pathway, irf=0.5 * pathway.irf)
+    first = ends[-1] + hop - n - history + 1
+    segment = theta[first : ends[-1] + hop + 1]
+    got = predict_reflex_torque(
+        other, segment, None, FS_SIM, n, SETTINGS, first_index=first, stream=stream
+    )
+    want = predict_reflex_torque(other, segment, None, FS_SIM, n, SETTINGS, first_index=first)
+    np.testing.assert_array_equal(got, want)
+
+
+def test_a_polynomial_pathway_streams_its_own_inputs(pathway):
+    # a Hammerstein pathway's input depends on its polynomial: its values are its own, and a
+    # switch between the variants forms the inputs anew (the numpy reference runs it)
+    polynomial = replace(pathway, variant="hammerstein", polynomial=np.array([0.5, 0.2, -0.1]))
+    theta, _ = joint_with_reflex(seconds=5.0, seed=14)
+    n, history = 750, round(pathway.history_s * FS_SIM)
+    ends = list(range(n + history, theta.size, 50))[:12]
+    stream = ReflexStream()
+    for k, end in enumerate(ends):
+        model = polynomial if k % 4 < 2 else pathway
+        carried = _windows(theta, [end], n, history, model, stream)[0]
+        afresh = _windows(theta, [end], n, history, model)[0]
+        np.testing.assert_array_equal(carried, afresh)
+    rectified = _windows(theta, ends[-1:], n, history, pathway)[0]
+    assert np.abs(_windows(theta, ends[-1:], n, history, polynomial)[0] - rectified).max() > 0
+
+
+@pytest.mark.parametrize("n_last", [1, 750, 3000])
+def test_the_compiled_hop_equals_the_numpy_reference(pathway, n_last, monkeypatch):
+    from rtsid.ident.levinson import HAVE_COMPILED_KERNEL
+
+    if not HAVE_COMPILED_KERNEL:
+        pytest.skip("the compiled kernel is not built")
+    theta, _ = joint_with_reflex(seconds=6.0, seed=12)
+    history = round(pathway.history_s * FS_SIM)
+    ends = [n_last + 300, *range(n_last + history + 7, theta.size, 61)][:25]  # short ones too
+    compiled = _windows(theta, ends, n_last, history, pathway, ReflexStream())
+    _numpy_path(monkeypatch)
+    reference = _windows(theta, ends, n_last, history, pathway, ReflexStream())
+    for got, want in zip(compiled, reference, strict=True):
         scale = np.abs(want).max()
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * scale)
-        with monkeypatch.context() as m:
-            m.setattr(reflex, "_eureka", None)
-            numpy_tail = pathway.torque_tail(segment, FS_SIM, n_last)
-        np.testing.assert_allclose(numpy_tail, want, rtol=1e-12, atol=1e-12 * scale)
+
+
+def test_the_stream_predicts_the_torque_of_the_fitted_model(pathway):
+    # the fit's pathway input is the zero-phase decimation of the rectified velocity of the
+    # whole record; the stream's, hop by hop, agrees with it within a window, offset aside
+    theta, _ = joint_with_reflex(seconds=8.0, seed=13)
+    whole = pathway.torque(theta, FS_SIM)
+    n, history = 750, round(pathway.history_s * FS_SIM)
+    ends = list(range(n + history + 2500, theta.size - 2500, 125))
+    windows = _windows(theta, ends, n, history, pathway, ReflexStream())
+    for end, got in zip(ends, windows, strict=True):
+        want = whole[end - n + 1 : end + 1]
+        error = (got - got.mean()) - (want - want.mean())
+        assert np.var(error) < 0.01 * np.var(want)
+
+
+def test_the_streams_decimator_is_the_fits_zero_phase_one_within_the_band():
+    from scipy import signal
+
+    from rtsid.ident.reflex import _decimator, stream_taps
+
+    taps = stream_taps(25)
+    assert taps.size == 2 * 250 + 1 and np.array_equal(taps, taps[::-1])
+    sos = _decimator(25).sos
+    freqs = np.linspace(0.0, 30.0, 61)
+    _, fits = signal.sosfreqz(sos, worN=freqs, fs=FS_SIM)
+    _, ours = signal.freqz(taps, 1, worN=freqs, fs=FS_SIM)
+    ours = np.abs(ours)  # zero phase: the taps are centred
+    # within the Chebyshev's own passband ripple (0.05 dB, forwards and backwards: ±1.2 %),
+    # which the taper smooths
+    np.testing.assert_allclose(ours, np.abs(fits) ** 2, rtol=0.012)
+    assert np.array_equal(stream_taps(1), [1.0])
+
+
+def test_a_segment_shorter_than_the_decimators_reach_is_refused(pathway):
+    with pytest.raises(InputDataError, match="at least 255 samples"):
+        ReflexStream().torque_tail(pathway, np.zeros(200), 0, FS_SIM, 100)
+    with pytest.raises(InputDataError, match="not a whole multiple"):
+        ReflexStream().torque_tail(pathway, np.zeros(2000), 0, 2510.0, 100)
 
 
 # ----------------------------------------------------------------- a fit's shared work (issue 22)

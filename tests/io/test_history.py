@@ -246,51 +246,106 @@ def test_any_reply_is_checked_without_a_traceback(key: str, payload: bytes) -> N
     assert len(checked.rejected) + len(checked.parts) + len(checked.messages) >= 1
 
 
-def test_the_arena_is_reserved_at_the_first_message_and_never_grows_for_steady_messages() -> None:
-    """Memory reaches its ceiling at once (RSS flat while the history fills), not in steps."""
-    ring = MessageRing(100)
-    assert ring.reserved_bytes == 0
-    ring.append(0, estimate(0, 0))
-    reserved = ring.reserved_bytes
-    assert reserved >= 100 * len(estimate(0, 0))
-    for i in range(1, 1000):  # ten turns of the ring, sizes within the slack
-        ring.append(i, estimate(i, i))
-    assert ring.reserved_bytes == reserved
-    messages, _, _ = ring.snapshot(0, 2**63 - 1)
-    assert messages == [estimate(i, i) for i in range(901, 1000)]
+def estimate_like(i: int) -> bytes:
+    """An estimate-sized JSON message whose numbers differ from message to message."""
+    x = (i * 7919 % 10007) / 10007
+    return json.dumps(
+        {"robot": "rig", "joint": "ankle", "K": 100 + 50 * x, "K_se": x / 3, "B": 1 - x,
+         "I": 0.01 * x, "vaf": 90 + x, "ok": True, "flags": [], "seq": i,
+         "window_end_index": 749 + 10 * i, "host_time_ns": NOW + i * 4_000_000}
+    ).encode()  # fmt: skip
 
 
-def test_larger_messages_grow_the_arena_and_keep_what_is_held() -> None:
-    ring = MessageRing(8)
-    for i in range(5):
-        ring.append(i, b"%d" % i)
-    small = ring.reserved_bytes
-    ring.append(5, b"x" * 10_000)  # larger than the whole arena
-    ring.append(6, b"y" * 3)
-    assert ring.reserved_bytes > small
+def test_compacted_blocks_hold_a_fraction_and_give_back_the_same_messages() -> None:
+    """A 10-minute history at a 4 ms hop must not take the daemon's memory: sealed blocks are
+    deflated, and what comes back out is byte for byte what went in."""
+    ring = MessageRing(2000, block_messages=100)
+    payloads = [estimate_like(i) for i in range(3000)]
+    for i, payload in enumerate(payloads):
+        ring.append(NOW + i, payload)
+    raw = ring.held_bytes
+    assert ring.compact() > 0
+    assert ring.held_bytes < raw / 3
+    assert ring.compact() == 0  # nothing left raw
+    messages, held_from, first = ring.snapshot(0, 2**63 - 1)
+    assert messages == payloads[1001:] and held_from == first == NOW + 1001
+    assert ring.newest() == payloads[-1]
+    # a range across packed blocks and the open one
+    messages, _, first = ring.snapshot(NOW + 2850, NOW + 2960)
+    assert messages == payloads[2850:2961] and first == NOW + 2850
+
+
+def test_without_compaction_the_ring_stays_bounded() -> None:
+    ring = MessageRing(100, block_messages=10)
+    for i in range(1000):
+        ring.append(i, b"x" * 50)
+    assert len(ring) == 99
+    assert ring.held_bytes <= (100 + 10) * 50
     messages, held_from, _ = ring.snapshot(0, 2**63 - 1)
-    assert messages == [b"0", b"1", b"2", b"3", b"4", b"x" * 10_000, b"y" * 3]
-    assert held_from == 0
-    assert ring.newest() == b"y" * 3
+    assert len(messages) == 99 and held_from == 901
+
+
+def test_copies_stay_consistent_while_a_compactor_packs_the_blocks() -> None:
+    """Writer, compactor and reader on three threads: every copy is still a run of
+    consecutive messages whose payload matches its time."""
+    ring = MessageRing(300, block_messages=16)
+    stop = threading.Event()
+
+    def write() -> None:
+        i = 0
+        while not stop.is_set() and i < 2_000_000:  # bounded
+            ring.append(i, b"%d" % i)
+            i += 1
+
+    def compact() -> None:
+        for _ in range(1_000_000):  # bounded
+            if stop.is_set():
+                return
+            ring.compact()
+
+    threads = [threading.Thread(target=write), threading.Thread(target=compact)]
+    for thread in threads:
+        thread.start()
+    try:
+        copies = 0
+        while copies < 1000:
+            messages, held_from, first = ring.snapshot(0, 2**63 - 1)
+            values = [int(m) for m in messages]
+            if values:
+                assert values == list(range(values[0], values[0] + len(values)))
+                assert first == values[0] and held_from is not None and held_from <= first
+                assert len(values) <= 299
+                copies += 1
+    finally:
+        stop.set()
+        for thread in threads:
+            thread.join(10)
+
+
+def test_messages_of_any_size_come_back_as_they_went_in() -> None:
+    ring = MessageRing(8, block_messages=3)
+    payloads = [b"%d" % i for i in range(5)] + [b"x" * 10_000, b"y" * 3, b""]
+    for i, payload in enumerate(payloads):
+        ring.append(i, payload)
+        if i % 2:
+            ring.compact()
+    messages, held_from, _ = ring.snapshot(0, 2**63 - 1)
+    assert messages == payloads[1:] and held_from == 1
+    assert ring.newest() == b""
     assert MessageRing(4).newest() is None
 
 
-def test_payloads_never_straddle_the_arena_end() -> None:
-    ring = MessageRing(4)
-    payloads = [bytes([65 + i % 26]) * (1 + (7 * i) % 97) for i in range(200)]
-    for i, payload in enumerate(payloads):
-        ring.append(i, payload)
-        messages, _, _ = ring.snapshot(0, 2**63 - 1)
-        assert messages == payloads[max(0, i - 2) : i + 1]
-
-
-def test_a_small_first_message_is_corrected_early_not_when_the_history_is_full() -> None:
-    ring = MessageRing(2000)
-    ring.append(0, b"{}")
-    for i in range(1, 1025):
-        ring.append(i, estimate(i, i))
-    reserved = ring.reserved_bytes
-    assert reserved >= 2000 * len(estimate(1, 1))
-    for i in range(1025, 8000):
-        ring.append(i, estimate(i, i))
-    assert ring.reserved_bytes == reserved
+def test_the_store_compacts_every_channel() -> None:
+    store = HistoryStore(60.0, {"estimate": 50.0})
+    for i in range(2048):  # 8 whole blocks of estimates
+        store.append("estimate", estimate_like(i), NOW + i)
+        store.append("status", estimate_like(i), NOW + i)
+    raw = store.held_bytes
+    assert store.compact() > 0 and store.held_bytes < raw / 3
+    (part,) = [
+        json.loads(p)
+        for p in store.answer(
+            HistoryQuery(("status",), NOW + 2038, NOW + 2047), robot="r", joint="j", now_ns=NOW
+        )
+    ]
+    assert [m["seq"] for m in part["messages"]] == list(range(2038, 2048))

@@ -365,3 +365,54 @@ def test_a_disk_still_full_at_each_retry_leaves_no_empty_parts(
     with pytest.warns(IncompleteRecordingWarning):  # the part cut by the full disk
         grid = read_recording(files[0]).samples
     assert grid.end_index == 5002 * 250 and grid.all_rows().valid[-500:].all()
+
+
+def test_a_batch_of_estimates_records_what_one_by_one_does(tmp_path: Path) -> None:
+    """The daemon hands a tick's estimates over as one batch (payload, time, message): the
+    file's messages and its summary table equal those of logging them one by one."""
+    from rtsid.io.schemas import encode_estimate
+
+    messages = [estimate(seq) for seq in range(40)]
+    for seq, message in enumerate(messages):  # values the table must carry over exactly
+        message.update(K=100.0 + seq / 3, reason=None if seq % 3 else "gap", ok=bool(seq % 3))
+        message.update(B_held=seq % 2 == 0, reflex_seq=seq if seq % 4 else None)
+    tables, payloads = [], []
+    for folder, batched in (("one", False), ("batch", True)):
+        cfg = McapConfig(directory=str(tmp_path / folder))
+        with McapLogger(cfg, robot="r1", joint="ankle", fs_hz=FS_HZ) as logger:
+            encoded = [(encode_estimate(m), 1_000 + i, m) for i, m in enumerate(messages)]
+            if batched:
+                assert logger.log_estimates(encoded[:25]) and logger.log_estimates(encoded[25:])
+            else:
+                for payload, t_ns, _ in encoded:
+                    assert logger.log_estimate(payload, log_time_ns=t_ns)
+        assert logger.stats()["written"] == 40 and logger.stats()["dropped"] == 0
+        (path,) = logger.files
+        payloads.append([(msg.log_time, msg.data) for _, _, msg in read_all_with_mcap_reader(path)])
+        found = mcap_read.read_summary_table(path)
+        assert found is not None
+        tables.append(found[0])
+    assert payloads[0] == payloads[1] and len(payloads[0]) == 40
+    one, batch = tables
+    assert one.counts == batch.counts and one.columns.keys() == batch.columns.keys()
+    for key, column in one.columns.items():
+        np.testing.assert_array_equal(column, batch.columns[key], err_msg=key)
+    assert one.text("reason") == batch.text("reason") and "gap" in batch.text("reason")
+
+
+def test_a_full_queue_counts_every_estimate_of_a_dropped_batch(tmp_path: Path) -> None:
+    from rtsid.io.schemas import encode_estimate
+
+    release = threading.Event()
+    cfg = McapConfig(directory=str(tmp_path), queue_size=16)
+    logger = McapLogger(
+        cfg, robot="r", joint="j", fs_hz=FS_HZ, open_file=lambda p: BlockingFile(p, release)
+    )  # type: ignore[arg-type,return-value]
+    batch = [(encode_estimate(estimate(i)), i, estimate(i)) for i in range(7)]
+    with logger:
+        accepted = sum(logger.log_estimates(batch) for _ in range(30))  # 30 items, queue of 16
+        stats = logger.stats()
+        assert 30 - accepted >= 30 - 16 - 1
+        assert stats["dropped"] == stats["dropped_by_kind"]["estimate"] == 7 * (30 - accepted)
+        release.set()
+    assert logger.stats()["written"] == 7 * accepted

@@ -2,16 +2,17 @@
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from rtsid.errors import RecordingError
+from rtsid.errors import IncompleteRecordingWarning, RecordingError
 from rtsid.io import mcap_read
 from rtsid.io.mcap_log import McapConfig, McapLogger
-from rtsid.io.recording import read_recording
+from rtsid.io.recording import read_messages, read_recording
 
 FS_HZ = 2500.0
 
@@ -223,3 +224,26 @@ def test_a_chunk_claiming_a_terabyte_inside_its_record_is_damage_not_a_memory_er
     report = mcap_read.ReadReport(path)
     records = list(mcap_read._iter_records(path, report))
     assert report.error and not report.complete and len(records) < 10
+
+
+def test_a_finished_file_says_which_topics_it_holds_and_a_cut_one_may_hold_any(
+    recording: Path, tmp_path: Path
+) -> None:
+    """A pass for estimates or markers skips a finished file whose statistics count none (a
+    converted recording has samples alone); a file without its summary is read to find out,
+    and reading its messages gives what the full pass gives."""
+    assert mcap_read.topic_counts(recording) == {"/samples": 40}
+    assert mcap_read.holds_topics(recording, ["/samples"])
+    assert not mcap_read.holds_topics(recording, ["/estimate", "/marker"])
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(recording.read_bytes()[: recording.stat().st_size // 2])
+    assert mcap_read.topic_counts(cut) is None
+    assert mcap_read.holds_topics(cut, ["/estimate"])
+    for path in (recording, cut):
+        with contextlib.ExitStack() as stack:
+            if path == cut:
+                stack.enter_context(pytest.warns(IncompleteRecordingWarning, match="ends early"))
+            read = read_messages([path], ["/estimate", "/marker"])
+        found, metadata = mcap_read.read_json_topics(path, ["/estimate", "/marker"])
+        assert read.messages == found and read.metadata == [metadata]
+        assert read.complete == (path == recording)

@@ -64,6 +64,24 @@ def test_a_trimmed_grid_keeps_the_rows_and_reuses_its_buffer(rng):
         grid.rows(end - 800, end)
 
 
+def test_a_grids_columns_are_its_rows_views():
+    grid = SampleGrid(10, FS_HZ, capacity=4)
+    for b in (batch(10, 5), batch(18, 7)):  # a gap 15..17
+        grid.append(b)
+    grid.drop_before(12)
+    for start, stop in ((12, 25), (14, 19), (20, 20)):
+        rows = grid.rows(start, stop)
+        columns = grid.columns(start, stop)
+        for column, expected in zip(
+            columns, (rows.position_rad, rows.torque_nm, rows.valid, rows.status), strict=True
+        ):
+            assert column.dtype == expected.dtype and column.base is not None  # a view
+            np.testing.assert_array_equal(column, expected)
+    for start, stop in ((11, 20), (20, 26), (15, 14)):
+        with pytest.raises(IndexError):
+            grid.columns(start, stop)
+
+
 def rotated_session(folder: Path) -> list[Path]:
     cfg = McapConfig(
         directory=str(folder), flush_interval_s=0.01, rotate_size_mb=0.02, chunk_size=4096

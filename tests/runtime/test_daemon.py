@@ -81,17 +81,93 @@ def test_daemon_logs_every_sample_and_every_estimate(tmp_path, free_port):
     assert all(type(reason) is str for reason in summary.withheld)  # values, not Reason members
 
 
+@pytest.mark.slow  # a real-time daemon run of seconds
+def test_the_history_holds_the_recorded_estimates_deflated_on_the_housekeeping_thread(
+    tmp_path, free_port, monkeypatch
+):
+    """At a 4 ms hop the history seals blocks of estimates; the housekeeping tick (never the
+    worker) deflates them, and what the history gives back is byte for byte the file's."""
+    import threading
+
+    from rtsid.io import history
+
+    stores: list[history.HistoryStore] = []
+    packed_on: set[str] = set()
+    original_init, original_pack = history.HistoryStore.__init__, history._PackedBlock.__init__
+
+    def keep(self, *args, **kw):
+        original_init(self, *args, **kw)
+        stores.append(self)
+
+    def pack(self, block):
+        packed_on.add(threading.current_thread().name)
+        original_pack(self, block)
+
+    monkeypatch.setattr(history.HistoryStore, "__init__", keep)
+    monkeypatch.setattr(history._PackedBlock, "__init__", pack)
+    monkeypatch.setattr(history.MessageRing, "BLOCK_MESSAGES", 32)  # blocks within seconds
+    extra = "[worker]\nhop_s = 0.004\n[slow_lane]\nenabled = false\n"
+    summary = Daemon(DaemonConfig.load(write_config(tmp_path, free_port, extra))).run(3.0)
+    assert summary.clean_shutdown
+    (store,) = stores
+    with only_recording(tmp_path).open("rb") as fh:
+        recorded = [m.data for _, c, m in make_reader(fh).iter_messages() if c.topic == "/estimate"]
+    held, _, _ = store._rings["estimate"].snapshot(0, 2**63 - 1)
+    assert len(recorded) > 2 * 32
+    assert held == recorded
+    assert packed_on == {"MainThread"}  # the housekeeping loop runs on the calling thread
+
+
+@pytest.mark.slow  # a real-time daemon run of seconds
+def test_realtime_priority_puts_the_acquisition_and_the_worker_first(tmp_path, free_port):
+    extra = "[daemon]\nrealtime_priority = 7\n[slow_lane]\nenabled = false\n"
+    seen: list[tuple[int, int, int]] = []
+
+    def on_status(status, estimate):
+        worker, acquisition = daemon.worker, daemon.acquisition
+        if worker is None or acquisition is None or not (worker.running and acquisition.running):
+            return  # the last status comes after the threads stopped
+        tids = (worker.native_id, acquisition.native_id, 0)
+        seen.append(tuple(os.sched_getscheduler(tid) for tid in tids))  # type: ignore[arg-type]
+
+    daemon = Daemon(DaemonConfig.load(write_config(tmp_path, free_port, extra)), on_status)
+    try:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except OSError:
+        pytest.skip("no scheduling control here")
+    try:
+        summary = daemon.run(duration_s=1.5)
+    except ConfigError as exc:  # an unprivileged machine: the one-line refusal
+        assert "daemon.realtime_priority" in str(exc)
+        pytest.skip("this machine does not allow real-time scheduling (not root)")
+    assert summary.clean_shutdown and seen
+    assert set(seen) == {(os.SCHED_FIFO, os.SCHED_FIFO, os.SCHED_OTHER)}
+
+
+def test_realtime_priority_is_1_to_99_or_0(tmp_path):
+    path = tmp_path / "rtsid.toml"
+    path.write_text("[daemon]\nrealtime_priority = 100\n")
+    with pytest.raises(ConfigError, match=r"daemon\.realtime_priority.*<= 99"):
+        DaemonConfig.load(path)
+
+
 class Sink:
     """Records what the daemon hands to a publisher or logger, in order."""
 
     def __init__(self) -> None:
         self.got: list[bytes] = []
+        self.batches = 0
 
     def publish_estimate(self, payload: bytes) -> None:
         self.got.append(payload)
 
     def log_estimate(self, payload: bytes, *, log_time_ns: int) -> bool:
         self.got.append(payload)
+        return True
+
+    def log_estimates(self, batch: list[tuple[bytes, int, dict]]) -> bool:
+        self.batches += 1
+        self.got.extend(payload for payload, _, _ in batch)
         return True
 
 
@@ -111,7 +187,7 @@ def test_estimates_reach_zenoh_at_once_and_the_mcap_writer_on_the_housekeeping_t
         daemon._publish_estimate(estimate_message(seq), mcap_sink, zenoh_sink)
     assert zenoh_sink.got == [b"0", b"1"] and mcap_sink.got == []  # no writer wake-up yet
     daemon._log_estimates(mcap_sink)
-    assert mcap_sink.got == [b"0", b"1"]
+    assert mcap_sink.got == [b"0", b"1"] and mcap_sink.batches == 1  # one hand-over a tick
     for seq in range(2, 6):  # housekeeping stuck: past the hold the worker hands them over
         daemon._publish_estimate(estimate_message(seq), mcap_sink, zenoh_sink)
     assert mcap_sink.got == [b"0", b"1", b"5"]
