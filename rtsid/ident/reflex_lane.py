@@ -26,6 +26,7 @@ import threading
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
 from rtsid.errors import ConfigError, InputDataError, invalid, require_choice, require_range
@@ -302,12 +303,11 @@ def window_vaf_gains(
     lead = max(0, first - round(EVIDENCE_SETTLING_S * fs_hz))  # the basis starts here
     basis = WindowVafBasis(position[lead:], torque[lead:], fs_hz)
     step = max(1, round(EVIDENCE_STEP_S * fs_hz))
-    reflex = reflex_torque[lead:]
-    starts = range(first - lead, position.size - lead - n + 1, step)
-    return np.array(
-        [basis.least_squares_vaf_gain(a, a + n, reflex[a : a + n]) for a in starts],
-        dtype=np.float64,
-    )
+    starts = np.arange(first - lead, position.size - lead - n + 1, step)
+    if starts.size == 0:
+        return np.empty(0)
+    reflex = sliding_window_view(reflex_torque[lead:], n)[starts]
+    return basis.least_squares_vaf_gains(starts, n, reflex)
 
 
 def warm_up(fs_hz: float, settings: SlowLaneSettings) -> bool:
