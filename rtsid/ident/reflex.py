@@ -317,6 +317,35 @@ def _low_pass_response(t: FloatArray, wn: ArrayLike, zeta: ArrayLike) -> FloatAr
     return np.asarray(np.where(t > 0, h, 0.0), dtype=np.float64)
 
 
+def _low_pass_and_slopes(t: FloatArray, wn: float, zeta: float) -> tuple[FloatArray, FloatArray]:
+    """:func:`_low_pass_response` at times ``t`` (s) and its derivatives, shape (3, n), by
+    ``t``, ``ωn`` (rad/s) and ``ζ`` (0 where ``t ≤ 0``).
+
+    With ``p₁,₂ = ωn·c₁,₂``, ``c₁,₂ = −ζ ± r``, ``r = √(ζ² − 1)`` and ``A = ωn/(2r)``,
+    ``h = Re A·(e^{p₁t} − e^{p₂t})``; ``∂h/∂t = Re A·(p₁e^{p₁t} − p₂e^{p₂t})``;
+    ``h(t; ωn) = ωn·f(ωn·t)`` gives ``∂h/∂ωn = (h + t·∂h/∂t)/ωn``; and
+    ``∂h/∂ζ = Re[−A·ζ/r²·(e^{p₁t} − e^{p₂t}) + A·ωn·t·(ċ₁e^{p₁t} − ċ₂e^{p₂t})]`` with
+    ``ċ₁,₂ = −1 ± ζ/r``. ``h`` is the very numbers of :func:`_low_pass_response`.
+    """
+    z = 1.0 + 1e-6 if abs(zeta - 1.0) < 1e-6 else float(zeta)
+    w = float(wn)
+    root = np.sqrt(complex(z * z - 1.0))
+    p1, p2 = w * (-z + root), w * (-z - root)
+    positive = t > 0
+    tt = np.maximum(t, 0.0)
+    e1, e2 = np.exp(p1 * tt), np.exp(p2 * tt)
+    scale = w * w / (p1 - p2)
+    h = np.where(positive, (scale * (e1 - e2)).real, 0.0)
+    slopes = np.empty((3, t.size))
+    slopes[0] = np.where(positive, (scale * (p1 * e1 - p2 * e2)).real, 0.0)
+    slopes[1] = (h + tt * slopes[0]) / w
+    by_zeta = -scale * z / (root * root) * (e1 - e2) + scale * w * tt * (
+        (-1.0 + z / root) * e1 - (-1.0 - z / root) * e2
+    )
+    slopes[2] = np.where(positive, by_zeta.real, 0.0)
+    return h, slopes
+
+
 @lru_cache(maxsize=4)
 def _grid(n_lags: int, fs_hz: float) -> tuple[FloatArray, FloatArray]:
     """The (δ, f_c, ζ) grid, shape (m, 3), and its unit-energy responses on ``n_lags`` lags,
@@ -358,23 +387,60 @@ def fit_reflex_dynamics(irf: FloatArray, fs_hz: float) -> ReflexDynamics:
     """
     g = np.asarray(irf, dtype=np.float64)
     lags = np.arange(g.size) / fs_hz
-
-    def residual(x: FloatArray) -> FloatArray:
-        h = _low_pass_response(lags - x[0], 2 * np.pi * x[1], x[2])
-        energy = float(h @ h)
-        gain = float(h @ g) / energy if energy > 0 else 0.0
-        return gain * h - g
-
+    model = _DelayedLowPass(g, lags)
     start = _best_on_grid(g, fs_hz)
     low, high = delay_search_s(fs_hz)
     bounds = ([low, 0.3, 0.2], [high, 20.0, 3.0])
-    fit = optimize.least_squares(residual, start, bounds=bounds, x_scale=[0.01, 1.0, 0.3])
+    fit = optimize.least_squares(
+        model.residual, start, jac=model.jacobian, bounds=bounds, x_scale=[0.01, 1.0, 0.3]
+    )
     delay, corner, zeta = (float(v) for v in fit.x)
     h = _low_pass_response(lags - delay, 2 * np.pi * corner, zeta)
     gain = float(h @ g) / max(float(h @ h), 1e-300)
     power = float(g @ g)
     explained = 100.0 * (1.0 - 2.0 * float(fit.cost) / power) if power > 0 else 0.0
     return ReflexDynamics(gain, delay, corner, zeta, max(0.0, explained), (low, high))
+
+
+class _DelayedLowPass:
+    """The residual ``G·h(t − δ) − g`` of :func:`fit_reflex_dynamics` in ``x = (δ, f_c, ζ)``
+    (``G`` solved linearly at every ``x``: a variable projection) and its exact Jacobian, so
+    that the solver needs no finite differences; the last point's work is kept for the
+    Jacobian the solver asks for at the same point."""
+
+    def __init__(self, g: FloatArray, lags_s: FloatArray) -> None:
+        self.g = g
+        self.lags_s = lags_s
+        self._at: bytes = b""
+        self._h = np.zeros(0)
+        self._slopes = np.zeros((3, 0))
+
+    def _evaluate(self, x: FloatArray) -> None:
+        key = np.asarray(x, dtype=np.float64).tobytes()
+        if key != self._at:
+            self._h, self._slopes = _low_pass_and_slopes(self.lags_s - x[0], 2 * np.pi * x[1], x[2])
+            self._at = key
+
+    def residual(self, x: FloatArray) -> FloatArray:
+        """``G·h − g``, shape (n,)."""
+        self._evaluate(x)
+        h = self._h
+        energy = float(h @ h)
+        gain = float(h @ self.g) / energy if energy > 0 else 0.0
+        return np.asarray(gain * h - self.g, dtype=np.float64)
+
+    def jacobian(self, x: FloatArray) -> FloatArray:
+        """``∂(G·h − g)/∂x``, shape (n, 3): ``G·∂h + h·∂G`` with
+        ``∂G = (∂h·g − 2G·h·∂h)/(h·h)``."""
+        self._evaluate(x)
+        h = self._h
+        energy = float(h @ h)
+        if energy <= 0:
+            return np.zeros((h.size, 3))
+        gain = float(h @ self.g) / energy
+        by_x = self._slopes * np.array([[-1.0], [2 * np.pi], [1.0]])  # δ, f_c, ζ
+        gain_by_x = (by_x @ self.g - 2.0 * gain * (by_x @ h)) / energy
+        return np.asarray((gain * by_x + gain_by_x[:, None] * h).T, dtype=np.float64)
 
 
 # ----------------------------------------------------------------------------- the pathway

@@ -263,3 +263,38 @@ def test_the_dynamics_grid_equals_every_grid_point_evaluated(n_lags, fs_model):
     want /= np.maximum(np.linalg.norm(want, axis=1, keepdims=True), 1e-300)
     assert np.unique(params, axis=0).shape == params.shape  # every (δ, f_c, ζ) once
     np.testing.assert_array_equal(shapes, want)
+
+
+@pytest.mark.parametrize(
+    "x", [(0.0423, 3.1, 0.7), (0.0123, 7.5, 1.6), (0.0571, 2.0, 1.0 + 1e-7), (0.1033, 0.5, 2.9)]
+)
+def test_the_dynamics_jacobian_is_the_residuals_derivative(x):
+    from scipy.optimize._numdiff import approx_derivative
+
+    from rtsid.ident import reflex
+
+    lags_s = np.arange(101) / 100.0
+    g = reflex._low_pass_response(lags_s - 0.04, 2 * np.pi * 3.0, 0.7) * 10.0
+    g += np.random.default_rng(1).standard_normal(g.size)
+    model = reflex._DelayedLowPass(g, lags_s)
+    x = np.array(x)
+    want = approx_derivative(model.residual, x, method="3-point")  # no lag at δ: no kink
+    got = model.jacobian(x)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-6 * np.abs(want).max())
+    h, _ = reflex._low_pass_and_slopes(lags_s - x[0], 2 * np.pi * x[1], x[2])
+    want_h = reflex._low_pass_response(lags_s - x[0], 2 * np.pi * x[1], x[2])
+    np.testing.assert_array_equal(h, want_h)
+
+
+@pytest.mark.parametrize(
+    ("delay_s", "corner_hz", "zeta"), [(0.0437, 3.3, 0.62), (0.0211, 6.1, 1.4)]
+)
+def test_the_dynamics_fit_recovers_an_exact_delayed_low_pass(delay_s, corner_hz, zeta):
+    from rtsid.ident.reflex import _low_pass_response, fit_reflex_dynamics
+
+    lags_s = np.arange(101) / 100.0
+    g = 12.5 * _low_pass_response(lags_s - delay_s, 2 * np.pi * corner_hz, zeta)
+    found = fit_reflex_dynamics(g, 100.0)
+    got = [found.gain, found.delay_s, found.corner_hz, found.damping_ratio]
+    np.testing.assert_allclose(got, [12.5, delay_s, corner_hz, zeta], rtol=1e-6)
+    assert found.vaf > 99.9999
