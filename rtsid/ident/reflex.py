@@ -59,6 +59,7 @@ __all__ = [
     "prediction_history_s",
     "stretch_velocity",
     "to_data_rate",
+    "zero_phase",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -94,12 +95,47 @@ class _Decimator:
     edge: int  # samples of odd extension at each end (scipy's default padlen)
 
 
-@lru_cache(maxsize=8)
-def _decimator(factor: int) -> _Decimator:
-    sos = np.asarray(signal.cheby1(8, 0.05, 0.8 / factor, output="sos"), dtype=np.float64)
+def _zero_phase_of(sos: FloatArray) -> _Decimator:
+    """What scipy's ``sosfiltfilt(sos, x)`` (default padding) needs, for the filter ``sos``."""
     zeros = min(int((sos[:, 2] == 0).sum()), int((sos[:, 5] == 0).sum()))
     edge = 3 * (2 * len(sos) + 1 - zeros)
     return _Decimator(sos, np.asarray(signal.sosfilt_zi(sos)), edge)
+
+
+@lru_cache(maxsize=8)
+def _decimator(factor: int) -> _Decimator:
+    sos = np.asarray(signal.cheby1(8, 0.05, 0.8 / factor, output="sos"), dtype=np.float64)
+    return _zero_phase_of(sos)
+
+
+@lru_cache(maxsize=8)
+def _zero_phase_setup(sos_bytes: bytes, sections: int) -> _Decimator:
+    sos = np.frombuffer(sos_bytes, dtype=np.float64).reshape(sections, 6).copy()
+    return _zero_phase_of(sos)
+
+
+def zero_phase(sos: FloatArray, x: FloatArray) -> FloatArray:
+    """``scipy.signal.sosfiltfilt(sos, x)`` of a 1-D ``x`` with scipy's default padding: the
+    same numbers bit for bit, by the compiled kernel's ``sos_filtfilt`` when built (the
+    filter's initial conditions prepared once per filter)."""
+    sos = np.ascontiguousarray(sos, dtype=np.float64)
+    return _filtfilt(_zero_phase_setup(sos.tobytes(), len(sos)), np.asarray(x, dtype=np.float64))
+
+
+def _filtfilt(d: _Decimator, x: FloatArray) -> FloatArray:
+    """scipy's ``sosfiltfilt`` step by step with ``d``'s filter (its checks and messages for
+    a record no longer than the padding)."""
+    if x.size <= d.edge:
+        return np.asarray(signal.sosfiltfilt(d.sos.copy(), x), dtype=np.float64)
+    ext = np.concatenate(
+        (2 * x[0] - x[d.edge : 0 : -1], x, 2 * x[-1] - x[-2 : -d.edge - 2 : -1])
+    )  # scipy's odd extension
+    if _eureka is not None:  # the same two passes compiled, bit for bit (tested)
+        _eureka.sos_filtfilt(d.sos, d.zi, ext)
+        return ext[d.edge : -d.edge]
+    y, _ = signal.sosfilt(d.sos, ext, zi=d.zi * ext[0])
+    y, _ = signal.sosfilt(d.sos, y[::-1], zi=d.zi * y[-1])
+    return np.asarray(y[::-1][d.edge : -d.edge], dtype=np.float64)
 
 
 def decimated(x: FloatArray, factor: int) -> FloatArray:
@@ -111,19 +147,10 @@ def decimated(x: FloatArray, factor: int) -> FloatArray:
     bit)."""
     if factor == 1:
         return np.array(x, dtype=np.float64)
-    d = _decimator(factor)
-    x = np.asarray(x, dtype=np.float64)
-    if x.size <= d.edge:  # scipy's own checks and messages for a record this short
-        return np.asarray(signal.sosfiltfilt(d.sos.copy(), x)[::factor], dtype=np.float64)
-    ext = np.concatenate(
-        (2 * x[0] - x[d.edge : 0 : -1], x, 2 * x[-1] - x[-2 : -d.edge - 2 : -1])
-    )  # scipy's odd extension
-    if _eureka is not None:  # the same two passes compiled, bit for bit (tested)
-        _eureka.sos_filtfilt(d.sos, d.zi, ext)
-        return np.asarray(ext[d.edge : -d.edge][::factor], dtype=np.float64)
-    y, _ = signal.sosfilt(d.sos, ext, zi=d.zi * ext[0])
-    y, _ = signal.sosfilt(d.sos, y[::-1], zi=d.zi * y[-1])
-    return np.asarray(y[::-1][d.edge : -d.edge][::factor], dtype=np.float64)
+    return np.asarray(
+        _filtfilt(_decimator(factor), np.asarray(x, dtype=np.float64))[::factor],
+        dtype=np.float64,
+    )
 
 
 def stretch_velocity(position: FloatArray, fs_hz: float) -> FloatArray:

@@ -23,6 +23,8 @@ from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 from scipy import signal
 
+from rtsid.ident.reflex import zero_phase
+
 __all__ = ["WindowVafBasis", "least_squares_window", "savgol_derivatives"]
 
 FloatArray = NDArray[np.float64]
@@ -85,12 +87,10 @@ class WindowVafBasis:
 
     def __init__(self, position: FloatArray, torque: FloatArray, fs_hz: float) -> None:
         d1, d2 = savgol_derivatives(position, fs_hz)
-        # one zero-phase run over the four rows (row by row the same numbers as four runs)
-        low = signal.sosfiltfilt(
-            _basis_lowpass(float(fs_hz)).copy(), np.vstack((torque, d2, d1, position))
-        )
-        self.torque = low[0]
-        self.regressors = low[1:]
+        # scipy's sosfiltfilt of each row, compiled when built (the same numbers bit for bit)
+        sos = _basis_lowpass(float(fs_hz))
+        self.torque = zero_phase(sos, torque)
+        self.regressors = np.vstack([zero_phase(sos, x) for x in (d2, d1, position)])
 
     def vaf(
         self, params: FloatArray, start: int, stop: int, extra: FloatArray | None = None
@@ -125,7 +125,7 @@ class WindowVafBasis:
         prediction) counted as part of the model."""
         target = self.torque[start:stop] if extra is None else self.torque[start:stop] - extra
         params = np.linalg.lstsq(self._design(start, stop), target, rcond=None)[0][:3]
-        return self.vaf(params, start, stop, extra)
+        return self.vaf(np.asarray(params, dtype=np.float64), start, stop, extra)
 
     def least_squares_vaf_gains(self, starts: IntArray, n: int, extra: FloatArray) -> FloatArray:
         """``least_squares_vaf(a, a + n, e) − least_squares_vaf(a, a + n)`` for every window

@@ -194,11 +194,15 @@ def test_the_cascades_own_reflex_prediction_is_the_pathways(variant):
     )
 
 
-def test_the_window_vaf_basis_is_scipys_low_pass_of_each_signal():
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_window_vaf_basis_is_scipys_low_pass_of_each_signal(compiled, monkeypatch):
     from scipy import signal
 
+    from rtsid.ident import reflex
     from rtsid.ident.yardstick import WindowVafBasis, savgol_derivatives
 
+    if not compiled:
+        monkeypatch.setattr(reflex, "_eureka", None)
     theta, torque = joint_with_reflex(seconds=4.0, seed=9)
     for _ in range(2):  # the second basis uses the cached filter design
         basis = WindowVafBasis(theta, torque, FS_SIM)
