@@ -1538,6 +1538,9 @@ static PyObject *py_solve(PyObject *self, PyObject *args)
     return result;
 }
 
+static PyObject *py_evidence_gains(PyObject *self, PyObject *args);
+static PyObject *py_grid_scores(PyObject *self, PyObject *args);
+
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
      "solve(r, b, x, work) -> (status, alpha): symmetric Toeplitz R x = b by EUREKA."},
@@ -1572,6 +1575,8 @@ static PyMethodDef methods[] = {
      "sos_filtfilt(sos, zi, x): scipy's sosfiltfilt passes over an extended x, in place."},
     {"xcorr", py_xcorr, METH_VARARGS,
      "xcorr(u, y, first, last, norm, c): c[k-first] = sum_t u[t] y[t+k] / norm."},
+    {"evidence_gains", py_evidence_gains, METH_VARARGS, "evidence_gains(torque, regressors, extra, starts, n, out): slow-lane evidence windows' VAF gains."},
+    {"grid_scores", py_grid_scores, METH_VARARGS, "grid_scores(table, time_of, norms, g, out): the reflex dynamics grid's scores."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -1602,4 +1607,174 @@ PyMODINIT_FUNC PyInit__eureka(void)
         return NULL;
     }
     return m;
+}
+
+/* ------------------------------------------------------------------ slow lane's reflex fit
+ * (issue 22, fits2) The slow lane's per-fit numerics that are many small steps in numpy:
+ *
+ * evidence_gains(torque, regressors, extra, starts, n, out): for each window [a, a + n) with
+ *   a in starts, the VAF that counting `extra` as part of the model adds to the window's own
+ *   least-squares (θ̈, θ̇, θ, offset, trend) fit on the window VAF basis; the numpy reference
+ *   is rtsid.ident.yardstick.WindowVafBasis.least_squares_vaf_gains (the same steps: centred
+ *   regressors scaled to unit norm, the 4 × 4 normal equations with both right-hand sides).
+ *   O(windows·n).
+ * grid_scores(table, time_of, norms, g, out): |Σ_k table[p, time_of[j, k]]·g[k]| / norms[j, p]
+ *   into out[j, p], the dynamics grid's scores (rtsid.ident.reflex._best_on_grid; its numpy
+ *   reference multiplies the gathered, normalised responses), reading each (f_c, ζ) pair's
+ *   response on the distinct times once instead of a 13 MB matrix. O(pairs·delays·lags).
+ */
+static int get_indices(PyObject *obj, Py_buffer *view, const char *name)
+{
+    if (PyObject_GetBuffer(obj, view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) != 0) return -1;
+    if (view->itemsize != 8 || view->format == NULL ||
+        (strcmp(view->format, "q") != 0 && strcmp(view->format, "l") != 0)) {
+        PyErr_Format(PyExc_TypeError, "%s must be a contiguous int64 buffer", name);
+        PyBuffer_Release(view);
+        return -1;
+    }
+    return 0;
+}
+
+/* One evidence window: x the window's torque, r the three regressor rows at its start (row
+ * stride `stride`), e the extra torque; the VAF gain, percentage points. */
+static double evidence_gain(const double *x, const double *r, Py_ssize_t stride, const double *e,
+                            Py_ssize_t n)
+{
+    double mean[5] = {0.0, 0.0, 0.0, 0.0, 0.0}; /* θ̈, θ̇, θ, torque, extra */
+    for (Py_ssize_t i = 0; i < n; i++) {
+        mean[0] += r[i];
+        mean[1] += r[stride + i];
+        mean[2] += r[2 * stride + i];
+        mean[3] += x[i];
+        mean[4] += e[i];
+    }
+    for (int k = 0; k < 5; k++) mean[k] /= (double)n;
+    const double step = 2.0 / (double)(n - 1);
+    /* Gram of the centred columns (θ̈, θ̇, θ, trend) and their products with the two targets
+     * (measured − added, measured), unscaled; scaled to unit-norm columns below */
+    double gram[16] = {0.0}, rhs[8] = {0.0}, power = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double col[4] = {r[i] - mean[0], r[stride + i] - mean[1],
+                               r[2 * stride + i] - mean[2],
+                               i == n - 1 ? 1.0 : (double)i * step - 1.0};
+        const double measured = x[i] - mean[3], added = e[i] - mean[4];
+        for (int a = 0; a < 4; a++) {
+            for (int b = a; b < 4; b++) gram[4 * a + b] += col[a] * col[b];
+            rhs[2 * a] += col[a] * (measured - added);
+            rhs[2 * a + 1] += col[a] * measured;
+        }
+        power += measured * measured;
+    }
+    double scale[4];
+    for (int a = 0; a < 4; a++) scale[a] = sqrt(gram[5 * a]);
+    for (int a = 0; a < 4; a++) {
+        for (int b = a; b < 4; b++) {
+            gram[4 * a + b] /= scale[a] * scale[b];
+            gram[4 * b + a] = gram[4 * a + b];
+        }
+    }
+    int piv[4];
+    lu_factor(gram, 4, piv);
+    double p[2][4];
+    for (int j = 0; j < 2; j++) {
+        for (int a = 0; a < 4; a++) p[j][a] = rhs[2 * a + j] / scale[a];
+        lu_solve(gram, 4, piv, p[j]);
+        for (int a = 0; a < 3; a++) p[j][a] /= scale[a]; /* per unscaled centred column */
+    }
+    double left[2] = {0.0, 0.0};
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double c0 = r[i] - mean[0], c1 = r[stride + i] - mean[1];
+        const double c2 = r[2 * stride + i] - mean[2];
+        const double measured = x[i] - mean[3], added = e[i] - mean[4];
+        const double with = measured - (p[0][0] * c0 + p[0][1] * c1 + p[0][2] * c2) - added;
+        const double without = measured - (p[1][0] * c0 + p[1][1] * c1 + p[1][2] * c2);
+        left[0] += with * with;
+        left[1] += without * without;
+    }
+    return 100.0 * (1.0 - left[0] / power) - 100.0 * (1.0 - left[1] / power);
+}
+
+static PyObject *py_evidence_gains(PyObject *self, PyObject *args)
+{
+    PyObject *objs[4], *starts_obj, *out_obj;
+    Py_ssize_t n;
+    if (!PyArg_ParseTuple(args, "OOOOnO", &objs[0], &objs[1], &objs[2], &starts_obj, &n, &out_obj))
+        return NULL;
+    objs[3] = out_obj;
+    const char *names[4] = {"torque", "regressors", "extra", "out"};
+    Py_buffer b[4], s;
+    if (get_buffers(objs, 4, 3, names, b) < 0) return NULL;
+    if (get_indices(starts_obj, &s, "starts") < 0) {
+        release_buffers(b, 4);
+        return NULL;
+    }
+    const Py_ssize_t total = b[0].len / 8, windows = s.len / 8;
+    const long long *starts = (const long long *)s.buf;
+    int ok = n >= 3 && b[1].len == 3 * b[0].len && b[2].len == b[0].len && b[3].len == s.len;
+    for (Py_ssize_t w = 0; ok && w < windows; w++) ok = starts[w] >= 0 && starts[w] + n <= total;
+    PyObject *result = NULL;
+    if (!ok) {
+        PyErr_SetString(PyExc_ValueError, "evidence_gains: inconsistent sizes");
+    } else {
+        const double *x = b[0].buf, *r = b[1].buf, *e = b[2].buf;
+        double *out = b[3].buf;
+        for (Py_ssize_t w = 0; w < windows; w++) {
+            const Py_ssize_t a = (Py_ssize_t)starts[w];
+            out[w] = evidence_gain(x + a, r + a, total, e + a, n);
+        }
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+    PyBuffer_Release(&s);
+    release_buffers(b, 4);
+    return result;
+}
+
+static PyObject *py_grid_scores(PyObject *self, PyObject *args)
+{
+    PyObject *table_obj, *time_obj, *norms_obj, *g_obj, *out_obj;
+    if (!PyArg_ParseTuple(args, "OOOOO", &table_obj, &time_obj, &norms_obj, &g_obj, &out_obj))
+        return NULL;
+    PyObject *objs[4] = {table_obj, norms_obj, g_obj, out_obj};
+    const char *names[4] = {"table", "norms", "g", "out"};
+    Py_buffer b[4], t;
+    if (get_buffers(objs, 4, 3, names, b) < 0) return NULL;
+    if (get_indices(time_obj, &t, "time_of") < 0) {
+        release_buffers(b, 4);
+        return NULL;
+    }
+    const Py_ssize_t lags = b[2].len / 8, scores = b[1].len / 8;
+    const Py_ssize_t delays = lags > 0 ? t.len / 8 / lags : 0;
+    const Py_ssize_t pairs = delays > 0 ? scores / delays : 0;
+    const Py_ssize_t times = pairs > 0 ? b[0].len / 8 / pairs : 0;
+    const long long *time_of = (const long long *)t.buf;
+    int ok = lags > 0 && delays > 0 && pairs > 0 && times > 0 && t.len == 8 * delays * lags &&
+             scores == delays * pairs && b[0].len == 8 * pairs * times && b[3].len == b[1].len;
+    for (Py_ssize_t i = 0; ok && i < delays * lags; i++) ok = time_of[i] >= 0 && time_of[i] < times;
+    PyObject *result = NULL;
+    if (!ok) {
+        PyErr_SetString(PyExc_ValueError, "grid_scores: inconsistent sizes");
+    } else {
+        const double *table = b[0].buf, *norms = b[1].buf, *g = b[2].buf;
+        double *out = b[3].buf;
+        for (Py_ssize_t p = 0; p < pairs; p++) {
+            const double *row = table + p * times;
+            for (Py_ssize_t j = 0; j < delays; j++) {
+                const long long *at = time_of + j * lags;
+                double s0 = 0.0, s1 = 0.0;
+                Py_ssize_t k = 0;
+                for (; k + 1 < lags; k += 2) {
+                    s0 += row[at[k]] * g[k];
+                    s1 += row[at[k + 1]] * g[k + 1];
+                }
+                if (k < lags) s0 += row[at[k]] * g[k];
+                out[j * pairs + p] = fabs(s0 + s1) / norms[j * pairs + p];
+            }
+        }
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+    PyBuffer_Release(&t);
+    release_buffers(b, 4);
+    return result;
 }

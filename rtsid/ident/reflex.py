@@ -373,10 +373,38 @@ def _low_pass_and_slopes(t: FloatArray, wn: float, zeta: float) -> tuple[FloatAr
     return h, slopes
 
 
+@dataclass(frozen=True)
+class _Grid:
+    """The (δ, f_c, ζ) grid on ``n`` lags and its responses, formed once per lag grid.
+
+    Attributes
+    ----------
+    params : numpy.ndarray, shape (m, 3)
+        The grid points, δ outermost (``m = delays × pairs``; ``pairs`` the (f_c, ζ) pairs).
+    table : numpy.ndarray, shape (pairs, times)
+        Each pair's response at the distinct times ``t = lag − δ`` of the grid.
+    time_of : numpy.ndarray of int64, shape (delays, n)
+        Where each delay's lags fall in ``table``'s times.
+    norms : numpy.ndarray, shape (delays, pairs)
+        Each grid point's response norm (at least 1e-300).
+    """
+
+    params: FloatArray
+    table: FloatArray
+    time_of: NDArray[np.int64]
+    norms: FloatArray
+
+    @cached_property
+    def shapes(self) -> FloatArray:
+        """Unit-energy responses, shape (m, n): the numpy path's matrix (13 MB at 101 lags)."""
+        gathered = self.table[:, self.time_of]  # (pairs, delays, lags)
+        shapes = gathered.transpose(1, 0, 2).reshape(self.params.shape[0], -1)
+        return np.ascontiguousarray(shapes / self.norms.reshape(-1, 1), dtype=np.float64)
+
+
 @lru_cache(maxsize=4)
-def _grid(n_lags: int, fs_hz: float) -> tuple[FloatArray, FloatArray]:
-    """The (δ, f_c, ζ) grid, shape (m, 3), and its unit-energy responses on ``n_lags`` lags,
-    shape (m, n_lags): computed once per lag grid."""
+def _grid(n_lags: int, fs_hz: float) -> _Grid:
+    """The (δ, f_c, ζ) grid and its responses on ``n_lags`` lags (:class:`_Grid`)."""
     delays = DELAY_GRID_S[DELAY_GRID_S >= delay_search_s(fs_hz)[0]]
     params = np.stack(
         [v.ravel() for v in np.meshgrid(delays, CORNER_GRID_HZ, DAMPING_GRID, indexing="ij")],
@@ -389,19 +417,32 @@ def _grid(n_lags: int, fs_hz: float) -> tuple[FloatArray, FloatArray]:
     times, time_of = np.unique(lags_s[None, :] - delays[:, None], return_inverse=True)
     shapes_of = params[: CORNER_GRID_HZ.size * DAMPING_GRID.size, 1:]  # δ = delays[0]: all pairs
     table = _low_pass_response(times[None, :], 2 * np.pi * shapes_of[:, :1], shapes_of[:, 1:])
-    gathered = table[:, time_of.reshape(delays.size, n_lags)]  # (pairs, delays, lags)
-    shapes = np.ascontiguousarray(gathered.transpose(1, 0, 2).reshape(params.shape[0], n_lags))
-    shapes /= np.maximum(np.linalg.norm(shapes, axis=1, keepdims=True), 1e-300)
-    params.setflags(write=False)
-    shapes.setflags(write=False)
-    return params, shapes
+    time_of = np.ascontiguousarray(time_of.reshape(delays.size, n_lags), dtype=np.int64)
+    gathered = table[:, time_of].transpose(1, 0, 2).reshape(params.shape[0], n_lags)
+    norms = np.linalg.norm(np.ascontiguousarray(gathered), axis=1).reshape(delays.size, -1)
+    grid = _Grid(params, np.ascontiguousarray(table), time_of, np.maximum(norms, 1e-300))
+    for a in (grid.params, grid.table, grid.time_of, grid.norms):
+        a.setflags(write=False)
+    return grid
 
 
 def _best_on_grid(g: FloatArray, fs_hz: float) -> tuple[float, float, float]:
-    """The grid point (δ, f_c, ζ) whose best-scaled response explains most of the IRF."""
-    params, shapes = _grid(g.size, fs_hz)
-    i = int(np.argmax(np.abs(shapes @ g)))
-    return float(params[i, 0]), float(params[i, 1]), float(params[i, 2])
+    """The grid point (δ, f_c, ζ) whose best-scaled response explains most of the IRF
+    (the compiled kernel's ``grid_scores`` when built: the same scores to rounding, read from
+    each (f_c, ζ) pair's responses on the distinct times; the numpy path multiplies the
+    gathered matrix, :attr:`_Grid.shapes`)."""
+    grid = _grid(g.size, fs_hz)
+    i = int(np.argmax(_grid_scores(grid, np.ascontiguousarray(g, dtype=np.float64))))
+    return float(grid.params[i, 0]), float(grid.params[i, 1]), float(grid.params[i, 2])
+
+
+def _grid_scores(grid: _Grid, g: FloatArray) -> FloatArray:
+    """``|shapes @ g|``: each grid point's normalised response against ``g``, shape (m,)."""
+    if _eureka is None:
+        return np.asarray(np.abs(grid.shapes @ g), dtype=np.float64)
+    scores = np.empty(grid.norms.size)
+    _eureka.grid_scores(grid.table, grid.time_of, grid.norms, g, scores)
+    return scores
 
 
 def fit_reflex_dynamics(irf: FloatArray, fs_hz: float) -> ReflexDynamics:

@@ -26,7 +26,6 @@ import threading
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
 from rtsid.errors import ConfigError, InputDataError, invalid, require_choice, require_range
@@ -304,10 +303,7 @@ def window_vaf_gains(
     basis = WindowVafBasis(position[lead:], torque[lead:], fs_hz)
     step = max(1, round(EVIDENCE_STEP_S * fs_hz))
     starts = np.arange(first - lead, position.size - lead - n + 1, step)
-    if starts.size == 0:
-        return np.empty(0)
-    reflex = sliding_window_view(reflex_torque[lead:], n)[starts]
-    return basis.least_squares_vaf_gains(starts, n, reflex)
+    return basis.least_squares_vaf_gains(starts, n, reflex_torque[lead:])
 
 
 def warm_up(fs_hz: float, settings: SlowLaneSettings) -> bool:

@@ -23,6 +23,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 from scipy import signal
 
+from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.reflex import zero_phase
 
 __all__ = ["WindowVafBasis", "least_squares_window", "savgol_derivatives"]
@@ -31,6 +32,8 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
 SAVGOL_POINTS, SAVGOL_ORDER = 11, 3
 BASIS_LOWPASS_HZ = 40.0
+
+_eureka = compiled_kernel()
 
 
 def savgol_derivatives(x: FloatArray, fs_hz: float) -> tuple[FloatArray, FloatArray]:
@@ -128,16 +131,17 @@ class WindowVafBasis:
         return self.vaf(np.asarray(params, dtype=np.float64), start, stop, extra)
 
     def least_squares_vaf_gains(self, starts: IntArray, n: int, extra: FloatArray) -> FloatArray:
-        """``least_squares_vaf(a, a + n, e) − least_squares_vaf(a, a + n)`` for every window
-        start ``a`` in ``starts`` and its row ``e`` of ``extra``, percentage points: the VAF
-        that counting the extra torque (N·m) as part of the model adds to each window's own
-        least-squares fit.
+        """``least_squares_vaf(a, a + n, e) − least_squares_vaf(a, a + n)`` with
+        ``e = extra[a : a + n]``, for every window start ``a`` in ``starts``, percentage
+        points: the VAF that counting the extra torque (N·m) as part of the model adds to each
+        window's own least-squares fit.
 
         All windows in one pass: each window's regressors are centred (the offset term
         removed exactly), scaled to unit norm, and the small normal equations (``θ̈, θ̇, θ``
-        and the trend, both right-hand sides) of every window formed and solved at once. The
-        same numbers as the per-window ``numpy.linalg.lstsq`` of :meth:`least_squares_vaf` to
-        rounding (tested to 1e-9).
+        and the trend, both right-hand sides) of every window formed and solved at once; by
+        the compiled kernel's ``evidence_gains`` when built (the numpy code below is its
+        reference). The same numbers as the per-window ``numpy.linalg.lstsq`` of
+        :meth:`least_squares_vaf` to rounding (tested to 1e-9).
 
         Parameters
         ----------
@@ -145,13 +149,20 @@ class WindowVafBasis:
             First sample of each window.
         n : int
             Samples per window.
-        extra : numpy.ndarray, shape (w, n)
-            The extra torque on each window, N·m.
+        extra : numpy.ndarray, shape (N,)
+            The extra torque on the basis's samples, N·m.
 
         Returns
         -------
         numpy.ndarray, shape (w,)
         """
+        starts = np.asarray(starts, dtype=np.int64)
+        extra = np.ascontiguousarray(extra, dtype=np.float64)
+        if _eureka is not None:
+            gains = np.empty(starts.size)
+            torque, regressors = self.torque, self.regressors
+            _eureka.evidence_gains(torque, regressors, extra, starts, n, gains)
+            return gains
         x = np.empty((starts.size, 4, n))  # per window: centred θ̈, θ̇, θ, and the trend
         x[:, :3] = sliding_window_view(self.regressors, n, axis=1)[:, starts].transpose(1, 0, 2)
         x[:, :3] -= x[:, :3].mean(axis=2, keepdims=True)
@@ -159,7 +170,8 @@ class WindowVafBasis:
         x /= np.sqrt(np.einsum("wkn,wkn->wk", x, x))[:, :, None]
         torque = sliding_window_view(self.torque, n)[starts]
         measured = torque - torque.mean(axis=1, keepdims=True)
-        added = extra - extra.mean(axis=1, keepdims=True)
+        added = sliding_window_view(extra, n)[starts]
+        added = added - added.mean(axis=1, keepdims=True)
         targets = np.stack((measured - added, measured), axis=2)  # (w, n, 2)
         params = np.linalg.solve(x @ x.transpose(0, 2, 1), x @ targets)  # (w, 4, 2)
         error = measured[:, :, None] - x[:, :3].transpose(0, 2, 1) @ params[:, :3]

@@ -161,25 +161,39 @@ def test_the_evidence_on_the_scored_span_equals_the_whole_horizons(seconds, firs
     assert abs(median - np.median(want)) < 1e-9 and improved == np.mean(want > 0)
 
 
+@pytest.mark.parametrize("compiled", [True, False])
 @pytest.mark.parametrize("fs_hz", [FS_SIM, 1000.0])
-def test_all_windows_in_one_pass_equal_each_windows_own_least_squares(fs_hz):
-    from numpy.lib.stride_tricks import sliding_window_view
-
+def test_all_windows_in_one_pass_equal_each_windows_own_least_squares(fs_hz, compiled, monkeypatch):
+    from rtsid.ident import yardstick
     from rtsid.ident.yardstick import WindowVafBasis
 
+    if not compiled:
+        monkeypatch.setattr(yardstick, "_eureka", None)
     theta, torque = joint_with_reflex(seconds=4.0, seed=6)
     theta = theta + 0.2  # an offset far above the movement: the offset term must be exact
     basis = WindowVafBasis(theta, torque, fs_hz)
     extra = np.random.default_rng(0).standard_normal(theta.size)
     n = 750
-    starts = np.arange(0, theta.size - n, 1250)
+    starts = np.arange(0, theta.size - n + 1, 1250)
     want = [
         basis.least_squares_vaf(a, a + n, extra[a : a + n]) - basis.least_squares_vaf(a, a + n)
         for a in starts
     ]
-    got = basis.least_squares_vaf_gains(starts, n, sliding_window_view(extra, n)[starts])
+    got = basis.least_squares_vaf_gains(starts, n, extra)
     assert np.ptp(want) > 0.3  # the windows differ: a real check
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+
+
+def test_the_compiled_evidence_checks_its_windows():
+    from rtsid.ident import yardstick
+    from rtsid.ident.yardstick import WindowVafBasis
+
+    if yardstick._eureka is None:
+        pytest.skip("the compiled kernel is not built")
+    theta, torque = joint_with_reflex(seconds=4.0, seed=6)
+    basis = WindowVafBasis(theta, torque, FS_SIM)
+    with pytest.raises(ValueError, match="inconsistent sizes"):
+        basis.least_squares_vaf_gains(np.array([theta.size - 10]), 750, np.zeros(theta.size))
 
 
 @pytest.mark.parametrize("variant", ["rect", "hammerstein"])
@@ -259,7 +273,8 @@ def test_the_decimator_is_scipys_bit_for_bit_compiled_or_not(factor, monkeypatch
 def test_the_dynamics_grid_equals_every_grid_point_evaluated(n_lags, fs_model):
     from rtsid.ident import reflex
 
-    params, shapes = reflex._grid(n_lags, fs_model)
+    grid = reflex._grid(n_lags, fs_model)
+    params, shapes = grid.params, grid.shapes
     lags_s = np.arange(n_lags) / fs_model
     want = reflex._low_pass_response(
         lags_s[None, :] - params[:, :1], 2 * np.pi * params[:, 1:2], params[:, 2:3]
@@ -302,3 +317,26 @@ def test_the_dynamics_fit_recovers_an_exact_delayed_low_pass(delay_s, corner_hz,
     got = [found.gain, found.delay_s, found.corner_hz, found.damping_ratio]
     np.testing.assert_allclose(got, [12.5, delay_s, corner_hz, zeta], rtol=1e-6)
     assert found.vaf > 99.9999
+
+
+@pytest.mark.parametrize(("n_lags", "fs_model"), [(101, 100.0), (41, 200.0)])
+def test_the_compiled_grid_scores_equal_the_numpy_ones(n_lags, fs_model, monkeypatch):
+    from rtsid.ident import reflex
+
+    if reflex._eureka is None:
+        pytest.skip("the compiled kernel is not built")
+    grid = reflex._grid(n_lags, fs_model)
+    rng = np.random.default_rng(n_lags)
+    lags_s = np.arange(n_lags) / fs_model
+    irfs = [rng.standard_normal(n_lags)] + [
+        g * reflex._low_pass_response(lags_s - d, 2 * np.pi * f, z) + rng.standard_normal(n_lags)
+        for g, d, f, z in [(10.0, 0.043, 3.1, 0.7), (-4.0, 0.021, 8.0, 1.3)]
+    ]
+    for g in irfs:
+        got = reflex._grid_scores(grid, g)
+        want = np.abs(grid.shapes @ g)
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * want.max())
+        compiled = reflex._best_on_grid(g, fs_model)
+        monkeypatch.setattr(reflex, "_eureka", None)
+        assert reflex._best_on_grid(g, fs_model) == compiled
+        monkeypatch.undo()
