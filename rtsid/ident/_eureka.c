@@ -1539,7 +1539,6 @@ static PyObject *py_solve(PyObject *self, PyObject *args)
 }
 
 static PyObject *py_evidence_gains(PyObject *self, PyObject *args);
-static PyObject *py_grid_scores(PyObject *self, PyObject *args);
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1576,7 +1575,6 @@ static PyMethodDef methods[] = {
     {"xcorr", py_xcorr, METH_VARARGS,
      "xcorr(u, y, first, last, norm, c): c[k-first] = sum_t u[t] y[t+k] / norm."},
     {"evidence_gains", py_evidence_gains, METH_VARARGS, "evidence_gains(torque, regressors, extra, starts, n, out): slow-lane evidence windows' VAF gains."},
-    {"grid_scores", py_grid_scores, METH_VARARGS, "grid_scores(table, time_of, norms, g, out): the reflex dynamics grid's scores."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -1610,7 +1608,7 @@ PyMODINIT_FUNC PyInit__eureka(void)
 }
 
 /* ------------------------------------------------------------------ slow lane's reflex fit
- * (issue 22, fits2) The slow lane's per-fit numerics that are many small steps in numpy:
+ * (issue 22, fits2) The slow lane's evidence check, many small steps in numpy:
  *
  * evidence_gains(torque, regressors, extra, starts, n, out): for each window [a, a + n) with
  *   a in starts, the VAF that counting `extra` as part of the model adds to the window's own
@@ -1618,10 +1616,6 @@ PyMODINIT_FUNC PyInit__eureka(void)
  *   is rtsid.ident.yardstick.WindowVafBasis.least_squares_vaf_gains (the same steps: centred
  *   regressors scaled to unit norm, the 4 × 4 normal equations with both right-hand sides).
  *   O(windows·n).
- * grid_scores(table, time_of, norms, g, out): |Σ_k table[p, time_of[j, k]]·g[k]| / norms[j, p]
- *   into out[j, p], the dynamics grid's scores (rtsid.ident.reflex._best_on_grid; its numpy
- *   reference multiplies the gathered, normalised responses), reading each (f_c, ζ) pair's
- *   response on the distinct times once instead of a 13 MB matrix. O(pairs·delays·lags).
  */
 static int get_indices(PyObject *obj, Py_buffer *view, const char *name)
 {
@@ -1726,55 +1720,6 @@ static PyObject *py_evidence_gains(PyObject *self, PyObject *args)
         result = Py_None;
     }
     PyBuffer_Release(&s);
-    release_buffers(b, 4);
-    return result;
-}
-
-static PyObject *py_grid_scores(PyObject *self, PyObject *args)
-{
-    PyObject *table_obj, *time_obj, *norms_obj, *g_obj, *out_obj;
-    if (!PyArg_ParseTuple(args, "OOOOO", &table_obj, &time_obj, &norms_obj, &g_obj, &out_obj))
-        return NULL;
-    PyObject *objs[4] = {table_obj, norms_obj, g_obj, out_obj};
-    const char *names[4] = {"table", "norms", "g", "out"};
-    Py_buffer b[4], t;
-    if (get_buffers(objs, 4, 3, names, b) < 0) return NULL;
-    if (get_indices(time_obj, &t, "time_of") < 0) {
-        release_buffers(b, 4);
-        return NULL;
-    }
-    const Py_ssize_t lags = b[2].len / 8, scores = b[1].len / 8;
-    const Py_ssize_t delays = lags > 0 ? t.len / 8 / lags : 0;
-    const Py_ssize_t pairs = delays > 0 ? scores / delays : 0;
-    const Py_ssize_t times = pairs > 0 ? b[0].len / 8 / pairs : 0;
-    const long long *time_of = (const long long *)t.buf;
-    int ok = lags > 0 && delays > 0 && pairs > 0 && times > 0 && t.len == 8 * delays * lags &&
-             scores == delays * pairs && b[0].len == 8 * pairs * times && b[3].len == b[1].len;
-    for (Py_ssize_t i = 0; ok && i < delays * lags; i++) ok = time_of[i] >= 0 && time_of[i] < times;
-    PyObject *result = NULL;
-    if (!ok) {
-        PyErr_SetString(PyExc_ValueError, "grid_scores: inconsistent sizes");
-    } else {
-        const double *table = b[0].buf, *norms = b[1].buf, *g = b[2].buf;
-        double *out = b[3].buf;
-        for (Py_ssize_t p = 0; p < pairs; p++) {
-            const double *row = table + p * times;
-            for (Py_ssize_t j = 0; j < delays; j++) {
-                const long long *at = time_of + j * lags;
-                double s0 = 0.0, s1 = 0.0;
-                Py_ssize_t k = 0;
-                for (; k + 1 < lags; k += 2) {
-                    s0 += row[at[k]] * g[k];
-                    s1 += row[at[k + 1]] * g[k + 1];
-                }
-                if (k < lags) s0 += row[at[k]] * g[k];
-                out[j * pairs + p] = fabs(s0 + s1) / norms[j * pairs + p];
-            }
-        }
-        Py_INCREF(Py_None);
-        result = Py_None;
-    }
-    PyBuffer_Release(&t);
     release_buffers(b, 4);
     return result;
 }

@@ -374,32 +374,62 @@ def _low_pass_and_slopes(t: FloatArray, wn: float, zeta: float) -> tuple[FloatAr
 
 
 @dataclass(frozen=True)
+class _Residue:
+    """The grid's delays whose responses start at one residue of the lag step in the time
+    table: their scores are one matrix product (see :class:`_Grid`)."""
+
+    table: FloatArray  # (pairs, times): the table's times at this residue, every `step`-th
+    delays: NDArray[np.intp]  # the delays' indices in the grid
+    rows: NDArray[np.intp]  # (n_lags, delays): where lag k of each delay falls in `table`
+
+
+@dataclass(frozen=True)
 class _Grid:
-    """The (δ, f_c, ζ) grid on ``n`` lags and its responses, formed once per lag grid.
+    """The (δ, f_c, ζ) grid on ``n`` lags and its unit-energy responses, formed once per lag
+    grid.
+
+    The responses are evaluated on the times ``t = m·Δ`` (``Δ`` = :data:`DELAY_STEP_S`, ``m``
+    whole) that ``lag − δ`` takes when the lag step is a whole number ``s`` of ``Δ`` (the
+    model's 100 Hz: ``s = 5``), each (f_c, ζ) pair once per time. The response of delay
+    ``δ = d·Δ`` at lag ``k`` is then the pair's value at ``m = s·k − d``: for the delays
+    with the same ``−d mod s`` these are consecutive columns of every ``s``-th time, and
+    their scores against an IRF ``g`` are one matrix product of that table with ``g``
+    placed at each delay's offset — a few small products instead of a pass over the
+    ``m × n`` response matrix (13 MB at 101 lags). Other lag steps score with that matrix
+    (:attr:`shapes`).
 
     Attributes
     ----------
     params : numpy.ndarray, shape (m, 3)
         The grid points, δ outermost (``m = delays × pairs``; ``pairs`` the (f_c, ζ) pairs).
-    table : numpy.ndarray, shape (pairs, times)
-        Each pair's response at the distinct times ``t = lag − δ`` of the grid.
-    time_of : numpy.ndarray of int64, shape (delays, n)
-        Where each delay's lags fall in ``table``'s times.
+    shapes : numpy.ndarray, shape (m, n)
+        Unit-energy responses at the grid points.
     norms : numpy.ndarray, shape (delays, pairs)
-        Each grid point's response norm (at least 1e-300).
+        The responses' norms before the scaling (at least 1e-300).
+    residues : tuple of _Residue
+        The product form's tables (empty when the lag step is not a whole number of ``Δ``).
     """
 
     params: FloatArray
-    table: FloatArray
-    time_of: NDArray[np.int64]
+    shapes: FloatArray
     norms: FloatArray
+    residues: tuple[_Residue, ...]
 
-    @cached_property
-    def shapes(self) -> FloatArray:
-        """Unit-energy responses, shape (m, n): the numpy path's matrix (13 MB at 101 lags)."""
-        gathered = self.table[:, self.time_of]  # (pairs, delays, lags)
-        shapes = gathered.transpose(1, 0, 2).reshape(self.params.shape[0], -1)
-        return np.ascontiguousarray(shapes / self.norms.reshape(-1, 1), dtype=np.float64)
+    def scores(self, g: FloatArray) -> FloatArray:
+        """``|shapes @ g|``, shape (m,): each grid point's best-scaled fit to ``g`` (to
+        rounding, by the residues' products when there are some)."""
+        if not self.residues:
+            return np.asarray(np.abs(self.shapes @ g), dtype=np.float64)
+        dots = np.empty(self.norms.shape)
+        for r in self.residues:
+            placed = np.zeros((r.table.shape[1], r.delays.size))
+            placed[r.rows, np.arange(r.delays.size)] = g[:, None]
+            dots[r.delays] = (r.table @ placed).T
+        return np.asarray(np.abs(dots / self.norms).ravel(), dtype=np.float64)
+
+
+#: The delay grid's step, s.
+DELAY_STEP_S = 0.002
 
 
 @lru_cache(maxsize=4)
@@ -410,39 +440,47 @@ def _grid(n_lags: int, fs_hz: float) -> _Grid:
         [v.ravel() for v in np.meshgrid(delays, CORNER_GRID_HZ, DAMPING_GRID, indexing="ij")],
         axis=1,
     )
-    lags_s = np.arange(n_lags) / fs_hz
-    # each (f_c, ζ) evaluated once per distinct time t = lag − δ (the 2 ms delay grid and the
-    # model's lags make the same t recur) and gathered: every element depends on its own t,
+    pairs = params[: CORNER_GRID_HZ.size * DAMPING_GRID.size, 1:]  # δ = delays[0]: all pairs
+    step = 1.0 / (fs_hz * DELAY_STEP_S)  # lag step in delay steps
+    d = np.rint(delays / DELAY_STEP_S).astype(np.intp)
+    whole = abs(step - round(step)) < 1e-9 and np.allclose(d * DELAY_STEP_S, delays, 1e-12, 0)
+    if whole:  # t = m·Δ, m = s·k − d
+        s = round(step)
+        first = -int(d.max())
+        m = np.arange(first, s * (n_lags - 1) - int(d.min()) + 1)
+        times = m * DELAY_STEP_S
+        time_of = s * np.arange(n_lags)[None, :] - d[:, None] - first  # (delays, lags)
+    else:  # every distinct t = lag − δ
+        lags_s = np.arange(n_lags) / fs_hz
+        times, time_of = np.unique(lags_s[None, :] - delays[:, None], return_inverse=True)
+        time_of = time_of.reshape(delays.size, n_lags)
+    # each (f_c, ζ) evaluated once per time and gathered: every element depends on its own t,
     # f_c and ζ only, so these are the numbers of evaluating every grid point (tested)
-    times, time_of = np.unique(lags_s[None, :] - delays[:, None], return_inverse=True)
-    shapes_of = params[: CORNER_GRID_HZ.size * DAMPING_GRID.size, 1:]  # δ = delays[0]: all pairs
-    table = _low_pass_response(times[None, :], 2 * np.pi * shapes_of[:, :1], shapes_of[:, 1:])
-    time_of = np.ascontiguousarray(time_of.reshape(delays.size, n_lags), dtype=np.int64)
+    at = np.asarray(times, dtype=np.float64)[None, :]
+    table = _low_pass_response(at, 2 * np.pi * pairs[:, :1], pairs[:, 1:])
     gathered = table[:, time_of].transpose(1, 0, 2).reshape(params.shape[0], n_lags)
-    norms = np.linalg.norm(np.ascontiguousarray(gathered), axis=1).reshape(delays.size, -1)
-    grid = _Grid(params, np.ascontiguousarray(table), time_of, np.maximum(norms, 1e-300))
-    for a in (grid.params, grid.table, grid.time_of, grid.norms):
+    shapes = np.ascontiguousarray(gathered)
+    norms = np.maximum(np.linalg.norm(shapes, axis=1, keepdims=True), 1e-300)
+    shapes /= norms
+    residues: list[_Residue] = []
+    if whole:
+        start = time_of[:, 0]
+        for rho in np.unique(start % s):
+            chosen = np.flatnonzero(start % s == rho)
+            rows = (start[chosen][None, :] - rho) // s + np.arange(n_lags)[:, None]
+            residues.append(
+                _Residue(np.ascontiguousarray(table[:, rho::s]), chosen, np.asarray(rows))
+            )
+    for a in (params, shapes, norms, *(x for r in residues for x in (r.table, r.rows))):
         a.setflags(write=False)
-    return grid
+    return _Grid(params, shapes, norms.reshape(delays.size, -1), tuple(residues))
 
 
 def _best_on_grid(g: FloatArray, fs_hz: float) -> tuple[float, float, float]:
-    """The grid point (δ, f_c, ζ) whose best-scaled response explains most of the IRF
-    (the compiled kernel's ``grid_scores`` when built: the same scores to rounding, read from
-    each (f_c, ζ) pair's responses on the distinct times; the numpy path multiplies the
-    gathered matrix, :attr:`_Grid.shapes`)."""
+    """The grid point (δ, f_c, ζ) whose best-scaled response explains most of the IRF."""
     grid = _grid(g.size, fs_hz)
-    i = int(np.argmax(_grid_scores(grid, np.ascontiguousarray(g, dtype=np.float64))))
+    i = int(np.argmax(grid.scores(np.asarray(g, dtype=np.float64))))
     return float(grid.params[i, 0]), float(grid.params[i, 1]), float(grid.params[i, 2])
-
-
-def _grid_scores(grid: _Grid, g: FloatArray) -> FloatArray:
-    """``|shapes @ g|``: each grid point's normalised response against ``g``, shape (m,)."""
-    if _eureka is None:
-        return np.asarray(np.abs(grid.shapes @ g), dtype=np.float64)
-    scores = np.empty(grid.norms.size)
-    _eureka.grid_scores(grid.table, grid.time_of, grid.norms, g, scores)
-    return scores
 
 
 def fit_reflex_dynamics(irf: FloatArray, fs_hz: float) -> ReflexDynamics:

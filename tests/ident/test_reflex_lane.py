@@ -281,7 +281,8 @@ def test_the_dynamics_grid_equals_every_grid_point_evaluated(n_lags, fs_model):
     )
     want /= np.maximum(np.linalg.norm(want, axis=1, keepdims=True), 1e-300)
     assert np.unique(params, axis=0).shape == params.shape  # every (δ, f_c, ζ) once
-    np.testing.assert_array_equal(shapes, want)
+    # at 100 Hz the times are m × 2 ms, which lag − δ equals to rounding
+    np.testing.assert_allclose(shapes, want, rtol=0, atol=1e-13)
 
 
 @pytest.mark.parametrize(
@@ -319,13 +320,12 @@ def test_the_dynamics_fit_recovers_an_exact_delayed_low_pass(delay_s, corner_hz,
     assert found.vaf > 99.9999
 
 
-@pytest.mark.parametrize(("n_lags", "fs_model"), [(101, 100.0), (41, 200.0)])
-def test_the_compiled_grid_scores_equal_the_numpy_ones(n_lags, fs_model, monkeypatch):
+@pytest.mark.parametrize(("n_lags", "fs_model"), [(101, 100.0), (51, 250.0), (41, 200.0)])
+def test_the_grids_product_scores_equal_the_response_matrixs(n_lags, fs_model):
     from rtsid.ident import reflex
 
-    if reflex._eureka is None:
-        pytest.skip("the compiled kernel is not built")
     grid = reflex._grid(n_lags, fs_model)
+    assert bool(grid.residues) == (fs_model != 200.0)  # 5 ms is not a whole number of 2 ms
     rng = np.random.default_rng(n_lags)
     lags_s = np.arange(n_lags) / fs_model
     irfs = [rng.standard_normal(n_lags)] + [
@@ -333,10 +333,7 @@ def test_the_compiled_grid_scores_equal_the_numpy_ones(n_lags, fs_model, monkeyp
         for g, d, f, z in [(10.0, 0.043, 3.1, 0.7), (-4.0, 0.021, 8.0, 1.3)]
     ]
     for g in irfs:
-        got = reflex._grid_scores(grid, g)
+        got = grid.scores(g)
         want = np.abs(grid.shapes @ g)
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * want.max())
-        compiled = reflex._best_on_grid(g, fs_model)
-        monkeypatch.setattr(reflex, "_eureka", None)
-        assert reflex._best_on_grid(g, fs_model) == compiled
-        monkeypatch.undo()
+        assert np.argmax(got) == np.argmax(want)
