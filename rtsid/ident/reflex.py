@@ -60,6 +60,7 @@ __all__ = [
     "stretch_velocity",
     "to_data_rate",
     "zero_phase",
+    "zero_phase_rows",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -120,6 +121,23 @@ def zero_phase(sos: FloatArray, x: FloatArray) -> FloatArray:
     filter's initial conditions prepared once per filter)."""
     sos = np.ascontiguousarray(sos, dtype=np.float64)
     return _filtfilt(_zero_phase_setup(sos.tobytes(), len(sos)), np.asarray(x, dtype=np.float64))
+
+
+def zero_phase_rows(sos: FloatArray, rows: FloatArray) -> FloatArray:
+    """:func:`zero_phase` of each row of ``rows`` (shape (k, n)): the same numbers bit for
+    bit, the compiled kernel running four rows at once when built."""
+    sos = np.ascontiguousarray(sos, dtype=np.float64)
+    d = _zero_phase_setup(sos.tobytes(), len(sos))
+    x = np.asarray(rows, dtype=np.float64)
+    if _eureka is None or x.shape[1] <= d.edge:
+        return np.vstack([_filtfilt(d, row) for row in x])
+    e = d.edge
+    ext = np.empty((x.shape[0], x.shape[1] + 2 * e))  # scipy's odd extension of each row
+    ext[:, :e] = 2 * x[:, :1] - x[:, e:0:-1]
+    ext[:, e:-e] = x
+    ext[:, -e:] = 2 * x[:, -1:] - x[:, -2 : -e - 2 : -1]
+    _eureka.sos_filtfilt_rows(d.sos, d.zi, ext, ext.shape[1])
+    return np.ascontiguousarray(ext[:, e:-e])
 
 
 def _filtfilt(d: _Decimator, x: FloatArray) -> FloatArray:

@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from scipy import signal
 
 from rtsid.ident.levinson import compiled_kernel
-from rtsid.ident.reflex import zero_phase
+from rtsid.ident.reflex import zero_phase_rows
 
 __all__ = ["WindowVafBasis", "least_squares_window", "savgol_derivatives"]
 
@@ -91,9 +91,9 @@ class WindowVafBasis:
     def __init__(self, position: FloatArray, torque: FloatArray, fs_hz: float) -> None:
         d1, d2 = savgol_derivatives(position, fs_hz)
         # scipy's sosfiltfilt of each row, compiled when built (the same numbers bit for bit)
-        sos = _basis_lowpass(float(fs_hz))
-        self.torque = zero_phase(sos, torque)
-        self.regressors = np.vstack([zero_phase(sos, x) for x in (d2, d1, position)])
+        low = zero_phase_rows(_basis_lowpass(float(fs_hz)), np.vstack((torque, d2, d1, position)))
+        self.torque = low[0]
+        self.regressors = low[1:]
 
     def vaf(
         self, params: FloatArray, start: int, stop: int, extra: FloatArray | None = None
