@@ -337,3 +337,18 @@ def test_the_grids_product_scores_equal_the_response_matrixs(n_lags, fs_model):
         want = np.abs(grid.shapes @ g)
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * want.max())
         assert np.argmax(got) == np.argmax(want)
+
+
+@pytest.mark.parametrize("fs_hz", [FS_SIM, 1000.0])
+def test_the_savitzky_golay_derivatives_are_scipys(fs_hz):
+    from scipy import signal
+
+    from rtsid.ident.yardstick import savgol_derivatives
+
+    x = np.random.default_rng(3).standard_normal(3000).cumsum()
+    x += 5.0 * np.sin(np.arange(x.size) / 40.0)
+    for _ in range(2):  # the second call uses the cached filters
+        for deriv, got in zip((1, 2), savgol_derivatives(x, fs_hz), strict=True):
+            want = signal.savgol_filter(x, 11, 3, deriv=deriv, delta=1 / fs_hz)
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
+            assert np.array_equal(got[5:-5], want[5:-5])  # inside the edges: the same filter
