@@ -1540,6 +1540,7 @@ static PyObject *py_solve(PyObject *self, PyObject *args)
 
 static PyObject *py_evidence_gains(PyObject *self, PyObject *args);
 static PyObject *py_sos_filtfilt_rows(PyObject *self, PyObject *args);
+static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args);
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1577,6 +1578,7 @@ static PyMethodDef methods[] = {
      "xcorr(u, y, first, last, norm, c): c[k-first] = sum_t u[t] y[t+k] / norm."},
     {"evidence_gains", py_evidence_gains, METH_VARARGS, "evidence_gains(torque, regressors, extra, starts, n, out): slow-lane evidence windows' VAF gains."},
     {"sos_filtfilt_rows", py_sos_filtfilt_rows, METH_VARARGS, "sos_filtfilt_rows(sos, zi, x, n): sos_filtfilt on each row of n samples of x, in place."},
+    {"low_pass_slopes", py_low_pass_slopes, METH_VARARGS, "low_pass_slopes(t, wn, zeta, h, slopes): the reflex dynamics' low-pass and its derivatives."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -1620,6 +1622,8 @@ PyMODINIT_FUNC PyInit__eureka(void)
  *   O(windows·n).
  * sos_filtfilt_rows(sos, zi, x, n): sos_filtfilt (scipy's passes bit for bit) on each row of x,
  *   four rows interleaved (the window VAF basis's rows; rtsid.ident.reflex.zero_phase_rows).
+ * low_pass_slopes(t, wn, zeta, h, slopes): the reflex dynamics fit's delayed low-pass and its
+ *   derivatives by t, ωn and ζ at every step of the fit (rtsid.ident.reflex._low_pass_and_slopes).
  */
 static int get_indices(PyObject *obj, Py_buffer *view, const char *name)
 {
@@ -1831,3 +1835,47 @@ static PyObject *py_sos_filtfilt_rows(PyObject *self, PyObject *args)
     return result;
 }
 #undef ROWS_AT_ONCE
+
+/* low_pass_slopes(t, wn, zeta, h, slopes): the reflex dynamics fit's delayed low-pass
+ * h(t) = Re A·(e^{p1 t} − e^{p2 t}) (ωn²/(s² + 2ζωn s + ωn²), 0 for t ≤ 0) and its derivatives
+ * by t, ωn and ζ into slopes (3 rows of n); rtsid.ident.reflex._low_pass_and_slopes's numpy
+ * code is the reference (the same complex formulas; equal to rounding, tested). O(n). */
+#include <complex.h>
+static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args)
+{
+    PyObject *objs[3];
+    double w, z;
+    if (!PyArg_ParseTuple(args, "OddOO", &objs[0], &w, &z, &objs[1], &objs[2])) return NULL;
+    const char *names[3] = {"t", "h", "slopes"};
+    Py_buffer b[3];
+    if (get_buffers(objs, 3, 1, names, b) < 0) return NULL;
+    const Py_ssize_t n = b[0].len / 8;
+    PyObject *result = NULL;
+    if (b[1].len != b[0].len || b[2].len != 3 * b[0].len || !(w > 0.0)) {
+        PyErr_SetString(PyExc_ValueError, "low_pass_slopes: inconsistent sizes or wn <= 0");
+    } else {
+        const double *t = b[0].buf;
+        double *h = b[1].buf, *s = b[2].buf;
+        if (fabs(z - 1.0) < 1e-6) z = 1.0 + 1e-6;
+        const double complex root = csqrt(z * z - 1.0 + 0.0 * I);
+        const double complex p1 = w * (-z + root), p2 = w * (-z - root);
+        const double complex scale = w * w / (p1 - p2);
+        const double complex c1 = -1.0 + z / root, c2 = -1.0 - z / root;
+        const double complex by_z = -scale * z / (root * root);
+        for (Py_ssize_t i = 0; i < n; i++) {
+            if (!(t[i] > 0.0)) {
+                h[i] = s[i] = s[n + i] = s[2 * n + i] = 0.0;
+                continue;
+            }
+            const double complex e1 = cexp(p1 * t[i]), e2 = cexp(p2 * t[i]);
+            h[i] = creal(scale * (e1 - e2));
+            s[i] = creal(scale * (p1 * e1 - p2 * e2));
+            s[n + i] = (h[i] + t[i] * s[i]) / w;
+            s[2 * n + i] = creal(by_z * (e1 - e2) + scale * w * t[i] * (c1 * e1 - c2 * e2));
+        }
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+    release_buffers(b, 3);
+    return result;
+}

@@ -370,8 +370,14 @@ def _low_pass_and_slopes(t: FloatArray, wn: float, zeta: float) -> tuple[FloatAr
     ``h = Re A·(e^{p₁t} − e^{p₂t})``; ``∂h/∂t = Re A·(p₁e^{p₁t} − p₂e^{p₂t})``;
     ``h(t; ωn) = ωn·f(ωn·t)`` gives ``∂h/∂ωn = (h + t·∂h/∂t)/ωn``; and
     ``∂h/∂ζ = Re[−A·ζ/r²·(e^{p₁t} − e^{p₂t}) + A·ωn·t·(ċ₁e^{p₁t} − ċ₂e^{p₂t})]`` with
-    ``ċ₁,₂ = −1 ± ζ/r``. ``h`` is the very numbers of :func:`_low_pass_response`.
+    ``ċ₁,₂ = −1 ± ζ/r``. ``h`` is the very numbers of :func:`_low_pass_response`; the
+    compiled kernel's ``low_pass_slopes``, when built, gives these to rounding (tested).
     """
+    if _eureka is not None:
+        t = np.ascontiguousarray(t, dtype=np.float64)
+        h_out, slopes_out = np.empty(t.size), np.empty((3, t.size))
+        _eureka.low_pass_slopes(t, float(wn), float(zeta), h_out, slopes_out)
+        return h_out, slopes_out
     z = 1.0 + 1e-6 if abs(zeta - 1.0) < 1e-6 else float(zeta)
     w = float(wn)
     root = np.sqrt(complex(z * z - 1.0))

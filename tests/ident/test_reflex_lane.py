@@ -288,11 +288,14 @@ def test_the_dynamics_grid_equals_every_grid_point_evaluated(n_lags, fs_model):
 @pytest.mark.parametrize(
     "x", [(0.0423, 3.1, 0.7), (0.0123, 7.5, 1.6), (0.0571, 2.0, 1.0 + 1e-7), (0.1033, 0.5, 2.9)]
 )
-def test_the_dynamics_jacobian_is_the_residuals_derivative(x):
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_dynamics_jacobian_is_the_residuals_derivative(x, compiled, monkeypatch):
     from scipy.optimize._numdiff import approx_derivative
 
     from rtsid.ident import reflex
 
+    if not compiled:
+        monkeypatch.setattr(reflex, "_eureka", None)
     lags_s = np.arange(101) / 100.0
     g = reflex._low_pass_response(lags_s - 0.04, 2 * np.pi * 3.0, 0.7) * 10.0
     g += np.random.default_rng(1).standard_normal(g.size)
@@ -352,3 +355,18 @@ def test_the_savitzky_golay_derivatives_are_scipys(fs_hz):
             want = signal.savgol_filter(x, 11, 3, deriv=deriv, delta=1 / fs_hz)
             np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
             assert np.array_equal(got[5:-5], want[5:-5])  # inside the edges: the same filter
+
+
+@pytest.mark.parametrize("x", [(3.1, 0.7), (7.5, 1.6), (2.0, 1.0 + 1e-7), (0.5, 2.9), (20.0, 0.2)])
+def test_the_compiled_low_pass_and_slopes_equal_numpys(x, monkeypatch):
+    from rtsid.ident import reflex
+
+    if reflex._eureka is None:
+        pytest.skip("the compiled kernel is not built")
+    t = np.arange(101) / 100.0 - 0.0423
+    h, slopes = reflex._low_pass_and_slopes(t, 2 * np.pi * x[0], x[1])
+    monkeypatch.setattr(reflex, "_eureka", None)
+    want_h, want = reflex._low_pass_and_slopes(t, 2 * np.pi * x[0], x[1])
+    np.testing.assert_allclose(h, want_h, rtol=0, atol=1e-12 * np.abs(want_h).max())
+    for got_row, want_row in zip(slopes, want, strict=True):  # ζ ≈ 1: 4·10⁻¹⁰
+        np.testing.assert_allclose(got_row, want_row, rtol=0, atol=1e-8 * np.abs(want_row).max())
