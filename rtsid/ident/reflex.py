@@ -89,7 +89,8 @@ DAMPING_GRID = np.geomspace(0.3, 2.5, 10)
 
 @dataclass(frozen=True)
 class _Decimator:
-    """A decimator's filter and what its zero-phase run needs, computed once per factor."""
+    """A filter and what its zero-phase run (scipy's ``sosfiltfilt``) needs, computed once per
+    filter (the decimator's once per factor)."""
 
     sos: FloatArray  # second-order sections (n, 6)
     zi: FloatArray  # sosfilt_zi(sos): steady-state initial conditions per unit step (n, 2)
