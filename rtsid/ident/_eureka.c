@@ -1841,6 +1841,8 @@ static PyObject *py_sos_filtfilt_rows(PyObject *self, PyObject *args)
  * by t, ωn and ζ into slopes (3 rows of n); rtsid.ident.reflex._low_pass_and_slopes's numpy
  * code is the reference (the same complex formulas; equal to rounding, tested). O(n). */
 #include <complex.h>
+#undef I /* complex.h's macros would clash with names in later sections (I, inertia) */
+#undef complex
 static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args)
 {
     PyObject *objs[3];
@@ -1857,17 +1859,17 @@ static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args)
         const double *t = b[0].buf;
         double *h = b[1].buf, *s = b[2].buf;
         if (fabs(z - 1.0) < 1e-6) z = 1.0 + 1e-6;
-        const double complex root = csqrt(z * z - 1.0 + 0.0 * I);
-        const double complex p1 = w * (-z + root), p2 = w * (-z - root);
-        const double complex scale = w * w / (p1 - p2);
-        const double complex c1 = -1.0 + z / root, c2 = -1.0 - z / root;
-        const double complex by_z = -scale * z / (root * root);
+        const double _Complex root = csqrt(z * z - 1.0 + 0.0 * _Complex_I);
+        const double _Complex p1 = w * (-z + root), p2 = w * (-z - root);
+        const double _Complex scale = w * w / (p1 - p2);
+        const double _Complex c1 = -1.0 + z / root, c2 = -1.0 - z / root;
+        const double _Complex by_z = -scale * z / (root * root);
         for (Py_ssize_t i = 0; i < n; i++) {
             if (!(t[i] > 0.0)) {
                 h[i] = s[i] = s[n + i] = s[2 * n + i] = 0.0;
                 continue;
             }
-            const double complex e1 = cexp(p1 * t[i]), e2 = cexp(p2 * t[i]);
+            const double _Complex e1 = cexp(p1 * t[i]), e2 = cexp(p2 * t[i]);
             h[i] = creal(scale * (e1 - e2));
             s[i] = creal(scale * (p1 * e1 - p2 * e2));
             s[n + i] = (h[i] + t[i] * s[i]) / w;
