@@ -1732,6 +1732,9 @@ static PyObject *py_window_sums(PyObject *self, PyObject *args)
     release_buffers(b, 2);
     return result;
 }
+static PyObject *py_evidence_gains(PyObject *self, PyObject *args);
+static PyObject *py_sos_filtfilt_rows(PyObject *self, PyObject *args);
+static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args);
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1765,6 +1768,9 @@ static PyMethodDef methods[] = {
     {"json_array", py_json_array, METH_VARARGS, "json_array(data, start, stop, kind, out): compact JSON array items into out."},
     {"window_sums", py_window_sums, METH_VARARGS, "window_sums(position, torque) -> (sum of position, sum of torque, sum of position squared)."},
     {"split_scan", py_split_scan, METH_VARARGS, "split_scan(regressors, measured, k, held, factor, delay, window_samples, fs, out) -> best row (-1: none usable, -2: no problem): every split of a window's K (SS_* rows of out)."},
+    {"evidence_gains", py_evidence_gains, METH_VARARGS, "evidence_gains(torque, regressors, extra, starts, n, out): slow-lane evidence windows' VAF gains."},
+    {"sos_filtfilt_rows", py_sos_filtfilt_rows, METH_VARARGS, "sos_filtfilt_rows(sos, zi, x, n): sos_filtfilt on each row of n samples of x, in place."},
+    {"low_pass_slopes", py_low_pass_slopes, METH_VARARGS, "low_pass_slopes(t, wn, zeta, h, slopes): the reflex dynamics' low-pass and its derivatives."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -1984,4 +1990,276 @@ static PyObject *py_json_array(PyObject *self, PyObject *args)
         return NULL;
     }
     Py_RETURN_NONE;
+}
+
+
+/* ------------------------------------------------------------------ slow lane's reflex fit
+ * (issue 22, fits2) The slow lane's evidence check, many small steps in numpy:
+ *
+ * evidence_gains(torque, regressors, extra, starts, n, out): for each window [a, a + n) with
+ *   a in starts, the VAF that counting `extra` as part of the model adds to the window's own
+ *   least-squares (θ̈, θ̇, θ, offset, trend) fit on the window VAF basis; the numpy reference
+ *   is rtsid.ident.yardstick.WindowVafBasis.least_squares_vaf_gains (the same steps: centred
+ *   regressors scaled to unit norm, the 4 × 4 normal equations with both right-hand sides).
+ *   O(windows·n).
+ * sos_filtfilt_rows(sos, zi, x, n): sos_filtfilt (scipy's passes bit for bit) on each row of x,
+ *   four rows interleaved (the window VAF basis's rows; rtsid.ident.reflex.zero_phase_rows).
+ * low_pass_slopes(t, wn, zeta, h, slopes): the reflex dynamics fit's delayed low-pass and its
+ *   derivatives by t, ωn and ζ at every step of the fit (rtsid.ident.reflex._low_pass_and_slopes).
+ */
+static int get_indices(PyObject *obj, Py_buffer *view, const char *name)
+{
+    if (PyObject_GetBuffer(obj, view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) != 0) return -1;
+    if (view->itemsize != 8 || view->format == NULL ||
+        (strcmp(view->format, "q") != 0 && strcmp(view->format, "l") != 0)) {
+        PyErr_Format(PyExc_TypeError, "%s must be a contiguous int64 buffer", name);
+        PyBuffer_Release(view);
+        return -1;
+    }
+    return 0;
+}
+
+/* One evidence window: x the window's torque, r the three regressor rows at its start (row
+ * stride `stride`), e the extra torque; the VAF gain, percentage points. */
+static double evidence_gain(const double *x, const double *r, Py_ssize_t stride, const double *e,
+                            Py_ssize_t n)
+{
+    double mean[5] = {0.0, 0.0, 0.0, 0.0, 0.0}; /* θ̈, θ̇, θ, torque, extra */
+    for (Py_ssize_t i = 0; i < n; i++) {
+        mean[0] += r[i];
+        mean[1] += r[stride + i];
+        mean[2] += r[2 * stride + i];
+        mean[3] += x[i];
+        mean[4] += e[i];
+    }
+    for (int k = 0; k < 5; k++) mean[k] /= (double)n;
+    const double step = 2.0 / (double)(n - 1);
+    /* Gram of the centred columns (θ̈, θ̇, θ, trend) and their products with the two targets
+     * (measured − added, measured), unscaled; scaled to unit-norm columns below */
+    double gram[16] = {0.0}, rhs[8] = {0.0}, power = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double col[4] = {r[i] - mean[0], r[stride + i] - mean[1],
+                               r[2 * stride + i] - mean[2],
+                               i == n - 1 ? 1.0 : (double)i * step - 1.0};
+        const double measured = x[i] - mean[3], added = e[i] - mean[4];
+        for (int a = 0; a < 4; a++) {
+            for (int b = a; b < 4; b++) gram[4 * a + b] += col[a] * col[b];
+            rhs[2 * a] += col[a] * (measured - added);
+            rhs[2 * a + 1] += col[a] * measured;
+        }
+        power += measured * measured;
+    }
+    double scale[4];
+    for (int a = 0; a < 4; a++) scale[a] = sqrt(gram[5 * a]);
+    for (int a = 0; a < 4; a++) {
+        for (int b = a; b < 4; b++) {
+            gram[4 * a + b] /= scale[a] * scale[b];
+            gram[4 * b + a] = gram[4 * a + b];
+        }
+    }
+    int piv[4];
+    lu_factor(gram, 4, piv);
+    double p[2][4];
+    for (int j = 0; j < 2; j++) {
+        for (int a = 0; a < 4; a++) p[j][a] = rhs[2 * a + j] / scale[a];
+        lu_solve(gram, 4, piv, p[j]);
+        for (int a = 0; a < 3; a++) p[j][a] /= scale[a]; /* per unscaled centred column */
+    }
+    double left[2] = {0.0, 0.0};
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double c0 = r[i] - mean[0], c1 = r[stride + i] - mean[1];
+        const double c2 = r[2 * stride + i] - mean[2];
+        const double measured = x[i] - mean[3], added = e[i] - mean[4];
+        const double with = measured - (p[0][0] * c0 + p[0][1] * c1 + p[0][2] * c2) - added;
+        const double without = measured - (p[1][0] * c0 + p[1][1] * c1 + p[1][2] * c2);
+        left[0] += with * with;
+        left[1] += without * without;
+    }
+    return 100.0 * (1.0 - left[0] / power) - 100.0 * (1.0 - left[1] / power);
+}
+
+static PyObject *py_evidence_gains(PyObject *self, PyObject *args)
+{
+    PyObject *objs[4], *starts_obj, *out_obj;
+    Py_ssize_t n;
+    if (!PyArg_ParseTuple(args, "OOOOnO", &objs[0], &objs[1], &objs[2], &starts_obj, &n, &out_obj))
+        return NULL;
+    objs[3] = out_obj;
+    const char *names[4] = {"torque", "regressors", "extra", "out"};
+    Py_buffer b[4], s;
+    if (get_buffers(objs, 4, 3, names, b) < 0) return NULL;
+    if (get_indices(starts_obj, &s, "starts") < 0) {
+        release_buffers(b, 4);
+        return NULL;
+    }
+    const Py_ssize_t total = b[0].len / 8, windows = s.len / 8;
+    const long long *starts = (const long long *)s.buf;
+    int ok = n >= 3 && b[1].len == 3 * b[0].len && b[2].len == b[0].len && b[3].len == s.len;
+    for (Py_ssize_t w = 0; ok && w < windows; w++) ok = starts[w] >= 0 && starts[w] + n <= total;
+    PyObject *result = NULL;
+    if (!ok) {
+        PyErr_SetString(PyExc_ValueError, "evidence_gains: inconsistent sizes");
+    } else {
+        const double *x = b[0].buf, *r = b[1].buf, *e = b[2].buf;
+        double *out = b[3].buf;
+        for (Py_ssize_t w = 0; w < windows; w++) {
+            const Py_ssize_t a = (Py_ssize_t)starts[w];
+            out[w] = evidence_gain(x + a, r + a, total, e + a, n);
+        }
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+    PyBuffer_Release(&s);
+    release_buffers(b, 4);
+    return result;
+}
+
+/* sos_filtfilt_rows(sos, zi, x, n): sos_filtfilt on each row of x (rows of n extended
+ * samples), in place, each row scipy's sosfilt passes bit for bit (the operations of
+ * sos_run_exact in its order); four rows at a time, so that their recurrences overlap where
+ * one row's waits on its own latency (the window VAF basis filters four rows with a
+ * two-section low-pass). */
+#define ROWS_AT_ONCE 4
+/* Two sections, four rows: the states in registers. */
+#define ROW_SECTION(c, cur, s0, s1)                   \
+    do {                                              \
+        const double out = (c)[0] * cur + s0;         \
+        s0 = (c)[1] * cur - (c)[4] * out + s1;        \
+        s1 = (c)[2] * cur - (c)[5] * out;             \
+        cur = out;                                    \
+    } while (0)
+static void sos_rows_pass2x4(const double *sos, const double *zi, double *x, Py_ssize_t n,
+                             int backwards)
+{
+    const double *c0 = sos, *c1 = sos + 6;
+    double a[4][4];
+    for (int q = 0; q < 4; q++) {
+        const double first = backwards ? x[q * n + n - 1] : x[q * n];
+        for (int s = 0; s < 4; s++) a[q][s] = zi[s] * first;
+    }
+    double a00 = a[0][0], a01 = a[0][1], a02 = a[0][2], a03 = a[0][3];
+    double a10 = a[1][0], a11 = a[1][1], a12 = a[1][2], a13 = a[1][3];
+    double a20 = a[2][0], a21 = a[2][1], a22 = a[2][2], a23 = a[2][3];
+    double a30 = a[3][0], a31 = a[3][1], a32 = a[3][2], a33 = a[3][3];
+    double *r0 = x, *r1 = x + n, *r2 = x + 2 * n, *r3 = x + 3 * n;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const Py_ssize_t at = backwards ? n - 1 - i : i;
+        double u0 = r0[at], u1 = r1[at], u2 = r2[at], u3 = r3[at];
+        ROW_SECTION(c0, u0, a00, a01);
+        ROW_SECTION(c0, u1, a10, a11);
+        ROW_SECTION(c0, u2, a20, a21);
+        ROW_SECTION(c0, u3, a30, a31);
+        ROW_SECTION(c1, u0, a02, a03);
+        ROW_SECTION(c1, u1, a12, a13);
+        ROW_SECTION(c1, u2, a22, a23);
+        ROW_SECTION(c1, u3, a32, a33);
+        r0[at] = u0;
+        r1[at] = u1;
+        r2[at] = u2;
+        r3[at] = u3;
+    }
+}
+#undef ROW_SECTION
+
+static void sos_rows_pass(const double *sos, const double *zi, Py_ssize_t ns, double *x,
+                          int rows, Py_ssize_t n, int backwards)
+{
+    if (ns == 2 && rows == 4) {
+        sos_rows_pass2x4(sos, zi, x, n, backwards);
+        return;
+    }
+    double state[ROWS_AT_ONCE][32];
+    for (int q = 0; q < rows; q++) {
+        const double first = backwards ? x[q * n + n - 1] : x[q * n];
+        for (Py_ssize_t s = 0; s < 2 * ns; s++) state[q][s] = zi[s] * first;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const Py_ssize_t at = backwards ? n - 1 - i : i;
+        for (int q = 0; q < rows; q++) {
+            double cur = x[q * n + at];
+            double *st = state[q];
+            for (Py_ssize_t s = 0; s < ns; s++) {
+                const double *c = sos + 6 * s;
+                const double out = c[0] * cur + st[2 * s];
+                st[2 * s] = c[1] * cur - c[4] * out + st[2 * s + 1];
+                st[2 * s + 1] = c[2] * cur - c[5] * out;
+                cur = out;
+            }
+            x[q * n + at] = cur;
+        }
+    }
+}
+
+static PyObject *py_sos_filtfilt_rows(PyObject *self, PyObject *args)
+{
+    PyObject *objs[3];
+    Py_ssize_t n;
+    if (!PyArg_ParseTuple(args, "OOOn", &objs[0], &objs[1], &objs[2], &n)) return NULL;
+    const char *names[3] = {"sos", "zi", "x"};
+    Py_buffer b[3];
+    if (get_buffers(objs, 3, 2, names, b) < 0) return NULL;
+    const Py_ssize_t ns = b[0].len / 48, rows = n > 0 ? b[2].len / 8 / n : 0;
+    PyObject *result = NULL;
+    if (ns < 1 || ns > 16 || b[0].len != 48 * ns || b[1].len != 16 * ns || n < 1 ||
+        b[2].len != 8 * n * rows) {
+        PyErr_SetString(PyExc_ValueError, "sos_filtfilt_rows: inconsistent sizes");
+    } else {
+        double *x = b[2].buf;
+        for (Py_ssize_t r = 0; r < rows; r += ROWS_AT_ONCE) {
+            const int k = rows - r < ROWS_AT_ONCE ? (int)(rows - r) : ROWS_AT_ONCE;
+            sos_rows_pass(b[0].buf, b[1].buf, ns, x + r * n, k, n, 0);
+            sos_rows_pass(b[0].buf, b[1].buf, ns, x + r * n, k, n, 1);
+        }
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+    release_buffers(b, 3);
+    return result;
+}
+#undef ROWS_AT_ONCE
+
+/* low_pass_slopes(t, wn, zeta, h, slopes): the reflex dynamics fit's delayed low-pass
+ * h(t) = Re A·(e^{p1 t} − e^{p2 t}) (ωn²/(s² + 2ζωn s + ωn²), 0 for t ≤ 0) and its derivatives
+ * by t, ωn and ζ into slopes (3 rows of n); rtsid.ident.reflex._low_pass_and_slopes's numpy
+ * code is the reference (the same complex formulas; equal to rounding, tested). O(n). */
+#include <complex.h>
+#undef I /* complex.h's macros would clash with names in later sections (I, inertia) */
+#undef complex
+static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args)
+{
+    PyObject *objs[3];
+    double w, z;
+    if (!PyArg_ParseTuple(args, "OddOO", &objs[0], &w, &z, &objs[1], &objs[2])) return NULL;
+    const char *names[3] = {"t", "h", "slopes"};
+    Py_buffer b[3];
+    if (get_buffers(objs, 3, 1, names, b) < 0) return NULL;
+    const Py_ssize_t n = b[0].len / 8;
+    PyObject *result = NULL;
+    if (b[1].len != b[0].len || b[2].len != 3 * b[0].len || !(w > 0.0)) {
+        PyErr_SetString(PyExc_ValueError, "low_pass_slopes: inconsistent sizes or wn <= 0");
+    } else {
+        const double *t = b[0].buf;
+        double *h = b[1].buf, *s = b[2].buf;
+        if (fabs(z - 1.0) < 1e-6) z = 1.0 + 1e-6;
+        const double _Complex root = csqrt(z * z - 1.0 + 0.0 * _Complex_I);
+        const double _Complex p1 = w * (-z + root), p2 = w * (-z - root);
+        const double _Complex scale = w * w / (p1 - p2);
+        const double _Complex c1 = -1.0 + z / root, c2 = -1.0 - z / root;
+        const double _Complex by_z = -scale * z / (root * root);
+        for (Py_ssize_t i = 0; i < n; i++) {
+            if (!(t[i] > 0.0)) {
+                h[i] = s[i] = s[n + i] = s[2 * n + i] = 0.0;
+                continue;
+            }
+            const double _Complex e1 = cexp(p1 * t[i]), e2 = cexp(p2 * t[i]);
+            h[i] = creal(scale * (e1 - e2));
+            s[i] = creal(scale * (p1 * e1 - p2 * e2));
+            s[n + i] = (h[i] + t[i] * s[i]) / w;
+            s[2 * n + i] = creal(by_z * (e1 - e2) + scale * w * t[i] * (c1 * e1 - c2 * e2));
+        }
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+    release_buffers(b, 3);
+    return result;
 }

@@ -307,12 +307,8 @@ def window_vaf_gains(
     lead = max(0, first - round(EVIDENCE_SETTLING_S * fs_hz))  # the basis starts here
     basis = WindowVafBasis(position[lead:], torque[lead:], fs_hz)
     step = max(1, round(EVIDENCE_STEP_S * fs_hz))
-    reflex = reflex_torque[lead:]
-    starts = range(first - lead, position.size - lead - n + 1, step)
-    return np.array(
-        [basis.least_squares_vaf_gain(a, a + n, reflex[a : a + n]) for a in starts],
-        dtype=np.float64,
-    )
+    starts = np.arange(first - lead, position.size - lead - n + 1, step)
+    return basis.least_squares_vaf_gains(starts, n, reflex_torque[lead:])
 
 
 def warm_up(fs_hz: float, settings: SlowLaneSettings) -> bool:

@@ -279,17 +279,39 @@ def test_the_evidence_on_the_scored_span_equals_the_whole_horizons(seconds, firs
     assert abs(median - np.median(want)) < 1e-9 and improved == np.mean(want > 0)
 
 
-def test_one_least_squares_call_gives_both_window_fits():
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize("fs_hz", [FS_SIM, 1000.0])
+def test_all_windows_in_one_pass_equal_each_windows_own_least_squares(fs_hz, compiled, monkeypatch):
+    from rtsid.ident import yardstick
     from rtsid.ident.yardstick import WindowVafBasis
 
+    if not compiled:
+        monkeypatch.setattr(yardstick, "_eureka", None)
+    theta, torque = joint_with_reflex(seconds=4.0, seed=6)
+    theta = theta + 0.2  # an offset far above the movement: the offset term must be exact
+    basis = WindowVafBasis(theta, torque, fs_hz)
+    extra = np.random.default_rng(0).standard_normal(theta.size)
+    n = 750
+    starts = np.arange(0, theta.size - n + 1, 1250)
+    want = [
+        basis.least_squares_vaf(a, a + n, extra[a : a + n]) - basis.least_squares_vaf(a, a + n)
+        for a in starts
+    ]
+    got = basis.least_squares_vaf_gains(starts, n, extra)
+    assert np.ptp(want) > 0.3  # the windows differ: a real check
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+
+
+def test_the_compiled_evidence_checks_its_windows():
+    from rtsid.ident import yardstick
+    from rtsid.ident.yardstick import WindowVafBasis
+
+    if yardstick._eureka is None:
+        pytest.skip("the compiled kernel is not built")
     theta, torque = joint_with_reflex(seconds=4.0, seed=6)
     basis = WindowVafBasis(theta, torque, FS_SIM)
-    extra = np.random.default_rng(0).standard_normal(theta.size)
-    for a in range(0, theta.size - 750, 1250):
-        want = basis.least_squares_vaf(a, a + 750, extra[a : a + 750]) - basis.least_squares_vaf(
-            a, a + 750
-        )
-        assert abs(basis.least_squares_vaf_gain(a, a + 750, extra[a : a + 750]) - want) < 1e-9
+    with pytest.raises(ValueError, match="inconsistent sizes"):
+        basis.least_squares_vaf_gains(np.array([theta.size - 10]), 750, np.zeros(theta.size))
 
 
 @pytest.mark.parametrize("variant", ["rect", "hammerstein"])
@@ -304,11 +326,15 @@ def test_the_cascades_own_reflex_prediction_is_the_pathways(variant):
     )
 
 
-def test_the_window_vaf_basis_is_scipys_low_pass_of_each_signal():
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_window_vaf_basis_is_scipys_low_pass_of_each_signal(compiled, monkeypatch):
     from scipy import signal
 
+    from rtsid.ident import reflex
     from rtsid.ident.yardstick import WindowVafBasis, savgol_derivatives
 
+    if not compiled:
+        monkeypatch.setattr(reflex, "_eureka", None)
     theta, torque = joint_with_reflex(seconds=4.0, seed=9)
     for _ in range(2):  # the second basis uses the cached filter design
         basis = WindowVafBasis(theta, torque, FS_SIM)
@@ -365,11 +391,100 @@ def test_the_decimator_is_scipys_bit_for_bit_compiled_or_not(factor, monkeypatch
 def test_the_dynamics_grid_equals_every_grid_point_evaluated(n_lags, fs_model):
     from rtsid.ident import reflex
 
-    params, shapes = reflex._grid(n_lags, fs_model)
+    grid = reflex._grid(n_lags, fs_model)
+    params, shapes = grid.params, grid.shapes
     lags_s = np.arange(n_lags) / fs_model
     want = reflex._low_pass_response(
         lags_s[None, :] - params[:, :1], 2 * np.pi * params[:, 1:2], params[:, 2:3]
     )
     want /= np.maximum(np.linalg.norm(want, axis=1, keepdims=True), 1e-300)
     assert np.unique(params, axis=0).shape == params.shape  # every (δ, f_c, ζ) once
-    np.testing.assert_array_equal(shapes, want)
+    # at 100 Hz the times are m × 2 ms, which lag − δ equals to rounding
+    np.testing.assert_allclose(shapes, want, rtol=0, atol=1e-13)
+
+
+@pytest.mark.parametrize(
+    "x", [(0.0423, 3.1, 0.7), (0.0123, 7.5, 1.6), (0.0571, 2.0, 1.0 + 1e-7), (0.1033, 0.5, 2.9)]
+)
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_dynamics_jacobian_is_the_residuals_derivative(x, compiled, monkeypatch):
+    from scipy.optimize._numdiff import approx_derivative
+
+    from rtsid.ident import reflex
+
+    if not compiled:
+        monkeypatch.setattr(reflex, "_eureka", None)
+    lags_s = np.arange(101) / 100.0
+    g = reflex._low_pass_response(lags_s - 0.04, 2 * np.pi * 3.0, 0.7) * 10.0
+    g += np.random.default_rng(1).standard_normal(g.size)
+    model = reflex._DelayedLowPass(g, lags_s)
+    x = np.array(x)
+    want = approx_derivative(model.residual, x, method="3-point")  # no lag at δ: no kink
+    got = model.jacobian(x)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-6 * np.abs(want).max())
+    h, _ = reflex._low_pass_and_slopes(lags_s - x[0], 2 * np.pi * x[1], x[2])
+    want_h = reflex._low_pass_response(lags_s - x[0], 2 * np.pi * x[1], x[2])
+    np.testing.assert_array_equal(h, want_h)
+
+
+@pytest.mark.parametrize(
+    ("delay_s", "corner_hz", "zeta"), [(0.0437, 3.3, 0.62), (0.0211, 6.1, 1.4)]
+)
+def test_the_dynamics_fit_recovers_an_exact_delayed_low_pass(delay_s, corner_hz, zeta):
+    from rtsid.ident.reflex import _low_pass_response, fit_reflex_dynamics
+
+    lags_s = np.arange(101) / 100.0
+    g = 12.5 * _low_pass_response(lags_s - delay_s, 2 * np.pi * corner_hz, zeta)
+    found = fit_reflex_dynamics(g, 100.0)
+    got = [found.gain, found.delay_s, found.corner_hz, found.damping_ratio]
+    np.testing.assert_allclose(got, [12.5, delay_s, corner_hz, zeta], rtol=1e-6)
+    assert found.vaf > 99.9999
+
+
+@pytest.mark.parametrize(("n_lags", "fs_model"), [(101, 100.0), (51, 250.0), (41, 200.0)])
+def test_the_grids_product_scores_equal_the_response_matrixs(n_lags, fs_model):
+    from rtsid.ident import reflex
+
+    grid = reflex._grid(n_lags, fs_model)
+    assert bool(grid.residues) == (fs_model != 200.0)  # 5 ms is not a whole number of 2 ms
+    rng = np.random.default_rng(n_lags)
+    lags_s = np.arange(n_lags) / fs_model
+    irfs = [rng.standard_normal(n_lags)] + [
+        g * reflex._low_pass_response(lags_s - d, 2 * np.pi * f, z) + rng.standard_normal(n_lags)
+        for g, d, f, z in [(10.0, 0.043, 3.1, 0.7), (-4.0, 0.021, 8.0, 1.3)]
+    ]
+    for g in irfs:
+        got = grid.scores(g)
+        want = np.abs(grid.shapes @ g)
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * want.max())
+        assert np.argmax(got) == np.argmax(want)
+
+
+@pytest.mark.parametrize("fs_hz", [FS_SIM, 1000.0])
+def test_the_savitzky_golay_derivatives_are_scipys(fs_hz):
+    from scipy import signal
+
+    from rtsid.ident.yardstick import savgol_derivatives
+
+    x = np.random.default_rng(3).standard_normal(3000).cumsum()
+    x += 5.0 * np.sin(np.arange(x.size) / 40.0)
+    for _ in range(2):  # the second call uses the cached filters
+        for deriv, got in zip((1, 2), savgol_derivatives(x, fs_hz), strict=True):
+            want = signal.savgol_filter(x, 11, 3, deriv=deriv, delta=1 / fs_hz)
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
+            assert np.array_equal(got[5:-5], want[5:-5])  # inside the edges: the same filter
+
+
+@pytest.mark.parametrize("x", [(3.1, 0.7), (7.5, 1.6), (2.0, 1.0 + 1e-7), (0.5, 2.9), (20.0, 0.2)])
+def test_the_compiled_low_pass_and_slopes_equal_numpys(x, monkeypatch):
+    from rtsid.ident import reflex
+
+    if reflex._eureka is None:
+        pytest.skip("the compiled kernel is not built")
+    t = np.arange(101) / 100.0 - 0.0423
+    h, slopes = reflex._low_pass_and_slopes(t, 2 * np.pi * x[0], x[1])
+    monkeypatch.setattr(reflex, "_eureka", None)
+    want_h, want = reflex._low_pass_and_slopes(t, 2 * np.pi * x[0], x[1])
+    np.testing.assert_allclose(h, want_h, rtol=0, atol=1e-12 * np.abs(want_h).max())
+    for got_row, want_row in zip(slopes, want, strict=True):  # ζ ≈ 1: 4·10⁻¹⁰
+        np.testing.assert_allclose(got_row, want_row, rtol=0, atol=1e-8 * np.abs(want_row).max())
