@@ -148,8 +148,9 @@ def _path_table(quick: bool) -> None:
         ["stage", "median", "p99", "numpy median", "numpy p99", "numpy / compiled"],
         rows,
         note=(
-            "Each hop: the slow lane's rect reflex prediction over the window and its history "
-            "(fitted on a simulated reflex-rich ankle), WindowStream.estimate (held I and B, "
+            "Each hop: the slow lane's rect reflex prediction, streamed (each model sample's "
+            "input and torque formed once, carried from hop to hop; fitted on a simulated "
+            "reflex-rich ankle), WindowStream.estimate (held I and B, "
             "output-error fit, VAFs, SEs) and WindowStream.track (K/B tracker with its split "
             "scan). numpy = the same windows in a child process with RTSID_NUMPY_ONLY=1, "
             f"measured in the same run. Floors: {verdict}."

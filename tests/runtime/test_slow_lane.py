@@ -92,7 +92,15 @@ def test_the_slow_lane_fits_the_plants_reflex_and_replay_reproduces_live(tmp_pat
     compared = 0
     for end, m in live.items():
         if m["ok"]:
-            assert replayed[end]["reflex_seq"] == m["reflex_seq"]
+            # what a failure needs (seen a few times on a machine at load 8-9, not since):
+            # the window, both decisions and both fit lists
+            assert replayed[end]["reflex_seq"] == m["reflex_seq"], (
+                end,
+                m["flags"],
+                replayed[end]["flags"],
+                [(f.get("seq"), f["ok"], f.get("applies_from_index")) for f in fits],
+                [(f.get("seq"), f["ok"], f.get("applies_from_index")) for f in result.reflex],
+            )
             assert (replayed[end]["K"], replayed[end]["B"]) == (m["K"], m["B"]), end
             compared += 1
     assert compared > 50
