@@ -881,28 +881,27 @@ static int invert(const double *a, int p, double *inv)
     return 1;
 }
 
-/* K of the newest rows `first` … n−1 of the window's split problem (rtsid.ident.split): the
- * free regressors offset, trend, the fitted derivatives (of the k held, none), u, over the
- * torque minus the held terms. out: K, its variance relative to σ_K², the rows' centre; NaN
- * when SplitProblem.of or newest gives None. */
-static void split_newest(const double *regressors, const double *measured, Py_ssize_t n, int k,
-                         const double *held, Py_ssize_t first, double *out, double *target)
+/* The split problem's system (rtsid.ident.split.SplitProblem.of), shared by split_newest and
+ * split_scan: the target (torque minus the k held terms), the free regressors' rows (rows[0],
+ * rows[1]: offset and trend, computed in the sums; then the fitted derivatives, u last), X'r,
+ * the inverse Gram matrix, its u entry gkk and the window's K. Returns 0 where
+ * SplitProblem.of gives None (too few rows, singular, gkk <= 0). */
+static int split_system(const double *regressors, const double *measured, Py_ssize_t n, int k,
+                        const double *held, double *target, const double **rows, double *xr,
+                        double *inv, double *gkk, double *k_hat)
 {
-    out[0] = out[1] = out[2] = NAN;
-    if (n < 2 * 3 + 4) return;
+    if (n < 2 * 3 + 4) return 0;
     const int p = 5 - k;
-    const double *rows[5];
     for (Py_ssize_t t = 0; t < n; t++) {
         double v = measured[t];
         if (k >= 1) v -= held[0] * regressors[t];
         if (k >= 2) v -= held[1] * regressors[n + t];
         target[t] = v;
     }
-    /* rows[0], rows[1]: offset and trend (computed in the sums), then the fitted ones */
     for (int j = 2; j < p - 1; j++) rows[j] = regressors + (Py_ssize_t)(k + j - 2) * n;
     rows[p - 1] = regressors + 2 * n;
-    double gram[25], xr[5], inv[25];
     const double centre = (double)(n - 1) / 2.0;
+    double gram[25];
     for (int a = 0; a < p; a++) {
         for (int b = a; b < p; b++) {
             double acc = 0.0;
@@ -920,11 +919,29 @@ static void split_newest(const double *regressors, const double *measured, Py_ss
         }
         xr[a] = acc;
     }
-    if (!invert(gram, p, inv)) return;
-    const double gkk = inv[(p - 1) * p + (p - 1)];
-    if (!(gkk > 0.0)) return;
-    double k_hat = 0.0;
-    for (int a = 0; a < p; a++) k_hat += inv[(p - 1) * p + a] * xr[a];
+    if (!invert(gram, p, inv)) return 0;
+    *gkk = inv[(p - 1) * p + (p - 1)];
+    if (!(*gkk > 0.0)) return 0;
+    double sum = 0.0;
+    for (int a = 0; a < p; a++) sum += inv[(p - 1) * p + a] * xr[a];
+    *k_hat = sum;
+    return 1;
+}
+
+/* K of the newest rows `first` … n−1 of the window's split problem (rtsid.ident.split): the
+ * free regressors offset, trend, the fitted derivatives (of the k held, none), u, over the
+ * torque minus the held terms. out: K, its variance relative to σ_K², the rows' centre; NaN
+ * when SplitProblem.of or newest gives None. */
+static void split_newest(const double *regressors, const double *measured, Py_ssize_t n, int k,
+                         const double *held, Py_ssize_t first, double *out, double *target)
+{
+    out[0] = out[1] = out[2] = NAN;
+    const int p = 5 - k;
+    const double *rows[5];
+    double xr[5], inv[25], gkk, k_hat;
+    if (!split_system(regressors, measured, n, k, held, target, rows, xr, inv, &gkk, &k_hat))
+        return;
+    const double centre = (double)(n - 1) / 2.0;
     if (first < 3) first = 3;
     if (n - first < 3) return;
     const double *u = rows[p - 1];
@@ -1591,42 +1608,13 @@ static Py_ssize_t split_scan(const double *regressors, const double *measured, P
                              int k, const double *held, double factor, double delay,
                              double window_samples, double fs, double *out, double *target)
 {
-    if (n < 2 * 3 + 4) return SS_NO_PROBLEM;
     const int p = 5 - k;
     const double *rows[5];
-    for (Py_ssize_t t = 0; t < n; t++) {
-        double v = measured[t];
-        if (k >= 1) v -= held[0] * regressors[t];
-        if (k >= 2) v -= held[1] * regressors[n + t];
-        target[t] = v;
-    }
-    for (int j = 2; j < p - 1; j++) rows[j] = regressors + (Py_ssize_t)(k + j - 2) * n;
-    rows[p - 1] = regressors + 2 * n;
+    double xr[5], inv[25], gkk, k_hat;
+    if (!split_system(regressors, measured, n, k, held, target, rows, xr, inv, &gkk, &k_hat))
+        return SS_NO_PROBLEM;
     const double *u = rows[p - 1];
     const double centre = (double)(n - 1) / 2.0;
-    double gram[25], xr[5], inv[25];
-    for (int a = 0; a < p; a++) {
-        for (int b = a; b < p; b++) {
-            double acc = 0.0;
-            for (Py_ssize_t t = 0; t < n; t++) {
-                double va = a == 0 ? 1.0 : (a == 1 ? (double)t - centre : rows[a][t]);
-                double vb = b == 0 ? 1.0 : (b == 1 ? (double)t - centre : rows[b][t]);
-                acc += va * vb;
-            }
-            gram[a * p + b] = gram[b * p + a] = acc;
-        }
-        double acc = 0.0;
-        for (Py_ssize_t t = 0; t < n; t++) {
-            double va = a == 0 ? 1.0 : (a == 1 ? (double)t - centre : rows[a][t]);
-            acc += va * target[t];
-        }
-        xr[a] = acc;
-    }
-    if (!invert(gram, p, inv)) return SS_NO_PROBLEM;
-    const double gkk = inv[(p - 1) * p + (p - 1)];
-    if (!(gkk > 0.0)) return SS_NO_PROBLEM;
-    double k_hat = 0.0;
-    for (int a = 0; a < p; a++) k_hat += inv[(p - 1) * p + a] * xr[a];
     double total = 0.0; /* Σ u² over every row, summed from the last (numpy's c[-1, 0]) */
     for (Py_ssize_t t = n - 1; t >= 0; t--) total += u[t] * u[t];
     double *offsets = out + SS_OFFSETS * n, *k_after = out + SS_K_AFTER * n;

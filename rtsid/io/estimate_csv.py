@@ -88,7 +88,7 @@ def window_messages(results: Iterable[WindowResult], fs_hz: float) -> Iterator[d
     """The estimate messages of :func:`rtsid.ident.stream.sliding_estimates`' windows (what
     ``rtsid identify`` writes): the live worker's message, without robot, joint or timing."""
     for seq, result in enumerate(results):
-        yield EstimateMessage.of_window(
+        yield EstimateMessage.window_dict(
             result.estimate,
             Reason(result.reason) if result.estimate is None and result.reason else None,
             result.track,
@@ -96,7 +96,7 @@ def window_messages(results: Iterable[WindowResult], fs_hz: float) -> Iterator[d
             first=result.start,
             last=result.stop - 1,
             fs_hz=fs_hz,
-        ).as_dict()
+        )
 
 
 @contextlib.contextmanager

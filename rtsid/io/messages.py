@@ -159,7 +159,9 @@ class EstimateMessage:
     ) -> EstimateMessage:
         """The message of one window: its estimate (None when withheld, with ``reason``),
         the stream's track after it, and the flags the caller adds to the estimate's own
-        (e.g. ``over_budget``; ignored when withheld)."""
+        (e.g. ``over_budget``; ignored when withheld). The readable reference of
+        :meth:`window_dict`, which every writer uses (``tests/io/test_messages.py`` holds
+        them equal)."""
         numbers = {k: getattr(estimate, k) if estimate else None for k in _WINDOW_NUMBERS}
         return cls(
             robot=robot,
