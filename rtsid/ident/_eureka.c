@@ -928,6 +928,22 @@ static int split_system(const double *regressors, const double *measured, Py_ssi
     return 1;
 }
 
+/* The weights w = G⁻¹c of the rows after a split, with c'w and x'r·w (split_newest, split_scan). */
+static void split_weights(const double *inv, const double *c, const double *xr, int p, double *w,
+                          double *cw, double *xw)
+{
+    double sum_c = 0.0, sum_x = 0.0;
+    for (int a = 0; a < p; a++) {
+        double acc = 0.0;
+        for (int b = 0; b < p; b++) acc += inv[a * p + b] * c[b];
+        w[a] = acc;
+        sum_c += c[a] * acc;
+        sum_x += xr[a] * acc;
+    }
+    *cw = sum_c;
+    *xw = sum_x;
+}
+
 /* K of the newest rows `first` … n−1 of the window's split problem (rtsid.ident.split): the
  * free regressors offset, trend, the fitted derivatives (of the k held, none), u, over the
  * torque minus the held terms. out: K, its variance relative to σ_K², the rows' centre; NaN
@@ -955,14 +971,8 @@ static void split_newest(const double *regressors, const double *measured, Py_ss
         c[a] = acc;
     }
     for (Py_ssize_t t = first; t < n; t++) sr += target[t] * u[t];
-    double cw = 0.0, xw = 0.0;
-    for (int a = 0; a < p; a++) {
-        double acc = 0.0;
-        for (int b = 0; b < p; b++) acc += inv[a * p + b] * c[b];
-        w[a] = acc;
-        cw += c[a] * acc;
-        xw += xr[a] * acc;
-    }
+    double cw, xw;
+    split_weights(inv, c, xr, p, w, &cw, &xw);
     const double pvv = c[p - 1] - cw;
     if (!(pvv > 1e-12 * c[p - 1])) return;
     const double delta = (sr - xw) / pvv, after_k = 1.0 - w[p - 1];
@@ -1629,14 +1639,8 @@ static Py_ssize_t split_scan(const double *regressors, const double *measured, P
             c[a] += va * us;
         }
         sr += target[s] * us;
-        double w[5], cw = 0.0, xw = 0.0;
-        for (int a = 0; a < p; a++) {
-            double acc = 0.0;
-            for (int b = 0; b < p; b++) acc += inv[a * p + b] * c[b];
-            w[a] = acc;
-            cw += c[a] * acc;
-            xw += xr[a] * acc;
-        }
+        double w[5], cw, xw;
+        split_weights(inv, c, xr, p, w, &cw, &xw);
         const double pvv = c[p - 1] - cw, pvr = sr - xw, after_k = 1.0 - w[p - 1];
         const int ok = s >= 3 && s <= n - 3 && pvv > 1e-12 * total;
         const double safe = ok ? pvv : 1.0, delta = ok ? pvr / safe : 0.0;
