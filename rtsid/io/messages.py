@@ -140,52 +140,6 @@ class EstimateMessage:
     host_time_ns: int = field(metadata=_meta("host UNIX time at publication, ns"))
 
     @classmethod
-    def of_window(
-        cls,
-        estimate: WindowEstimate | None,
-        reason: Reason | None,
-        track: Tracked | None,
-        *,
-        seq: int,
-        first: int,
-        last: int,
-        fs_hz: float,
-        robot: str = "",
-        joint: str = "",
-        flags: Sequence[Flag] = (),
-        compute_ms: float | None = None,
-        latency_ms: float | None = None,
-        reflex_seq: int | None = None,
-    ) -> EstimateMessage:
-        """The message of one window: its estimate (None when withheld, with ``reason``),
-        the stream's track after it, and the flags the caller adds to the estimate's own
-        (e.g. ``over_budget``; ignored when withheld). The readable reference of
-        :meth:`window_dict`, which every writer uses (``tests/io/test_messages.py`` holds
-        them equal)."""
-        numbers = {k: getattr(estimate, k) if estimate else None for k in _WINDOW_NUMBERS}
-        return cls(
-            robot=robot,
-            joint=joint,
-            seq=seq,
-            window_start_index=first,
-            window_end_index=last,
-            t_start_s=first / fs_hz,
-            t_end_s=last / fs_hz,
-            **numbers,
-            K_track=track.K if track else None,
-            K_track_se=track.K_se if track else None,
-            B_track=track.B if track else None,
-            B_track_se=track.B_se if track else None,
-            compute_ms=compute_ms,
-            latency_ms=latency_ms,
-            ok=estimate is not None,
-            reason=reason,
-            flags=(*estimate.flags, *flags) if estimate else (),
-            reflex_seq=reflex_seq if estimate else None,
-            host_time_ns=time.time_ns(),
-        )
-
-    @classmethod
     def window_dict(
         cls,
         estimate: WindowEstimate | None,
@@ -203,9 +157,11 @@ class EstimateMessage:
         latency_ms: float | None = None,
         reflex_seq: int | None = None,
     ) -> dict[str, Any]:
-        """``of_window(...).as_dict()`` without building the message: the same JSON object,
-        keys in field order, at a fraction of the cost (the evaluator publishes one every
-        window; a replay builds tens of thousands a minute)."""
+        """The JSON object of one window's message: its estimate (None when withheld, with
+        ``reason``), the stream's track after it, and the flags the caller adds to the
+        estimate's own (e.g. ``over_budget``; ignored when withheld). Keys in field order;
+        built as a dict, not as the dataclass (the evaluator publishes one every window, a
+        replay builds tens of thousands a minute)."""
         numbers: tuple[Any, ...] = _NO_NUMBERS
         all_flags: list[Flag] = []
         if estimate is not None:

@@ -95,8 +95,8 @@ def test_values_are_encoded_one_way():
     assert encode_value(Reason.GAP) == "gap"
     assert encode_value([Flag.LOW_VAF, Flag.OVER_BUDGET]) == "low_vaf;over_budget"
     assert encode_value(np.int64(3)) == "3"
-    withheld = EstimateMessage.of_window(None, Reason.NAN, None, seq=0, first=0, last=9, fs_hz=10)
-    row = estimate_row(withheld.as_dict())
+    withheld = EstimateMessage.window_dict(None, Reason.NAN, None, seq=0, first=0, last=9, fs_hz=10)
+    row = estimate_row(withheld)
     assert (row["ok"], row["reason"], row["K"], row["B_held"], row["t_end_s"]) == (
         "false",
         "nan",
@@ -105,7 +105,7 @@ def test_values_are_encoded_one_way():
         "0.9",
     )
     fh = io.StringIO()
-    assert write_estimates([withheld.as_dict()], fh) == 1
+    assert write_estimates([withheld], fh) == 1
     assert fh.getvalue().splitlines()[0] == ",".join(COLUMNS)
 
 
