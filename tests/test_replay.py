@@ -12,9 +12,10 @@ import pytest
 
 from rtsid.cli import main
 from rtsid.errors import IncompleteRecordingWarning
+from rtsid.ident.reflex_lane import ReflexModels, ReflexUpdate, SlowLaneSettings
 from rtsid.io.mcap_read import iter_estimates
 from rtsid.io.recording import read_estimates, session_parts
-from rtsid.replay import is_announcement, recording_config, replay_file
+from rtsid.replay import LiveDecisions, is_announcement, recording_config, replay_file
 from rtsid.runtime.daemon import Daemon, DaemonConfig
 
 REFERENCE = Path(__file__).resolve().parents[1] / "replay" / "reference"
@@ -369,3 +370,32 @@ def test_a_directory_goes_to_the_pool_largest_recording_first(tmp_path):
     (tmp_path / f"{session}-001.mcap").write_bytes(b"x" * 200)  # 400 bytes in all
     order = _longest_first([tmp_path / n for n in (*sizes, f"{session}.mcap")])
     assert [p.name for p in order] == [f"{session}.mcap", "b.mcap", "c.mcap", "a.mcap"]
+
+
+def test_a_replay_keeps_each_fit_until_the_last_live_window_that_used_it():
+    """A live slow lane that fell behind leaves windows on a fit the schedule replaced long
+    ago; the replay's store (which drops fits older than the stale horizon) keeps it until
+    the last live window that used it."""
+    live = LiveDecisions(
+        first_end=99,
+        last_end=699,
+        reflex={
+            99: (None, True, False),
+            199: (3, False, True),
+            299: (5, False, False),
+            399: (4, False, True),
+            499: (6, False, False),
+            599: (None, False, False),
+            699: (None, True, False),
+        },
+    )
+    ends = (0, 199, 200, 300, 400, 500, 700)
+    assert [live.oldest_reflex_from(end) for end in ends] == [3, 3, 4, 4, 6, None, None]
+    settings = SlowLaneSettings(horizon_s=5.0, update_s=1.0, apply_after_s=0.8, stale_after_s=2.0)
+    for keep_from, kept in ((None, False), (3, True)):
+        models = ReflexModels(100.0, settings)
+        for seq in range(3, 20):
+            models.add(ReflexUpdate.failed(seq, 0, seq * 100, "-"), keep_from)
+        assert (models.update_of(3) is not None) is kept
+        assert models.update_of(19) is not None
+        assert (models.update_of(10) is not None) is kept  # older than 19's horizon

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from rtsid.ident.reflex_lane import ReflexModels
 from rtsid.io.mcap_read import iter_estimates, iter_status
 from rtsid.replay import is_announcement, replay_file
 from rtsid.runtime.daemon import Daemon, DaemonConfig
@@ -104,6 +105,72 @@ def test_the_slow_lane_fits_the_plants_reflex_and_replay_reproduces_live(tmp_pat
             assert (replayed[end]["K"], replayed[end]["B"]) == (m["K"], m["B"]), end
             compared += 1
     assert compared > 50
+
+
+def compare_replay_with_live(recording):
+    """Replay ``recording`` as it was made; every live estimate's reflex model, flags and
+    numbers equal the replay's (the number compared)."""
+    live = [m for m in iter_estimates(recording) if not is_announcement(m) and m["ok"]]
+    replayed = {m["window_end_index"]: m for m in replay_file(recording).messages}
+    for m in live:
+        twin = replayed[m["window_end_index"]]
+        assert twin["reflex_seq"] == m["reflex_seq"], (
+            m["window_end_index"],
+            m["flags"],
+            [str(f) for f in twin["flags"]],
+        )
+        assert [str(f) for f in twin["flags"] if f != "over_budget"] == [
+            f for f in m["flags"] if f != "over_budget"
+        ]
+        assert (twin["K"], twin["B"], twin["I"]) == (m["K"], m["B"], m["I"])
+    return len(live)
+
+
+@pytest.mark.slow  # a real-time daemon run of about 15 s
+def test_replay_keeps_a_fit_a_late_live_slow_lane_left_windows_on(tmp_path, free_port, monkeypatch):
+    """A live slow lane that falls far behind (its spawned process warming up under load
+    took 15 s for the first fit) leaves windows on a fit the schedule has long replaced; the
+    replay, which fits on schedule, had dropped it from its store and gave those windows no
+    reflex model (reflex_seq None where live had 3). Hold the first fit's hand-over here until
+    the samples are past the point where the replay dropped it."""
+    import rtsid.runtime.slow_lane as lane
+
+    config = lane_config(tmp_path, free_port, "thread", stale_after_s=2.0)
+    daemon = Daemon(config)
+    models = ReflexModels(config.link.fs_hz, config.slow_lane)
+    first_seq = models.first_seq(0)
+    # the replay keeps stale_after // update + 2 fits behind the newest due one: past this
+    # window end it had dropped the first fit
+    kept = models.stale_after // models.update + 2
+    dropped_after = (first_seq + kept + 1) * models.update + models.apply_after - 1
+    fit = lane.fit_reflex_update
+
+    def wait_for(done):  # samples or windows, not time: bounded, and stop-aware
+        stopping = daemon.slow_lane._stop
+        for _ in range(1200):
+            if done() or stopping.is_set():
+                return
+            stopping.wait(0.05)
+
+    def late_first_fit(seq, *args):
+        if seq == first_seq:  # its data end at 3 s; it lands past `dropped_after`
+            wait_for(lambda: daemon.slow_lane.ring.newest_index > dropped_after + models.update)
+        elif seq == first_seq + 1:  # ... and windows go on using it until they are past it
+            evaluator = daemon.worker.evaluator
+            wait_for(lambda: evaluator.last_reflex.seq == first_seq)
+        return fit(seq, *args)
+
+    monkeypatch.setattr(lane, "fit_reflex_update", late_first_fit)
+    summary = run_until_fits(daemon, fits=3, least_s=4.0)
+    assert summary.clean_shutdown and summary.failure is None
+    recording = next(tmp_path.glob("*.mcap"))
+    late = [
+        m
+        for m in iter_estimates(recording)
+        if m["ok"] and m["reflex_seq"] == first_seq and m["window_end_index"] > dropped_after
+    ]
+    assert late and all("reflex_stale" in m["flags"] for m in late)  # the timing was forced
+    assert compare_replay_with_live(recording) > 50
 
 
 @pytest.mark.slow
