@@ -150,7 +150,9 @@ class SlowLane(ThreadOwner):
                 if self.ring.newest_index < 0:
                     self._stop.wait(0.05)
                     continue
-                first = self.ring.oldest_index
+                # the data's first sample, not the oldest still held: a lane that starts
+                # late (a long warm-up under load) keeps the schedule a replay re-derives
+                first = self.ring.first_index
                 seq = self.models.first_seq(first)
             span = self.models.fit_span(seq, first)
             if span is None or self.ring.newest_index < span[1] - 1:

@@ -17,15 +17,17 @@ from mcap.reader import make_reader
 
 from rtsid.ident.reflex_lane import ReflexModels
 from rtsid.io.mcap_read import iter_estimates, iter_status
+from rtsid.io.recording import iter_batches
 from rtsid.replay import is_announcement, replay_file
 from rtsid.runtime.daemon import Daemon, DaemonConfig
 
 REFLEX_GAIN = 10.0
 
 
-def lane_config(tmp_path, port, mode, **lane):
+def lane_config(tmp_path, port, mode, link=None, **lane):
     return DaemonConfig.from_mapping(
         {
+            **({"link": link} if link else {}),
             "zenoh": {"listen": [f"tcp/127.0.0.1:{port}"]},
             "mcap": {"directory": str(tmp_path)},
             "plant": {"noise_percent": 10.0, "reflex": {"enabled": True, "gain": REFLEX_GAIN}},
@@ -171,6 +173,44 @@ def test_replay_keeps_a_fit_a_late_live_slow_lane_left_windows_on(tmp_path, free
     ]
     assert late and all("reflex_stale" in m["flags"] for m in late)  # the timing was forced
     assert compare_replay_with_live(recording) > 50
+
+
+@pytest.mark.slow  # a real-time daemon run of about 12 s
+def test_a_slow_lane_that_starts_late_keeps_the_schedule_a_replay_derives(
+    tmp_path, free_port, monkeypatch
+):
+    """The lane took its first sample index from the ring when it first looked: one whose
+    warm-up outlasted the ring (a short ring, a loaded machine) fitted its first models from
+    a later start than the recording's, so a replay's models, and windows, differed. Hold
+    the warm-up until the ring has dropped its first rows."""
+    import rtsid.runtime.slow_lane as lane
+
+    config = lane_config(tmp_path, free_port, "thread", link={"ring_capacity_s": 6.5})
+    daemon = Daemon(config)
+    models = ReflexModels(config.link.fs_hz, config.slow_lane)
+    warm_up = lane.warm_up
+
+    def late_warm_up(*args):
+        ring, stopping = daemon.slow_lane.ring, daemon.slow_lane._stop
+        for _ in range(1200):  # samples, not time: bounded, and stop-aware
+            if ring.oldest_index > ring.first_index + models.update or stopping.is_set():
+                break
+            stopping.wait(0.05)
+        return warm_up(*args)
+
+    monkeypatch.setattr(lane, "warm_up", late_warm_up)
+    summary = run_until_fits(daemon, fits=3, least_s=4.0)
+    assert summary.clean_shutdown and summary.failure is None
+    recording = next(tmp_path.glob("*.mcap"))
+    first = next(iter(iter_batches([recording]))).first_index  # the data's first sample
+    fits = reflex_messages(recording)
+    # every fit on the schedule of the data's first sample (those the ring no longer held
+    # failed, and no window used them)
+    assert fits[0]["seq"] == models.first_seq(first)
+    assert all((f["start_index"], f["end_index"]) == models.fit_span(f["seq"], first) for f in fits)
+    assert not fits[0]["ok"] and "no longer holds" in fits[0]["error"]
+    used = [m for m in iter_estimates(recording) if m["ok"] and m["reflex_seq"] is not None]
+    assert used and compare_replay_with_live(recording) > 50
 
 
 @pytest.mark.slow
