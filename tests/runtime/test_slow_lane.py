@@ -213,6 +213,48 @@ def test_a_slow_lane_that_starts_late_keeps_the_schedule_a_replay_derives(
     assert used and compare_replay_with_live(recording) > 50
 
 
+@pytest.mark.slow  # a real-time daemon run of about 10 s
+def test_a_stop_does_not_wait_for_a_fit_that_does_not_finish(tmp_path, free_port):
+    """The daemon stops its slow lane before it forwards the last samples to the recording;
+    the lane waited for its worker process's fit (tens of seconds at low priority on a
+    machine at load 15) while the ring overwrote 8 001 samples not yet logged, which the
+    live worker had estimated: the replay withheld those windows (gap) and every number
+    after them differed. Freeze the worker process so that its fit never finishes."""
+    daemon = Daemon(lane_config(tmp_path, free_port, "process"))
+    done = []
+    runner = threading.Thread(target=lambda: done.append(daemon.run()), daemon=True)
+    runner.start()
+    frozen: list[int] = []
+    try:
+        for _ in range(600):  # a fit made, the next one due: at most 60 s
+            lane = daemon.slow_lane
+            if (lane is not None and lane.counters().fits >= 1) or not runner.is_alive():
+                break
+            time.sleep(0.1)
+        assert daemon.slow_lane.counters().fits >= 1
+        frozen = list(daemon.slow_lane._pool._processes)
+        for pid in frozen:
+            os.kill(pid, signal.SIGSTOP)
+        newest = daemon.slow_lane.ring.newest_index
+        while daemon.slow_lane.ring.newest_index < newest + 2 * 2500 and runner.is_alive():
+            time.sleep(0.1)  # two more fits due; none finishes
+        daemon.request_stop()
+        runner.join(30)
+        assert done, "the daemon waited for the frozen fit"
+    finally:
+        for pid in frozen:  # leave nothing behind, whatever the outcome
+            if os.path.exists(f"/proc/{pid}"):
+                os.kill(pid, signal.SIGKILL)
+        if not done:
+            daemon.request_stop()
+            runner.join(30)
+    assert not any(os.path.exists(f"/proc/{pid}") for pid in frozen)
+    recording = next(tmp_path.glob("*.mcap"))
+    status = list(iter_status(recording))[-1]
+    assert status["acquisition"]["logger_overwritten"] == 0
+    assert compare_replay_with_live(recording) > 50
+
+
 @pytest.mark.slow
 def test_a_failing_fit_is_counted_and_the_fast_lane_goes_on(tmp_path, free_port, monkeypatch):
     import rtsid.runtime.slow_lane as lane
