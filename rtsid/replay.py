@@ -16,6 +16,7 @@ import bisect
 import math
 import time
 import warnings
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -32,6 +33,7 @@ from rtsid.io.mcap_read import (
     TOPICS,
     holds_topics,
     iter_estimates,
+    iter_status,
     read_metadata,
     run_config_from_metadata,
     sample_count,
@@ -402,9 +404,32 @@ def replay_file(
     with warnings.catch_warnings():  # what the parts lack was said once already
         warnings.simplefilter("ignore", RtsidWarning)
         session = read_session(parts)
+        lost = _what_the_logger_lost(parts[-1]) if live is not None else (0, 0)
+    if any(lost):
+        warnings.warn(
+            f"{path}: the live run's logger lost {lost[0]} samples and {lost[1]} sample "
+            "batches (status acquisition.logger_overwritten, mcap.dropped_by_kind.samples): "
+            "the windows across them replay as gaps, and the numbers after them can differ "
+            "from the live ones",
+            RtsidWarning,
+            stacklevel=2,
+        )
     result.markers, result.sessions = session.markers, session.sessions
     result.session_metadata = next((m for m in session.metadata if m), {})
     return result
+
+
+def _what_the_logger_lost(part: Path) -> tuple[int, int]:
+    """What the live run had that its recording lacks, by the part's last status: samples the
+    ring overwrote before the logger read them, and sample batches the writer's queue
+    dropped ((0, 0) when the part has no status)."""
+    last: Mapping[str, Any] = {}
+    if holds_topics(part, (TOPICS["status"],)):
+        newest = deque(iter_status(part), maxlen=1)
+        last = newest[0] if newest else last
+    acquisition = last.get("acquisition") or {}
+    dropped = ((last.get("mcap") or {}).get("dropped_by_kind") or {}).get("samples") or 0
+    return int(acquisition.get("logger_overwritten") or 0), int(dropped)
 
 
 def replay_batches(

@@ -399,3 +399,45 @@ def test_a_replay_keeps_each_fit_until_the_last_live_window_that_used_it():
         assert (models.update_of(3) is not None) is kept
         assert models.update_of(19) is not None
         assert (models.update_of(10) is not None) is kept  # older than 19's horizon
+
+
+@pytest.mark.slow  # a real-time daemon run of seconds
+def test_replay_says_when_the_recording_lacks_samples_live_windows_used(
+    tmp_path, free_port, monkeypatch
+):
+    """A housekeeping thread held up past the ring's length (a stop that waited for a slow
+    fit did it, at load 15) loses samples the live worker estimated: a replay cannot equal
+    live across them, and says so in one line."""
+    from rtsid.errors import RtsidWarning
+
+    forward = Daemon._forward_samples
+    capacity = 2500  # ring_capacity_s = 1 s at 2500 Hz
+
+    def stalled(self, ring, mcap, zenoh):  # by sample index: from 1 s for 1.5 ring lengths
+        if not 2500 <= ring.newest_index < 2500 + 3 * capacity // 2:
+            forward(self, ring, mcap, zenoh)
+
+    monkeypatch.setattr(Daemon, "_forward_samples", stalled)
+    config = DaemonConfig.from_mapping(
+        {
+            "zenoh": {"listen": [f"tcp/127.0.0.1:{free_port}"]},
+            "mcap": {"directory": str(tmp_path)},
+            "link": {"ring_capacity_s": capacity / 2500},
+            "slow_lane": {"enabled": False},  # its horizon needs a longer ring
+        }
+    )
+    Daemon(config).run(duration_s=3.0)
+    monkeypatch.undo()
+    recording = next(tmp_path.glob("*.mcap"))
+    with pytest.warns(RtsidWarning, match=r"logger lost [1-9]\d* samples and 0 sample batches"):
+        replayed = by_window(replay_file(recording).messages)
+    live = live_windows(iter_estimates(recording))
+    assert any(m["ok"] and replayed[end]["reason"] == "gap" for end, m in live.items())
+    # a replay of a complete recording says nothing (warnings are errors here)
+    again = tmp_path / "again"
+    again.mkdir()
+    config = DaemonConfig.from_mapping(
+        {"zenoh": {"listen": [f"tcp/127.0.0.1:{free_port}"]}, "mcap": {"directory": str(again)}}
+    )
+    Daemon(config).run(duration_s=1.0)
+    assert replay_file(next(again.glob("*.mcap"))).messages
