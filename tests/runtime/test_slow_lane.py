@@ -75,8 +75,12 @@ def test_the_slow_lane_fits_the_plants_reflex_and_replay_reproduces_live(tmp_pat
     summary = run_until_fits(Daemon(lane_config(tmp_path, free_port, mode)), fits=4)
     assert summary.clean_shutdown and summary.failure is None
     recording = next(tmp_path.glob("*.mcap"))
-    fits = reflex_messages(recording)
-    assert len(fits) >= 3 and all(f["ok"] and f["applied"] for f in fits)
+    every = reflex_messages(recording)
+    # at load 15 a starved acquisition lost 42 % of a horizon's samples, and a lane 30 s
+    # behind found the ring no longer held its horizons: such fits fail, saying why
+    assert all(f["error"] for f in every if not f["ok"])
+    fits = [f for f in every if f["ok"]]
+    assert len(fits) >= 3 and all(f["applied"] for f in fits)
     assert np.median([f["gain"] for f in fits]) == pytest.approx(REFLEX_GAIN, rel=0.2)
     assert np.median([f["delay_ms"] for f in fits]) == pytest.approx(40.0, abs=8.0)
     live = {m["window_end_index"]: m for m in iter_estimates(recording) if not is_announcement(m)}
@@ -88,20 +92,21 @@ def test_the_slow_lane_fits_the_plants_reflex_and_replay_reproduces_live(tmp_pat
     # replay runs the same fits in line: the same models; and it follows what live decided
     # (a window left on an older model because a fit was late): the same numbers everywhere
     result = replay_file(recording)
-    common = min(len(result.reflex), len(fits))  # live may fit once more, before it is due
-    assert common >= 3
-    assert [f["gain"] for f in result.reflex[:common]] == [f["gain"] for f in fits[:common]]
+    refitted = {f["seq"]: f for f in result.reflex}  # live may fit once more, before it is due
+    common = [f for f in fits if f["seq"] in refitted]
+    assert len(common) >= 3
+    assert [refitted[f["seq"]]["gain"] for f in common] == [f["gain"] for f in common]
     replayed = {m["window_end_index"]: m for m in result.messages}
     compared = 0
     for end, m in live.items():
         if m["ok"]:
-            # what a failure needs (seen a few times on a machine at load 8-9, not since):
-            # the window, both decisions and both fit lists
+            # what a failure needs: the window, both decisions and both fit lists (at load
+            # 8-11 this showed a late live lane's fit 3, dropped from the replay's store)
             assert replayed[end]["reflex_seq"] == m["reflex_seq"], (
                 end,
                 m["flags"],
                 replayed[end]["flags"],
-                [(f.get("seq"), f["ok"], f.get("applies_from_index")) for f in fits],
+                [(f.get("seq"), f["ok"], f.get("applies_from_index")) for f in every],
                 [(f.get("seq"), f["ok"], f.get("applies_from_index")) for f in result.reflex],
             )
             assert (replayed[end]["K"], replayed[end]["B"]) == (m["K"], m["B"]), end
