@@ -404,13 +404,13 @@ def replay_file(
     with warnings.catch_warnings():  # what the parts lack was said once already
         warnings.simplefilter("ignore", RtsidWarning)
         session = read_session(parts)
-        lost = _what_the_logger_lost(parts[-1]) if live is not None else (0, 0)
+        lost = _what_the_logger_lost(parts[-1]) if live is not None else (0, 0, 0)
     if any(lost):
         warnings.warn(
-            f"{path}: the live run's logger lost {lost[0]} samples and {lost[1]} sample "
-            "batches (status acquisition.logger_overwritten, mcap.dropped_by_kind.samples): "
-            "the windows across them replay as gaps, and the numbers after them can differ "
-            "from the live ones",
+            f"{path}: the live run's logger lost {lost[0]} samples, {lost[1]} sample batches "
+            f"and {lost[2]} estimates (status acquisition.logger_overwritten, "
+            "mcap.dropped_by_kind): the replay cannot follow live across them (windows "
+            "without samples are gaps), and numbers after them can differ from the live ones",
             RtsidWarning,
             stacklevel=2,
         )
@@ -419,17 +419,17 @@ def replay_file(
     return result
 
 
-def _what_the_logger_lost(part: Path) -> tuple[int, int]:
+def _what_the_logger_lost(part: Path) -> tuple[int, int, int]:
     """What the live run had that its recording lacks, by the part's last status: samples the
-    ring overwrote before the logger read them, and sample batches the writer's queue
-    dropped ((0, 0) when the part has no status)."""
+    ring overwrote before the logger read them, and the sample batches and estimates the
+    writer's queue dropped ((0, 0, 0) when the part has no status)."""
     last: Mapping[str, Any] = {}
     if holds_topics(part, (TOPICS["status"],)):
         newest = deque(iter_status(part), maxlen=1)
         last = newest[0] if newest else last
-    acquisition = last.get("acquisition") or {}
-    dropped = ((last.get("mcap") or {}).get("dropped_by_kind") or {}).get("samples") or 0
-    return int(acquisition.get("logger_overwritten") or 0), int(dropped)
+    overwritten = (last.get("acquisition") or {}).get("logger_overwritten") or 0
+    dropped = (last.get("mcap") or {}).get("dropped_by_kind") or {}
+    return int(overwritten), int(dropped.get("samples") or 0), int(dropped.get("estimate") or 0)
 
 
 def replay_batches(

@@ -429,7 +429,9 @@ def test_replay_says_when_the_recording_lacks_samples_live_windows_used(
     Daemon(config).run(duration_s=3.0)
     monkeypatch.undo()
     recording = next(tmp_path.glob("*.mcap"))
-    with pytest.warns(RtsidWarning, match=r"logger lost [1-9]\d* samples and 0 sample batches"):
+    with pytest.warns(
+        RtsidWarning, match=r"logger lost [1-9]\d* samples, 0 sample batches and 0 estimates"
+    ):
         replayed = by_window(replay_file(recording).messages)
     live = live_windows(iter_estimates(recording))
     assert any(m["ok"] and replayed[end]["reason"] == "gap" for end, m in live.items())
