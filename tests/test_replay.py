@@ -313,6 +313,12 @@ def test_replay_follows_the_windows_a_live_worker_skipped(tmp_path, free_port, m
     assert_same_estimates(live, followed)
     for end, m in live.items():
         assert (followed[end]["K_track"], followed[end]["B_track"]) == (m["K_track"], m["B_track"])
+    # ... and so does the command a researcher runs (it passed the recording's own config to
+    # replay_file, a re-analysis: it estimated the skipped windows, and every number after)
+    out = tmp_path / "replayed.mcap"
+    assert main(["replay", str(recording), "-o", str(out)]) == 0
+    assert_same_estimates(live, by_window(iter_estimates(out)))
+    assert not set(skipped) & set(by_window(iter_estimates(out)))
     # a re-analysis with a config given estimates every window
     again = by_window(replay_file(recording, recording_config(recording)).messages)
     assert set(skipped) <= set(again)
