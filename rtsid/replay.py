@@ -12,11 +12,14 @@ cut short replays to its last complete message with a warning saying how much wa
 
 from __future__ import annotations
 
+import bisect
 import math
 import time
 import warnings
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import IO, Any
 
@@ -30,6 +33,7 @@ from rtsid.io.mcap_read import (
     TOPICS,
     holds_topics,
     iter_estimates,
+    iter_status,
     read_metadata,
     run_config_from_metadata,
     sample_count,
@@ -103,6 +107,24 @@ class LiveDecisions:
         estimate that it has no estimate of, those before its first included (a worker that
         starts late begins at the newest window, the earlier ones being history)."""
         return window_end <= self.last_end and window_end not in self.reflex
+
+    def oldest_reflex_from(self, window_end: int) -> int | None:
+        """The oldest reflex model (fit ``seq``) a live window ending at or after
+        ``window_end`` used (None: none did). A live slow lane that fell behind left windows
+        on a model many fits older than the schedule's: the replay keeps it until then."""
+        ends, oldest = self._reflex_floor
+        at = bisect.bisect_left(ends, window_end)
+        return oldest[at] if at < len(ends) else None
+
+    @cached_property
+    def _reflex_floor(self) -> tuple[list[int], list[int]]:
+        """The ends of the live windows that used a reflex model, in order, and the oldest
+        model used at or after each."""
+        used = sorted((end, seq) for end, (seq, _, _) in self.reflex.items() if seq is not None)
+        oldest: list[int] = []
+        for _, seq in reversed(used):
+            oldest.append(min(seq, oldest[-1]) if oldest else seq)
+        return [end for end, _ in used], oldest[::-1]
 
     @classmethod
     def of(cls, parts: Iterable[Path]) -> LiveDecisions | None:
@@ -224,16 +246,23 @@ class ReplayedSlowLane:
         The replay's evaluator (its reflex models are filled; its torque conversion is used).
     publish : callable
         Called with each fit's message (REFLEX_SCHEMA dict).
+    live : LiveDecisions, optional
+        The live run's decisions: every fit a live window used is kept until that window (a
+        live slow lane that fell behind used fits the schedule has long replaced).
     """
 
     def __init__(
-        self, evaluator: WindowEvaluator, publish: Callable[[dict[str, Any]], None]
+        self,
+        evaluator: WindowEvaluator,
+        publish: Callable[[dict[str, Any]], None],
+        live: LiveDecisions | None = None,
     ) -> None:
         if evaluator.reflex is None:
             raise ValueError("the evaluator has no reflex models (slow lane off)")
         self.evaluator = evaluator
         self.models = evaluator.reflex
         self.publish = publish
+        self.live = live
         self._next: int | None = None
         self.fit_cpu_s = 0.0  # CPU time of the fits so far, s
 
@@ -250,6 +279,7 @@ class ReplayedSlowLane:
     def catch_up(self, grid: SampleGrid, first: int, window_end: int) -> None:
         """Run every fit due by the window ending at ``window_end``."""
         due = self.models.due_seq(window_end)
+        keep_from = self.live.oldest_reflex_from(window_end) if self.live is not None else None
         while (seq := self._next_seq(first)) <= due:
             span = self.models.fit_span(seq, first)
             assert span is not None  # first_seq leaves enough data
@@ -264,7 +294,7 @@ class ReplayedSlowLane:
                 grid.fs_hz,
                 self.models.settings,
             )
-            self.models.add(update)
+            self.models.add(update, keep_from)
             self.fit_cpu_s += time.thread_time() - started_cpu
             self.publish(self.evaluator.reflex_message(update, None))
             self._next = seq + 1
@@ -374,9 +404,32 @@ def replay_file(
     with warnings.catch_warnings():  # what the parts lack was said once already
         warnings.simplefilter("ignore", RtsidWarning)
         session = read_session(parts)
+        lost = _what_the_logger_lost(parts[-1]) if live is not None else (0, 0, 0)
+    if any(lost):
+        warnings.warn(
+            f"{path}: the live run's logger lost {lost[0]} samples, {lost[1]} sample batches "
+            f"and {lost[2]} estimates (status acquisition.logger_overwritten, "
+            "mcap.dropped_by_kind): the replay cannot follow live across them (windows "
+            "without samples are gaps), and numbers after them can differ from the live ones",
+            RtsidWarning,
+            stacklevel=2,
+        )
     result.markers, result.sessions = session.markers, session.sessions
     result.session_metadata = next((m for m in session.metadata if m), {})
     return result
+
+
+def _what_the_logger_lost(part: Path) -> tuple[int, int, int]:
+    """What the live run had that its recording lacks, by the part's last status: samples the
+    ring overwrote before the logger read them, and the sample batches and estimates the
+    writer's queue dropped ((0, 0, 0) when the part has no status)."""
+    last: Mapping[str, Any] = {}
+    if holds_topics(part, (TOPICS["status"],)):
+        newest = deque(iter_status(part), maxlen=1)
+        last = newest[0] if newest else last
+    overwritten = (last.get("acquisition") or {}).get("logger_overwritten") or 0
+    dropped = (last.get("mcap") or {}).get("dropped_by_kind") or {}
+    return int(overwritten), int(dropped.get("samples") or 0), int(dropped.get("estimate") or 0)
 
 
 def replay_batches(
@@ -412,7 +465,9 @@ def replay_batches(
             publish(message)
 
     evaluator = recorded_evaluator(config, sink)
-    slow_lane = ReplayedSlowLane(evaluator, result.reflex.append) if evaluator.reflex else None
+    slow_lane = (
+        ReplayedSlowLane(evaluator, result.reflex.append, live) if evaluator.reflex else None
+    )
     if live is not None:
         evaluator.recorded_reflex = live.reflex
         evaluator.recorded_stale = live.stale

@@ -12,9 +12,10 @@ import pytest
 
 from rtsid.cli import main
 from rtsid.errors import IncompleteRecordingWarning
+from rtsid.ident.reflex_lane import ReflexModels, ReflexUpdate, SlowLaneSettings
 from rtsid.io.mcap_read import iter_estimates
 from rtsid.io.recording import read_estimates, session_parts
-from rtsid.replay import is_announcement, recording_config, replay_file
+from rtsid.replay import LiveDecisions, is_announcement, recording_config, replay_file
 from rtsid.runtime.daemon import Daemon, DaemonConfig
 
 REFERENCE = Path(__file__).resolve().parents[1] / "replay" / "reference"
@@ -312,6 +313,12 @@ def test_replay_follows_the_windows_a_live_worker_skipped(tmp_path, free_port, m
     assert_same_estimates(live, followed)
     for end, m in live.items():
         assert (followed[end]["K_track"], followed[end]["B_track"]) == (m["K_track"], m["B_track"])
+    # ... and so does the command a researcher runs (it passed the recording's own config to
+    # replay_file, a re-analysis: it estimated the skipped windows, and every number after)
+    out = tmp_path / "replayed.mcap"
+    assert main(["replay", str(recording), "-o", str(out)]) == 0
+    assert_same_estimates(live, by_window(iter_estimates(out)))
+    assert not set(skipped) & set(by_window(iter_estimates(out)))
     # a re-analysis with a config given estimates every window
     again = by_window(replay_file(recording, recording_config(recording)).messages)
     assert set(skipped) <= set(again)
@@ -369,3 +376,76 @@ def test_a_directory_goes_to_the_pool_largest_recording_first(tmp_path):
     (tmp_path / f"{session}-001.mcap").write_bytes(b"x" * 200)  # 400 bytes in all
     order = _longest_first([tmp_path / n for n in (*sizes, f"{session}.mcap")])
     assert [p.name for p in order] == [f"{session}.mcap", "b.mcap", "c.mcap", "a.mcap"]
+
+
+def test_a_replay_keeps_each_fit_until_the_last_live_window_that_used_it():
+    """A live slow lane that fell behind leaves windows on a fit the schedule replaced long
+    ago; the replay's store (which drops fits older than the stale horizon) keeps it until
+    the last live window that used it."""
+    live = LiveDecisions(
+        first_end=99,
+        last_end=699,
+        reflex={
+            99: (None, True, False),
+            199: (3, False, True),
+            299: (5, False, False),
+            399: (4, False, True),
+            499: (6, False, False),
+            599: (None, False, False),
+            699: (None, True, False),
+        },
+    )
+    ends = (0, 199, 200, 300, 400, 500, 700)
+    assert [live.oldest_reflex_from(end) for end in ends] == [3, 3, 4, 4, 6, None, None]
+    settings = SlowLaneSettings(horizon_s=5.0, update_s=1.0, apply_after_s=0.8, stale_after_s=2.0)
+    for keep_from, kept in ((None, False), (3, True)):
+        models = ReflexModels(100.0, settings)
+        for seq in range(3, 20):
+            models.add(ReflexUpdate.failed(seq, 0, seq * 100, "-"), keep_from)
+        assert (models.update_of(3) is not None) is kept
+        assert models.update_of(19) is not None
+        assert (models.update_of(10) is not None) is kept  # older than 19's horizon
+
+
+@pytest.mark.slow  # a real-time daemon run of seconds
+def test_replay_says_when_the_recording_lacks_samples_live_windows_used(
+    tmp_path, free_port, monkeypatch
+):
+    """A housekeeping thread held up past the ring's length (a stop that waited for a slow
+    fit did it, at load 15) loses samples the live worker estimated: a replay cannot equal
+    live across them, and says so in one line."""
+    from rtsid.errors import RtsidWarning
+
+    forward = Daemon._forward_samples
+    capacity = 2500  # ring_capacity_s = 1 s at 2500 Hz
+
+    def stalled(self, ring, mcap, zenoh):  # by sample index: from 1 s for 1.5 ring lengths
+        if not 2500 <= ring.newest_index < 2500 + 3 * capacity // 2:
+            forward(self, ring, mcap, zenoh)
+
+    monkeypatch.setattr(Daemon, "_forward_samples", stalled)
+    config = DaemonConfig.from_mapping(
+        {
+            "zenoh": {"listen": [f"tcp/127.0.0.1:{free_port}"]},
+            "mcap": {"directory": str(tmp_path)},
+            "link": {"ring_capacity_s": capacity / 2500},
+            "slow_lane": {"enabled": False},  # its horizon needs a longer ring
+        }
+    )
+    Daemon(config).run(duration_s=3.0)
+    monkeypatch.undo()
+    recording = next(tmp_path.glob("*.mcap"))
+    with pytest.warns(
+        RtsidWarning, match=r"logger lost [1-9]\d* samples, 0 sample batches and 0 estimates"
+    ):
+        replayed = by_window(replay_file(recording).messages)
+    live = live_windows(iter_estimates(recording))
+    assert any(m["ok"] and replayed[end]["reason"] == "gap" for end, m in live.items())
+    # a replay of a complete recording says nothing (warnings are errors here)
+    again = tmp_path / "again"
+    again.mkdir()
+    config = DaemonConfig.from_mapping(
+        {"zenoh": {"listen": [f"tcp/127.0.0.1:{free_port}"]}, "mcap": {"directory": str(again)}}
+    )
+    Daemon(config).run(duration_s=1.0)
+    assert replay_file(next(again.glob("*.mcap"))).messages

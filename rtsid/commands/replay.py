@@ -135,7 +135,11 @@ def _replay_and_write(path: Path, args: argparse.Namespace, out: Path | None) ->
         publish = publisher.publish_estimate
     try:
         show = _progress if args.progress and sys.stderr.isatty() else None
-        result = replay_file(path, config, rate=_rate(args.rate), publish=publish, progress=show)
+        # without --config, replay_file follows what the live run decided (the windows a late
+        # worker skipped, the model each window used): passing the recording's own config
+        # re-analysed every window on the schedule, and the output differed from live
+        given = config if args.config else None
+        result = replay_file(path, given, rate=_rate(args.rate), publish=publish, progress=show)
     finally:
         if publisher is not None:
             publisher.stop()

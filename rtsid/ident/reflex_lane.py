@@ -394,11 +394,15 @@ class ReflexModels:
         return (window_end + 1 - self.apply_after) // self.update
 
     # -------------------------------------------------------------- store
-    def add(self, update: ReflexUpdate) -> None:
-        """Keep a finished fit (older ones beyond the stale horizon are dropped)."""
+    def add(self, update: ReflexUpdate, keep_from: int | None = None) -> None:
+        """Keep a finished fit; older ones beyond the stale horizon are dropped, except those
+        from fit ``keep_from`` on (a replay keeps every fit its live run still used: a late
+        live slow lane leaves windows on a model this far behind)."""
         with self._lock:
             self._updates[update.seq] = update
             oldest = update.seq - (self.stale_after // self.update + 2)
+            if keep_from is not None:
+                oldest = min(oldest, keep_from)
             for seq in [s for s in self._updates if s < oldest]:
                 del self._updates[seq]
 

@@ -122,6 +122,11 @@ class RingBuffer:
         return self._newest
 
     @property
+    def first_index(self) -> int:
+        """Index of the first row ever written, held or not (-1 before the first write)."""
+        return self._first if self._newest >= 0 else -1
+
+    @property
     def oldest_index(self) -> int:
         """Index of the oldest row still held (-1 before the first write)."""
         if self._newest < 0:

@@ -81,6 +81,27 @@ def _init_worker_process(parent_pid: int) -> None:
     threading.Thread(target=_exit_with, args=(parent_pid,), daemon=True).start()
 
 
+def _end_pool(pool: futures.ProcessPoolExecutor, timeout_s: float = 5.0) -> None:
+    """Shut ``pool`` down without waiting for a fit in progress: its worker process is ended.
+
+    Waiting for it (``shutdown(wait=True)``) has no bound: at low priority on a machine at
+    load 15 a fit ran for tens of seconds, and the daemon, which stops the slow lane before
+    it forwards the last samples to the recording, lost to the ring 8 001 samples its live
+    windows had used (the replay then withheld them). Python 3.14's
+    ``ProcessPoolExecutor.terminate_workers`` does the same.
+    """
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        if process.is_alive():
+            process.terminate()
+    for process in processes:
+        process.join(timeout_s)
+        if process.is_alive():  # frozen (SIGSTOP) or ignoring SIGTERM
+            process.kill()
+            process.join(timeout_s)
+
+
 class SlowLane(ThreadOwner):
     """Fit the reflex pathway on schedule from the ring (a context manager).
 
@@ -135,7 +156,7 @@ class SlowLane(ThreadOwner):
 
     def _after_stop(self, ended: bool) -> None:
         if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
+            _end_pool(self._pool)
             self._pool = None
 
     # ------------------------------------------------------------------ the loop
@@ -150,7 +171,9 @@ class SlowLane(ThreadOwner):
                 if self.ring.newest_index < 0:
                     self._stop.wait(0.05)
                     continue
-                first = self.ring.oldest_index
+                # the data's first sample, not the oldest still held: a lane that starts
+                # late (a long warm-up under load) keeps the schedule a replay re-derives
+                first = self.ring.first_index
                 seq = self.models.first_seq(first)
             span = self.models.fit_span(seq, first)
             if span is None or self.ring.newest_index < span[1] - 1:

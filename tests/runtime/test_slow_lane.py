@@ -15,16 +15,19 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from rtsid.ident.reflex_lane import ReflexModels
 from rtsid.io.mcap_read import iter_estimates, iter_status
+from rtsid.io.recording import iter_batches
 from rtsid.replay import is_announcement, replay_file
 from rtsid.runtime.daemon import Daemon, DaemonConfig
 
 REFLEX_GAIN = 10.0
 
 
-def lane_config(tmp_path, port, mode, **lane):
+def lane_config(tmp_path, port, mode, link=None, **lane):
     return DaemonConfig.from_mapping(
         {
+            **({"link": link} if link else {}),
             "zenoh": {"listen": [f"tcp/127.0.0.1:{port}"]},
             "mcap": {"directory": str(tmp_path)},
             "plant": {"noise_percent": 10.0, "reflex": {"enabled": True, "gain": REFLEX_GAIN}},
@@ -45,17 +48,20 @@ def reflex_messages(path):
         return [json.loads(m.data) for _, _, m in make_reader(fh).iter_messages(["/reflex"])]
 
 
-def run_until_fits(daemon, fits, least_s=8.0, most_s=60.0):
-    """Run ``daemon`` for at least ``least_s`` and until its slow lane has made ``fits`` fits
-    (at most ``most_s``); its summary."""
+def run_until_fits(daemon, fits, least_s=8.0, most_s=60.0, then_samples=0):
+    """Run ``daemon`` for at least ``least_s`` and until its slow lane has made ``fits`` fits,
+    then for ``then_samples`` more samples (at most ``most_s`` in all); its summary."""
     done = []
     runner = threading.Thread(target=lambda: done.append(daemon.run()), daemon=True)
     runner.start()
     start = time.monotonic()
+    reached = None  # the newest sample when the fits were made
     while time.monotonic() - start < most_s and runner.is_alive():
         lane = daemon.slow_lane
         made = lane.counters().fits if lane is not None else 0
-        if made >= fits and time.monotonic() - start >= least_s:
+        if reached is None and made >= fits and time.monotonic() - start >= least_s:
+            reached = lane.ring.newest_index
+        if reached is not None and lane.ring.newest_index >= reached + then_samples:
             break
         time.sleep(0.2)
     daemon.request_stop()
@@ -69,11 +75,19 @@ def run_until_fits(daemon, fits, least_s=8.0, most_s=60.0):
 def test_the_slow_lane_fits_the_plants_reflex_and_replay_reproduces_live(tmp_path, free_port, mode):
     # run until the lane has made the fits checked below (at least 8 s), not for a fixed time:
     # on a loaded 2-core machine 10 s sometimes held fewer live fits
-    summary = run_until_fits(Daemon(lane_config(tmp_path, free_port, mode)), fits=4)
+    # ... and then 3 s more: at load 9-11 a lane far behind made its first four good fits in
+    # a burst, and the run stopped with only 37 windows that used one
+    summary = run_until_fits(
+        Daemon(lane_config(tmp_path, free_port, mode)), fits=4, then_samples=3 * 2500
+    )
     assert summary.clean_shutdown and summary.failure is None
     recording = next(tmp_path.glob("*.mcap"))
-    fits = reflex_messages(recording)
-    assert len(fits) >= 3 and all(f["ok"] and f["applied"] for f in fits)
+    every = reflex_messages(recording)
+    # at load 15 a starved acquisition lost 42 % of a horizon's samples, and a lane 30 s
+    # behind found the ring no longer held its horizons: such fits fail, saying why
+    assert all(f["error"] for f in every if not f["ok"])
+    fits = [f for f in every if f["ok"]]
+    assert len(fits) >= 3 and all(f["applied"] for f in fits)
     assert np.median([f["gain"] for f in fits]) == pytest.approx(REFLEX_GAIN, rel=0.2)
     assert np.median([f["delay_ms"] for f in fits]) == pytest.approx(40.0, abs=8.0)
     live = {m["window_end_index"]: m for m in iter_estimates(recording) if not is_announcement(m)}
@@ -85,25 +99,172 @@ def test_the_slow_lane_fits_the_plants_reflex_and_replay_reproduces_live(tmp_pat
     # replay runs the same fits in line: the same models; and it follows what live decided
     # (a window left on an older model because a fit was late): the same numbers everywhere
     result = replay_file(recording)
-    common = min(len(result.reflex), len(fits))  # live may fit once more, before it is due
-    assert common >= 3
-    assert [f["gain"] for f in result.reflex[:common]] == [f["gain"] for f in fits[:common]]
+    refitted = {f["seq"]: f for f in result.reflex}  # live may fit once more, before it is due
+    common = [f for f in fits if f["seq"] in refitted]
+    assert len(common) >= 3
+    assert [refitted[f["seq"]]["gain"] for f in common] == [f["gain"] for f in common]
     replayed = {m["window_end_index"]: m for m in result.messages}
     compared = 0
     for end, m in live.items():
         if m["ok"]:
-            # what a failure needs (seen a few times on a machine at load 8-9, not since):
-            # the window, both decisions and both fit lists
+            # what a failure needs: the window, both decisions and both fit lists (at load
+            # 8-11 this showed a late live lane's fit 3, dropped from the replay's store)
             assert replayed[end]["reflex_seq"] == m["reflex_seq"], (
                 end,
                 m["flags"],
                 replayed[end]["flags"],
-                [(f.get("seq"), f["ok"], f.get("applies_from_index")) for f in fits],
+                [(f.get("seq"), f["ok"], f.get("applies_from_index")) for f in every],
                 [(f.get("seq"), f["ok"], f.get("applies_from_index")) for f in result.reflex],
             )
             assert (replayed[end]["K"], replayed[end]["B"]) == (m["K"], m["B"]), end
             compared += 1
     assert compared > 50
+
+
+def compare_replay_with_live(recording):
+    """Replay ``recording`` as it was made; every live estimate's reflex model, flags and
+    numbers equal the replay's (the number compared)."""
+    live = [m for m in iter_estimates(recording) if not is_announcement(m) and m["ok"]]
+    replayed = {m["window_end_index"]: m for m in replay_file(recording).messages}
+    for m in live:
+        twin = replayed[m["window_end_index"]]
+        assert twin["reflex_seq"] == m["reflex_seq"], (
+            m["window_end_index"],
+            m["flags"],
+            [str(f) for f in twin["flags"]],
+        )
+        assert [str(f) for f in twin["flags"] if f != "over_budget"] == [
+            f for f in m["flags"] if f != "over_budget"
+        ]
+        assert (twin["K"], twin["B"], twin["I"]) == (m["K"], m["B"], m["I"])
+    return len(live)
+
+
+@pytest.mark.slow  # a real-time daemon run of about 15 s
+def test_replay_keeps_a_fit_a_late_live_slow_lane_left_windows_on(tmp_path, free_port, monkeypatch):
+    """A live slow lane that falls far behind (its spawned process warming up under load
+    took 15 s for the first fit) leaves windows on a fit the schedule has long replaced; the
+    replay, which fits on schedule, had dropped it from its store and gave those windows no
+    reflex model (reflex_seq None where live had 3). Hold the first fit's hand-over here until
+    the samples are past the point where the replay dropped it."""
+    import rtsid.runtime.slow_lane as lane
+
+    config = lane_config(tmp_path, free_port, "thread", stale_after_s=2.0)
+    daemon = Daemon(config)
+    models = ReflexModels(config.link.fs_hz, config.slow_lane)
+    first_seq = models.first_seq(0)
+    # the replay keeps stale_after // update + 2 fits behind the newest due one: past this
+    # window end it had dropped the first fit
+    kept = models.stale_after // models.update + 2
+    dropped_after = (first_seq + kept + 1) * models.update + models.apply_after - 1
+    fit = lane.fit_reflex_update
+
+    def wait_for(done):  # samples or windows, not time: bounded, and stop-aware
+        stopping = daemon.slow_lane._stop
+        for _ in range(1200):
+            if done() or stopping.is_set():
+                return
+            stopping.wait(0.05)
+
+    def late_first_fit(seq, *args):
+        if seq == first_seq:  # its data end at 3 s; it lands past `dropped_after`
+            wait_for(lambda: daemon.slow_lane.ring.newest_index > dropped_after + models.update)
+        elif seq == first_seq + 1:  # ... and windows go on using it until they are past it
+            evaluator = daemon.worker.evaluator
+            wait_for(lambda: evaluator.last_reflex.seq == first_seq)
+        return fit(seq, *args)
+
+    monkeypatch.setattr(lane, "fit_reflex_update", late_first_fit)
+    summary = run_until_fits(daemon, fits=3, least_s=4.0)
+    assert summary.clean_shutdown and summary.failure is None
+    recording = next(tmp_path.glob("*.mcap"))
+    late = [
+        m
+        for m in iter_estimates(recording)
+        if m["ok"] and m["reflex_seq"] == first_seq and m["window_end_index"] > dropped_after
+    ]
+    assert late and all("reflex_stale" in m["flags"] for m in late)  # the timing was forced
+    assert compare_replay_with_live(recording) > 50
+
+
+@pytest.mark.slow  # a real-time daemon run of about 12 s
+def test_a_slow_lane_that_starts_late_keeps_the_schedule_a_replay_derives(
+    tmp_path, free_port, monkeypatch
+):
+    """The lane took its first sample index from the ring when it first looked: one whose
+    warm-up outlasted the ring (a short ring, a loaded machine) fitted its first models from
+    a later start than the recording's, so a replay's models, and windows, differed. Hold
+    the warm-up until the ring has dropped its first rows."""
+    import rtsid.runtime.slow_lane as lane
+
+    config = lane_config(tmp_path, free_port, "thread", link={"ring_capacity_s": 6.5})
+    daemon = Daemon(config)
+    models = ReflexModels(config.link.fs_hz, config.slow_lane)
+    warm_up = lane.warm_up
+
+    def late_warm_up(*args):
+        ring, stopping = daemon.slow_lane.ring, daemon.slow_lane._stop
+        for _ in range(1200):  # samples, not time: bounded, and stop-aware
+            if ring.oldest_index > ring.first_index + models.update or stopping.is_set():
+                break
+            stopping.wait(0.05)
+        return warm_up(*args)
+
+    monkeypatch.setattr(lane, "warm_up", late_warm_up)
+    summary = run_until_fits(daemon, fits=3, least_s=4.0)
+    assert summary.clean_shutdown and summary.failure is None
+    recording = next(tmp_path.glob("*.mcap"))
+    first = next(iter(iter_batches([recording]))).first_index  # the data's first sample
+    fits = reflex_messages(recording)
+    # every fit on the schedule of the data's first sample (those the ring no longer held
+    # failed, and no window used them)
+    assert fits[0]["seq"] == models.first_seq(first)
+    assert all((f["start_index"], f["end_index"]) == models.fit_span(f["seq"], first) for f in fits)
+    assert not fits[0]["ok"] and "no longer holds" in fits[0]["error"]
+    used = [m for m in iter_estimates(recording) if m["ok"] and m["reflex_seq"] is not None]
+    assert used and compare_replay_with_live(recording) > 50
+
+
+@pytest.mark.slow  # a real-time daemon run of about 10 s
+def test_a_stop_does_not_wait_for_a_fit_that_does_not_finish(tmp_path, free_port):
+    """The daemon stops its slow lane before it forwards the last samples to the recording;
+    the lane waited for its worker process's fit (tens of seconds at low priority on a
+    machine at load 15) while the ring overwrote 8 001 samples not yet logged, which the
+    live worker had estimated: the replay withheld those windows (gap) and every number
+    after them differed. Freeze the worker process so that its fit never finishes."""
+    daemon = Daemon(lane_config(tmp_path, free_port, "process"))
+    done = []
+    runner = threading.Thread(target=lambda: done.append(daemon.run()), daemon=True)
+    runner.start()
+    frozen: list[int] = []
+    try:
+        for _ in range(600):  # a fit made, the next one due: at most 60 s
+            lane = daemon.slow_lane
+            if (lane is not None and lane.counters().fits >= 1) or not runner.is_alive():
+                break
+            time.sleep(0.1)
+        assert daemon.slow_lane.counters().fits >= 1
+        frozen = list(daemon.slow_lane._pool._processes)
+        for pid in frozen:
+            os.kill(pid, signal.SIGSTOP)
+        newest = daemon.slow_lane.ring.newest_index
+        while daemon.slow_lane.ring.newest_index < newest + 2 * 2500 and runner.is_alive():
+            time.sleep(0.1)  # two more fits due; none finishes
+        daemon.request_stop()
+        runner.join(30)
+        assert done, "the daemon waited for the frozen fit"
+    finally:
+        for pid in frozen:  # leave nothing behind, whatever the outcome
+            if os.path.exists(f"/proc/{pid}"):
+                os.kill(pid, signal.SIGKILL)
+        if not done:
+            daemon.request_stop()
+            runner.join(30)
+    assert not any(os.path.exists(f"/proc/{pid}") for pid in frozen)
+    recording = next(tmp_path.glob("*.mcap"))
+    status = list(iter_status(recording))[-1]
+    assert status["acquisition"]["logger_overwritten"] == 0
+    assert compare_replay_with_live(recording) > 50
 
 
 @pytest.mark.slow
