@@ -369,3 +369,21 @@ def test_a_directory_goes_to_the_pool_largest_recording_first(tmp_path):
     (tmp_path / f"{session}-001.mcap").write_bytes(b"x" * 200)  # 400 bytes in all
     order = _longest_first([tmp_path / n for n in (*sizes, f"{session}.mcap")])
     assert [p.name for p in order] == [f"{session}.mcap", "b.mcap", "c.mcap", "a.mcap"]
+
+
+def test_a_replay_process_starts_without_importing_scipy():
+    # A spawned child (rtsid replay DIR --jobs N, the slow lane's process) paid ≈ 1 s of CPU
+    # importing scipy.signal (which imports scipy.stats) before its first window, although
+    # the window path never calls scipy: scipy is imported where it is used.
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, rtsid.commands.replay, rtsid.replay, rtsid.runtime.worker, "
+        "rtsid.runtime.slow_lane, rtsid.ident.stream; "
+        "print(sorted(m for m in sys.modules if m == 'scipy' or m.startswith('scipy.')))"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
+    )
+    assert done.stdout.strip() == "[]", done.stdout
