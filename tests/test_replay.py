@@ -387,3 +387,36 @@ def test_a_replay_process_starts_without_importing_scipy():
         [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
     )
     assert done.stdout.strip() == "[]", done.stdout
+
+
+def test_the_windows_replay_cuts_are_the_snapshots_their_constructor_gives():
+    # replay builds each hop's Snapshot without its frozen __init__ (rtsid.ident.records)
+    import dataclasses
+
+    from rtsid.io.schemas import SampleBatch
+    from rtsid.link.ring import Snapshot
+    from rtsid.replay import iter_windows, recorded_evaluator
+
+    config = DaemonConfig.from_mapping({"slow_lane": {"enabled": False}})
+    evaluator = recorded_evaluator(config, lambda message: None)
+    fs, n, first = config.link.fs_hz, 2500, 100
+    rng = np.random.default_rng(1)
+    position, torque = rng.normal(size=n), rng.normal(size=n)
+    batch = SampleBatch(first, fs, position, torque, np.ones(n, bool), np.zeros(n, np.int64))
+    snaps = list(iter_windows([batch], evaluator))
+    hop, window = evaluator.hop_samples, evaluator.window_samples
+    ends = [e for e in range(first, first + n) if (e + 1) % hop == 0 and e - window + 1 >= first]
+    assert [int(snap.sample_index[-1]) for snap in snaps] == ends  # the live worker's grid
+    for snap in snaps:
+        values = {f.name: getattr(snap, f.name) for f in dataclasses.fields(Snapshot)}
+        assert set(vars(snap)) == set(values)  # every field set, nothing else
+        again = Snapshot(**values)
+        assert all(getattr(again, name) is value for name, value in values.items())
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            snap.overwritten = 1  # type: ignore[misc]
+        start = int(snap.sample_index[0])
+        np.testing.assert_array_equal(snap.sample_index, np.arange(start, start + len(snap)))
+        rows = slice(start - first, start - first + len(snap))
+        np.testing.assert_array_equal(snap.position_rad, position[rows])
+        np.testing.assert_array_equal(snap.torque_nm, torque[rows])
+        assert len(snap) == window and snap.overwritten == 0
