@@ -282,12 +282,12 @@ def test_replay_follows_the_windows_a_live_worker_skipped(tmp_path, free_port, m
             return None
         return process_window(self, end_index)
 
-    def aged(snap, now_s, max_age_s):  # samples too old when the window ran
+    def aged(snap, now_s, max_age_s, all_valid=None):  # samples too old when the window ran
         end = int(snap.sample_index[-1])
         if 4000 <= end <= 4500 and (end // 50) % 3 == 0:
             too_old.append(end)
             return Reason.STALE
-        return assess_window(snap, now_s, max_age_s)
+        return assess_window(snap, now_s, max_age_s, all_valid)
 
     monkeypatch.setattr(WindowWorker, "process_window", fall_behind)
     monkeypatch.setattr(worker, "assess_window", aged)
