@@ -420,3 +420,8 @@ def test_the_windows_replay_cuts_are_the_snapshots_their_constructor_gives():
         np.testing.assert_array_equal(snap.position_rad, position[rows])
         np.testing.assert_array_equal(snap.torque_nm, torque[rows])
         assert len(snap) == window and snap.overwritten == 0
+        newest = snap.tail(hop)  # the evaluator's cut (built the same way)
+        values = {f.name: getattr(newest, f.name) for f in dataclasses.fields(Snapshot)}
+        assert set(vars(newest)) == set(values)
+        assert all(getattr(Snapshot(**values), k) is v for k, v in values.items())
+        np.testing.assert_array_equal(newest.sample_index, snap.sample_index[-hop:])

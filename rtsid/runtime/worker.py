@@ -38,6 +38,7 @@ from rtsid.errors import (
 )
 from rtsid.ident.check import window_sums
 from rtsid.ident.grid import first_window_end
+from rtsid.ident.records import built
 from rtsid.ident.reflex import ReflexStream
 from rtsid.ident.reflex_lane import ReflexModels, ReflexUpdate, predict_reflex_torque
 from rtsid.ident.sign import SignCount, inverted_torque_message
@@ -193,6 +194,7 @@ class _ReflexUse:
 
 
 _NO_REFLEX = _ReflexUse(None, None, ())
+_ABSENT_REFLEX = _ReflexUse(None, None, (Flag.REFLEX_ABSENT,))
 
 
 class WindowEvaluator:
@@ -386,13 +388,13 @@ class WindowEvaluator:
         update, stale = self._due_reflex(int(snap.sample_index[-1]))
         if update is None or update.pathway is None:
             self.reflex_flagged[Flag.REFLEX_ABSENT] += 1
-            return _ReflexUse(None, None, (Flag.REFLEX_ABSENT,))
+            return _ABSENT_REFLEX
         flags: tuple[Flag, ...] = ()
         if stale:
             flags = (Flag.REFLEX_STALE,)
             self.reflex_flagged[Flag.REFLEX_STALE] += 1
         if not update.applied:  # the reflex pathway is not in the data: nothing to subtract
-            return _ReflexUse(update.seq, None, flags)
+            return built(_ReflexUse, seq=update.seq, torque=None, flags=flags)
         valid = None if snap.valid.all() else snap.valid
         try:
             predicted = predict_reflex_torque(
@@ -407,8 +409,9 @@ class WindowEvaluator:
             )
         except InputDataError:  # the history has too many lost samples to predict from
             self.reflex_flagged[Flag.REFLEX_ABSENT] += 1
-            return _ReflexUse(None, None, (Flag.REFLEX_ABSENT,))
-        return _ReflexUse(update.seq, self.options.torque_sign * predicted, flags)
+            return _ABSENT_REFLEX
+        torque = self.options.torque_sign * predicted
+        return built(_ReflexUse, seq=update.seq, torque=torque, flags=flags)
 
     def _due_reflex(self, end: int) -> tuple[ReflexUpdate | None, bool]:
         """The model the window uses: the schedule's, or (replaying a live run) the one live
