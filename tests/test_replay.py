@@ -387,6 +387,17 @@ def test_a_replay_process_starts_without_importing_scipy():
         [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
     )
     assert done.stdout.strip() == "[]", done.stdout
+    # ... while a live daemon imports scipy.signal before its threads start, so that its first
+    # window's plan does not pay the import inside the deadline
+    live = (
+        "import sys; from rtsid.runtime.daemon import Daemon, DaemonConfig; "
+        "before = 'scipy.signal' in sys.modules; Daemon(DaemonConfig()); "
+        "print(before, 'scipy.signal' in sys.modules)"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", live], capture_output=True, text=True, timeout=120, check=True
+    )
+    assert done.stdout.split() == ["False", "True"], done.stdout
 
 
 def test_the_windows_replay_cuts_are_the_snapshots_their_constructor_gives():
