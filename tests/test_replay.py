@@ -283,12 +283,12 @@ def test_replay_follows_the_windows_a_live_worker_skipped(tmp_path, free_port, m
             return None
         return process_window(self, end_index)
 
-    def aged(snap, now_s, max_age_s):  # samples too old when the window ran
+    def aged(snap, now_s, max_age_s, all_valid=None):  # samples too old when the window ran
         end = int(snap.sample_index[-1])
         if 4000 <= end <= 4500 and (end // 50) % 3 == 0:
             too_old.append(end)
             return Reason.STALE
-        return assess_window(snap, now_s, max_age_s)
+        return assess_window(snap, now_s, max_age_s, all_valid)
 
     monkeypatch.setattr(WindowWorker, "process_window", fall_behind)
     monkeypatch.setattr(worker, "assess_window", aged)
@@ -449,3 +449,70 @@ def test_replay_says_when_the_recording_lacks_samples_live_windows_used(
     )
     Daemon(config).run(duration_s=1.0)
     assert replay_file(next(again.glob("*.mcap"))).messages
+
+
+def test_a_replay_process_starts_without_importing_scipy():
+    # A spawned child (rtsid replay DIR --jobs N, the slow lane's process) paid ≈ 1 s of CPU
+    # importing scipy.signal (which imports scipy.stats) before its first window, although
+    # the window path never calls scipy: scipy is imported where it is used.
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, rtsid.commands.replay, rtsid.replay, rtsid.runtime.worker, "
+        "rtsid.runtime.slow_lane, rtsid.ident.stream; "
+        "print(sorted(m for m in sys.modules if m == 'scipy' or m.startswith('scipy.')))"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
+    )
+    assert done.stdout.strip() == "[]", done.stdout
+    # ... while a live daemon imports scipy.signal before its threads start, so that its first
+    # window's plan does not pay the import inside the deadline
+    live = (
+        "import sys; from rtsid.runtime.daemon import Daemon, DaemonConfig; "
+        "before = 'scipy.signal' in sys.modules; Daemon(DaemonConfig()); "
+        "print(before, 'scipy.signal' in sys.modules)"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", live], capture_output=True, text=True, timeout=120, check=True
+    )
+    assert done.stdout.split() == ["False", "True"], done.stdout
+
+
+def test_the_windows_replay_cuts_are_the_snapshots_their_constructor_gives():
+    # replay builds each hop's Snapshot without its frozen __init__ (rtsid.ident.records)
+    import dataclasses
+
+    from rtsid.io.schemas import SampleBatch
+    from rtsid.link.ring import Snapshot
+    from rtsid.replay import iter_windows, recorded_evaluator
+
+    config = DaemonConfig.from_mapping({"slow_lane": {"enabled": False}})
+    evaluator = recorded_evaluator(config, lambda message: None)
+    fs, n, first = config.link.fs_hz, 2500, 100
+    rng = np.random.default_rng(1)
+    position, torque = rng.normal(size=n), rng.normal(size=n)
+    batch = SampleBatch(first, fs, position, torque, np.ones(n, bool), np.zeros(n, np.int64))
+    snaps = list(iter_windows([batch], evaluator))
+    hop, window = evaluator.hop_samples, evaluator.window_samples
+    ends = [e for e in range(first, first + n) if (e + 1) % hop == 0 and e - window + 1 >= first]
+    assert [int(snap.sample_index[-1]) for snap in snaps] == ends  # the live worker's grid
+    for snap in snaps:
+        values = {f.name: getattr(snap, f.name) for f in dataclasses.fields(Snapshot)}
+        assert set(vars(snap)) == set(values)  # every field set, nothing else
+        again = Snapshot(**values)
+        assert all(getattr(again, name) is value for name, value in values.items())
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            snap.overwritten = 1  # type: ignore[misc]
+        start = int(snap.sample_index[0])
+        np.testing.assert_array_equal(snap.sample_index, np.arange(start, start + len(snap)))
+        rows = slice(start - first, start - first + len(snap))
+        np.testing.assert_array_equal(snap.position_rad, position[rows])
+        np.testing.assert_array_equal(snap.torque_nm, torque[rows])
+        assert len(snap) == window and snap.overwritten == 0
+        newest = snap.tail(hop)  # the evaluator's cut (built the same way)
+        values = {f.name: getattr(newest, f.name) for f in dataclasses.fields(Snapshot)}
+        assert set(vars(newest)) == set(values)
+        assert all(getattr(Snapshot(**values), k) is v for k, v in values.items())
+        np.testing.assert_array_equal(newest.sample_index, snap.sample_index[-hop:])

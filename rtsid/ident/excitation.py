@@ -10,7 +10,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import signal
 
 from rtsid.errors import InputDataError
 
@@ -115,6 +114,8 @@ def filtered_noise(
     numpy.ndarray, shape (n,)
         Zero-mean noise with ``max(abs(x)) == peak``.
     """
+    from scipy import signal
+
     _check_positive("fs_hz", fs_hz)
     _check_positive("cutoff_hz", cutoff_hz)
     if cutoff_hz >= fs_hz / 2:

@@ -12,7 +12,6 @@ from functools import lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import signal
 
 from rtsid.errors import InputDataError
 
@@ -45,6 +44,8 @@ def lowpass_taps(fs_hz: float, cutoff_hz: float, factor: int) -> FloatArray:
     The transition band reaches from ``cutoff_hz`` to the decimated Nyquist rate
     ``fs_hz / (2·factor)``, so nothing aliases into the pass band.
     """
+    from scipy import signal
+
     nyq_after = fs_hz / (2 * factor)
     if not 0 < cutoff_hz < nyq_after:
         raise InputDataError(
@@ -87,6 +88,8 @@ def band_limit_taps(fs_hz: float, cutoff_hz: float, factor: int) -> FloatArray:
     InputDataError
         ``cutoff_hz`` is not below the decimated Nyquist rate.
     """
+    from scipy import signal
+
     nyq_after = fs_hz / (2 * factor)
     if not 0 < cutoff_hz < nyq_after:
         raise InputDataError(

@@ -39,7 +39,6 @@ from functools import cached_property, lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import optimize, signal
 
 from rtsid.errors import InputDataError
 from rtsid.ident.correlation import auto_correlation, cross_correlation, detrend
@@ -103,6 +102,8 @@ class _Decimator:
 
 def _zero_phase_of(sos: FloatArray) -> _Decimator:
     """What scipy's ``sosfiltfilt(sos, x)`` (default padding) needs, for the filter ``sos``."""
+    from scipy import signal
+
     zeros = min(int((sos[:, 2] == 0).sum()), int((sos[:, 5] == 0).sum()))
     edge = 3 * (2 * len(sos) + 1 - zeros)
     return _Decimator(sos, np.asarray(signal.sosfilt_zi(sos)), edge)
@@ -110,6 +111,8 @@ def _zero_phase_of(sos: FloatArray) -> _Decimator:
 
 @lru_cache(maxsize=8)
 def _decimator(factor: int) -> _Decimator:
+    from scipy import signal
+
     sos = np.asarray(signal.cheby1(8, 0.05, 0.8 / factor, output="sos"), dtype=np.float64)
     return _zero_phase_of(sos)
 
@@ -148,6 +151,8 @@ def zero_phase_rows(sos: FloatArray, rows: FloatArray) -> FloatArray:
 def _filtfilt(d: _Decimator, x: FloatArray) -> FloatArray:
     """scipy's ``sosfiltfilt`` step by step with ``d``'s filter (its checks and messages for
     a record no longer than the padding)."""
+    from scipy import signal
+
     if x.size <= d.edge:
         return np.asarray(signal.sosfiltfilt(d.sos.copy(), x), dtype=np.float64)
     ext = np.concatenate(
@@ -520,6 +525,8 @@ def fit_reflex_dynamics(irf: FloatArray, fs_hz: float) -> ReflexDynamics:
     refined by bounded nonlinear least squares (δ within :func:`delay_search_s`) from the best
     grid point.
     """
+    from scipy import optimize
+
     g = np.asarray(irf, dtype=np.float64)
     lags = np.arange(g.size) / fs_hz
     model = _DelayedLowPass(g, lags)
@@ -707,6 +714,8 @@ def stream_taps(factor: int) -> FloatArray:
     numpy.ndarray, shape (2N+1,)
         Symmetric taps at the data's rate, lag ``−N … N``.
     """
+    from scipy import signal
+
     if factor == 1:
         return np.ones(1)
     d = _decimator(factor)

@@ -39,7 +39,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import optimize
 
 from rtsid.errors import InputDataError, NumericalError
 from rtsid.ident.correlation import auto_correlation
@@ -260,6 +259,8 @@ def fit_logmag(
     NumericalError
         The frequency response vanishes on the grid (log undefined).
     """
+    from scipy import optimize
+
     f, e = _check_grid(f_hz, dft)
     h_arr = np.asarray(h, dtype=np.float64)
     response = e @ h_arr

@@ -18,8 +18,8 @@ and every estimate after it — exactly.
 
 from __future__ import annotations
 
-import bisect
 import math
+from bisect import bisect_left, insort
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -90,24 +90,26 @@ class RunningMedian:
         values = self._values
         if len(values) == self._horizon:  # the oldest leaves the horizon
             oldest = values[0]
-            if math.isnan(oldest):
+            if oldest != oldest:  # NaN (math.isnan without the call)
                 self._nans -= 1
             else:
-                del self._sorted[bisect.bisect_left(self._sorted, oldest)]
+                del self._sorted[bisect_left(self._sorted, oldest)]
         values.append(value)
-        if math.isnan(value):
+        if value != value:
             self._nans += 1
         else:
-            bisect.insort(self._sorted, value)
+            insort(self._sorted, value)
 
     def median(self) -> float | None:
         """None before ``min_count`` values."""
-        if len(self._values) < self.min_count:
-            return None
+        values = self._sorted
+        count = len(values)
         if self._nans:
-            return math.nan
-        values, half = self._sorted, len(self._sorted) // 2
-        if len(values) % 2:
+            return None if count + self._nans < self.min_count else math.nan
+        if count < self.min_count:
+            return None
+        half = count // 2
+        if count % 2:
             return values[half]
         return (values[half - 1] + values[half]) / 2.0
 
@@ -288,6 +290,7 @@ class WindowStream:
         self._split_source: _SplitSource | None = None
         self._buffers = BackEndBuffers()
         self._scan_buffers = ScanBuffers()  # the split scan's, reused every window
+        self._newest_rows: tuple[AnalysisPlan | None, int] = (None, 0)  # (plan, its hop's rows)
 
     def track(self, t_end_s: float, estimate: WindowEstimate | None) -> Tracked:
         """Step the tracker with this window (its end time, s; None: withheld), and with the
@@ -356,7 +359,10 @@ class WindowStream:
             return back_end(irf, u, y, options, plan, held, gaps, score)
         window_samples = len(position)  # type: ignore[arg-type]  # checked 1-D above
         if fusable(options, score, gaps is not None):  # the same steps in one compiled call
-            rows = round(self.tracker.hop_s * plan.analysis_fs_hz)
+            known, rows = self._newest_rows  # analysis rows in one hop, once per plan
+            if known is not plan:
+                rows = round(self.tracker.hop_s * plan.analysis_fs_hz)
+                self._newest_rows = (plan, rows)
             fused = fused_back_end(
                 irf,
                 u,

@@ -288,12 +288,6 @@ class TrackEstimate:
     mode: str = ""
 
 
-def _t_log_density(nis: float, variance: float) -> float:
-    """Log density of a Student t (:data:`FAST_DF` degrees of freedom, scale² ``variance``)
-    at a normalised squared innovation ``nis``, up to a constant."""
-    return -0.5 * math.log(variance) - 0.5 * (FAST_DF + 1.0) * math.log1p(nis / FAST_DF)
-
-
 def transition(dt: float, tau: float, level_q: float, rate_q: float) -> tuple[float, ...]:
     """Exact discretisation of the level + OU-rate model over ``dt`` seconds.
 
@@ -326,6 +320,10 @@ class _LevelRateFilter:
         self.overlap = overlap
         self.x0 = self.x1 = self.p00 = self.p01 = self.p11 = math.nan
         self._steps: dict[float, tuple[float, ...]] = {}
+        # every interval seen -> its transition (what the rounded key gives it, which never
+        # changes once given): a window's end times differ by a hop give or take a few ulps,
+        # and round(dt, 9) costs ~3 k instructions
+        self._by_dt: dict[float, tuple[float, ...]] = {}
         self._last: tuple[float, tuple[float, ...]] = (math.nan, ())  # (dt, its transition)
 
     def reset(self, level: float, variance: float) -> None:
@@ -339,12 +337,9 @@ class _LevelRateFilter:
             return
         last_dt, steps = self._last
         if dt != last_dt:  # a stream's hops are all alike: the last interval's, usually
-            key = round(dt, 9)
-            cached = self._steps.get(key)
+            cached = self._by_dt.get(dt)
             if cached is None:
-                cached = transition(dt, self.tau, self.level_q, self.rate_q)
-                if len(self._steps) < 64:
-                    self._steps[key] = cached
+                cached = self._transition(dt)
             self._last = (dt, cached)
             steps = cached
         b, a, q00, q01, q11 = steps
@@ -354,6 +349,20 @@ class _LevelRateFilter:
         self.p00 = p00 + 2.0 * b * p01 + b * b * p11 + q00
         self.p01 = a * (p01 + b * p11) + q01
         self.p11 = a * a * p11 + q11
+
+    def _transition(self, dt: float) -> tuple[float, ...]:
+        """The transition over ``dt`` s: one per interval rounded to 1 ns (the first such
+        interval's; the first 64 kept), remembered for ``dt`` itself."""
+        key = round(dt, 9)
+        cached = self._steps.get(key)
+        if cached is None:
+            cached = transition(dt, self.tau, self.level_q, self.rate_q)
+            if len(self._steps) < 64:
+                self._steps[key] = cached
+        if len(self._by_dt) >= 4096:  # bounded (a stream with irregular hops)
+            self._by_dt.clear()
+        self._by_dt[dt] = cached
+        return cached
 
     def predicted_window(self) -> float:
         """The next window's expected estimate (the parameter at its centre)."""
@@ -487,7 +496,8 @@ class ParameterTracker:
         usable = (
             z is not None and se is not None and math.isfinite(z) and se > 0 and math.isfinite(se)
         )
-        if not self.started:
+        x0 = self.quiet.x0
+        if x0 != x0:  # not started (NaN level), as :attr:`started` without the call
             if not usable:
                 return _NOT_STARTED
             return self._start(t_s, float(z), float(se))  # type: ignore[arg-type]
@@ -554,7 +564,8 @@ class ParameterTracker:
             if during is not None:
                 return during
         level_before = self._published_level()
-        u = (z - self.trend.predicted_window()) / math.sqrt(self.scale2 * self.se_ref**2)
+        trend = self.trend  # its predicted window: predicted_window() without the call
+        u = (z - (trend.x0 - trend.lag * trend.x1)) / math.sqrt(self.scale2 * self.se_ref**2)
         self._history.append((u, level_before))  # the oldest beyond ramp_hops + 1 drops
         if abs(u) > self.gate:
             if split is None:
@@ -594,7 +605,8 @@ class ParameterTracker:
         """The window departs from the trend filter's prediction by more than
         :data:`SPLIT_PREGATE` calm windows' standard errors (worth scanning its splits)."""
         ref = math.sqrt(self.scale2) * self.se_ref
-        return abs(z - self.trend.predicted_window()) > SPLIT_PREGATE * ref
+        trend = self.trend  # predicted_window() without the call
+        return abs(z - (trend.x0 - trend.lag * trend.x1)) > SPLIT_PREGATE * ref
 
     def _split_update(self, split: SplitScan) -> TrackEstimate | None:
         """The change mode read from the window's samples: ``K_after`` of the most
@@ -732,14 +744,20 @@ class ParameterTracker:
         fast.lag = part.centre_s
         r = self._learn_hop_scale(part.k, part.var * se * se) * part.var * se * se
         s_f = fast.predicted_variance() + r
-        nu_f = part.k - fast.predicted_window()
+        nu_f = part.k - (fast.x0 - fast.lag * fast.x1)  # predicted_window() without the call
         nis = nu_f * nu_f / s_f
         if not self.change_hops and not self.splitting:
             slow = self.trend if self.trending else self.quiet
-            nu_s = part.k - slow.predicted_at(part.centre_s)
+            nu_s = part.k - (slow.x0 - part.centre_s * slow.x1)  # slow.predicted_at(centre)
             # both scored with the fast filter's variance: it must predict better, not claim
-            # a narrower band (the slow filters' P understates their error on a drift)
-            llr = _t_log_density(nis, s_f) - _t_log_density(nu_s * nu_s / s_f, s_f)
+            # a narrower band (the slow filters' P understates their error on a drift). The
+            # log densities of a Student t (FAST_DF degrees of freedom, scale² s_f) at the
+            # normalised squared innovations, up to a constant: −½·log s_f − ½(ν+1)·log1p(x/ν)
+            spread = -0.5 * math.log(s_f)
+            half_df = 0.5 * (FAST_DF + 1.0)
+            llr = (spread - half_df * math.log1p(nis / FAST_DF)) - (
+                spread - half_df * math.log1p(nu_s * nu_s / s_f / FAST_DF)
+            )
             llr = min(FAST_LLR_CAP, max(-FAST_LLR_CAP, llr))
             self.fast_cusum = max(0.0, self.forget * self.fast_cusum + llr)
             above = self.fast_cusum > self.switch_threshold

@@ -21,7 +21,6 @@ from functools import lru_cache
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
-from scipy import ndimage, signal
 
 from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.reflex import zero_phase_rows
@@ -43,6 +42,8 @@ def savgol_derivatives(x: FloatArray, fs_hz: float) -> tuple[FloatArray, FloatAr
     ``"interp"``) to rounding (tested to 1e-12): its filters designed once per rate, and at
     each end one cubic fitted to the first (last) 11 samples serving both derivatives.
     """
+    from scipy import ndimage, signal
+
     arr = np.asarray(x, dtype=np.float64)
     if arr.size < SAVGOL_POINTS:  # scipy's own checks and messages
         d1 = signal.savgol_filter(arr, SAVGOL_POINTS, SAVGOL_ORDER, deriv=1, delta=1 / fs_hz)
@@ -63,6 +64,8 @@ def savgol_derivatives(x: FloatArray, fs_hz: float) -> tuple[FloatArray, FloatAr
 @lru_cache(maxsize=8)
 def _savgol_taps(fs_hz: float) -> tuple[FloatArray, FloatArray]:
     """The first- and second-derivative Savitzky–Golay filters at ``fs_hz`` (read-only)."""
+    from scipy import signal
+
     taps = tuple(
         np.asarray(signal.savgol_coeffs(SAVGOL_POINTS, SAVGOL_ORDER, deriv=d, delta=1 / fs_hz))
         for d in (1, 2)
@@ -101,6 +104,8 @@ def _basis_lowpass(fs_hz: float) -> FloatArray:
     """The basis's low-pass (second-order sections) at ``fs_hz``, designed once per rate (the
     design costs about a millisecond, as much as filtering a second of data); read-only:
     scipy's filters take a writable copy."""
+    from scipy import signal
+
     sos = np.asarray(signal.butter(4, BASIS_LOWPASS_HZ, fs=fs_hz, output="sos"))
     sos.setflags(write=False)
     return sos

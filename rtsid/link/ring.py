@@ -22,6 +22,8 @@ from typing import TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
+from rtsid.ident.records import built
+
 __all__ = ["RingBuffer", "Snapshot"]
 
 _MAX_READ_ATTEMPTS = 8
@@ -76,14 +78,16 @@ class Snapshot:
         if n >= len(self):
             return self
         cut = slice(len(self) - n, None)
-        return Snapshot(
-            self.sample_index[cut],
-            self.position_rad[cut],
-            self.torque_nm[cut],
-            self.valid[cut],
-            self.status[cut],
-            self.host_time_s[cut],
-            self.bus_time_s[cut],
+        return built(  # the constructor's record without its frozen __init__ (every hop)
+            Snapshot,
+            sample_index=self.sample_index[cut],
+            position_rad=self.position_rad[cut],
+            torque_nm=self.torque_nm[cut],
+            valid=self.valid[cut],
+            status=self.status[cut],
+            host_time_s=self.host_time_s[cut],
+            bus_time_s=self.bus_time_s[cut],
+            overwritten=0,
         )
 
 

@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import signal
 
 from rtsid.errors import InputDataError
 from rtsid.ident.excitation import multisine, prbs
@@ -136,6 +135,8 @@ class _Perturbation:
     """Streaming perturbation command of one kind (state carried between blocks)."""
 
     def __init__(self, cfg: PlantConfig, command: Command, rng: np.random.Generator) -> None:
+        from scipy import signal
+
         self.fs_hz = cfg.fs_hz
         self.kind = command.kind if command.enable else "off"
         self.amplitude = command.amplitude_rad
@@ -161,6 +162,8 @@ class _Perturbation:
             self.period = one * (self.amplitude / np.max(np.abs(one)))
 
     def next(self, n: int) -> FloatArray:
+        from scipy import signal
+
         if self.kind == "off" or self.amplitude == 0:
             out = np.zeros(n)
         elif self.kind == "prbs":
@@ -227,6 +230,8 @@ class SimSource:
                 self._perturbation.gain *= command.amplitude_rad / old.amplitude_rad
 
     def _servo(self, cmd: FloatArray) -> FloatArray:
+        from scipy import signal
+
         out, self._zi = signal.lfilter(self._b, self._a, cmd, zi=self._zi)
         return np.asarray(out, dtype=float)
 
@@ -394,6 +399,8 @@ def load_recording(path: Path, fs_hz: float) -> tuple[FloatArray, FloatArray]:
     InputDataError
         The file is missing, lacks an array, or the arrays disagree.
     """
+    from scipy import signal
+
     data = read_npz(
         path,
         ("position_rad", "torque_nm", "fs_hz"),

@@ -294,6 +294,11 @@ class Daemon:
         on_status: Callable[[dict[str, Any], dict[str, Any] | None], None] | None = None,
         message_tap: Callable[[str, int, bytes], None] | None = None,
     ) -> None:
+        # scipy is imported where it is used (a replay's process starts without it); a live
+        # run imports it here, before any of its threads: the first window's plan (and the
+        # plant's filters) would otherwise pay it, ≈ 1 s of CPU, inside their deadlines
+        import scipy.signal  # noqa: F401
+
         self.config = config
         self.on_status = on_status
         self.message_tap = message_tap

@@ -38,6 +38,7 @@ from rtsid.errors import (
 )
 from rtsid.ident.check import window_sums
 from rtsid.ident.grid import first_window_end
+from rtsid.ident.records import built
 from rtsid.ident.reflex import ReflexStream
 from rtsid.ident.reflex_lane import ReflexModels, ReflexUpdate, predict_reflex_torque
 from rtsid.ident.sign import SignCount, inverted_torque_message
@@ -133,7 +134,9 @@ class WorkerCounters:
     compute_cpu_s: float = 0.0
 
 
-def assess_window(snap: Snapshot, now_s: float, max_age_s: float) -> Reason | None:
+def assess_window(
+    snap: Snapshot, now_s: float, max_age_s: float, all_valid: bool | None = None
+) -> Reason | None:
     """Why this window must not be estimated, or None when it may be.
 
     Parameters
@@ -144,6 +147,9 @@ def assess_window(snap: Snapshot, now_s: float, max_age_s: float) -> Reason | No
         ``time.monotonic()`` now.
     max_age_s : float
         Largest acceptable age of the newest sample, s.
+    all_valid : bool, optional
+        Whether every row of ``snap`` is valid, when the caller knows it already (default:
+        read from ``snap.valid``).
 
     Returns
     -------
@@ -161,9 +167,11 @@ def assess_window(snap: Snapshot, now_s: float, max_age_s: float) -> Reason | No
     if raised & _SATURATED:
         return Reason.SATURATED
     valid = snap.valid  # lost rows hold no value (a recording stores NaN there)
+    if all_valid is None:
+        all_valid = bool(np.logical_and.reduce(valid))
     position, torque = (
         (snap.position_rad, snap.torque_nm)
-        if np.logical_and.reduce(valid)
+        if all_valid
         else (
             snap.position_rad[valid],
             snap.torque_nm[valid],
@@ -186,6 +194,7 @@ class _ReflexUse:
 
 
 _NO_REFLEX = _ReflexUse(None, None, ())
+_ABSENT_REFLEX = _ReflexUse(None, None, (Flag.REFLEX_ABSENT,))
 
 
 class WindowEvaluator:
@@ -326,21 +335,25 @@ class WindowEvaluator:
         arrival = float(window.host_time_s[-1]) if self.live else None
         now = time.monotonic() if arrival is not None else math.inf
         max_age = self.config.max_sample_age_s if self.live else math.inf
-        reason = assess_window(window, now, max_age)
-        if reason is None and int(window.sample_index[-1]) in self.recorded_stale:
+        all_valid = bool(np.logical_and.reduce(window.valid))  # read once, used twice
+        reason = assess_window(window, now, max_age, all_valid)
+        first, last = int(window.sample_index[0]), int(window.sample_index[-1])
+        if reason is None and last in self.recorded_stale:
             reason = Reason.STALE  # live withheld it so; the tracker steps alike
         reflex = _NO_REFLEX
         if reason is None and self.reflex is not None:
             reflex = self._reflex_torque(snap)
         self.last_reflex = reflex
-        estimate, reason = self._estimate(window, reason, reflex.torque)
-        first, last = int(window.sample_index[0]), int(window.sample_index[-1])
+        estimate, reason = self._estimate(window, reason, reflex.torque, all_valid)
         track = self.stream.track(last / self.fs_hz, estimate)  # every evaluated window steps it
         compute_s = time.perf_counter() - started
         self._count_compute(compute_s, time.thread_time() - started_cpu)
-        if self._over_budget(compute_s):
+        overrun = self._over_budget(compute_s)
+        if overrun:
             self.misses += 1
-        message = self._message(first, last, estimate, reason, compute_s, arrival, reflex, track)
+        message = self._message(
+            first, last, estimate, reason, compute_s, arrival, reflex, track, overrun
+        )
         self.publish(message)
         return message
 
@@ -375,11 +388,13 @@ class WindowEvaluator:
         update, stale = self._due_reflex(int(snap.sample_index[-1]))
         if update is None or update.pathway is None:
             self.reflex_flagged[Flag.REFLEX_ABSENT] += 1
-            return _ReflexUse(None, None, (Flag.REFLEX_ABSENT,))
-        flags = (Flag.REFLEX_STALE,) if stale else ()
-        self.reflex_flagged.update(flags)
+            return _ABSENT_REFLEX
+        flags: tuple[Flag, ...] = ()
+        if stale:
+            flags = (Flag.REFLEX_STALE,)
+            self.reflex_flagged[Flag.REFLEX_STALE] += 1
         if not update.applied:  # the reflex pathway is not in the data: nothing to subtract
-            return _ReflexUse(update.seq, None, flags)
+            return built(_ReflexUse, seq=update.seq, torque=None, flags=flags)
         valid = None if snap.valid.all() else snap.valid
         try:
             predicted = predict_reflex_torque(
@@ -394,8 +409,9 @@ class WindowEvaluator:
             )
         except InputDataError:  # the history has too many lost samples to predict from
             self.reflex_flagged[Flag.REFLEX_ABSENT] += 1
-            return _ReflexUse(None, None, (Flag.REFLEX_ABSENT,))
-        return _ReflexUse(update.seq, self.options.torque_sign * predicted, flags)
+            return _ABSENT_REFLEX
+        torque = self.options.torque_sign * predicted
+        return built(_ReflexUse, seq=update.seq, torque=torque, flags=flags)
 
     def _due_reflex(self, end: int) -> tuple[ReflexUpdate | None, bool]:
         """The model the window uses: the schedule's, or (replaying a live run) the one live
@@ -412,7 +428,11 @@ class WindowEvaluator:
         return self.reflex.update_of(seq), stale
 
     def _estimate(
-        self, snap: Snapshot, reason: Reason | None, reflex_torque: Any = None
+        self,
+        snap: Snapshot,
+        reason: Reason | None,
+        reflex_torque: Any = None,
+        all_valid: bool | None = None,
     ) -> tuple[WindowEstimate | None, Reason | None]:
         if reason is not None:
             self.withheld[reason] += 1
@@ -424,7 +444,9 @@ class WindowEvaluator:
             torque = torque - reflex_torque
         planned = self.stream.plan is not None
         try:
-            valid = None if np.logical_and.reduce(snap.valid) else snap.valid
+            if all_valid is None:
+                all_valid = bool(np.logical_and.reduce(snap.valid))
+            valid = None if all_valid else snap.valid
             estimate = self.stream.estimate(snap.position_rad, torque, valid, reflex_torque)
         except WindowError as exc:
             self.withheld[exc.reason] += 1
@@ -458,8 +480,10 @@ class WindowEvaluator:
         last_arrival_s: float | None,
         reflex: _ReflexUse,
         track: Tracked,
+        overrun: bool | None = None,
     ) -> dict[str, Any]:
-        overrun = self._over_budget(compute_s)
+        if overrun is None:
+            overrun = self._over_budget(compute_s)
         flags = (*((Flag.OVER_BUDGET,) if overrun else ()), *reflex.flags)
         latency = None if last_arrival_s is None else (time.monotonic() - last_arrival_s) * 1e3
         seq = self._seq

@@ -16,7 +16,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import integrate, signal
 
 from rtsid.errors import InputDataError
 from rtsid.ident.filters import derivatives
@@ -118,6 +117,8 @@ def robot_servo(command: FloatArray, fs_hz: float, bandwidth_hz: float = 60.0) -
     ``bandwidth_hz``), which turns PRBS steps into the smooth trajectories real actuators
     produce.
     """
+    from scipy import signal
+
     if bandwidth_hz >= fs_hz / 2:
         raise InputDataError(
             f"servo bandwidth {bandwidth_hz} Hz must be below the Nyquist rate {fs_hz / 2} Hz"
@@ -143,6 +144,8 @@ def add_noise(
     ``band_hz`` (with ``fs_hz``) low-pass filters the noise first, so that it falls in the
     same band as the signal and cannot be removed by the estimator's own filter.
     """
+    from scipy import signal
+
     if percent < 0:
         raise InputDataError(f"noise percent must be >= 0, got {percent}")
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
@@ -236,6 +239,8 @@ def simulate_admittance(
     numpy.ndarray, shape (n,)
         Angle ``φ``, rad.
     """
+    from scipy import integrate
+
     t_eval = np.asarray(t_eval_s, dtype=float)
     inertia, damping = joint.inertia, joint.damping
 

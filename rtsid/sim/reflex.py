@@ -18,7 +18,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import signal
 
 from rtsid.errors import InputDataError
 from rtsid.ident.excitation import prbs
@@ -65,6 +64,8 @@ class StretchReflex:
     """
 
     def __init__(self, params: ReflexParameters, fs_hz: float) -> None:
+        from scipy import signal
+
         if params.corner_hz >= fs_hz / 2:
             raise InputDataError(
                 f"the reflex corner {params.corner_hz} Hz must be below the Nyquist rate "
@@ -79,6 +80,8 @@ class StretchReflex:
 
     def torque(self, velocity: FloatArray) -> FloatArray:
         """Reflex torque (N·m) for the next block of joint velocity (rad/s)."""
+        from scipy import signal
+
         stretch = np.maximum(np.asarray(velocity, dtype=float), 0.0)
         line = np.concatenate([self._pending, stretch])
         delayed, self._pending = line[: stretch.size], line[stretch.size :]
