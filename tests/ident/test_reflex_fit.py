@@ -1,0 +1,94 @@
+"""The reflex dynamics fit's own bounded solver, held to scipy's ``least_squares`` (TRF)."""
+
+import numpy as np
+import pytest
+from scipy import optimize
+
+from rtsid.ident import reflex
+from rtsid.ident.reflex import bounded_least_squares, fit_reflex_dynamics
+
+LAGS_S = np.arange(101) / 100.0
+LOW, HIGH = np.array([0.01, 0.3, 0.2]), np.array([0.2, 20.0, 3.0])
+
+
+def _rosenbrock(x):
+    return np.array([10.0 * (x[1] - x[0] ** 2), 1.0 - x[0]])
+
+
+def _rosenbrock_jacobian(x):
+    return np.array([[-20.0 * x[0], 10.0], [-1.0, 0.0]])
+
+
+def test_the_solver_finds_scipys_optimum_of_a_bounded_rosenbrock():
+    # scipy's documented example: the bound x1 >= 1.5 holds at the optimum
+    low, high = np.array([-10.0, 1.5]), np.array([10.0, 10.0])
+    want = optimize.least_squares(
+        _rosenbrock, [2.0, 2.0], jac=_rosenbrock_jacobian, bounds=(low, high)
+    )
+    x, cost = bounded_least_squares(
+        _rosenbrock, _rosenbrock_jacobian, np.array([2.0, 2.0]), low, high, np.ones(2)
+    )
+    assert x[1] == 1.5  # on the bound exactly, where TRF stays strictly inside
+    np.testing.assert_allclose(x, want.x, rtol=1e-7)
+    assert cost <= want.cost * (1 + 1e-12)
+    # the unbounded parameter is at its optimum along the bound: zero slope
+    r, j = _rosenbrock(x), _rosenbrock_jacobian(x)
+    assert abs((j.T @ r)[0]) < 1e-8
+
+
+def test_a_start_outside_the_box_is_clipped_into_it():
+    x, _ = bounded_least_squares(
+        _rosenbrock,
+        _rosenbrock_jacobian,
+        np.array([-30.0, 40.0]),
+        np.array([-2.0, -2.0]),
+        np.array([2.0, 2.0]),
+        np.ones(2),
+    )
+    np.testing.assert_allclose(x, [1.0, 1.0], rtol=1e-8)
+
+
+def _noisy_irf(seed, delay_s, corner_hz, zeta, noise):
+    g = 10.0 * reflex._low_pass_response(LAGS_S - delay_s, 2 * np.pi * corner_hz, zeta)
+    return g + noise * np.random.default_rng(seed).standard_normal(g.size)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize(
+    ("seed", "delay_s", "corner_hz", "zeta", "noise", "same_point"),
+    [
+        (0, 0.043, 3.1, 0.7, 0.5, True),
+        (1, 0.021, 6.0, 1.3, 1.0, True),
+        (2, 0.052, 2.2, 0.5, 2.0, True),
+        # hardly a low-pass: a flat valley, where TRF stops early
+        (3, 0.04, 3.0, 0.7, 30.0, False),
+        # the delay and corner end at their bounds, which TRF only approaches from inside
+        # (its ζ then stops 3e-5 short of the optimum along them)
+        (4, 0.0, 19.0, 0.7, 0.2, False),
+    ],
+)
+def test_the_dynamics_fit_is_no_worse_than_scipys_trf_from_the_same_start(
+    seed, delay_s, corner_hz, zeta, noise, same_point, compiled, monkeypatch
+):
+    if not compiled:
+        monkeypatch.setattr(reflex, "_eureka", None)
+    g = _noisy_irf(seed, delay_s, corner_hz, zeta, noise)
+    model = reflex._DelayedLowPass(g, LAGS_S)
+    start = np.array(reflex._best_on_grid(g, 100.0))
+    trf = optimize.least_squares(  # the fit's solver before it had its own
+        model.residual,
+        start,
+        jac=model.jacobian,
+        bounds=(LOW, HIGH),
+        x_scale=[0.01, 1.0, 0.3],
+    )
+    x, cost = bounded_least_squares(
+        model.residual, model.jacobian, start, LOW, HIGH, reflex.DYNAMICS_SCALE
+    )
+    assert np.all((x >= LOW) & (x <= HIGH))
+    assert cost <= trf.cost * (1 + 1e-9)
+    assert cost == pytest.approx(0.5 * float(model.residual(x) @ model.residual(x)), rel=1e-15)
+    if same_point:  # a well-defined optimum inside the box
+        np.testing.assert_allclose(x, trf.x, rtol=1e-6, atol=1e-12)
+    found = fit_reflex_dynamics(g, 100.0)
+    np.testing.assert_array_equal([found.delay_s, found.corner_hz, found.damping_ratio], x)
