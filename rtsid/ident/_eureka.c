@@ -1727,6 +1727,7 @@ static PyObject *py_window_sums(PyObject *self, PyObject *args)
 static PyObject *py_evidence_gains(PyObject *self, PyObject *args);
 static PyObject *py_sos_filtfilt_rows(PyObject *self, PyObject *args);
 static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args);
+static PyObject *py_zero_phase_rows(PyObject *self, PyObject *args);
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1763,6 +1764,7 @@ static PyMethodDef methods[] = {
     {"evidence_gains", py_evidence_gains, METH_VARARGS, "evidence_gains(torque, regressors, extra, starts, n, out): slow-lane evidence windows' VAF gains."},
     {"sos_filtfilt_rows", py_sos_filtfilt_rows, METH_VARARGS, "sos_filtfilt_rows(sos, zi, x, n): sos_filtfilt on each row of n samples of x, in place."},
     {"low_pass_slopes", py_low_pass_slopes, METH_VARARGS, "low_pass_slopes(t, wn, zeta, h, slopes): the reflex dynamics' low-pass and its derivatives."},
+    {"zero_phase_rows", py_zero_phase_rows, METH_VARARGS, "zero_phase_rows(sos, zi, x, n, edge, factor, out): scipy's sosfiltfilt of each row, every factor-th sample into out."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -2253,5 +2255,113 @@ static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args)
         result = Py_None;
     }
     release_buffers(b, 3);
+    return result;
+}
+
+/* ------------------------------------------------------------------ slow lane's fits, third pass
+ * (branch fits3, issue 22)
+ *
+ * zero_phase_rows(sos, zi, x, n, edge, factor, out): scipy's sosfiltfilt (default padding:
+ * odd extension by edge samples at each end, steady-state initial conditions zi times the
+ * first sample of each pass, direct form II transposed sections) of each row of x (rows of n
+ * samples), every factor-th sample of the result written to out (rows of ceil(n / factor)):
+ * rtsid.ident.reflex.decimated (factor > 1) and zero_phase_rows (factor 1) of several rows
+ * in one call. Each row's numbers are scipy's bit for bit: the operations of sos_run_exact
+ * in its order, on two rows at once (one in each lane of a two-double vector: lane by lane,
+ * the same IEEE operations as the scalar code; an odd row shares a vector with itself).
+ * The extension is built in an interleaved scratch buffer, so no array is copied in Python.
+ * O(rows·(n + 2·edge)·sections).
+ */
+typedef double pair_t __attribute__((vector_size(16)));
+
+/* The two rows' forward and backward passes over the interleaved extension buf (m pairs). */
+static inline void pair_filtfilt(const double *sos, const double *zi, const int ns, pair_t *buf,
+                                 Py_ssize_t m)
+{
+    pair_t c[16][6], st[16][2];
+    for (int s = 0; s < ns; s++)
+        for (int k = 0; k < 6; k++) c[s][k] = (pair_t){sos[6 * s + k], sos[6 * s + k]};
+    for (int backwards = 0; backwards < 2; backwards++) {
+        const pair_t first = backwards ? buf[m - 1] : buf[0];
+        for (int s = 0; s < ns; s++) {
+            st[s][0] = (pair_t){zi[2 * s], zi[2 * s]} * first;
+            st[s][1] = (pair_t){zi[2 * s + 1], zi[2 * s + 1]} * first;
+        }
+        const Py_ssize_t step = backwards ? -1 : 1;
+        pair_t *p = backwards ? buf + m - 1 : buf;
+        for (Py_ssize_t i = 0; i < m; i++, p += step) {
+            pair_t cur = *p;
+            for (int s = 0; s < ns; s++) {
+                const pair_t out = c[s][0] * cur + st[s][0];
+                st[s][0] = c[s][1] * cur - c[s][4] * out + st[s][1];
+                st[s][1] = c[s][2] * cur - c[s][5] * out;
+                cur = out;
+            }
+            *p = cur;
+        }
+    }
+}
+
+/* pair_filtfilt with the section count known to the compiler (the decimator's four, the
+ * window VAF basis's two), so that the sections' loop unrolls and their states stay in
+ * registers. */
+static void pair_filtfilt_any(const double *sos, const double *zi, int ns, pair_t *buf,
+                              Py_ssize_t m)
+{
+    if (ns == 4)
+        pair_filtfilt(sos, zi, 4, buf, m);
+    else if (ns == 2)
+        pair_filtfilt(sos, zi, 2, buf, m);
+    else
+        pair_filtfilt(sos, zi, ns, buf, m);
+}
+
+/* scipy's odd extension of rows a and b (n samples each) into buf, interleaved. */
+static void pair_extend(const double *a, const double *b, Py_ssize_t n, Py_ssize_t e, pair_t *buf)
+{
+    const pair_t first = {2.0 * a[0], 2.0 * b[0]}, last = {2.0 * a[n - 1], 2.0 * b[n - 1]};
+    for (Py_ssize_t j = 0; j < e; j++) buf[j] = first - (pair_t){a[e - j], b[e - j]};
+    for (Py_ssize_t i = 0; i < n; i++) buf[e + i] = (pair_t){a[i], b[i]};
+    for (Py_ssize_t j = 0; j < e; j++) buf[e + n + j] = last - (pair_t){a[n - 2 - j], b[n - 2 - j]};
+}
+
+static PyObject *py_zero_phase_rows(PyObject *self, PyObject *args)
+{
+    PyObject *objs[4];
+    Py_ssize_t n, edge, factor;
+    if (!PyArg_ParseTuple(args, "OOOnnnO", &objs[0], &objs[1], &objs[2], &n, &edge, &factor,
+                          &objs[3]))
+        return NULL;
+    const char *names[4] = {"sos", "zi", "x", "out"};
+    Py_buffer b[4];
+    if (get_buffers(objs, 4, 3, names, b) < 0) return NULL;
+    const Py_ssize_t ns = b[0].len / 48, rows = n > 0 ? b[2].len / 8 / n : 0;
+    const Py_ssize_t kept = factor > 0 ? (n + factor - 1) / factor : 0;
+    PyObject *result = NULL;
+    pair_t *buf = NULL;
+    if (ns < 1 || ns > 16 || b[0].len != 48 * ns || b[1].len != 16 * ns || n < 2 ||
+        edge < 1 || edge >= n || factor < 1 || b[2].len != 8 * n * rows ||
+        b[3].len != 8 * kept * rows) {
+        PyErr_SetString(PyExc_ValueError, "zero_phase_rows: inconsistent sizes");
+    } else if ((buf = PyMem_Malloc(sizeof(pair_t) * (size_t)(n + 2 * edge))) == NULL) {
+        PyErr_NoMemory();
+    } else {
+        const double *x = b[2].buf;
+        double *out = b[3].buf;
+        for (Py_ssize_t r = 0; r < rows; r += 2) {
+            const Py_ssize_t r2 = r + 1 < rows ? r + 1 : r; /* an odd last row: itself twice */
+            pair_extend(x + r * n, x + r2 * n, n, edge, buf);
+            pair_filtfilt_any(b[0].buf, b[1].buf, (int)ns, buf, n + 2 * edge);
+            for (Py_ssize_t k = 0; k < kept; k++) {
+                const pair_t v = buf[edge + k * factor];
+                out[r * kept + k] = v[0];
+                out[r2 * kept + k] = v[1];
+            }
+        }
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+    PyMem_Free(buf);
+    release_buffers(b, 4);
     return result;
 }

@@ -33,7 +33,7 @@ real record the fit ends at the lower bound at every model rate tried (10.0 ms a
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property, lru_cache
 
@@ -43,7 +43,7 @@ from scipy import signal
 
 from rtsid.errors import InputDataError
 from rtsid.ident.correlation import auto_correlation, cross_correlation, detrend
-from rtsid.ident.filters import derivatives, stencil_derivatives
+from rtsid.ident.filters import stencil_derivatives, stencil_velocity
 from rtsid.ident.levinson import compiled_kernel, eureka
 
 __all__ = [
@@ -56,6 +56,7 @@ __all__ = [
     "bounded_least_squares",
     "convolve_causal",
     "decimated",
+    "decimated_rows",
     "delay_search_s",
     "fit_reflex_dynamics",
     "fit_reflex_pathway",
@@ -131,19 +132,23 @@ def zero_phase(sos: FloatArray, x: FloatArray) -> FloatArray:
 
 def zero_phase_rows(sos: FloatArray, rows: FloatArray) -> FloatArray:
     """:func:`zero_phase` of each row of ``rows`` (shape (k, n)): the same numbers bit for
-    bit, the compiled kernel running four rows at once when built."""
+    bit, by the compiled kernel's ``zero_phase_rows`` (two rows at once) when built."""
     sos = np.ascontiguousarray(sos, dtype=np.float64)
-    d = _zero_phase_setup(sos.tobytes(), len(sos))
-    x = np.asarray(rows, dtype=np.float64)
-    if _eureka is None or x.shape[1] <= d.edge:
-        return np.vstack([_filtfilt(d, row) for row in x])
-    e = d.edge
-    ext = np.empty((x.shape[0], x.shape[1] + 2 * e))  # scipy's odd extension of each row
-    ext[:, :e] = 2 * x[:, :1] - x[:, e:0:-1]
-    ext[:, e:-e] = x
-    ext[:, -e:] = 2 * x[:, -1:] - x[:, -2 : -e - 2 : -1]
-    _eureka.sos_filtfilt_rows(d.sos, d.zi, ext, ext.shape[1])
-    return np.ascontiguousarray(ext[:, e:-e])
+    return _zero_phase_rows(_zero_phase_setup(sos.tobytes(), len(sos)), rows, 1)
+
+
+def _zero_phase_rows(d: _Decimator, rows: ArrayLike, factor: int) -> FloatArray:
+    """``_filtfilt(d, row)[::factor]`` of each row (shape (k, n) → (k, ⌈n/factor⌉)), in one
+    call of the compiled ``zero_phase_rows`` when built and the rows are longer than the
+    padding (its odd extension built there: no copy of the rows here); each row alone
+    through :func:`_filtfilt` otherwise (the reference: the same numbers bit for bit)."""
+    x = np.ascontiguousarray(rows, dtype=np.float64)
+    n = x.shape[1]
+    if _eureka is None or n <= d.edge:
+        return np.vstack([_filtfilt(d, row)[::factor] for row in x])
+    out = np.empty((x.shape[0], -(-n // factor)))
+    _eureka.zero_phase_rows(d.sos, d.zi, x, n, d.edge, factor, out)
+    return out
 
 
 def _filtfilt(d: _Decimator, x: FloatArray) -> FloatArray:
@@ -177,11 +182,31 @@ def decimated(x: FloatArray, factor: int) -> FloatArray:
     )
 
 
+def decimated_rows(rows: Sequence[FloatArray], factor: int) -> FloatArray:
+    """:func:`decimated` of each of ``rows`` (equal lengths ``n``), shape
+    (k, ⌈n/factor⌉): the same numbers bit for bit, all rows in one call of the compiled
+    kernel when built (a cascade decimates its position, torque and rectified velocity
+    together)."""
+    x = np.vstack(rows).astype(np.float64, copy=False)
+    if factor == 1:
+        return x
+    return _zero_phase_rows(_decimator(factor), x, factor)
+
+
 def stretch_velocity(position: FloatArray, fs_hz: float) -> FloatArray:
     """Joint velocity at the data's own rate (rad/s), the input of the reflex nonlinearity:
     the muscle spindle sees the velocity before any decimation, so the rectifier (or
     polynomial) acts at the full rate and its output is decimated afterwards."""
-    velocity, _ = derivatives(detrend(position, "linear"), fs_hz)
+    x = detrend(position, "linear")
+    if x.size < 9:
+        raise InputDataError(f"derivatives need at least 9 samples, got {x.size}")
+    # filters.derivatives' first derivative (its second is not needed): the 9-point stencil,
+    # and numpy.gradient's estimates at the four samples of each end (from those samples
+    # alone: the same numbers as over the whole record)
+    velocity = np.empty(x.size)
+    velocity[4:-4] = stencil_velocity(x, fs_hz)
+    velocity[:4] = np.gradient(x[:5], 1.0 / fs_hz, edge_order=2)[:4]
+    velocity[-4:] = np.gradient(x[-5:], 1.0 / fs_hz, edge_order=2)[-4:]
     return velocity
 
 
@@ -785,13 +810,14 @@ class ReflexPathway:
         return factor
 
 
-def to_data_rate(low: FloatArray, factor: int, n: int) -> FloatArray:
-    """A prediction on the model's samples (every ``factor``-th data sample) on the ``n``
-    samples of the data: linear interpolation between the model's samples (the reflex torque
-    is smooth at 100 Hz), held after the last one; ``low`` itself when ``factor`` is 1."""
+def to_data_rate(low: FloatArray, factor: int, n: int, first: int = 0) -> FloatArray:
+    """A prediction on the model's samples (every ``factor``-th data sample) on the samples
+    ``first … n − 1`` of the data: linear interpolation between the model's samples (the
+    reflex torque is smooth at 100 Hz), held after the last one; ``low[first:]`` when
+    ``factor`` is 1. Each sample's value does not depend on ``first``."""
     if factor == 1:
-        return low
-    return np.interp(np.arange(n), np.arange(low.size) * factor, low)
+        return low[first:]
+    return np.interp(np.arange(first, n), np.arange(low.size) * factor, low)
 
 
 # ----------------------------------------------------------------------------- the stream
@@ -1116,17 +1142,49 @@ class ReflexInputs:
     record, reused by every alternation of the cascade)."""
 
     def __init__(self, position: FloatArray, fs_hz: float, factor: int, variant: str) -> None:
-        velocity = stretch_velocity(position, fs_hz)
+        self._of_velocity(stretch_velocity(position, fs_hz), factor, variant, ())
+
+    @classmethod
+    def decimating(
+        cls,
+        position: FloatArray,
+        others: Sequence[FloatArray],
+        fs_hz: float,
+        factor: int,
+        variant: str,
+    ) -> tuple[ReflexInputs, FloatArray]:
+        """The inputs of ``position``'s record, and ``others`` (records of the same length,
+        e.g. its position and torque) by :func:`decimated`, all rows in one
+        :func:`decimated_rows`: the same numbers as decimating each alone.
+
+        Returns
+        -------
+        (ReflexInputs, numpy.ndarray)
+            The inputs, and ``others`` decimated, shape (len(others), m).
+        """
+        inputs = cls.__new__(cls)
+        decimated_others = inputs._of_velocity(
+            stretch_velocity(position, fs_hz), factor, variant, others
+        )
+        return inputs, decimated_others
+
+    def _of_velocity(
+        self, velocity: FloatArray, factor: int, variant: str, others: Sequence[FloatArray]
+    ) -> FloatArray:
+        """Set the inputs from the stretch velocity; ``others`` decimated with the rectified
+        velocity (returned)."""
         self.factor = factor
         self.variant = variant
         self.scale = float(np.sqrt(np.mean(velocity**2))) or 1.0
-        self.rectified = _at_model_rate(np.maximum(velocity, 0.0), factor)
+        rows = decimated_rows([*others, np.maximum(velocity, 0.0)], factor)
+        self.rectified = detrend(rows[-1], "mean")
         self.powers = (
             [_at_model_rate(p, factor) for p in _powers(velocity, self.scale, POLYNOMIAL_DEGREE)]
             if variant == "hammerstein"
             else []
         )
         self._systems: dict[int, ToeplitzSystem] = {}
+        return rows[:-1]
 
     def rectified_system(self, lags: int) -> ToeplitzSystem:
         """The rectified input's Toeplitz system for ``lags`` (formed on first use, then

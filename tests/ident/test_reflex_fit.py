@@ -92,3 +92,89 @@ def test_the_dynamics_fit_is_no_worse_than_scipys_trf_from_the_same_start(
         np.testing.assert_allclose(x, trf.x, rtol=1e-6, atol=1e-12)
     found = fit_reflex_dynamics(g, 100.0)
     np.testing.assert_array_equal([found.delay_s, found.corner_hz, found.damping_ratio], x)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize(("rows", "n", "factor"), [(3, 20_000, 25), (1, 5_001, 10), (4, 600, 2)])
+def test_rows_decimated_together_are_scipys_decimate_of_each_bit_for_bit(
+    rows, n, factor, compiled, monkeypatch
+):
+    from scipy import signal
+
+    if not compiled:
+        monkeypatch.setattr(reflex, "_eureka", None)
+    x = np.random.default_rng(n).standard_normal((rows, n)).cumsum(axis=1)
+    got = reflex.decimated_rows(list(x), factor)
+    np.testing.assert_array_equal(got, np.vstack([signal.decimate(r, factor) for r in x]))
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize(("rows", "n"), [(4, 7_000), (3, 2_500), (1, 40)])
+def test_zero_phase_rows_is_scipys_sosfiltfilt_of_each_row_bit_for_bit(
+    rows, n, compiled, monkeypatch
+):
+    from scipy import signal
+
+    if not compiled:
+        monkeypatch.setattr(reflex, "_eureka", None)
+    x = np.random.default_rng(rows).standard_normal((rows, n)).cumsum(axis=1)
+    for sos in (signal.butter(4, 40.0, fs=2500.0, output="sos"), reflex._decimator(10).sos):
+        want = np.vstack([signal.sosfiltfilt(sos, r) for r in x])
+        np.testing.assert_array_equal(reflex.zero_phase_rows(sos, x), want)
+
+
+def test_the_compiled_rows_kernel_names_inconsistent_sizes():
+    if reflex._eureka is None:
+        pytest.skip("the compiled kernel is not built")
+    d = reflex._decimator(10)
+    x = np.zeros((2, 100))
+    with pytest.raises(ValueError, match="zero_phase_rows: inconsistent sizes"):
+        reflex._eureka.zero_phase_rows(d.sos, d.zi, x, 100, d.edge, 10, np.empty((2, 9)))
+
+
+def test_a_cascades_inputs_decimated_with_its_record_are_those_formed_alone():
+    x = np.random.default_rng(5).standard_normal((2, 10_000)).cumsum(axis=1) * 1e-3
+    inputs, (u, y) = reflex.ReflexInputs.decimating(x[0], (x[0], x[1]), 2500.0, 25, "rect")
+    alone = reflex.ReflexInputs(x[0], 2500.0, 25, "rect")
+    np.testing.assert_array_equal(inputs.rectified, alone.rectified)
+    assert inputs.scale == alone.scale
+    np.testing.assert_array_equal(u, reflex.decimated(x[0], 25))
+    np.testing.assert_array_equal(y, reflex.decimated(x[1], 25))
+
+
+def test_the_stretch_velocity_is_the_window_paths_first_derivative():
+    from rtsid.ident.correlation import detrend
+    from rtsid.ident.filters import derivatives
+
+    for n in (9, 12, 5_000):
+        x = np.random.default_rng(n).standard_normal(n).cumsum()
+        want, _ = derivatives(detrend(x, "linear"), 2500.0)
+        np.testing.assert_array_equal(reflex.stretch_velocity(x, 2500.0), want)
+    with pytest.raises(reflex.InputDataError, match="at least 9 samples"):
+        reflex.stretch_velocity(np.zeros(8), 2500.0)
+
+
+def test_a_prediction_at_the_data_rate_from_a_sample_on_is_the_same_numbers():
+    low = np.random.default_rng(2).standard_normal(200)
+    whole = reflex.to_data_rate(low, 10, 2_000)
+    np.testing.assert_array_equal(reflex.to_data_rate(low, 10, 2_000, 777), whole[777:])
+    np.testing.assert_array_equal(reflex.to_data_rate(low, 1, 200, 50), low[50:])
+
+
+def test_the_evidence_reads_the_reflex_prediction_from_its_lead_on_only():
+    from rtsid.ident.cascade import fit_parallel_cascade
+    from rtsid.ident.reflex_lane import evidence_lead, window_vaf_gains
+    from tests.ident.test_cascade import FS, joint_with_reflex
+
+    theta, torque = joint_with_reflex(seconds=14.0, seed=3)
+    fit = fit_parallel_cascade(theta, torque, FS)
+    first = round(fit.reflex.history_s * FS)
+    whole = fit.record_reflex_torque(theta, FS)
+    lead = evidence_lead(theta.size, FS, first)
+    assert 0 < lead < theta.size
+    tail = fit.record_reflex_torque(theta, FS, lead)
+    np.testing.assert_array_equal(tail, whole[lead:])
+    padded = np.zeros(theta.size)
+    padded[lead:] = tail
+    want = window_vaf_gains(theta, torque, whole, FS, first)
+    np.testing.assert_array_equal(window_vaf_gains(theta, torque, padded, FS, first), want)
