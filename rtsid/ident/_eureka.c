@@ -2267,32 +2267,40 @@ static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args)
  * samples), every factor-th sample of the result written to out (rows of ceil(n / factor)):
  * rtsid.ident.reflex.decimated (factor > 1) and zero_phase_rows (factor 1) of several rows
  * in one call. Each row's numbers are scipy's bit for bit: the operations of sos_run_exact
- * in its order, on two rows at once (one in each lane of a two-double vector: lane by lane,
- * the same IEEE operations as the scalar code; an odd row shares a vector with itself).
- * The extension is built in an interleaved scratch buffer, so no array is copied in Python.
+ * in its order, on four rows at once (one in each lane of a four-double vector: lane by lane
+ * the same IEEE operations as the scalar code, and no fused multiply-add: the AVX2 clone
+ * enables neither FMA nor contraction; missing rows of a last group repeat its last row).
+ * The extension is built in an interleaved buffer, so no array is copied in Python.
  * O(rows·(n + 2·edge)·sections).
  */
-typedef double pair_t __attribute__((vector_size(16)));
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
+#define LANES_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define LANES_CLONES
+#endif
+#define LANES 4
+typedef double lanes_t __attribute__((vector_size(8 * LANES)));
 
-/* The two rows' forward and backward passes over the interleaved extension buf (m pairs). */
-static inline void pair_filtfilt(const double *sos, const double *zi, const int ns, pair_t *buf,
-                                 Py_ssize_t m)
+/* The rows' forward and backward passes over the interleaved extension buf (m samples). */
+static inline __attribute__((always_inline)) void lanes_filtfilt(const double *sos,
+                                                                 const double *zi, const int ns,
+                                  lanes_t *buf, Py_ssize_t m)
 {
-    pair_t c[16][6], st[16][2];
+    lanes_t c[16][6], st[16][2];
     for (int s = 0; s < ns; s++)
-        for (int k = 0; k < 6; k++) c[s][k] = (pair_t){sos[6 * s + k], sos[6 * s + k]};
+        for (int k = 0; k < 6; k++) c[s][k] = (lanes_t){0} + sos[6 * s + k];
     for (int backwards = 0; backwards < 2; backwards++) {
-        const pair_t first = backwards ? buf[m - 1] : buf[0];
+        const lanes_t first = backwards ? buf[m - 1] : buf[0];
         for (int s = 0; s < ns; s++) {
-            st[s][0] = (pair_t){zi[2 * s], zi[2 * s]} * first;
-            st[s][1] = (pair_t){zi[2 * s + 1], zi[2 * s + 1]} * first;
+            st[s][0] = ((lanes_t){0} + zi[2 * s]) * first;
+            st[s][1] = ((lanes_t){0} + zi[2 * s + 1]) * first;
         }
         const Py_ssize_t step = backwards ? -1 : 1;
-        pair_t *p = backwards ? buf + m - 1 : buf;
+        lanes_t *p = backwards ? buf + m - 1 : buf;
         for (Py_ssize_t i = 0; i < m; i++, p += step) {
-            pair_t cur = *p;
+            lanes_t cur = *p;
             for (int s = 0; s < ns; s++) {
-                const pair_t out = c[s][0] * cur + st[s][0];
+                const lanes_t out = c[s][0] * cur + st[s][0];
                 st[s][0] = c[s][1] * cur - c[s][4] * out + st[s][1];
                 st[s][1] = c[s][2] * cur - c[s][5] * out;
                 cur = out;
@@ -2302,27 +2310,32 @@ static inline void pair_filtfilt(const double *sos, const double *zi, const int 
     }
 }
 
-/* pair_filtfilt with the section count known to the compiler (the decimator's four, the
+/* lanes_filtfilt with the section count known to the compiler (the decimator's four, the
  * window VAF basis's two), so that the sections' loop unrolls and their states stay in
- * registers. */
-static void pair_filtfilt_any(const double *sos, const double *zi, int ns, pair_t *buf,
-                              Py_ssize_t m)
+ * registers; an AVX2 clone where the processor has it (the same numbers). */
+LANES_CLONES static void lanes_filtfilt_any(const double *sos, const double *zi, int ns,
+                                            lanes_t *buf, Py_ssize_t m)
 {
     if (ns == 4)
-        pair_filtfilt(sos, zi, 4, buf, m);
+        lanes_filtfilt(sos, zi, 4, buf, m);
     else if (ns == 2)
-        pair_filtfilt(sos, zi, 2, buf, m);
+        lanes_filtfilt(sos, zi, 2, buf, m);
     else
-        pair_filtfilt(sos, zi, ns, buf, m);
+        lanes_filtfilt(sos, zi, ns, buf, m);
 }
 
-/* scipy's odd extension of rows a and b (n samples each) into buf, interleaved. */
-static void pair_extend(const double *a, const double *b, Py_ssize_t n, Py_ssize_t e, pair_t *buf)
+/* scipy's odd extension of the rows row[0..LANES-1] (n samples each) into buf, interleaved:
+ * 2·x[0] − x[edge − j] before, x, then 2·x[n−1] − x[n−2−j] after. */
+static void lanes_extend(const double *const *row, Py_ssize_t n, Py_ssize_t e, lanes_t *buf)
 {
-    const pair_t first = {2.0 * a[0], 2.0 * b[0]}, last = {2.0 * a[n - 1], 2.0 * b[n - 1]};
-    for (Py_ssize_t j = 0; j < e; j++) buf[j] = first - (pair_t){a[e - j], b[e - j]};
-    for (Py_ssize_t i = 0; i < n; i++) buf[e + i] = (pair_t){a[i], b[i]};
-    for (Py_ssize_t j = 0; j < e; j++) buf[e + n + j] = last - (pair_t){a[n - 2 - j], b[n - 2 - j]};
+    for (int q = 0; q < LANES; q++) {
+        const double *x = row[q];
+        double *lane = (double *)buf + q;
+        const double first = 2.0 * x[0], last = 2.0 * x[n - 1];
+        for (Py_ssize_t j = 0; j < e; j++) lane[LANES * j] = first - x[e - j];
+        for (Py_ssize_t i = 0; i < n; i++) lane[LANES * (e + i)] = x[i];
+        for (Py_ssize_t j = 0; j < e; j++) lane[LANES * (e + n + j)] = last - x[n - 2 - j];
+    }
 }
 
 static PyObject *py_zero_phase_rows(PyObject *self, PyObject *args)
@@ -2338,30 +2351,37 @@ static PyObject *py_zero_phase_rows(PyObject *self, PyObject *args)
     const Py_ssize_t ns = b[0].len / 48, rows = n > 0 ? b[2].len / 8 / n : 0;
     const Py_ssize_t kept = factor > 0 ? (n + factor - 1) / factor : 0;
     PyObject *result = NULL;
-    pair_t *buf = NULL;
+    lanes_t *buf = NULL;
     if (ns < 1 || ns > 16 || b[0].len != 48 * ns || b[1].len != 16 * ns || n < 2 ||
-        edge < 1 || edge >= n || factor < 1 || b[2].len != 8 * n * rows ||
+        edge < 1 || edge >= n || factor < 1 || rows < 1 || b[2].len != 8 * n * rows ||
         b[3].len != 8 * kept * rows) {
         PyErr_SetString(PyExc_ValueError, "zero_phase_rows: inconsistent sizes");
-    } else if ((buf = PyMem_Malloc(sizeof(pair_t) * (size_t)(n + 2 * edge))) == NULL) {
+    } else if ((buf = aligned_alloc(sizeof(lanes_t), sizeof(lanes_t) * (size_t)(n + 2 * edge))) ==
+               NULL) {
         PyErr_NoMemory();
     } else {
         const double *x = b[2].buf;
         double *out = b[3].buf;
-        for (Py_ssize_t r = 0; r < rows; r += 2) {
-            const Py_ssize_t r2 = r + 1 < rows ? r + 1 : r; /* an odd last row: itself twice */
-            pair_extend(x + r * n, x + r2 * n, n, edge, buf);
-            pair_filtfilt_any(b[0].buf, b[1].buf, (int)ns, buf, n + 2 * edge);
+        for (Py_ssize_t r = 0; r < rows; r += LANES) {
+            const double *row[LANES];
+            Py_ssize_t at[LANES];
+            for (int q = 0; q < LANES; q++) {
+                at[q] = r + q < rows ? r + q : rows - 1; /* a short last group: its last row */
+                row[q] = x + at[q] * n;
+            }
+            lanes_extend(row, n, edge, buf);
+            lanes_filtfilt_any(b[0].buf, b[1].buf, (int)ns, buf, n + 2 * edge);
             for (Py_ssize_t k = 0; k < kept; k++) {
-                const pair_t v = buf[edge + k * factor];
-                out[r * kept + k] = v[0];
-                out[r2 * kept + k] = v[1];
+                const lanes_t v = buf[edge + k * factor];
+                for (int q = 0; q < LANES; q++) out[at[q] * kept + k] = v[q];
             }
         }
         Py_INCREF(Py_None);
         result = Py_None;
     }
-    PyMem_Free(buf);
+    free(buf);
     release_buffers(b, 4);
     return result;
 }
+#undef LANES
+#undef LANES_CLONES
