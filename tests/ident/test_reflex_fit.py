@@ -178,3 +178,34 @@ def test_the_evidence_reads_the_reflex_prediction_from_its_lead_on_only():
     padded[lead:] = tail
     want = window_vaf_gains(theta, torque, whole, FS, first)
     np.testing.assert_array_equal(window_vaf_gains(theta, torque, padded, FS, first), want)
+
+
+@pytest.mark.parametrize("n", [11, 12, 40, 27_500])
+def test_the_savitzky_golay_derivatives_are_the_same_compiled_or_not(n, monkeypatch):
+    from rtsid.ident import yardstick
+
+    x = np.random.default_rng(n).standard_normal(n).cumsum()
+    compiled = yardstick.savgol_derivatives(x, 2500.0)
+    monkeypatch.setattr(yardstick, "_eureka", None)
+    reference = yardstick.savgol_derivatives(x, 2500.0)
+    for got, want in zip(compiled, reference, strict=True):
+        np.testing.assert_array_equal(got, want)
+
+
+def test_the_compiled_convolution_is_ndimages_for_any_taps():
+    from scipy import ndimage
+
+    if reflex._eureka is None:
+        pytest.skip("the compiled kernel is not built")
+    rng = np.random.default_rng(4)
+    x = rng.standard_normal(3_000).cumsum()
+    general = rng.standard_normal(7)
+    symmetric = np.concatenate((general[:3], general[3:4], general[:3][::-1]))
+    antisymmetric = np.concatenate((general[:3], [0.0], -general[:3][::-1]))
+    for a, b in ((symmetric, antisymmetric), (general, general[::-1].copy())):
+        d1, d2 = np.empty(x.size), np.empty(x.size)
+        reflex._eureka.savgol_pair(x, a, b, d1, d2)
+        np.testing.assert_array_equal(d1, ndimage.convolve1d(x, a, mode="constant"))
+        np.testing.assert_array_equal(d2, ndimage.convolve1d(x, b, mode="constant"))
+    with pytest.raises(ValueError, match="savgol_pair: inconsistent sizes"):
+        reflex._eureka.savgol_pair(x, np.ones(4), np.ones(4), d1, d2)
