@@ -1765,7 +1765,7 @@ static PyMethodDef methods[] = {
     {"evidence_gains", py_evidence_gains, METH_VARARGS, "evidence_gains(torque, regressors, extra, starts, n, out): slow-lane evidence windows' VAF gains."},
     {"sos_filtfilt_rows", py_sos_filtfilt_rows, METH_VARARGS, "sos_filtfilt_rows(sos, zi, x, n): sos_filtfilt on each row of n samples of x, in place."},
     {"low_pass_slopes", py_low_pass_slopes, METH_VARARGS, "low_pass_slopes(t, wn, zeta, h, slopes): the reflex dynamics' low-pass and its derivatives."},
-    {"zero_phase_rows", py_zero_phase_rows, METH_VARARGS, "zero_phase_rows(sos, zi, x, n, edge, factor, out): scipy's sosfiltfilt of each row, every factor-th sample into out."},
+    {"zero_phase_rows", py_zero_phase_rows, METH_VARARGS, "zero_phase_rows(sos, zi, rows, n, edge, factor, out): scipy's sosfiltfilt of each row, every factor-th sample into out."},
     {"savgol_pair", py_savgol_pair, METH_VARARGS, "savgol_pair(x, taps1, taps2, d1, d2): ndimage.convolve1d(x, taps, mode='constant') of two filters."},
     {NULL, NULL, 0, NULL},
 };
@@ -2263,10 +2263,10 @@ static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args)
 /* ------------------------------------------------------------------ slow lane's fits, third pass
  * (branch fits3, issue 22)
  *
- * zero_phase_rows(sos, zi, x, n, edge, factor, out): scipy's sosfiltfilt (default padding:
+ * zero_phase_rows(sos, zi, rows, n, edge, factor, out): scipy's sosfiltfilt (default padding:
  * odd extension by edge samples at each end, steady-state initial conditions zi times the
- * first sample of each pass, direct form II transposed sections) of each row of x (rows of n
- * samples), every factor-th sample of the result written to out (rows of ceil(n / factor)):
+ * first sample of each pass, direct form II transposed sections) of each of rows (a sequence
+ * of contiguous float64 arrays of n samples: no stacking copy), every factor-th sample of the result written to out (rows of ceil(n / factor)):
  * rtsid.ident.reflex.decimated (factor > 1) and zero_phase_rows (factor 1) of several rows
  * in one call. Each row's numbers are scipy's bit for bit: the operations of sos_run_exact
  * in its order, on four rows at once (one in each lane of a four-double vector: lane by lane
@@ -2340,36 +2340,61 @@ static void lanes_extend(const double *const *row, Py_ssize_t n, Py_ssize_t e, l
     }
 }
 
+/* The rows of a sequence of float64 arrays of n samples each: their buffers (rows[r].buf),
+ * or NULL with an error set (a row not a contiguous float64 array of n samples). */
+static Py_buffer *row_buffers(PyObject *seq, Py_ssize_t rows, Py_ssize_t n)
+{
+    Py_buffer *b = PyMem_Calloc((size_t)rows, sizeof(Py_buffer));
+    if (b == NULL) return (Py_buffer *)PyErr_NoMemory();
+    for (Py_ssize_t r = 0; r < rows; r++) {
+        if (get_doubles(PySequence_Fast_GET_ITEM(seq, r), &b[r], 0, "each row") < 0 ||
+            b[r].len != 8 * n) {
+            if (!PyErr_Occurred())
+                PyErr_SetString(PyExc_ValueError, "zero_phase_rows: inconsistent sizes");
+            for (Py_ssize_t q = 0; q < r + (b[r].obj != NULL); q++) PyBuffer_Release(&b[q]);
+            PyMem_Free(b);
+            return NULL;
+        }
+    }
+    return b;
+}
+
 static PyObject *py_zero_phase_rows(PyObject *self, PyObject *args)
 {
-    PyObject *objs[4];
+    PyObject *objs[3], *given;
     Py_ssize_t n, edge, factor;
-    if (!PyArg_ParseTuple(args, "OOOnnnO", &objs[0], &objs[1], &objs[2], &n, &edge, &factor,
-                          &objs[3]))
+    if (!PyArg_ParseTuple(args, "OOOnnnO", &objs[0], &objs[1], &given, &n, &edge, &factor,
+                          &objs[2]))
         return NULL;
-    const char *names[4] = {"sos", "zi", "x", "out"};
-    Py_buffer b[4];
-    if (get_buffers(objs, 4, 3, names, b) < 0) return NULL;
-    const Py_ssize_t ns = b[0].len / 48, rows = n > 0 ? b[2].len / 8 / n : 0;
+    PyObject *seq = PySequence_Fast(given, "zero_phase_rows: x must be a sequence of rows");
+    if (seq == NULL) return NULL;
+    const char *names[3] = {"sos", "zi", "out"};
+    Py_buffer b[3];
+    if (get_buffers(objs, 3, 2, names, b) < 0) {
+        Py_DECREF(seq);
+        return NULL;
+    }
+    const Py_ssize_t ns = b[0].len / 48, rows = PySequence_Fast_GET_SIZE(seq);
     const Py_ssize_t kept = factor > 0 ? (n + factor - 1) / factor : 0;
     PyObject *result = NULL;
     lanes_t *buf = NULL;
+    Py_buffer *rb = NULL;
     if (ns < 1 || ns > 16 || b[0].len != 48 * ns || b[1].len != 16 * ns || n < 2 ||
-        edge < 1 || edge >= n || factor < 1 || rows < 1 || b[2].len != 8 * n * rows ||
-        b[3].len != 8 * kept * rows) {
+        edge < 1 || edge >= n || factor < 1 || rows < 1 || b[2].len != 8 * kept * rows) {
         PyErr_SetString(PyExc_ValueError, "zero_phase_rows: inconsistent sizes");
+    } else if ((rb = row_buffers(seq, rows, n)) == NULL) {
+        /* the error is set */
     } else if ((buf = aligned_alloc(sizeof(lanes_t), sizeof(lanes_t) * (size_t)(n + 2 * edge))) ==
                NULL) {
         PyErr_NoMemory();
     } else {
-        const double *x = b[2].buf;
-        double *out = b[3].buf;
+        double *out = b[2].buf;
         for (Py_ssize_t r = 0; r < rows; r += LANES) {
             const double *row[LANES];
             Py_ssize_t at[LANES];
             for (int q = 0; q < LANES; q++) {
                 at[q] = r + q < rows ? r + q : rows - 1; /* a short last group: its last row */
-                row[q] = x + at[q] * n;
+                row[q] = rb[at[q]].buf;
             }
             lanes_extend(row, n, edge, buf);
             lanes_filtfilt_any(b[0].buf, b[1].buf, (int)ns, buf, n + 2 * edge);
@@ -2382,11 +2407,14 @@ static PyObject *py_zero_phase_rows(PyObject *self, PyObject *args)
         result = Py_None;
     }
     free(buf);
-    release_buffers(b, 4);
+    if (rb != NULL) {
+        for (Py_ssize_t r = 0; r < rows; r++) PyBuffer_Release(&rb[r]);
+        PyMem_Free(rb);
+    }
+    release_buffers(b, 3);
+    Py_DECREF(seq);
     return result;
 }
-#undef LANES
-#undef LANES_CLONES
 
 /* savgol_pair(x, taps1, taps2, d1, d2): scipy.ndimage.convolve1d(x, taps, mode="constant")
  * for two filters of the same odd length at once (rtsid.ident.yardstick.savgol_derivatives'
@@ -2430,6 +2458,34 @@ static inline double ndimage_point(const double *x, Py_ssize_t n, Py_ssize_t i, 
 #undef AT
 }
 
+/* ndimage_point at LANES consecutive interior outputs i … i+LANES−1 at once, lane by lane the
+ * same operations (an AVX2 clone where the processor has it). */
+typedef double lanes_u __attribute__((vector_size(8 * LANES), aligned(8))); /* unaligned loads */
+
+LANES_CLONES static Py_ssize_t ndimage_interior(const double *x, Py_ssize_t n, const double *fw,
+                                                Py_ssize_t half, int symmetry, double *out)
+{
+    Py_ssize_t i = half;
+    for (; i + LANES <= n - half; i += LANES) {
+        const double *c = x + i;
+        lanes_t acc;
+        if (symmetry > 0) {
+            acc = *(const lanes_u *)c * fw[0];
+            for (Py_ssize_t j = -half; j < 0; j++)
+                acc += (*(const lanes_u *)(c + j) + *(const lanes_u *)(c - j)) * fw[j];
+        } else if (symmetry < 0) {
+            acc = *(const lanes_u *)c * fw[0];
+            for (Py_ssize_t j = -half; j < 0; j++)
+                acc += (*(const lanes_u *)(c + j) - *(const lanes_u *)(c - j)) * fw[j];
+        } else {
+            acc = *(const lanes_u *)(c + half) * fw[half];
+            for (Py_ssize_t j = -half; j < half; j++) acc += *(const lanes_u *)(c + j) * fw[j];
+        }
+        *(lanes_u *)(out + i) = acc;
+    }
+    return i; /* the first interior output not formed */
+}
+
 static void ndimage_convolve(const double *x, Py_ssize_t n, const double *taps, Py_ssize_t size,
                              double *out)
 {
@@ -2438,7 +2494,9 @@ static void ndimage_convolve(const double *x, Py_ssize_t n, const double *taps, 
     const Py_ssize_t half = size / 2;
     const double *fw = reversed + half;
     const int symmetry = ndimage_symmetry(fw, half);
+    const Py_ssize_t formed = n > 2 * half ? ndimage_interior(x, n, fw, half, symmetry, out) : 0;
     for (Py_ssize_t i = 0; i < n; i++) {
+        if (i >= half && i < formed) continue;
         const int inside = i >= half && i < n - half;
         out[i] = ndimage_point(x, n, i, fw, half, symmetry, inside);
     }
@@ -2466,3 +2524,5 @@ static PyObject *py_savgol_pair(PyObject *self, PyObject *args)
     release_buffers(b, 5);
     return result;
 }
+#undef LANES
+#undef LANES_CLONES

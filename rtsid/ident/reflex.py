@@ -130,23 +130,25 @@ def zero_phase(sos: FloatArray, x: FloatArray) -> FloatArray:
     return _filtfilt(_zero_phase_setup(sos.tobytes(), len(sos)), np.asarray(x, dtype=np.float64))
 
 
-def zero_phase_rows(sos: FloatArray, rows: FloatArray) -> FloatArray:
-    """:func:`zero_phase` of each row of ``rows`` (shape (k, n)): the same numbers bit for
-    bit, by the compiled kernel's ``zero_phase_rows`` (two rows at once) when built."""
+def zero_phase_rows(sos: FloatArray, rows: Sequence[ArrayLike]) -> FloatArray:
+    """:func:`zero_phase` of each of ``rows`` (``k`` of ``n`` samples; shape (k, n)): the
+    same numbers bit for bit, by the compiled kernel's ``zero_phase_rows`` (four rows at
+    once) when built."""
     sos = np.ascontiguousarray(sos, dtype=np.float64)
     return _zero_phase_rows(_zero_phase_setup(sos.tobytes(), len(sos)), rows, 1)
 
 
-def _zero_phase_rows(d: _Decimator, rows: ArrayLike, factor: int) -> FloatArray:
-    """``_filtfilt(d, row)[::factor]`` of each row (shape (k, n) → (k, ⌈n/factor⌉)), in one
-    call of the compiled ``zero_phase_rows`` when built and the rows are longer than the
-    padding (its odd extension built there: no copy of the rows here); each row alone
-    through :func:`_filtfilt` otherwise (the reference: the same numbers bit for bit)."""
-    x = np.ascontiguousarray(rows, dtype=np.float64)
-    n = x.shape[1]
+def _zero_phase_rows(d: _Decimator, rows: Sequence[ArrayLike], factor: int) -> FloatArray:
+    """``_filtfilt(d, row)[::factor]`` of each row (``k`` rows of ``n`` samples → shape
+    (k, ⌈n/factor⌉)), in one call of the compiled ``zero_phase_rows`` when built and the rows
+    are longer than the padding (the rows read where they are, their odd extension built
+    there: no copy here); each row alone through :func:`_filtfilt` otherwise (the reference:
+    the same numbers bit for bit)."""
+    x = tuple(np.ascontiguousarray(row, dtype=np.float64) for row in rows)
+    n = x[0].size
     if _eureka is None or n <= d.edge:
         return np.vstack([_filtfilt(d, row)[::factor] for row in x])
-    out = np.empty((x.shape[0], -(-n // factor)))
+    out = np.empty((len(x), -(-n // factor)))
     _eureka.zero_phase_rows(d.sos, d.zi, x, n, d.edge, factor, out)
     return out
 
@@ -187,10 +189,9 @@ def decimated_rows(rows: Sequence[FloatArray], factor: int) -> FloatArray:
     (k, ⌈n/factor⌉): the same numbers bit for bit, all rows in one call of the compiled
     kernel when built (a cascade decimates its position, torque and rectified velocity
     together)."""
-    x = np.vstack(rows).astype(np.float64, copy=False)
     if factor == 1:
-        return x
-    return _zero_phase_rows(_decimator(factor), x, factor)
+        return np.vstack(rows).astype(np.float64, copy=False)
+    return _zero_phase_rows(_decimator(factor), rows, factor)
 
 
 def stretch_velocity(position: FloatArray, fs_hz: float) -> FloatArray:

@@ -124,7 +124,7 @@ class WindowVafBasis:
     def __init__(self, position: FloatArray, torque: FloatArray, fs_hz: float) -> None:
         d1, d2 = savgol_derivatives(position, fs_hz)
         # scipy's sosfiltfilt of each row, compiled when built (the same numbers bit for bit)
-        low = zero_phase_rows(_basis_lowpass(float(fs_hz)), np.vstack((torque, d2, d1, position)))
+        low = zero_phase_rows(_basis_lowpass(float(fs_hz)), (torque, d2, d1, position))
         self.torque = low[0]
         self.regressors = low[1:]
 

@@ -130,6 +130,12 @@ def test_the_compiled_rows_kernel_names_inconsistent_sizes():
     x = np.zeros((2, 100))
     with pytest.raises(ValueError, match="zero_phase_rows: inconsistent sizes"):
         reflex._eureka.zero_phase_rows(d.sos, d.zi, x, 100, d.edge, 10, np.empty((2, 9)))
+    with pytest.raises(ValueError, match="zero_phase_rows: inconsistent sizes"):
+        rows = (np.zeros(100), np.zeros(99))
+        reflex._eureka.zero_phase_rows(d.sos, d.zi, rows, 100, d.edge, 10, np.empty((2, 10)))
+    with pytest.raises(TypeError, match="each row must be a contiguous float64 buffer"):
+        rows = (np.zeros(100), np.zeros(100, dtype=np.float32))
+        reflex._eureka.zero_phase_rows(d.sos, d.zi, rows, 100, d.edge, 10, np.empty((2, 10)))
 
 
 def test_a_cascades_inputs_decimated_with_its_record_are_those_formed_alone():
