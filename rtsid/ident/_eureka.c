@@ -2495,8 +2495,9 @@ static void ndimage_convolve(const double *x, Py_ssize_t n, const double *taps, 
     const double *fw = reversed + half;
     const int symmetry = ndimage_symmetry(fw, half);
     const Py_ssize_t formed = n > 2 * half ? ndimage_interior(x, n, fw, half, symmetry, out) : 0;
-    for (Py_ssize_t i = 0; i < n; i++) {
-        if (i >= half && i < formed) continue;
+    const Py_ssize_t head = half < n ? half : n; /* then the interior left over and the tail */
+    for (Py_ssize_t i = 0; i < head; i++) out[i] = ndimage_point(x, n, i, fw, half, symmetry, 0);
+    for (Py_ssize_t i = formed > head ? formed : head; i < n; i++) {
         const int inside = i >= half && i < n - half;
         out[i] = ndimage_point(x, n, i, fw, half, symmetry, inside);
     }

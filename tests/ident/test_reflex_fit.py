@@ -213,5 +213,11 @@ def test_the_compiled_convolution_is_ndimages_for_any_taps():
         reflex._eureka.savgol_pair(x, a, b, d1, d2)
         np.testing.assert_array_equal(d1, ndimage.convolve1d(x, a, mode="constant"))
         np.testing.assert_array_equal(d2, ndimage.convolve1d(x, b, mode="constant"))
+    for n in (3, 6, 7, 8, 13):  # shorter than the taps, and interiors not a whole vector
+        short = x[:n].copy()
+        d1, d2 = np.empty(n), np.empty(n)
+        reflex._eureka.savgol_pair(short, symmetric, general, d1, d2)
+        np.testing.assert_array_equal(d1, ndimage.convolve1d(short, symmetric, mode="constant"))
+        np.testing.assert_array_equal(d2, ndimage.convolve1d(short, general, mode="constant"))
     with pytest.raises(ValueError, match="savgol_pair: inconsistent sizes"):
         reflex._eureka.savgol_pair(x, np.ones(4), np.ones(4), d1, d2)
