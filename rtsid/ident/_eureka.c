@@ -1727,6 +1727,8 @@ static PyObject *py_window_sums(PyObject *self, PyObject *args)
 static PyObject *py_evidence_gains(PyObject *self, PyObject *args);
 static PyObject *py_sos_filtfilt_rows(PyObject *self, PyObject *args);
 static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args);
+static PyObject *py_zero_phase_rows(PyObject *self, PyObject *args);
+static PyObject *py_savgol_pair(PyObject *self, PyObject *args);
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1763,6 +1765,8 @@ static PyMethodDef methods[] = {
     {"evidence_gains", py_evidence_gains, METH_VARARGS, "evidence_gains(torque, regressors, extra, starts, n, out): slow-lane evidence windows' VAF gains."},
     {"sos_filtfilt_rows", py_sos_filtfilt_rows, METH_VARARGS, "sos_filtfilt_rows(sos, zi, x, n): sos_filtfilt on each row of n samples of x, in place."},
     {"low_pass_slopes", py_low_pass_slopes, METH_VARARGS, "low_pass_slopes(t, wn, zeta, h, slopes): the reflex dynamics' low-pass and its derivatives."},
+    {"zero_phase_rows", py_zero_phase_rows, METH_VARARGS, "zero_phase_rows(sos, zi, rows, n, edge, factor, out): scipy's sosfiltfilt of each row, every factor-th sample into out."},
+    {"savgol_pair", py_savgol_pair, METH_VARARGS, "savgol_pair(x, taps1, taps2, d1, d2): ndimage.convolve1d(x, taps, mode='constant') of two filters."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -2255,3 +2259,271 @@ static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args)
     release_buffers(b, 3);
     return result;
 }
+
+/* ------------------------------------------------------------------ slow lane's fits, third pass
+ * (branch fits3, issue 22)
+ *
+ * zero_phase_rows(sos, zi, rows, n, edge, factor, out): scipy's sosfiltfilt (default padding:
+ * odd extension by edge samples at each end, steady-state initial conditions zi times the
+ * first sample of each pass, direct form II transposed sections) of each of rows (a sequence
+ * of contiguous float64 arrays of n samples: no stacking copy), every factor-th sample of the result written to out (rows of ceil(n / factor)):
+ * rtsid.ident.reflex.decimated (factor > 1) and zero_phase_rows (factor 1) of several rows
+ * in one call. Each row's numbers are scipy's bit for bit: the operations of sos_run_exact
+ * in its order, on four rows at once (one in each lane of a four-double vector: lane by lane
+ * the same IEEE operations as the scalar code, and no fused multiply-add: the AVX2 clone
+ * enables neither FMA nor contraction; missing rows of a last group repeat its last row).
+ * The extension is built in an interleaved buffer, so no array is copied in Python.
+ * O(rows·(n + 2·edge)·sections).
+ */
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
+#define LANES_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define LANES_CLONES
+#endif
+#define LANES 4
+typedef double lanes_t __attribute__((vector_size(8 * LANES)));
+
+/* The rows' forward and backward passes over the interleaved extension buf (m samples). */
+static inline __attribute__((always_inline)) void lanes_filtfilt(const double *sos,
+                                                                 const double *zi, const int ns,
+                                  lanes_t *buf, Py_ssize_t m)
+{
+    lanes_t c[16][6], st[16][2];
+    for (int s = 0; s < ns; s++)
+        for (int k = 0; k < 6; k++) c[s][k] = (lanes_t){0} + sos[6 * s + k];
+    for (int backwards = 0; backwards < 2; backwards++) {
+        const lanes_t first = backwards ? buf[m - 1] : buf[0];
+        for (int s = 0; s < ns; s++) {
+            st[s][0] = ((lanes_t){0} + zi[2 * s]) * first;
+            st[s][1] = ((lanes_t){0} + zi[2 * s + 1]) * first;
+        }
+        const Py_ssize_t step = backwards ? -1 : 1;
+        lanes_t *p = backwards ? buf + m - 1 : buf;
+        for (Py_ssize_t i = 0; i < m; i++, p += step) {
+            lanes_t cur = *p;
+            for (int s = 0; s < ns; s++) {
+                const lanes_t out = c[s][0] * cur + st[s][0];
+                st[s][0] = c[s][1] * cur - c[s][4] * out + st[s][1];
+                st[s][1] = c[s][2] * cur - c[s][5] * out;
+                cur = out;
+            }
+            *p = cur;
+        }
+    }
+}
+
+/* lanes_filtfilt with the section count known to the compiler (the decimator's four, the
+ * window VAF basis's two), so that the sections' loop unrolls and their states stay in
+ * registers; an AVX2 clone where the processor has it (the same numbers). */
+LANES_CLONES static void lanes_filtfilt_any(const double *sos, const double *zi, int ns,
+                                            lanes_t *buf, Py_ssize_t m)
+{
+    if (ns == 4)
+        lanes_filtfilt(sos, zi, 4, buf, m);
+    else if (ns == 2)
+        lanes_filtfilt(sos, zi, 2, buf, m);
+    else
+        lanes_filtfilt(sos, zi, ns, buf, m);
+}
+
+/* scipy's odd extension of the rows row[0..LANES-1] (n samples each) into buf, interleaved:
+ * 2·x[0] − x[edge − j] before, x, then 2·x[n−1] − x[n−2−j] after. */
+static void lanes_extend(const double *const *row, Py_ssize_t n, Py_ssize_t e, lanes_t *buf)
+{
+    for (int q = 0; q < LANES; q++) {
+        const double *x = row[q];
+        double *lane = (double *)buf + q;
+        const double first = 2.0 * x[0], last = 2.0 * x[n - 1];
+        for (Py_ssize_t j = 0; j < e; j++) lane[LANES * j] = first - x[e - j];
+        for (Py_ssize_t i = 0; i < n; i++) lane[LANES * (e + i)] = x[i];
+        for (Py_ssize_t j = 0; j < e; j++) lane[LANES * (e + n + j)] = last - x[n - 2 - j];
+    }
+}
+
+/* The rows of a sequence of float64 arrays of n samples each: their buffers (rows[r].buf),
+ * or NULL with an error set (a row not a contiguous float64 array of n samples). */
+static Py_buffer *row_buffers(PyObject *seq, Py_ssize_t rows, Py_ssize_t n)
+{
+    Py_buffer *b = PyMem_Calloc((size_t)rows, sizeof(Py_buffer));
+    if (b == NULL) return (Py_buffer *)PyErr_NoMemory();
+    for (Py_ssize_t r = 0; r < rows; r++) {
+        if (get_doubles(PySequence_Fast_GET_ITEM(seq, r), &b[r], 0, "each row") < 0 ||
+            b[r].len != 8 * n) {
+            if (!PyErr_Occurred())
+                PyErr_SetString(PyExc_ValueError, "zero_phase_rows: inconsistent sizes");
+            for (Py_ssize_t q = 0; q < r + (b[r].obj != NULL); q++) PyBuffer_Release(&b[q]);
+            PyMem_Free(b);
+            return NULL;
+        }
+    }
+    return b;
+}
+
+static PyObject *py_zero_phase_rows(PyObject *self, PyObject *args)
+{
+    PyObject *objs[3], *given;
+    Py_ssize_t n, edge, factor;
+    if (!PyArg_ParseTuple(args, "OOOnnnO", &objs[0], &objs[1], &given, &n, &edge, &factor,
+                          &objs[2]))
+        return NULL;
+    PyObject *seq = PySequence_Fast(given, "zero_phase_rows: x must be a sequence of rows");
+    if (seq == NULL) return NULL;
+    const char *names[3] = {"sos", "zi", "out"};
+    Py_buffer b[3];
+    if (get_buffers(objs, 3, 2, names, b) < 0) {
+        Py_DECREF(seq);
+        return NULL;
+    }
+    const Py_ssize_t ns = b[0].len / 48, rows = PySequence_Fast_GET_SIZE(seq);
+    const Py_ssize_t kept = factor > 0 ? (n + factor - 1) / factor : 0;
+    PyObject *result = NULL;
+    lanes_t *buf = NULL;
+    Py_buffer *rb = NULL;
+    if (ns < 1 || ns > 16 || b[0].len != 48 * ns || b[1].len != 16 * ns || n < 2 ||
+        edge < 1 || edge >= n || factor < 1 || rows < 1 || b[2].len != 8 * kept * rows) {
+        PyErr_SetString(PyExc_ValueError, "zero_phase_rows: inconsistent sizes");
+    } else if ((rb = row_buffers(seq, rows, n)) == NULL) {
+        /* the error is set */
+    } else if ((buf = aligned_alloc(sizeof(lanes_t), sizeof(lanes_t) * (size_t)(n + 2 * edge))) ==
+               NULL) {
+        PyErr_NoMemory();
+    } else {
+        double *out = b[2].buf;
+        for (Py_ssize_t r = 0; r < rows; r += LANES) {
+            const double *row[LANES];
+            Py_ssize_t at[LANES];
+            for (int q = 0; q < LANES; q++) {
+                at[q] = r + q < rows ? r + q : rows - 1; /* a short last group: its last row */
+                row[q] = rb[at[q]].buf;
+            }
+            lanes_extend(row, n, edge, buf);
+            lanes_filtfilt_any(b[0].buf, b[1].buf, (int)ns, buf, n + 2 * edge);
+            for (Py_ssize_t k = 0; k < kept; k++) {
+                const lanes_t v = buf[edge + k * factor];
+                for (int q = 0; q < LANES; q++) out[at[q] * kept + k] = v[q];
+            }
+        }
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+    free(buf);
+    if (rb != NULL) {
+        for (Py_ssize_t r = 0; r < rows; r++) PyBuffer_Release(&rb[r]);
+        PyMem_Free(rb);
+    }
+    release_buffers(b, 3);
+    Py_DECREF(seq);
+    return result;
+}
+
+/* savgol_pair(x, taps1, taps2, d1, d2): scipy.ndimage.convolve1d(x, taps, mode="constant")
+ * for two filters of the same odd length at once (rtsid.ident.yardstick.savgol_derivatives'
+ * first and second derivative; its ndimage call is the reference): each output is ndimage's
+ * correlation with the reversed taps in its order of operations — for taps symmetric (or
+ * antisymmetric) within DBL_EPSILON, the centre tap's product and then, from the outermost
+ * pair inwards, (x[i+j] ± x[i−j])·w[j] added; otherwise every product from the first tap
+ * on after the last one's — so the same numbers bit for bit (tested). Zero outside x.
+ * O(n·taps). */
+static int ndimage_symmetry(const double *fw, Py_ssize_t half)
+{
+    /* fw: the correlation taps centred (fw[-half … half]); 1 symmetric, -1 antisymmetric */
+    int symmetric = 1;
+    for (Py_ssize_t j = 1; j <= half; j++)
+        if (fabs(fw[j] - fw[-j]) > DBL_EPSILON) {
+            symmetric = 0;
+            break;
+        }
+    if (symmetric) return 1;
+    for (Py_ssize_t j = 1; j <= half; j++)
+        if (fabs(fw[j] + fw[-j]) > DBL_EPSILON) return 0;
+    return -1;
+}
+
+static inline double ndimage_point(const double *x, Py_ssize_t n, Py_ssize_t i, const double *fw,
+                                   Py_ssize_t half, int symmetry, int inside)
+{
+#define AT(k) (inside || (i + (k) >= 0 && i + (k) < n) ? x[i + (k)] : 0.0)
+    double out;
+    if (symmetry > 0) {
+        out = AT(0) * fw[0];
+        for (Py_ssize_t j = -half; j < 0; j++) out += (AT(j) + AT(-j)) * fw[j];
+    } else if (symmetry < 0) {
+        out = AT(0) * fw[0];
+        for (Py_ssize_t j = -half; j < 0; j++) out += (AT(j) - AT(-j)) * fw[j];
+    } else {
+        out = AT(half) * fw[half];
+        for (Py_ssize_t j = -half; j < half; j++) out += AT(j) * fw[j];
+    }
+    return out;
+#undef AT
+}
+
+/* ndimage_point at LANES consecutive interior outputs i … i+LANES−1 at once, lane by lane the
+ * same operations (an AVX2 clone where the processor has it). */
+typedef double lanes_u __attribute__((vector_size(8 * LANES), aligned(8))); /* unaligned loads */
+
+LANES_CLONES static Py_ssize_t ndimage_interior(const double *x, Py_ssize_t n, const double *fw,
+                                                Py_ssize_t half, int symmetry, double *out)
+{
+    Py_ssize_t i = half;
+    for (; i + LANES <= n - half; i += LANES) {
+        const double *c = x + i;
+        lanes_t acc;
+        if (symmetry > 0) {
+            acc = *(const lanes_u *)c * fw[0];
+            for (Py_ssize_t j = -half; j < 0; j++)
+                acc += (*(const lanes_u *)(c + j) + *(const lanes_u *)(c - j)) * fw[j];
+        } else if (symmetry < 0) {
+            acc = *(const lanes_u *)c * fw[0];
+            for (Py_ssize_t j = -half; j < 0; j++)
+                acc += (*(const lanes_u *)(c + j) - *(const lanes_u *)(c - j)) * fw[j];
+        } else {
+            acc = *(const lanes_u *)(c + half) * fw[half];
+            for (Py_ssize_t j = -half; j < half; j++) acc += *(const lanes_u *)(c + j) * fw[j];
+        }
+        *(lanes_u *)(out + i) = acc;
+    }
+    return i; /* the first interior output not formed */
+}
+
+static void ndimage_convolve(const double *x, Py_ssize_t n, const double *taps, Py_ssize_t size,
+                             double *out)
+{
+    double reversed[64];
+    for (Py_ssize_t k = 0; k < size; k++) reversed[k] = taps[size - 1 - k];
+    const Py_ssize_t half = size / 2;
+    const double *fw = reversed + half;
+    const int symmetry = ndimage_symmetry(fw, half);
+    const Py_ssize_t formed = n > 2 * half ? ndimage_interior(x, n, fw, half, symmetry, out) : 0;
+    const Py_ssize_t head = half < n ? half : n; /* then the interior left over and the tail */
+    for (Py_ssize_t i = 0; i < head; i++) out[i] = ndimage_point(x, n, i, fw, half, symmetry, 0);
+    for (Py_ssize_t i = formed > head ? formed : head; i < n; i++) {
+        const int inside = i >= half && i < n - half;
+        out[i] = ndimage_point(x, n, i, fw, half, symmetry, inside);
+    }
+}
+
+static PyObject *py_savgol_pair(PyObject *self, PyObject *args)
+{
+    PyObject *objs[5];
+    if (!PyArg_ParseTuple(args, "OOOOO", &objs[0], &objs[1], &objs[2], &objs[3], &objs[4]))
+        return NULL;
+    const char *names[5] = {"x", "taps1", "taps2", "d1", "d2"};
+    Py_buffer b[5];
+    if (get_buffers(objs, 5, 3, names, b) < 0) return NULL;
+    const Py_ssize_t n = b[0].len / 8, size = b[1].len / 8;
+    PyObject *result = NULL;
+    if (size < 1 || size > 63 || size % 2 == 0 || b[2].len != b[1].len || b[3].len != b[0].len ||
+        b[4].len != b[0].len) {
+        PyErr_SetString(PyExc_ValueError, "savgol_pair: inconsistent sizes");
+    } else {
+        ndimage_convolve(b[0].buf, n, b[1].buf, size, b[3].buf);
+        ndimage_convolve(b[0].buf, n, b[2].buf, size, b[4].buf);
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+    release_buffers(b, 5);
+    return result;
+}
+#undef LANES
+#undef LANES_CLONES

@@ -37,7 +37,6 @@ from rtsid.ident.reflex import (
     REFLEX_VARIANTS,
     ReflexInputs,
     ReflexPathway,
-    decimated,
     fit_reflex_dynamics,
     fit_reflex_pathway,
     to_data_rate,
@@ -145,18 +144,21 @@ class CascadeFit:
     first_scored: int
     reflex_torque_all: FloatArray
 
-    def record_reflex_torque(self, position: FloatArray, fs_hz: float) -> FloatArray:
-        """``self.reflex.torque(position, fs_hz)`` for the ``position`` this cascade was fitted
-        to (rad, at its rate ``fs_hz``): the same numbers.
+    def record_reflex_torque(
+        self, position: FloatArray, fs_hz: float, first: int = 0
+    ) -> FloatArray:
+        """``self.reflex.torque(position, fs_hz)[first:]`` for the ``position`` this cascade
+        was fitted to (rad, at its rate ``fs_hz``): the same numbers.
 
         For ``"rect"`` the cascade already convolved the same pathway input (the rectified
         velocity of this record, decimated) with the kept IRF, so only the interpolation back to
-        the record's rate is left to do; the Hammerstein pathway's prediction is formed anew
-        (its polynomial acts before the decimation there, after it inside the cascade).
+        the record's rate is left to do, and only from sample ``first`` on; the Hammerstein
+        pathway's prediction is formed anew (its polynomial acts before the decimation there,
+        after it inside the cascade).
         """
         if self.reflex.variant != "rect":
-            return self.reflex.torque(position, fs_hz)
-        return to_data_rate(self.reflex_torque_all, self.factor, np.size(position))
+            return self.reflex.torque(position, fs_hz)[first:]
+        return to_data_rate(self.reflex_torque_all, self.factor, np.size(position), first)
 
 
 def _check_length(n: int, fs_hz: float, settings: CascadeSettings) -> None:
@@ -200,9 +202,9 @@ def fit_parallel_cascade(
     factor = max(1, round(fs_hz / s.fs_out_hz))
     fs = fs_hz / factor
     reflex_lags = round(s.reflex_lag_s * fs)
-    u = detrend(decimated(pos, factor), "linear")
-    y = detrend(decimated(tor, factor), "linear")
-    inputs = ReflexInputs(pos, fs_hz, factor, s.variant)
+    # the position, the torque and the reflex pathway's input decimated in one pass
+    inputs, (u, y) = ReflexInputs.decimating(pos, (pos, tor), fs_hz, factor, s.variant)
+    u, y = detrend(u, "linear"), detrend(y, "linear")
     scored = slice(reflex_lags, u.size)
     lag = max(1, round(s.intrinsic_lag_s * fs))
     alone = estimate_irf(u, y, fs, lag, ridge=s.ridge)

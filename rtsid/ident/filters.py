@@ -133,7 +133,9 @@ def derivatives(x: ArrayLike, fs_hz: float) -> tuple[FloatArray, FloatArray]:
 
 def stencil_derivatives(x: FloatArray, fs_hz: float) -> tuple[FloatArray, FloatArray]:
     """First and second derivatives at samples ``4 … n−5`` only (shape (n−8,) each)."""
-    return (
-        np.correlate(x, _D1, mode="valid") * fs_hz,
-        np.correlate(x, _D2, mode="valid") * fs_hz**2,
-    )
+    return stencil_velocity(x, fs_hz), np.correlate(x, _D2, mode="valid") * fs_hz**2
+
+
+def stencil_velocity(x: FloatArray, fs_hz: float) -> FloatArray:
+    """The first derivative of :func:`stencil_derivatives` alone (samples ``4 … n−5``)."""
+    return np.correlate(x, _D1, mode="valid") * fs_hz

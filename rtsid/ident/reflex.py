@@ -33,7 +33,7 @@ real record the fit ends at the lower bound at every model rate tried (10.0 ms a
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property, lru_cache
 
@@ -42,7 +42,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from rtsid.errors import InputDataError
 from rtsid.ident.correlation import auto_correlation, cross_correlation, detrend
-from rtsid.ident.filters import derivatives, stencil_derivatives
+from rtsid.ident.filters import stencil_derivatives, stencil_velocity
 from rtsid.ident.levinson import compiled_kernel, eureka
 
 __all__ = [
@@ -52,8 +52,10 @@ __all__ = [
     "ReflexPathway",
     "ReflexStream",
     "ToeplitzSystem",
+    "bounded_least_squares",
     "convolve_causal",
     "decimated",
+    "decimated_rows",
     "delay_search_s",
     "fit_reflex_dynamics",
     "fit_reflex_pathway",
@@ -131,21 +133,27 @@ def zero_phase(sos: FloatArray, x: FloatArray) -> FloatArray:
     return _filtfilt(_zero_phase_setup(sos.tobytes(), len(sos)), np.asarray(x, dtype=np.float64))
 
 
-def zero_phase_rows(sos: FloatArray, rows: FloatArray) -> FloatArray:
-    """:func:`zero_phase` of each row of ``rows`` (shape (k, n)): the same numbers bit for
-    bit, the compiled kernel running four rows at once when built."""
+def zero_phase_rows(sos: FloatArray, rows: Sequence[ArrayLike]) -> FloatArray:
+    """:func:`zero_phase` of each of ``rows`` (``k`` of ``n`` samples; shape (k, n)): the
+    same numbers bit for bit, by the compiled kernel's ``zero_phase_rows`` (four rows at
+    once) when built."""
     sos = np.ascontiguousarray(sos, dtype=np.float64)
-    d = _zero_phase_setup(sos.tobytes(), len(sos))
-    x = np.asarray(rows, dtype=np.float64)
-    if _eureka is None or x.shape[1] <= d.edge:
-        return np.vstack([_filtfilt(d, row) for row in x])
-    e = d.edge
-    ext = np.empty((x.shape[0], x.shape[1] + 2 * e))  # scipy's odd extension of each row
-    ext[:, :e] = 2 * x[:, :1] - x[:, e:0:-1]
-    ext[:, e:-e] = x
-    ext[:, -e:] = 2 * x[:, -1:] - x[:, -2 : -e - 2 : -1]
-    _eureka.sos_filtfilt_rows(d.sos, d.zi, ext, ext.shape[1])
-    return np.ascontiguousarray(ext[:, e:-e])
+    return _zero_phase_rows(_zero_phase_setup(sos.tobytes(), len(sos)), rows, 1)
+
+
+def _zero_phase_rows(d: _Decimator, rows: Sequence[ArrayLike], factor: int) -> FloatArray:
+    """``_filtfilt(d, row)[::factor]`` of each row (``k`` rows of ``n`` samples → shape
+    (k, ⌈n/factor⌉)), in one call of the compiled ``zero_phase_rows`` when built and the rows
+    are longer than the padding (the rows read where they are, their odd extension built
+    there: no copy here); each row alone through :func:`_filtfilt` otherwise (the reference:
+    the same numbers bit for bit)."""
+    x = tuple(np.ascontiguousarray(row, dtype=np.float64) for row in rows)
+    n = x[0].size
+    if _eureka is None or n <= d.edge:
+        return np.vstack([_filtfilt(d, row)[::factor] for row in x])
+    out = np.empty((len(x), -(-n // factor)))
+    _eureka.zero_phase_rows(d.sos, d.zi, x, n, d.edge, factor, out)
+    return out
 
 
 def _filtfilt(d: _Decimator, x: FloatArray) -> FloatArray:
@@ -181,11 +189,30 @@ def decimated(x: FloatArray, factor: int) -> FloatArray:
     )
 
 
+def decimated_rows(rows: Sequence[FloatArray], factor: int) -> FloatArray:
+    """:func:`decimated` of each of ``rows`` (equal lengths ``n``), shape
+    (k, ⌈n/factor⌉): the same numbers bit for bit, all rows in one call of the compiled
+    kernel when built (a cascade decimates its position, torque and rectified velocity
+    together)."""
+    if factor == 1:
+        return np.vstack(rows).astype(np.float64, copy=False)
+    return _zero_phase_rows(_decimator(factor), rows, factor)
+
+
 def stretch_velocity(position: FloatArray, fs_hz: float) -> FloatArray:
     """Joint velocity at the data's own rate (rad/s), the input of the reflex nonlinearity:
     the muscle spindle sees the velocity before any decimation, so the rectifier (or
     polynomial) acts at the full rate and its output is decimated afterwards."""
-    velocity, _ = derivatives(detrend(position, "linear"), fs_hz)
+    x = detrend(position, "linear")
+    if x.size < 9:
+        raise InputDataError(f"derivatives need at least 9 samples, got {x.size}")
+    # filters.derivatives' first derivative (its second is not needed): the 9-point stencil,
+    # and numpy.gradient's estimates at the four samples of each end (from those samples
+    # alone: the same numbers as over the whole record)
+    velocity = np.empty(x.size)
+    velocity[4:-4] = stencil_velocity(x, fs_hz)
+    velocity[:4] = np.gradient(x[:5], 1.0 / fs_hz, edge_order=2)[:4]
+    velocity[-4:] = np.gradient(x[-5:], 1.0 / fs_hz, edge_order=2)[-4:]
     return velocity
 
 
@@ -523,25 +550,130 @@ def fit_reflex_dynamics(irf: FloatArray, fs_hz: float) -> ReflexDynamics:
     ``G`` is solved linearly for each ``(δ, f_c, ζ)``; these three are first searched on a
     grid (δ every 2 ms from one model sample up to 150 ms, f_c 0.3–20 Hz, ζ 0.3–2.5), then
     refined by bounded nonlinear least squares (δ within :func:`delay_search_s`) from the best
-    grid point.
+    grid point (:func:`bounded_least_squares`).
     """
-    from scipy import optimize
-
     g = np.asarray(irf, dtype=np.float64)
     lags = np.arange(g.size) / fs_hz
     model = _DelayedLowPass(g, lags)
     start = _best_on_grid(g, fs_hz)
     low, high = delay_search_s(fs_hz)
-    bounds = ([low, 0.3, 0.2], [high, 20.0, 3.0])
-    fit = optimize.least_squares(
-        model.residual, start, jac=model.jacobian, bounds=bounds, x_scale=[0.01, 1.0, 0.3]
+    x, cost = bounded_least_squares(
+        model.residual,
+        model.jacobian,
+        np.array(start),
+        np.array([low, 0.3, 0.2]),
+        np.array([high, 20.0, 3.0]),
+        DYNAMICS_SCALE,
     )
-    delay, corner, zeta = (float(v) for v in fit.x)
+    delay, corner, zeta = (float(v) for v in x)
     h = _low_pass_response(lags - delay, 2 * np.pi * corner, zeta)
     gain = float(h @ g) / max(float(h @ h), 1e-300)
     power = float(g @ g)
-    explained = 100.0 * (1.0 - 2.0 * float(fit.cost) / power) if power > 0 else 0.0
+    explained = 100.0 * (1.0 - 2.0 * cost / power) if power > 0 else 0.0
     return ReflexDynamics(gain, delay, corner, zeta, max(0.0, explained), (low, high))
+
+
+#: The typical size of δ (s), f_c (Hz) and ζ: the dynamics fit's damping is in these units.
+DYNAMICS_SCALE = np.array([0.01, 1.0, 0.3])
+#: The dynamics fit's tolerance on the cost, the step and the gradient. scipy
+#: ``least_squares``' default (1e-8), which the fit used with scipy's TRF before it had a
+#: solver of its own, stopped it early in the flat valleys of IRFs with no low-pass shape (no
+#: reflex): 1e-10 costs a few more steps of this solver and ends at a cost no higher than
+#: TRF's on every record compared (the sims', the bench's noise, the real ankle's).
+FIT_TOLERANCE = 1e-10
+
+
+def bounded_least_squares(
+    residual: Callable[[FloatArray], FloatArray],
+    jacobian: Callable[[FloatArray], FloatArray],
+    start: FloatArray,
+    low: FloatArray,
+    high: FloatArray,
+    scale: FloatArray,
+    *,
+    tolerance: float = FIT_TOLERANCE,
+    max_evaluations: int | None = None,
+) -> tuple[FloatArray, float]:
+    """Minimise ``½‖r(x)‖²`` within the box ``low ≤ x ≤ high``: projected Levenberg–Marquardt
+    with the exact Jacobian, for a few parameters.
+
+    Each step solves the damped normal equations ``(JᵀJ + λ·D)p = −Jᵀr`` (``D = 1/scale²``)
+    in the parameters not held at a bound (a parameter is held where it sits on a bound and
+    the gradient pushes it outwards) and projects ``x + p`` on the box; a step that lowers the
+    cost is taken and ``λ`` shrinks by the gain ratio (Nielsen's rule), one that does not is
+    tried again with ``λ`` doubled (then quadrupled, …). It stops by scipy's
+    ``least_squares``' three tests, with ``tolerance`` for each: the cost falls by less than
+    ``tolerance·cost`` on a step that does as predicted (gain ratio > 0.25), or the step is
+    shorter than ``tolerance·(tolerance + ‖x‖)``, or the gradient scaled by each free
+    parameter's distance to the bound it points to is below ``tolerance`` (or after
+    ``max_evaluations`` residuals, default ``100·len(x)``).
+
+    Parameters
+    ----------
+    residual, jacobian : callable
+        ``r(x)``, shape (m,), and ``∂r/∂x``, shape (m, k).
+    start, low, high, scale : numpy.ndarray, shape (k,)
+        The first point (clipped to the box), the bounds, and each parameter's typical size.
+
+    Returns
+    -------
+    (numpy.ndarray, float)
+        The solution, shape (k,), and its cost ``½‖r‖²``.
+    """
+    x = np.clip(start, low, high)
+    r = residual(x)
+    cost = 0.5 * float(r @ r)
+    limit = max_evaluations or 100 * x.size
+    evaluations, damping, growth = 1, -1.0, 2.0
+    weight = 1.0 / scale**2
+    while evaluations < limit:
+        j = jacobian(x)
+        gradient = j.T @ r
+        if _scaled_gradient_norm(x, gradient, low, high) < tolerance:
+            break
+        free = ~(((x <= low) & (gradient > 0)) | ((x >= high) & (gradient < 0)))
+        normal = j.T @ j
+        if damping < 0:  # the first: 1e-3 of the largest scaled curvature
+            damping = 1e-3 * float(np.max(np.diag(normal) / weight))
+        stop = False
+        while evaluations < limit:
+            step = np.zeros_like(x)
+            system = normal[np.ix_(free, free)] + np.diag(damping * weight[free])
+            step[free] = np.linalg.solve(system, -gradient[free])
+            trial = np.clip(x + step, low, high)
+            moved = trial - x
+            r_trial = residual(trial)
+            evaluations += 1
+            cost_trial = 0.5 * float(r_trial @ r_trial) if np.all(np.isfinite(r_trial)) else np.inf
+            reduction = cost - cost_trial
+            predicted = -float(gradient @ moved) - 0.5 * float(moved @ normal @ moved)
+            ratio = reduction / predicted if predicted > 0 else 0.0
+            step_norm = float(np.sqrt(moved @ moved))
+            stop = bool(
+                (reduction < tolerance * cost and ratio > 0.25)
+                or step_norm < tolerance * (tolerance + float(np.sqrt(x @ x)))
+            )
+            if reduction > 0:
+                x, r, cost = trial, r_trial, cost_trial
+                damping *= max(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3)
+                growth = 2.0
+                break
+            if stop:
+                break
+            damping *= growth
+            growth *= 2.0
+        if stop:
+            break
+    return x, cost
+
+
+def _scaled_gradient_norm(
+    x: FloatArray, gradient: FloatArray, low: FloatArray, high: FloatArray
+) -> float:
+    """``‖g·v‖∞``, ``v`` each parameter's distance to the bound its descent direction heads
+    for (scipy's Coleman–Li scaling: a parameter on that bound counts 0)."""
+    v = np.where(gradient < 0, high - x, np.where(gradient > 0, x - low, 1.0))
+    return float(np.max(np.abs(gradient * v)))
 
 
 class _DelayedLowPass:
@@ -684,13 +816,14 @@ class ReflexPathway:
         return factor
 
 
-def to_data_rate(low: FloatArray, factor: int, n: int) -> FloatArray:
-    """A prediction on the model's samples (every ``factor``-th data sample) on the ``n``
-    samples of the data: linear interpolation between the model's samples (the reflex torque
-    is smooth at 100 Hz), held after the last one; ``low`` itself when ``factor`` is 1."""
+def to_data_rate(low: FloatArray, factor: int, n: int, first: int = 0) -> FloatArray:
+    """A prediction on the model's samples (every ``factor``-th data sample) on the samples
+    ``first … n − 1`` of the data: linear interpolation between the model's samples (the
+    reflex torque is smooth at 100 Hz), held after the last one; ``low[first:]`` when
+    ``factor`` is 1. Each sample's value does not depend on ``first``."""
     if factor == 1:
-        return low
-    return np.interp(np.arange(n), np.arange(low.size) * factor, low)
+        return low[first:]
+    return np.interp(np.arange(first, n), np.arange(low.size) * factor, low)
 
 
 # ----------------------------------------------------------------------------- the stream
@@ -1017,17 +1150,49 @@ class ReflexInputs:
     record, reused by every alternation of the cascade)."""
 
     def __init__(self, position: FloatArray, fs_hz: float, factor: int, variant: str) -> None:
-        velocity = stretch_velocity(position, fs_hz)
+        self._of_velocity(stretch_velocity(position, fs_hz), factor, variant, ())
+
+    @classmethod
+    def decimating(
+        cls,
+        position: FloatArray,
+        others: Sequence[FloatArray],
+        fs_hz: float,
+        factor: int,
+        variant: str,
+    ) -> tuple[ReflexInputs, FloatArray]:
+        """The inputs of ``position``'s record, and ``others`` (records of the same length,
+        e.g. its position and torque) by :func:`decimated`, all rows in one
+        :func:`decimated_rows`: the same numbers as decimating each alone.
+
+        Returns
+        -------
+        (ReflexInputs, numpy.ndarray)
+            The inputs, and ``others`` decimated, shape (len(others), m).
+        """
+        inputs = cls.__new__(cls)
+        decimated_others = inputs._of_velocity(
+            stretch_velocity(position, fs_hz), factor, variant, others
+        )
+        return inputs, decimated_others
+
+    def _of_velocity(
+        self, velocity: FloatArray, factor: int, variant: str, others: Sequence[FloatArray]
+    ) -> FloatArray:
+        """Set the inputs from the stretch velocity; ``others`` decimated with the rectified
+        velocity (returned)."""
         self.factor = factor
         self.variant = variant
         self.scale = float(np.sqrt(np.mean(velocity**2))) or 1.0
-        self.rectified = _at_model_rate(np.maximum(velocity, 0.0), factor)
+        rows = decimated_rows([*others, np.maximum(velocity, 0.0)], factor)
+        self.rectified = detrend(rows[-1], "mean")
         self.powers = (
             [_at_model_rate(p, factor) for p in _powers(velocity, self.scale, POLYNOMIAL_DEGREE)]
             if variant == "hammerstein"
             else []
         )
         self._systems: dict[int, ToeplitzSystem] = {}
+        return rows[:-1]
 
     def rectified_system(self, lags: int) -> ToeplitzSystem:
         """The rectified input's Toeplitz system for ``lags`` (formed on first use, then

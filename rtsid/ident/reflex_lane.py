@@ -227,13 +227,12 @@ def fit_reflex_update(
         if not (np.isfinite(pos).all() and np.isfinite(tor).all()):
             raise InputDataError("a valid sample is NaN or infinite")
         cascade = fit_parallel_cascade(pos, tor, fs_hz, settings.cascade())
-        evidence = window_vaf_gain(
-            pos,
-            tor,
-            cascade.record_reflex_torque(pos, fs_hz),
-            fs_hz,
-            round(cascade.reflex.history_s * fs_hz),
-        )
+        first = round(cascade.reflex.history_s * fs_hz)
+        # the prediction only where the evidence reads it (zero before: not read)
+        reflex_torque = np.zeros(pos.size)
+        lead = evidence_lead(pos.size, fs_hz, first)
+        reflex_torque[lead:] = cascade.record_reflex_torque(pos, fs_hz, lead)
+        evidence = window_vaf_gain(pos, tor, reflex_torque, fs_hz, first)
     except (InputDataError, ArithmeticError, np.linalg.LinAlgError) as exc:
         return ReflexUpdate.failed(seq, start_index, end_index, str(exc))
     return _update_from(seq, start_index, end_index, cascade, evidence, settings)
@@ -304,11 +303,18 @@ def window_vaf_gains(
     """
     n = round(EVIDENCE_WINDOW_S * fs_hz)
     first = max(first, position.size - round(EVIDENCE_SPAN_S * fs_hz))
-    lead = max(0, first - round(EVIDENCE_SETTLING_S * fs_hz))  # the basis starts here
+    lead = evidence_lead(position.size, fs_hz, first)  # the basis starts here
     basis = WindowVafBasis(position[lead:], torque[lead:], fs_hz)
     step = max(1, round(EVIDENCE_STEP_S * fs_hz))
     starts = np.arange(first - lead, position.size - lead - n + 1, step)
     return basis.least_squares_vaf_gains(starts, n, reflex_torque[lead:])
+
+
+def evidence_lead(n: int, fs_hz: float, first: int = 0) -> int:
+    """The first of ``n`` samples :func:`window_vaf_gains` reads (``first`` as there): its
+    basis starts ``EVIDENCE_SETTLING_S`` before the first evidence window."""
+    first = max(first, n - round(EVIDENCE_SPAN_S * fs_hz))
+    return max(0, first - round(EVIDENCE_SETTLING_S * fs_hz))
 
 
 def warm_up(fs_hz: float, settings: SlowLaneSettings) -> bool:

@@ -50,7 +50,11 @@ def savgol_derivatives(x: FloatArray, fs_hz: float) -> tuple[FloatArray, FloatAr
         d2 = signal.savgol_filter(arr, SAVGOL_POINTS, SAVGOL_ORDER, deriv=2, delta=1 / fs_hz)
         return np.asarray(d1), np.asarray(d2)
     taps = _savgol_taps(float(fs_hz))
-    d1, d2 = (np.asarray(ndimage.convolve1d(arr, t, mode="constant")) for t in taps)
+    if _eureka is not None:  # ndimage's convolution of both filters, bit for bit (tested)
+        d1, d2 = np.empty(arr.size), np.empty(arr.size)
+        _eureka.savgol_pair(np.ascontiguousarray(arr), taps[0], taps[1], d1, d2)
+    else:
+        d1, d2 = (np.asarray(ndimage.convolve1d(arr, t, mode="constant")) for t in taps)
     half, n, dt = SAVGOL_POINTS // 2, arr.size, 1.0 / fs_hz
     at = np.arange(float(SAVGOL_POINTS))
     for start, first in ((0, 0), (n - SAVGOL_POINTS, n - half)):
@@ -125,7 +129,7 @@ class WindowVafBasis:
     def __init__(self, position: FloatArray, torque: FloatArray, fs_hz: float) -> None:
         d1, d2 = savgol_derivatives(position, fs_hz)
         # scipy's sosfiltfilt of each row, compiled when built (the same numbers bit for bit)
-        low = zero_phase_rows(_basis_lowpass(float(fs_hz)), np.vstack((torque, d2, d1, position)))
+        low = zero_phase_rows(_basis_lowpass(float(fs_hz)), (torque, d2, d1, position))
         self.torque = low[0]
         self.regressors = low[1:]
 

@@ -1,0 +1,223 @@
+"""The reflex dynamics fit's own bounded solver, held to scipy's ``least_squares`` (TRF)."""
+
+import numpy as np
+import pytest
+from scipy import optimize
+
+from rtsid.ident import reflex
+from rtsid.ident.reflex import bounded_least_squares, fit_reflex_dynamics
+
+LAGS_S = np.arange(101) / 100.0
+LOW, HIGH = np.array([0.01, 0.3, 0.2]), np.array([0.2, 20.0, 3.0])
+
+
+def _rosenbrock(x):
+    return np.array([10.0 * (x[1] - x[0] ** 2), 1.0 - x[0]])
+
+
+def _rosenbrock_jacobian(x):
+    return np.array([[-20.0 * x[0], 10.0], [-1.0, 0.0]])
+
+
+def test_the_solver_finds_scipys_optimum_of_a_bounded_rosenbrock():
+    # scipy's documented example: the bound x1 >= 1.5 holds at the optimum
+    low, high = np.array([-10.0, 1.5]), np.array([10.0, 10.0])
+    want = optimize.least_squares(
+        _rosenbrock, [2.0, 2.0], jac=_rosenbrock_jacobian, bounds=(low, high)
+    )
+    x, cost = bounded_least_squares(
+        _rosenbrock, _rosenbrock_jacobian, np.array([2.0, 2.0]), low, high, np.ones(2)
+    )
+    assert x[1] == 1.5  # on the bound exactly, where TRF stays strictly inside
+    np.testing.assert_allclose(x, want.x, rtol=1e-7)
+    assert cost <= want.cost * (1 + 1e-12)
+    # the unbounded parameter is at its optimum along the bound: zero slope
+    r, j = _rosenbrock(x), _rosenbrock_jacobian(x)
+    assert abs((j.T @ r)[0]) < 1e-8
+
+
+def test_a_start_outside_the_box_is_clipped_into_it():
+    x, _ = bounded_least_squares(
+        _rosenbrock,
+        _rosenbrock_jacobian,
+        np.array([-30.0, 40.0]),
+        np.array([-2.0, -2.0]),
+        np.array([2.0, 2.0]),
+        np.ones(2),
+    )
+    np.testing.assert_allclose(x, [1.0, 1.0], rtol=1e-8)
+
+
+def _noisy_irf(seed, delay_s, corner_hz, zeta, noise):
+    g = 10.0 * reflex._low_pass_response(LAGS_S - delay_s, 2 * np.pi * corner_hz, zeta)
+    return g + noise * np.random.default_rng(seed).standard_normal(g.size)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize(
+    ("seed", "delay_s", "corner_hz", "zeta", "noise", "same_point"),
+    [
+        (0, 0.043, 3.1, 0.7, 0.5, True),
+        (1, 0.021, 6.0, 1.3, 1.0, True),
+        (2, 0.052, 2.2, 0.5, 2.0, True),
+        # hardly a low-pass: a flat valley, where TRF stops early
+        (3, 0.04, 3.0, 0.7, 30.0, False),
+        # the delay and corner end at their bounds, which TRF only approaches from inside
+        # (its ζ then stops 3e-5 short of the optimum along them)
+        (4, 0.0, 19.0, 0.7, 0.2, False),
+    ],
+)
+def test_the_dynamics_fit_is_no_worse_than_scipys_trf_from_the_same_start(
+    seed, delay_s, corner_hz, zeta, noise, same_point, compiled, monkeypatch
+):
+    if not compiled:
+        monkeypatch.setattr(reflex, "_eureka", None)
+    g = _noisy_irf(seed, delay_s, corner_hz, zeta, noise)
+    model = reflex._DelayedLowPass(g, LAGS_S)
+    start = np.array(reflex._best_on_grid(g, 100.0))
+    trf = optimize.least_squares(  # the fit's solver before it had its own
+        model.residual,
+        start,
+        jac=model.jacobian,
+        bounds=(LOW, HIGH),
+        x_scale=[0.01, 1.0, 0.3],
+    )
+    x, cost = bounded_least_squares(
+        model.residual, model.jacobian, start, LOW, HIGH, reflex.DYNAMICS_SCALE
+    )
+    assert np.all((x >= LOW) & (x <= HIGH))
+    assert cost <= trf.cost * (1 + 1e-9)
+    assert cost == pytest.approx(0.5 * float(model.residual(x) @ model.residual(x)), rel=1e-15)
+    if same_point:  # a well-defined optimum inside the box
+        np.testing.assert_allclose(x, trf.x, rtol=1e-6, atol=1e-12)
+    found = fit_reflex_dynamics(g, 100.0)
+    np.testing.assert_array_equal([found.delay_s, found.corner_hz, found.damping_ratio], x)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize(("rows", "n", "factor"), [(3, 20_000, 25), (1, 5_001, 10), (6, 600, 2)])
+def test_rows_decimated_together_are_scipys_decimate_of_each_bit_for_bit(
+    rows, n, factor, compiled, monkeypatch
+):
+    from scipy import signal
+
+    if not compiled:
+        monkeypatch.setattr(reflex, "_eureka", None)
+    x = np.random.default_rng(n).standard_normal((rows, n)).cumsum(axis=1)
+    got = reflex.decimated_rows(list(x), factor)
+    np.testing.assert_array_equal(got, np.vstack([signal.decimate(r, factor) for r in x]))
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize(("rows", "n"), [(4, 7_000), (3, 2_500), (1, 40)])
+def test_zero_phase_rows_is_scipys_sosfiltfilt_of_each_row_bit_for_bit(
+    rows, n, compiled, monkeypatch
+):
+    from scipy import signal
+
+    if not compiled:
+        monkeypatch.setattr(reflex, "_eureka", None)
+    x = np.random.default_rng(rows).standard_normal((rows, n)).cumsum(axis=1)
+    for sos in (signal.butter(4, 40.0, fs=2500.0, output="sos"), reflex._decimator(10).sos):
+        want = np.vstack([signal.sosfiltfilt(sos, r) for r in x])
+        np.testing.assert_array_equal(reflex.zero_phase_rows(sos, x), want)
+
+
+def test_the_compiled_rows_kernel_names_inconsistent_sizes():
+    if reflex._eureka is None:
+        pytest.skip("the compiled kernel is not built")
+    d = reflex._decimator(10)
+    x = np.zeros((2, 100))
+    with pytest.raises(ValueError, match="zero_phase_rows: inconsistent sizes"):
+        reflex._eureka.zero_phase_rows(d.sos, d.zi, x, 100, d.edge, 10, np.empty((2, 9)))
+    with pytest.raises(ValueError, match="zero_phase_rows: inconsistent sizes"):
+        rows = (np.zeros(100), np.zeros(99))
+        reflex._eureka.zero_phase_rows(d.sos, d.zi, rows, 100, d.edge, 10, np.empty((2, 10)))
+    with pytest.raises(TypeError, match="each row must be a contiguous float64 buffer"):
+        rows = (np.zeros(100), np.zeros(100, dtype=np.float32))
+        reflex._eureka.zero_phase_rows(d.sos, d.zi, rows, 100, d.edge, 10, np.empty((2, 10)))
+
+
+def test_a_cascades_inputs_decimated_with_its_record_are_those_formed_alone():
+    x = np.random.default_rng(5).standard_normal((2, 10_000)).cumsum(axis=1) * 1e-3
+    inputs, (u, y) = reflex.ReflexInputs.decimating(x[0], (x[0], x[1]), 2500.0, 25, "rect")
+    alone = reflex.ReflexInputs(x[0], 2500.0, 25, "rect")
+    np.testing.assert_array_equal(inputs.rectified, alone.rectified)
+    assert inputs.scale == alone.scale
+    np.testing.assert_array_equal(u, reflex.decimated(x[0], 25))
+    np.testing.assert_array_equal(y, reflex.decimated(x[1], 25))
+
+
+def test_the_stretch_velocity_is_the_window_paths_first_derivative():
+    from rtsid.ident.correlation import detrend
+    from rtsid.ident.filters import derivatives
+
+    for n in (9, 12, 5_000):
+        x = np.random.default_rng(n).standard_normal(n).cumsum()
+        want, _ = derivatives(detrend(x, "linear"), 2500.0)
+        np.testing.assert_array_equal(reflex.stretch_velocity(x, 2500.0), want)
+    with pytest.raises(reflex.InputDataError, match="at least 9 samples"):
+        reflex.stretch_velocity(np.zeros(8), 2500.0)
+
+
+def test_a_prediction_at_the_data_rate_from_a_sample_on_is_the_same_numbers():
+    low = np.random.default_rng(2).standard_normal(200)
+    whole = reflex.to_data_rate(low, 10, 2_000)
+    np.testing.assert_array_equal(reflex.to_data_rate(low, 10, 2_000, 777), whole[777:])
+    np.testing.assert_array_equal(reflex.to_data_rate(low, 1, 200, 50), low[50:])
+
+
+def test_the_evidence_reads_the_reflex_prediction_from_its_lead_on_only():
+    from rtsid.ident.cascade import fit_parallel_cascade
+    from rtsid.ident.reflex_lane import evidence_lead, window_vaf_gains
+    from tests.ident.test_cascade import FS, joint_with_reflex
+
+    theta, torque = joint_with_reflex(seconds=14.0, seed=3)
+    fit = fit_parallel_cascade(theta, torque, FS)
+    first = round(fit.reflex.history_s * FS)
+    whole = fit.record_reflex_torque(theta, FS)
+    lead = evidence_lead(theta.size, FS, first)
+    assert 0 < lead < theta.size
+    tail = fit.record_reflex_torque(theta, FS, lead)
+    np.testing.assert_array_equal(tail, whole[lead:])
+    padded = np.zeros(theta.size)
+    padded[lead:] = tail
+    want = window_vaf_gains(theta, torque, whole, FS, first)
+    np.testing.assert_array_equal(window_vaf_gains(theta, torque, padded, FS, first), want)
+
+
+@pytest.mark.parametrize("n", [11, 12, 40, 27_500])
+def test_the_savitzky_golay_derivatives_are_the_same_compiled_or_not(n, monkeypatch):
+    from rtsid.ident import yardstick
+
+    x = np.random.default_rng(n).standard_normal(n).cumsum()
+    compiled = yardstick.savgol_derivatives(x, 2500.0)
+    monkeypatch.setattr(yardstick, "_eureka", None)
+    reference = yardstick.savgol_derivatives(x, 2500.0)
+    for got, want in zip(compiled, reference, strict=True):
+        np.testing.assert_array_equal(got, want)
+
+
+def test_the_compiled_convolution_is_ndimages_for_any_taps():
+    from scipy import ndimage
+
+    if reflex._eureka is None:
+        pytest.skip("the compiled kernel is not built")
+    rng = np.random.default_rng(4)
+    x = rng.standard_normal(3_000).cumsum()
+    general = rng.standard_normal(7)
+    symmetric = np.concatenate((general[:3], general[3:4], general[:3][::-1]))
+    antisymmetric = np.concatenate((general[:3], [0.0], -general[:3][::-1]))
+    for a, b in ((symmetric, antisymmetric), (general, general[::-1].copy())):
+        d1, d2 = np.empty(x.size), np.empty(x.size)
+        reflex._eureka.savgol_pair(x, a, b, d1, d2)
+        np.testing.assert_array_equal(d1, ndimage.convolve1d(x, a, mode="constant"))
+        np.testing.assert_array_equal(d2, ndimage.convolve1d(x, b, mode="constant"))
+    for n in (3, 6, 7, 8, 13):  # shorter than the taps, and interiors not a whole vector
+        short = x[:n].copy()
+        d1, d2 = np.empty(n), np.empty(n)
+        reflex._eureka.savgol_pair(short, symmetric, general, d1, d2)
+        np.testing.assert_array_equal(d1, ndimage.convolve1d(short, symmetric, mode="constant"))
+        np.testing.assert_array_equal(d2, ndimage.convolve1d(short, general, mode="constant"))
+    with pytest.raises(ValueError, match="savgol_pair: inconsistent sizes"):
+        reflex._eureka.savgol_pair(x, np.ones(4), np.ones(4), d1, d2)
