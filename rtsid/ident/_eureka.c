@@ -1725,7 +1725,6 @@ static PyObject *py_window_sums(PyObject *self, PyObject *args)
     return result;
 }
 static PyObject *py_evidence_gains(PyObject *self, PyObject *args);
-static PyObject *py_sos_filtfilt_rows(PyObject *self, PyObject *args);
 static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args);
 static PyObject *py_zero_phase_rows(PyObject *self, PyObject *args);
 static PyObject *py_savgol_pair(PyObject *self, PyObject *args);
@@ -1763,7 +1762,6 @@ static PyMethodDef methods[] = {
     {"window_sums", py_window_sums, METH_VARARGS, "window_sums(position, torque) -> (sum of position, sum of torque, sum of position squared)."},
     {"split_scan", py_split_scan, METH_VARARGS, "split_scan(regressors, measured, k, held, factor, delay, window_samples, fs, out) -> best row (-1: none usable, -2: no problem): every split of a window's K (SS_* rows of out)."},
     {"evidence_gains", py_evidence_gains, METH_VARARGS, "evidence_gains(torque, regressors, extra, starts, n, out): slow-lane evidence windows' VAF gains."},
-    {"sos_filtfilt_rows", py_sos_filtfilt_rows, METH_VARARGS, "sos_filtfilt_rows(sos, zi, x, n): sos_filtfilt on each row of n samples of x, in place."},
     {"low_pass_slopes", py_low_pass_slopes, METH_VARARGS, "low_pass_slopes(t, wn, zeta, h, slopes): the reflex dynamics' low-pass and its derivatives."},
     {"zero_phase_rows", py_zero_phase_rows, METH_VARARGS, "zero_phase_rows(sos, zi, rows, n, edge, factor, out): scipy's sosfiltfilt of each row, every factor-th sample into out."},
     {"savgol_pair", py_savgol_pair, METH_VARARGS, "savgol_pair(x, taps1, taps2, d1, d2): ndimage.convolve1d(x, taps, mode='constant') of two filters."},
@@ -1998,8 +1996,6 @@ static PyObject *py_json_array(PyObject *self, PyObject *args)
  *   is rtsid.ident.yardstick.WindowVafBasis.least_squares_vaf_gains (the same steps: centred
  *   regressors scaled to unit norm, the 4 × 4 normal equations with both right-hand sides).
  *   O(windows·n).
- * sos_filtfilt_rows(sos, zi, x, n): sos_filtfilt (scipy's passes bit for bit) on each row of x,
- *   four rows interleaved (the window VAF basis's rows; rtsid.ident.reflex.zero_phase_rows).
  * low_pass_slopes(t, wn, zeta, h, slopes): the reflex dynamics fit's delayed low-pass and its
  *   derivatives by t, ωn and ζ at every step of the fit (rtsid.ident.reflex._low_pass_and_slopes).
  */
@@ -2109,110 +2105,6 @@ static PyObject *py_evidence_gains(PyObject *self, PyObject *args)
     release_buffers(b, 4);
     return result;
 }
-
-/* sos_filtfilt_rows(sos, zi, x, n): sos_filtfilt on each row of x (rows of n extended
- * samples), in place, each row scipy's sosfilt passes bit for bit (the operations of
- * sos_run_exact in its order); four rows at a time, so that their recurrences overlap where
- * one row's waits on its own latency (the window VAF basis filters four rows with a
- * two-section low-pass). */
-#define ROWS_AT_ONCE 4
-/* Two sections, four rows: the states in registers. */
-#define ROW_SECTION(c, cur, s0, s1)                   \
-    do {                                              \
-        const double out = (c)[0] * cur + s0;         \
-        s0 = (c)[1] * cur - (c)[4] * out + s1;        \
-        s1 = (c)[2] * cur - (c)[5] * out;             \
-        cur = out;                                    \
-    } while (0)
-static void sos_rows_pass2x4(const double *sos, const double *zi, double *x, Py_ssize_t n,
-                             int backwards)
-{
-    const double *c0 = sos, *c1 = sos + 6;
-    double a[4][4];
-    for (int q = 0; q < 4; q++) {
-        const double first = backwards ? x[q * n + n - 1] : x[q * n];
-        for (int s = 0; s < 4; s++) a[q][s] = zi[s] * first;
-    }
-    double a00 = a[0][0], a01 = a[0][1], a02 = a[0][2], a03 = a[0][3];
-    double a10 = a[1][0], a11 = a[1][1], a12 = a[1][2], a13 = a[1][3];
-    double a20 = a[2][0], a21 = a[2][1], a22 = a[2][2], a23 = a[2][3];
-    double a30 = a[3][0], a31 = a[3][1], a32 = a[3][2], a33 = a[3][3];
-    double *r0 = x, *r1 = x + n, *r2 = x + 2 * n, *r3 = x + 3 * n;
-    for (Py_ssize_t i = 0; i < n; i++) {
-        const Py_ssize_t at = backwards ? n - 1 - i : i;
-        double u0 = r0[at], u1 = r1[at], u2 = r2[at], u3 = r3[at];
-        ROW_SECTION(c0, u0, a00, a01);
-        ROW_SECTION(c0, u1, a10, a11);
-        ROW_SECTION(c0, u2, a20, a21);
-        ROW_SECTION(c0, u3, a30, a31);
-        ROW_SECTION(c1, u0, a02, a03);
-        ROW_SECTION(c1, u1, a12, a13);
-        ROW_SECTION(c1, u2, a22, a23);
-        ROW_SECTION(c1, u3, a32, a33);
-        r0[at] = u0;
-        r1[at] = u1;
-        r2[at] = u2;
-        r3[at] = u3;
-    }
-}
-#undef ROW_SECTION
-
-static void sos_rows_pass(const double *sos, const double *zi, Py_ssize_t ns, double *x,
-                          int rows, Py_ssize_t n, int backwards)
-{
-    if (ns == 2 && rows == 4) {
-        sos_rows_pass2x4(sos, zi, x, n, backwards);
-        return;
-    }
-    double state[ROWS_AT_ONCE][32];
-    for (int q = 0; q < rows; q++) {
-        const double first = backwards ? x[q * n + n - 1] : x[q * n];
-        for (Py_ssize_t s = 0; s < 2 * ns; s++) state[q][s] = zi[s] * first;
-    }
-    for (Py_ssize_t i = 0; i < n; i++) {
-        const Py_ssize_t at = backwards ? n - 1 - i : i;
-        for (int q = 0; q < rows; q++) {
-            double cur = x[q * n + at];
-            double *st = state[q];
-            for (Py_ssize_t s = 0; s < ns; s++) {
-                const double *c = sos + 6 * s;
-                const double out = c[0] * cur + st[2 * s];
-                st[2 * s] = c[1] * cur - c[4] * out + st[2 * s + 1];
-                st[2 * s + 1] = c[2] * cur - c[5] * out;
-                cur = out;
-            }
-            x[q * n + at] = cur;
-        }
-    }
-}
-
-static PyObject *py_sos_filtfilt_rows(PyObject *self, PyObject *args)
-{
-    PyObject *objs[3];
-    Py_ssize_t n;
-    if (!PyArg_ParseTuple(args, "OOOn", &objs[0], &objs[1], &objs[2], &n)) return NULL;
-    const char *names[3] = {"sos", "zi", "x"};
-    Py_buffer b[3];
-    if (get_buffers(objs, 3, 2, names, b) < 0) return NULL;
-    const Py_ssize_t ns = b[0].len / 48, rows = n > 0 ? b[2].len / 8 / n : 0;
-    PyObject *result = NULL;
-    if (ns < 1 || ns > 16 || b[0].len != 48 * ns || b[1].len != 16 * ns || n < 1 ||
-        b[2].len != 8 * n * rows) {
-        PyErr_SetString(PyExc_ValueError, "sos_filtfilt_rows: inconsistent sizes");
-    } else {
-        double *x = b[2].buf;
-        for (Py_ssize_t r = 0; r < rows; r += ROWS_AT_ONCE) {
-            const int k = rows - r < ROWS_AT_ONCE ? (int)(rows - r) : ROWS_AT_ONCE;
-            sos_rows_pass(b[0].buf, b[1].buf, ns, x + r * n, k, n, 0);
-            sos_rows_pass(b[0].buf, b[1].buf, ns, x + r * n, k, n, 1);
-        }
-        Py_INCREF(Py_None);
-        result = Py_None;
-    }
-    release_buffers(b, 3);
-    return result;
-}
-#undef ROWS_AT_ONCE
 
 /* low_pass_slopes(t, wn, zeta, h, slopes): the reflex dynamics fit's delayed low-pass
  * h(t) = Re A·(e^{p1 t} − e^{p2 t}) (ωn²/(s² + 2ζωn s + ωn²), 0 for t ≤ 0) and its derivatives
