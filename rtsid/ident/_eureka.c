@@ -162,6 +162,17 @@ static void xcorr(const double *u, const double *y, Py_ssize_t n, Py_ssize_t fir
     }
 }
 
+/* Blocked forms of the window path's sums, bit for bit the loops they replace (the section
+ * "the window path at a full-rate plan" at the end of this file). */
+static void lagged_predict(const double *h, const double *u, Py_ssize_t nh, Py_ssize_t lag,
+                           Py_ssize_t t0, Py_ssize_t t1, double *out);
+static void lagged_correlate(const double *u, const double *e, Py_ssize_t nh, Py_ssize_t lag,
+                             Py_ssize_t t0, Py_ssize_t t1, double *out);
+static void xcorr_blocked(const double *u, const double *y, Py_ssize_t n, Py_ssize_t first,
+                          Py_ssize_t last, double norm, double *c);
+static void band_smooth(const double *row, const double *r, Py_ssize_t n, Py_ssize_t lags,
+                        double *smoothed);
+
 static Py_ssize_t window_irf(const double *pos, const double *trq, Py_ssize_t n,
                              const double *taps, Py_ssize_t nt, Py_ssize_t factor, double sign,
                              int kind, Py_ssize_t lag, double ridge, Py_ssize_t sweeps,
@@ -177,31 +188,20 @@ static Py_ssize_t window_irf(const double *pos, const double *trq, Py_ssize_t n,
     detrend_into(trq, dt, n, sign, kind);
     fir_decimate(dp, n, taps, nt, factor, u, m);
     fir_decimate(dt, n, taps, nt, factor, y, m);
-    xcorr(u, u, m, 0, nh - 1, (double)m, phi);
+    xcorr_blocked(u, u, m, 0, nh - 1, (double)m, phi);
     const double loading = ridge * phi[0];
     phi[0] += loading;
     /* phi_uy(k) = sum_t u(t-k) y(t) / m  =  sum_s u(s) y(s+k) / m */
-    xcorr(u, y, m, -lag, lag, (double)m, g);
+    xcorr_blocked(u, y, m, -lag, lag, (double)m, g);
     Py_ssize_t status = eureka_solve(phi, g, h, a, rr, nh, alpha);
     if (status >= 0) return status;
     for (Py_ssize_t k = 0; k < nh; k++) h[k] *= fs;
     const Py_ssize_t inner = m - 2 * lag;
     for (Py_ssize_t s = 0; s < sweeps; s++) {
-        for (Py_ssize_t t = lag; t < m - lag; t++) {
-            double pred = 0.0;
-            for (Py_ssize_t j = 0; j < nh; j++) {
-                pred += h[j] * u[t - (j - lag)];
-            }
-            err[t] = y[t] - pred / fs;
-        }
-        for (Py_ssize_t j = 0; j < nh; j++) {
-            Py_ssize_t k = j - lag;
-            double acc = 0.0;
-            for (Py_ssize_t t = lag; t < m - lag; t++) {
-                acc += u[t - k] * err[t];
-            }
-            g[j] = acc / (double)inner - loading * h[j] / fs;
-        }
+        lagged_predict(h, u, nh, lag, lag, m - lag, err); /* Σ_j h(j)·u(t − (j − L)) */
+        for (Py_ssize_t t = lag; t < m - lag; t++) err[t] = y[t] - err[t] / fs;
+        lagged_correlate(u, err, nh, lag, lag, m - lag, g); /* Σ_t u(t − k)·err(t) */
+        for (Py_ssize_t j = 0; j < nh; j++) g[j] = g[j] / (double)inner - loading * h[j] / fs;
         status = eureka_solve(phi, g, delta, a, rr, nh, alpha);
         if (status >= 0) return status;
         for (Py_ssize_t j = 0; j < nh; j++) h[j] += delta[j] * fs;
@@ -363,9 +363,9 @@ static void predictions(const double *u, const double *y, Py_ssize_t m, const do
                         double *measured, double *by_irf, double *by_model)
 {
     const Py_ssize_t nh = 2 * lag + 1;
+    lagged_predict(h, u, nh, lag, edge, m - edge, by_irf - edge); /* Σ_j h(j)·u(t + L − j) */
     for (Py_ssize_t t = edge; t < m - edge; t++) {
-        double acc = 0.0, d1 = 0.0, d2 = 0.0;
-        for (Py_ssize_t j = 0; j < nh; j++) acc += h[j] * u[t + lag - j];
+        double acc = by_irf[t - edge], d1 = 0.0, d2 = 0.0;
         for (int s = 0; s < 9; s++) {
             d1 += u[t - 4 + s] * STENCIL_D1[s];
             d2 += u[t - 4 + s] * STENCIL_D2[s];
@@ -588,13 +588,7 @@ static void oe_sandwich(const double *x, int p, const double *residual, Py_ssize
     }
     double middle[9], inv[9];
     for (int b = 0; b < p; b++) {
-        const double *row = x + b * n;
-        for (Py_ssize_t t = 0; t < n; t++) {
-            Py_ssize_t lo = t - lags < 0 ? 0 : t - lags, hi = t + lags >= n ? n - 1 : t + lags;
-            double acc = 0.0;
-            for (Py_ssize_t j = lo; j <= hi; j++) acc += row[j] * r[t > j ? t - j : j - t];
-            smoothed[t] = acc;
-        }
+        band_smooth(x + b * n, r, n, lags, smoothed);
         for (int a = 0; a < p; a++) middle[a * p + b] = dot_unrolled(x + a * n, smoothed, n);
     }
     /* G⁻¹ = S⁻¹·N⁻¹·S⁻¹ with N the normalised Gram block (factored by the caller). */
@@ -2254,4 +2248,181 @@ static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args)
     }
     release_buffers(b, 3);
     return result;
+}
+
+/* ------------------------------------------------------------------ the window path at a full-rate plan (issue 22)
+ * At the plant's plan (2500 Hz analysis, ±50 lags, M = 750) a window's compiled work is sums
+ * of products over lags: the refinement sweeps' predictions and gradients and the front end's
+ * correlations (O(M·L)), the IRF's prediction in the back end (O(M·L)) and the sandwich's
+ * smoothing (O(M·lags)). Written one output at a time, each sum is a chain of dependent
+ * additions that waits on the adder and reloads its operands per output. These loops compute
+ * BLOCK outputs at a time instead: every output still sums the same products in the same order
+ * (so the numbers are bit for bit those of the loops they replace, and the pinned numbers hold),
+ * but BLOCK independent chains share each load and fill the vector registers.
+ *
+ * The algebraic shortcut — a sweep's gradient as X'y − (X'X)·h/fs with the Gram matrix formed
+ * once per window from the correlation sums, O(L²) a sweep instead of O(M·L) — was measured and
+ * not adopted: its rounding differs, and R_uu's condition at this plan amplifies that to 9e-12
+ * of the IRF's scale, past the pinned numbers' 1e-12 (docs/service.md).
+ */
+#define BLOCK 8 /* outputs per block: four pairs of lanes */
+
+#if defined(__GNUC__) || defined(__clang__)
+/* Two doubles per register (SSE2, the x86-64 baseline; NEON on arm64): each lane does the
+ * scalar loop's IEEE multiply and add, so a lane's sum is the scalar sum bit for bit. */
+typedef double lanes __attribute__((vector_size(16)));
+#define LANES 1
+static inline lanes lanes_at(const double *p)
+{
+    lanes v;
+    memcpy(&v, p, sizeof v);
+    return v;
+}
+static inline lanes lanes_of(double x)
+{
+    lanes v = {x, x};
+    return v;
+}
+#endif
+
+/* out[t] = Σ_{j=0}^{nh−1} h[j]·u[t + lag − j] (in j order) for t = t0 … t1−1. */
+static void lagged_predict(const double *h, const double *u, Py_ssize_t nh, Py_ssize_t lag,
+                           Py_ssize_t t0, Py_ssize_t t1, double *out)
+{
+    Py_ssize_t t = t0;
+#ifdef LANES
+    for (; t + BLOCK <= t1; t += BLOCK) {
+        lanes a0 = lanes_of(0.0), a1 = a0, a2 = a0, a3 = a0;
+        for (Py_ssize_t j = 0; j < nh; j++) {
+            const lanes hj = lanes_of(h[j]);
+            const double *src = u + t + lag - j;
+            a0 += hj * lanes_at(src);
+            a1 += hj * lanes_at(src + 2);
+            a2 += hj * lanes_at(src + 4);
+            a3 += hj * lanes_at(src + 6);
+        }
+        memcpy(out + t, &a0, 16);
+        memcpy(out + t + 2, &a1, 16);
+        memcpy(out + t + 4, &a2, 16);
+        memcpy(out + t + 6, &a3, 16);
+    }
+#endif
+    for (; t < t1; t++) {
+        double acc = 0.0;
+        for (Py_ssize_t j = 0; j < nh; j++) acc += h[j] * u[t + lag - j];
+        out[t] = acc;
+    }
+}
+
+/* out[j] = Σ_{t=t0}^{t1−1} u[t + lag − j]·e[t] (in t order) for j = 0 … nh−1. */
+static void lagged_correlate(const double *u, const double *e, Py_ssize_t nh, Py_ssize_t lag,
+                             Py_ssize_t t0, Py_ssize_t t1, double *out)
+{
+    Py_ssize_t j = 0;
+#ifdef LANES
+    for (; j + BLOCK <= nh; j += BLOCK) {
+        /* lane b of the block holds column j + 7 − b: its u sample is src[b], ascending */
+        lanes a0 = lanes_of(0.0), a1 = a0, a2 = a0, a3 = a0;
+        for (Py_ssize_t t = t0; t < t1; t++) {
+            const lanes et = lanes_of(e[t]);
+            const double *src = u + t + lag - j - (BLOCK - 1);
+            a0 += lanes_at(src) * et;
+            a1 += lanes_at(src + 2) * et;
+            a2 += lanes_at(src + 4) * et;
+            a3 += lanes_at(src + 6) * et;
+        }
+        double acc[BLOCK];
+        memcpy(acc, &a0, 16);
+        memcpy(acc + 2, &a1, 16);
+        memcpy(acc + 4, &a2, 16);
+        memcpy(acc + 6, &a3, 16);
+        for (int b = 0; b < BLOCK; b++) out[j + BLOCK - 1 - b] = acc[b];
+    }
+#endif
+    for (; j < nh; j++) {
+        double acc = 0.0;
+        for (Py_ssize_t t = t0; t < t1; t++) acc += u[t + lag - j] * e[t];
+        out[j] = acc;
+    }
+}
+
+/* xcorr's c[k − first] = Σ_t u[t]·y[t + k] / norm (t ascending over the overlap), BLOCK lags
+ * at a time: each lag's own first samples, the block's common span, then its own last ones. */
+static void xcorr_blocked(const double *u, const double *y, Py_ssize_t n, Py_ssize_t first,
+                          Py_ssize_t last, double norm, double *c)
+{
+    Py_ssize_t k0 = first;
+#ifdef LANES
+    for (; k0 + BLOCK - 1 <= last; k0 += BLOCK) {
+        double acc[BLOCK] = {0.0};
+        Py_ssize_t lo[BLOCK], hi[BLOCK], common_lo = 0, common_hi = n;
+        for (int b = 0; b < BLOCK; b++) {
+            const Py_ssize_t k = k0 + b;
+            lo[b] = k < 0 ? -k : 0;
+            hi[b] = k > 0 ? n - k : n;
+            if (lo[b] > common_lo) common_lo = lo[b];
+            if (hi[b] < common_hi) common_hi = hi[b];
+        }
+        if (common_hi < common_lo) common_hi = common_lo;
+        for (int b = 0; b < BLOCK; b++) {
+            for (Py_ssize_t t = lo[b]; t < common_lo && t < hi[b]; t++) acc[b] += u[t] * y[t + k0 + b];
+        }
+        lanes a0 = lanes_at(acc), a1 = lanes_at(acc + 2), a2 = lanes_at(acc + 4),
+              a3 = lanes_at(acc + 6);
+        for (Py_ssize_t t = common_lo; t < common_hi; t++) {
+            const lanes ut = lanes_of(u[t]);
+            const double *src = y + t + k0;
+            a0 += ut * lanes_at(src);
+            a1 += ut * lanes_at(src + 2);
+            a2 += ut * lanes_at(src + 4);
+            a3 += ut * lanes_at(src + 6);
+        }
+        memcpy(acc, &a0, 16);
+        memcpy(acc + 2, &a1, 16);
+        memcpy(acc + 4, &a2, 16);
+        memcpy(acc + 6, &a3, 16);
+        for (int b = 0; b < BLOCK; b++) {
+            Py_ssize_t t = common_hi > lo[b] ? common_hi : lo[b];
+            if (common_lo >= hi[b]) t = hi[b]; /* all of this lag's span was its own head */
+            for (; t < hi[b]; t++) acc[b] += u[t] * y[t + k0 + b];
+            c[k0 + b - first] = acc[b] / norm;
+        }
+    }
+#endif
+    if (k0 <= last) xcorr(u, y, n, k0, last, norm, c + (k0 - first));
+}
+
+/* The sandwich's smoothing, smoothed[t] = Σ_{j=lo}^{hi} row[j]·r[|t − j|] (j ascending, lo and
+ * hi the band of `lags` either side clipped to 0 … n−1), BLOCK rows at a time inside it. */
+static void band_smooth(const double *row, const double *r, Py_ssize_t n, Py_ssize_t lags,
+                        double *smoothed)
+{
+    Py_ssize_t inside_lo = lags, inside_hi = n - lags; /* rows whose band is not clipped */
+    if (inside_hi < inside_lo) inside_hi = inside_lo = n;
+    for (Py_ssize_t t = 0; t < n; t++) {
+#ifdef LANES
+        if (t == inside_lo) {
+            for (; t + BLOCK <= inside_hi; t += BLOCK) {
+                lanes a0 = lanes_of(0.0), a1 = a0, a2 = a0, a3 = a0;
+                for (Py_ssize_t e = -lags; e <= lags; e++) {
+                    const lanes re = lanes_of(r[e < 0 ? -e : e]);
+                    const double *src = row + t + e;
+                    a0 += lanes_at(src) * re;
+                    a1 += lanes_at(src + 2) * re;
+                    a2 += lanes_at(src + 4) * re;
+                    a3 += lanes_at(src + 6) * re;
+                }
+                memcpy(smoothed + t, &a0, 16);
+                memcpy(smoothed + t + 2, &a1, 16);
+                memcpy(smoothed + t + 4, &a2, 16);
+                memcpy(smoothed + t + 6, &a3, 16);
+            }
+            if (t >= n) break;
+        }
+#endif
+        Py_ssize_t lo = t - lags < 0 ? 0 : t - lags, hi = t + lags >= n ? n - 1 : t + lags;
+        double acc = 0.0;
+        for (Py_ssize_t j = lo; j <= hi; j++) acc += row[j] * r[t > j ? t - j : j - t];
+        smoothed[t] = acc;
+    }
 }
