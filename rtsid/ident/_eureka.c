@@ -33,8 +33,13 @@
  * a latency-critical caller does not wait a whole switch interval to get it back. */
 #define RELEASE_GIL_ABOVE 1000
 
+static double dot_lanes(const double *u, const double *v, Py_ssize_t n, int *done);
+
 static double dot_unrolled(const double *u, const double *v, Py_ssize_t n)
 {
+    int done = 0; /* the same sums in vector lanes where the compiler has them (end of file) */
+    double lanes_sum = dot_lanes(u, v, n, &done);
+    if (done) return lanes_sum;
     double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
     Py_ssize_t i = 0;
     for (; i + 4 <= n; i += 4) {
@@ -172,6 +177,9 @@ static void xcorr_blocked(const double *u, const double *y, Py_ssize_t n, Py_ssi
                           Py_ssize_t last, double norm, double *c);
 static void band_smooth(const double *row, const double *r, Py_ssize_t n, Py_ssize_t lags,
                         double *smoothed);
+static Py_ssize_t band_powers(const double *meas, const double *err, Py_ssize_t n,
+                              Py_ssize_t kmax, const double *tw_cos, const double *tw_sin,
+                              double *total, double *left);
 
 static Py_ssize_t window_irf(const double *pos, const double *trq, Py_ssize_t n,
                              const double *taps, Py_ssize_t nt, Py_ssize_t factor, double sign,
@@ -698,7 +706,8 @@ static double band_vaf(const double *y, const double *model, Py_ssize_t n, doubl
         err[t] -= me;
     }
     double total = 0.0, left = 0.0;
-    for (Py_ssize_t k = 1; k <= kmax; k++) {
+    Py_ssize_t k = band_powers(meas, err, n, kmax, tw_cos, tw_sin, &total, &left);
+    for (; k <= kmax; k++) {
         double mr = 0.0, mi = 0.0, er = 0.0, ei = 0.0;
         Py_ssize_t idx = 0;
         for (Py_ssize_t t = 0; t < n; t++) {
@@ -2338,6 +2347,14 @@ static void lagged_correlate(const double *u, const double *e, Py_ssize_t nh, Py
         memcpy(acc + 6, &a3, 16);
         for (int b = 0; b < BLOCK; b++) out[j + BLOCK - 1 - b] = acc[b];
     }
+    for (; j + 2 <= nh; j += 2) { /* the last columns in pairs */
+        lanes a0 = lanes_of(0.0);
+        for (Py_ssize_t t = t0; t < t1; t++) a0 += lanes_at(u + t + lag - j - 1) * lanes_of(e[t]);
+        double acc[2];
+        memcpy(acc, &a0, 16);
+        out[j + 1] = acc[0];
+        out[j] = acc[1];
+    }
 #endif
     for (; j < nh; j++) {
         double acc = 0.0;
@@ -2393,36 +2410,106 @@ static void xcorr_blocked(const double *u, const double *y, Py_ssize_t n, Py_ssi
 }
 
 /* The sandwich's smoothing, smoothed[t] = Σ_{j=lo}^{hi} row[j]·r[|t − j|] (j ascending, lo and
- * hi the band of `lags` either side clipped to 0 … n−1), BLOCK rows at a time inside it. */
+ * hi the band of `lags` either side clipped to 0 … n−1), BLOCK rows at a time over the row
+ * padded with `lags` zeros each side: a padded term adds +0 or −0 to the sum, which leaves it
+ * as it was (a sum that is itself zero may change the sign of its zero). */
 static void band_smooth(const double *row, const double *r, Py_ssize_t n, Py_ssize_t lags,
                         double *smoothed)
 {
-    Py_ssize_t inside_lo = lags, inside_hi = n - lags; /* rows whose band is not clipped */
-    if (inside_hi < inside_lo) inside_hi = inside_lo = n;
-    for (Py_ssize_t t = 0; t < n; t++) {
+    Py_ssize_t t = 0;
 #ifdef LANES
-        if (t == inside_lo) {
-            for (; t + BLOCK <= inside_hi; t += BLOCK) {
-                lanes a0 = lanes_of(0.0), a1 = a0, a2 = a0, a3 = a0;
-                for (Py_ssize_t e = -lags; e <= lags; e++) {
-                    const lanes re = lanes_of(r[e < 0 ? -e : e]);
-                    const double *src = row + t + e;
-                    a0 += lanes_at(src) * re;
-                    a1 += lanes_at(src + 2) * re;
-                    a2 += lanes_at(src + 4) * re;
-                    a3 += lanes_at(src + 6) * re;
-                }
-                memcpy(smoothed + t, &a0, 16);
-                memcpy(smoothed + t + 2, &a1, 16);
-                memcpy(smoothed + t + 4, &a2, 16);
-                memcpy(smoothed + t + 6, &a3, 16);
+    double *padded = PyMem_RawCalloc((size_t)(n + 2 * lags), sizeof(double));
+    if (padded != NULL) {
+        memcpy(padded + lags, row, sizeof(double) * (size_t)n);
+        for (; t + BLOCK <= n; t += BLOCK) {
+            lanes a0 = lanes_of(0.0), a1 = a0, a2 = a0, a3 = a0;
+            for (Py_ssize_t e = -lags; e <= lags; e++) {
+                const lanes re = lanes_of(r[e < 0 ? -e : e]);
+                const double *src = padded + lags + t + e;
+                a0 += lanes_at(src) * re;
+                a1 += lanes_at(src + 2) * re;
+                a2 += lanes_at(src + 4) * re;
+                a3 += lanes_at(src + 6) * re;
             }
-            if (t >= n) break;
+            memcpy(smoothed + t, &a0, 16);
+            memcpy(smoothed + t + 2, &a1, 16);
+            memcpy(smoothed + t + 4, &a2, 16);
+            memcpy(smoothed + t + 6, &a3, 16);
         }
+        PyMem_RawFree(padded);
+    }
 #endif
+    for (; t < n; t++) {
         Py_ssize_t lo = t - lags < 0 ? 0 : t - lags, hi = t + lags >= n ? n - 1 : t + lags;
         double acc = 0.0;
         for (Py_ssize_t j = lo; j <= hi; j++) acc += row[j] * r[t > j ? t - j : j - t];
         smoothed[t] = acc;
     }
+}
+
+/* dot_unrolled's four running sums s0 … s3 (s0 over i ≡ 0 mod 4, …) as two pairs of lanes, the
+ * remainder into s0, then (s0 + s1) + (s2 + s3): its result bit for bit. *done = 0 without
+ * lanes (dot_unrolled then runs its scalar loop). */
+static double dot_lanes(const double *u, const double *v, Py_ssize_t n, int *done)
+{
+#ifdef LANES
+    lanes s01 = lanes_of(0.0), s23 = s01;
+    Py_ssize_t i = 0;
+    for (; i + 4 <= n; i += 4) {
+        s01 += lanes_at(u + i) * lanes_at(v + i);
+        s23 += lanes_at(u + i + 2) * lanes_at(v + i + 2);
+    }
+    double s[4];
+    memcpy(s, &s01, 16);
+    memcpy(s + 2, &s23, 16);
+    for (; i < n; i++) s[0] += u[i] * v[i];
+    *done = 1;
+    return (s[0] + s[1]) + (s[2] + s[3]);
+#else
+    (void)u, (void)v, (void)n;
+    *done = 0;
+    return 0.0;
+#endif
+}
+
+/* band_vaf's sums over the DFT bins 1 … kmax, four bins at a time: per bin the measured and
+ * residual spectra's real parts (one pair of lanes) and imaginary parts (another) accumulate
+ * over t in order, and each bin's power adds to total and left in bin order, as band_vaf's own
+ * loop. Returns the first bin left for that loop (kmax + 1 when none). */
+static Py_ssize_t band_powers(const double *meas, const double *err, Py_ssize_t n,
+                              Py_ssize_t kmax, const double *tw_cos, const double *tw_sin,
+                              double *total, double *left)
+{
+    Py_ssize_t k = 1;
+#ifdef LANES
+    enum { BINS = 4 };
+    for (; k + BINS - 1 <= kmax; k += BINS) {
+        lanes re[BINS], im[BINS]; /* {measured, residual} */
+        Py_ssize_t idx[BINS];
+        for (int b = 0; b < BINS; b++) {
+            re[b] = im[b] = lanes_of(0.0);
+            idx[b] = 0;
+        }
+        for (Py_ssize_t t = 0; t < n; t++) {
+            const lanes x = {meas[t], err[t]};
+            for (int b = 0; b < BINS; b++) {
+                re[b] += x * lanes_of(tw_cos[idx[b]]);
+                im[b] -= x * lanes_of(tw_sin[idx[b]]);
+                idx[b] += k + b;
+                if (idx[b] >= n) idx[b] -= n;
+            }
+        }
+        for (int b = 0; b < BINS; b++) {
+            double r2[2], i2[2];
+            memcpy(r2, &re[b], 16);
+            memcpy(i2, &im[b], 16);
+            *total += r2[0] * r2[0] + i2[0] * i2[0];
+            *left += r2[1] * r2[1] + i2[1] * i2[1];
+        }
+    }
+#else
+    (void)meas, (void)err, (void)n, (void)kmax, (void)tw_cos, (void)tw_sin, (void)total,
+        (void)left;
+#endif
+    return k;
 }
