@@ -177,6 +177,11 @@ static void xcorr_blocked(const double *u, const double *y, Py_ssize_t n, Py_ssi
                           Py_ssize_t last, double norm, double *c);
 static void band_smooth(const double *row, const double *r, Py_ssize_t n, Py_ssize_t lags,
                         double *smoothed);
+static Py_ssize_t eureka_filters(const double *r, double *rr, double *filters, double *alphas,
+                                 Py_ssize_t n, double *alpha_out);
+static void eureka_apply(const double *rr, const double *filters, const double *alphas,
+                         const double *b, double *x, Py_ssize_t n);
+#define FILTERS_SIZE(nh) ((nh) * ((nh) + 1) / 2 + (nh))
 static Py_ssize_t band_powers(const double *meas, const double *err, Py_ssize_t n,
                               Py_ssize_t kmax, const double *tw_cos, const double *tw_sin,
                               double *total, double *left);
@@ -189,9 +194,10 @@ static Py_ssize_t window_irf(const double *pos, const double *trq, Py_ssize_t n,
 {
     const Py_ssize_t nh = 2 * lag + 1;
     double *dp = work, *dt = work + n;              /* detrended, n each */
-    double *a = dt + n, *rr = a + nh;               /* Levinson scratch, nh each */
+    double *a = dt + n, *rr = a + nh;               /* Levinson scratch, nh each (a: unused) */
     double *g = rr + nh, *delta = g + nh;           /* gradient and update, nh each */
     double *err = delta + nh;                        /* residual, m */
+    double *filters = err + m, *alphas = filters + nh * (nh + 1) / 2; /* EUREKA's, kept */
     detrend_into(pos, dp, n, 1.0, kind);
     detrend_into(trq, dt, n, sign, kind);
     fir_decimate(dp, n, taps, nt, factor, u, m);
@@ -201,8 +207,11 @@ static Py_ssize_t window_irf(const double *pos, const double *trq, Py_ssize_t n,
     phi[0] += loading;
     /* phi_uy(k) = sum_t u(t-k) y(t) / m  =  sum_s u(s) y(s+k) / m */
     xcorr_blocked(u, y, m, -lag, lag, (double)m, g);
-    Py_ssize_t status = eureka_solve(phi, g, h, a, rr, nh, alpha);
+    /* the four solves share R: its prediction-error filters are formed once */
+    Py_ssize_t status = eureka_filters(phi, rr, filters, alphas, nh, alpha);
     if (status >= 0) return status;
+    eureka_apply(rr, filters, alphas, g, h, nh);
+    (void)a;
     for (Py_ssize_t k = 0; k < nh; k++) h[k] *= fs;
     const Py_ssize_t inner = m - 2 * lag;
     for (Py_ssize_t s = 0; s < sweeps; s++) {
@@ -210,8 +219,7 @@ static Py_ssize_t window_irf(const double *pos, const double *trq, Py_ssize_t n,
         for (Py_ssize_t t = lag; t < m - lag; t++) err[t] = y[t] - err[t] / fs;
         lagged_correlate(u, err, nh, lag, lag, m - lag, g); /* Σ_t u(t − k)·err(t) */
         for (Py_ssize_t j = 0; j < nh; j++) g[j] = g[j] / (double)inner - loading * h[j] / fs;
-        status = eureka_solve(phi, g, delta, a, rr, nh, alpha);
-        if (status >= 0) return status;
+        eureka_apply(rr, filters, alphas, g, delta, nh);
         for (Py_ssize_t j = 0; j < nh; j++) h[j] += delta[j] * fs;
     }
     return -1;
@@ -1344,7 +1352,7 @@ static PyObject *py_window_irf(PyObject *self, PyObject *args)
             b[5].len / 8 != nh || b[6].len / 8 != nh || m <= nh || sweeps < 0) {
             PyErr_SetString(PyExc_ValueError, "window_irf: inconsistent sizes");
         } else {
-            double *work = PyMem_Malloc(sizeof(double) * (2 * n + 4 * nh + m));
+            double *work = PyMem_Malloc(sizeof(double) * (2 * n + 4 * nh + m + FILTERS_SIZE(nh)));
             if (work == NULL) {
                 PyErr_NoMemory();
             } else {
@@ -2512,4 +2520,63 @@ static Py_ssize_t band_powers(const double *meas, const double *err, Py_ssize_t 
         (void)left;
 #endif
     return k;
+}
+
+/* eureka_solve's recursion for R alone (first column r): the prediction-error filter a_k of each
+ * step k stored reversed (filters + k(k+1)/2, k + 1 values: a_k[k], …, a_k[0]) with its error
+ * variance alphas[k], and rr (r reversed) as eureka_solve forms it; the same status and alpha.
+ * eureka_apply then solves R x = b for any b with eureka_solve's arithmetic, bit for bit, without
+ * the filter's half of the work: the refinement sweeps solve with one R four times. */
+static Py_ssize_t eureka_filters(const double *r, double *rr, double *filters, double *alphas,
+                                 Py_ssize_t n, double *alpha_out)
+{
+    for (Py_ssize_t j = 0; j < n; j++) rr[j] = r[n - 1 - j];
+    double alpha = r[0];
+    *alpha_out = alpha;
+    if (!(alpha > 0.0)) return 0;
+    /* a_k is updated in the last filter's slot (n values), each step's copied out reversed */
+    double *cur = filters + n * (n + 1) / 2 - n;
+    cur[0] = 1.0;
+    filters[0] = 1.0;
+    alphas[0] = alpha;
+    for (Py_ssize_t k = 1; k < n; k++) {
+        const double *rk = rr + (n - 1 - k);
+        double refl = -dot_unrolled(cur, rk, k) / alpha;
+        cur[k] = 0.0;
+        Py_ssize_t i = 0, j = k;
+        for (; i < j; i++, j--) {
+            double ai = cur[i], aj = cur[j];
+            cur[i] = ai + refl * aj;
+            cur[j] = aj + refl * ai;
+        }
+        if (i == j) cur[i] += refl * cur[i];
+        alpha *= (1.0 - refl * refl);
+        *alpha_out = alpha;
+        if (!(alpha > 0.0)) return k;
+        alphas[k] = alpha;
+        if (k < n - 1) { /* the last step's filter is cur itself, stored reversed below */
+            double *rev = filters + k * (k + 1) / 2;
+            for (Py_ssize_t m = 0; m <= k; m++) rev[m] = cur[k - m];
+        }
+    }
+    if (n > 1) { /* reverse the last filter in place */
+        for (Py_ssize_t i = 0, j = n - 1; i < j; i++, j--) {
+            double tmp = cur[i];
+            cur[i] = cur[j];
+            cur[j] = tmp;
+        }
+    }
+    return -1;
+}
+
+static void eureka_apply(const double *rr, const double *filters, const double *alphas,
+                         const double *b, double *x, Py_ssize_t n)
+{
+    x[0] = b[0] / alphas[0];
+    for (Py_ssize_t k = 1; k < n; k++) {
+        const double *rk = rr + (n - 1 - k), *rev = filters + k * (k + 1) / 2;
+        const double mu = (b[k] - dot_unrolled(x, rk, k)) / alphas[k];
+        x[k] = 0.0;
+        for (Py_ssize_t m = 0; m <= k; m++) x[m] += mu * rev[m];
+    }
 }
