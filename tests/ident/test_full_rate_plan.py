@@ -10,7 +10,7 @@ import pytest
 
 from rtsid.ident import front, fused, split
 from rtsid.ident.excitation import filtered_noise
-from rtsid.ident.levinson import compiled_kernel
+from rtsid.ident.levinson import compiled_kernel, eureka_unchecked
 from rtsid.ident.stream import WindowStream, sliding_estimates
 from rtsid.ident.tracker import TrackerOptions
 from rtsid.ident.window import EstimatorOptions, analyse_window, resolve_plan
@@ -56,6 +56,18 @@ def test_the_front_ends_correlations_are_the_one_lag_at_a_time_sums(samples):
     one_at_a_time = np.empty(2 * plan.lag + 1)
     kernel.xcorr(u, u, 0, 2 * plan.lag, float(u.size), one_at_a_time)
     np.testing.assert_array_equal(irf.phi_uu, one_at_a_time)
+
+
+def test_the_front_ends_shared_factorisation_solves_as_eureka_does():
+    # without sweeps the IRF is one solve with R's stored filters: the kernel's EUREKA's bits
+    kernel = compiled_kernel()
+    theta, tau = _recording(0.3, 5)
+    options = EstimatorOptions(analysis_fs_hz=FS, lowpass_hz=190.0, lag_s=0.02, refine=0)
+    plan = resolve_plan(theta, FS, options)
+    u, y, irf = front.front_end(theta, tau, FS, options, plan)
+    cross = np.empty(2 * plan.lag + 1)
+    kernel.xcorr(u, y, -plan.lag, plan.lag, float(u.size), cross)
+    np.testing.assert_array_equal(irf.h, eureka_unchecked(irf.phi_uu, cross) * FS)
 
 
 @pytest.mark.parametrize("samples", [750, 757, 741])
