@@ -2287,17 +2287,17 @@ static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args)
 #if defined(__GNUC__) || defined(__clang__)
 /* Two doubles per register (SSE2, the x86-64 baseline; NEON on arm64): each lane does the
  * scalar loop's IEEE multiply and add, so a lane's sum is the scalar sum bit for bit. */
-typedef double lanes __attribute__((vector_size(16)));
-#define LANES 1
-static inline lanes lanes_at(const double *p)
+typedef double lane_pair __attribute__((vector_size(16)));
+#define LANE_PAIRS 1
+static inline lane_pair pair_at(const double *p)
 {
-    lanes v;
+    lane_pair v;
     memcpy(&v, p, sizeof v);
     return v;
 }
-static inline lanes lanes_of(double x)
+static inline lane_pair pair_of(double x)
 {
-    lanes v = {x, x};
+    lane_pair v = {x, x};
     return v;
 }
 #endif
@@ -2307,16 +2307,16 @@ static void lagged_predict(const double *h, const double *u, Py_ssize_t nh, Py_s
                            Py_ssize_t t0, Py_ssize_t t1, double *out)
 {
     Py_ssize_t t = t0;
-#ifdef LANES
+#ifdef LANE_PAIRS
     for (; t + BLOCK <= t1; t += BLOCK) {
-        lanes a0 = lanes_of(0.0), a1 = a0, a2 = a0, a3 = a0;
+        lane_pair a0 = pair_of(0.0), a1 = a0, a2 = a0, a3 = a0;
         for (Py_ssize_t j = 0; j < nh; j++) {
-            const lanes hj = lanes_of(h[j]);
+            const lane_pair hj = pair_of(h[j]);
             const double *src = u + t + lag - j;
-            a0 += hj * lanes_at(src);
-            a1 += hj * lanes_at(src + 2);
-            a2 += hj * lanes_at(src + 4);
-            a3 += hj * lanes_at(src + 6);
+            a0 += hj * pair_at(src);
+            a1 += hj * pair_at(src + 2);
+            a2 += hj * pair_at(src + 4);
+            a3 += hj * pair_at(src + 6);
         }
         memcpy(out + t, &a0, 16);
         memcpy(out + t + 2, &a1, 16);
@@ -2336,17 +2336,17 @@ static void lagged_correlate(const double *u, const double *e, Py_ssize_t nh, Py
                              Py_ssize_t t0, Py_ssize_t t1, double *out)
 {
     Py_ssize_t j = 0;
-#ifdef LANES
+#ifdef LANE_PAIRS
     for (; j + BLOCK <= nh; j += BLOCK) {
         /* lane b of the block holds column j + 7 − b: its u sample is src[b], ascending */
-        lanes a0 = lanes_of(0.0), a1 = a0, a2 = a0, a3 = a0;
+        lane_pair a0 = pair_of(0.0), a1 = a0, a2 = a0, a3 = a0;
         for (Py_ssize_t t = t0; t < t1; t++) {
-            const lanes et = lanes_of(e[t]);
+            const lane_pair et = pair_of(e[t]);
             const double *src = u + t + lag - j - (BLOCK - 1);
-            a0 += lanes_at(src) * et;
-            a1 += lanes_at(src + 2) * et;
-            a2 += lanes_at(src + 4) * et;
-            a3 += lanes_at(src + 6) * et;
+            a0 += pair_at(src) * et;
+            a1 += pair_at(src + 2) * et;
+            a2 += pair_at(src + 4) * et;
+            a3 += pair_at(src + 6) * et;
         }
         double acc[BLOCK];
         memcpy(acc, &a0, 16);
@@ -2356,8 +2356,8 @@ static void lagged_correlate(const double *u, const double *e, Py_ssize_t nh, Py
         for (int b = 0; b < BLOCK; b++) out[j + BLOCK - 1 - b] = acc[b];
     }
     for (; j + 2 <= nh; j += 2) { /* the last columns in pairs */
-        lanes a0 = lanes_of(0.0);
-        for (Py_ssize_t t = t0; t < t1; t++) a0 += lanes_at(u + t + lag - j - 1) * lanes_of(e[t]);
+        lane_pair a0 = pair_of(0.0);
+        for (Py_ssize_t t = t0; t < t1; t++) a0 += pair_at(u + t + lag - j - 1) * pair_of(e[t]);
         double acc[2];
         memcpy(acc, &a0, 16);
         out[j + 1] = acc[0];
@@ -2377,7 +2377,7 @@ static void xcorr_blocked(const double *u, const double *y, Py_ssize_t n, Py_ssi
                           Py_ssize_t last, double norm, double *c)
 {
     Py_ssize_t k0 = first;
-#ifdef LANES
+#ifdef LANE_PAIRS
     for (; k0 + BLOCK - 1 <= last; k0 += BLOCK) {
         double acc[BLOCK] = {0.0};
         Py_ssize_t lo[BLOCK], hi[BLOCK], common_lo = 0, common_hi = n;
@@ -2392,15 +2392,15 @@ static void xcorr_blocked(const double *u, const double *y, Py_ssize_t n, Py_ssi
         for (int b = 0; b < BLOCK; b++) {
             for (Py_ssize_t t = lo[b]; t < common_lo && t < hi[b]; t++) acc[b] += u[t] * y[t + k0 + b];
         }
-        lanes a0 = lanes_at(acc), a1 = lanes_at(acc + 2), a2 = lanes_at(acc + 4),
-              a3 = lanes_at(acc + 6);
+        lane_pair a0 = pair_at(acc), a1 = pair_at(acc + 2), a2 = pair_at(acc + 4),
+              a3 = pair_at(acc + 6);
         for (Py_ssize_t t = common_lo; t < common_hi; t++) {
-            const lanes ut = lanes_of(u[t]);
+            const lane_pair ut = pair_of(u[t]);
             const double *src = y + t + k0;
-            a0 += ut * lanes_at(src);
-            a1 += ut * lanes_at(src + 2);
-            a2 += ut * lanes_at(src + 4);
-            a3 += ut * lanes_at(src + 6);
+            a0 += ut * pair_at(src);
+            a1 += ut * pair_at(src + 2);
+            a2 += ut * pair_at(src + 4);
+            a3 += ut * pair_at(src + 6);
         }
         memcpy(acc, &a0, 16);
         memcpy(acc + 2, &a1, 16);
@@ -2425,19 +2425,19 @@ static void band_smooth(const double *row, const double *r, Py_ssize_t n, Py_ssi
                         double *smoothed)
 {
     Py_ssize_t t = 0;
-#ifdef LANES
+#ifdef LANE_PAIRS
     double *padded = PyMem_RawCalloc((size_t)(n + 2 * lags), sizeof(double));
     if (padded != NULL) {
         memcpy(padded + lags, row, sizeof(double) * (size_t)n);
         for (; t + BLOCK <= n; t += BLOCK) {
-            lanes a0 = lanes_of(0.0), a1 = a0, a2 = a0, a3 = a0;
+            lane_pair a0 = pair_of(0.0), a1 = a0, a2 = a0, a3 = a0;
             for (Py_ssize_t e = -lags; e <= lags; e++) {
-                const lanes re = lanes_of(r[e < 0 ? -e : e]);
+                const lane_pair re = pair_of(r[e < 0 ? -e : e]);
                 const double *src = padded + lags + t + e;
-                a0 += lanes_at(src) * re;
-                a1 += lanes_at(src + 2) * re;
-                a2 += lanes_at(src + 4) * re;
-                a3 += lanes_at(src + 6) * re;
+                a0 += pair_at(src) * re;
+                a1 += pair_at(src + 2) * re;
+                a2 += pair_at(src + 4) * re;
+                a3 += pair_at(src + 6) * re;
             }
             memcpy(smoothed + t, &a0, 16);
             memcpy(smoothed + t + 2, &a1, 16);
@@ -2460,12 +2460,12 @@ static void band_smooth(const double *row, const double *r, Py_ssize_t n, Py_ssi
  * lanes (dot_unrolled then runs its scalar loop). */
 static double dot_lanes(const double *u, const double *v, Py_ssize_t n, int *done)
 {
-#ifdef LANES
-    lanes s01 = lanes_of(0.0), s23 = s01;
+#ifdef LANE_PAIRS
+    lane_pair s01 = pair_of(0.0), s23 = s01;
     Py_ssize_t i = 0;
     for (; i + 4 <= n; i += 4) {
-        s01 += lanes_at(u + i) * lanes_at(v + i);
-        s23 += lanes_at(u + i + 2) * lanes_at(v + i + 2);
+        s01 += pair_at(u + i) * pair_at(v + i);
+        s23 += pair_at(u + i + 2) * pair_at(v + i + 2);
     }
     double s[4];
     memcpy(s, &s01, 16);
@@ -2489,20 +2489,20 @@ static Py_ssize_t band_powers(const double *meas, const double *err, Py_ssize_t 
                               double *total, double *left)
 {
     Py_ssize_t k = 1;
-#ifdef LANES
+#ifdef LANE_PAIRS
     enum { BINS = 4 };
     for (; k + BINS - 1 <= kmax; k += BINS) {
-        lanes re[BINS], im[BINS]; /* {measured, residual} */
+        lane_pair re[BINS], im[BINS]; /* {measured, residual} */
         Py_ssize_t idx[BINS];
         for (int b = 0; b < BINS; b++) {
-            re[b] = im[b] = lanes_of(0.0);
+            re[b] = im[b] = pair_of(0.0);
             idx[b] = 0;
         }
         for (Py_ssize_t t = 0; t < n; t++) {
-            const lanes x = {meas[t], err[t]};
+            const lane_pair x = {meas[t], err[t]};
             for (int b = 0; b < BINS; b++) {
-                re[b] += x * lanes_of(tw_cos[idx[b]]);
-                im[b] -= x * lanes_of(tw_sin[idx[b]]);
+                re[b] += x * pair_of(tw_cos[idx[b]]);
+                im[b] -= x * pair_of(tw_sin[idx[b]]);
                 idx[b] += k + b;
                 if (idx[b] >= n) idx[b] -= n;
             }
