@@ -33,8 +33,13 @@
  * a latency-critical caller does not wait a whole switch interval to get it back. */
 #define RELEASE_GIL_ABOVE 1000
 
+static double dot_lanes(const double *u, const double *v, Py_ssize_t n, int *done);
+
 static double dot_unrolled(const double *u, const double *v, Py_ssize_t n)
 {
+    int done = 0; /* the same sums in vector lanes where the compiler has them (end of file) */
+    double lanes_sum = dot_lanes(u, v, n, &done);
+    if (done) return lanes_sum;
     double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
     Py_ssize_t i = 0;
     for (; i + 4 <= n; i += 4) {
@@ -162,6 +167,25 @@ static void xcorr(const double *u, const double *y, Py_ssize_t n, Py_ssize_t fir
     }
 }
 
+/* Blocked forms of the window path's sums, bit for bit the loops they replace (the section
+ * "the window path at a full-rate plan" at the end of this file). */
+static void lagged_predict(const double *h, const double *u, Py_ssize_t nh, Py_ssize_t lag,
+                           Py_ssize_t t0, Py_ssize_t t1, double *out);
+static void lagged_correlate(const double *u, const double *e, Py_ssize_t nh, Py_ssize_t lag,
+                             Py_ssize_t t0, Py_ssize_t t1, double *out);
+static void xcorr_blocked(const double *u, const double *y, Py_ssize_t n, Py_ssize_t first,
+                          Py_ssize_t last, double norm, double *c);
+static void band_smooth(const double *row, const double *r, Py_ssize_t n, Py_ssize_t lags,
+                        double *smoothed);
+static Py_ssize_t eureka_filters(const double *r, double *rr, double *filters, double *alphas,
+                                 Py_ssize_t n, double *alpha_out);
+static void eureka_apply(const double *rr, const double *filters, const double *alphas,
+                         const double *b, double *x, Py_ssize_t n);
+#define FILTERS_SIZE(nh) ((nh) * ((nh) + 1) / 2 + (nh))
+static Py_ssize_t band_powers(const double *meas, const double *err, Py_ssize_t n,
+                              Py_ssize_t kmax, const double *tw_cos, const double *tw_sin,
+                              double *total, double *left);
+
 static Py_ssize_t window_irf(const double *pos, const double *trq, Py_ssize_t n,
                              const double *taps, Py_ssize_t nt, Py_ssize_t factor, double sign,
                              int kind, Py_ssize_t lag, double ridge, Py_ssize_t sweeps,
@@ -170,40 +194,32 @@ static Py_ssize_t window_irf(const double *pos, const double *trq, Py_ssize_t n,
 {
     const Py_ssize_t nh = 2 * lag + 1;
     double *dp = work, *dt = work + n;              /* detrended, n each */
-    double *a = dt + n, *rr = a + nh;               /* Levinson scratch, nh each */
+    double *a = dt + n, *rr = a + nh;               /* Levinson scratch, nh each (a: unused) */
     double *g = rr + nh, *delta = g + nh;           /* gradient and update, nh each */
     double *err = delta + nh;                        /* residual, m */
+    double *filters = err + m, *alphas = filters + nh * (nh + 1) / 2; /* EUREKA's, kept */
     detrend_into(pos, dp, n, 1.0, kind);
     detrend_into(trq, dt, n, sign, kind);
     fir_decimate(dp, n, taps, nt, factor, u, m);
     fir_decimate(dt, n, taps, nt, factor, y, m);
-    xcorr(u, u, m, 0, nh - 1, (double)m, phi);
+    xcorr_blocked(u, u, m, 0, nh - 1, (double)m, phi);
     const double loading = ridge * phi[0];
     phi[0] += loading;
     /* phi_uy(k) = sum_t u(t-k) y(t) / m  =  sum_s u(s) y(s+k) / m */
-    xcorr(u, y, m, -lag, lag, (double)m, g);
-    Py_ssize_t status = eureka_solve(phi, g, h, a, rr, nh, alpha);
+    xcorr_blocked(u, y, m, -lag, lag, (double)m, g);
+    /* the four solves share R: its prediction-error filters are formed once */
+    Py_ssize_t status = eureka_filters(phi, rr, filters, alphas, nh, alpha);
     if (status >= 0) return status;
+    eureka_apply(rr, filters, alphas, g, h, nh);
+    (void)a;
     for (Py_ssize_t k = 0; k < nh; k++) h[k] *= fs;
     const Py_ssize_t inner = m - 2 * lag;
     for (Py_ssize_t s = 0; s < sweeps; s++) {
-        for (Py_ssize_t t = lag; t < m - lag; t++) {
-            double pred = 0.0;
-            for (Py_ssize_t j = 0; j < nh; j++) {
-                pred += h[j] * u[t - (j - lag)];
-            }
-            err[t] = y[t] - pred / fs;
-        }
-        for (Py_ssize_t j = 0; j < nh; j++) {
-            Py_ssize_t k = j - lag;
-            double acc = 0.0;
-            for (Py_ssize_t t = lag; t < m - lag; t++) {
-                acc += u[t - k] * err[t];
-            }
-            g[j] = acc / (double)inner - loading * h[j] / fs;
-        }
-        status = eureka_solve(phi, g, delta, a, rr, nh, alpha);
-        if (status >= 0) return status;
+        lagged_predict(h, u, nh, lag, lag, m - lag, err); /* Σ_j h(j)·u(t − (j − L)) */
+        for (Py_ssize_t t = lag; t < m - lag; t++) err[t] = y[t] - err[t] / fs;
+        lagged_correlate(u, err, nh, lag, lag, m - lag, g); /* Σ_t u(t − k)·err(t) */
+        for (Py_ssize_t j = 0; j < nh; j++) g[j] = g[j] / (double)inner - loading * h[j] / fs;
+        eureka_apply(rr, filters, alphas, g, delta, nh);
         for (Py_ssize_t j = 0; j < nh; j++) h[j] += delta[j] * fs;
     }
     return -1;
@@ -363,9 +379,9 @@ static void predictions(const double *u, const double *y, Py_ssize_t m, const do
                         double *measured, double *by_irf, double *by_model)
 {
     const Py_ssize_t nh = 2 * lag + 1;
+    lagged_predict(h, u, nh, lag, edge, m - edge, by_irf - edge); /* Σ_j h(j)·u(t + L − j) */
     for (Py_ssize_t t = edge; t < m - edge; t++) {
-        double acc = 0.0, d1 = 0.0, d2 = 0.0;
-        for (Py_ssize_t j = 0; j < nh; j++) acc += h[j] * u[t + lag - j];
+        double acc = by_irf[t - edge], d1 = 0.0, d2 = 0.0;
         for (int s = 0; s < 9; s++) {
             d1 += u[t - 4 + s] * STENCIL_D1[s];
             d2 += u[t - 4 + s] * STENCIL_D2[s];
@@ -588,13 +604,7 @@ static void oe_sandwich(const double *x, int p, const double *residual, Py_ssize
     }
     double middle[9], inv[9];
     for (int b = 0; b < p; b++) {
-        const double *row = x + b * n;
-        for (Py_ssize_t t = 0; t < n; t++) {
-            Py_ssize_t lo = t - lags < 0 ? 0 : t - lags, hi = t + lags >= n ? n - 1 : t + lags;
-            double acc = 0.0;
-            for (Py_ssize_t j = lo; j <= hi; j++) acc += row[j] * r[t > j ? t - j : j - t];
-            smoothed[t] = acc;
-        }
+        band_smooth(x + b * n, r, n, lags, smoothed);
         for (int a = 0; a < p; a++) middle[a * p + b] = dot_unrolled(x + a * n, smoothed, n);
     }
     /* G⁻¹ = S⁻¹·N⁻¹·S⁻¹ with N the normalised Gram block (factored by the caller). */
@@ -704,7 +714,8 @@ static double band_vaf(const double *y, const double *model, Py_ssize_t n, doubl
         err[t] -= me;
     }
     double total = 0.0, left = 0.0;
-    for (Py_ssize_t k = 1; k <= kmax; k++) {
+    Py_ssize_t k = band_powers(meas, err, n, kmax, tw_cos, tw_sin, &total, &left);
+    for (; k <= kmax; k++) {
         double mr = 0.0, mi = 0.0, er = 0.0, ei = 0.0;
         Py_ssize_t idx = 0;
         for (Py_ssize_t t = 0; t < n; t++) {
@@ -1072,54 +1083,6 @@ static PyObject *py_oe_window(PyObject *self, PyObject *args)
  * sosfiltfilt: odd extension, steady state initial conditions, direct form II transposed
  * sections), what the slow lane's fit feeds the reflex IRF. O(n·sections).
  */
-/* sos_run for the decimator's four sections, the states in registers and each section's
- * output substituted into its state updates (s0 ← (b1 − a1·b0)·x − a1·s0 + s1,
- * s1 ← (b2 − a2·b0)·x − a2·s0): the same filter with a recurrence of one multiply and one add
- * per sample instead of three operations after the output, so the four sections' chains
- * overlap; the numbers differ from scipy's by rounding only (tested to 1e-9). */
-static void sos_run4(const double *c, const double *zi, double *x, Py_ssize_t n, int backwards)
-{
-    const double first = backwards ? x[n - 1] : x[0];
-    double s[4][2], b0[4], k1[4], k2[4], a1[4], a2[4];
-    for (int q = 0; q < 4; q++) {
-        const double *cq = c + 6 * q;
-        s[q][0] = zi[2 * q] * first;
-        s[q][1] = zi[2 * q + 1] * first;
-        b0[q] = cq[0];
-        a1[q] = cq[4];
-        a2[q] = cq[5];
-        k1[q] = cq[1] - cq[4] * cq[0];
-        k2[q] = cq[2] - cq[5] * cq[0];
-    }
-    double s00 = s[0][0], s01 = s[0][1], s10 = s[1][0], s11 = s[1][1];
-    double s20 = s[2][0], s21 = s[2][1], s30 = s[3][0], s31 = s[3][1];
-    const Py_ssize_t step = backwards ? -1 : 1;
-    double *p = backwards ? x + n - 1 : x;
-    for (Py_ssize_t i = 0; i < n; i++, p += step) {
-        double cur = *p, out, t;
-        out = b0[0] * cur + s00;
-        t = k1[0] * cur + s01;
-        s01 = k2[0] * cur - a2[0] * s00;
-        s00 = t - a1[0] * s00;
-        cur = out;
-        out = b0[1] * cur + s10;
-        t = k1[1] * cur + s11;
-        s11 = k2[1] * cur - a2[1] * s10;
-        s10 = t - a1[1] * s10;
-        cur = out;
-        out = b0[2] * cur + s20;
-        t = k1[2] * cur + s21;
-        s21 = k2[2] * cur - a2[2] * s20;
-        s20 = t - a1[2] * s20;
-        cur = out;
-        out = b0[3] * cur + s30;
-        t = k1[3] * cur + s31;
-        s31 = k2[3] * cur - a2[3] * s30;
-        s30 = t - a1[3] * s30;
-        *p = out;
-    }
-}
-
 /* scipy's sosfilt (direct form II transposed, its _sosfilt loop's operations in its order, so
  * the same numbers bit for bit), in place, the states starting at zi·(first sample run). */
 static void sos_run_exact4(const double *c, const double *zi, double *x, Py_ssize_t n,
@@ -1180,16 +1143,6 @@ static void sos_run_exact4(const double *c, const double *zi, double *x, Py_ssiz
     }
 }
 #undef EXACT_SECTION
-
-static void sos_run(const double *sos, const double *zi, Py_ssize_t ns, double *x, Py_ssize_t n,
-                    int backwards)
-{
-    if (ns == 4) {
-        sos_run4(sos, zi, x, n, backwards);
-        return;
-    }
-    sos_run_exact(sos, zi, ns, x, n, backwards);
-}
 
 /* sos_filtfilt(sos, zi, x): scipy's sosfiltfilt on an already extended x, in place: forwards
  * from zi·x[0], then backwards from zi·(the last output), each pass scipy's sosfilt bit for
@@ -1341,7 +1294,7 @@ static PyObject *py_window_irf(PyObject *self, PyObject *args)
             b[5].len / 8 != nh || b[6].len / 8 != nh || m <= nh || sweeps < 0) {
             PyErr_SetString(PyExc_ValueError, "window_irf: inconsistent sizes");
         } else {
-            double *work = PyMem_Malloc(sizeof(double) * (2 * n + 4 * nh + m));
+            double *work = PyMem_Malloc(sizeof(double) * (2 * n + 4 * nh + m + FILTERS_SIZE(nh)));
             if (work == NULL) {
                 PyErr_NoMemory();
             } else {
@@ -1499,7 +1452,6 @@ static PyObject *py_reflex_rect_hop(PyObject *self, PyObject *args)
     const Py_ssize_t n = b[0].len / 8, ntaps = b[1].len / 8, ng = b[2].len / 8;
     const Py_ssize_t cap_r = b[3].len / 8, cap_y = b[4].len / 8, n_last = b[5].len / 8;
     const Py_ssize_t lags = ng - 1, reach = (ntaps - 1) / 2 + 4;
-    PyObject *result = NULL;
     if (factor < 1 || ntaps % 2 != 1 || ng < 1 || n < reach + 1 || n_last < 1 || n_last > n ||
         in_count < 0 || in_count > cap_r || out_count < 0 || out_count > cap_y) {
         PyErr_SetString(PyExc_ValueError, "reflex_rect_hop: inconsistent sizes");
@@ -2419,3 +2371,317 @@ static PyObject *py_savgol_pair(PyObject *self, PyObject *args)
 }
 #undef LANES
 #undef LANES_CLONES
+
+/* ------------------------------------------------------------------ the window path at a full-rate plan (issue 22)
+ * At the plant's plan (2500 Hz analysis, ±50 lags, M = 750) a window's compiled work is sums
+ * of products over lags: the refinement sweeps' predictions and gradients and the front end's
+ * correlations (O(M·L)), the IRF's prediction in the back end (O(M·L)) and the sandwich's
+ * smoothing (O(M·lags)). Written one output at a time, each sum is a chain of dependent
+ * additions that waits on the adder and reloads its operands per output. These loops compute
+ * BLOCK outputs at a time instead: every output still sums the same products in the same order
+ * (so the numbers are bit for bit those of the loops they replace, and the pinned numbers hold),
+ * but BLOCK independent chains share each load and fill the vector registers.
+ *
+ * The algebraic shortcut — a sweep's gradient as X'y − (X'X)·h/fs with the Gram matrix formed
+ * once per window from the correlation sums, O(L²) a sweep instead of O(M·L) — was measured and
+ * not adopted: its rounding differs, and R_uu's condition at this plan amplifies that to 9e-12
+ * of the IRF's scale, past the pinned numbers' 1e-12 (docs/service.md).
+ */
+#define BLOCK 8 /* outputs per block: four pairs of lanes */
+
+#if defined(__GNUC__) || defined(__clang__)
+/* Two doubles per register (SSE2, the x86-64 baseline; NEON on arm64): each lane does the
+ * scalar loop's IEEE multiply and add, so a lane's sum is the scalar sum bit for bit. */
+typedef double lane_pair __attribute__((vector_size(16)));
+#define LANE_PAIRS 1
+static inline lane_pair pair_at(const double *p)
+{
+    lane_pair v;
+    memcpy(&v, p, sizeof v);
+    return v;
+}
+static inline lane_pair pair_of(double x)
+{
+    lane_pair v = {x, x};
+    return v;
+}
+#endif
+
+/* out[t] = Σ_{j=0}^{nh−1} h[j]·u[t + lag − j] (in j order) for t = t0 … t1−1. */
+static void lagged_predict(const double *h, const double *u, Py_ssize_t nh, Py_ssize_t lag,
+                           Py_ssize_t t0, Py_ssize_t t1, double *out)
+{
+    Py_ssize_t t = t0;
+#ifdef LANE_PAIRS
+    for (; t + BLOCK <= t1; t += BLOCK) {
+        lane_pair a0 = pair_of(0.0), a1 = a0, a2 = a0, a3 = a0;
+        for (Py_ssize_t j = 0; j < nh; j++) {
+            const lane_pair hj = pair_of(h[j]);
+            const double *src = u + t + lag - j;
+            a0 += hj * pair_at(src);
+            a1 += hj * pair_at(src + 2);
+            a2 += hj * pair_at(src + 4);
+            a3 += hj * pair_at(src + 6);
+        }
+        memcpy(out + t, &a0, 16);
+        memcpy(out + t + 2, &a1, 16);
+        memcpy(out + t + 4, &a2, 16);
+        memcpy(out + t + 6, &a3, 16);
+    }
+#endif
+    for (; t < t1; t++) {
+        double acc = 0.0;
+        for (Py_ssize_t j = 0; j < nh; j++) acc += h[j] * u[t + lag - j];
+        out[t] = acc;
+    }
+}
+
+/* out[j] = Σ_{t=t0}^{t1−1} u[t + lag − j]·e[t] (in t order) for j = 0 … nh−1. */
+static void lagged_correlate(const double *u, const double *e, Py_ssize_t nh, Py_ssize_t lag,
+                             Py_ssize_t t0, Py_ssize_t t1, double *out)
+{
+    Py_ssize_t j = 0;
+#ifdef LANE_PAIRS
+    for (; j + BLOCK <= nh; j += BLOCK) {
+        /* lane b of the block holds column j + 7 − b: its u sample is src[b], ascending */
+        lane_pair a0 = pair_of(0.0), a1 = a0, a2 = a0, a3 = a0;
+        for (Py_ssize_t t = t0; t < t1; t++) {
+            const lane_pair et = pair_of(e[t]);
+            const double *src = u + t + lag - j - (BLOCK - 1);
+            a0 += pair_at(src) * et;
+            a1 += pair_at(src + 2) * et;
+            a2 += pair_at(src + 4) * et;
+            a3 += pair_at(src + 6) * et;
+        }
+        double acc[BLOCK];
+        memcpy(acc, &a0, 16);
+        memcpy(acc + 2, &a1, 16);
+        memcpy(acc + 4, &a2, 16);
+        memcpy(acc + 6, &a3, 16);
+        for (int b = 0; b < BLOCK; b++) out[j + BLOCK - 1 - b] = acc[b];
+    }
+    for (; j + 2 <= nh; j += 2) { /* the last columns in pairs */
+        lane_pair a0 = pair_of(0.0);
+        for (Py_ssize_t t = t0; t < t1; t++) a0 += pair_at(u + t + lag - j - 1) * pair_of(e[t]);
+        double acc[2];
+        memcpy(acc, &a0, 16);
+        out[j + 1] = acc[0];
+        out[j] = acc[1];
+    }
+#endif
+    for (; j < nh; j++) {
+        double acc = 0.0;
+        for (Py_ssize_t t = t0; t < t1; t++) acc += u[t + lag - j] * e[t];
+        out[j] = acc;
+    }
+}
+
+/* xcorr's c[k − first] = Σ_t u[t]·y[t + k] / norm (t ascending over the overlap), BLOCK lags
+ * at a time: each lag's own first samples, the block's common span, then its own last ones. */
+static void xcorr_blocked(const double *u, const double *y, Py_ssize_t n, Py_ssize_t first,
+                          Py_ssize_t last, double norm, double *c)
+{
+    Py_ssize_t k0 = first;
+#ifdef LANE_PAIRS
+    for (; k0 + BLOCK - 1 <= last; k0 += BLOCK) {
+        double acc[BLOCK] = {0.0};
+        Py_ssize_t lo[BLOCK], hi[BLOCK], common_lo = 0, common_hi = n;
+        for (int b = 0; b < BLOCK; b++) {
+            const Py_ssize_t k = k0 + b;
+            lo[b] = k < 0 ? -k : 0;
+            hi[b] = k > 0 ? n - k : n;
+            if (lo[b] > common_lo) common_lo = lo[b];
+            if (hi[b] < common_hi) common_hi = hi[b];
+        }
+        if (common_hi < common_lo) common_hi = common_lo;
+        for (int b = 0; b < BLOCK; b++) {
+            for (Py_ssize_t t = lo[b]; t < common_lo && t < hi[b]; t++) acc[b] += u[t] * y[t + k0 + b];
+        }
+        lane_pair a0 = pair_at(acc), a1 = pair_at(acc + 2), a2 = pair_at(acc + 4),
+              a3 = pair_at(acc + 6);
+        for (Py_ssize_t t = common_lo; t < common_hi; t++) {
+            const lane_pair ut = pair_of(u[t]);
+            const double *src = y + t + k0;
+            a0 += ut * pair_at(src);
+            a1 += ut * pair_at(src + 2);
+            a2 += ut * pair_at(src + 4);
+            a3 += ut * pair_at(src + 6);
+        }
+        memcpy(acc, &a0, 16);
+        memcpy(acc + 2, &a1, 16);
+        memcpy(acc + 4, &a2, 16);
+        memcpy(acc + 6, &a3, 16);
+        for (int b = 0; b < BLOCK; b++) {
+            Py_ssize_t t = common_hi > lo[b] ? common_hi : lo[b];
+            if (common_lo >= hi[b]) t = hi[b]; /* all of this lag's span was its own head */
+            for (; t < hi[b]; t++) acc[b] += u[t] * y[t + k0 + b];
+            c[k0 + b - first] = acc[b] / norm;
+        }
+    }
+#endif
+    if (k0 <= last) xcorr(u, y, n, k0, last, norm, c + (k0 - first));
+}
+
+/* The sandwich's smoothing, smoothed[t] = Σ_{j=lo}^{hi} row[j]·r[|t − j|] (j ascending, lo and
+ * hi the band of `lags` either side clipped to 0 … n−1), BLOCK rows at a time over the row
+ * padded with `lags` zeros each side: a padded term adds +0 or −0 to the sum, which leaves it
+ * as it was (a sum that is itself zero may change the sign of its zero). */
+static void band_smooth(const double *row, const double *r, Py_ssize_t n, Py_ssize_t lags,
+                        double *smoothed)
+{
+    Py_ssize_t t = 0;
+#ifdef LANE_PAIRS
+    double *padded = PyMem_RawCalloc((size_t)(n + 2 * lags), sizeof(double));
+    if (padded != NULL) {
+        memcpy(padded + lags, row, sizeof(double) * (size_t)n);
+        for (; t + BLOCK <= n; t += BLOCK) {
+            lane_pair a0 = pair_of(0.0), a1 = a0, a2 = a0, a3 = a0;
+            for (Py_ssize_t e = -lags; e <= lags; e++) {
+                const lane_pair re = pair_of(r[e < 0 ? -e : e]);
+                const double *src = padded + lags + t + e;
+                a0 += pair_at(src) * re;
+                a1 += pair_at(src + 2) * re;
+                a2 += pair_at(src + 4) * re;
+                a3 += pair_at(src + 6) * re;
+            }
+            memcpy(smoothed + t, &a0, 16);
+            memcpy(smoothed + t + 2, &a1, 16);
+            memcpy(smoothed + t + 4, &a2, 16);
+            memcpy(smoothed + t + 6, &a3, 16);
+        }
+        PyMem_RawFree(padded);
+    }
+#endif
+    for (; t < n; t++) {
+        Py_ssize_t lo = t - lags < 0 ? 0 : t - lags, hi = t + lags >= n ? n - 1 : t + lags;
+        double acc = 0.0;
+        for (Py_ssize_t j = lo; j <= hi; j++) acc += row[j] * r[t > j ? t - j : j - t];
+        smoothed[t] = acc;
+    }
+}
+
+/* dot_unrolled's four running sums s0 … s3 (s0 over i ≡ 0 mod 4, …) as two pairs of lanes, the
+ * remainder into s0, then (s0 + s1) + (s2 + s3): its result bit for bit. *done = 0 without
+ * lanes (dot_unrolled then runs its scalar loop). */
+static double dot_lanes(const double *u, const double *v, Py_ssize_t n, int *done)
+{
+#ifdef LANE_PAIRS
+    lane_pair s01 = pair_of(0.0), s23 = s01;
+    Py_ssize_t i = 0;
+    for (; i + 4 <= n; i += 4) {
+        s01 += pair_at(u + i) * pair_at(v + i);
+        s23 += pair_at(u + i + 2) * pair_at(v + i + 2);
+    }
+    double s[4];
+    memcpy(s, &s01, 16);
+    memcpy(s + 2, &s23, 16);
+    for (; i < n; i++) s[0] += u[i] * v[i];
+    *done = 1;
+    return (s[0] + s[1]) + (s[2] + s[3]);
+#else
+    (void)u, (void)v, (void)n;
+    *done = 0;
+    return 0.0;
+#endif
+}
+
+/* band_vaf's sums over the DFT bins 1 … kmax, four bins at a time: per bin the measured and
+ * residual spectra's real parts (one pair of lanes) and imaginary parts (another) accumulate
+ * over t in order, and each bin's power adds to total and left in bin order, as band_vaf's own
+ * loop. Returns the first bin left for that loop (kmax + 1 when none). */
+static Py_ssize_t band_powers(const double *meas, const double *err, Py_ssize_t n,
+                              Py_ssize_t kmax, const double *tw_cos, const double *tw_sin,
+                              double *total, double *left)
+{
+    Py_ssize_t k = 1;
+#ifdef LANE_PAIRS
+    enum { BINS = 4 };
+    for (; k + BINS - 1 <= kmax; k += BINS) {
+        lane_pair re[BINS], im[BINS]; /* {measured, residual} */
+        Py_ssize_t idx[BINS];
+        for (int b = 0; b < BINS; b++) {
+            re[b] = im[b] = pair_of(0.0);
+            idx[b] = 0;
+        }
+        for (Py_ssize_t t = 0; t < n; t++) {
+            const lane_pair x = {meas[t], err[t]};
+            for (int b = 0; b < BINS; b++) {
+                re[b] += x * pair_of(tw_cos[idx[b]]);
+                im[b] -= x * pair_of(tw_sin[idx[b]]);
+                idx[b] += k + b;
+                if (idx[b] >= n) idx[b] -= n;
+            }
+        }
+        for (int b = 0; b < BINS; b++) {
+            double r2[2], i2[2];
+            memcpy(r2, &re[b], 16);
+            memcpy(i2, &im[b], 16);
+            *total += r2[0] * r2[0] + i2[0] * i2[0];
+            *left += r2[1] * r2[1] + i2[1] * i2[1];
+        }
+    }
+#else
+    (void)meas, (void)err, (void)n, (void)kmax, (void)tw_cos, (void)tw_sin, (void)total,
+        (void)left;
+#endif
+    return k;
+}
+
+/* eureka_solve's recursion for R alone (first column r): the prediction-error filter a_k of each
+ * step k stored reversed (filters + k(k+1)/2, k + 1 values: a_k[k], …, a_k[0]) with its error
+ * variance alphas[k], and rr (r reversed) as eureka_solve forms it; the same status and alpha.
+ * eureka_apply then solves R x = b for any b with eureka_solve's arithmetic, bit for bit, without
+ * the filter's half of the work: the refinement sweeps solve with one R four times. */
+static Py_ssize_t eureka_filters(const double *r, double *rr, double *filters, double *alphas,
+                                 Py_ssize_t n, double *alpha_out)
+{
+    for (Py_ssize_t j = 0; j < n; j++) rr[j] = r[n - 1 - j];
+    double alpha = r[0];
+    *alpha_out = alpha;
+    if (!(alpha > 0.0)) return 0;
+    /* a_k is updated in the last filter's slot (n values), each step's copied out reversed */
+    double *cur = filters + n * (n + 1) / 2 - n;
+    cur[0] = 1.0;
+    filters[0] = 1.0;
+    alphas[0] = alpha;
+    for (Py_ssize_t k = 1; k < n; k++) {
+        const double *rk = rr + (n - 1 - k);
+        double refl = -dot_unrolled(cur, rk, k) / alpha;
+        cur[k] = 0.0;
+        Py_ssize_t i = 0, j = k;
+        for (; i < j; i++, j--) {
+            double ai = cur[i], aj = cur[j];
+            cur[i] = ai + refl * aj;
+            cur[j] = aj + refl * ai;
+        }
+        if (i == j) cur[i] += refl * cur[i];
+        alpha *= (1.0 - refl * refl);
+        *alpha_out = alpha;
+        if (!(alpha > 0.0)) return k;
+        alphas[k] = alpha;
+        if (k < n - 1) { /* the last step's filter is cur itself, stored reversed below */
+            double *rev = filters + k * (k + 1) / 2;
+            for (Py_ssize_t m = 0; m <= k; m++) rev[m] = cur[k - m];
+        }
+    }
+    if (n > 1) { /* reverse the last filter in place */
+        for (Py_ssize_t i = 0, j = n - 1; i < j; i++, j--) {
+            double tmp = cur[i];
+            cur[i] = cur[j];
+            cur[j] = tmp;
+        }
+    }
+    return -1;
+}
+
+static void eureka_apply(const double *rr, const double *filters, const double *alphas,
+                         const double *b, double *x, Py_ssize_t n)
+{
+    x[0] = b[0] / alphas[0];
+    for (Py_ssize_t k = 1; k < n; k++) {
+        const double *rk = rr + (n - 1 - k), *rev = filters + k * (k + 1) / 2;
+        const double mu = (b[k] - dot_unrolled(x, rk, k)) / alphas[k];
+        x[k] = 0.0;
+        for (Py_ssize_t m = 0; m <= k; m++) x[m] += mu * rev[m];
+    }
+}
