@@ -25,7 +25,9 @@ setup(
         Extension(
             "rtsid.ident._eureka",
             sources=["rtsid/ident/_eureka.c"],
-            extra_compile_args=["-O3", "-ffp-contract=off"],  # no fused multiply-adds: the kernels repeat numpy's and scipy's roundings
+            # no fused multiply-adds, whatever CFLAGS say: the kernels repeat numpy's and
+            # scipy's roundings (bit-for-bit tests, replay equal to live across builds)
+            extra_compile_args=["-O3", "-ffp-contract=off"],
             optional=True,
         )
     ],
