@@ -485,6 +485,16 @@ def print_miss_causes(phase: Phase) -> None:
         f"  {phase.name}: misses by what overlapped them: {listed}; garbage collections by "
         f"generation {worker.get('gc_collections')} taking {worker.get('gc_ms')} ms"
     )
+    steady = phase.status[2:] or phase.status
+    if len(steady) >= 2:  # RSS growth beside what the zenoh history ring took meanwhile
+        first, last = steady[0], steady[-1]
+        history_mib = ((last.get("zenoh") or {}).get("history_bytes", 0) or 0) - (
+            (first.get("zenoh") or {}).get("history_bytes", 0) or 0
+        )
+        print(
+            f"  {phase.name}: RSS {first['rss_mb']:.1f} → {last['rss_mb']:.1f} MiB, of it "
+            f"the zenoh history ring {history_mib / 2**20:+.1f} MiB"
+        )
 
 
 def _replay_row(phase: Phase) -> list[Any]:

@@ -11,7 +11,8 @@ The daemon does::
 
 ``interface = "embedded"`` starts a :class:`~rtsid.link.plant.VirtualPlant` on a private
 python-can ``virtual`` channel inside this process; every other interface opens a real
-python-can bus (``socketcand`` connects to ``host:port``, e.g. ``rtsid plant``).
+python-can bus (``socketcand``: rtsid's batch-reading client, connecting to ``host:port``,
+e.g. ``rtsid plant``).
 """
 
 from __future__ import annotations
