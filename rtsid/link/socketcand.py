@@ -43,6 +43,7 @@ import collections
 import re
 import selectors
 import socket
+import struct
 import threading
 import time
 from collections.abc import Sequence
@@ -477,6 +478,12 @@ class SocketcandServer(ThreadOwner):
         client.sock.close()
 
 
+def _timeval(seconds: float) -> bytes:
+    """A ``struct timeval`` for SO_RCVTIMEO/SO_SNDTIMEO (at least 1 µs: 0 would mean never)."""
+    micros = max(1, round(seconds * 1e6))
+    return struct.pack("ll", micros // 1_000_000, micros % 1_000_000)
+
+
 class SocketcandBus(can.BusABC):
     """A raw-mode socketcand client that reads in batches (``[link] interface = "socketcand"``).
 
@@ -539,6 +546,11 @@ class SocketcandBus(can.BusABC):
             if tcp_tune:
                 self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             self._handshake(channel, timeout_s)
+            # From here the socket blocks in the kernel with SO_RCVTIMEO/SO_SNDTIMEO as its
+            # bounds: a read is one system call and one release of the GIL (a Python timeout
+            # polls first, a second call and a second wait for the GIL, per read)
+            self._sock.settimeout(None)
+            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, _timeval(timeout_s))
         except BaseException:
             self._sock.close()
             raise
@@ -611,11 +623,11 @@ class SocketcandBus(can.BusABC):
         """
         sock = self._sock
         if timeout != self._timeout:
-            sock.settimeout(timeout)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, _timeval(timeout))
             self._timeout = timeout
         try:
             chunk = sock.recv(_READ_BYTES)
-        except (TimeoutError, BlockingIOError):
+        except (TimeoutError, BlockingIOError):  # SO_RCVTIMEO passed: nothing came
             return b""
         except OSError as exc:
             raise can.CanOperationError(f"socketcand receive failed: {exc}") from exc
