@@ -41,9 +41,11 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from rtsid.benchmarks.table import print_table
 from rtsid.commands.common import add_duration
 from rtsid.errors import ConfigError
 from rtsid.link.acquisition import Acquisition, LinkCounters
@@ -81,6 +83,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ramp-step-s", type=float, default=5.0, help="length of a ramp step")
     parser.add_argument("--no-ramp", action="store_true", help="skip the highest-rate ramp")
     parser.add_argument("--baseline-s", type=float, default=20.0, help="bare recv() loop run")
+    parser.add_argument(
+        "--reads",
+        type=int,
+        default=0,
+        metavar="N",
+        help="instead of streaming: the acquisition's work on N socketcand reads of 4 frames "
+        "each, in this thread over loopback, through python-can's client (frame by frame) "
+        "and rtsid's (batches), the same bytes; CPU µs per frame of each and of a bare "
+        "socket read. --read-path runs one path only (for callgrind: N and 0 reads)",
+    )
+    parser.add_argument(
+        "--socketcand-client",
+        default="rtsid",
+        help="[link] socketcand_client of the socketcand run: rtsid, python-can, or "
+        "'python-can,rtsid' (both, one after the other in the same run: the before/after)",
+    )
+    parser.add_argument(
+        "--read-path", choices=("bare", "python-can", "rtsid", "all"), default="all"
+    )
 
 
 # --------------------------------------------------------------------------- measurements
@@ -335,6 +356,7 @@ def measure(
     rss_every_s: float = 10.0,
     progress: bool = False,
     faults_percent: float = 0.0,
+    socketcand_client: str = "rtsid",
 ) -> RunResult:
     """Stream ``duration_s`` at ``rate_hz`` through ``transport`` and measure."""
     frames_per_tick = max(4, int(rate_hz // 625))
@@ -343,6 +365,7 @@ def measure(
     bounded = round(duration_s * rate_hz) if faults_percent else 0
     plant = PLANTS[transport](rate_hz, frames_per_tick, transport, faults_percent, bounded)
     with plant as (link, (start, stop)):
+        link = dataclasses.replace(link, socketcand_client=socketcand_client)
         ring = RingBuffer(link.capacity_rows)
         acq = Acquisition(
             bus_factory(link),
@@ -567,7 +590,117 @@ def _transports(choice: str) -> tuple[str, ...]:
     return (choice,)
 
 
+# --------------------------------------------------------------------------- per-read cost
+READ_PATHS = ("bare", "python-can", "rtsid")
+
+
+def _read_stream(reads: int, per_read: int) -> list[bytes]:
+    """The plant's socketcand bytes for ``reads`` reads of ``per_read`` frames (2500 Hz)."""
+    from rtsid.link.mapping import builtin_protocol
+    from rtsid.link.socketcand import format_frame
+
+    n = reads * per_read
+    index = np.arange(n, dtype=np.int64)
+    position = np.round(20_000 * np.sin(index / 50.0)).astype(np.int64)
+    torque = np.round(9_000 * np.cos(index / 70.0)).astype(np.int64)
+    frames = builtin_protocol().encode_samples(index, position, torque, np.zeros(n, np.int64))
+    t0 = 1_764_000_000.0
+    lines = [format_frame(g[0], t0 + k / 2500.0) for k, g in enumerate(frames)]
+    return ["".join(lines[r * per_read : (r + 1) * per_read]).encode("ascii") for r in range(reads)]
+
+
+def _handshake_peer(listener: Any, out: dict[str, Any]) -> None:
+    """Accept one client and answer its handshake one reply per command (python-can reads
+    each reply with one recv)."""
+    import socket
+
+    conn, _ = listener.accept()
+    conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    conn.sendall(b"< hi >")
+    for _ in range(2):  # < open can0 >, < rawmode >
+        seen = b""
+        while b">" not in seen:
+            seen += conn.recv(64)
+        conn.sendall(b"< ok >")
+    out["conn"] = conn
+
+
+def read_path_cpu_us(path: str, reads: int, per_read: int = 4) -> float:
+    """CPU µs per frame of ``path`` handling ``reads`` reads of ``per_read`` frames.
+
+    The frames are written to a loopback connection one read's worth at a time and read
+    back at once by ``path``: ``bare`` (``socket.recv`` only), ``python-can`` (python-can's
+    socketcand client, one ``recv`` and one :meth:`Acquisition._handle` per frame, the
+    acquisition before issue 22) or ``rtsid`` (:class:`~rtsid.link.socketcand.SocketcandBus`
+    ``recv_chunk`` and :meth:`Acquisition._on_chunk`). Includes writing the bytes.
+    """
+    import socket
+
+    from rtsid.link.socketcand import SocketcandBus
+
+    chunks = _read_stream(reads, per_read)
+    with socket.create_server(("127.0.0.1", 0)) as listener:
+        port = listener.getsockname()[1]
+        peer: dict[str, Any] = {}
+        helper = threading.Thread(target=_handshake_peer, args=(listener, peer))
+        helper.start()
+        if path == "python-can":
+            import can
+
+            bus: Any = can.Bus(interface="socketcand", host="127.0.0.1", port=port, channel="can0")
+        else:
+            bus = SocketcandBus("can0", "127.0.0.1", port)
+        helper.join(10.0)
+        feeder = peer["conn"]
+        ring = RingBuffer(25_000)
+        acq = Acquisition(bus, ring)
+        raw = getattr(bus, "_sock", None)
+        try:
+            cpu0 = time.thread_time()
+            for chunk in chunks:
+                feeder.sendall(chunk)
+                if path == "bare":
+                    assert raw is not None
+                    got = 0
+                    while got < len(chunk):
+                        got += len(raw.recv(1 << 16))
+                elif path == "rtsid":
+                    done = 0
+                    while done < per_read:
+                        done += acq._on_chunk(bus.recv_chunk(1.0), time.monotonic())
+                else:
+                    for _ in range(per_read):
+                        acq._handle(bus.recv(1.0), time.monotonic())
+            cpu = time.thread_time() - cpu0
+        finally:
+            feeder.close()
+            bus.shutdown()
+    if path != "bare" and reads:
+        assert acq.counters().samples == reads * per_read, acq.counters()
+    return 1e6 * cpu / max(1, reads * per_read)
+
+
+def print_read_paths(reads: int, which: str) -> None:
+    paths = READ_PATHS if which == "all" else (which,)
+    costs = {p: read_path_cpu_us(p, reads) for p in paths}
+    rows = [[p, reads * 4, costs[p], costs[p] * 2500 / 1e4] for p in paths]
+    print_table(
+        f"The acquisition's work per frame, {reads} socketcand reads of 4 frames (the plant's "
+        "tick), one thread, loopback",
+        ["path", "frames", "CPU µs/frame", "% of a core at 2500 frames/s"],
+        rows,
+        note="bare: writing the bytes and one socket read (the floor); python-can: its client "
+        "parses each frame into a can.Message, then the acquisition handles it (before issue "
+        "22); rtsid: one read parsed at once, the state frames decoded together and written "
+        "to the ring as one block. CPU is thread time: noisy on a loaded machine; run it "
+        "under callgrind (--read-path P, N and 0 reads) for instruction counts.",
+    )
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.reads:
+        print_read_paths(args.reads, args.read_path)
+        return 0
     duration = 5.0 if args.quick else args.duration
     step = 1.0 if args.quick else args.ramp_step_s
     base_s = 2.0 if args.quick else args.baseline_s
@@ -576,18 +709,23 @@ def run(args: argparse.Namespace) -> int:
     transports = _transports(args.transport)
     print(f"rtsid bench link: {duration:.0f} s per transport, pid {os.getpid()}", flush=True)
     results, baselines = [], {}
+    clients = [c.strip() for c in args.socketcand_client.split(",") if c.strip()]
     for transport in transports:
         baselines[transport] = baseline_cpu_percent(transport, base_s)
-        results.append(
-            measure(
+        for client in clients if transport == "socketcand" else ["rtsid"]:
+            result = measure(
                 transport,
                 STEADY_RATE_HZ[transport],
                 duration,
                 progress=not args.quick,
                 rss_every_s=1.0 if args.quick else 10.0,
                 faults_percent=args.faults,
+                socketcand_client=client,
             )
-        )
+            if transport == "socketcand":
+                baselines[f"socketcand ({client})"] = baselines[transport]
+                result = dataclasses.replace(result, transport=f"socketcand ({client})")
+            results.append(result)
     print_steady(results, baselines)
     if args.faults:
         print_faults(results, args.faults)

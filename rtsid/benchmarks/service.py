@@ -76,6 +76,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "real rig would; embedded: inside the daemon (the quick-start setup)",
     )
     parser.add_argument(
+        "--socketcand-client",
+        choices=("rtsid", "python-can"),
+        default="rtsid",
+        help="the daemon's [link] socketcand_client (python-can: the acquisition before "
+        "issue 22, a can.Message per frame)",
+    )
+    parser.add_argument(
         "--slow-lane",
         default="process",
         help="process (the daemon's default), thread, off, or a comma-separated list run one "
@@ -216,6 +223,7 @@ def _config_file(
     switch_interval_s: float | None = None,
     lowpass_hz: float | None = None,
     realtime_priority: int = 0,
+    socketcand_client: str = "rtsid",
 ) -> Path:
     path = folder / "bench.toml"
     estimator = f"[estimator]\nlowpass_hz = {lowpass_hz!r}\n" if lowpass_hz is not None else ""
@@ -224,6 +232,7 @@ def _config_file(
     )
     link = (
         f'[link]\ninterface = "socketcand"\nchannel = "can0"\nport = {can_port}\n'
+        f'socketcand_client = "{socketcand_client}"\n'
         if can_port is not None
         else ""
     )
@@ -330,6 +339,7 @@ def _run_phase(
     *,
     replay: bool = True,
     realtime_priority: int = 0,
+    socketcand_client: str = "rtsid",
 ) -> Phase:
     phase = Phase(name)
     with tempfile.TemporaryDirectory(prefix="rtsid-bench-") as tmp:
@@ -346,6 +356,7 @@ def _run_phase(
             switch_interval_s,
             lowpass_hz,
             realtime_priority,
+            socketcand_client,
         )
         plant = _start_plant(can_port, config) if can_port is not None else None
         daemon = subprocess.Popen(
@@ -413,6 +424,17 @@ def identical_to_live(phase: Phase) -> tuple[int, int]:
     return sum(phase.live_values[end] == replayed[end] for end in common), len(common)
 
 
+def acquisition_cpu_percent(status: list[dict[str, Any]]) -> float:
+    """The acquisition thread's CPU, % of a core, between the first and the last status
+    (its ``thread_cpu_s`` against the statuses' ``host_time_ns``)."""
+    if len(status) < 2:
+        return float("nan")
+    first, last = status[0], status[-1]
+    seconds = (last["host_time_ns"] - first["host_time_ns"]) / 1e9
+    cpu = last["acquisition"]["thread_cpu_s"] - first["acquisition"]["thread_cpu_s"]
+    return 100.0 * cpu / seconds if seconds > 0 else float("nan")
+
+
 def _row(phase: Phase, base: Phase | None) -> list[Any]:
     e2e50, e2e99 = median_p99(phase.e2e_ms)
     c50, c99 = median_p99(phase.compute_ms)
@@ -443,6 +465,7 @@ def _row(phase: Phase, base: Phase | None) -> list[Any]:
         median_p99(phase.daemon_ms)[1],
         median_p99(phase.transit_ms)[1],
         cpu,
+        acquisition_cpu_percent(steady),
         rss[0] if rss else float("nan"),
         rss[-1] if rss else float("nan"),
         acq.get("lost_samples", "—"),
@@ -450,6 +473,28 @@ def _row(phase: Phase, base: Phase | None) -> list[Any]:
         phase.steal_percent,
         ratio,
     ]
+
+
+def print_miss_causes(phase: Phase) -> None:
+    """What the phase's deadline misses coincided with, from the daemon's last status
+    (:class:`~rtsid.runtime.stalls.StallJournal`), and its garbage collections."""
+    worker = (phase.status[-1] if phase.status else {}).get("worker") or {}
+    causes = worker.get("miss_causes") or {}
+    listed = ", ".join(f"{name}: {count}" for name, count in sorted(causes.items())) or "none"
+    print(
+        f"  {phase.name}: misses by what overlapped them: {listed}; garbage collections by "
+        f"generation {worker.get('gc_collections')} taking {worker.get('gc_ms')} ms"
+    )
+    steady = phase.status[2:] or phase.status
+    if len(steady) >= 2:  # RSS growth beside what the zenoh history ring took meanwhile
+        first, last = steady[0], steady[-1]
+        history_mib = ((last.get("zenoh") or {}).get("history_bytes", 0) or 0) - (
+            (first.get("zenoh") or {}).get("history_bytes", 0) or 0
+        )
+        print(
+            f"  {phase.name}: RSS {first['rss_mb']:.1f} → {last['rss_mb']:.1f} MiB, of it "
+            f"the zenoh history ring {history_mib / 2**20:+.1f} MiB"
+        )
 
 
 def _replay_row(phase: Phase) -> list[Any]:
@@ -521,8 +566,10 @@ def run(args: argparse.Namespace) -> int:
             *(seconds, False, args.transport, qos, mode, reflex, hop_s, switch_s, args.lowpass_hz),
             replay=not args.no_replay,
             realtime_priority=args.realtime_priority,
+            socketcand_client=args.socketcand_client,
         )
         rows.append(_row(idle, None))
+        print_miss_causes(idle)
         lanes.append(_lane_row(idle, mode))
         replays.append(_replay_row(idle))
         if not args.no_load_phase:
@@ -541,8 +588,10 @@ def run(args: argparse.Namespace) -> int:
                 ),
                 replay=not args.no_replay,
                 realtime_priority=args.realtime_priority,
+                socketcand_client=args.socketcand_client,
             )
             rows.append(_row(loaded, idle))
+            print_miss_causes(loaded)
             lanes.append(_lane_row(loaded, mode))
             replays.append(_replay_row(loaded))
     print_table(
@@ -575,6 +624,7 @@ def run(args: argparse.Namespace) -> int:
             "in-daemon p99 ms",
             "zenoh transit p99 ms",
             "daemon CPU %",
+            "acquisition thread CPU %",
             "RSS start MiB",
             "RSS end MiB",
             "lost samples",

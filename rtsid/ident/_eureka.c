@@ -1680,6 +1680,7 @@ static PyObject *py_evidence_gains(PyObject *self, PyObject *args);
 static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args);
 static PyObject *py_zero_phase_rows(PyObject *self, PyObject *args);
 static PyObject *py_savgol_pair(PyObject *self, PyObject *args);
+static PyObject *py_ankle_frames(PyObject *self, PyObject *args); /* socketcand frames, end */
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1717,6 +1718,7 @@ static PyMethodDef methods[] = {
     {"low_pass_slopes", py_low_pass_slopes, METH_VARARGS, "low_pass_slopes(t, wn, zeta, h, slopes): the reflex dynamics' low-pass and its derivatives."},
     {"zero_phase_rows", py_zero_phase_rows, METH_VARARGS, "zero_phase_rows(sos, zi, rows, n, edge, factor, out): scipy's sosfiltfilt of each row, every factor-th sample into out."},
     {"savgol_pair", py_savgol_pair, METH_VARARGS, "savgol_pair(x, taps1, taps2, d1, d2): ndimage.convolve1d(x, taps, mode='constant') of two filters."},
+    {"ankle_frames", py_ankle_frames, METH_VARARGS, "ankle_frames(data, ident, position_scale, torque_scale, counter, position, torque, status, bus_time) -> n (< 0: not the common case): socketcand state frames of the built-in protocol."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -2684,4 +2686,120 @@ static void eureka_apply(const double *rr, const double *filters, const double *
         x[k] = 0.0;
         for (Py_ssize_t m = 0; m <= k; m++) x[m] += mu * rev[m];
     }
+}
+
+/* ------------------------------------------------------------------ socketcand frames (acq4)
+ * (issue 22, acq4) The acquisition thread's common case over socketcand: a read holding only
+ * the built-in ankle protocol's state frames, in the format socketcand prints them,
+ *     < frame ID SEC.USEC HHHHHHHHHHHHHHHH >
+ * (ID as given, USEC six digits, the 8 data bytes as 16 hex digits), their counters following
+ * one another. The Python reference is rtsid.link.socketcand.parse_records and
+ * rtsid.link.mapping.AnkleDecoder.decode_words (held equal by tests/link/test_socketcand.py).
+ *
+ * ankle_frames(data, ident, position_scale, torque_scale, counter, position, torque, status,
+ *   bus_time) -> n: decodes every record of data into the n first items of the five arrays
+ *   (int64, float64, float64, uint8, float64): the counter, position = raw · position_scale,
+ *   torque = raw · torque_scale, the status nibble, and the timestamp (SEC·10^6 + USEC) / 10^6,
+ *   which is float("SEC.USEC") exactly (both the correctly rounded quotient) while it is
+ *   below 2^53 µs. Returns -1 when any record is not in that form (or there are more than
+ *   the arrays hold), -2 when a checksum fails (the XOR of the 16 nibbles is not 0xA), -3
+ *   when the counters do not follow one another (mod 4096): the caller then takes the
+ *   frames one by one. O(len(data)).
+ */
+static int hex_digit(unsigned char c)
+{
+    if (c >= '0' && c <= '9') return c - '0';
+    if (c >= 'A' && c <= 'F') return c - 'A' + 10;
+    if (c >= 'a' && c <= 'f') return c - 'a' + 10;
+    return -1;
+}
+
+/* One record at s[i..]: its fields into the outputs at k; the index after it, or -1/-2. */
+static Py_ssize_t ankle_record(const unsigned char *s, Py_ssize_t i, Py_ssize_t len,
+                               const char *ident, Py_ssize_t ident_len, double pscale,
+                               double tscale, long long *counter, double *pos, double *trq,
+                               unsigned char *status, double *stamp)
+{
+    static const char head[] = "< frame ";
+    const Py_ssize_t head_len = 8;
+    if (len - i < head_len + ident_len + 1 + 1 + 1 + 6 + 1 + 16 + 2) return -1;
+    if (memcmp(s + i, head, (size_t)head_len) != 0) return -1;
+    i += head_len;
+    if (memcmp(s + i, ident, (size_t)ident_len) != 0 || s[i + ident_len] != ' ') return -1;
+    i += ident_len + 1;
+    long long micros = 0;
+    int digits = 0;
+    while (i < len && s[i] >= '0' && s[i] <= '9' && digits < 11) {
+        micros = micros * 10 + (s[i] - '0');
+        i++;
+        digits++;
+    }
+    if (digits == 0 || digits > 10 || i >= len || s[i] != '.') return -1;
+    i++;
+    if (len - i < 6 + 1 + 16 + 2) return -1;
+    for (int d = 0; d < 6; d++, i++) {
+        if (s[i] < '0' || s[i] > '9') return -1;
+        micros = micros * 10 + (s[i] - '0');
+    }
+    if (s[i] != ' ' || micros > (1LL << 53)) return -1;
+    i++;
+    unsigned long long word = 0;
+    int fold = 0;
+    for (int b = 0; b < 8; b++) {
+        const int hi = hex_digit(s[i + 2 * b]), lo = hex_digit(s[i + 2 * b + 1]);
+        if (hi < 0 || lo < 0) return -1;
+        fold ^= hi ^ lo;
+        word |= (unsigned long long)(hi << 4 | lo) << (8 * b);
+    }
+    i += 16;
+    if (s[i] != ' ' || s[i + 1] != '>') return -1;
+    if (fold != 0xA) return -2;
+    long long p = (long long)(word & 0xFFFFFFULL), t = (long long)((word >> 24) & 0xFFFFFULL);
+    if (p & 0x800000LL) p -= 0x1000000LL;
+    if (t & 0x80000LL) t -= 0x100000LL;
+    *counter = (long long)((word >> 44) & 0xFFFULL);
+    *pos = (double)p * pscale;
+    *trq = (double)t * tscale;
+    *status = (unsigned char)((word >> 56) & 0xFULL);
+    *stamp = (double)micros / 1e6;
+    return i + 2;
+}
+
+static PyObject *py_ankle_frames(PyObject *self, PyObject *args)
+{
+    Py_buffer data, out[5];
+    const char *ident;
+    Py_ssize_t ident_len;
+    double pscale, tscale;
+    if (!PyArg_ParseTuple(args, "y*y#ddw*w*w*w*w*", &data, &ident, &ident_len, &pscale, &tscale,
+                          &out[0], &out[1], &out[2], &out[3], &out[4]))
+        return NULL;
+    const Py_ssize_t cap = out[0].len / 8;
+    Py_ssize_t n = 0, i = 0, result = 0;
+    if (out[1].len / 8 < cap || out[2].len / 8 < cap || out[3].len < cap ||
+        out[4].len / 8 < cap) {
+        result = -1;
+    }
+    const unsigned char *s = (const unsigned char *)data.buf;
+    long long *counter = out[0].buf;
+    while (result == 0 && i < data.len) {
+        if (n >= cap) {
+            result = -1;
+            break;
+        }
+        const Py_ssize_t next =
+            ankle_record(s, i, data.len, ident, ident_len, pscale, tscale, counter + n,
+                         (double *)out[1].buf + n, (double *)out[2].buf + n,
+                         (unsigned char *)out[3].buf + n, (double *)out[4].buf + n);
+        if (next < 0) {
+            result = next;
+            break;
+        }
+        if (n > 0 && counter[n] != ((counter[n - 1] + 1) & 0xFFF)) result = -3;
+        i = next;
+        n++;
+    }
+    PyBuffer_Release(&data);
+    for (int k = 0; k < 5; k++) PyBuffer_Release(&out[k]);
+    return PyLong_FromSsize_t(result < 0 ? result : n);
 }

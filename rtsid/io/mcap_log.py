@@ -20,6 +20,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import logging
 import os
@@ -27,6 +28,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -254,6 +256,10 @@ class McapLogger(ThreadOwner):
         if session_message is not None:
             self._session_now = (encode_json(session_message), dict(session_message))
         super().__init__("rtsid-mcap")
+        #: ``timed(name)`` wraps each write and flush of the writer thread (a context manager;
+        #: the daemon sets its stall journal's ``step`` so that a deadline miss can be set
+        #: against them; by default nothing is timed)
+        self.timed: Callable[[str], AbstractContextManager[Any]] = contextlib.nullcontext
         self._queue: queue.Queue[tuple[str, int, Any]] = queue.Queue(maxsize=config.queue_size)
         self._accepting = False
         self._require_file = False
@@ -528,10 +534,12 @@ class McapLogger(ThreadOwner):
             except queue.Empty:
                 item = None
             if item is not None:
-                self._write(item)
+                with self.timed("mcap writer: write"):
+                    self._write(item)
             now = time.monotonic()
             if now >= next_flush:
-                self._flush()
+                with self.timed("mcap writer: flush"):
+                    self._flush()
                 next_flush += cfg.flush_interval_s
                 if next_flush <= now:  # fell behind: next deadline from now, never a burst
                     next_flush = now + cfg.flush_interval_s

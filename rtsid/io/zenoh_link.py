@@ -639,7 +639,8 @@ class ZenohPublisher:
             nowhere) and ``not_published_by_reason`` (``session_down``: no session;
             ``no_router``: a client's router was gone), ``errors``, ``last_error``,
             ``open_attempts``, ``queries`` (answered), ``query_errors`` (malformed queries
-            answered with an error reply), ``history_s``.
+            answered with an error reply), ``history_s``, ``history_bytes`` (the bytes the
+            history ring holds: deflated blocks and the open one).
         """
         with self._count_lock:
             not_published = dict(self._not_published)
@@ -657,6 +658,7 @@ class ZenohPublisher:
             "queries": self._queries,
             "query_errors": self._query_errors,
             "history_s": self.cfg.history_s,
+            "history_bytes": 0 if self.history is None else self.history.held_bytes,
         }
 
     def _link_state(self) -> str:

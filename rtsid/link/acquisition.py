@@ -43,7 +43,9 @@ Sample time is ``anchor_host_time_s + (sample_index - anchor_index) / fs_hz``, a
 
 from __future__ import annotations
 
+import binascii
 import math
+import struct
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -51,19 +53,29 @@ from dataclasses import dataclass
 from typing import Any
 
 import can
+import numpy as np
 
 from rtsid.errors import LinkError, LinkHandshakeError
+from rtsid.ident.levinson import compiled_kernel
 from rtsid.lifecycle import ThreadOwner
 from rtsid.link.mapping import (
     FRAME_COMMAND,
     FRAME_DIAGNOSTICS,
+    AnkleDecoder,
     MappedProtocol,
     builtin_protocol,
 )
 from rtsid.link.markers import MarkerInbox, WireMarker
-from rtsid.link.protocol import COUNTER_MODULO, Command
+from rtsid.link.protocol import (
+    COUNTER_MODULO,
+    POSITION_SCALE_RAD,
+    STATE_ID,
+    TORQUE_SCALE_NM,
+    Command,
+)
 from rtsid.link.ring import RingBuffer
 from rtsid.link.sequence import CONTRADICTIONS, MAX_STRAY_RUN, Sequencer
+from rtsid.link.socketcand import Record, parse_records, record_message
 from rtsid.link.udp import Datagram, UdpLayout
 
 __all__ = ["LINK_STATES", "Acquisition", "LinkCounters", "explain_link_state", "unwrap_counter"]
@@ -76,6 +88,8 @@ _CPU_EVERY = 512  # frames between thread CPU readings
 _WRAP_TOLERANCE = 0.1  # of a wrap period: how much earlier than expected a frame may arrive
 _HOST_SLACK_WRAPS = 0.3  # of a wrap period: how much longer than the host saw a silence may be
 _MAX_REJECTS_IN_ROW = 256  # rejected state frames in a row: a broken link, fatal to the thread
+_STATE_BYTES = 8  # the built-in state frame's length
+_MAX_BLOCK_ROWS = 2048  # frames one socketcand read may hold (64 KiB of 48-byte records)
 _EXTENDED = 1 << 31  # frame key bit of a 29-bit identifier (rtsid.link.mapping.frame_key)
 RATE_WINDOW_S = 2.0  # sender-clock span over which the sample rate is measured
 
@@ -147,6 +161,13 @@ def unwrap_counter(
     if delta > modulo - reorder_window:
         return last + delta - modulo  # behind the newest: late
     return last + delta
+
+
+def _consecutive(first: int, n: int, modulo: int) -> list[int]:
+    """``n`` counter values from ``first`` on, wrapping at ``modulo``."""
+    if first + n <= modulo:
+        return list(range(first, first + n))
+    return [*range(first, modulo), *range(0, first + n - modulo)]
 
 
 def index_from_time(t_s: float, last: int, last_t_s: float, fs_hz: float) -> int:
@@ -366,6 +387,20 @@ class Acquisition(ThreadOwner):
         self._modulo = self.protocol.counter_modulo
         self._timestamps = self.protocol.uses_timestamps
         self._udp = isinstance(self.protocol, UdpLayout)
+        # the built-in protocol's state frames from a batch-reading bus go in one block
+        self._ankle = isinstance(self._decoder, AnkleDecoder)
+        self._state_ident = f"{STATE_ID:03X}".encode("ascii")  # as socketcand prints it
+        kernel = compiled_kernel() if self._ankle else None
+        self._kernel = kernel if hasattr(kernel, "ankle_frames") else None
+        rows = _MAX_BLOCK_ROWS
+        # the compiled decoder's output: counter, position, torque, status, bus time
+        self._scratch = (
+            np.zeros(rows, np.int64),
+            np.zeros(rows),
+            np.zeros(rows),
+            np.zeros(rows, np.uint8),
+            np.zeros(rows),
+        )
         self._kinds = {} if self._udp else dict(self.protocol.frame_kinds)  # type: ignore[union-attr]
         self._lengths = {} if self._udp else dict(self.protocol.state_lengths)  # type: ignore[union-attr]
         self.rate_tolerance = rate_tolerance_percent / 100.0
@@ -566,24 +601,124 @@ class Acquisition(ThreadOwner):
             if bus is None:
                 self._reopen()
                 continue
+            read_chunk = getattr(bus, "recv_chunk", None)  # rtsid's socketcand client
             try:
-                msg = bus.recv(timeout)
+                got = bus.recv(timeout) if read_chunk is None else read_chunk(timeout)
             except Exception as exc:  # any interface error: count, close, reopen
                 self._on_bus_error(exc)
                 continue
             now = time.monotonic()
-            if msg is None:
+            if got is None or (read_chunk is not None and not got):
                 self._idle(now)
                 continue
-            try:
-                handle(msg, now)
-            except Exception as exc:  # a frame must never end the thread; many in a row do
-                self._reject(exc)
-            frames_since_cpu += 1
+            if read_chunk is not None:
+                frames_since_cpu += self._on_chunk(got, now)
+            else:
+                try:
+                    handle(got, now)
+                except Exception as exc:  # a frame must never end the thread; many do
+                    self._reject(exc)
+                frames_since_cpu += 1
             if frames_since_cpu >= _CPU_EVERY:
                 frames_since_cpu = 0
                 self._cpu_s = time.thread_time()
         self._cpu_s = time.thread_time()
+
+    def _on_chunk(self, chunk: bytes, now: float) -> int:
+        """The complete records of one socketcand read: written as one block when they are
+        the built-in protocol's state frames continuing the newest sample (the common case;
+        decoded by the compiled kernel when it is built, else by :meth:`_write_block`), else
+        one by one through :meth:`_handle`, exactly as python-can's frames were. Returns the
+        number of frames."""
+        kernel, scratch = self._kernel, self._scratch
+        if kernel is not None and self._last_index >= 0 and not self._sequence.held:
+            n = kernel.ankle_frames(
+                chunk, self._state_ident, POSITION_SCALE_RAD, TORQUE_SCALE_NM, *scratch
+            )
+            if n > 0 and self._write_decoded(n, now):
+                return int(n)
+        return self._on_records(parse_records(chunk)[0], now)
+
+    def _write_decoded(self, n: int, now: float) -> bool:
+        """Write the kernel's ``n`` decoded samples as one ring block if their first counter
+        continues the newest sample (their counters follow one another: the kernel checked)."""
+        counter, position, torque, status, bus_time = self._scratch
+        last = self._last_index
+        if self._unwrap(int(counter[0]), last, float(bus_time[0]), now) != last + 1:
+            return False
+        times = bus_time[:n]
+        self._commit_block(position[:n], torque[:n], status[:n], times, float(times.max()), now)
+        return True
+
+    def _on_records(self, records: list[Record], now: float) -> int:
+        """Parsed records (:func:`~rtsid.link.socketcand.parse_records`): one block when they
+        are built-in state frames continuing the newest sample, else frame by frame.
+        Returns the number of records."""
+        if self._ankle and self._write_block(records, now):
+            return len(records)
+        channel = getattr(self._bus, "channel", None)
+        for record in records:
+            try:
+                self._handle(record_message(record, channel), now)
+            except Exception as exc:  # a frame must never end the thread; many in a row do
+                self._reject(exc)
+        return len(records)
+
+    def _write_block(self, records: list[Record], now: float) -> bool:
+        """Write a read's state frames as one ring block; False (nothing done) unless every
+        record is a well-formed built-in state frame, the counters continue the newest
+        sample one by one and no counter jump is held (then the per-frame path would write
+        the same rows: same values, same counters)."""
+        n = len(records)
+        last = self._last_index
+        if last < 0 or self._sequence.held:
+            return False
+        kinds, idents, stamps, payloads = zip(*records, strict=True)
+        if kinds.count(b"frame") != n or idents.count(self._state_ident) != n:
+            return False
+        if set(map(len, payloads)) != {2 * _STATE_BYTES}:
+            return False
+        words = struct.unpack(f"<{n}Q", binascii.unhexlify(b"".join(payloads)))
+        decoded = AnkleDecoder.decode_words(words)
+        if decoded is None:
+            return False
+        counters, positions, torques, statuses = decoded
+        first_counter = counters[0]
+        if counters != _consecutive(first_counter, n, self._modulo):
+            return False
+        times = list(map(float, stamps))
+        if self._unwrap(first_counter, last, times[0], now) != last + 1:
+            return False
+        self._commit_block(positions, torques, statuses, times, max(times), now)
+        return True
+
+    def _commit_block(
+        self,
+        positions: Any,
+        torques: Any,
+        statuses: Any,
+        times: Any,
+        latest_time: float,
+        now: float,
+    ) -> None:
+        """Write samples ``newest + 1 …`` (lists or arrays) and do what :meth:`_write` does
+        for each: the counters, the link's freshness and the rate measurement."""
+        n = len(positions)
+        last = self._last_index
+        self._c["frames"] += n
+        newest = self.ring.append_block(positions, torques, statuses, now, times)
+        self._last_index = self._sequence.last = newest
+        self._c["samples"] += n
+        self._last_frame_host = now
+        self._last_bus_time = float(times[-1])
+        self._stale = False
+        self._backoff = self.backoff_min_s
+        self._rejects_in_row = 0
+        if latest_time >= self._rate_due_s:  # every 2 s of sender time
+            for k in range(n):
+                t = float(times[k])
+                if t >= self._rate_due_s:
+                    self._measure_rate(last + 1 + k, t)
 
     def _handle(self, msg: can.Message, now: float) -> None:
         """Count and dispatch one CAN frame (the thread's hot path: keep it lean)."""

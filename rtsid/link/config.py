@@ -38,6 +38,8 @@ __all__ = [
     "plant_config_from_mapping",
 ]
 
+#: socketcand clients: rtsid's (batch reads, the default) and python-can's (frame by frame).
+SOCKETCAND_CLIENTS = ("rtsid", "python-can")
 #: python-can interfaces rtsid accepts, plus ``embedded`` (the in-process virtual plant).
 #: ``udp_multicast`` is left out on purpose: rtsid never uses multicast.
 INTERFACES = (
@@ -231,14 +233,20 @@ class LinkConfig:
     stale_after_s : float
         No state frame for this long: the link reports ``stale`` (robot stopped).
     reconnect_after_stale_s : float
-        Reopen the bus after this long without frames (0: never). Needed for socketcand,
-        whose python-can client does not report a closed connection. Not used by ``udp``.
+        Reopen the bus after this long without frames (0: never). Needed for socketcand
+        with python-can's client, which does not report a closed connection (rtsid's
+        does). Not used by ``udp``.
     backoff_min_s, backoff_max_s : float
         Reconnection back-off: first wait, doubling up to the maximum.
     rx_queue_frames : int
         Receive queue bound for ``virtual``/``embedded`` buses, frames.
     tcp_tune : bool
         socketcand: TCP_NODELAY/QUICKACK for lower latency.
+    socketcand_client : str
+        ``"rtsid"`` (default: rtsid's client, reading a whole TCP read at once and writing
+        the built-in protocol's frames to the ring as a block) or ``"python-can"``
+        (python-can's client, a ``can.Message`` per frame: the acquisition before issue 22,
+        kept for comparison and as a fallback).
     options : dict
         Extra keyword arguments for ``can.Bus`` (e.g. ``{fd = true}``).
     rate_tolerance_percent : float
@@ -265,6 +273,7 @@ class LinkConfig:
     backoff_max_s: float = 5.0
     rx_queue_frames: int = 20000
     tcp_tune: bool = True
+    socketcand_client: str = "rtsid"
     options: Mapping[str, Any] = field(default_factory=dict)
     rate_tolerance_percent: float = 2.0
     protocol: ProtocolConfig = field(default_factory=ProtocolConfig)
@@ -272,6 +281,7 @@ class LinkConfig:
 
     def __post_init__(self) -> None:
         require_choice("interface", self.interface, INTERFACES)
+        require_choice("socketcand_client", self.socketcand_client, SOCKETCAND_CLIENTS)
         require_range("rate_tolerance_percent", self.rate_tolerance_percent, 0.0, 100.0)
         require_range("bitrate", self.bitrate, 10_000, 8_000_000)
         require_range("port", self.port, 0, 65535)

@@ -679,6 +679,46 @@ class AnkleDecoder:
             None,
         )
 
+    @staticmethod
+    def decode_words(
+        words: Sequence[int],
+    ) -> tuple[list[int], list[float], list[float], list[int]] | None:
+        """Counters, positions (rad), torques (N·m) and status bits of many state frames.
+
+        Parameters
+        ----------
+        words : sequence of int
+            Each frame's 8 bytes as a little-endian integer.
+
+        Returns
+        -------
+        tuple of lists or None
+            The same numbers as :meth:`decode` frame by frame; None if any checksum fails
+            (the caller then takes the frames one by one, counting the bad ones).
+        """
+        counters: list[int] = []
+        positions: list[float] = []
+        torques: list[float] = []
+        statuses: list[int] = []
+        for word in words:
+            fold = word ^ (word >> 32)
+            fold ^= fold >> 16
+            fold ^= fold >> 8
+            fold ^= fold >> 4
+            if fold & 0xF != 0xA:
+                return None
+            position = word & 0xFFFFFF
+            if position & 0x800000:
+                position -= 0x1000000
+            torque = (word >> 24) & 0xFFFFF
+            if torque & 0x80000:
+                torque -= 0x100000
+            counters.append((word >> 44) & 0xFFF)
+            positions.append(position * POSITION_SCALE_RAD)
+            torques.append(torque * TORQUE_SCALE_NM)
+            statuses.append((word >> 56) & 0xF)
+        return counters, positions, torques, statuses
+
 
 class StateDecoder:
     """Turns state frames of a :class:`MappedProtocol` into samples (cantools, ≈ 2–5 µs).

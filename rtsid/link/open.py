@@ -11,7 +11,8 @@ The daemon does::
 
 ``interface = "embedded"`` starts a :class:`~rtsid.link.plant.VirtualPlant` on a private
 python-can ``virtual`` channel inside this process; every other interface opens a real
-python-can bus (``socketcand`` connects to ``host:port``, e.g. ``rtsid plant``).
+python-can bus (``socketcand``: rtsid's batch-reading client, connecting to ``host:port``,
+e.g. ``rtsid plant``).
 """
 
 from __future__ import annotations
@@ -28,18 +29,19 @@ from dataclasses import dataclass
 import can
 
 from rtsid.config import invalid
-from rtsid.errors import LinkError, LinkHandshakeError
+from rtsid.errors import LinkError
 from rtsid.link.acquisition import Acquisition
 from rtsid.link.config import LinkConfig, PlantConfig
 from rtsid.link.mapping import MappedProtocol, protocol_from_config
 from rtsid.link.plant import VirtualPlant
 from rtsid.link.ring import RingBuffer
+from rtsid.link.socketcand import SocketcandBus
 from rtsid.link.udp import UdpLayout, UdpReceiver, UdpSender, compile_layout
 
 __all__ = ["LinkHandle", "bus_factory", "open_link"]
 
 _NO_BITRATE = ("virtual", "embedded", "socketcand", "socketcan")
-_PROBE_TIMEOUT_S = 1.0
+_HANDSHAKE_TIMEOUT_S = 1.0
 _PLANT_RX_QUEUE = 1024
 _LOOPBACK = ("127.0.0.1", "::1", "localhost")
 
@@ -135,44 +137,32 @@ def _open_udp(cfg: LinkConfig) -> UdpReceiver:
 
 
 def _open_socketcand(cfg: LinkConfig, channel: str) -> can.BusABC:
-    # python-can's client retries connect() in a busy loop for 10 s and then blocks on the
-    # handshake without a timeout; probe first (connect and wait for the greeting, both
-    # bounded) so a missing or mute server fails fast instead of hanging the caller.
-    _probe_socketcand(cfg.host, cfg.port)
-    # python-can's client logs a warning each time a TCP read ends inside a frame, which at
-    # 2500 frames/s is most reads; nothing is lost, so keep only its errors.
-    logging.getLogger("can.interfaces.socketcand").setLevel(logging.ERROR)
-    return can.Bus(
-        interface="socketcand",
-        host=cfg.host,
-        port=cfg.port,
-        channel=channel,
+    """rtsid's socketcand client: the handshake bounded by ``_HANDSHAKE_TIMEOUT_S`` (a
+    missing or mute server fails fast instead of hanging the caller), frames read in
+    batches (:class:`~rtsid.link.socketcand.SocketcandBus`); or python-can's
+    (``socketcand_client = "python-can"``), after the same bounded handshake."""
+    if cfg.socketcand_client == "python-can":
+        # python-can's client retries connect() for 10 s and then waits for the greeting
+        # without a timeout: rtsid's client greets it first (bounded), then python-can's
+        # connects; python-can's logs a warning for each read that ends inside a frame
+        SocketcandBus(channel, cfg.host, cfg.port, timeout_s=_HANDSHAKE_TIMEOUT_S).shutdown()
+        logging.getLogger("can.interfaces.socketcand").setLevel(logging.ERROR)
+        return can.Bus(
+            interface="socketcand",
+            host=cfg.host,
+            port=cfg.port,
+            channel=channel,
+            tcp_tune=cfg.tcp_tune,
+            **dict(cfg.options),
+        )
+    return SocketcandBus(
+        channel,
+        cfg.host,
+        cfg.port,
         tcp_tune=cfg.tcp_tune,
+        timeout_s=_HANDSHAKE_TIMEOUT_S,
         **dict(cfg.options),
     )
-
-
-def _probe_socketcand(host: str, port: int) -> None:
-    """Connect to a socketcand server and wait for its ``< hi >``; LinkError if either fails."""
-    try:
-        with socket.create_connection((host, port), timeout=_PROBE_TIMEOUT_S) as probe:
-            greeting = b""
-            while b"< hi >" not in greeting:
-                chunk = probe.recv(64)
-                if not chunk:
-                    raise ConnectionResetError("closed the connection before greeting")
-                greeting += chunk
-    except TimeoutError as exc:
-        raise LinkHandshakeError(
-            f"the socketcand server at {host}:{port} accepted the connection but did not greet "
-            f"('< hi >') within {_PROBE_TIMEOUT_S:g} s; restart it, or fix [link] host/port if "
-            "something else listens there"
-        ) from exc
-    except OSError as exc:
-        raise LinkError(
-            f"no socketcand server at {host}:{port} ({exc}); start it (e.g. "
-            f"'rtsid plant --port {port}') or fix [link] host/port"
-        ) from exc
 
 
 @contextlib.contextmanager

@@ -16,6 +16,7 @@ lock only to update the shared overrun counter.
 from __future__ import annotations
 
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TypeVar
 
@@ -27,6 +28,7 @@ from rtsid.ident.records import built
 __all__ = ["RingBuffer", "Snapshot"]
 
 _MAX_READ_ATTEMPTS = 8
+_SCALAR_ROWS = 16  # append_block writes up to this many rows element by element
 _Row = TypeVar("_Row", bound=np.generic)  # a column's element type
 
 
@@ -171,6 +173,106 @@ class RingBuffer:
         if wake is not None and index >= wake[0]:
             wake[1].set()
         return index
+
+    def append_block(
+        self,
+        position_rad: Sequence[float],
+        torque_nm: Sequence[float],
+        status: Sequence[int],
+        host_time_s: float,
+        bus_time_s: Sequence[float],
+    ) -> int:
+        """Write consecutive valid samples as indices ``newest + 1 …`` and publish them at once.
+
+        The same rows as one :meth:`append` per sample with the same ``host_time_s`` (the
+        frames of one read arrive together), in one slice assignment per column (two when
+        the rows wrap around the arrays' end).
+
+        Parameters
+        ----------
+        position_rad, torque_nm : sequence of float, shape (n,)
+            Joint angle (rad) and torque (N·m) of each sample.
+        status : sequence of int, shape (n,)
+            Status bits of each sample.
+        host_time_s : float
+            ``time.monotonic()`` when the samples arrived.
+        bus_time_s : sequence of float, shape (n,)
+            The interface's timestamp of each frame, s.
+
+        Returns
+        -------
+        int
+            Index of the newest row (the last sample).
+        """
+        n = len(position_rad)
+        if n == 0:
+            return self._newest
+        if n >= self.capacity:  # only the newest rows would survive: write them one by one
+            for k in range(n):
+                self.append(position_rad[k], torque_nm[k], status[k], host_time_s, bus_time_s[k])
+            return self._newest
+        start = self._newest + 1
+        if self._first < 0:
+            self._first = start
+        stop = start + n
+        self._claimed = stop - 1
+        if n <= _SCALAR_ROWS and isinstance(position_rad, list):
+            self._write_rows(start, position_rad, torque_nm, status, host_time_s, bus_time_s)
+        else:
+            self._write_slices(start, position_rad, torque_nm, status, host_time_s, bus_time_s)
+        self._newest = stop - 1
+        wake = self._wake
+        if wake is not None and self._newest >= wake[0]:
+            wake[1].set()
+        return self._newest
+
+    def _write_rows(
+        self,
+        start: int,
+        position_rad: Sequence[float],
+        torque_nm: Sequence[float],
+        status: Sequence[int],
+        host_time_s: float,
+        bus_time_s: Sequence[float],
+    ) -> None:
+        """A few rows element by element (cheaper than converting short lists to arrays)."""
+        capacity = self.capacity
+        index, position, torque = self._index, self._position, self._torque
+        valid, status_col, host, bus = self._valid, self._status, self._host_time, self._bus_time
+        for k in range(len(position_rad)):
+            slot = (start + k) % capacity
+            index[slot] = start + k
+            position[slot] = position_rad[k]
+            torque[slot] = torque_nm[k]
+            valid[slot] = True
+            status_col[slot] = status[k]
+            host[slot] = host_time_s
+            bus[slot] = bus_time_s[k]
+
+    def _write_slices(
+        self,
+        start: int,
+        position_rad: Sequence[float],
+        torque_nm: Sequence[float],
+        status: Sequence[int],
+        host_time_s: float,
+        bus_time_s: Sequence[float],
+    ) -> None:
+        """Many rows as one slice assignment per column (two when they wrap around)."""
+        n = len(position_rad)
+        slot = start % self.capacity
+        first = min(n, self.capacity - slot)
+        for lo, hi, at in ((0, first, slot), (first, n, 0)):
+            if hi <= lo:
+                continue
+            rows = slice(at, at + hi - lo)
+            self._index[rows] = np.arange(start + lo, start + hi)
+            self._position[rows] = position_rad[lo:hi]
+            self._torque[rows] = torque_nm[lo:hi]
+            self._valid[rows] = True
+            self._status[rows] = status[lo:hi]
+            self._host_time[rows] = host_time_s
+            self._bus_time[rows] = bus_time_s[lo:hi]
 
     def append_gap(self, count: int, host_time_s: float) -> None:
         """Write ``count`` invalid rows (lost samples) after ``newest`` and publish them.

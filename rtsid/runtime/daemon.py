@@ -53,6 +53,7 @@ from rtsid.runtime.clock import Deadlines
 from rtsid.runtime.power import cpu_latency_request, set_realtime_priority
 from rtsid.runtime.session import SessionDesk, session_message
 from rtsid.runtime.slow_lane import SlowLane
+from rtsid.runtime.stalls import StallJournal
 from rtsid.runtime.worker import WindowEvaluator, WindowWorker, WorkerConfig
 from rtsid.verdicts import plain_counts
 
@@ -316,6 +317,8 @@ class Daemon:
         self.desk: SessionDesk | None = None
         self._components: list[ThreadOwner | None] = []
         self.failure: str | None = None
+        #: garbage collections and housekeeping steps, set against every missed deadline
+        self.stalls = StallJournal()
 
     def request_stop(self) -> None:
         """Ask :meth:`run` to shut down (safe from a signal handler)."""
@@ -328,7 +331,7 @@ class Daemon:
         previous_interval = sys.getswitchinterval()
         sys.setswitchinterval(min(previous_interval, self.config.daemon.gil_switch_interval_s))
         try:
-            with cpu_latency_request(self.config.daemon.cpu_latency_us):
+            with cpu_latency_request(self.config.daemon.cpu_latency_us), self.stalls:
                 return self._run(duration_s)
         finally:
             sys.setswitchinterval(previous_interval)
@@ -360,6 +363,7 @@ class Daemon:
                     cfg.session, robot, joint, cfg.link.fs_hz, next_sample()
                 ),
             )
+            mcap.timed = self.stalls.step  # the writer's steps, set against deadline misses
             mcap.start(require_file=True)  # a run that cannot be recorded must not start
             rates_hz = {"estimate": 1 / cfg.worker.hop_s, "status": 1 / cfg.daemon.status_period_s}
             inbox = RequestInbox()
@@ -408,6 +412,7 @@ class Daemon:
                     tracker=cfg.tracker,
                 )
                 worker = WindowWorker(ring, evaluator)
+                worker.stalls = self.stalls
                 self.worker = worker
                 slow_lane = self._slow_lane(ring, worker, models, mcap, zenoh)
                 # Everything built so far lives for the whole run: move it out of the cyclic
@@ -464,13 +469,20 @@ class Daemon:
         ticks = Deadlines(settings.sample_batch_s)
         status_every = max(1, round(settings.status_period_s / settings.sample_batch_s))
         tick = 0
+        step = self.stalls.step
         while ticks.wait(self.stop_event):
-            self._log_estimates(mcap)
-            self._forward_samples(ring, mcap, zenoh)
-            zenoh.compact_history()  # deflate the history's sealed blocks here, off the worker
+            with step("housekeeping: estimates to MCAP"):
+                self._log_estimates(mcap)
+            with step("housekeeping: samples forwarded"):
+                self._forward_samples(ring, mcap, zenoh)
+            with step("housekeeping: history deflate"):
+                zenoh.compact_history()  # the history's sealed blocks, here, off the worker
             tick += 1
             if tick % status_every == 0:
-                self._publish_status(mcap, zenoh)
+                with step("housekeeping: status"):
+                    self._publish_status(mcap, zenoh)
+            for miss in self.stalls.drain_misses():
+                log.warning("%s", miss.describe())
             self.failure = self._first_failure()
             if self.failure is not None:
                 log.error(

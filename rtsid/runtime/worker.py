@@ -54,6 +54,7 @@ from rtsid.link.protocol import (
     STATUS_TORQUE_SATURATED,
 )
 from rtsid.link.ring import RingBuffer, Snapshot
+from rtsid.runtime.stalls import StallJournal
 from rtsid.verdicts import Flag, Reason
 
 __all__ = ["WindowWorker", "WorkerConfig", "WorkerCounters", "assess_window"]
@@ -132,6 +133,9 @@ class WorkerCounters:
     compute_cpu_ms_last: float = 0.0
     compute_s: float = 0.0
     compute_cpu_s: float = 0.0
+    miss_causes: dict[str, int] = field(default_factory=dict)
+    gc_collections: list[int] = field(default_factory=list)
+    gc_ms: list[float] = field(default_factory=list)
 
 
 def assess_window(
@@ -530,6 +534,8 @@ class WindowWorker(ThreadOwner):
         self._wake = threading.Event()  # set by the ring's writer, or by stop()
         self._overruns = 0
         self._first_index = 0  # the stream's first sample (history is never read before it)
+        #: Set by the daemon: each window over budget is set against what ran meanwhile.
+        self.stalls: StallJournal | None = None
 
     @property
     def stream(self) -> WindowStream:
@@ -553,7 +559,20 @@ class WindowWorker(ThreadOwner):
             compute_cpu_ms_last=e.compute_cpu_ms,
             compute_s=e.compute_s,
             compute_cpu_s=e.compute_cpu_s,
+            **self._stall_counters(),
         )
+
+    def _stall_counters(self) -> dict[str, Any]:
+        """Misses by what overlapped them, and the collections seen (empty without a
+        journal)."""
+        stalls = self.stalls
+        if stalls is None:
+            return {}
+        return {
+            "miss_causes": stalls.causes(),
+            "gc_collections": list(stalls.collections),
+            "gc_ms": [round(ms, 3) for ms in stalls.gc_ms],
+        }
 
     # ------------------------------------------------------------------ the grid
     def first_window_end(self, first_index: int) -> int:
@@ -624,4 +643,7 @@ class WindowWorker(ThreadOwner):
         if len(snap) != count or int(snap.sample_index[0]) != first:
             self._overruns += 1  # overwritten before we got to it
             return None
-        return self.evaluator.evaluate(snap, started_s=started, started_cpu_s=started_cpu)
+        message = self.evaluator.evaluate(snap, started_s=started, started_cpu_s=started_cpu)
+        if self.stalls is not None and Flag.OVER_BUDGET in message.get("flags", ()):
+            self.stalls.miss(end_index, started, time.perf_counter())
+        return message

@@ -144,3 +144,25 @@ def test_every_column_of_every_span_comes_out_in_index_order_across_the_wrap():
             assert np.array_equal(snap.status, np.where(lost, 0, index % 16))
             assert np.array_equal(snap.host_time_s, np.where(lost, 5.0, 1.0))
             assert np.array_equal(np.isnan(snap.bus_time_s), lost)
+
+
+@pytest.mark.parametrize("as_array", [False, True])
+def test_append_block_writes_the_rows_appends_would_and_wakes_a_waiter(as_array):
+    blocks, one_by_one = RingBuffer(50), RingBuffer(50)
+    rng = np.random.default_rng(7)
+    woken = threading.Event()
+    blocks.wake_at(60, woken)
+    for size in (3, 17, 1, 16, 40, 2, 30):  # small (element by element) and large, wrapping
+        pos, trq = rng.normal(size=size), rng.normal(size=size)
+        status, bus = rng.integers(0, 16, size=size), rng.uniform(0, 1e9, size=size)
+        args = (pos, trq, status.astype(np.uint8), 5.0, bus)
+        if not as_array:
+            args = (pos.tolist(), trq.tolist(), status.tolist(), 5.0, bus.tolist())
+        newest = blocks.append_block(*args)
+        for k in range(size):
+            one_by_one.append(pos[k], trq[k], int(status[k]), 5.0, bus[k])
+        assert newest == one_by_one.newest_index == blocks.newest_index
+    assert woken.is_set()
+    a, b = blocks.latest(49), one_by_one.latest(49)
+    for column in ("sample_index", "position_rad", "torque_nm", "valid", "status", "bus_time_s"):
+        assert np.array_equal(getattr(a, column), getattr(b, column)), column

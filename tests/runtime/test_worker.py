@@ -133,6 +133,22 @@ def test_over_budget_is_counted_and_flagged():
     assert worker.counters().deadline_misses == 1
 
 
+def test_a_miss_is_set_against_the_stall_journal():
+    from rtsid.runtime.stalls import StallJournal
+
+    published = []
+    worker = make_worker(filled_ring(), published, budget_s=1e-6)
+    worker.stalls = StallJournal()
+    with worker.stalls.step("housekeeping: status"):
+        worker.process_window(1449)  # the step still runs when the window misses
+    worker.process_window(1499)
+    (first, second) = worker.stalls.drain_misses()
+    assert (first.window_end_index, second.window_end_index) == (1449, 1499)
+    assert [s.name for s in first.overlapped] == ["housekeeping: status (still running)"]
+    assert [s.name for s in second.overlapped] == []  # the step had ended
+    assert worker.counters().miss_causes == {"nothing seen": 1, "housekeeping: status": 1}
+
+
 def test_thread_starts_at_the_newest_window_then_reports_stale(wait_for):
     published = []
     ring = filled_ring()  # 1500 samples already there, nothing more arrives

@@ -1,0 +1,144 @@
+"""What a deadline miss coincided with: garbage collections and the daemon's own steps.
+
+A window over budget is rare (about one a minute at a 4 ms hop) and its cause is not in the
+window: the worker was kept from running. :class:`StallJournal` keeps the recent spans of
+what can keep it — every garbage collection (``gc.callbacks``, with its generation and the
+thread that ran it) and the housekeeping tick's steps (estimates to MCAP, samples forwarded,
+history deflate, status) — in bounded rings, and for each missed window the spans that
+overlapped it. The daemon logs one line per miss (``deadline miss: window ending 12345,
+compute 5.2 ms; during it: gc gen 2 3.1 ms (rtsid-worker), …``) and counts misses by what
+they coincided with (:meth:`StallJournal.causes`), so a cause is measured, not guessed.
+
+Times are ``time.perf_counter()`` s. The journal's own cost: two ``perf_counter`` calls and
+a deque append per collection and per housekeeping step.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import gc
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = ["Miss", "Span", "StallJournal"]
+
+#: Spans kept (collections and housekeeping steps): minutes of a daemon's life at a 4 ms hop.
+SPANS_KEPT = 8192
+#: Missed windows kept for the log.
+MISSES_KEPT = 256
+
+
+@dataclass(frozen=True)
+class Span:
+    """Something that ran in the daemon: ``name`` from ``start_s`` to ``end_s``."""
+
+    name: str
+    start_s: float
+    end_s: float
+
+    @property
+    def ms(self) -> float:
+        """Length, ms."""
+        return 1e3 * (self.end_s - self.start_s)
+
+
+@dataclass(frozen=True)
+class Miss:
+    """A window over budget: its last sample, compute span and what overlapped it."""
+
+    window_end_index: int
+    start_s: float
+    end_s: float
+    overlapped: tuple[Span, ...]
+
+    def describe(self) -> str:
+        """One line: ``deadline miss: window ending N, compute X ms; during it: …``."""
+        during = ", ".join(f"{s.name} {s.ms:.2f} ms" for s in self.overlapped) or "nothing seen"
+        return (
+            f"deadline miss: window ending {self.window_end_index}, compute "
+            f"{1e3 * (self.end_s - self.start_s):.2f} ms; during it: {during}"
+        )
+
+
+class StallJournal:
+    """Recent garbage collections and housekeeping steps, set against missed windows.
+
+    Use as a context manager: it adds a ``gc.callbacks`` entry on entry and removes it on
+    exit. :meth:`step` times a housekeeping step, :meth:`miss` records a missed window (from
+    the worker thread), :meth:`drain_misses` hands the new ones to the logger.
+    """
+
+    def __init__(self) -> None:
+        self._spans: collections.deque[Span] = collections.deque(maxlen=SPANS_KEPT)
+        self._misses: collections.deque[Miss] = collections.deque(maxlen=MISSES_KEPT)
+        self._gc_started: dict[int, float] = {}  # thread id -> collection start
+        self._running: dict[object, tuple[str, float]] = {}  # steps begun: name, start
+        self.collections = [0, 0, 0]  # by generation
+        self.gc_ms = [0.0, 0.0, 0.0]  # time in collections, by generation
+        self.miss_causes: collections.Counter[str] = collections.Counter()
+
+    def __enter__(self) -> StallJournal:
+        gc.callbacks.append(self._on_gc)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        with contextlib.suppress(ValueError):
+            gc.callbacks.remove(self._on_gc)
+
+    # ------------------------------------------------------------------ recording
+    def _on_gc(self, phase: str, info: dict[str, Any]) -> None:
+        now = time.perf_counter()
+        thread = threading.get_ident()
+        if phase == "start":
+            self._gc_started[thread] = now
+            return
+        started = self._gc_started.pop(thread, now)
+        generation = int(info.get("generation", 0))
+        self.collections[generation] += 1
+        self.gc_ms[generation] += 1e3 * (now - started)
+        name = f"gc gen {generation} ({threading.current_thread().name})"
+        self._spans.append(Span(name, started, now))
+
+    @contextlib.contextmanager
+    def step(self, name: str) -> Iterator[None]:
+        """Time a step of the daemon (e.g. ``"housekeeping: history deflate"``)."""
+        started = time.perf_counter()
+        key = object()
+        self._running[key] = (name, started)
+        try:
+            yield
+        finally:
+            del self._running[key]
+            self._spans.append(Span(name, started, time.perf_counter()))
+
+    def miss(self, window_end_index: int, start_s: float, end_s: float) -> None:
+        """A window whose compute ran from ``start_s`` to ``end_s`` missed its deadline."""
+        running = [Span(f"{name} (still running)", t0, end_s) for name, t0 in self._running_now()]
+        overlapped = tuple(
+            s for s in [*list(self._spans), *running] if s.end_s >= start_s and s.start_s <= end_s
+        )
+        self._misses.append(Miss(window_end_index, start_s, end_s, overlapped))
+        for cause in {s.name.split(" (")[0] for s in overlapped} or {"nothing seen"}:
+            self.miss_causes[cause] += 1
+
+    def _running_now(self) -> list[tuple[str, float]]:
+        """Steps and collections begun and not yet ended (another thread's, e.g.)."""
+        steps = list(self._running.values())
+        collections_ = [("gc", t0) for t0 in list(self._gc_started.values())]
+        return steps + collections_
+
+    # ------------------------------------------------------------------ reading
+    def drain_misses(self) -> list[Miss]:
+        """Misses recorded since the last call, oldest first."""
+        out = []
+        while self._misses:
+            out.append(self._misses.popleft())
+        return out
+
+    def causes(self) -> dict[str, int]:
+        """Misses by what overlapped them (a miss counts once per kind of span)."""
+        return dict(self.miss_causes)

@@ -1,0 +1,39 @@
+"""The stall journal: garbage collections and daemon steps set against missed windows."""
+
+from __future__ import annotations
+
+import gc
+import time
+
+from rtsid.runtime.stalls import StallJournal
+
+
+def test_a_collection_during_a_missed_window_is_named_and_counted():
+    with StallJournal() as journal:
+        start = time.perf_counter()
+        gc.collect()  # a generation-2 collection on this thread
+        journal.miss(1234, start, time.perf_counter())
+    assert journal.collections[2] >= 1 and journal.gc_ms[2] > 0
+    (miss,) = journal.drain_misses()
+    assert miss.window_end_index == 1234
+    assert any(s.name.startswith("gc gen 2 (MainThread)") for s in miss.overlapped)
+    assert journal.causes()["gc gen 2"] == 1
+    assert "window ending 1234" in miss.describe() and "gc gen 2" in miss.describe()
+    assert journal.drain_misses() == []
+    assert journal._on_gc not in gc.callbacks  # the callback is gone after the block
+
+
+def test_only_steps_that_overlap_a_miss_are_blamed():
+    journal = StallJournal()
+    with journal.step("housekeeping: history deflate"):
+        pass
+    after = time.perf_counter()
+    journal.miss(7, after + 1.0, after + 2.0)  # a window long after the step
+    with journal.step("housekeeping: status"):
+        start = time.perf_counter()
+        journal_end = time.perf_counter()
+    journal.miss(8, start, journal_end)
+    first, second = journal.drain_misses()
+    assert first.overlapped == () and "nothing seen" in first.describe()
+    assert [s.name for s in second.overlapped] == ["housekeeping: status"]
+    assert journal.causes() == {"nothing seen": 1, "housekeeping: status": 1}
