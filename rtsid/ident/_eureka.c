@@ -171,8 +171,6 @@ static void xcorr(const double *u, const double *y, Py_ssize_t n, Py_ssize_t fir
  * "the window path at a full-rate plan" at the end of this file). */
 static void lagged_predict(const double *h, const double *u, Py_ssize_t nh, Py_ssize_t lag,
                            Py_ssize_t t0, Py_ssize_t t1, double *out);
-static void lagged_correlate(const double *u, const double *e, Py_ssize_t nh, Py_ssize_t lag,
-                             Py_ssize_t t0, Py_ssize_t t1, double *out);
 static void xcorr_blocked(const double *u, const double *y, Py_ssize_t n, Py_ssize_t first,
                           Py_ssize_t last, double norm, double *c);
 static void band_smooth(const double *row, const double *r, Py_ssize_t n, Py_ssize_t lags,
@@ -182,9 +180,19 @@ static Py_ssize_t eureka_filters(const double *r, double *rr, double *filters, d
 static void eureka_apply(const double *rr, const double *filters, const double *alphas,
                          const double *b, double *x, Py_ssize_t n);
 #define FILTERS_SIZE(nh) ((nh) * ((nh) + 1) / 2 + (nh))
+/* The refinement sweeps on the rows' Gram matrix (section "the sweeps on a Gram matrix" at the
+ * end of this file); GRAM_SWEEPS_WORK(nh) doubles of scratch. */
+static void gram_sweeps(const double *u, const double *y, Py_ssize_t m, Py_ssize_t lag,
+                        const double *auto_sums, const double *cross_sums, double loading,
+                        Py_ssize_t sweeps, double fs, const double *rr, const double *filters,
+                        const double *alphas, double *h, double *work);
+#define GRAM_SWEEPS_WORK(nh) ((nh) * (nh) + 4 * (nh))
 static Py_ssize_t band_powers(const double *meas, const double *err, Py_ssize_t n,
                               Py_ssize_t kmax, const double *tw_cos, const double *tw_sin,
                               double *total, double *left);
+
+/* work: WINDOW_IRF_WORK(n, nh) doubles */
+#define WINDOW_IRF_WORK(n, nh) (2 * (n) + 3 * (nh) + FILTERS_SIZE(nh) + GRAM_SWEEPS_WORK(nh))
 
 static Py_ssize_t window_irf(const double *pos, const double *trq, Py_ssize_t n,
                              const double *taps, Py_ssize_t nt, Py_ssize_t factor, double sign,
@@ -194,37 +202,32 @@ static Py_ssize_t window_irf(const double *pos, const double *trq, Py_ssize_t n,
 {
     const Py_ssize_t nh = 2 * lag + 1;
     double *dp = work, *dt = work + n;              /* detrended, n each */
-    double *a = dt + n, *rr = a + nh;               /* Levinson scratch, nh each (a: unused) */
-    double *g = rr + nh, *delta = g + nh;           /* gradient and update, nh each */
-    double *err = delta + nh;                        /* residual, m */
-    double *filters = err + m, *alphas = filters + nh * (nh + 1) / 2; /* EUREKA's, kept */
+    double *rr = dt + n;                            /* R reversed, nh */
+    double *sums = rr + nh;                         /* whole-window sums: auto, then cross */
+    double *filters = sums + 2 * nh, *alphas = filters + nh * (nh + 1) / 2; /* EUREKA's, kept */
+    double *rest = filters + FILTERS_SIZE(nh);      /* the sweeps' scratch */
     detrend_into(pos, dp, n, 1.0, kind);
     detrend_into(trq, dt, n, sign, kind);
     fir_decimate(dp, n, taps, nt, factor, u, m);
     fir_decimate(dt, n, taps, nt, factor, y, m);
-    xcorr_blocked(u, u, m, 0, nh - 1, (double)m, phi);
+    /* the sums themselves are kept for the sweeps' Gram matrix; sums / m is what
+     * xcorr_blocked(..., m, ...) gives, bit for bit */
+    xcorr_blocked(u, u, m, 0, nh - 1, 1.0, sums);
+    for (Py_ssize_t k = 0; k < nh; k++) phi[k] = sums[k] / (double)m;
     const double loading = ridge * phi[0];
     phi[0] += loading;
     /* phi_uy(k) = sum_t u(t-k) y(t) / m  =  sum_s u(s) y(s+k) / m */
-    xcorr_blocked(u, y, m, -lag, lag, (double)m, g);
+    double *g = rest; /* the first solve's right-hand side, before the sweeps use rest */
+    xcorr_blocked(u, y, m, -lag, lag, 1.0, sums + nh);
+    for (Py_ssize_t k = 0; k < nh; k++) g[k] = sums[nh + k] / (double)m;
     /* the four solves share R: its prediction-error filters are formed once */
     Py_ssize_t status = eureka_filters(phi, rr, filters, alphas, nh, alpha);
     if (status >= 0) return status;
     eureka_apply(rr, filters, alphas, g, h, nh);
-    (void)a;
     for (Py_ssize_t k = 0; k < nh; k++) h[k] *= fs;
-    const Py_ssize_t inner = m - 2 * lag;
-    for (Py_ssize_t s = 0; s < sweeps; s++) {
-        lagged_predict(h, u, nh, lag, lag, m - lag, err); /* Σ_j h(j)·u(t − (j − L)) */
-        for (Py_ssize_t t = lag; t < m - lag; t++) err[t] = y[t] - err[t] / fs;
-        lagged_correlate(u, err, nh, lag, lag, m - lag, g); /* Σ_t u(t − k)·err(t) */
-        for (Py_ssize_t j = 0; j < nh; j++) g[j] = g[j] / (double)inner - loading * h[j] / fs;
-        eureka_apply(rr, filters, alphas, g, delta, nh);
-        for (Py_ssize_t j = 0; j < nh; j++) h[j] += delta[j] * fs;
-    }
+    gram_sweeps(u, y, m, lag, sums, sums + nh, loading, sweeps, fs, rr, filters, alphas, h, rest);
     return -1;
 }
-
 
 /* ------------------------------------------------------------------ window back end
  * window_fit: stages 5-7 of rtsid.ident.window for the linear fit, in one call: excitation
@@ -1294,7 +1297,7 @@ static PyObject *py_window_irf(PyObject *self, PyObject *args)
             b[5].len / 8 != nh || b[6].len / 8 != nh || m <= nh || sweeps < 0) {
             PyErr_SetString(PyExc_ValueError, "window_irf: inconsistent sizes");
         } else {
-            double *work = PyMem_Malloc(sizeof(double) * (2 * n + 4 * nh + m + FILTERS_SIZE(nh)));
+            double *work = PyMem_Malloc(sizeof(double) * WINDOW_IRF_WORK(n, nh));
             if (work == NULL) {
                 PyErr_NoMemory();
             } else {
@@ -2384,10 +2387,8 @@ static PyObject *py_savgol_pair(PyObject *self, PyObject *args)
  * (so the numbers are bit for bit those of the loops they replace, and the pinned numbers hold),
  * but BLOCK independent chains share each load and fill the vector registers.
  *
- * The algebraic shortcut — a sweep's gradient as X'y − (X'X)·h/fs with the Gram matrix formed
- * once per window from the correlation sums, O(L²) a sweep instead of O(M·L) — was measured and
- * not adopted: its rounding differs, and R_uu's condition at this plan amplifies that to 9e-12
- * of the IRF's scale, past the pinned numbers' 1e-12 (docs/service.md).
+ * The refinement sweeps no longer sum over the window: a sweep's gradient is X'y − (X'X)·h/fs
+ * on the rows' Gram matrix (branch gram, the section "the sweeps on a Gram matrix" below).
  */
 #define BLOCK 8 /* outputs per block: four pairs of lanes */
 
@@ -2435,46 +2436,6 @@ static void lagged_predict(const double *h, const double *u, Py_ssize_t nh, Py_s
         double acc = 0.0;
         for (Py_ssize_t j = 0; j < nh; j++) acc += h[j] * u[t + lag - j];
         out[t] = acc;
-    }
-}
-
-/* out[j] = Σ_{t=t0}^{t1−1} u[t + lag − j]·e[t] (in t order) for j = 0 … nh−1. */
-static void lagged_correlate(const double *u, const double *e, Py_ssize_t nh, Py_ssize_t lag,
-                             Py_ssize_t t0, Py_ssize_t t1, double *out)
-{
-    Py_ssize_t j = 0;
-#ifdef LANE_PAIRS
-    for (; j + BLOCK <= nh; j += BLOCK) {
-        /* lane b of the block holds column j + 7 − b: its u sample is src[b], ascending */
-        lane_pair a0 = pair_of(0.0), a1 = a0, a2 = a0, a3 = a0;
-        for (Py_ssize_t t = t0; t < t1; t++) {
-            const lane_pair et = pair_of(e[t]);
-            const double *src = u + t + lag - j - (BLOCK - 1);
-            a0 += pair_at(src) * et;
-            a1 += pair_at(src + 2) * et;
-            a2 += pair_at(src + 4) * et;
-            a3 += pair_at(src + 6) * et;
-        }
-        double acc[BLOCK];
-        memcpy(acc, &a0, 16);
-        memcpy(acc + 2, &a1, 16);
-        memcpy(acc + 4, &a2, 16);
-        memcpy(acc + 6, &a3, 16);
-        for (int b = 0; b < BLOCK; b++) out[j + BLOCK - 1 - b] = acc[b];
-    }
-    for (; j + 2 <= nh; j += 2) { /* the last columns in pairs */
-        lane_pair a0 = pair_of(0.0);
-        for (Py_ssize_t t = t0; t < t1; t++) a0 += pair_at(u + t + lag - j - 1) * pair_of(e[t]);
-        double acc[2];
-        memcpy(acc, &a0, 16);
-        out[j + 1] = acc[0];
-        out[j] = acc[1];
-    }
-#endif
-    for (; j < nh; j++) {
-        double acc = 0.0;
-        for (Py_ssize_t t = t0; t < t1; t++) acc += u[t + lag - j] * e[t];
-        out[j] = acc;
     }
 }
 
@@ -2802,4 +2763,77 @@ static PyObject *py_ankle_frames(PyObject *self, PyObject *args)
     PyBuffer_Release(&data);
     for (int k = 0; k < 5; k++) PyBuffer_Release(&out[k]);
     return PyLong_FromSsize_t(result < 0 ? result : n);
+}
+
+/* ------------------------------------------------------------------ the sweeps on a Gram matrix (branch gram, issue 22)
+ * The refinement sweeps of window_irf, O(L²) each instead of O(M·L). A sweep adds R⁻¹·g·fs to the
+ * IRF h, with g the correlation of the input with the prediction error over the fully supported
+ * rows t = L … M−L−1, less the ridge's share: g = X'(y − X·h/fs)/inner − loading·h/fs, X the
+ * lagged matrix (row t: u(t − k), k = −L … L; inner = M − 2L rows). That is
+ * g = (X'y − (X'X)·h/fs)/inner − loading·h/fs: X'X (the rows' Gram matrix) and X'y are formed
+ * once per window from the whole-window correlation sums the front end has computed (each entry
+ * is such a sum less the few products of the 2L samples at either end that the rows leave out:
+ * O(L²) in all), after which a sweep is one (2L+1)² product and one EUREKA application.
+ * Algebraically the residual form of rtsid.ident.irf.estimate_irf's earlier sweeps; its sums
+ * taken in another order move the IRF by ~1e-11 of its scale (R_uu's condition amplifies the
+ * rounding). rtsid.ident.irf.estimate_irf forms the same matrices in numpy (the reference).
+ */
+
+/* The Gram matrix G = X'X (nh × nh, row-major) of the lagged rows, X[r][j] = u[r + 2L − j]
+ * (r = 0 … m − 2L − 1): from auto_sums[d] = Σ_s u[s]·u[s + d] over the whole window (d = 0 …
+ * 2L), each diagonal's first entry is that sum less its head, and each later entry the one
+ * before it with one product added at the head end and one dropped at the tail end. */
+static void lagged_gram(const double *u, Py_ssize_t m, Py_ssize_t lag, const double *auto_sums,
+                        double *gram)
+{
+    const Py_ssize_t nh = 2 * lag + 1;
+    for (Py_ssize_t d = 0; d < nh; d++) {
+        double head = 0.0; /* the rows start at s = 2L − d on the diagonal's first entry */
+        for (Py_ssize_t s = 0; s < 2 * lag - d; s++) head += u[s] * u[s + d];
+        double g = auto_sums[d] - head;
+        gram[d] = gram[d * nh] = g;
+        for (Py_ssize_t i = 0; i + d + 1 < nh; i++) {
+            const Py_ssize_t j = i + d; /* (i, j) → (i + 1, j + 1): the rows move one sample back */
+            g += u[2 * lag - j - 1] * u[2 * lag - j - 1 + d] - u[m - 1 - j] * u[m - 1 - j + d];
+            gram[(i + 1) * nh + (j + 1)] = gram[(j + 1) * nh + (i + 1)] = g;
+        }
+    }
+}
+
+/* X'y (nh) of the lagged rows against y[L … m−L−1]: from cross_sums[j] = Σ_s u[s]·y[s + j − L]
+ * over the whole window, less the products outside the rows (s < 2L − j or s > m − 1 − j). */
+static void lagged_cross(const double *u, const double *y, Py_ssize_t m, Py_ssize_t lag,
+                         const double *cross_sums, double *xy)
+{
+    const Py_ssize_t nh = 2 * lag + 1;
+    for (Py_ssize_t j = 0; j < nh; j++) {
+        const Py_ssize_t k = j - lag, lo = k < 0 ? -k : 0, hi = k > 0 ? m - k : m;
+        double head = 0.0, tail = 0.0;
+        for (Py_ssize_t s = lo; s < 2 * lag - j; s++) head += u[s] * y[s + k];
+        for (Py_ssize_t s = m - j; s < hi; s++) tail += u[s] * y[s + k];
+        xy[j] = cross_sums[j] - head - tail;
+    }
+}
+
+/* sweeps refinement sweeps of h (nh = 2L + 1 values, × fs) with R's EUREKA filters (rr, filters,
+ * alphas from eureka_filters): each adds R⁻¹·g·fs with g = (X'y − G·h/fs)/inner − loading·h/fs.
+ * work: GRAM_SWEEPS_WORK(nh) doubles. */
+static void gram_sweeps(const double *u, const double *y, Py_ssize_t m, Py_ssize_t lag,
+                        const double *auto_sums, const double *cross_sums, double loading,
+                        Py_ssize_t sweeps, double fs, const double *rr, const double *filters,
+                        const double *alphas, double *h, double *work)
+{
+    if (sweeps <= 0) return;
+    const Py_ssize_t nh = 2 * lag + 1;
+    const double inner = (double)(m - 2 * lag);
+    double *gram = work, *xy = gram + nh * nh, *scaled = xy + nh, *g = scaled + nh, *delta = g + nh;
+    lagged_gram(u, m, lag, auto_sums, gram);
+    lagged_cross(u, y, m, lag, cross_sums, xy);
+    for (Py_ssize_t s = 0; s < sweeps; s++) {
+        for (Py_ssize_t j = 0; j < nh; j++) scaled[j] = h[j] / fs;
+        for (Py_ssize_t j = 0; j < nh; j++)
+            g[j] = (xy[j] - dot_unrolled(gram + j * nh, scaled, nh)) / inner - loading * scaled[j];
+        eureka_apply(rr, filters, alphas, g, delta, nh);
+        for (Py_ssize_t j = 0; j < nh; j++) h[j] += delta[j] * fs;
+    }
 }

@@ -15,7 +15,15 @@ from numpy.typing import ArrayLike, NDArray
 from rtsid.errors import InputDataError
 from rtsid.ident.levinson import compiled_kernel
 
-__all__ = ["auto_correlation", "cross_correlation", "detrend"]
+__all__ = [
+    "auto_correlation",
+    "auto_sums",
+    "cross_correlation",
+    "cross_sums",
+    "detrend",
+    "lagged_cross",
+    "lagged_gram",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -108,6 +116,29 @@ def _direct_lags(u: FloatArray, y: FloatArray, first: int, last: int) -> FloatAr
     return np.asarray(np.correlate(padded, u, mode="valid"), dtype=np.float64)
 
 
+def auto_sums(u: ArrayLike, max_lag: int) -> FloatArray:
+    """Autocorrelation sums ``Σ_t u(t)·u(t+k)`` for ``k = 0..max_lag`` (not divided by ``N``).
+
+    Parameters
+    ----------
+    u : array_like, shape (N,)
+        Input signal (detrend it first).
+    max_lag : int
+        Largest lag, samples (< N).
+
+    Returns
+    -------
+    numpy.ndarray, shape (max_lag + 1,)
+        The sums; :func:`auto_correlation` is they ÷ ``N``.
+    """
+    arr = np.asarray(u, dtype=np.float64)
+    n = arr.size
+    _check_lags(n, max_lag)
+    if _use_fft(n, max_lag):
+        return _fft_cross(arr, arr)[n - 1 : n + max_lag]
+    return _direct_lags(arr, arr, 0, max_lag)
+
+
 def auto_correlation(u: ArrayLike, max_lag: int) -> FloatArray:
     """Biased autocorrelation ``φ_uu(k) = (1/N)·Σ_t u(t)·u(t+k)`` for ``k = 0..max_lag``.
 
@@ -123,13 +154,36 @@ def auto_correlation(u: ArrayLike, max_lag: int) -> FloatArray:
     numpy.ndarray, shape (max_lag + 1,)
         ``φ_uu(0..max_lag)``, the first column of the Toeplitz matrix ``R_uu``.
     """
-    arr = np.asarray(u, dtype=np.float64)
-    n = arr.size
+    sums = auto_sums(u, max_lag)
+    return sums / np.asarray(u).size
+
+
+def cross_sums(u: ArrayLike, y: ArrayLike, max_lag: int) -> FloatArray:
+    """Cross-correlation sums ``Σ_t u(t−k)·y(t)`` for ``k = −max_lag..max_lag`` (not ÷ ``N``).
+
+    Parameters
+    ----------
+    u, y : array_like, shape (N,)
+        Input and output (detrended).
+    max_lag : int
+        Largest absolute lag, samples (< N).
+
+    Returns
+    -------
+    numpy.ndarray, shape (2·max_lag + 1,)
+        The sums; :func:`cross_correlation` is they ÷ ``N``.
+    """
+    u_arr = np.asarray(u, dtype=np.float64)
+    y_arr = np.asarray(y, dtype=np.float64)
+    if u_arr.shape != y_arr.shape or u_arr.ndim != 1:
+        raise InputDataError(
+            f"input and output must be 1-D and equally long, got {u_arr.shape} and {y_arr.shape}"
+        )
+    n = u_arr.size
     _check_lags(n, max_lag)
     if _use_fft(n, max_lag):
-        full = _fft_cross(arr, arr)
-        return full[n - 1 : n + max_lag] / n
-    return _direct_lags(arr, arr, 0, max_lag) / n
+        return _fft_cross(u_arr, y_arr)[n - 1 - max_lag : n + max_lag]
+    return _direct_lags(u_arr, y_arr, -max_lag, max_lag)
 
 
 def cross_correlation(u: ArrayLike, y: ArrayLike, max_lag: int) -> FloatArray:
@@ -150,15 +204,79 @@ def cross_correlation(u: ArrayLike, y: ArrayLike, max_lag: int) -> FloatArray:
     numpy.ndarray, shape (2·max_lag + 1,)
         ``φ_uy(−max_lag..max_lag)``.
     """
-    u_arr = np.asarray(u, dtype=np.float64)
-    y_arr = np.asarray(y, dtype=np.float64)
-    if u_arr.shape != y_arr.shape or u_arr.ndim != 1:
-        raise InputDataError(
-            f"input and output must be 1-D and equally long, got {u_arr.shape} and {y_arr.shape}"
-        )
-    n = u_arr.size
-    _check_lags(n, max_lag)
-    if _use_fft(n, max_lag):
-        full = _fft_cross(u_arr, y_arr)
-        return full[n - 1 - max_lag : n + max_lag] / n
-    return _direct_lags(u_arr, y_arr, -max_lag, max_lag) / n
+    sums = cross_sums(u, y, max_lag)
+    return sums / np.asarray(u).size
+
+
+def lagged_gram(u: FloatArray, sums: FloatArray, max_lag: int) -> FloatArray:
+    """The Gram matrix ``X'X`` of the lagged rows, from the whole-window sums.
+
+    ``X`` has a row for each fully supported sample ``t = L … N−L−1`` and a column for each
+    lag ``k = −L … L`` (``X[t, k] = u(t − k)``; ``L = max_lag``). Entry ``(i, j)`` sums
+    ``u(s)·u(s + |j − i|)`` over the rows' span, which is the whole window's sum
+    ``sums[|j − i|]`` less the products of the first and last ``2L`` samples the rows leave
+    out: O(L²), where ``X.T @ X`` is O(N·L²).
+
+    Parameters
+    ----------
+    u : numpy.ndarray, shape (N,)
+        Input, N > 4L.
+    sums : numpy.ndarray, shape (2L + 1,)
+        :func:`auto_sums` of ``u`` up to lag 2L.
+    max_lag : int
+        ``L``, samples.
+
+    Returns
+    -------
+    numpy.ndarray, shape (2L + 1, 2L + 1)
+        ``X'X``, symmetric, input unit².
+    """
+    span = 2 * max_lag
+    n = u.size
+    lags = np.arange(span + 1)[:, None]
+    ends = np.arange(span)[None, :]
+    padded = np.concatenate((u, np.zeros(span)))
+    # head[d, c]: the products u(s)·u(s + d) of s < c; tail[d, c]: those of s ≥ N − c.
+    head = np.zeros((span + 1, span + 1))
+    np.cumsum(u[:span][None, :] * u[ends + lags], axis=1, out=head[:, 1:])
+    last = n - 1 - ends  # s = N − 1, N − 2, …, N − 2L
+    tail = np.zeros((span + 1, span + 1))
+    np.cumsum(padded[last] * padded[last + lags], axis=1, out=tail[:, 1:])
+    i, j = np.triu_indices(span + 1)
+    d = j - i
+    gram = np.empty((span + 1, span + 1))
+    gram[i, j] = sums[d] - head[d, span - j] - tail[d, j]
+    gram[j, i] = gram[i, j]
+    return gram
+
+
+def lagged_cross(u: FloatArray, y: FloatArray, sums: FloatArray, max_lag: int) -> FloatArray:
+    """``X'y`` of :func:`lagged_gram`'s rows against ``y(L … N−L−1)``, from the whole-window sums.
+
+    Parameters
+    ----------
+    u, y : numpy.ndarray, shape (N,)
+        Input and output, N > 4L.
+    sums : numpy.ndarray, shape (2L + 1,)
+        :func:`cross_sums` of ``u`` and ``y`` (lags ``−L … L``).
+    max_lag : int
+        ``L``, samples.
+
+    Returns
+    -------
+    numpy.ndarray, shape (2L + 1,)
+        ``Σ_t u(t − k)·y(t)`` over the rows for ``k = −L … L``: each whole-window sum less
+        the products of the first and last ``2L`` samples the rows leave out.
+    """
+    span = 2 * max_lag
+    n = u.size
+    shifts = np.arange(-max_lag, max_lag + 1)[:, None]
+    ends = np.arange(span)[None, :]
+    padded = np.concatenate((np.zeros(max_lag), y, np.zeros(max_lag)))
+    # rows of lag k = j − L leave out s < 2L − j and s ≥ N − j (y beyond the window is 0)
+    head = u[:span][None, :] * padded[ends + shifts + max_lag]
+    head_sum = np.where(ends < span - np.arange(span + 1)[:, None], head, 0.0).sum(axis=1)
+    last = n - span + ends
+    tail = u[last] * padded[last + shifts + max_lag]
+    tail_sum = np.where(last >= n - np.arange(span + 1)[:, None], tail, 0.0).sum(axis=1)
+    return np.asarray(sums - head_sum - tail_sum, dtype=np.float64)

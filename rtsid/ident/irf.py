@@ -18,7 +18,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import ArrayLike, NDArray
 
 from rtsid.errors import InputDataError
-from rtsid.ident.correlation import auto_correlation, cross_correlation
+from rtsid.ident.correlation import auto_sums, cross_sums, lagged_cross, lagged_gram
 from rtsid.ident.levinson import eureka_unchecked
 
 __all__ = ["IRF", "estimate_irf"]
@@ -143,19 +143,47 @@ def estimate_irf(
         )
     if not (math.isfinite(u_arr.sum()) and math.isfinite(y_arr.sum())):
         raise InputDataError("IRF input or output contains NaN or inf; clean the window first")
-    phi_uu = auto_correlation(u_arr, 2 * max_lag)
+    sums_uu = auto_sums(u_arr, 2 * max_lag)
+    sums_uy = cross_sums(u_arr, y_arr, max_lag)
+    phi_uu = sums_uu / u_arr.size
     loading = ridge * phi_uu[0]
     phi_uu[0] += loading
-    h = eureka_unchecked(phi_uu, cross_correlation(u_arr, y_arr, max_lag)) * fs_hz
-    irf = IRF(h=h, fs_hz=float(fs_hz), phi_uu=phi_uu)
+    h = eureka_unchecked(phi_uu, sums_uy / u_arr.size) * fs_hz
     if refine == 0:
-        return irf
-    # Rows: fully supported samples t = L … N−L−1; columns: u(t − k) for k = −L … L.
-    lagged = np.ascontiguousarray(sliding_window_view(u_arr, n_lags)[:, ::-1])
-    y_inner = y_arr[max_lag : u_arr.size - max_lag]
-    weight = np.ones(y_inner.size) if rows is None else rows.astype(np.float64)
+        return IRF(h=h, fs_hz=float(fs_hz), phi_uu=phi_uu)
+    gram, xy, rows_used = _normal_equations(u_arr, y_arr, max_lag, sums_uu, sums_uy, rows)
     for _ in range(refine):
-        error = (y_inner - lagged @ (h / fs_hz)) * weight
-        gradient = (error @ lagged) / weight.sum() - loading * h / fs_hz
+        scaled = h / fs_hz
+        gradient = (xy - gram @ scaled) / rows_used - loading * scaled
         h = h + eureka_unchecked(phi_uu, gradient) * fs_hz
     return IRF(h=h, fs_hz=float(fs_hz), phi_uu=phi_uu)
+
+
+def _normal_equations(
+    u: FloatArray,
+    y: FloatArray,
+    max_lag: int,
+    sums_uu: FloatArray,
+    sums_uy: FloatArray,
+    rows: NDArray[np.bool_] | None,
+) -> tuple[FloatArray, FloatArray, float]:
+    """``X'X``, ``X'y`` and the row count of the refinement's least-squares problem.
+
+    ``X``'s rows are the fully supported samples ``t = L … N−L−1`` (``rows`` of them when
+    given), its columns ``u(t − k)`` for ``k = −L … L``. A refinement sweep's gradient, the
+    correlation of the input with the prediction error over those rows, is
+    ``X'y − X'X·h/fs``: both matrices come from the whole-window correlation sums
+    (:func:`rtsid.ident.correlation.lagged_gram`, O(L²)), less the left-out rows' own products
+    when ``rows`` leaves some out; a sweep then costs O(L²) instead of O(N·L).
+    """
+    gram = lagged_gram(u, sums_uu, max_lag)
+    xy = lagged_cross(u, y, sums_uy, max_lag)
+    inner = u.size - 2 * max_lag
+    if rows is None or rows.all():
+        return gram, xy, float(inner)
+    # Rows: fully supported samples t = L … N−L−1; columns: u(t − k) for k = −L … L.
+    left_out = np.flatnonzero(~rows)
+    lagged = sliding_window_view(u, 2 * max_lag + 1)[left_out, ::-1]
+    gram = gram - lagged.T @ lagged
+    xy = xy - lagged.T @ y[max_lag + left_out]
+    return gram, xy, float(inner - left_out.size)

@@ -109,3 +109,27 @@ def test_a_full_rate_stream_at_a_4_ms_hop_equals_the_numpy_path(monkeypatch):
         assert got.estimate.flags == want.estimate.flags
         for name in ("K", "K_se", "B", "B_se"):
             _close(getattr(got.track, name), getattr(want.track, name), f"track {name}")
+
+
+@pytest.mark.parametrize("samples", [750, 741])
+def test_the_kernels_gram_sweeps_are_the_residual_sweeps(samples):
+    # window_irf's sweeps take the gradient as X'y − X'X·h/fs from the correlation sums; the
+    # residual over the rows, correlated with every lag, is what that gradient means
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    theta, tau = _recording(samples / FS, 60 + samples)
+    options = EstimatorOptions(analysis_fs_hz=FS, lowpass_hz=190.0, lag_s=0.02, refine=0)
+    plan = resolve_plan(theta, FS, options)
+    u, y, irf = front.front_end(theta, tau, FS, options, plan)
+    lag = plan.lag
+    lagged = sliding_window_view(u, 2 * lag + 1)[:, ::-1]  # row t: u(t − k), k = −L … L
+    loading = irf.phi_uu[0] - u @ u / u.size
+    h = irf.h
+    for _ in range(3):
+        error = y[lag:-lag] - lagged @ (h / FS)
+        gradient = error @ lagged / error.size - loading * h / FS
+        h = h + eureka_unchecked(irf.phi_uu, gradient) * FS
+    _, _, swept = front.front_end(theta, tau, FS, FULL_RATE, plan)
+    assert FULL_RATE.refine == 3 and FULL_RATE.ridge == options.ridge
+    np.testing.assert_allclose(swept.h, h, rtol=0, atol=1e-9 * np.abs(h).max())
+    assert not np.array_equal(swept.h, irf.h)  # the sweeps moved the IRF

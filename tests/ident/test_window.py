@@ -340,3 +340,47 @@ def test_the_compiled_window_sums_are_numpys(monkeypatch):
     assert got == pytest.approx(want, rel=1e-9, abs=1e-9 * float(np.abs(torque).sum()))
     assert math.isnan(got_lost[1]) and math.isnan(check.window_sums(position, lost)[1])
     assert got_lost[0] == got[0] and got_lost[2] == got[2]
+
+
+@pytest.mark.parametrize(("samples", "lag"), [(750, 50), (188, 12), (101, 3), (400, 1)])
+def test_the_sweeps_gram_matrix_from_the_correlation_sums_is_the_lagged_rows_own(samples, lag):
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    from rtsid.ident.correlation import auto_sums, cross_sums, lagged_cross, lagged_gram
+
+    theta, tau = simulated_window(31 + samples, n=samples)
+    lagged = sliding_window_view(theta, 2 * lag + 1)[:, ::-1]  # row t: u(t − k), k = −L … L
+    gram = lagged_gram(theta, auto_sums(theta, 2 * lag), lag)
+    cross = lagged_cross(theta, tau, cross_sums(theta, tau, lag), lag)
+    want_gram, want_cross = lagged.T @ lagged, lagged.T @ tau[lag : samples - lag]
+    np.testing.assert_allclose(gram, want_gram, rtol=0, atol=1e-13 * np.abs(want_gram).max())
+    np.testing.assert_allclose(cross, want_cross, rtol=0, atol=1e-13 * np.abs(want_cross).max())
+    assert np.array_equal(gram, gram.T)
+
+
+@pytest.mark.parametrize("left_out", [False, True])
+def test_a_gram_sweep_is_the_residual_sweep_and_they_converge_to_least_squares(left_out, rng):
+    # one sweep's gradient X'y − X'X·h/fs is the correlation of the input with the residual
+    # over the rows; many converge to the (ridge-free) least-squares IRF on the rows kept
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    from rtsid.ident.irf import estimate_irf
+    from rtsid.ident.levinson import eureka_unchecked
+
+    fs, lag, n = 500.0, 6, 300
+    u = rng.standard_normal(n)
+    y = np.convolve(u, rng.standard_normal(2 * lag + 1), mode="same") + rng.standard_normal(n)
+    rows = np.ones(n - 2 * lag, dtype=bool)
+    if left_out:
+        rows[40:70] = False
+    lagged = sliding_window_view(u, 2 * lag + 1)[:, ::-1]
+    first = estimate_irf(u, y, fs, lag, rows=rows)
+    error = (y[lag:-lag] - lagged @ (first.h / fs)) * rows
+    residual_sweep = first.h + eureka_unchecked(first.phi_uu, error @ lagged / rows.sum()) * fs
+    one = estimate_irf(u, y, fs, lag, refine=1, rows=rows)
+    np.testing.assert_allclose(one.h, residual_sweep, rtol=0, atol=1e-12 * np.abs(one.h).max())
+    converged = estimate_irf(u, y, fs, lag, refine=60, rows=rows)
+    least_squares = np.linalg.lstsq(lagged[rows], y[lag:-lag][rows], rcond=None)[0] * fs
+    np.testing.assert_allclose(
+        converged.h, least_squares, rtol=0, atol=1e-9 * np.abs(converged.h).max()
+    )
