@@ -184,11 +184,16 @@ class Phase:
     # (message built ns, compute ms) of every estimate over its budget
     stalls: list[tuple[int, float]] = field(default_factory=list)
     stalls_with_steal: int = 0
+    # the daemon's log lines of its deadline misses (what each coincided with)
+    miss_lines: list[str] = field(default_factory=list)
     seconds: float = 0.0
     # window end index -> (K, B, I) of every live estimate received
     live_values: dict[int, tuple[float, float, float]] = field(default_factory=dict)
     replay: ReplayResult | None = None
 
+
+#: The daemon's deadline-miss log lines printed per phase at most.
+MISS_LINES_SHOWN = 20
 
 SLOW_LANE_MODES = ("off", "process", "thread")
 
@@ -267,13 +272,15 @@ def _start_plant(can_port: int, config: Path) -> subprocess.Popen[bytes]:
     raise RuntimeError(f"rtsid plant did not listen on 127.0.0.1:{can_port}")
 
 
-def _stop(proc: subprocess.Popen[bytes]) -> None:
+def _stop(proc: subprocess.Popen[bytes]) -> str:
+    """SIGTERM (then SIGKILL after 30 s); returns what the process wrote to stderr, if piped."""
     proc.send_signal(signal.SIGTERM)
     try:
-        proc.communicate(timeout=30)
+        _, err = proc.communicate(timeout=30)
     except subprocess.TimeoutExpired:
         proc.kill()
-        proc.communicate(timeout=10)
+        _, err = proc.communicate(timeout=10)
+    return (err or b"").decode("utf-8", "replace")
 
 
 def end_to_end_ms(message: dict[str, Any], received_ns: int) -> tuple[float, float, float]:
@@ -378,7 +385,8 @@ def _run_phase(
             if total1 > total0:
                 phase.steal_percent = 100.0 * (steal1 - steal0) / (total1 - total0)
         finally:
-            _stop(daemon)
+            logged = _stop(daemon)
+            phase.miss_lines = [ln for ln in logged.splitlines() if "deadline miss:" in ln]
             if plant is not None:
                 _stop(plant)
             if burner is not None:
@@ -485,6 +493,11 @@ def print_miss_causes(phase: Phase) -> None:
         f"  {phase.name}: misses by what overlapped them: {listed}; garbage collections by "
         f"generation {worker.get('gc_collections')} taking {worker.get('gc_ms')} ms"
     )
+    overruns = worker.get("overrun_causes") or {}
+    listed = ", ".join(f"{name}: {count}" for name, count in sorted(overruns.items())) or "none"
+    print(f"  {phase.name}: overruns (windows skipped) by cause: {listed}")
+    for line in phase.miss_lines[:MISS_LINES_SHOWN]:
+        print(f"    {line.split('deadline miss:', 1)[1].strip()}")
     steady = phase.status[2:] or phase.status
     if len(steady) >= 2:  # RSS growth beside what the zenoh history ring took meanwhile
         first, last = steady[0], steady[-1]

@@ -54,13 +54,15 @@ class Miss:
     start_s: float
     end_s: float
     overlapped: tuple[Span, ...]
+    cpu_ms: float | None = None  # the worker thread's CPU time over the compute span
 
     def describe(self) -> str:
         """One line: ``deadline miss: window ending N, compute X ms; during it: …``."""
         during = ", ".join(f"{s.name} {s.ms:.2f} ms" for s in self.overlapped) or "nothing seen"
+        cpu = "" if self.cpu_ms is None else f" (of it on CPU {self.cpu_ms:.2f} ms)"
         return (
             f"deadline miss: window ending {self.window_end_index}, compute "
-            f"{1e3 * (self.end_s - self.start_s):.2f} ms; during it: {during}"
+            f"{1e3 * (self.end_s - self.start_s):.2f} ms{cpu}; during it: {during}"
         )
 
 
@@ -115,13 +117,16 @@ class StallJournal:
             del self._running[key]
             self._spans.append(Span(name, started, time.perf_counter()))
 
-    def miss(self, window_end_index: int, start_s: float, end_s: float) -> None:
-        """A window whose compute ran from ``start_s`` to ``end_s`` missed its deadline."""
+    def miss(
+        self, window_end_index: int, start_s: float, end_s: float, cpu_ms: float | None = None
+    ) -> None:
+        """A window whose compute ran from ``start_s`` to ``end_s`` (``cpu_ms`` of it on the
+        worker's CPU, when known) missed its deadline."""
         running = [Span(f"{name} (still running)", t0, end_s) for name, t0 in self._running_now()]
         overlapped = tuple(
             s for s in [*list(self._spans), *running] if s.end_s >= start_s and s.start_s <= end_s
         )
-        self._misses.append(Miss(window_end_index, start_s, end_s, overlapped))
+        self._misses.append(Miss(window_end_index, start_s, end_s, overlapped, cpu_ms))
         for cause in {s.name.split(" (")[0] for s in overlapped} or {"nothing seen"}:
             self.miss_causes[cause] += 1
 

@@ -57,7 +57,17 @@ from rtsid.link.ring import RingBuffer, Snapshot
 from rtsid.runtime.stalls import StallJournal
 from rtsid.verdicts import Flag, Reason
 
-__all__ = ["WindowWorker", "WorkerConfig", "WorkerCounters", "assess_window"]
+__all__ = ["OVERRUN_CAUSES", "WindowWorker", "WorkerConfig", "WorkerCounters", "assess_window"]
+
+#: Why windows were skipped (``overrun_causes`` in the worker's counters): the link delivered
+#: more than a hop of samples in one block; the worker was still computing the window
+#: before; it was waiting and woke late; the rows were no longer (or not yet) in the ring.
+OVERRUN_CAUSES = (
+    "samples came in one burst",
+    "previous window still computing",
+    "worker woke late",
+    "rows not in the ring",
+)
 
 _SATURATED = STATUS_POSITION_SATURATED | STATUS_TORQUE_SATURATED
 log = logging.getLogger(__name__)
@@ -134,6 +144,7 @@ class WorkerCounters:
     compute_s: float = 0.0
     compute_cpu_s: float = 0.0
     miss_causes: dict[str, int] = field(default_factory=dict)
+    overrun_causes: dict[str, int] = field(default_factory=dict)
     gc_collections: list[int] = field(default_factory=list)
     gc_ms: list[float] = field(default_factory=list)
 
@@ -533,6 +544,8 @@ class WindowWorker(ThreadOwner):
         self.hop_samples = self.evaluator.hop_samples
         self._wake = threading.Event()  # set by the ring's writer, or by stop()
         self._overruns = 0
+        #: overruns by why the windows were skipped (:data:`OVERRUN_CAUSES`)
+        self.overrun_causes: Counter[str] = Counter()
         self._first_index = 0  # the stream's first sample (history is never read before it)
         #: Set by the daemon: each window over budget is set against what ran meanwhile.
         self.stalls: StallJournal | None = None
@@ -554,6 +567,7 @@ class WindowWorker(ThreadOwner):
             withheld=dict(e.withheld),
             overruns=self._overruns,
             deadline_misses=e.misses,
+            overrun_causes=dict(self.overrun_causes),
             compute_ms_last=e.compute_ms,
             reflex_flagged=dict(e.reflex_flagged),
             compute_cpu_ms_last=e.compute_cpu_ms,
@@ -594,6 +608,7 @@ class WindowWorker(ThreadOwner):
         hop_s = self.config.hop_s
         next_end: int | None = None
         next_stale_s = 0.0
+        after_window = False  # the last pass evaluated a window (rather than waited)
         while not self._stop.is_set():
             newest = self.ring.newest_index
             if newest < 0:
@@ -605,11 +620,15 @@ class WindowWorker(ThreadOwner):
             if newest >= next_end:
                 behind = (newest - next_end) // self.hop_samples
                 if behind:
-                    self._overruns += behind
+                    self._count_overruns(
+                        behind, self._overrun_cause(next_end, newest, after_window)
+                    )
                     next_end += behind * self.hop_samples
                 self.process_window(next_end)
                 next_end += self.hop_samples
+                after_window = True
                 continue
+            after_window = False
             last = self.ring.latest(1)
             now = time.monotonic()
             arrived_s = float(last.host_time_s[-1]) if last is not None else now
@@ -617,6 +636,26 @@ class WindowWorker(ThreadOwner):
                 self.evaluator.publish_stale(next_end)
                 next_stale_s = now + hop_s
             self._wait_for_sample(next_end, hop_s)
+
+    def _count_overruns(self, windows: int, cause: str) -> None:
+        self._overruns += windows
+        self.overrun_causes[cause] += windows
+
+    def _overrun_cause(self, skipped_end: int, newest: int, after_window: bool) -> str:
+        """Why the worker found the ring a hop or more past the window it was due to evaluate.
+
+        The link wrote the skipped window's last row and the newest row in one block
+        (``"samples came in one burst"``: late data, not a slow worker); else the worker was
+        still on the previous window (``"previous window still computing"``) or had been
+        waiting and woke late (``"worker woke late"``: the GIL or a CPU given to others).
+        """
+        rows = self.ring.read_since(skipped_end, 1)
+        if len(rows) and int(rows.sample_index[0]) == skipped_end:
+            newest_rows = self.ring.latest(1)
+            if newest_rows is not None and int(newest_rows.sample_index[-1]) == newest:
+                if float(rows.host_time_s[0]) == float(newest_rows.host_time_s[-1]):
+                    return OVERRUN_CAUSES[0]
+        return OVERRUN_CAUSES[1] if after_window else OVERRUN_CAUSES[2]
 
     def _wait_for_sample(self, index: int, timeout_s: float) -> None:
         """Sleep until the ring publishes row ``index`` (or ``timeout_s``, or stop())."""
@@ -641,9 +680,10 @@ class WindowWorker(ThreadOwner):
         count = end_index - first + 1
         snap = self.ring.read_since(first, count)
         if len(snap) != count or int(snap.sample_index[0]) != first:
-            self._overruns += 1  # overwritten before we got to it
+            self._count_overruns(1, OVERRUN_CAUSES[3])  # overwritten before we got to it
             return None
         message = self.evaluator.evaluate(snap, started_s=started, started_cpu_s=started_cpu)
         if self.stalls is not None and Flag.OVER_BUDGET in message.get("flags", ()):
-            self.stalls.miss(end_index, started, time.perf_counter())
+            cpu_ms = self.evaluator.compute_cpu_ms
+            self.stalls.miss(end_index, started, time.perf_counter(), cpu_ms)
         return message

@@ -123,6 +123,7 @@ def test_windows_not_in_the_ring_are_skipped_and_counted():
     assert worker.process_window(1099) is None  # not yet arrived
     assert worker.process_window(600) is None  # starts before the first sample
     assert published == [] and worker.counters().overruns == 2
+    assert worker.counters().overrun_causes == {"rows not in the ring": 2}
 
 
 def test_over_budget_is_counted_and_flagged():
@@ -147,6 +148,8 @@ def test_a_miss_is_set_against_the_stall_journal():
     assert [s.name for s in first.overlapped] == ["housekeeping: status (still running)"]
     assert [s.name for s in second.overlapped] == []  # the step had ended
     assert worker.counters().miss_causes == {"nothing seen": 1, "housekeeping: status": 1}
+    assert first.cpu_ms is not None and 0.0 < first.cpu_ms  # the worker's CPU, in the log line
+    assert f"(of it on CPU {first.cpu_ms:.2f} ms)" in first.describe()
 
 
 def test_thread_starts_at_the_newest_window_then_reports_stale(wait_for):
@@ -182,6 +185,8 @@ def test_falling_behind_skips_to_the_newest_window_and_counts_the_rest(wait_for)
     ends = [m["window_end_index"] for m in published]
     assert 1549 not in ends and ends[-1] == 1999
     assert worker.counters().overruns == 9  # windows ending 1549 … 1949 were skipped
+    # one write carried them all: the link's burst, not a slow worker
+    assert worker.counters().overrun_causes == {"samples came in one burst": 9}
 
 
 def test_a_stale_message_does_not_step_the_tracker_that_its_window_will_step():
@@ -202,3 +207,12 @@ def test_a_stale_message_does_not_step_the_tracker_that_its_window_will_step():
     assert [[m[k] for k in keys] for m in evaluated] == [[m[k] for k in keys] for m in plain]
     # a stale message carries the latest track (the previous window's), unchanged
     assert stale_first[3]["K_track"] == evaluated[0]["K_track"] is not None
+
+
+def test_skipped_windows_whose_samples_came_apart_blame_the_worker():
+    worker = make_worker(filled_ring(), [])  # each sample arrived at its own time
+    # window 1449's last sample and the newest (1499) were not written together
+    assert worker._overrun_cause(1449, 1499, after_window=True) == (
+        "previous window still computing"
+    )
+    assert worker._overrun_cause(1449, 1499, after_window=False) == "worker woke late"
