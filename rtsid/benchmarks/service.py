@@ -272,15 +272,19 @@ def _start_plant(can_port: int, config: Path) -> subprocess.Popen[bytes]:
     raise RuntimeError(f"rtsid plant did not listen on 127.0.0.1:{can_port}")
 
 
-def _stop(proc: subprocess.Popen[bytes]) -> str:
-    """SIGTERM (then SIGKILL after 30 s); returns what the process wrote to stderr, if piped."""
+def _stop(proc: subprocess.Popen[bytes], log: Any = None) -> str:
+    """SIGTERM (then SIGKILL after 30 s); returns what the process wrote to ``log`` (the
+    binary file its stderr went to), if given."""
     proc.send_signal(signal.SIGTERM)
     try:
-        _, err = proc.communicate(timeout=30)
+        proc.communicate(timeout=30)
     except subprocess.TimeoutExpired:
         proc.kill()
-        _, err = proc.communicate(timeout=10)
-    return (err or b"").decode("utf-8", "replace")
+        proc.communicate(timeout=10)
+    if log is None:
+        return ""
+    log.seek(0)
+    return bytes(log.read()).decode("utf-8", "replace")
 
 
 def end_to_end_ms(message: dict[str, Any], received_ns: int) -> tuple[float, float, float]:
@@ -366,10 +370,14 @@ def _run_phase(
             socketcand_client,
         )
         plant = _start_plant(can_port, config) if can_port is not None else None
+        # the daemon's stderr goes to a file, not a pipe read only at the end: a run that
+        # logs many misses would fill the pipe and block the thread that logs them
+        # (housekeeping, which forwards the samples to the recording)
+        daemon_log = (Path(tmp) / "daemon-stderr.log").open("w+b")
         daemon = subprocess.Popen(
             [sys.executable, "-m", "rtsid.cli", "run", "--config", str(config), "--quiet"],
             stdout=subprocess.DEVNULL,
-            stderr=subprocess.PIPE,
+            stderr=daemon_log,
             env={**os.environ, "PYTHONUNBUFFERED": "1"},
         )
         burner = None
@@ -385,7 +393,8 @@ def _run_phase(
             if total1 > total0:
                 phase.steal_percent = 100.0 * (steal1 - steal0) / (total1 - total0)
         finally:
-            logged = _stop(daemon)
+            logged = _stop(daemon, daemon_log)
+            daemon_log.close()
             phase.miss_lines = [ln for ln in logged.splitlines() if "deadline miss:" in ln]
             if plant is not None:
                 _stop(plant)

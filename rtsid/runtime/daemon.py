@@ -481,8 +481,8 @@ class Daemon:
             if tick % status_every == 0:
                 with step("housekeeping: status"):
                     self._publish_status(mcap, zenoh)
-            for miss in self.stalls.drain_misses():
-                log.warning("%s", miss.describe())
+            for line in self.stalls.miss_lines(time.monotonic()):
+                log.warning("%s", line)
             self.failure = self._first_failure()
             if self.failure is not None:
                 log.error(

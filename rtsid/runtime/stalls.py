@@ -18,6 +18,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import gc
+import math
 import threading
 import time
 from collections.abc import Iterator
@@ -30,6 +31,9 @@ __all__ = ["Miss", "Span", "StallJournal"]
 SPANS_KEPT = 8192
 #: Missed windows kept for the log.
 MISSES_KEPT = 256
+#: Miss lines logged one by one per minute; beyond them one line a minute counts the rest
+#: (a loaded machine misses hundreds a minute: the log stays readable, the status counts all).
+MISS_LINES_PER_MINUTE = 20
 
 
 @dataclass(frozen=True)
@@ -82,6 +86,9 @@ class StallJournal:
         self.collections = [0, 0, 0]  # by generation
         self.gc_ms = [0.0, 0.0, 0.0]  # time in collections, by generation
         self.miss_causes: collections.Counter[str] = collections.Counter()
+        self._minute_start_s = -math.inf  # the minute of miss_lines' rate limit
+        self._logged = 0
+        self._unlogged = 0
 
     def __enter__(self) -> StallJournal:
         gc.callbacks.append(self._on_gc)
@@ -143,6 +150,26 @@ class StallJournal:
         while self._misses:
             out.append(self._misses.popleft())
         return out
+
+    def miss_lines(self, now_s: float) -> list[str]:
+        """The log lines for the misses since the last call (:meth:`drain_misses`): each
+        miss's own line, at most :data:`MISS_LINES_PER_MINUTE` a minute, and once the minute
+        is over, one line counting those not logged."""
+        lines: list[str] = []
+        if now_s - self._minute_start_s >= 60.0:
+            if self._unlogged:
+                lines.append(
+                    f"{self._unlogged} more deadline misses in the last minute, not logged one "
+                    "by one (the status message's worker.miss_causes counts every miss)"
+                )
+            self._minute_start_s, self._logged, self._unlogged = now_s, 0, 0
+        for miss in self.drain_misses():
+            if self._logged < MISS_LINES_PER_MINUTE:
+                lines.append(miss.describe())
+                self._logged += 1
+            else:
+                self._unlogged += 1
+        return lines
 
     def causes(self) -> dict[str, int]:
         """Misses by what overlapped them (a miss counts once per kind of span)."""

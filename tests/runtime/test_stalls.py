@@ -5,7 +5,7 @@ from __future__ import annotations
 import gc
 import time
 
-from rtsid.runtime.stalls import StallJournal
+from rtsid.runtime.stalls import MISS_LINES_PER_MINUTE, StallJournal
 
 
 def test_a_collection_during_a_missed_window_is_named_and_counted():
@@ -37,3 +37,20 @@ def test_only_steps_that_overlap_a_miss_are_blamed():
     assert first.overlapped == () and "nothing seen" in first.describe()
     assert [s.name for s in second.overlapped] == ["housekeeping: status"]
     assert journal.causes() == {"nothing seen": 1, "housekeeping: status": 1}
+
+
+def test_miss_lines_are_limited_a_minute_and_the_rest_counted():
+    journal = StallJournal()
+    for k in range(MISS_LINES_PER_MINUTE + 5):
+        journal.miss(k, 0.0, 0.001)
+    lines = journal.miss_lines(now_s=100.0)
+    assert len(lines) == MISS_LINES_PER_MINUTE
+    assert all(line.startswith("deadline miss: window ending") for line in lines)
+    journal.miss(99, 0.0, 0.001)
+    assert journal.miss_lines(now_s=130.0) == []  # the same minute: counted, not logged
+    journal.miss(100, 0.0, 0.001)
+    summary, own = journal.miss_lines(now_s=160.5)  # a new minute: the count, then its own
+    assert summary.startswith("6 more deadline misses in the last minute")
+    assert own.startswith("deadline miss: window ending 100,")
+    assert journal.miss_lines(now_s=161.0) == []
+    assert journal.causes() == {"nothing seen": MISS_LINES_PER_MINUTE + 7}
