@@ -1064,6 +1064,24 @@ class ReflexStream:
         self._inputs = _Kept()
         self._outputs = _Kept()
 
+    @staticmethod
+    def prepare(fs_hz: float, model_fs_hz: float) -> None:
+        """Form, before the first hop, what a model's first hop at these rates would form.
+
+        The streamed decimator's taps (:func:`stream_taps`: a filter design and its impulse
+        response, ≈ 3 ms of CPU, once per process and rate) were otherwise formed by the first
+        window to use a model: in a daemon whose slow lane fits in its own process, the worker
+        paid them inside that window's deadline. The numbers are the same either way.
+
+        Parameters
+        ----------
+        fs_hz : float
+            The data's sampling rate, Hz.
+        model_fs_hz : float
+            The reflex models' rate, Hz (``CascadeSettings.fs_out_hz``).
+        """
+        stream_taps(max(1, round(fs_hz / model_fs_hz)))
+
     def torque_tail(
         self,
         pathway: ReflexPathway,

@@ -285,6 +285,8 @@ class WindowEvaluator:
         self.reflex = reflex
         self.history_samples = reflex.history_samples if reflex is not None else 0
         self.reflex_stream = ReflexStream()  # the reflex prediction carried from hop to hop
+        if reflex is not None:  # not inside the first window that takes up a model
+            ReflexStream.prepare(fs_hz, reflex.settings.cascade().fs_out_hz)
         self.reflex_flagged: Counter[str] = Counter()
         self.last_reflex = _NO_REFLEX  # the slow lane's part in the latest window
         # a replay following a live run: window end -> (reflex_seq, absent, stale) as live had

@@ -5,6 +5,8 @@ import numpy as np
 import pytest
 
 from rtsid.ident.excitation import filtered_noise
+from rtsid.ident.reflex import stream_taps
+from rtsid.ident.reflex_lane import ReflexModels, SlowLaneSettings
 from rtsid.ident.window import EstimatorOptions
 from rtsid.io.schemas import ESTIMATE_FIELDS
 from rtsid.link.protocol import STATUS_TORQUE_SATURATED
@@ -216,3 +218,25 @@ def test_skipped_windows_whose_samples_came_apart_blame_the_worker():
         "previous window still computing"
     )
     assert worker._overrun_cause(1449, 1499, after_window=False) == "worker woke late"
+
+
+def test_a_slow_lane_evaluator_forms_the_reflex_stream_taps_before_its_first_window():
+    # issue 22: with the slow lane in its own process, the first window to take up a model
+    # formed the streamed decimator's taps (a filter design, ≈ 3 ms of CPU) inside its
+    # deadline (the misses at windows ending 12 499 / 17 499 at a 4 ms hop); the evaluator
+    # now forms them when it is built, so that window forms nothing new
+    settings = SlowLaneSettings(enabled=True, horizon_s=10.0, update_s=2.0, apply_after_s=1.0)
+    factor = round(FS / settings.cascade().fs_out_hz)
+    stream_taps.cache_clear()
+    WindowEvaluator(
+        FS,
+        WorkerConfig(hop_s=0.004),
+        EstimatorOptions(),
+        [].append,
+        reflex=ReflexModels(FS, settings),
+    )
+    formed = stream_taps.cache_info()
+    assert formed.currsize == 1  # formed at construction …
+    stream_taps(factor)  # … for the rate the first model's window asks for
+    assert stream_taps.cache_info().misses == formed.misses
+    assert stream_taps.cache_info().hits == formed.hits + 1
