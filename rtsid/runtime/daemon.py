@@ -247,6 +247,10 @@ class DaemonConfig:
         return {name: _plain(getattr(self, name)) for name in SECTIONS}
 
 
+def _no_wait() -> None:
+    """No worker to wait for."""
+
+
 def _plain(value: Any) -> Any:
     """Dataclasses, mappings and tuples as dicts and lists of plain values."""
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
@@ -470,7 +474,9 @@ class Daemon:
         status_every = max(1, round(settings.status_period_s / settings.sample_batch_s))
         tick = 0
         step = self.stalls.step
+        after_window = self._after_a_window()
         while ticks.wait(self.stop_event):
+            after_window()  # the tick runs right after a window, not across one
             with step("housekeeping: estimates to MCAP"):
                 self._log_estimates(mcap)
             with step("housekeeping: samples forwarded"):
@@ -479,8 +485,14 @@ class Daemon:
                 zenoh.compact_history()  # the history's sealed blocks, here, off the worker
             tick += 1
             if tick % status_every == 0:
+                # the status's two halves (build; encode and publish) each after a window
+                # of their own, so neither shares a window's time with the steps above
+                after_window()
                 with step("housekeeping: status"):
-                    self._publish_status(mcap, zenoh)
+                    status = self._status(mcap, zenoh)
+                after_window()
+                with step("housekeeping: status"):
+                    self._send_status(status, mcap, zenoh)
             for line in self.stalls.miss_lines(time.monotonic()):
                 log.warning("%s", line)
             self.failure = self._first_failure()
@@ -491,6 +503,17 @@ class Daemon:
                 break
             if end is not None and time.monotonic() >= end:
                 break
+
+    def _after_a_window(self) -> Callable[[], object]:
+        """A wait on the worker's :class:`~rtsid.runtime.gate.WindowGate` for the next window
+        to finish: work begun then has the rest of the hop to itself. Bounded by two hops (at
+        most half a sample batch), so with no windows the tick runs late by that at most."""
+        gate = self.worker.gate if self.worker is not None else None
+        if gate is None:
+            return _no_wait
+        settings = self.config.daemon
+        bound_s = min(2 * self.config.worker.hop_s, settings.sample_batch_s / 2)
+        return lambda: gate.after_next_window(bound_s)
 
     def _forward_samples(self, ring: RingBuffer, mcap: McapLogger, zenoh: ZenohPublisher) -> None:
         while True:
@@ -582,7 +605,11 @@ class Daemon:
         ).as_dict()
 
     def _publish_status(self, mcap: McapLogger, zenoh: ZenohPublisher) -> None:
-        status = self._status(mcap, zenoh)
+        self._send_status(self._status(mcap, zenoh), mcap, zenoh)
+
+    def _send_status(self, status: dict[str, Any], mcap: McapLogger, zenoh: ZenohPublisher) -> None:
+        """Encode a built status, put it on zenoh, hand it to the MCAP writer and the
+        console."""
         payload = encode_status(status)
         zenoh.publish_status(payload)
         mcap.log_status(payload, log_time_ns=status["host_time_ns"])

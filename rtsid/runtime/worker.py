@@ -54,6 +54,7 @@ from rtsid.link.protocol import (
     STATUS_TORQUE_SATURATED,
 )
 from rtsid.link.ring import RingBuffer, Snapshot
+from rtsid.runtime.gate import WindowGate
 from rtsid.runtime.stalls import StallJournal
 from rtsid.verdicts import Flag, Reason
 
@@ -551,6 +552,9 @@ class WindowWorker(ThreadOwner):
         self._first_index = 0  # the stream's first sample (history is never read before it)
         #: Set by the daemon: each window over budget is set against what ran meanwhile.
         self.stalls: StallJournal | None = None
+        #: Says when a window is computing and when one has just finished: the daemon's
+        #: housekeeping runs its tick right after a window, not across one.
+        self.gate = WindowGate()
 
     @property
     def stream(self) -> WindowStream:
@@ -675,6 +679,13 @@ class WindowWorker(ThreadOwner):
         dict or None
             The message, or None when those samples are no longer (or not yet) in the ring.
         """
+        self.gate.window_started()
+        try:
+            return self._process_window(end_index)
+        finally:
+            self.gate.window_finished()
+
+    def _process_window(self, end_index: int) -> dict[str, Any] | None:
         started, started_cpu = time.perf_counter(), time.thread_time()
         start = end_index - self.window_samples + 1
         # history before the window, but never before the stream's first sample

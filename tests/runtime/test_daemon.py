@@ -3,6 +3,7 @@ separate process with a subscriber, SIGTERM and SIGKILL."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import re
@@ -116,6 +117,38 @@ def test_the_history_holds_the_recorded_estimates_deflated_on_the_housekeeping_t
     assert len(recorded) > 2 * 32
     assert held == recorded
     assert packed_on == {"MainThread"}  # the housekeeping loop runs on the calling thread
+
+
+@pytest.mark.slow  # a real-time daemon run of seconds
+def test_each_half_of_the_status_tick_begins_after_a_window_has_just_finished(tmp_path, free_port):
+    """Issue 22: the status tick's build and its encoding and publication each wait for a
+    window to finish, so neither shares the GIL with a window from its start; the status
+    content is unchanged (a recorded status has every part, and the worker's counters)."""
+    extra = "[worker]\nhop_s = 0.004\n[slow_lane]\nenabled = false\n"
+    daemon = Daemon(DaemonConfig.load(write_config(tmp_path, free_port, extra)))
+    halves: list[tuple[int, int]] = []  # (windows finished, waits run out) at each half
+    journal_step = daemon.stalls.step
+
+    def step(name: str):
+        if name == "housekeeping: status" and daemon.worker is not None:
+            gate = daemon.worker.gate
+            halves.append((gate.finished, gate.waited_out))
+        return journal_step(name)
+
+    daemon.stalls.step = step  # type: ignore[method-assign]
+    summary = daemon.run(duration_s=2.5)
+    assert summary.clean_shutdown and summary.estimates > 100
+    assert len(halves) >= 4 and len(halves) % 2 == 0  # build, then publish, per status
+    for (finished, out), (next_finished, next_out) in itertools.pairwise(halves):
+        # a window finished between the two (or the wait's bound ran out and was counted)
+        assert next_finished > finished or next_out > out
+    assert any(b[0] > a[0] for a, b in itertools.pairwise(halves))
+    statuses = list(iter_status(only_recording(tmp_path)))
+    assert len(statuses) >= len(halves) // 2
+    final = statuses[-1]
+    assert {"acquisition", "worker", "mcap", "zenoh", "session"} <= set(final)
+    assert final["worker"]["estimates"] == summary.estimates
+    assert set(final["worker"]) >= {"miss_causes", "overrun_causes", "gc_collections"}
 
 
 @pytest.mark.slow  # a real-time daemon run of seconds
