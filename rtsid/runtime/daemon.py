@@ -476,7 +476,7 @@ class Daemon:
         step = self.stalls.step
         after_window = self._after_a_window()
         while ticks.wait(self.stop_event):
-            after_window()  # the tick runs right after a window, not across one
+            after_window()  # the tick runs as the worker goes to sleep, not across a window
             with step("housekeeping: estimates to MCAP"):
                 self._log_estimates(mcap)
             with step("housekeeping: samples forwarded"):
@@ -505,9 +505,10 @@ class Daemon:
                 break
 
     def _after_a_window(self) -> Callable[[], object]:
-        """A wait on the worker's :class:`~rtsid.runtime.gate.WindowGate` for the next window
-        to finish: work begun then has the rest of the hop to itself. Bounded by two hops (at
-        most half a sample batch), so with no windows the tick runs late by that at most."""
+        """A wait on the worker's :class:`~rtsid.runtime.gate.WindowGate` until the worker
+        has published its window and gone to wait for the next one: work begun then has the
+        rest of the hop to itself. Bounded by two hops (at most half a sample batch), so with
+        no windows the tick runs late by that at most."""
         gate = self.worker.gate if self.worker is not None else None
         if gate is None:
             return _no_wait

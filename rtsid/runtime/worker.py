@@ -552,8 +552,8 @@ class WindowWorker(ThreadOwner):
         self._first_index = 0  # the stream's first sample (history is never read before it)
         #: Set by the daemon: each window over budget is set against what ran meanwhile.
         self.stalls: StallJournal | None = None
-        #: Says when a window is computing and when one has just finished: the daemon's
-        #: housekeeping runs its tick right after a window, not across one.
+        #: Says when a window is computing and when the worker has gone to wait for the next
+        #: one: the daemon's housekeeping runs its tick then, not across a window.
         self.gate = WindowGate()
 
     @property
@@ -669,6 +669,8 @@ class WindowWorker(ThreadOwner):
         if self._stop.is_set():
             return
         self.ring.wake_at(index, self._wake)
+        if not self._wake.is_set():  # truly going to sleep: the housekeeping tick may run
+            self.gate.worker_waiting()
         self._wake.wait(timeout_s)
 
     def process_window(self, end_index: int) -> dict[str, Any] | None:

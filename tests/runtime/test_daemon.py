@@ -120,28 +120,29 @@ def test_the_history_holds_the_recorded_estimates_deflated_on_the_housekeeping_t
 
 
 @pytest.mark.slow  # a real-time daemon run of seconds
-def test_each_half_of_the_status_tick_begins_after_a_window_has_just_finished(tmp_path, free_port):
-    """Issue 22: the status tick's build and its encoding and publication each wait for a
-    window to finish, so neither shares the GIL with a window from its start; the status
-    content is unchanged (a recorded status has every part, and the worker's counters)."""
+def test_each_half_of_the_status_tick_begins_as_the_worker_goes_to_sleep(tmp_path, free_port):
+    """Issue 22: the status tick's build and its encoding and publication each wait for the
+    worker to finish its window and go to wait for the next one, so neither shares the GIL
+    with a window from its start; the status content is unchanged (a recorded status has
+    every part, and the worker's counters)."""
     extra = "[worker]\nhop_s = 0.004\n[slow_lane]\nenabled = false\n"
     daemon = Daemon(DaemonConfig.load(write_config(tmp_path, free_port, extra)))
-    halves: list[tuple[int, int]] = []  # (windows finished, waits run out) at each half
+    halves: list[tuple[int, int]] = []  # (worker's sleeps begun, waits run out) at each half
     journal_step = daemon.stalls.step
 
     def step(name: str):
         if name == "housekeeping: status" and daemon.worker is not None:
             gate = daemon.worker.gate
-            halves.append((gate.finished, gate.waited_out))
+            halves.append((gate.idle, gate.waited_out))
         return journal_step(name)
 
     daemon.stalls.step = step  # type: ignore[method-assign]
     summary = daemon.run(duration_s=2.5)
     assert summary.clean_shutdown and summary.estimates > 100
     assert len(halves) >= 4 and len(halves) % 2 == 0  # build, then publish, per status
-    for (finished, out), (next_finished, next_out) in itertools.pairwise(halves):
-        # a window finished between the two (or the wait's bound ran out and was counted)
-        assert next_finished > finished or next_out > out
+    for (idle, out), (next_idle, next_out) in itertools.pairwise(halves):
+        # the worker went to sleep between the two (or the wait's bound ran out, counted)
+        assert next_idle > idle or next_out > out
     assert any(b[0] > a[0] for a, b in itertools.pairwise(halves))
     statuses = list(iter_status(only_recording(tmp_path)))
     assert len(statuses) >= len(halves) // 2

@@ -1,4 +1,5 @@
-"""The window gate: the housekeeping tick waits for a window to finish, never the worker."""
+"""The window gate: the housekeeping tick waits for the worker to go to sleep, never the
+worker for the tick."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ def waiting(gate: WindowGate, timeout_s: float) -> tuple[threading.Thread, list[
     return thread, answers
 
 
-def test_a_tick_waits_for_the_window_being_computed_to_finish():
+def test_a_tick_waits_for_the_window_being_computed_and_the_worker_to_sleep():
     gate = WindowGate()
     gate.window_started()
     assert gate.computing
@@ -23,28 +24,32 @@ def test_a_tick_waits_for_the_window_being_computed_to_finish():
     thread.join(0.2)
     assert thread.is_alive() and answers == []  # still computing: the tick has not begun
     gate.window_finished()
+    assert not gate.computing and gate.finished == 1
+    thread.join(0.2)
+    # a worker behind its grid starts the next window at once: finishing one is not enough
+    assert thread.is_alive() and answers == []
+    gate.worker_waiting()  # it goes to wait for the next window's last sample
     thread.join(30.0)
     assert not thread.is_alive() and answers == [True]
-    assert not gate.computing and gate.finished == 1
-    assert (gate.waits, gate.waited_out) == (1, 0)
+    assert (gate.waits, gate.waited_out, gate.idle) == (1, 0, 1)
 
 
-def test_a_window_finished_before_the_tick_fell_due_does_not_count():
-    # the tick runs right after a window: one that ended earlier says nothing about how much
-    # of the hop is left
+def test_a_sleep_begun_before_the_tick_fell_due_does_not_count():
+    # the tick runs as the worker goes to sleep: a sleep begun earlier says nothing about
+    # how much of the hop is left
     gate = WindowGate()
-    gate.window_started()
-    gate.window_finished()
+    gate.worker_waiting()
     thread, answers = waiting(gate, 30.0)
     thread.join(0.2)
     assert thread.is_alive() and answers == []
     gate.window_started()  # the worker never waits on the gate
     gate.window_finished()
+    gate.worker_waiting()
     thread.join(30.0)
-    assert answers == [True] and gate.finished == 2
+    assert answers == [True] and gate.idle == 2
 
 
 def test_with_no_windows_the_tick_runs_when_its_bound_is_out_and_counts_it():
     gate = WindowGate()
     assert gate.after_next_window(0.01) is False
-    assert (gate.waits, gate.waited_out, gate.finished) == (1, 1, 0)
+    assert (gate.waits, gate.waited_out, gate.idle) == (1, 1, 0)
