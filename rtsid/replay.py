@@ -40,7 +40,7 @@ from rtsid.io.mcap_read import (
     sample_count,
 )
 from rtsid.io.recording import SampleGrid, iter_batches, read_session, session_parts
-from rtsid.io.schemas import SCHEMAS, SampleBatch, encode_estimate, encode_json
+from rtsid.io.schemas import SCHEMAS, SampleBatch, encode_json, estimate_payload
 from rtsid.io.summary_table import TableBuilder, attach_table
 from rtsid.link.ring import Snapshot
 from rtsid.runtime.daemon import DaemonConfig
@@ -578,8 +578,14 @@ def write_estimates_mcap(
     for fit in reflex:  # logged at the sample time from which it applies
         put("reflex", fit["applies_from_index"] / fs, encode_json(fit), fit["seq"])
     count = 0
+    estimates = channels["estimate"]
     for message in messages:
-        put("estimate", message["t_end_s"], encode_estimate(message), message["seq"])
+        data, plain = estimate_payload(message)
+        _add_message(writer, estimates, message["t_end_s"], data, message["seq"])
+        if plain:  # the payload decodes to the message's values: no json.loads of it
+            table.add("estimate", message)
+        else:
+            table.add_payload("estimate", data)
         count += 1
     attach_table(writer, table)
     writer.finish()
