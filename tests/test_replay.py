@@ -549,3 +549,27 @@ def test_a_replays_mcap_carries_the_summary_table_its_messages_give(tmp_path):
         np.testing.assert_array_equal(column, decoded.table.columns[name], err_msg=name)
     assert math.isnan(attached.table.columns["K"][5])
     assert [m["K"] for m in iter_estimates(out)][4:6] == [messages[4]["K"], None]
+
+
+def test_a_replay_reads_what_live_decided_and_the_session_in_one_pass_per_part(
+    tmp_path, monkeypatch
+):
+    # the live decisions, the logger's losses and the session come from one pass over each
+    # part (rtsid.io.mcap_read.read_json_topics), the same as the readers of each give them
+    from rtsid.io import mcap_read
+    from rtsid.io.recording import read_session
+    from rtsid.replay import _RecordedRun
+
+    recording = REFERENCE / "sim_3s.mcap"
+    passes = []
+    real = mcap_read.read_json_topics
+    monkeypatch.setattr(
+        mcap_read, "read_json_topics", lambda *a, **k: passes.append(a[0]) or real(*a, **k)
+    )
+    monkeypatch.setattr("rtsid.io.recording.read_json_topics", mcap_read.read_json_topics)
+    run = _RecordedRun.read([recording], follow_live=True)
+    assert passes == [recording]
+    assert run.live == LiveDecisions.of([recording]) and run.live is not None
+    assert run.session == read_session(recording) and run.lost == (0, 0, 0)
+    again = _RecordedRun.read([recording], follow_live=False)
+    assert again.live is None and again.session == run.session
