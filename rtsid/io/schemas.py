@@ -310,8 +310,7 @@ _encode_plain = _compact_encoder()
 
 def _check_estimate_keys(message: Mapping[str, Any]) -> None:
     """Refuse a message with a missing required key, an unknown key or a non-text reason."""
-    keys = message.keys()
-    if keys != _ESTIMATE_KEYS:
+    if message.keys() != _ESTIMATE_KEYS:
         keys = set(message)
         if not set(_REQUIRED) <= keys <= _ESTIMATE_KEYS:
             missing = sorted(set(_REQUIRED) - keys)
