@@ -16,7 +16,6 @@ import bisect
 import math
 import time
 import warnings
-from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -34,13 +33,21 @@ from rtsid.io.mcap_read import (
     TOPICS,
     holds_topics,
     iter_estimates,
-    iter_status,
     read_metadata,
     run_config_from_metadata,
     sample_count,
 )
-from rtsid.io.recording import SampleGrid, iter_batches, read_session, session_parts
-from rtsid.io.schemas import SCHEMAS, SampleBatch, encode_estimate, encode_json
+from rtsid.io.recording import (
+    SESSION_TOPICS,
+    RecordedMessages,
+    SampleGrid,
+    SessionRecord,
+    iter_batches,
+    read_messages,
+    session_parts,
+    session_record,
+)
+from rtsid.io.schemas import SCHEMAS, SampleBatch, encode_json, estimate_payload
 from rtsid.io.summary_table import TableBuilder, attach_table
 from rtsid.link.ring import Snapshot
 from rtsid.runtime.daemon import DaemonConfig
@@ -135,20 +142,29 @@ class LiveDecisions:
         had not come (``WindowEvaluator.publish_stale``): the window was evaluated later, or
         skipped when the worker caught up. One with a latency is the window's evaluation,
         withheld because its samples were too old when it ran."""
+        estimates = (
+            m
+            for part in parts
+            # a finished part without estimates (a converted recording) is not read
+            if holds_topics(part, (TOPICS["estimate"],))
+            for m in iter_estimates(part)
+        )
+        return cls.from_estimates(estimates)
+
+    @classmethod
+    def from_estimates(cls, messages: Iterable[Mapping[str, Any]]) -> LiveDecisions | None:
+        """From ``/estimate`` messages already read, in file order (as :meth:`of`)."""
         reflex: dict[int, tuple[int | None, bool, bool]] = {}
         stale: set[int] = set()
-        for part in parts:
-            if not holds_topics(part, (TOPICS["estimate"],)):
-                continue  # a finished part without estimates (a converted recording)
-            for m in iter_estimates(part):
-                if is_announcement(m):
-                    continue
-                end = int(m["window_end_index"])
-                if m.get("reason") == Reason.STALE:
-                    stale.add(end)
-                flags = set(m.get("flags") or ())
-                absent, late = "reflex_absent" in flags, "reflex_stale" in flags
-                reflex[end] = (m.get("reflex_seq"), absent, late)
+        for m in messages:
+            if is_announcement(m):
+                continue
+            end = int(m["window_end_index"])
+            if m.get("reason") == Reason.STALE:
+                stale.add(end)
+            flags = set(m.get("flags") or ())
+            absent, late = "reflex_absent" in flags, "reflex_stale" in flags
+            reflex[end] = (m.get("reflex_seq"), absent, late)
         if not reflex:
             return None
         return cls(min(reflex), max(reflex), reflex, frozenset(stale))
@@ -408,7 +424,9 @@ def replay_file(
         A part ended early (see :mod:`rtsid.io.recording`); its complete messages are replayed.
     """
     parts = session_parts(path)
-    live = LiveDecisions.of(parts) if config is None else None  # a re-analysis decides anew
+    # a re-analysis (config given) decides anew: it reads no live decisions
+    recorded = _RecordedRun.read(parts, follow_live=config is None)
+    live = recorded.live
     config = config or recording_config(parts[0])
     result = ReplayResult(source=str(path), parts=parts)
     total = sum(sample_count(p) for p in parts) if progress is not None else 0
@@ -418,10 +436,7 @@ def replay_file(
     replay_batches(batches, config, result, publish=publish, live=live)
     if result.samples == 0:
         raise RecordingError(f"{path}: no samples to replay (is it an rtsid recording?)")
-    with warnings.catch_warnings():  # what the parts lack was said once already
-        warnings.simplefilter("ignore", RtsidWarning)
-        session = read_session(parts)
-        lost = _what_the_logger_lost(parts[-1]) if live is not None else (0, 0, 0)
+    session, lost = recorded.session, recorded.lost
     if any(lost):
         warnings.warn(
             f"{path}: the live run's logger lost {lost[0]} samples, {lost[1]} sample batches "
@@ -436,14 +451,42 @@ def replay_file(
     return result
 
 
-def _what_the_logger_lost(part: Path) -> tuple[int, int, int]:
-    """What the live run had that its recording lacks, by the part's last status: samples the
-    ring overwrote before the logger read them, and the sample batches and estimates the
-    writer's queue dropped ((0, 0, 0) when the part has no status)."""
-    last: Mapping[str, Any] = {}
-    if holds_topics(part, (TOPICS["status"],)):
-        newest = deque(iter_status(part), maxlen=1)
-        last = newest[0] if newest else last
+@dataclass(frozen=True)
+class _RecordedRun:
+    """What a replay takes from a recording besides its samples, read in one pass per part
+    (the live run's estimates, its last status, the session and markers) before the samples
+    are: three passes each decompressing every chunk of the file, before."""
+
+    live: LiveDecisions | None
+    session: SessionRecord
+    lost: tuple[int, int, int]  # (0, 0, 0) unless following the live run
+
+    @classmethod
+    def read(cls, parts: list[Path], *, follow_live: bool) -> _RecordedRun:
+        """Read ``parts`` (a part ending early warns when its samples are read, not here)."""
+        live_topics = (TOPICS["estimate"], TOPICS["status"]) if follow_live else ()
+        topics = (*SESSION_TOPICS, *live_topics)
+        with warnings.catch_warnings():  # said once, by the samples' pass
+            warnings.simplefilter("ignore", RtsidWarning)
+            each = [read_messages([part], topics) for part in parts]
+        joined = RecordedMessages(
+            parts,
+            {t: [m for read in each for m in read.messages[t]] for t in topics},
+            [read.metadata[0] for read in each],
+            all(read.complete for read in each),
+        )
+        if not follow_live:
+            return cls(None, session_record(joined), (0, 0, 0))
+        live = LiveDecisions.from_estimates(joined.messages[TOPICS["estimate"]])
+        statuses = each[-1].messages[TOPICS["status"]]
+        return cls(live, session_record(joined), _what_the_logger_lost(statuses))
+
+
+def _what_the_logger_lost(statuses: list[dict[str, Any]]) -> tuple[int, int, int]:
+    """What the live run had that its recording lacks, by the last part's last status:
+    samples the ring overwrote before the logger read them, and the sample batches and
+    estimates the writer's queue dropped ((0, 0, 0) when the part has no status)."""
+    last: Mapping[str, Any] = statuses[-1] if statuses else {}
     overwritten = (last.get("acquisition") or {}).get("logger_overwritten") or 0
     dropped = (last.get("mcap") or {}).get("dropped_by_kind") or {}
     return int(overwritten), int(dropped.get("samples") or 0), int(dropped.get("estimate") or 0)
@@ -578,8 +621,14 @@ def write_estimates_mcap(
     for fit in reflex:  # logged at the sample time from which it applies
         put("reflex", fit["applies_from_index"] / fs, encode_json(fit), fit["seq"])
     count = 0
+    estimates = channels["estimate"]
     for message in messages:
-        put("estimate", message["t_end_s"], encode_estimate(message), message["seq"])
+        data, plain = estimate_payload(message)
+        _add_message(writer, estimates, message["t_end_s"], data, message["seq"])
+        if plain:  # the payload decodes to the message's values: no json.loads of it
+            table.add("estimate", message)
+        else:
+            table.add_payload("estimate", data)
         count += 1
     attach_table(writer, table)
     writer.finish()

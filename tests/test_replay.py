@@ -15,7 +15,13 @@ from rtsid.errors import IncompleteRecordingWarning
 from rtsid.ident.reflex_lane import ReflexModels, ReflexUpdate, SlowLaneSettings
 from rtsid.io.mcap_read import iter_estimates
 from rtsid.io.recording import read_estimates, session_parts
-from rtsid.replay import LiveDecisions, is_announcement, recording_config, replay_file
+from rtsid.replay import (
+    LiveDecisions,
+    is_announcement,
+    recording_config,
+    replay_file,
+    write_estimates_mcap,
+)
 from rtsid.runtime.daemon import Daemon, DaemonConfig
 
 REFERENCE = Path(__file__).resolve().parents[1] / "replay" / "reference"
@@ -516,3 +522,54 @@ def test_the_windows_replay_cuts_are_the_snapshots_their_constructor_gives():
         assert set(vars(newest)) == set(values)
         assert all(getattr(Snapshot(**values), k) is v for k, v in values.items())
         np.testing.assert_array_equal(newest.sample_index, snap.sample_index[-hop:])
+
+
+def test_a_replays_mcap_carries_the_summary_table_its_messages_give(tmp_path):
+    # write_estimates_mcap feeds the summary table the estimate dicts it encoded plainly
+    # (not their payloads decoded again): the table must be the one the messages give
+    import io
+    import math
+
+    from rtsid.io.recording import read_table
+
+    result = replay_file(REFERENCE / "sim_3s.mcap")
+    messages = [dict(m) for m in result.messages]
+    messages[5]["K"] = math.nan  # a payload the reference encodes (null), decoded for the table
+    messages[6]["lost_samples"] = np.int64(2)
+    out = tmp_path / "out.mcap"
+    buffer = io.BytesIO()
+    config = recording_config(REFERENCE / "sim_3s.mcap")
+    count = write_estimates_mcap(messages, buffer, source="x", config=config, reflex=result.reflex)
+    out.write_bytes(buffer.getvalue())
+    attached, decoded = read_table(out), read_table(out, from_messages=True)
+    assert attached.from_attachments and not decoded.from_attachments
+    assert attached.table.counts == decoded.table.counts and count == len(messages)
+    assert set(attached.table.columns) == set(decoded.table.columns)
+    for name, column in attached.table.columns.items():
+        np.testing.assert_array_equal(column, decoded.table.columns[name], err_msg=name)
+    assert math.isnan(attached.table.columns["K"][5])
+    assert [m["K"] for m in iter_estimates(out)][4:6] == [messages[4]["K"], None]
+
+
+def test_a_replay_reads_what_live_decided_and_the_session_in_one_pass_per_part(
+    tmp_path, monkeypatch
+):
+    # the live decisions, the logger's losses and the session come from one pass over each
+    # part (rtsid.io.mcap_read.read_json_topics), the same as the readers of each give them
+    from rtsid.io import mcap_read
+    from rtsid.io.recording import read_session
+    from rtsid.replay import _RecordedRun
+
+    recording = REFERENCE / "sim_3s.mcap"
+    passes = []
+    real = mcap_read.read_json_topics
+    monkeypatch.setattr(
+        mcap_read, "read_json_topics", lambda *a, **k: passes.append(a[0]) or real(*a, **k)
+    )
+    monkeypatch.setattr("rtsid.io.recording.read_json_topics", mcap_read.read_json_topics)
+    run = _RecordedRun.read([recording], follow_live=True)
+    assert passes == [recording]
+    assert run.live == LiveDecisions.of([recording]) and run.live is not None
+    assert run.session == read_session(recording) and run.lost == (0, 0, 0)
+    again = _RecordedRun.read([recording], follow_live=False)
+    assert again.live is None and again.session == run.session

@@ -276,17 +276,22 @@ def iter_sample_batches(
         gap, never bridged).
     """
     for message in _iter_topic(path, "samples", report):
-        try:
-            batch = decode_samples(message.data, message.log_time)
-        except (InputDataError, OverflowError, RecursionError) as exc:
-            reason = str(exc)[:200] or type(exc).__name__
-            raise RecordingError(f"{path}: a /samples message does not read: {reason}") from None
-        if not (math.isfinite(batch.fs_hz) and batch.fs_hz > 0 and 0 <= batch.first_index < 2**62):
-            raise RecordingError(
-                f"{path}: a /samples message says fs_hz = {batch.fs_hz!r}, first_index = "
-                f"{batch.first_index}; the file is damaged or not rtsid's"
-            )
-        yield batch
+        yield _sample_batch(message, path)
+
+
+def _sample_batch(message: Any, path: str | Path) -> SampleBatch:
+    """One ``/samples`` message decoded (a RecordingError naming ``path`` when it does not)."""
+    try:
+        batch = decode_samples(message.data, message.log_time)
+    except (InputDataError, OverflowError, RecursionError) as exc:
+        reason = str(exc)[:200] or type(exc).__name__
+        raise RecordingError(f"{path}: a /samples message does not read: {reason}") from None
+    if not (math.isfinite(batch.fs_hz) and batch.fs_hz > 0 and 0 <= batch.first_index < 2**62):
+        raise RecordingError(
+            f"{path}: a /samples message says fs_hz = {batch.fs_hz!r}, first_index = "
+            f"{batch.first_index}; the file is damaged or not rtsid's"
+        )
+    return batch
 
 
 def iter_estimates(path: str | Path, report: ReadReport | None = None) -> Iterator[dict[str, Any]]:
@@ -434,8 +439,38 @@ def holds_no_record(path: str | Path) -> bool:
 
 
 def sample_count(path: str | Path) -> int:
-    """Rows of samples in a recording (valid or not)."""
-    return int(sum(len(b) for b in iter_sample_batches(path)))
+    """Rows of samples in a recording (valid or not).
+
+    A batch in the logger's compact layout (:func:`~rtsid.io.schemas.encode_samples`) is
+    counted by the items of its last column (``status``: integers, one a row), without
+    reading its numbers — replay's progress bar counts a recording before replaying it, and
+    decoding every number for that doubled what it spent reading; any other payload is
+    decoded (and refused as :func:`iter_sample_batches` refuses it).
+    """
+    rows = 0
+    for message in _iter_topic(path, "samples", None):
+        counted = _compact_rows(message.data)
+        rows += len(_sample_batch(message, path)) if counted is None else counted
+    return rows
+
+
+#: The last column of a compact samples payload and its end.
+_STATUS_COLUMN, _PAYLOAD_END = b'],"status":[', b"]}"
+
+
+def _compact_rows(data: bytes) -> int | None:
+    """Rows of a compact samples payload by its status column (None: another layout)."""
+    if type(data) is not bytes or not data.endswith(_PAYLOAD_END):
+        return None
+    start = data.rfind(_STATUS_COLUMN)
+    if start < 0:
+        return None
+    start += len(_STATUS_COLUMN)
+    stop = len(data) - len(_PAYLOAD_END)
+    items = data[start:stop]
+    if items.strip(b"0123456789,-"):
+        return None  # not a bare list of integers: decode it
+    return items.count(b",") + 1 if items else 0
 
 
 def recover(

@@ -18,9 +18,12 @@ from rtsid.io.schemas import (
     decode_samples,
     encode_can_frames,
     encode_estimate,
+    encode_estimate_reference,
     encode_samples,
     encode_status,
+    estimate_payload,
 )
+from rtsid.verdicts import Flag, Reason
 
 jsonschema = pytest.importorskip("jsonschema")
 
@@ -200,3 +203,65 @@ def test_a_live_daemons_status_validates_and_declares_every_acquisition_counter(
         jsonschema.validate(msg, STATUS_SCHEMA)
         declared = set(STATUS_SCHEMA["properties"]["acquisition"]["properties"])
         assert set(msg["acquisition"]) <= declared
+
+
+def _in_schema_order(message: dict[str, object]) -> dict[str, object]:
+    """``message`` with every estimate key, in schema order (as the window worker builds it)."""
+    return {k: message.get(k) for k in ESTIMATE_FIELDS}
+
+
+@pytest.mark.parametrize(
+    "overrides,plain",
+    [
+        ({"I": 0.012}, True),  # plain values: the fast path
+        ({"I": 0.012, "ok": False, "reason": Reason.GAP, "K": None}, True),
+        ({"I": 0.012, "flags": [Flag.REFLEX_STALE, "low_vaf"], "reflex_seq": 3}, True),
+        ({"I": 0.012, "flags": (Flag.REFLEX_STALE,)}, True),
+        ({"I": np.float64(0.012)}, True),  # a float subclass: written as the float
+        ({"K": math.nan}, False),  # → null: the reference
+        ({"K": -math.inf, "B": math.inf}, False),
+        ({"I": np.float64("nan")}, False),
+        ({"lost_samples": np.int64(3)}, False),  # numpy: the reference converts it
+        ({"ok": np.bool_(True)}, False),
+        ({"robot": "NaN-robot", "I": 0.012}, False),  # a text the check cannot tell apart
+        ({"robot": "r{1}", "I": 0.012}, False),
+        ({"flags": [{True: 1}], "I": 0.012}, False),  # json_safe makes the key "True"
+        ({"flags": [np.float32(0.5)], "I": 0.012}, False),
+    ],
+)
+def test_estimate_payload_is_the_reference_byte_for_byte(overrides, plain) -> None:
+    message = _in_schema_order(make_estimate(**overrides))
+    payload, was_plain = estimate_payload(message)
+    assert payload == encode_estimate_reference(message) == encode_estimate(message)
+    assert was_plain is plain
+    if plain:  # what the summary table may take instead of decoding the payload
+        as_json = {k: list(v) if isinstance(v, tuple) else v for k, v in message.items()}
+        assert json.loads(payload) == as_json
+
+
+def test_estimates_in_another_order_or_without_optional_keys_encode_as_the_reference() -> None:
+    message = make_estimate()  # not in schema order, optional keys missing
+    assert estimate_payload(message) == (encode_estimate_reference(message), False)
+    shuffled = dict(reversed(list(_in_schema_order(make_estimate(I=0.01)).items())))
+    assert estimate_payload(shuffled) == (encode_estimate_reference(shuffled), False)
+    assert list(json.loads(encode_estimate(shuffled))) == list(ESTIMATE_FIELDS)
+
+
+def test_a_bad_reason_is_refused_on_the_fast_path_too() -> None:
+    message = _in_schema_order(make_estimate(I=0.01, reason=3))
+    with pytest.raises(InputDataError, match="'reason' = 3"):
+        encode_estimate(message)
+
+
+def test_replayed_estimates_encode_as_the_reference(tmp_path) -> None:
+    from pathlib import Path
+
+    from rtsid.replay import replay_file
+
+    reference = Path(__file__).resolve().parents[2] / "replay" / "reference" / "sim_3s.mcap"
+    messages = replay_file(reference).messages
+    assert len(messages) > 100
+    for message in messages:
+        payload, plain = estimate_payload(message)
+        assert payload == encode_estimate_reference(message)
+        assert plain is (json.loads(payload) == message)

@@ -247,3 +247,44 @@ def test_a_finished_file_says_which_topics_it_holds_and_a_cut_one_may_hold_any(
         found, metadata = mcap_read.read_json_topics(path, ["/estimate", "/marker"])
         assert read.messages == found and read.metadata == [metadata]
         assert read.complete == (path == recording)
+
+
+def test_sample_count_counts_each_layouts_rows_as_decoding_them_does(tmp_path: Path) -> None:
+    # compact payloads are counted by their status column, any other layout decoded
+    import json
+
+    from mcap.writer import Writer
+
+    from rtsid.io.schemas import encode_samples
+
+    n = 7
+    position = np.linspace(0.0, 0.1, n)
+    valid = np.ones(n, bool)
+    valid[3] = False
+    compact = encode_samples(10, 2500.0, position, position, valid, np.arange(n))
+    spaced = json.dumps(json.loads(compact)).encode()  # json's default separators: not compact
+    empty = encode_samples(17, 2500.0, [], [], [], [])
+    out = tmp_path / "layouts.mcap"
+    with out.open("wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        channel = writer.register_channel("/samples", "json", 0)
+        for k, data in enumerate((compact, spaced, empty, compact)):
+            writer.add_message(channel, k, data, k)
+        writer.finish()
+    rows = sum(len(b) for b in mcap_read.iter_sample_batches(out))
+    assert mcap_read.sample_count(out) == rows == 3 * n
+
+
+def test_sample_count_refuses_a_payload_that_is_not_compact_and_does_not_read(tmp_path: Path):
+    from mcap.writer import Writer
+
+    out = tmp_path / "bad.mcap"
+    with out.open("wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        channel = writer.register_channel("/samples", "json", 0)
+        writer.add_message(channel, 0, b'{"first_index": 0, "status": [1, x]}', 0)
+        writer.finish()
+    with pytest.raises(RecordingError, match="a /samples message does not read"):
+        mcap_read.sample_count(out)
