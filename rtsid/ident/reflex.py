@@ -554,23 +554,45 @@ def fit_reflex_dynamics(irf: FloatArray, fs_hz: float) -> ReflexDynamics:
     """
     g = np.asarray(irf, dtype=np.float64)
     lags = np.arange(g.size) / fs_hz
-    model = _DelayedLowPass(g, lags)
-    start = _best_on_grid(g, fs_hz)
+    start = np.array(_best_on_grid(g, fs_hz))
     low, high = delay_search_s(fs_hz)
-    x, cost = bounded_least_squares(
-        model.residual,
-        model.jacobian,
-        np.array(start),
-        np.array([low, 0.3, 0.2]),
-        np.array([high, 20.0, 3.0]),
-        DYNAMICS_SCALE,
-    )
+    box = (np.array([low, 0.3, 0.2]), np.array([high, 20.0, 3.0]))
+    x, cost = _dynamics_solution(g, lags, start, box)
     delay, corner, zeta = (float(v) for v in x)
     h = _low_pass_response(lags - delay, 2 * np.pi * corner, zeta)
     gain = float(h @ g) / max(float(h @ h), 1e-300)
     power = float(g @ g)
     explained = 100.0 * (1.0 - 2.0 * cost / power) if power > 0 else 0.0
     return ReflexDynamics(gain, delay, corner, zeta, max(0.0, explained), (low, high))
+
+
+def _dynamics_solution(
+    g: FloatArray, lags_s: FloatArray, start: FloatArray, box: tuple[FloatArray, FloatArray]
+) -> tuple[FloatArray, float]:
+    """:func:`bounded_least_squares` of :class:`_DelayedLowPass` from ``start`` within ``box``
+    (``(low, high)``): by the compiled kernel's ``reflex_dynamics_fit`` when built (the same
+    steps in one call, no Python per iteration: equal to the numpy reference to the solver's
+    tolerance, tested), else the numpy reference.
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        A damped system is singular (as ``numpy.linalg.solve`` raises there).
+    """
+    low, high = box
+    if _eureka is None:
+        model = _DelayedLowPass(g, lags_s)
+        return bounded_least_squares(
+            model.residual, model.jacobian, start, low, high, DYNAMICS_SCALE
+        )
+    x = np.empty(3)
+    limit = 100 * x.size  # bounded_least_squares' default
+    cost = _eureka.reflex_dynamics_fit(
+        np.ascontiguousarray(g), lags_s, start, low, high, DYNAMICS_SCALE, FIT_TOLERANCE, limit, x
+    )
+    if cost < 0:
+        raise np.linalg.LinAlgError("Singular matrix")
+    return x, float(cost)
 
 
 #: The typical size of δ (s), f_c (Hz) and ζ: the dynamics fit's damping is in these units.
