@@ -247,3 +247,29 @@ def test_the_compiled_convolution_is_ndimages_for_any_taps():
         np.testing.assert_array_equal(d2, ndimage.convolve1d(short, general, mode="constant"))
     with pytest.raises(ValueError, match="savgol_pair: inconsistent sizes"):
         reflex._eureka.savgol_pair(x, np.ones(4), np.ones(4), d1, d2)
+
+
+@pytest.mark.parametrize("lags", [3, 4, 5, 60, 101])
+def test_the_toeplitz_systems_halves_give_the_whole_matrixs_eigenpairs(lags):
+    from rtsid.ident.correlation import auto_correlation
+
+    r = np.maximum(np.random.default_rng(lags).standard_normal(4000), 0.0)
+    phi = auto_correlation(r - r.mean(), lags - 1)
+    matrix = phi[np.abs(np.arange(lags)[:, None] - np.arange(lags)[None, :])]
+    system = reflex.ToeplitzSystem.of(phi)
+    want = np.linalg.eigh(matrix)[0]
+    scale = float(want.max())
+    assert np.all(np.diff(system.eigenvalues) >= 0)  # ascending, as numpy's
+    np.testing.assert_allclose(system.eigenvalues, want, rtol=0, atol=1e-13 * scale)
+    v = system.vectors
+    np.testing.assert_allclose(v.T @ v, np.eye(lags), rtol=0, atol=1e-13)
+    np.testing.assert_allclose(matrix @ v, v * system.eigenvalues, rtol=0, atol=1e-13 * scale)
+    # the MDL projection of a reflex-like cross-correlation is the whole matrix's to rounding
+    e = np.convolve(r - r.mean(), np.exp(-np.arange(30) / 8.0))[: r.size]
+    e += np.random.default_rng(1).standard_normal(r.size)
+    phi_re = np.array([(r - r.mean())[: r.size - k] @ e[k:] for k in range(lags)]) / r.size
+    whole = reflex.ToeplitzSystem(phi, *np.linalg.eigh(matrix))
+    got, rank = reflex.mdl_projection(phi, phi_re, float(e @ e) / e.size, e.size, system)
+    ref, ref_rank = reflex.mdl_projection(phi, phi_re, float(e @ e) / e.size, e.size, whole)
+    assert rank == ref_rank
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-11 * np.abs(ref).max())
