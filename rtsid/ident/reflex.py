@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from rtsid.errors import InputDataError
-from rtsid.ident.correlation import auto_correlation, cross_correlation, detrend
+from rtsid.ident.correlation import auto_correlation, causal_cross_correlation, detrend
 from rtsid.ident.filters import stencil_derivatives, stencil_velocity
 from rtsid.ident.levinson import compiled_kernel, eureka
 
@@ -349,7 +349,7 @@ def _causal_irf(
     """One-sided IRF ``g(0 … lags)`` from ``r`` to ``e`` at its MDL rank, and the rank
     (``system``: ``r``'s, when already formed)."""
     system = system or ToeplitzSystem.of_input(r, lags)
-    phi_re = cross_correlation(r, e, lags)[lags:]
+    phi_re = causal_cross_correlation(r, e, lags)
     projected, rank = mdl_projection(system.phi_rr, phi_re, float(e @ e) / e.size, e.size, system)
     return projected * fs_hz, rank
 
@@ -895,7 +895,22 @@ def to_data_rate(low: FloatArray, factor: int, n: int, first: int = 0) -> FloatA
     ``factor`` is 1. Each sample's value does not depend on ``first``."""
     if factor == 1:
         return low[first:]
-    return np.interp(np.arange(first, n), np.arange(low.size) * factor, low)
+    if low.size < 2 or not np.all(np.isfinite(low)):
+        return np.interp(np.arange(first, n), np.arange(low.size) * factor, low)
+    # numpy.interp's own arithmetic, slope·(x − x_j) + y_j with the slope (y_j+1 − y_j)/factor,
+    # on whole intervals at once (no search for each sample's interval): the same numbers
+    # from the interval of sample `first` on
+    j = min(first // factor, low.size - 1)
+    part, first, n = low[j:], first - j * factor, n - j * factor
+    slopes = np.diff(part) / float(factor)
+    grid = np.empty(part.size * factor)
+    grid[: slopes.size * factor] = (
+        slopes[:, None] * np.arange(float(factor)) + part[:-1, None]
+    ).ravel()
+    grid[slopes.size * factor :] = part[-1]  # held after the last model sample
+    if n <= grid.size:
+        return grid[first:n]
+    return np.concatenate((grid[first:], np.full(n - max(first, grid.size), part[-1])))
 
 
 # ----------------------------------------------------------------------------- the stream

@@ -273,3 +273,33 @@ def test_the_toeplitz_systems_halves_give_the_whole_matrixs_eigenpairs(lags):
     ref, ref_rank = reflex.mdl_projection(phi, phi_re, float(e @ e) / e.size, e.size, whole)
     assert rank == ref_rank
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-11 * np.abs(ref).max())
+
+
+@pytest.mark.parametrize(
+    ("m", "factor", "n", "first"),
+    [
+        (2000, 25, 50_000, 22_500),
+        (2000, 25, 50_030, 17),
+        (3, 10, 40, 0),
+        (1, 5, 9, 2),
+        (10, 4, 100, 39),
+    ],
+)
+def test_a_prediction_at_the_data_rate_is_numpys_interpolation_bit_for_bit(m, factor, n, first):
+    low = np.random.default_rng(m + first).standard_normal(m)
+    want = np.interp(np.arange(first, n), np.arange(m) * factor, low)
+    np.testing.assert_array_equal(reflex.to_data_rate(low, factor, n, first), want)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize(("n", "lags"), [(2000, 100), (300, 60), (50, 3)])
+def test_the_causal_cross_correlation_is_the_two_sided_ones_right_half(
+    n, lags, compiled, monkeypatch
+):
+    from rtsid.ident import correlation
+
+    if not compiled:
+        monkeypatch.setattr(correlation, "_KERNEL", None)
+    u, y = np.random.default_rng(n).standard_normal((2, n))
+    want = correlation.cross_correlation(u, y, lags)[lags:]
+    np.testing.assert_array_equal(correlation.causal_cross_correlation(u, y, lags), want)
