@@ -1684,6 +1684,7 @@ static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args);
 static PyObject *py_zero_phase_rows(PyObject *self, PyObject *args);
 static PyObject *py_savgol_pair(PyObject *self, PyObject *args);
 static PyObject *py_ankle_frames(PyObject *self, PyObject *args); /* socketcand frames, end */
+static PyObject *py_reflex_dynamics_fit(PyObject *self, PyObject *args); /* lanesums */
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1722,6 +1723,7 @@ static PyMethodDef methods[] = {
     {"zero_phase_rows", py_zero_phase_rows, METH_VARARGS, "zero_phase_rows(sos, zi, rows, n, edge, factor, out): scipy's sosfiltfilt of each row, every factor-th sample into out."},
     {"savgol_pair", py_savgol_pair, METH_VARARGS, "savgol_pair(x, taps1, taps2, d1, d2): ndimage.convolve1d(x, taps, mode='constant') of two filters."},
     {"ankle_frames", py_ankle_frames, METH_VARARGS, "ankle_frames(data, ident, position_scale, torque_scale, counter, position, torque, status, bus_time) -> n (< 0: not the common case): socketcand state frames of the built-in protocol."},
+    {"reflex_dynamics_fit", py_reflex_dynamics_fit, METH_VARARGS, "reflex_dynamics_fit(g, lags, start, low, high, scale, tolerance, max_evaluations, x) -> cost (< 0: singular): the reflex dynamics fit in one call."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -2070,6 +2072,29 @@ static PyObject *py_evidence_gains(PyObject *self, PyObject *args)
 #include <complex.h>
 #undef I /* complex.h's macros would clash with names in later sections (I, inertia) */
 #undef complex
+/* The low-pass and its slopes at the n times t (h: n values, s: 3 rows of n). */
+static void low_pass_slopes_at(const double *t, Py_ssize_t n, double w, double z, double *h,
+                               double *s)
+{
+    if (fabs(z - 1.0) < 1e-6) z = 1.0 + 1e-6;
+    const double _Complex root = csqrt(z * z - 1.0 + 0.0 * _Complex_I);
+    const double _Complex p1 = w * (-z + root), p2 = w * (-z - root);
+    const double _Complex scale = w * w / (p1 - p2);
+    const double _Complex c1 = -1.0 + z / root, c2 = -1.0 - z / root;
+    const double _Complex by_z = -scale * z / (root * root);
+    for (Py_ssize_t i = 0; i < n; i++) {
+        if (!(t[i] > 0.0)) {
+            h[i] = s[i] = s[n + i] = s[2 * n + i] = 0.0;
+            continue;
+        }
+        const double _Complex e1 = cexp(p1 * t[i]), e2 = cexp(p2 * t[i]);
+        h[i] = creal(scale * (e1 - e2));
+        s[i] = creal(scale * (p1 * e1 - p2 * e2));
+        s[n + i] = (h[i] + t[i] * s[i]) / w;
+        s[2 * n + i] = creal(by_z * (e1 - e2) + scale * w * t[i] * (c1 * e1 - c2 * e2));
+    }
+}
+
 static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args)
 {
     PyObject *objs[3];
@@ -2083,25 +2108,7 @@ static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args)
     if (b[1].len != b[0].len || b[2].len != 3 * b[0].len || !(w > 0.0)) {
         PyErr_SetString(PyExc_ValueError, "low_pass_slopes: inconsistent sizes or wn <= 0");
     } else {
-        const double *t = b[0].buf;
-        double *h = b[1].buf, *s = b[2].buf;
-        if (fabs(z - 1.0) < 1e-6) z = 1.0 + 1e-6;
-        const double _Complex root = csqrt(z * z - 1.0 + 0.0 * _Complex_I);
-        const double _Complex p1 = w * (-z + root), p2 = w * (-z - root);
-        const double _Complex scale = w * w / (p1 - p2);
-        const double _Complex c1 = -1.0 + z / root, c2 = -1.0 - z / root;
-        const double _Complex by_z = -scale * z / (root * root);
-        for (Py_ssize_t i = 0; i < n; i++) {
-            if (!(t[i] > 0.0)) {
-                h[i] = s[i] = s[n + i] = s[2 * n + i] = 0.0;
-                continue;
-            }
-            const double _Complex e1 = cexp(p1 * t[i]), e2 = cexp(p2 * t[i]);
-            h[i] = creal(scale * (e1 - e2));
-            s[i] = creal(scale * (p1 * e1 - p2 * e2));
-            s[n + i] = (h[i] + t[i] * s[i]) / w;
-            s[2 * n + i] = creal(by_z * (e1 - e2) + scale * w * t[i] * (c1 * e1 - c2 * e2));
-        }
+        low_pass_slopes_at(b[0].buf, n, w, z, b[1].buf, b[2].buf);
         Py_INCREF(Py_None);
         result = Py_None;
     }
@@ -2836,4 +2843,197 @@ static void gram_sweeps(const double *u, const double *y, Py_ssize_t m, Py_ssize
         eureka_apply(rr, filters, alphas, g, delta, nh);
         for (Py_ssize_t j = 0; j < nh; j++) h[j] += delta[j] * fs;
     }
+}
+
+/* ------------------------------------------------------------------ branch lanesums (issue 22)
+ * reflex_dynamics_fit(g, lags, start, low, high, scale, tolerance, max_evaluations, x) -> cost
+ *   (a negative cost: a damped system was singular): the reflex dynamics fit's projected
+ *   Levenberg–Marquardt (rtsid.ident.reflex.bounded_least_squares on the residual and Jacobian
+ *   of rtsid.ident.reflex._DelayedLowPass, the numpy reference) in one call: the same steps,
+ *   tests and damping rule; sums in another order, so equal to rounding along the way and to
+ *   the solver's tolerance at its end (tested). x (3) receives the solution. O(iterations·n).
+ */
+#define LM_K 3
+
+typedef struct {
+    const double *g, *lags;
+    Py_ssize_t n;
+    double *t, *h, *slopes; /* n, n, 3n: the low-pass at the point last evaluated */
+} LowPassFit;
+
+/* r = G·h − g at x (G solved linearly), with h and its slopes kept for the Jacobian. */
+static void low_pass_residual(LowPassFit *f, const double *x, double *r)
+{
+    const Py_ssize_t n = f->n;
+    for (Py_ssize_t i = 0; i < n; i++) f->t[i] = f->lags[i] - x[0];
+    low_pass_slopes_at(f->t, n, 2 * M_PI * x[1], x[2], f->h, f->slopes);
+    double energy = 0.0, hg = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        energy += f->h[i] * f->h[i];
+        hg += f->h[i] * f->g[i];
+    }
+    const double gain = energy > 0 ? hg / energy : 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) r[i] = gain * f->h[i] - f->g[i];
+}
+
+/* ∂r/∂x (n × 3, row-major) at the point low_pass_residual last evaluated. */
+static void low_pass_jacobian(const LowPassFit *f, double *j)
+{
+    const Py_ssize_t n = f->n;
+    const double *h = f->h, *g = f->g;
+    double energy = 0.0, hg = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        energy += h[i] * h[i];
+        hg += h[i] * g[i];
+    }
+    if (!(energy > 0)) {
+        memset(j, 0, (size_t)(n * LM_K) * sizeof(double));
+        return;
+    }
+    const double gain = hg / energy, sign[LM_K] = {-1.0, 2 * M_PI, 1.0};
+    double gain_by[LM_K];
+    for (int k = 0; k < LM_K; k++) {
+        const double *s = f->slopes + k * n;
+        double sg = 0.0, sh = 0.0;
+        for (Py_ssize_t i = 0; i < n; i++) {
+            sg += s[i] * g[i];
+            sh += s[i] * h[i];
+        }
+        gain_by[k] = sign[k] * (sg - 2.0 * gain * sh) / energy;
+    }
+    for (Py_ssize_t i = 0; i < n; i++)
+        for (int k = 0; k < LM_K; k++)
+            j[i * LM_K + k] = gain * sign[k] * f->slopes[k * n + i] + gain_by[k] * h[i];
+}
+
+static double sum_of_squares(const double *r, Py_ssize_t n)
+{
+    double s = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) s += r[i] * r[i];
+    return s;
+}
+
+/* bounded_least_squares' loop; r, trial_r: n; j: 3n. Returns the cost, or −1 when a damped
+ * system is singular (numpy.linalg.solve raises there). */
+static double lm_bounded(LowPassFit *f, double *x, const double *low, const double *high,
+                         const double *scale, double tol, Py_ssize_t limit, double *r,
+                         double *r_trial, double *j)
+{
+    const Py_ssize_t n = f->n;
+    double weight[LM_K];
+    for (int k = 0; k < LM_K; k++) {
+        x[k] = x[k] < low[k] ? low[k] : (x[k] > high[k] ? high[k] : x[k]);
+        weight[k] = 1.0 / (scale[k] * scale[k]);
+    }
+    low_pass_residual(f, x, r);
+    double cost = 0.5 * sum_of_squares(r, n), damping = -1.0, growth = 2.0;
+    Py_ssize_t evaluations = 1;
+    while (evaluations < limit) {
+        low_pass_jacobian(f, j);
+        double gradient[LM_K] = {0}, normal[LM_K * LM_K] = {0};
+        for (Py_ssize_t i = 0; i < n; i++)
+            for (int a = 0; a < LM_K; a++) {
+                gradient[a] += j[i * LM_K + a] * r[i];
+                for (int b = 0; b < LM_K; b++) normal[a * LM_K + b] += j[i * LM_K + a] * j[i * LM_K + b];
+            }
+        double scaled = 0.0;
+        int free[LM_K], nfree = 0;
+        for (int k = 0; k < LM_K; k++) {
+            const double v = gradient[k] < 0 ? high[k] - x[k] : (gradient[k] > 0 ? x[k] - low[k] : 1.0);
+            scaled = fmax(scaled, fabs(gradient[k] * v));
+            if (!((x[k] <= low[k] && gradient[k] > 0) || (x[k] >= high[k] && gradient[k] < 0)))
+                free[nfree++] = k;
+        }
+        if (scaled < tol) break;
+        if (damping < 0) {
+            double largest = -INFINITY;
+            for (int k = 0; k < LM_K; k++) largest = fmax(largest, normal[k * LM_K + k] / weight[k]);
+            damping = 1e-3 * largest;
+        }
+        int stop = 0;
+        while (evaluations < limit) {
+            double system[LM_K * LM_K], rhs[LM_K], step[LM_K] = {0}, trial[LM_K], moved[LM_K];
+            int piv[LM_K];
+            for (int a = 0; a < nfree; a++) {
+                for (int b = 0; b < nfree; b++) system[a * nfree + b] = normal[free[a] * LM_K + free[b]];
+                system[a * nfree + a] += damping * weight[free[a]];
+                rhs[a] = -gradient[free[a]];
+            }
+            if (nfree > 0) {
+                lu_factor(system, nfree, piv);
+                for (int a = 0; a < nfree; a++)
+                    if (system[a * nfree + a] == 0.0) return -1.0;
+                lu_solve(system, nfree, piv, rhs);
+                for (int a = 0; a < nfree; a++) step[free[a]] = rhs[a];
+            }
+            double predicted = 0.0, curvature = 0.0, step_norm = 0.0, size = 0.0;
+            for (int k = 0; k < LM_K; k++) {
+                const double v = x[k] + step[k];
+                trial[k] = v < low[k] ? low[k] : (v > high[k] ? high[k] : v);
+                moved[k] = trial[k] - x[k];
+            }
+            for (int a = 0; a < LM_K; a++) {
+                predicted -= gradient[a] * moved[a];
+                for (int b = 0; b < LM_K; b++) curvature += moved[a] * normal[a * LM_K + b] * moved[b];
+                step_norm += moved[a] * moved[a];
+                size += x[a] * x[a];
+            }
+            predicted -= 0.5 * curvature;
+            low_pass_residual(f, trial, r_trial);
+            evaluations++;
+            int finite = 1;
+            for (Py_ssize_t i = 0; i < n && finite; i++) finite = isfinite(r_trial[i]);
+            const double cost_trial = finite ? 0.5 * sum_of_squares(r_trial, n) : INFINITY;
+            const double reduction = cost - cost_trial;
+            const double ratio = predicted > 0 ? reduction / predicted : 0.0;
+            stop = (reduction < tol * cost && ratio > 0.25) || sqrt(step_norm) < tol * (tol + sqrt(size));
+            if (reduction > 0) {
+                memcpy(x, trial, sizeof(trial));
+                memcpy(r, r_trial, (size_t)n * sizeof(double));
+                cost = cost_trial;
+                const double c = 2.0 * ratio - 1.0;
+                damping *= fmax(1.0 / 3.0, 1.0 - c * c * c);
+                growth = 2.0;
+                break;
+            }
+            if (stop) break;
+            damping *= growth;
+            growth *= 2.0;
+        }
+        if (stop) break; /* else a step was taken: low_pass_residual last ran at x */
+    }
+    return cost;
+}
+
+static PyObject *py_reflex_dynamics_fit(PyObject *self, PyObject *args)
+{
+    PyObject *objs[7];
+    double tol;
+    Py_ssize_t limit;
+    if (!PyArg_ParseTuple(args, "OOOOOOdnO", &objs[0], &objs[1], &objs[2], &objs[3], &objs[4],
+                          &objs[5], &tol, &limit, &objs[6]))
+        return NULL;
+    const char *names[7] = {"g", "lags", "start", "low", "high", "scale", "x"};
+    Py_buffer b[7];
+    if (get_buffers(objs, 7, 6, names, b) < 0) return NULL;
+    const Py_ssize_t n = b[0].len / 8;
+    PyObject *result = NULL;
+    int ok = n > 0 && b[1].len == b[0].len && limit > 0;
+    for (int i = 2; i < 7; i++) ok = ok && b[i].len == LM_K * 8;
+    double *work = ok ? PyMem_Malloc((size_t)(10 * n) * sizeof(double)) : NULL;
+    if (!ok) {
+        PyErr_SetString(PyExc_ValueError, "reflex_dynamics_fit: inconsistent sizes");
+    } else if (work == NULL) {
+        PyErr_NoMemory();
+    } else {
+        LowPassFit f = {b[0].buf, b[1].buf, n, work, work + n, work + 2 * n};
+        double *x = b[6].buf;
+        memcpy(x, b[2].buf, LM_K * sizeof(double));
+        const double cost = lm_bounded(&f, x, b[3].buf, b[4].buf, b[5].buf, tol, limit,
+                                       work + 5 * n, work + 6 * n, work + 7 * n);
+        result = PyFloat_FromDouble(cost);
+    }
+    PyMem_Free(work);
+    release_buffers(b, 7);
+    return result;
 }

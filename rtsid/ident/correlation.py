@@ -18,6 +18,7 @@ from rtsid.ident.levinson import compiled_kernel
 __all__ = [
     "auto_correlation",
     "auto_sums",
+    "causal_cross_correlation",
     "cross_correlation",
     "cross_sums",
     "detrend",
@@ -206,6 +207,29 @@ def cross_correlation(u: ArrayLike, y: ArrayLike, max_lag: int) -> FloatArray:
     """
     sums = cross_sums(u, y, max_lag)
     return sums / np.asarray(u).size
+
+
+def causal_cross_correlation(u: FloatArray, y: FloatArray, max_lag: int) -> FloatArray:
+    """``cross_correlation(u, y, max_lag)[max_lag:]`` (lags ``0 … max_lag``, a one-sided
+    IRF's right-hand side): the same numbers bit for bit, without forming the negative lags.
+
+    Parameters
+    ----------
+    u, y : numpy.ndarray, shape (N,)
+        Input and output (detrended, equally long).
+    max_lag : int
+        Largest lag, samples (< N).
+
+    Returns
+    -------
+    numpy.ndarray, shape (max_lag + 1,)
+    """
+    n = u.size
+    if u.shape != y.shape or u.ndim != 1 or _use_fft(n, max_lag):
+        return cross_correlation(u, y, max_lag)[max_lag:]
+    _check_lags(n, max_lag)
+    u_arr, y_arr = np.asarray(u, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    return _direct_lags(u_arr, y_arr, 0, max_lag) / n
 
 
 def lagged_gram(u: FloatArray, sums: FloatArray, max_lag: int) -> FloatArray:

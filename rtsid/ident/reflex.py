@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from rtsid.errors import InputDataError
-from rtsid.ident.correlation import auto_correlation, cross_correlation, detrend
+from rtsid.ident.correlation import auto_correlation, causal_cross_correlation, detrend
 from rtsid.ident.filters import stencil_derivatives, stencil_velocity
 from rtsid.ident.levinson import compiled_kernel, eureka
 
@@ -237,16 +237,66 @@ class ToeplitzSystem:
 
     @classmethod
     def of(cls, phi_rr: FloatArray) -> ToeplitzSystem:
-        """The system whose first column is ``phi_rr``."""
+        """The system whose first column is ``phi_rr``.
+
+        A symmetric Toeplitz matrix is centrosymmetric, so each eigenvector is symmetric or
+        skew-symmetric about its middle: the matrix splits into two of half the size (the
+        symmetric and the skew-symmetric halves, :func:`_centrosymmetric_halves`), and two
+        half-size ``eigh`` cost a quarter of the whole one (the same eigenpairs to rounding,
+        tested against ``numpy.linalg.eigh`` of the whole matrix).
+        """
         lags = phi_rr.size
-        index = np.abs(np.arange(lags)[:, None] - np.arange(lags)[None, :])
-        eigenvalues, vectors = np.linalg.eigh(phi_rr[index])
-        return cls(phi_rr, eigenvalues, vectors)
+        if lags < 4:
+            index = np.abs(np.arange(lags)[:, None] - np.arange(lags)[None, :])
+            eigenvalues, vectors = np.linalg.eigh(phi_rr[index])
+            return cls(phi_rr, eigenvalues, vectors)
+        symmetric, skew = _centrosymmetric_halves(phi_rr)
+        values_s, vectors_s = np.linalg.eigh(symmetric)
+        values_k, vectors_k = np.linalg.eigh(skew)
+        half = lags // 2
+        vectors = np.empty((lags, lags))
+        a, b = vectors[:, : values_s.size], vectors[:, values_s.size :]
+        a[:half] = vectors_s[:half] * np.sqrt(0.5)
+        a[lags - half :] = a[half - 1 :: -1] if half else a[:0]
+        if lags % 2:
+            a[half] = vectors_s[half]
+            b[half] = 0.0
+        b[:half] = vectors_k * np.sqrt(0.5)
+        b[lags - half :] = -b[half - 1 :: -1]
+        eigenvalues = np.concatenate((values_s, values_k))
+        order = np.argsort(eigenvalues, kind="stable")
+        return cls(phi_rr, eigenvalues[order], np.ascontiguousarray(vectors[:, order]))
 
     @classmethod
     def of_input(cls, r: FloatArray, lags: int) -> ToeplitzSystem:
         """The system of a one-sided IRF ``g(0 … lags)`` with input ``r``."""
         return cls.of(auto_correlation(r, lags))
+
+
+def _centrosymmetric_halves(phi_rr: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The symmetric Toeplitz matrix ``T`` (first column ``phi_rr``, size ``n``) in the
+    orthonormal bases of the symmetric vectors (``(e_i + e_{n−1−i})/√2``, and the middle
+    ``e_m`` when ``n = 2m + 1``) and of the skew-symmetric ones (``(e_i − e_{n−1−i})/√2``):
+    ``T_ij ± T_i,n−1−j = φ(|i − j|) ± φ(n − 1 − i − j)`` for ``i, j < n // 2``, and
+    ``√2·φ(m − i)`` against the middle.
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray)
+        Shapes (⌈n/2⌉, ⌈n/2⌉) and (n//2, n//2).
+    """
+    n = phi_rr.size
+    half = n // 2
+    i = np.arange(half)
+    near = phi_rr[np.abs(i[:, None] - i[None, :])]
+    far = phi_rr[n - 1 - i[:, None] - i[None, :]]
+    symmetric = np.empty((n - half, n - half))
+    symmetric[:half, :half] = near + far
+    if n % 2:
+        edge = np.sqrt(2.0) * phi_rr[half - i]
+        symmetric[:half, half] = symmetric[half, :half] = edge
+        symmetric[half, half] = phi_rr[0]
+    return symmetric, near - far
 
 
 def mdl_projection(
@@ -299,7 +349,7 @@ def _causal_irf(
     """One-sided IRF ``g(0 … lags)`` from ``r`` to ``e`` at its MDL rank, and the rank
     (``system``: ``r``'s, when already formed)."""
     system = system or ToeplitzSystem.of_input(r, lags)
-    phi_re = cross_correlation(r, e, lags)[lags:]
+    phi_re = causal_cross_correlation(r, e, lags)
     projected, rank = mdl_projection(system.phi_rr, phi_re, float(e @ e) / e.size, e.size, system)
     return projected * fs_hz, rank
 
@@ -554,23 +604,45 @@ def fit_reflex_dynamics(irf: FloatArray, fs_hz: float) -> ReflexDynamics:
     """
     g = np.asarray(irf, dtype=np.float64)
     lags = np.arange(g.size) / fs_hz
-    model = _DelayedLowPass(g, lags)
-    start = _best_on_grid(g, fs_hz)
+    start = np.array(_best_on_grid(g, fs_hz))
     low, high = delay_search_s(fs_hz)
-    x, cost = bounded_least_squares(
-        model.residual,
-        model.jacobian,
-        np.array(start),
-        np.array([low, 0.3, 0.2]),
-        np.array([high, 20.0, 3.0]),
-        DYNAMICS_SCALE,
-    )
+    box = (np.array([low, 0.3, 0.2]), np.array([high, 20.0, 3.0]))
+    x, cost = _dynamics_solution(g, lags, start, box)
     delay, corner, zeta = (float(v) for v in x)
     h = _low_pass_response(lags - delay, 2 * np.pi * corner, zeta)
     gain = float(h @ g) / max(float(h @ h), 1e-300)
     power = float(g @ g)
     explained = 100.0 * (1.0 - 2.0 * cost / power) if power > 0 else 0.0
     return ReflexDynamics(gain, delay, corner, zeta, max(0.0, explained), (low, high))
+
+
+def _dynamics_solution(
+    g: FloatArray, lags_s: FloatArray, start: FloatArray, box: tuple[FloatArray, FloatArray]
+) -> tuple[FloatArray, float]:
+    """:func:`bounded_least_squares` of :class:`_DelayedLowPass` from ``start`` within ``box``
+    (``(low, high)``): by the compiled kernel's ``reflex_dynamics_fit`` when built (the same
+    steps in one call, no Python per iteration: equal to the numpy reference to the solver's
+    tolerance, tested), else the numpy reference.
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        A damped system is singular (as ``numpy.linalg.solve`` raises there).
+    """
+    low, high = box
+    if _eureka is None:
+        model = _DelayedLowPass(g, lags_s)
+        return bounded_least_squares(
+            model.residual, model.jacobian, start, low, high, DYNAMICS_SCALE
+        )
+    x = np.empty(3)
+    limit = 100 * x.size  # bounded_least_squares' default
+    cost = _eureka.reflex_dynamics_fit(
+        np.ascontiguousarray(g), lags_s, start, low, high, DYNAMICS_SCALE, FIT_TOLERANCE, limit, x
+    )
+    if cost < 0:
+        raise np.linalg.LinAlgError("Singular matrix")
+    return x, float(cost)
 
 
 #: The typical size of δ (s), f_c (Hz) and ζ: the dynamics fit's damping is in these units.
@@ -823,7 +895,22 @@ def to_data_rate(low: FloatArray, factor: int, n: int, first: int = 0) -> FloatA
     ``factor`` is 1. Each sample's value does not depend on ``first``."""
     if factor == 1:
         return low[first:]
-    return np.interp(np.arange(first, n), np.arange(low.size) * factor, low)
+    if low.size < 2 or not np.all(np.isfinite(low)):
+        return np.interp(np.arange(first, n), np.arange(low.size) * factor, low)
+    # numpy.interp's own arithmetic, slope·(x − x_j) + y_j with the slope (y_j+1 − y_j)/factor,
+    # on whole intervals at once (no search for each sample's interval): the same numbers
+    # from the interval of sample `first` on
+    j = min(first // factor, low.size - 1)
+    part, first, n = low[j:], first - j * factor, n - j * factor
+    slopes = np.diff(part) / float(factor)
+    grid = np.empty(part.size * factor)
+    grid[: slopes.size * factor] = (
+        slopes[:, None] * np.arange(float(factor)) + part[:-1, None]
+    ).ravel()
+    grid[slopes.size * factor :] = part[-1]  # held after the last model sample
+    if n <= grid.size:
+        return grid[first:n]
+    return np.concatenate((grid[first:], np.full(n - max(first, grid.size), part[-1])))
 
 
 # ----------------------------------------------------------------------------- the stream

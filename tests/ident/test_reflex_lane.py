@@ -488,3 +488,30 @@ def test_the_compiled_low_pass_and_slopes_equal_numpys(x, monkeypatch):
     np.testing.assert_allclose(h, want_h, rtol=0, atol=1e-12 * np.abs(want_h).max())
     for got_row, want_row in zip(slopes, want, strict=True):  # ζ ≈ 1: 4·10⁻¹⁰
         np.testing.assert_allclose(got_row, want_row, rtol=0, atol=1e-8 * np.abs(want_row).max())
+
+
+@pytest.mark.parametrize("reflex_gain", [0.0, 10.0])
+def test_a_fit_is_the_same_on_the_compiled_and_the_numpy_path(reflex_gain, monkeypatch):
+    # the compiled kernels (the dynamics fit among them) against the numpy references, on a
+    # horizon with a reflex and one without: decisions equal, every number within 1e-9
+    from rtsid.ident import correlation, levinson, reflex, yardstick
+    from tests.ident.test_cascade import REFLEX
+
+    theta, torque = joint_with_reflex(8.0, replace(REFLEX, gain=reflex_gain), seed=3)
+    compiled = fit_reflex_update(0, 0, theta, torque, None, FS_SIM, SETTINGS)
+    for module, name in ((reflex, "_eureka"), (yardstick, "_eureka"), (correlation, "_KERNEL")):
+        monkeypatch.setattr(module, name, None)
+    monkeypatch.setattr(levinson, "_eureka", None)
+    reference = fit_reflex_update(0, 0, theta, torque, None, FS_SIM, SETTINGS)
+    assert compiled.error is None and reference.error is None
+    assert (compiled.applied, compiled.iterations) == (reference.applied, reference.iterations)
+    assert compiled.pathway.rank == reference.pathway.rank
+    scale = np.abs(reference.pathway.irf).max()
+    np.testing.assert_allclose(compiled.pathway.irf, reference.pathway.irf, atol=1e-9 * scale)
+    for field in ("vaf_total", "vaf_intrinsic_only", "window_vaf_gain", "windows_improved"):
+        assert getattr(compiled, field) == pytest.approx(getattr(reference, field), rel=1e-9)
+    got, want = compiled.pathway.dynamics, reference.pathway.dynamics
+    assert got.vaf == pytest.approx(want.vaf, rel=1e-9, abs=1e-9)
+    if reflex_gain:  # a low-pass to find: a well-defined optimum
+        for field in ("gain", "delay_s", "corner_hz", "damping_ratio"):
+            assert getattr(got, field) == pytest.approx(getattr(want, field), rel=1e-9)
