@@ -1684,6 +1684,7 @@ static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args);
 static PyObject *py_zero_phase_rows(PyObject *self, PyObject *args);
 static PyObject *py_savgol_pair(PyObject *self, PyObject *args);
 static PyObject *py_ankle_frames(PyObject *self, PyObject *args); /* socketcand frames, end */
+static PyObject *py_onecall_window(PyObject *self, PyObject *args); /* onecall, end */
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1722,6 +1723,7 @@ static PyMethodDef methods[] = {
     {"zero_phase_rows", py_zero_phase_rows, METH_VARARGS, "zero_phase_rows(sos, zi, rows, n, edge, factor, out): scipy's sosfiltfilt of each row, every factor-th sample into out."},
     {"savgol_pair", py_savgol_pair, METH_VARARGS, "savgol_pair(x, taps1, taps2, d1, d2): ndimage.convolve1d(x, taps, mode='constant') of two filters."},
     {"ankle_frames", py_ankle_frames, METH_VARARGS, "ankle_frames(data, ident, position_scale, torque_scale, counter, position, torque, status, bus_time) -> n (< 0: not the common case): socketcand state frames of the built-in protocol."},
+    {"onecall_window", py_onecall_window, METH_VARARGS, "onecall_window(position, torque, explained, h, arrays, consts, state) -> status (0: done, else declined): a stream's window from its checks to its back end (section onecall)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -2836,4 +2838,173 @@ static void gram_sweeps(const double *u, const double *y, Py_ssize_t m, Py_ssize
         eureka_apply(rr, filters, alphas, g, delta, nh);
         for (Py_ssize_t j = 0; j < nh; j++) h[j] += delta[j] * fs;
     }
+}
+
+/* ================================================================== onecall
+ * onecall_window: a stream's whole window in one call, what rtsid.ident.stream.WindowStream
+ * does step by step for a window without lost samples once its plan is known (the reference,
+ * still run for the stream's first window, for lost samples and for every window this call
+ * declines): the checks of rtsid.ident.check (finite samples, excitation: the sums as
+ * window_sums), the analysis length, the front end (window_irf), the band-limited level and
+ * its checks (absolute, and relative to the stream's typical level), the trend slopes, the
+ * reflex torque band-limited (as band_limit), and the back end (oe_window), plus the flags of
+ * rtsid.ident.assess.window_flags that do not depend on the rounded VAFs. The same C functions
+ * in the same order as the separate calls, so the numbers are theirs bit for bit.
+ *
+ * onecall_window(position, torque, explained, h, arrays, consts, state) -> status
+ *   arrays  (taps, tw_cos, tw_sin, u, y, phi, extra, regressors, projected, gram, model, out):
+ *           a stream's buffers for one plan; out holds OW_SIZE values, then OC_LEVEL and
+ *           OC_FLAGS;
+ *   consts  OC_CONSTS doubles per plan (OC_FACTOR ...);
+ *   state   (k, held inertia, held damping, typical level or NaN): per window.
+ * status 0: done; anything else: the window is declined (a check withholds it, or a fit
+ * fails): the caller runs the step-by-step path, which says why with its own error.
+ */
+enum {
+    OC_FACTOR = 0, OC_SIGN, OC_DETREND, OC_LAG, OC_SWEEPS, OC_RIDGE, OC_FS, OC_MIN_EXCITATION,
+    OC_MIN_RELATIVE, OC_UNCERTAINTY, OC_NOISE_LAGS, OC_KMAX, OC_NEWEST_ROWS, OC_CONSTS,
+};
+enum { OC_LEVEL = OW_SIZE, OC_FLAGS, OC_OUT_SIZE };
+enum { OC_DONE = 0, OC_DECLINED = 1 };
+/* window_flags' bits, in its order (low_vaf and model_mismatch are set by the caller) */
+enum {
+    OC_NEGATIVE_STIFFNESS = 4, OC_NEGATIVE_DAMPING = 8, OC_NEGATIVE_INERTIA = 16,
+    OC_INERTIA_UNCERTAIN = 32, OC_STIFFNESS_UNCERTAIN = 64,
+};
+
+static int onecall_flags(const double *params, const double *se)
+{
+    const double inertia = params[0], damping = params[1], stiffness = params[2];
+    int flags = 0;
+    if (stiffness <= 0) flags |= OC_NEGATIVE_STIFFNESS;
+    if (damping <= 0) flags |= OC_NEGATIVE_DAMPING;
+    if (inertia <= 0) flags |= OC_NEGATIVE_INERTIA;
+    if (isfinite(se[0]) && se[0] > 0.25 * fabs(inertia)) flags |= OC_INERTIA_UNCERTAIN;
+    if (isfinite(se[2]) && se[2] > 0.1 * fabs(stiffness)) flags |= OC_STIFFNESS_UNCERTAIN;
+    return flags;
+}
+
+/* The window's checks, front end and back end; b: position, torque, explained (or NULL), h,
+ * then the arrays in order. */
+static int onecall(const double *pos, const double *trq, const double *explained, Py_ssize_t n,
+                   double *h, Py_ssize_t nh, Py_buffer *a, const double *c, const double *state,
+                   double *work)
+{
+    const double *taps = a[0].buf, *tw_cos = a[1].buf, *tw_sin = a[2].buf;
+    double *u = a[3].buf, *y = a[4].buf, *phi = a[5].buf, *extra = a[6].buf;
+    double *out = a[11].buf;
+    const Py_ssize_t nt = a[0].len / 8, factor = (Py_ssize_t)c[OC_FACTOR];
+    const Py_ssize_t lag = (Py_ssize_t)c[OC_LAG];
+    const double sign = c[OC_SIGN], min_excitation = c[OC_MIN_EXCITATION];
+    /* 1. check (rtsid.ident.check.check_window: the window_sums loop) */
+    double sp = 0.0, st = 0.0, spp = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        sp += pos[i];
+        st += trq[i];
+        spp += pos[i] * pos[i];
+    }
+    if (!(isfinite(sp) && isfinite(st))) return OC_DECLINED;
+    const double mean = sp / (double)n, spread = spp / (double)n - mean * mean;
+    if (sqrt(spread > 0.0 ? spread : 0.0) < min_excitation) return OC_DECLINED;
+    /* 3. front end (rtsid.ident.front._front_end) */
+    const Py_ssize_t m = n >= nt ? (n - nt) / factor + 1 : 0;
+    if (m <= (4 * lag + 1 > 16 ? 4 * lag + 1 : 16) || m != a[3].len / 8) return OC_DECLINED;
+    double alpha = 0.0;
+    const int kind = (int)c[OC_DETREND];
+    if (window_irf(pos, trq, n, taps, nt, factor, sign, kind, lag, c[OC_RIDGE],
+                   (Py_ssize_t)c[OC_SWEEPS], c[OC_FS], u, y, m, h, phi, work, &alpha) >= 0) {
+        return OC_DECLINED;
+    }
+    const double level = standard_deviation(u, m);
+    if (level < min_excitation) return OC_DECLINED;
+    /* the stream's relative check (check_relative_excitation; NaN: no typical level yet) */
+    const double typical = state[3];
+    if (!isnan(typical) && level < c[OC_MIN_RELATIVE] * typical) return OC_DECLINED;
+    /* scored band (front.scored_band): the trends at the analysis rate, the reflex torque */
+    double position_slope = 0.0, torque_slope = 0.0;
+    if (kind == 2) {
+        position_slope = line_slope(pos, n, 1.0) * (double)factor;
+        torque_slope = line_slope(trq, n, sign) * (double)factor;
+    }
+    if (explained != NULL) {
+        detrend_into(explained, work, n, sign, 1);
+        fir_decimate(work, n, taps, nt, factor, extra, m);
+    }
+    /* 4-5. back end (oe_window) */
+    const double held[2] = {state[1], state[2]};
+    if (oe_window(u, y, m, h, lag, c[OC_FS], (int)state[0], held, 1, (int)c[OC_UNCERTAINTY],
+                  (Py_ssize_t)c[OC_NOISE_LAGS], explained != NULL ? extra : NULL, torque_slope,
+                  position_slope, (Py_ssize_t)c[OC_KMAX], tw_cos, tw_sin,
+                  (Py_ssize_t)c[OC_NEWEST_ROWS], a[7].buf, a[8].buf, a[9].buf, a[10].buf, out,
+                  work) != OE_OK) {
+        return OC_DECLINED;
+    }
+    out[OC_LEVEL] = level;
+    out[OC_FLAGS] = (double)onecall_flags(out + OW_PARAMS, out + OW_SE);
+    (void)nh;
+    return OC_DONE;
+}
+
+static PyObject *py_onecall_window(PyObject *self, PyObject *args)
+{
+    PyObject *objs[5], *arrays, *explained;
+    if (!PyArg_ParseTuple(args, "OOOOO!OO", &objs[0], &objs[1], &explained, &objs[2],
+                          &PyTuple_Type, &arrays, &objs[3], &objs[4])) {
+        return NULL;
+    }
+    static const char *names[5] = {"position", "torque", "h", "consts", "state"};
+    static const char *array_names[12] = {"taps", "tw_cos", "tw_sin", "u", "y", "phi", "extra",
+                                          "regressors", "projected", "gram", "model", "out"};
+    if (PyTuple_GET_SIZE(arrays) != 12) {
+        PyErr_SetString(PyExc_ValueError, "onecall_window: arrays must hold 12 buffers");
+        return NULL;
+    }
+    Py_buffer b[6], a[12];
+    if (get_buffers(objs, 5, 2, names, b) < 0) return NULL;
+    PyObject *items[12];
+    for (int i = 0; i < 12; i++) items[i] = PyTuple_GET_ITEM(arrays, i);
+    if (get_buffers(items, 12, 3, array_names, a) < 0) {
+        release_buffers(b, 5);
+        return NULL;
+    }
+    int has_explained = explained != Py_None, got = 5;
+    if (has_explained && get_doubles(explained, &b[got++], 0, "explained") < 0) {
+        release_buffers(b, 5);
+        release_buffers(a, 12);
+        return NULL;
+    }
+    PyObject *result = NULL;
+    const Py_ssize_t n = b[0].len / 8, nh = b[2].len / 8, m = a[3].len / 8, nn = m - 8;
+    const double *c = b[3].buf;
+    if (b[3].len / 8 != OC_CONSTS || b[4].len / 8 < 4 || a[11].len / 8 != OC_OUT_SIZE) {
+        PyErr_SetString(PyExc_ValueError, "onecall_window: inconsistent sizes");
+    } else if (b[0].ndim != 1 || b[1].ndim != 1 || b[1].len != b[0].len ||
+               (has_explained && b[5].len != b[0].len) || c[OC_FACTOR] < 1 || c[OC_LAG] < 1 ||
+               nh != 2 * (Py_ssize_t)c[OC_LAG] + 1 || a[0].len / 8 < 1 || n < 16 ||
+               n < a[0].len / 8 || a[4].len != a[3].len || a[5].len / 8 != nh ||
+               a[6].len != a[3].len || nn < 2 || a[1].len / 8 != nn || a[2].len / 8 != nn ||
+               c[OC_KMAX] < 0 || c[OC_KMAX] > nn / 2 || a[7].len / 8 != 3 * nn ||
+               a[8].len / 8 != 4 * nn || a[9].len / 8 != 16 || a[10].len / 8 != nn) {
+        result = PyLong_FromLong(OC_DECLINED); /* not a window this call fits: the reference */
+    } else {
+        const Py_ssize_t lag = (nh - 1) / 2, edge = lag > 4 ? lag : 4, inner = m - 2 * edge;
+        const Py_ssize_t lags = (Py_ssize_t)c[OC_NOISE_LAGS];
+        const Py_ssize_t nl = lags < 1 ? 1 : (lags > nn - 1 ? nn - 1 : lags);
+        Py_ssize_t size = WINDOW_IRF_WORK(n, nh), back = 3 * inner + 2 * nn + nl + 2;
+        if (size < back) size = back;
+        double *work = inner < 2 ? NULL : PyMem_Malloc(sizeof(double) * size);
+        if (inner < 2) {
+            result = PyLong_FromLong(OC_DECLINED);
+        } else if (work == NULL) {
+            PyErr_NoMemory();
+        } else {
+            int status = onecall(b[0].buf, b[1].buf, has_explained ? b[5].buf : NULL, n,
+                                 b[2].buf, nh, a, c, b[4].buf, work);
+            PyMem_Free(work);
+            result = PyLong_FromLong(status);
+        }
+    }
+    release_buffers(b, got);
+    release_buffers(a, 12);
+    return result;
 }
