@@ -1685,6 +1685,7 @@ static PyObject *py_zero_phase_rows(PyObject *self, PyObject *args);
 static PyObject *py_savgol_pair(PyObject *self, PyObject *args);
 static PyObject *py_ankle_frames(PyObject *self, PyObject *args); /* socketcand frames, end */
 static PyObject *py_onecall_window(PyObject *self, PyObject *args); /* onecall, end */
+static PyObject *py_tracker_calm(PyObject *self, PyObject *args); /* onecall, end */
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1724,6 +1725,7 @@ static PyMethodDef methods[] = {
     {"savgol_pair", py_savgol_pair, METH_VARARGS, "savgol_pair(x, taps1, taps2, d1, d2): ndimage.convolve1d(x, taps, mode='constant') of two filters."},
     {"ankle_frames", py_ankle_frames, METH_VARARGS, "ankle_frames(data, ident, position_scale, torque_scale, counter, position, torque, status, bus_time) -> n (< 0: not the common case): socketcand state frames of the built-in protocol."},
     {"onecall_window", py_onecall_window, METH_VARARGS, "onecall_window(position, torque, explained, h, arrays, consts, state) -> status (0: done, else declined): a stream's window from its checks to its back end (section onecall)."},
+    {"tracker_calm", py_tracker_calm, METH_VARARGS, "tracker_calm(tracker, t_s, z, se, newest, has_split) -> (value, se, rate, mode) or None: ParameterTracker.step of a calm window (section onecall)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -3006,5 +3008,344 @@ static PyObject *py_onecall_window(PyObject *self, PyObject *args)
     }
     release_buffers(b, got);
     release_buffers(a, 12);
+    return result;
+}
+
+/* tracker_calm(tracker, t_s, z, se, newest, has_split) -> (value, se, rate, mode) or None:
+ * rtsid.ident.tracker.ParameterTracker.step for a calm window, the one most windows are: the
+ * tracker started, the estimate usable, no change mode, the interval the filters' cached
+ * transition's, the window not worth a split scan and within change_gate. Everything is
+ * computed on copies and written back to the tracker's attributes only when the window is
+ * calm; None leaves the tracker untouched (the caller runs the Python step, the reference).
+ * The same operations in the same order as the Python step, so the same doubles. */
+enum { TC_X0, TC_X1, TC_P00, TC_P01, TC_P11, TC_LAG, TC_OVERLAP, TC_RATE_Q, TC_TAU, TC_FIELDS };
+static const char *const TC_FILTER_NAMES[TC_FIELDS] = {"x0", "x1", "p00", "p01", "p11",
+                                                         "lag", "overlap", "rate_q", "tau"};
+enum {
+    TS_T, TS_HOP, TS_ALPHA, TS_SCALE2, TS_SE_REF, TS_CUSUM, TS_FORGET, TS_THRESHOLD, TS_GATE,
+    TS_OVERLAP, TS_FAST_CUSUM, TS_FAST_SCALE2, TS_DOUBLES,
+};
+static const char *const TS_DOUBLE_NAMES[TS_DOUBLES] = {
+    "t_s", "hop_s", "alpha", "scale2", "se_ref", "cusum", "forget", "switch_threshold", "gate",
+    "overlap", "fast_cusum", "fast_scale2"};
+enum { TI_CHANGE, TI_CALM_AFTER, TI_UPDATES, TI_FAST_SCORED, TI_FAST_HOPS, TI_END_HOPS, TI_INTS };
+static const char *const TS_INT_NAMES[TI_INTS] = {"change_hops", "calm_after", "updates",
+                                                   "fast_scored", "_fast_hops", "end_hops"};
+/* the tracker's constants of rtsid.ident.tracker */
+static const double TC_SCALE_CAP = 9.0, TC_PREGATE = 2.0, TC_SE_SWELL = 1.25;
+static const double TC_FAST_LLR_CAP = 2.0, TC_FAST_DF = 4.0;
+static const long TC_FAST_CONFIRM_HOPS = 2, TC_FAST_WARM_UP = 2;
+
+static int tc_double(PyObject *obj, const char *name, double *out)
+{
+    PyObject *v = PyObject_GetAttrString(obj, name);
+    if (v == NULL) return -1;
+    *out = PyFloat_AsDouble(v);
+    Py_DECREF(v);
+    return *out == -1.0 && PyErr_Occurred() ? -1 : 0;
+}
+
+static int tc_set_double(PyObject *obj, const char *name, double value)
+{
+    PyObject *v = PyFloat_FromDouble(value);
+    if (v == NULL) return -1;
+    int status = PyObject_SetAttrString(obj, name, v);
+    Py_DECREF(v);
+    return status;
+}
+
+static int tc_set_long(PyObject *obj, const char *name, long value)
+{
+    PyObject *v = PyLong_FromLong(value);
+    if (v == NULL) return -1;
+    int status = PyObject_SetAttrString(obj, name, v);
+    Py_DECREF(v);
+    return status;
+}
+
+static int tc_truth(PyObject *obj, const char *name)
+{
+    PyObject *v = PyObject_GetAttrString(obj, name);
+    if (v == NULL) return -1;
+    int truth = PyObject_IsTrue(v);
+    Py_DECREF(v);
+    return truth;
+}
+
+/* A filter's fields, and its cached transition when it is for dt (0: another interval). */
+static int tc_filter(PyObject *f, double dt, double *x, double *steps)
+{
+    for (int i = 0; i < TC_FIELDS; i++) {
+        if (tc_double(f, TC_FILTER_NAMES[i], &x[i]) < 0) return -1;
+    }
+    if (!(dt > 0)) return 1; /* predict() does nothing */
+    PyObject *last = PyObject_GetAttrString(f, "_last");
+    if (last == NULL) return -1;
+    int ok = 0;
+    if (PyTuple_Check(last) && PyTuple_GET_SIZE(last) == 2) {
+        double last_dt = PyFloat_AsDouble(PyTuple_GET_ITEM(last, 0));
+        PyObject *cached = PyTuple_GET_ITEM(last, 1);
+        if (last_dt == dt && PyTuple_Check(cached) && PyTuple_GET_SIZE(cached) == 5) {
+            ok = 1;
+            for (int i = 0; i < 5; i++) steps[i] = PyFloat_AsDouble(PyTuple_GET_ITEM(cached, i));
+        }
+    }
+    Py_DECREF(last);
+    return PyErr_Occurred() ? -1 : ok;
+}
+
+/* _LevelRateFilter.predict(dt) with its transition (b, a, q00, q01, q11) */
+static void tc_predict(double *x, const double *s)
+{
+    const double b = s[0], a = s[1], p00 = x[TC_P00], p01 = x[TC_P01], p11 = x[TC_P11];
+    x[TC_X0] += b * x[TC_X1];
+    x[TC_X1] *= a;
+    x[TC_P00] = p00 + 2.0 * b * p01 + b * b * p11 + s[2];
+    x[TC_P01] = a * (p01 + b * p11) + s[3];
+    x[TC_P11] = a * a * p11 + s[4];
+}
+
+/* _LevelRateFilter.update(z, sigma2): the innovation and H·P·Hᵀ */
+static void tc_update(double *x, double z, double sigma2, double *nu_out, double *hph_out)
+{
+    const double c = x[TC_LAG];
+    const double ph0 = x[TC_P00] - c * x[TC_P01];
+    const double ph1 = x[TC_P01] - c * x[TC_P11];
+    const double hph = ph0 - c * ph1;
+    const double nu = z - (x[TC_X0] - c * x[TC_X1]);
+    const double s = hph + x[TC_OVERLAP] * sigma2;
+    const double g0 = ph0 / s, g1 = ph1 / s;
+    x[TC_X0] += g0 * nu;
+    x[TC_X1] += g1 * nu;
+    x[TC_P00] -= g0 * ph0;
+    x[TC_P01] -= g0 * ph1;
+    x[TC_P11] -= g1 * ph1;
+    *nu_out = nu;
+    *hph_out = hph;
+}
+
+static double tc_max(double a, double b) { return b > a ? b : a; } /* Python's max(a, b) */
+static double tc_min(double a, double b) { return b < a ? b : a; } /* Python's min(a, b) */
+
+/* (t, a, b) triples of a recent-values tuple: its count (0-2), -1 when malformed */
+static int tc_recent(PyObject *recent, double (*out)[3])
+{
+    if (!PyTuple_Check(recent) || PyTuple_GET_SIZE(recent) > 2) return -1;
+    int count = (int)PyTuple_GET_SIZE(recent);
+    for (int i = 0; i < count; i++) {
+        PyObject *item = PyTuple_GET_ITEM(recent, i);
+        if (!PyTuple_Check(item) || PyTuple_GET_SIZE(item) != 3) return -1;
+        for (int j = 0; j < 3; j++) out[i][j] = PyFloat_AsDouble(PyTuple_GET_ITEM(item, j));
+    }
+    return PyErr_Occurred() ? -1 : count;
+}
+
+/* (*recent[-1:], (t, a, b)) */
+static PyObject *tc_pushed(PyObject *recent, int count, double t, double a, double b)
+{
+    PyObject *item = Py_BuildValue("(ddd)", t, a, b);
+    if (item == NULL) return NULL;
+    if (count == 0) return Py_BuildValue("(N)", item);
+    PyObject *out = PyTuple_Pack(2, PyTuple_GET_ITEM(recent, count - 1), item);
+    Py_DECREF(item);
+    return out;
+}
+
+static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
+{
+    PyObject *tr, *zo, *seo, *newest;
+    double t_s;
+    int has_split;
+    if (!PyArg_ParseTuple(args, "OdOOOp", &tr, &t_s, &zo, &seo, &newest, &has_split)) return NULL;
+    if (zo == Py_None || seo == Py_None) Py_RETURN_NONE;
+    const double z = PyFloat_AsDouble(zo), se = PyFloat_AsDouble(seo);
+    if (PyErr_Occurred()) return NULL;
+    if (!(isfinite(z) && se > 0 && isfinite(se))) Py_RETURN_NONE;
+    double d[TS_DOUBLES];
+    long n[TI_INTS];
+    for (int i = 0; i < TS_DOUBLES; i++) {
+        if (tc_double(tr, TS_DOUBLE_NAMES[i], &d[i]) < 0) return NULL;
+    }
+    for (int i = 0; i < TI_INTS; i++) {
+        PyObject *v = PyObject_GetAttrString(tr, TS_INT_NAMES[i]);
+        if (v == NULL) return NULL;
+        n[i] = PyLong_AsLong(v);
+        Py_DECREF(v);
+        if (n[i] == -1 && PyErr_Occurred()) return NULL;
+    }
+    int splitting = tc_truth(tr, "splitting"), trending = tc_truth(tr, "trending");
+    if (splitting < 0 || trending < 0) return NULL;
+    if (splitting || n[TI_CHANGE] != 0) Py_RETURN_NONE;
+    PyObject *all = PyObject_GetAttrString(tr, "_all");
+    if (all == NULL) return NULL;
+    PyObject *result = NULL, *hop_recent = NULL, *recent = NULL;
+    PyObject *new_hop_recent = NULL, *new_recent = NULL, *entry = NULL;
+    const Py_ssize_t count = PyTuple_Check(all) ? PyTuple_GET_SIZE(all) : 0;
+    double x[3][TC_FIELDS], steps[5];
+    if (count < 2 || count > 3) {
+        PyErr_SetString(PyExc_ValueError, "tracker_calm: the tracker's filters");
+        goto done;
+    }
+    /* started (the quiet filter's level is not NaN), as ParameterTracker.step reads it */
+    const double dt = t_s - d[TS_T];
+    const double t = t_s > d[TS_T] ? t_s : d[TS_T];
+    for (Py_ssize_t i = 0; i < count; i++) {
+        int got = tc_filter(PyTuple_GET_ITEM(all, i), dt, x[i], steps);
+        if (got < 0) goto done;
+        if (i == 0 && isnan(x[0][TC_X0])) goto declined;
+        if (!got) goto declined; /* an interval without its cached transition */
+        if (dt > 0) tc_predict(x[i], steps);
+    }
+    double *quiet = x[0], *trend = x[1], *fast = count == 3 ? x[2] : NULL;
+    const long calm_after = n[TI_CALM_AFTER];
+    const int calm = calm_after <= 0; /* no change mode, not splitting: checked above */
+    const double hop = d[TS_HOP], alpha = d[TS_ALPHA];
+    const double near = 1e-9 * tc_max(1.0, t);
+    long fast_scored = n[TI_FAST_SCORED], fast_hops = n[TI_FAST_HOPS];
+    double fast_cusum = d[TS_FAST_CUSUM], fast_scale2 = d[TS_FAST_SCALE2];
+    int fast_on = -1; /* -1: not stepped */
+    if (newest != Py_None && fast != NULL) {
+        /* _take_newest and _learn_hop_scale */
+        double k, var, centre;
+        if (tc_double(newest, "k", &k) < 0 || tc_double(newest, "var", &var) < 0 ||
+            tc_double(newest, "centre_s", &centre) < 0) {
+            goto done;
+        }
+        fast[TC_LAG] = centre;
+        const double hop_var = var * se * se;
+        double hr[2][3];
+        hop_recent = PyObject_GetAttrString(tr, "_hop_recent");
+        if (hop_recent == NULL) goto done;
+        int nr = tc_recent(hop_recent, hr);
+        if (nr < 0) goto declined;
+        if (nr && fabs((t - hr[nr - 1][0]) - hop) >= near) nr = 0;
+        if (nr == 2 && calm) {
+            const double d2 = k - 2.0 * hr[1][1] + hr[0][1];
+            const double u = d2 * d2 / (2.0 * (hr[0][2] + hr[1][2] + hop_var));
+            fast_scored += 1;
+            const double weight = tc_max(alpha, 1.0 / (double)fast_scored);
+            const double scale2 = fast_scale2;
+            fast_scale2 += weight * (tc_min(u, TC_SCALE_CAP * scale2) - scale2);
+        }
+        new_hop_recent = tc_pushed(hop_recent, nr, t, k, hop_var);
+        if (new_hop_recent == NULL) goto done;
+        const double r = fast_scale2 * var * se * se;
+        const double c = fast[TC_LAG];
+        const double s_f = fast[TC_P00] - 2.0 * c * fast[TC_P01] + c * c * fast[TC_P11] + r;
+        const double nu_f = k - (fast[TC_X0] - fast[TC_LAG] * fast[TC_X1]);
+        const double nis = nu_f * nu_f / s_f;
+        const double *slow = trending ? trend : quiet;
+        const double nu_s = k - (slow[TC_X0] - centre * slow[TC_X1]);
+        const double spread = -0.5 * log(s_f), half_df = 0.5 * (TC_FAST_DF + 1.0);
+        double llr = (spread - half_df * log1p(nis / TC_FAST_DF)) -
+                     (spread - half_df * log1p(nu_s * nu_s / s_f / TC_FAST_DF));
+        llr = tc_min(TC_FAST_LLR_CAP, tc_max(-TC_FAST_LLR_CAP, llr));
+        fast_cusum = tc_max(0.0, d[TS_FORGET] * fast_cusum + llr);
+        fast_hops = fast_cusum > d[TS_THRESHOLD] ? fast_hops + 1 : 0;
+        const int warm = fast_scored >= TC_FAST_WARM_UP * n[TI_END_HOPS];
+        fast_on = warm && fast_hops >= TC_FAST_CONFIRM_HOPS;
+        double nu, hph;
+        tc_update(fast, k, r + s_f * tc_max(0.0, nis - 1.0) / (TC_FAST_DF + 1.0), &nu, &hph);
+    }
+    /* _update: _learn_scale, the pre-gate, the gate, _select */
+    double scale2 = d[TS_SCALE2];
+    double rc[2][3];
+    recent = PyObject_GetAttrString(tr, "_recent");
+    if (recent == NULL) goto done;
+    int nrc = tc_recent(recent, rc);
+    if (nrc < 0) goto declined;
+    if (nrc == 2 && fabs((t - rc[1][0]) - hop) < near) {
+        if (calm) {
+            const double d2 = z - 2.0 * rc[1][1] + rc[0][1];
+            const double var = (rc[0][2] * rc[0][2] + rc[1][2] * rc[1][2] + se * se) / 3.0;
+            const double u = d[TS_OVERLAP] * d2 * d2 / (4.0 * var);
+            scale2 += alpha * (tc_min(u, TC_SCALE_CAP * scale2) - scale2);
+        }
+    } else if (nrc && fabs((t - rc[nrc - 1][0]) - hop) >= near) {
+        nrc = 0;
+    }
+    const double sigma2 = scale2 * se * se;
+    double se_ref = d[TS_SE_REF];
+    const double ref = sqrt(scale2) * se_ref;
+    const double departure = z - (trend[TC_X0] - trend[TC_LAG] * trend[TC_X1]);
+    const int worth = fabs(departure) > TC_PREGATE * ref || se > TC_SE_SWELL * se_ref;
+    if (has_split && worth) goto declined; /* the window's splits are read: the Python step */
+    const double level_before = trending ? trend[TC_X0] : quiet[TC_X0];
+    const double u = departure / sqrt(scale2 * pow(se_ref, 2.0));
+    if (fabs(u) > d[TS_GATE]) goto declined; /* an outlier or a change: the Python step */
+    se_ref += 5.0 * alpha * (se - se_ref);
+    const double common = d[TS_OVERLAP] * sigma2;
+    double nu_q, hph_q, nu_t, hph_t;
+    tc_update(quiet, z, sigma2, &nu_q, &hph_q);
+    tc_update(trend, z, sigma2, &nu_t, &hph_t);
+    const double s_q = hph_q + common, s_t = hph_t + common;
+    const double llr = 0.5 * (nu_q * nu_q / s_q - nu_t * nu_t / s_t) + 0.5 * log(s_q / s_t);
+    const double cusum = tc_max(0.0, d[TS_FORGET] * d[TS_CUSUM] + llr);
+    trending = cusum > d[TS_THRESHOLD];
+    if (trending) { /* quiet.reset(trend.x0, trend.p00) */
+        quiet[TC_X0] = trend[TC_X0];
+        quiet[TC_X1] = 0.0;
+        quiet[TC_P00] = trend[TC_P00];
+        quiet[TC_P01] = 0.0;
+        quiet[TC_P11] = quiet[TC_RATE_Q] * quiet[TC_RATE_Q] * quiet[TC_TAU] / 2.0;
+    }
+    new_recent = tc_pushed(recent, nrc, t, z, se);
+    entry = Py_BuildValue("(dd)", u, level_before);
+    if (new_recent == NULL || entry == NULL) goto done;
+    /* calm: write everything back */
+    PyObject *history = PyObject_GetAttrString(tr, "_history");
+    if (history == NULL) goto done;
+    PyObject *appended = PyObject_CallMethod(history, "append", "(O)", entry);
+    Py_DECREF(history);
+    if (appended == NULL) goto done;
+    Py_DECREF(appended);
+    for (Py_ssize_t i = 0; i < count; i++) {
+        PyObject *f = PyTuple_GET_ITEM(all, i);
+        for (int j = 0; j <= TC_LAG; j++) {
+            if (j == TC_LAG && i < 2) break; /* only the fast filter's lag moves */
+            if (tc_set_double(f, TC_FILTER_NAMES[j], x[i][j]) < 0) goto done;
+        }
+    }
+    if (tc_set_double(tr, "t_s", t) < 0 || tc_set_double(tr, "scale2", scale2) < 0 ||
+        tc_set_double(tr, "se_ref", se_ref) < 0 || tc_set_double(tr, "cusum", cusum) < 0 ||
+        tc_set_double(tr, "_outlier", 0.0) < 0 ||
+        tc_set_long(tr, "updates", n[TI_UPDATES] + 1) < 0 ||
+        tc_set_long(tr, "calm_after", calm_after - 1) < 0 ||
+        PyObject_SetAttrString(tr, "trending", trending ? Py_True : Py_False) < 0 ||
+        PyObject_SetAttrString(tr, "_recent", new_recent) < 0 ||
+        PyObject_SetAttrString(tr, "_candidate", Py_None) < 0) {
+        goto done;
+    }
+    if (fast_on >= 0) {
+        if (tc_set_double(tr, "fast_cusum", fast_cusum) < 0 ||
+            tc_set_double(tr, "fast_scale2", fast_scale2) < 0 ||
+            tc_set_long(tr, "fast_scored", fast_scored) < 0 ||
+            tc_set_long(tr, "_fast_hops", fast_hops) < 0 ||
+            PyObject_SetAttrString(tr, "fast_on", fast_on ? Py_True : Py_False) < 0 ||
+            PyObject_SetAttrString(tr, "_hop_recent", new_hop_recent) < 0) {
+            goto done;
+        }
+    } else {
+        int on = tc_truth(tr, "fast_on");
+        if (on < 0) goto done;
+        fast_on = on;
+    }
+    /* _published(True, False) */
+    const double *pub = fast_on && fast != NULL ? fast : (trending ? trend : quiet);
+    const char *mode = fast_on && fast != NULL ? "fast" : (trending ? "trend" : "quiet");
+    result = Py_BuildValue("(ddds)", pub[TC_X0], sqrt(tc_max(0.0, pub[TC_P00])), pub[TC_X1], mode);
+    goto done;
+declined:
+    if (!PyErr_Occurred()) {
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+done:
+    Py_DECREF(all);
+    Py_XDECREF(hop_recent);
+    Py_XDECREF(recent);
+    Py_XDECREF(new_hop_recent);
+    Py_XDECREF(new_recent);
+    Py_XDECREF(entry);
     return result;
 }
