@@ -3072,8 +3072,10 @@ static int tc_truth(PyObject *obj, const char *name)
     return truth;
 }
 
-/* A filter's fields, and its cached transition when it is for dt (0: another interval). */
-static int tc_filter(PyObject *f, double dt, double *x, double *steps)
+/* A filter's fields, and its cached transition for dt: 1 the last interval's, 2 another
+ * interval seen before (*seen: its transition, a new reference, for the filter's _last), 0
+ * none cached (the Python step computes it). */
+static int tc_filter(PyObject *f, double dt, double *x, double *steps, PyObject **seen)
 {
     for (int i = 0; i < TC_FIELDS; i++) {
         if (tc_double(f, TC_FILTER_NAMES[i], &x[i]) < 0) return -1;
@@ -3082,13 +3084,28 @@ static int tc_filter(PyObject *f, double dt, double *x, double *steps)
     PyObject *last = PyObject_GetAttrString(f, "_last");
     if (last == NULL) return -1;
     int ok = 0;
-    if (PyTuple_Check(last) && PyTuple_GET_SIZE(last) == 2) {
-        double last_dt = PyFloat_AsDouble(PyTuple_GET_ITEM(last, 0));
-        PyObject *cached = PyTuple_GET_ITEM(last, 1);
-        if (last_dt == dt && PyTuple_Check(cached) && PyTuple_GET_SIZE(cached) == 5) {
-            ok = 1;
-            for (int i = 0; i < 5; i++) steps[i] = PyFloat_AsDouble(PyTuple_GET_ITEM(cached, i));
+    PyObject *cached = NULL;
+    if (PyTuple_Check(last) && PyTuple_GET_SIZE(last) == 2 &&
+        PyFloat_AsDouble(PyTuple_GET_ITEM(last, 0)) == dt) {
+        ok = 1;
+        cached = PyTuple_GET_ITEM(last, 1);
+    } else if (!PyErr_Occurred()) { /* the intervals seen: _by_dt */
+        PyObject *by_dt = PyObject_GetAttrString(f, "_by_dt"), *key = PyFloat_FromDouble(dt);
+        if (by_dt != NULL && key != NULL && PyDict_Check(by_dt)) {
+            cached = PyDict_GetItemWithError(by_dt, key);
+            if (cached != NULL) {
+                ok = 2;
+                Py_INCREF(cached);
+                *seen = cached;
+            }
         }
+        Py_XDECREF(by_dt);
+        Py_XDECREF(key);
+    }
+    if (ok && PyTuple_Check(cached) && PyTuple_GET_SIZE(cached) == 5) {
+        for (int i = 0; i < 5; i++) steps[i] = PyFloat_AsDouble(PyTuple_GET_ITEM(cached, i));
+    } else {
+        ok = 0;
     }
     Py_DECREF(last);
     return PyErr_Occurred() ? -1 : ok;
@@ -3182,6 +3199,7 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
     PyObject *new_hop_recent = NULL, *new_recent = NULL, *entry = NULL;
     const Py_ssize_t count = PyTuple_Check(all) ? PyTuple_GET_SIZE(all) : 0;
     double x[3][TC_FIELDS], steps[5];
+    PyObject *seen[3] = {NULL, NULL, NULL}; /* transitions found in _by_dt, for _last */
     if (count < 2 || count > 3) {
         PyErr_SetString(PyExc_ValueError, "tracker_calm: the tracker's filters");
         goto done;
@@ -3190,7 +3208,7 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
     const double dt = t_s - d[TS_T];
     const double t = t_s > d[TS_T] ? t_s : d[TS_T];
     for (Py_ssize_t i = 0; i < count; i++) {
-        int got = tc_filter(PyTuple_GET_ITEM(all, i), dt, x[i], steps);
+        int got = tc_filter(PyTuple_GET_ITEM(all, i), dt, x[i], steps, &seen[i]);
         if (got < 0) goto done;
         if (i == 0 && isnan(x[0][TC_X0])) goto declined;
         if (!got) goto declined; /* an interval without its cached transition */
@@ -3305,6 +3323,14 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
             if (j == TC_LAG && i < 2) break; /* only the fast filter's lag moves */
             if (tc_set_double(f, TC_FILTER_NAMES[j], x[i][j]) < 0) goto done;
         }
+        if (seen[i] != NULL) { /* predict() remembers the interval: _last = (dt, cached) */
+            PyObject *last = Py_BuildValue("(dO)", dt, seen[i]);
+            if (last == NULL || PyObject_SetAttrString(f, "_last", last) < 0) {
+                Py_XDECREF(last);
+                goto done;
+            }
+            Py_DECREF(last);
+        }
     }
     if (tc_set_double(tr, "t_s", t) < 0 || tc_set_double(tr, "scale2", scale2) < 0 ||
         tc_set_double(tr, "se_ref", se_ref) < 0 || tc_set_double(tr, "cusum", cusum) < 0 ||
@@ -3341,6 +3367,7 @@ declined:
         result = Py_None;
     }
 done:
+    for (int i = 0; i < 3; i++) Py_XDECREF(seen[i]);
     Py_DECREF(all);
     Py_XDECREF(hop_recent);
     Py_XDECREF(recent);
