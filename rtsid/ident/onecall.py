@@ -141,7 +141,11 @@ class WindowCall:
             self.out,
         )
         consts = [0.0] * _CONSTS
-        consts[0], consts[1], consts[2] = factor, options.torque_sign, _DETREND_CODES[options.detrend]
+        consts[0], consts[1], consts[2] = (
+            factor,
+            options.torque_sign,
+            _DETREND_CODES[options.detrend],
+        )
         consts[3], consts[4], consts[5], consts[6] = lag, options.refine, options.ridge, fs_a
         consts[7], consts[8] = options.min_excitation_rad, options.min_relative_excitation
         consts[9], consts[10] = float(options.uncertainty), noise_lags(model_irf, plan)

@@ -386,9 +386,7 @@ class WindowStream:
             B_held=held_flags[1],
         )
         whole = out[_WHOLE + 3]
-        self.held.learn(
-            out[_WHOLE], out[_WHOLE + 1], round(whole, 12) >= options.low_vaf_percent
-        )
+        self.held.learn(out[_WHOLE], out[_WHOLE + 1], round(whole, 12) >= options.low_vaf_percent)
         z = _NEWEST
         newest = None if out[z] != out[z] else (out[z], out[z + 1], out[z + 2])
         design = self._design

@@ -56,9 +56,7 @@ def _results(theta, tau, valid, options, *, compiled: bool, monkeypatch):
 
 
 @pytest.mark.parametrize("hold", ["inertia", "inertia_damping"])
-def test_the_streams_windows_in_one_call_are_the_step_by_step_ones_bit_for_bit(
-    hold, monkeypatch
-):
+def test_the_streams_windows_in_one_call_are_the_step_by_step_ones_bit_for_bit(hold, monkeypatch):
     theta, tau, valid = _hostile_recording(12.0, 5)
     options = EstimatorOptions(hold=hold)
     got, got_stream = _results(theta, tau, valid, options, compiled=True, monkeypatch=monkeypatch)
@@ -82,9 +80,7 @@ def test_the_streams_windows_in_one_call_are_the_step_by_step_ones_bit_for_bit(
     assert got_stream.held.current() == want_stream.held.current()
     assert got_stream.excitation.median() == want_stream.excitation.median()
     for which in ("stiffness", "damping"):
-        _assert_same_state(
-            getattr(got_stream.tracker, which), getattr(want_stream.tracker, which)
-        )
+        _assert_same_state(getattr(got_stream.tracker, which), getattr(want_stream.tracker, which))
 
 
 def test_a_declined_window_leaves_the_stream_as_the_step_by_step_path_does():
@@ -153,9 +149,7 @@ def test_the_compiled_calm_step_is_the_trackers_python_step(fast, monkeypatch):
     options = TrackerOptions(stiffness_acceleration_noise=1000.0 if fast else 0.0)
 
     def run() -> tuple[list, ParameterTracker]:
-        p = ParameterTracker(
-            0.3, 0.02, 0.3, 100.0, options, options.stiffness_acceleration_noise
-        )
+        p = ParameterTracker(0.3, 0.02, 0.3, 100.0, options, options.stiffness_acceleration_noise)
         return [p.step(t, z, se, None, newest) for t, z, se, newest in _steps(7)], p
 
     got, got_tracker = run()
