@@ -1725,7 +1725,7 @@ static PyMethodDef methods[] = {
     {"savgol_pair", py_savgol_pair, METH_VARARGS, "savgol_pair(x, taps1, taps2, d1, d2): ndimage.convolve1d(x, taps, mode='constant') of two filters."},
     {"ankle_frames", py_ankle_frames, METH_VARARGS, "ankle_frames(data, ident, position_scale, torque_scale, counter, position, torque, status, bus_time) -> n (< 0: not the common case): socketcand state frames of the built-in protocol."},
     {"onecall_window", py_onecall_window, METH_VARARGS, "onecall_window(position, torque, explained, h, arrays, consts, state) -> status (0: done, else declined): a stream's window from its checks to its back end (section onecall)."},
-    {"tracker_calm", py_tracker_calm, METH_VARARGS, "tracker_calm(tracker, t_s, z, se, newest, has_split) -> (value, se, rate, mode) or None: ParameterTracker.step of a calm window (section onecall)."},
+    {"tracker_calm", py_tracker_calm, METH_VARARGS, "tracker_calm(tracker, t_s, z, se, newest, split) -> (value, se, rate, mode, updated) or None: ParameterTracker.step of a calm window (section onecall)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -3011,10 +3011,12 @@ static PyObject *py_onecall_window(PyObject *self, PyObject *args)
     return result;
 }
 
-/* tracker_calm(tracker, t_s, z, se, newest, has_split) -> (value, se, rate, mode) or None:
+/* tracker_calm(tracker, t_s, z, se, newest, split) -> (value, se, rate, mode, updated) or None:
  * rtsid.ident.tracker.ParameterTracker.step for a calm window, the one most windows are: the
- * tracker started, the estimate usable, no change mode, the interval the filters' cached
- * transition's, the window not worth a split scan and within change_gate. Everything is
+ * tracker started, no change mode, the interval one the filters' cached
+ * transitions know, no significant split in the window's scan (split() is called when the
+ * window departs, as the Python step does) and the window within change_gate; or a window
+ * without a usable estimate (the prediction only). Everything is
  * computed on copies and written back to the tracker's attributes only when the window is
  * calm; None leaves the tracker untouched (the caller runs the Python step, the reference).
  * The same operations in the same order as the Python step, so the same doubles. */
@@ -3023,11 +3025,11 @@ static const char *const TC_FILTER_NAMES[TC_FIELDS] = {"x0", "x1", "p00", "p01",
                                                          "lag", "overlap", "rate_q", "tau"};
 enum {
     TS_T, TS_HOP, TS_ALPHA, TS_SCALE2, TS_SE_REF, TS_CUSUM, TS_FORGET, TS_THRESHOLD, TS_GATE,
-    TS_OVERLAP, TS_FAST_CUSUM, TS_FAST_SCALE2, TS_DOUBLES,
+    TS_OVERLAP, TS_FAST_CUSUM, TS_FAST_SCALE2, TS_SPLIT_GATE, TS_DOUBLES,
 };
 static const char *const TS_DOUBLE_NAMES[TS_DOUBLES] = {
     "t_s", "hop_s", "alpha", "scale2", "se_ref", "cusum", "forget", "switch_threshold", "gate",
-    "overlap", "fast_cusum", "fast_scale2"};
+    "overlap", "fast_cusum", "fast_scale2", "split_gate"};
 enum { TI_CHANGE, TI_CALM_AFTER, TI_UPDATES, TI_FAST_SCORED, TI_FAST_HOPS, TI_END_HOPS, TI_INTS };
 static const char *const TS_INT_NAMES[TI_INTS] = {"change_hops", "calm_after", "updates",
                                                    "fast_scored", "_fast_hops", "end_hops"};
@@ -3168,16 +3170,86 @@ static PyObject *tc_pushed(PyObject *recent, int count, double t, double a, doub
     return out;
 }
 
+static PyObject *empty_tuple(void)
+{
+    static PyObject *empty = NULL;
+    if (empty == NULL) empty = PyTuple_New(0);
+    return empty;
+}
+
+/* Write the filters' values back (and the fast filter's lag when it took the newest hop),
+ * with predict()'s memory of the interval (_last) where it was found in _by_dt. */
+static int tc_write_filters(PyObject *all, Py_ssize_t count, double (*x)[TC_FIELDS],
+                            PyObject **seen, double dt, int fast_lag)
+{
+    for (Py_ssize_t i = 0; i < count; i++) {
+        PyObject *f = PyTuple_GET_ITEM(all, i);
+        const int fields = i == 2 && fast_lag ? TC_LAG + 1 : TC_LAG;
+        for (int j = 0; j < fields; j++) {
+            if (tc_set_double(f, TC_FILTER_NAMES[j], x[i][j]) < 0) return -1;
+        }
+        if (seen[i] != NULL) { /* predict() remembers the interval: _last = (dt, cached) */
+            PyObject *last = Py_BuildValue("(dO)", dt, seen[i]);
+            if (last == NULL || PyObject_SetAttrString(f, "_last", last) < 0) {
+                Py_XDECREF(last);
+                return -1;
+            }
+            Py_DECREF(last);
+        }
+    }
+    return 0;
+}
+
+/* _published(updated, False): (value, se, rate, mode, updated) of the published filter */
+static PyObject *tc_published(PyObject *tr, const double *quiet, const double *trend,
+                              const double *fast, int trending, int updated)
+{
+    int fast_on = tc_truth(tr, "fast_on");
+    if (fast_on < 0) return NULL;
+    const int use_fast = fast_on && fast != NULL;
+    const double *pub = use_fast ? fast : (trending ? trend : quiet);
+    const char *mode = use_fast ? "fast" : (trending ? "trend" : "quiet");
+    return Py_BuildValue("(dddsO)", pub[TC_X0], sqrt(tc_max(0.0, pub[TC_P00])), pub[TC_X1],
+                         mode, updated ? Py_True : Py_False);
+}
+
+/* The window's split scan (split(): a SplitScan or None) has no split beyond split_gate
+ * calm standard errors (ref), as ParameterTracker._split_update reads it outside a change
+ * mode: 1 none (the window stays calm), 0 one (the Python step reads it), -1 an error. */
+static int tc_no_split(PyObject *split, double ref, double split_gate)
+{
+    PyObject *scan = PyObject_CallNoArgs(split);
+    if (scan == NULL) return -1;
+    if (scan == Py_None) {
+        Py_DECREF(scan);
+        return 1;
+    }
+    int quiet = -1;
+    PyObject *row = PyObject_CallMethod(scan, "best", NULL);
+    if (row == Py_None) {
+        quiet = 1;
+    } else if (row != NULL) {
+        PyObject *ratios = PyObject_GetAttrString(scan, "z_ratio");
+        PyObject *ratio = ratios != NULL ? PyObject_GetItem(ratios, row) : NULL;
+        double z = ratio != NULL ? PyFloat_AsDouble(ratio) : -1.0;
+        if (ratio != NULL && !(z == -1.0 && PyErr_Occurred())) quiet = fabs(z) <= split_gate * ref;
+        Py_XDECREF(ratio);
+        Py_XDECREF(ratios);
+    }
+    Py_XDECREF(row);
+    Py_DECREF(scan);
+    return quiet;
+}
+
 static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
 {
-    PyObject *tr, *zo, *seo, *newest;
+    PyObject *tr, *zo, *seo, *newest, *split;
     double t_s;
-    int has_split;
-    if (!PyArg_ParseTuple(args, "OdOOOp", &tr, &t_s, &zo, &seo, &newest, &has_split)) return NULL;
-    if (zo == Py_None || seo == Py_None) Py_RETURN_NONE;
-    const double z = PyFloat_AsDouble(zo), se = PyFloat_AsDouble(seo);
+    if (!PyArg_ParseTuple(args, "OdOOOO", &tr, &t_s, &zo, &seo, &newest, &split)) return NULL;
+    const int given = zo != Py_None && seo != Py_None;
+    const double z = given ? PyFloat_AsDouble(zo) : NAN, se = given ? PyFloat_AsDouble(seo) : NAN;
     if (PyErr_Occurred()) return NULL;
-    if (!(isfinite(z) && se > 0 && isfinite(se))) Py_RETURN_NONE;
+    const int usable = given && isfinite(z) && se > 0 && isfinite(se);
     double d[TS_DOUBLES];
     long n[TI_INTS];
     for (int i = 0; i < TS_DOUBLES; i++) {
@@ -3215,6 +3287,15 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
         if (dt > 0) tc_predict(x[i], steps);
     }
     double *quiet = x[0], *trend = x[1], *fast = count == 3 ? x[2] : NULL;
+    if (!usable) { /* prediction only: _withheld outside a change mode */
+        if (tc_write_filters(all, count, x, seen, dt, 0) < 0 || tc_set_double(tr, "t_s", t) < 0 ||
+            PyObject_SetAttrString(tr, "_recent", empty_tuple()) < 0 ||
+            PyObject_SetAttrString(tr, "_candidate", Py_None) < 0) {
+            goto done;
+        }
+        result = tc_published(tr, quiet, trend, fast, trending, 0);
+        goto done;
+    }
     const long calm_after = n[TI_CALM_AFTER];
     const int calm = calm_after <= 0; /* no change mode, not splitting: checked above */
     const double hop = d[TS_HOP], alpha = d[TS_ALPHA];
@@ -3287,7 +3368,11 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
     const double ref = sqrt(scale2) * se_ref;
     const double departure = z - (trend[TC_X0] - trend[TC_LAG] * trend[TC_X1]);
     const int worth = fabs(departure) > TC_PREGATE * ref || se > TC_SE_SWELL * se_ref;
-    if (has_split && worth) goto declined; /* the window's splits are read: the Python step */
+    if (split != Py_None && worth) { /* the window's splits are read */
+        int quiet_scan = tc_no_split(split, sqrt(scale2) * se_ref, d[TS_SPLIT_GATE]);
+        if (quiet_scan < 0) goto done;
+        if (!quiet_scan) goto declined; /* a significant split: the Python step reads it */
+    }
     const double level_before = trending ? trend[TC_X0] : quiet[TC_X0];
     const double u = departure / sqrt(scale2 * pow(se_ref, 2.0));
     if (fabs(u) > d[TS_GATE]) goto declined; /* an outlier or a change: the Python step */
@@ -3317,21 +3402,7 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
     Py_DECREF(history);
     if (appended == NULL) goto done;
     Py_DECREF(appended);
-    for (Py_ssize_t i = 0; i < count; i++) {
-        PyObject *f = PyTuple_GET_ITEM(all, i);
-        for (int j = 0; j <= TC_LAG; j++) {
-            if (j == TC_LAG && i < 2) break; /* only the fast filter's lag moves */
-            if (tc_set_double(f, TC_FILTER_NAMES[j], x[i][j]) < 0) goto done;
-        }
-        if (seen[i] != NULL) { /* predict() remembers the interval: _last = (dt, cached) */
-            PyObject *last = Py_BuildValue("(dO)", dt, seen[i]);
-            if (last == NULL || PyObject_SetAttrString(f, "_last", last) < 0) {
-                Py_XDECREF(last);
-                goto done;
-            }
-            Py_DECREF(last);
-        }
-    }
+    if (tc_write_filters(all, count, x, seen, dt, fast_on >= 0) < 0) goto done;
     if (tc_set_double(tr, "t_s", t) < 0 || tc_set_double(tr, "scale2", scale2) < 0 ||
         tc_set_double(tr, "se_ref", se_ref) < 0 || tc_set_double(tr, "cusum", cusum) < 0 ||
         tc_set_double(tr, "_outlier", 0.0) < 0 ||
@@ -3351,15 +3422,8 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
             PyObject_SetAttrString(tr, "_hop_recent", new_hop_recent) < 0) {
             goto done;
         }
-    } else {
-        int on = tc_truth(tr, "fast_on");
-        if (on < 0) goto done;
-        fast_on = on;
     }
-    /* _published(True, False) */
-    const double *pub = fast_on && fast != NULL ? fast : (trending ? trend : quiet);
-    const char *mode = fast_on && fast != NULL ? "fast" : (trending ? "trend" : "quiet");
-    result = Py_BuildValue("(ddds)", pub[TC_X0], sqrt(tc_max(0.0, pub[TC_P00])), pub[TC_X1], mode);
+    result = tc_published(tr, quiet, trend, fast, trending, 1);
     goto done;
 declined:
     if (!PyErr_Occurred()) {

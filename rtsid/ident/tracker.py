@@ -498,15 +498,15 @@ class ParameterTracker:
         hop's K, the fast filter's measurement.
         """
         if _eureka is not None:  # a calm window in one compiled call (None: not calm)
-            calm = _eureka.tracker_calm(self, t_s, z, se, newest, split is not None)
+            calm = _eureka.tracker_calm(self, t_s, z, se, newest, split)
             if calm is not None:
-                value, se_now, rate, mode = calm
+                value, se_now, rate, mode, updated = calm
                 return built(
                     TrackEstimate,
                     value=value,
                     se=se_now,
                     rate=rate,
-                    updated=True,
+                    updated=updated,
                     change=False,
                     mode=mode,
                 )

@@ -9,7 +9,7 @@ import pytest
 from rtsid.errors import WindowError
 from rtsid.ident import onecall, stream, tracker
 from rtsid.ident.excitation import filtered_noise
-from rtsid.ident.split import NewestPart
+from rtsid.ident.split import NewestPart, SplitScan
 from rtsid.ident.stream import WindowStream, sliding_estimates
 from rtsid.ident.tracker import ParameterTracker, TrackerOptions
 from rtsid.ident.window import EstimatorOptions
@@ -140,8 +140,25 @@ def _steps(seed: int):
         elif k % 47 == 3:
             se = 0.0
         newest = NewestPart(level + rng.normal(0.0, 6.0), abs(rng.normal(8.0, 1.0)), 0.01)
-        out.append((t, z, se, newest if k % 5 else None))
+        out.append((t, z, se, newest if k % 5 else None, _split_of(rng, k, level)))
     return out
+
+
+def _split_of(rng, k: int, level: float):
+    """The window's splits, as the stream hands them to the tracker: none (no samples), a
+    scan finding nothing, nothing significant or a step (one in four scans)."""
+    if k % 7 == 0:
+        return None
+    if k % 7 == 1:
+        return lambda: None
+    n = 40
+    z_ratio = rng.normal(0.0, 1.0, n)
+    k_after = level + rng.normal(0.0, 3.0, n)
+    if k % 4 == 0:
+        z_ratio[25], k_after[25:] = 400.0, level + 90.0  # a step at row 25
+    offsets = np.linspace(0.29, 0.0, n)
+    scan = SplitScan(offsets, k_after, np.full(n, level), z_ratio, np.full(n, 2.0), offsets > 0)
+    return lambda: scan
 
 
 @pytest.mark.parametrize("fast", [True, False])
@@ -150,7 +167,8 @@ def test_the_compiled_calm_step_is_the_trackers_python_step(fast, monkeypatch):
 
     def run() -> tuple[list, ParameterTracker]:
         p = ParameterTracker(0.3, 0.02, 0.3, 100.0, options, options.stiffness_acceleration_noise)
-        return [p.step(t, z, se, None, newest) for t, z, se, newest in _steps(7)], p
+        steps = _steps(7)
+        return [p.step(t, z, se, split, newest) for t, z, se, newest, split in steps], p
 
     got, got_tracker = run()
     monkeypatch.setattr(tracker, "_eureka", None)
