@@ -3038,36 +3038,67 @@ static const double TC_SCALE_CAP = 9.0, TC_PREGATE = 2.0, TC_SE_SWELL = 1.25;
 static const double TC_FAST_LLR_CAP = 2.0, TC_FAST_DF = 4.0;
 static const long TC_FAST_CONFIRM_HOPS = 2, TC_FAST_WARM_UP = 2;
 
-static int tc_double(PyObject *obj, const char *name, double *out)
+/* The attribute names, interned once (a read by a C string would make and hash a new string
+ * each time). */
+enum {
+    TN_SPLITTING, TN_TRENDING, TN_ALL, TN_LAST, TN_BY_DT, TN_HOP_RECENT, TN_RECENT, TN_HISTORY,
+    TN_FAST_ON, TN_CANDIDATE, TN_OUTLIER, TN_K, TN_VAR, TN_CENTRE, TN_Z_RATIO, TN_BEST,
+    TN_APPEND, TN_COUNT,
+};
+static const char *const TN_NAMES[TN_COUNT] = {
+    "splitting", "trending", "_all", "_last", "_by_dt", "_hop_recent", "_recent", "_history",
+    "fast_on", "_candidate", "_outlier", "k", "var", "centre_s", "z_ratio", "best", "append"};
+static PyObject *tn[TN_COUNT], *tn_filter[TC_FIELDS], *tn_double[TS_DOUBLES], *tn_int[TI_INTS];
+
+static int tc_intern(PyObject **out, const char *const *names, int count)
 {
-    PyObject *v = PyObject_GetAttrString(obj, name);
+    for (int i = 0; i < count; i++) {
+        if (out[i] == NULL && (out[i] = PyUnicode_InternFromString(names[i])) == NULL) return -1;
+    }
+    return 0;
+}
+
+static int tc_names(void)
+{
+    if (tn[TN_COUNT - 1] != NULL && tn_int[TI_INTS - 1] != NULL) return 0;
+    if (tc_intern(tn_filter, TC_FILTER_NAMES, TC_FIELDS) < 0 ||
+        tc_intern(tn_double, TS_DOUBLE_NAMES, TS_DOUBLES) < 0 ||
+        tc_intern(tn_int, TS_INT_NAMES, TI_INTS) < 0 || tc_intern(tn, TN_NAMES, TN_COUNT) < 0) {
+        return -1;
+    }
+    return 0;
+}
+
+static int tc_double(PyObject *obj, PyObject *name, double *out)
+{
+    PyObject *v = PyObject_GetAttr(obj, name);
     if (v == NULL) return -1;
     *out = PyFloat_AsDouble(v);
     Py_DECREF(v);
     return *out == -1.0 && PyErr_Occurred() ? -1 : 0;
 }
 
-static int tc_set_double(PyObject *obj, const char *name, double value)
+static int tc_set_double(PyObject *obj, PyObject *name, double value)
 {
     PyObject *v = PyFloat_FromDouble(value);
     if (v == NULL) return -1;
-    int status = PyObject_SetAttrString(obj, name, v);
+    int status = PyObject_SetAttr(obj, name, v);
     Py_DECREF(v);
     return status;
 }
 
-static int tc_set_long(PyObject *obj, const char *name, long value)
+static int tc_set_long(PyObject *obj, PyObject *name, long value)
 {
     PyObject *v = PyLong_FromLong(value);
     if (v == NULL) return -1;
-    int status = PyObject_SetAttrString(obj, name, v);
+    int status = PyObject_SetAttr(obj, name, v);
     Py_DECREF(v);
     return status;
 }
 
-static int tc_truth(PyObject *obj, const char *name)
+static int tc_truth(PyObject *obj, PyObject *name)
 {
-    PyObject *v = PyObject_GetAttrString(obj, name);
+    PyObject *v = PyObject_GetAttr(obj, name);
     if (v == NULL) return -1;
     int truth = PyObject_IsTrue(v);
     Py_DECREF(v);
@@ -3080,10 +3111,10 @@ static int tc_truth(PyObject *obj, const char *name)
 static int tc_filter(PyObject *f, double dt, double *x, double *steps, PyObject **seen)
 {
     for (int i = 0; i < TC_FIELDS; i++) {
-        if (tc_double(f, TC_FILTER_NAMES[i], &x[i]) < 0) return -1;
+        if (tc_double(f, tn_filter[i], &x[i]) < 0) return -1;
     }
     if (!(dt > 0)) return 1; /* predict() does nothing */
-    PyObject *last = PyObject_GetAttrString(f, "_last");
+    PyObject *last = PyObject_GetAttr(f, tn[TN_LAST]);
     if (last == NULL) return -1;
     int ok = 0;
     PyObject *cached = NULL;
@@ -3092,7 +3123,7 @@ static int tc_filter(PyObject *f, double dt, double *x, double *steps, PyObject 
         ok = 1;
         cached = PyTuple_GET_ITEM(last, 1);
     } else if (!PyErr_Occurred()) { /* the intervals seen: _by_dt */
-        PyObject *by_dt = PyObject_GetAttrString(f, "_by_dt"), *key = PyFloat_FromDouble(dt);
+        PyObject *by_dt = PyObject_GetAttr(f, tn[TN_BY_DT]), *key = PyFloat_FromDouble(dt);
         if (by_dt != NULL && key != NULL && PyDict_Check(by_dt)) {
             cached = PyDict_GetItemWithError(by_dt, key);
             if (cached != NULL) {
@@ -3186,11 +3217,11 @@ static int tc_write_filters(PyObject *all, Py_ssize_t count, double (*x)[TC_FIEL
         PyObject *f = PyTuple_GET_ITEM(all, i);
         const int fields = i == 2 && fast_lag ? TC_LAG + 1 : TC_LAG;
         for (int j = 0; j < fields; j++) {
-            if (tc_set_double(f, TC_FILTER_NAMES[j], x[i][j]) < 0) return -1;
+            if (tc_set_double(f, tn_filter[j], x[i][j]) < 0) return -1;
         }
         if (seen[i] != NULL) { /* predict() remembers the interval: _last = (dt, cached) */
             PyObject *last = Py_BuildValue("(dO)", dt, seen[i]);
-            if (last == NULL || PyObject_SetAttrString(f, "_last", last) < 0) {
+            if (last == NULL || PyObject_SetAttr(f, tn[TN_LAST], last) < 0) {
                 Py_XDECREF(last);
                 return -1;
             }
@@ -3204,7 +3235,7 @@ static int tc_write_filters(PyObject *all, Py_ssize_t count, double (*x)[TC_FIEL
 static PyObject *tc_published(PyObject *tr, const double *quiet, const double *trend,
                               const double *fast, int trending, int updated)
 {
-    int fast_on = tc_truth(tr, "fast_on");
+    int fast_on = tc_truth(tr, tn[TN_FAST_ON]);
     if (fast_on < 0) return NULL;
     const int use_fast = fast_on && fast != NULL;
     const double *pub = use_fast ? fast : (trending ? trend : quiet);
@@ -3225,11 +3256,11 @@ static int tc_no_split(PyObject *split, double ref, double split_gate)
         return 1;
     }
     int quiet = -1;
-    PyObject *row = PyObject_CallMethod(scan, "best", NULL);
+    PyObject *row = PyObject_CallMethodNoArgs(scan, tn[TN_BEST]);
     if (row == Py_None) {
         quiet = 1;
     } else if (row != NULL) {
-        PyObject *ratios = PyObject_GetAttrString(scan, "z_ratio");
+        PyObject *ratios = PyObject_GetAttr(scan, tn[TN_Z_RATIO]);
         PyObject *ratio = ratios != NULL ? PyObject_GetItem(ratios, row) : NULL;
         double z = ratio != NULL ? PyFloat_AsDouble(ratio) : -1.0;
         if (ratio != NULL && !(z == -1.0 && PyErr_Occurred())) quiet = fabs(z) <= split_gate * ref;
@@ -3246,6 +3277,7 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
     PyObject *tr, *zo, *seo, *newest, *split;
     double t_s;
     if (!PyArg_ParseTuple(args, "OdOOOO", &tr, &t_s, &zo, &seo, &newest, &split)) return NULL;
+    if (tc_names() < 0) return NULL;
     const int given = zo != Py_None && seo != Py_None;
     const double z = given ? PyFloat_AsDouble(zo) : NAN, se = given ? PyFloat_AsDouble(seo) : NAN;
     if (PyErr_Occurred()) return NULL;
@@ -3253,19 +3285,19 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
     double d[TS_DOUBLES];
     long n[TI_INTS];
     for (int i = 0; i < TS_DOUBLES; i++) {
-        if (tc_double(tr, TS_DOUBLE_NAMES[i], &d[i]) < 0) return NULL;
+        if (tc_double(tr, tn_double[i], &d[i]) < 0) return NULL;
     }
     for (int i = 0; i < TI_INTS; i++) {
-        PyObject *v = PyObject_GetAttrString(tr, TS_INT_NAMES[i]);
+        PyObject *v = PyObject_GetAttr(tr, tn_int[i]);
         if (v == NULL) return NULL;
         n[i] = PyLong_AsLong(v);
         Py_DECREF(v);
         if (n[i] == -1 && PyErr_Occurred()) return NULL;
     }
-    int splitting = tc_truth(tr, "splitting"), trending = tc_truth(tr, "trending");
+    int splitting = tc_truth(tr, tn[TN_SPLITTING]), trending = tc_truth(tr, tn[TN_TRENDING]);
     if (splitting < 0 || trending < 0) return NULL;
     if (splitting || n[TI_CHANGE] != 0) Py_RETURN_NONE;
-    PyObject *all = PyObject_GetAttrString(tr, "_all");
+    PyObject *all = PyObject_GetAttr(tr, tn[TN_ALL]);
     if (all == NULL) return NULL;
     PyObject *result = NULL, *hop_recent = NULL, *recent = NULL;
     PyObject *new_hop_recent = NULL, *new_recent = NULL, *entry = NULL;
@@ -3288,9 +3320,9 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
     }
     double *quiet = x[0], *trend = x[1], *fast = count == 3 ? x[2] : NULL;
     if (!usable) { /* prediction only: _withheld outside a change mode */
-        if (tc_write_filters(all, count, x, seen, dt, 0) < 0 || tc_set_double(tr, "t_s", t) < 0 ||
-            PyObject_SetAttrString(tr, "_recent", empty_tuple()) < 0 ||
-            PyObject_SetAttrString(tr, "_candidate", Py_None) < 0) {
+        if (tc_write_filters(all, count, x, seen, dt, 0) < 0 || tc_set_double(tr, tn_double[TS_T], t) < 0 ||
+            PyObject_SetAttr(tr, tn[TN_RECENT], empty_tuple()) < 0 ||
+            PyObject_SetAttr(tr, tn[TN_CANDIDATE], Py_None) < 0) {
             goto done;
         }
         result = tc_published(tr, quiet, trend, fast, trending, 0);
@@ -3306,14 +3338,14 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
     if (newest != Py_None && fast != NULL) {
         /* _take_newest and _learn_hop_scale */
         double k, var, centre;
-        if (tc_double(newest, "k", &k) < 0 || tc_double(newest, "var", &var) < 0 ||
-            tc_double(newest, "centre_s", &centre) < 0) {
+        if (tc_double(newest, tn[TN_K], &k) < 0 || tc_double(newest, tn[TN_VAR], &var) < 0 ||
+            tc_double(newest, tn[TN_CENTRE], &centre) < 0) {
             goto done;
         }
         fast[TC_LAG] = centre;
         const double hop_var = var * se * se;
         double hr[2][3];
-        hop_recent = PyObject_GetAttrString(tr, "_hop_recent");
+        hop_recent = PyObject_GetAttr(tr, tn[TN_HOP_RECENT]);
         if (hop_recent == NULL) goto done;
         int nr = tc_recent(hop_recent, hr);
         if (nr < 0) goto declined;
@@ -3349,7 +3381,7 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
     /* _update: _learn_scale, the pre-gate, the gate, _select */
     double scale2 = d[TS_SCALE2];
     double rc[2][3];
-    recent = PyObject_GetAttrString(tr, "_recent");
+    recent = PyObject_GetAttr(tr, tn[TN_RECENT]);
     if (recent == NULL) goto done;
     int nrc = tc_recent(recent, rc);
     if (nrc < 0) goto declined;
@@ -3396,30 +3428,30 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
     entry = Py_BuildValue("(dd)", u, level_before);
     if (new_recent == NULL || entry == NULL) goto done;
     /* calm: write everything back */
-    PyObject *history = PyObject_GetAttrString(tr, "_history");
+    PyObject *history = PyObject_GetAttr(tr, tn[TN_HISTORY]);
     if (history == NULL) goto done;
-    PyObject *appended = PyObject_CallMethod(history, "append", "(O)", entry);
+    PyObject *appended = PyObject_CallMethodOneArg(history, tn[TN_APPEND], entry);
     Py_DECREF(history);
     if (appended == NULL) goto done;
     Py_DECREF(appended);
     if (tc_write_filters(all, count, x, seen, dt, fast_on >= 0) < 0) goto done;
-    if (tc_set_double(tr, "t_s", t) < 0 || tc_set_double(tr, "scale2", scale2) < 0 ||
-        tc_set_double(tr, "se_ref", se_ref) < 0 || tc_set_double(tr, "cusum", cusum) < 0 ||
-        tc_set_double(tr, "_outlier", 0.0) < 0 ||
-        tc_set_long(tr, "updates", n[TI_UPDATES] + 1) < 0 ||
-        tc_set_long(tr, "calm_after", calm_after - 1) < 0 ||
-        PyObject_SetAttrString(tr, "trending", trending ? Py_True : Py_False) < 0 ||
-        PyObject_SetAttrString(tr, "_recent", new_recent) < 0 ||
-        PyObject_SetAttrString(tr, "_candidate", Py_None) < 0) {
+    if (tc_set_double(tr, tn_double[TS_T], t) < 0 || tc_set_double(tr, tn_double[TS_SCALE2], scale2) < 0 ||
+        tc_set_double(tr, tn_double[TS_SE_REF], se_ref) < 0 || tc_set_double(tr, tn_double[TS_CUSUM], cusum) < 0 ||
+        tc_set_double(tr, tn[TN_OUTLIER], 0.0) < 0 ||
+        tc_set_long(tr, tn_int[TI_UPDATES], n[TI_UPDATES] + 1) < 0 ||
+        tc_set_long(tr, tn_int[TI_CALM_AFTER], calm_after - 1) < 0 ||
+        PyObject_SetAttr(tr, tn[TN_TRENDING], trending ? Py_True : Py_False) < 0 ||
+        PyObject_SetAttr(tr, tn[TN_RECENT], new_recent) < 0 ||
+        PyObject_SetAttr(tr, tn[TN_CANDIDATE], Py_None) < 0) {
         goto done;
     }
     if (fast_on >= 0) {
-        if (tc_set_double(tr, "fast_cusum", fast_cusum) < 0 ||
-            tc_set_double(tr, "fast_scale2", fast_scale2) < 0 ||
-            tc_set_long(tr, "fast_scored", fast_scored) < 0 ||
-            tc_set_long(tr, "_fast_hops", fast_hops) < 0 ||
-            PyObject_SetAttrString(tr, "fast_on", fast_on ? Py_True : Py_False) < 0 ||
-            PyObject_SetAttrString(tr, "_hop_recent", new_hop_recent) < 0) {
+        if (tc_set_double(tr, tn_double[TS_FAST_CUSUM], fast_cusum) < 0 ||
+            tc_set_double(tr, tn_double[TS_FAST_SCALE2], fast_scale2) < 0 ||
+            tc_set_long(tr, tn_int[TI_FAST_SCORED], fast_scored) < 0 ||
+            tc_set_long(tr, tn_int[TI_FAST_HOPS], fast_hops) < 0 ||
+            PyObject_SetAttr(tr, tn[TN_FAST_ON], fast_on ? Py_True : Py_False) < 0 ||
+            PyObject_SetAttr(tr, tn[TN_HOP_RECENT], new_hop_recent) < 0) {
             goto done;
         }
     }
