@@ -220,13 +220,23 @@ class WindowCutter:
             self.first = grid.first_index
             self.next_end = self.evaluator.first_window_end(self.first)
         grid.append(batch)
-        while self.next_end < grid.end_index:
-            end = self.next_end
-            if self.slow_lane is not None:
-                self.slow_lane.catch_up(grid, self.first, end)
-            if self.live is None or not self.live.skipped(end):
-                yield self._snapshot(grid, max(end - self.reach + 1, self.first), end + 1)
-            self.next_end += self.evaluator.hop_samples
+        # what every window of the batch shares, read once (the grid only grows after the
+        # cutting: end_index holds while the windows are cut)
+        end_index, hop, reach, first = (
+            grid.end_index,
+            self.evaluator.hop_samples,
+            self.reach,
+            self.first,
+        )
+        slow_lane, live, snapshot = self.slow_lane, self.live, self._snapshot
+        end = self.next_end
+        while end < end_index:
+            if slow_lane is not None:
+                slow_lane.catch_up(grid, first, end)
+            if live is None or not live.skipped(end):
+                yield snapshot(grid, max(end - reach + 1, first), end + 1)
+            end += hop
+            self.next_end = end
         keep = self.next_end - self.reach + 1
         if self.slow_lane is not None:
             keep = min(keep, self.slow_lane.oldest_needed(self.first))
@@ -532,10 +542,12 @@ def replay_batches(
         evaluator.recorded_reflex = live.reflex
         evaluator.recorded_stale = live.stale
     started = time.perf_counter()
-    for snap in iter_windows(batches, evaluator, slow_lane, live):
-        evaluator.evaluate(snap)
-        if evaluated is not None:
-            evaluated(evaluator)
+    cutter, evaluate = WindowCutter(evaluator, slow_lane, live), evaluator.evaluate
+    for batch in batches:  # a block's windows in one loop: iter_windows without its generator
+        for snap in cutter.add(batch):
+            evaluate(snap)
+            if evaluated is not None:
+                evaluated(evaluator)
     result.elapsed_s = time.perf_counter() - started
     result.duration_s = result.samples / config.link.fs_hz
     result.compute_s, result.compute_cpu_s = evaluator.compute_s, evaluator.compute_cpu_s

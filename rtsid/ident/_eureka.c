@@ -1685,6 +1685,8 @@ static PyObject *py_zero_phase_rows(PyObject *self, PyObject *args);
 static PyObject *py_savgol_pair(PyObject *self, PyObject *args);
 static PyObject *py_ankle_frames(PyObject *self, PyObject *args); /* socketcand frames, end */
 static PyObject *py_reflex_dynamics_fit(PyObject *self, PyObject *args); /* lanesums */
+static PyObject *py_onecall_window(PyObject *self, PyObject *args); /* onecall, end */
+static PyObject *py_tracker_calm(PyObject *self, PyObject *args); /* onecall, end */
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1724,6 +1726,8 @@ static PyMethodDef methods[] = {
     {"savgol_pair", py_savgol_pair, METH_VARARGS, "savgol_pair(x, taps1, taps2, d1, d2): ndimage.convolve1d(x, taps, mode='constant') of two filters."},
     {"ankle_frames", py_ankle_frames, METH_VARARGS, "ankle_frames(data, ident, position_scale, torque_scale, counter, position, torque, status, bus_time) -> n (< 0: not the common case): socketcand state frames of the built-in protocol."},
     {"reflex_dynamics_fit", py_reflex_dynamics_fit, METH_VARARGS, "reflex_dynamics_fit(g, lags, start, low, high, scale, tolerance, max_evaluations, x) -> cost (< 0: singular): the reflex dynamics fit in one call."},
+    {"onecall_window", py_onecall_window, METH_VARARGS, "onecall_window(position, torque, explained, h, arrays, consts, state) -> status (0: done, else declined): a stream's window from its checks to its back end (section onecall)."},
+    {"tracker_calm", py_tracker_calm, METH_VARARGS, "tracker_calm(tracker, t_s, z, se, newest, split) -> (value, se, rate, mode, updated) or None: ParameterTracker.step of a calm window (section onecall)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -3035,5 +3039,636 @@ static PyObject *py_reflex_dynamics_fit(PyObject *self, PyObject *args)
     }
     PyMem_Free(work);
     release_buffers(b, 7);
+    return result;
+}
+
+/* ================================================================== onecall
+ * onecall_window: a stream's whole window in one call, what rtsid.ident.stream.WindowStream
+ * does step by step for a window without lost samples once its plan is known (the reference,
+ * still run for the stream's first window, for lost samples and for every window this call
+ * declines): the checks of rtsid.ident.check (finite samples, excitation: the sums as
+ * window_sums), the analysis length, the front end (window_irf), the band-limited level and
+ * its checks (absolute, and relative to the stream's typical level), the trend slopes, the
+ * reflex torque band-limited (as band_limit), and the back end (oe_window), plus the flags of
+ * rtsid.ident.assess.window_flags that do not depend on the rounded VAFs. The same C functions
+ * in the same order as the separate calls, so the numbers are theirs bit for bit.
+ *
+ * onecall_window(position, torque, explained, h, arrays, consts, state) -> status
+ *   arrays  (taps, tw_cos, tw_sin, u, y, phi, extra, regressors, projected, gram, model, out):
+ *           a stream's buffers for one plan; out holds OW_SIZE values, then OC_LEVEL and
+ *           OC_FLAGS;
+ *   consts  OC_CONSTS doubles per plan (OC_FACTOR ...);
+ *   state   (k, held inertia, held damping, typical level or NaN): per window.
+ * status 0: done; anything else: the window is declined (a check withholds it, or a fit
+ * fails): the caller runs the step-by-step path, which says why with its own error.
+ */
+enum {
+    OC_FACTOR = 0, OC_SIGN, OC_DETREND, OC_LAG, OC_SWEEPS, OC_RIDGE, OC_FS, OC_MIN_EXCITATION,
+    OC_MIN_RELATIVE, OC_UNCERTAINTY, OC_NOISE_LAGS, OC_KMAX, OC_NEWEST_ROWS, OC_CONSTS,
+};
+enum { OC_LEVEL = OW_SIZE, OC_FLAGS, OC_OUT_SIZE };
+enum { OC_DONE = 0, OC_DECLINED = 1 };
+/* window_flags' bits, in its order (low_vaf and model_mismatch are set by the caller) */
+enum {
+    OC_NEGATIVE_STIFFNESS = 4, OC_NEGATIVE_DAMPING = 8, OC_NEGATIVE_INERTIA = 16,
+    OC_INERTIA_UNCERTAIN = 32, OC_STIFFNESS_UNCERTAIN = 64,
+};
+
+static int onecall_flags(const double *params, const double *se)
+{
+    const double inertia = params[0], damping = params[1], stiffness = params[2];
+    int flags = 0;
+    if (stiffness <= 0) flags |= OC_NEGATIVE_STIFFNESS;
+    if (damping <= 0) flags |= OC_NEGATIVE_DAMPING;
+    if (inertia <= 0) flags |= OC_NEGATIVE_INERTIA;
+    if (isfinite(se[0]) && se[0] > 0.25 * fabs(inertia)) flags |= OC_INERTIA_UNCERTAIN;
+    if (isfinite(se[2]) && se[2] > 0.1 * fabs(stiffness)) flags |= OC_STIFFNESS_UNCERTAIN;
+    return flags;
+}
+
+/* The window's checks, front end and back end; b: position, torque, explained (or NULL), h,
+ * then the arrays in order. */
+static int onecall(const double *pos, const double *trq, const double *explained, Py_ssize_t n,
+                   double *h, Py_ssize_t nh, Py_buffer *a, const double *c, const double *state,
+                   double *work)
+{
+    const double *taps = a[0].buf, *tw_cos = a[1].buf, *tw_sin = a[2].buf;
+    double *u = a[3].buf, *y = a[4].buf, *phi = a[5].buf, *extra = a[6].buf;
+    double *out = a[11].buf;
+    const Py_ssize_t nt = a[0].len / 8, factor = (Py_ssize_t)c[OC_FACTOR];
+    const Py_ssize_t lag = (Py_ssize_t)c[OC_LAG];
+    const double sign = c[OC_SIGN], min_excitation = c[OC_MIN_EXCITATION];
+    /* 1. check (rtsid.ident.check.check_window: the window_sums loop) */
+    double sp = 0.0, st = 0.0, spp = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        sp += pos[i];
+        st += trq[i];
+        spp += pos[i] * pos[i];
+    }
+    if (!(isfinite(sp) && isfinite(st))) return OC_DECLINED;
+    const double mean = sp / (double)n, spread = spp / (double)n - mean * mean;
+    if (sqrt(spread > 0.0 ? spread : 0.0) < min_excitation) return OC_DECLINED;
+    /* 3. front end (rtsid.ident.front._front_end) */
+    const Py_ssize_t m = n >= nt ? (n - nt) / factor + 1 : 0;
+    if (m <= (4 * lag + 1 > 16 ? 4 * lag + 1 : 16) || m != a[3].len / 8) return OC_DECLINED;
+    double alpha = 0.0;
+    const int kind = (int)c[OC_DETREND];
+    if (window_irf(pos, trq, n, taps, nt, factor, sign, kind, lag, c[OC_RIDGE],
+                   (Py_ssize_t)c[OC_SWEEPS], c[OC_FS], u, y, m, h, phi, work, &alpha) >= 0) {
+        return OC_DECLINED;
+    }
+    const double level = standard_deviation(u, m);
+    if (level < min_excitation) return OC_DECLINED;
+    /* the stream's relative check (check_relative_excitation; NaN: no typical level yet) */
+    const double typical = state[3];
+    if (!isnan(typical) && level < c[OC_MIN_RELATIVE] * typical) return OC_DECLINED;
+    /* scored band (front.scored_band): the trends at the analysis rate, the reflex torque */
+    double position_slope = 0.0, torque_slope = 0.0;
+    if (kind == 2) {
+        position_slope = line_slope(pos, n, 1.0) * (double)factor;
+        torque_slope = line_slope(trq, n, sign) * (double)factor;
+    }
+    if (explained != NULL) {
+        detrend_into(explained, work, n, sign, 1);
+        fir_decimate(work, n, taps, nt, factor, extra, m);
+    }
+    /* 4-5. back end (oe_window) */
+    const double held[2] = {state[1], state[2]};
+    if (oe_window(u, y, m, h, lag, c[OC_FS], (int)state[0], held, 1, (int)c[OC_UNCERTAINTY],
+                  (Py_ssize_t)c[OC_NOISE_LAGS], explained != NULL ? extra : NULL, torque_slope,
+                  position_slope, (Py_ssize_t)c[OC_KMAX], tw_cos, tw_sin,
+                  (Py_ssize_t)c[OC_NEWEST_ROWS], a[7].buf, a[8].buf, a[9].buf, a[10].buf, out,
+                  work) != OE_OK) {
+        return OC_DECLINED;
+    }
+    out[OC_LEVEL] = level;
+    out[OC_FLAGS] = (double)onecall_flags(out + OW_PARAMS, out + OW_SE);
+    (void)nh;
+    return OC_DONE;
+}
+
+static PyObject *py_onecall_window(PyObject *self, PyObject *args)
+{
+    PyObject *objs[5], *arrays, *explained;
+    if (!PyArg_ParseTuple(args, "OOOOO!OO", &objs[0], &objs[1], &explained, &objs[2],
+                          &PyTuple_Type, &arrays, &objs[3], &objs[4])) {
+        return NULL;
+    }
+    static const char *names[5] = {"position", "torque", "h", "consts", "state"};
+    static const char *array_names[12] = {"taps", "tw_cos", "tw_sin", "u", "y", "phi", "extra",
+                                          "regressors", "projected", "gram", "model", "out"};
+    if (PyTuple_GET_SIZE(arrays) != 12) {
+        PyErr_SetString(PyExc_ValueError, "onecall_window: arrays must hold 12 buffers");
+        return NULL;
+    }
+    Py_buffer b[6], a[12];
+    if (get_buffers(objs, 5, 2, names, b) < 0) return NULL;
+    PyObject *items[12];
+    for (int i = 0; i < 12; i++) items[i] = PyTuple_GET_ITEM(arrays, i);
+    if (get_buffers(items, 12, 3, array_names, a) < 0) {
+        release_buffers(b, 5);
+        return NULL;
+    }
+    int has_explained = explained != Py_None, got = 5;
+    if (has_explained && get_doubles(explained, &b[got++], 0, "explained") < 0) {
+        release_buffers(b, 5);
+        release_buffers(a, 12);
+        return NULL;
+    }
+    PyObject *result = NULL;
+    const Py_ssize_t n = b[0].len / 8, nh = b[2].len / 8, m = a[3].len / 8, nn = m - 8;
+    const double *c = b[3].buf;
+    if (b[3].len / 8 != OC_CONSTS || b[4].len / 8 < 4 || a[11].len / 8 != OC_OUT_SIZE) {
+        PyErr_SetString(PyExc_ValueError, "onecall_window: inconsistent sizes");
+    } else if (b[0].ndim != 1 || b[1].ndim != 1 || b[1].len != b[0].len ||
+               (has_explained && b[5].len != b[0].len) || c[OC_FACTOR] < 1 || c[OC_LAG] < 1 ||
+               nh != 2 * (Py_ssize_t)c[OC_LAG] + 1 || a[0].len / 8 < 1 || n < 16 ||
+               n < a[0].len / 8 || a[4].len != a[3].len || a[5].len / 8 != nh ||
+               a[6].len != a[3].len || nn < 2 || a[1].len / 8 != nn || a[2].len / 8 != nn ||
+               c[OC_KMAX] < 0 || c[OC_KMAX] > nn / 2 || a[7].len / 8 != 3 * nn ||
+               a[8].len / 8 != 4 * nn || a[9].len / 8 != 16 || a[10].len / 8 != nn) {
+        result = PyLong_FromLong(OC_DECLINED); /* not a window this call fits: the reference */
+    } else {
+        const Py_ssize_t lag = (nh - 1) / 2, edge = lag > 4 ? lag : 4, inner = m - 2 * edge;
+        const Py_ssize_t lags = (Py_ssize_t)c[OC_NOISE_LAGS];
+        const Py_ssize_t nl = lags < 1 ? 1 : (lags > nn - 1 ? nn - 1 : lags);
+        Py_ssize_t size = WINDOW_IRF_WORK(n, nh), back = 3 * inner + 2 * nn + nl + 2;
+        if (size < back) size = back;
+        double *work = inner < 2 ? NULL : PyMem_Malloc(sizeof(double) * size);
+        if (inner < 2) {
+            result = PyLong_FromLong(OC_DECLINED);
+        } else if (work == NULL) {
+            PyErr_NoMemory();
+        } else {
+            int status = onecall(b[0].buf, b[1].buf, has_explained ? b[5].buf : NULL, n,
+                                 b[2].buf, nh, a, c, b[4].buf, work);
+            PyMem_Free(work);
+            result = PyLong_FromLong(status);
+        }
+    }
+    release_buffers(b, got);
+    release_buffers(a, 12);
+    return result;
+}
+
+/* tracker_calm(tracker, t_s, z, se, newest, split) -> (value, se, rate, mode, updated) or None:
+ * rtsid.ident.tracker.ParameterTracker.step for a calm window, the one most windows are: the
+ * tracker started, no change mode, the interval one the filters' cached
+ * transitions know, no significant split in the window's scan (split() is called when the
+ * window departs, as the Python step does) and the window within change_gate; or a window
+ * without a usable estimate (the prediction only). Everything is
+ * computed on copies and written back to the tracker's attributes only when the window is
+ * calm; None leaves the tracker untouched (the caller runs the Python step, the reference).
+ * The same operations in the same order as the Python step, so the same doubles. */
+enum { TC_X0, TC_X1, TC_P00, TC_P01, TC_P11, TC_LAG, TC_OVERLAP, TC_RATE_Q, TC_TAU, TC_FIELDS };
+static const char *const TC_FILTER_NAMES[TC_FIELDS] = {"x0", "x1", "p00", "p01", "p11",
+                                                         "lag", "overlap", "rate_q", "tau"};
+enum {
+    TS_T, TS_HOP, TS_ALPHA, TS_SCALE2, TS_SE_REF, TS_CUSUM, TS_FORGET, TS_THRESHOLD, TS_GATE,
+    TS_OVERLAP, TS_FAST_CUSUM, TS_FAST_SCALE2, TS_SPLIT_GATE, TS_DOUBLES,
+};
+static const char *const TS_DOUBLE_NAMES[TS_DOUBLES] = {
+    "t_s", "hop_s", "alpha", "scale2", "se_ref", "cusum", "forget", "switch_threshold", "gate",
+    "overlap", "fast_cusum", "fast_scale2", "split_gate"};
+enum { TI_CHANGE, TI_CALM_AFTER, TI_UPDATES, TI_FAST_SCORED, TI_FAST_HOPS, TI_END_HOPS, TI_INTS };
+static const char *const TS_INT_NAMES[TI_INTS] = {"change_hops", "calm_after", "updates",
+                                                   "fast_scored", "_fast_hops", "end_hops"};
+/* the tracker's constants of rtsid.ident.tracker */
+static const double TC_SCALE_CAP = 9.0, TC_PREGATE = 2.0, TC_SE_SWELL = 1.25;
+static const double TC_FAST_LLR_CAP = 2.0, TC_FAST_DF = 4.0;
+static const long TC_FAST_CONFIRM_HOPS = 2, TC_FAST_WARM_UP = 2;
+
+/* The attribute names, interned once (a read by a C string would make and hash a new string
+ * each time). */
+enum {
+    TN_SPLITTING, TN_TRENDING, TN_ALL, TN_LAST, TN_BY_DT, TN_HOP_RECENT, TN_RECENT, TN_HISTORY,
+    TN_FAST_ON, TN_CANDIDATE, TN_OUTLIER, TN_K, TN_VAR, TN_CENTRE, TN_Z_RATIO, TN_BEST,
+    TN_APPEND, TN_COUNT,
+};
+static const char *const TN_NAMES[TN_COUNT] = {
+    "splitting", "trending", "_all", "_last", "_by_dt", "_hop_recent", "_recent", "_history",
+    "fast_on", "_candidate", "_outlier", "k", "var", "centre_s", "z_ratio", "best", "append"};
+static PyObject *tn[TN_COUNT], *tn_filter[TC_FIELDS], *tn_double[TS_DOUBLES], *tn_int[TI_INTS];
+
+static int tc_intern(PyObject **out, const char *const *names, int count)
+{
+    for (int i = 0; i < count; i++) {
+        if (out[i] == NULL && (out[i] = PyUnicode_InternFromString(names[i])) == NULL) return -1;
+    }
+    return 0;
+}
+
+static int tc_names(void)
+{
+    if (tn[TN_COUNT - 1] != NULL && tn_int[TI_INTS - 1] != NULL) return 0;
+    if (tc_intern(tn_filter, TC_FILTER_NAMES, TC_FIELDS) < 0 ||
+        tc_intern(tn_double, TS_DOUBLE_NAMES, TS_DOUBLES) < 0 ||
+        tc_intern(tn_int, TS_INT_NAMES, TI_INTS) < 0 || tc_intern(tn, TN_NAMES, TN_COUNT) < 0) {
+        return -1;
+    }
+    return 0;
+}
+
+static int tc_double(PyObject *obj, PyObject *name, double *out)
+{
+    PyObject *v = PyObject_GetAttr(obj, name);
+    if (v == NULL) return -1;
+    *out = PyFloat_AsDouble(v);
+    Py_DECREF(v);
+    return *out == -1.0 && PyErr_Occurred() ? -1 : 0;
+}
+
+static int tc_set_double(PyObject *obj, PyObject *name, double value)
+{
+    PyObject *v = PyFloat_FromDouble(value);
+    if (v == NULL) return -1;
+    int status = PyObject_SetAttr(obj, name, v);
+    Py_DECREF(v);
+    return status;
+}
+
+static int tc_set_long(PyObject *obj, PyObject *name, long value)
+{
+    PyObject *v = PyLong_FromLong(value);
+    if (v == NULL) return -1;
+    int status = PyObject_SetAttr(obj, name, v);
+    Py_DECREF(v);
+    return status;
+}
+
+static int tc_truth(PyObject *obj, PyObject *name)
+{
+    PyObject *v = PyObject_GetAttr(obj, name);
+    if (v == NULL) return -1;
+    int truth = PyObject_IsTrue(v);
+    Py_DECREF(v);
+    return truth;
+}
+
+/* A filter's fields, and its cached transition for dt: 1 the last interval's, 2 another
+ * interval seen before (*seen: its transition, a new reference, for the filter's _last), 0
+ * none cached (the Python step computes it). */
+static int tc_filter(PyObject *f, double dt, double *x, double *steps, PyObject **seen)
+{
+    for (int i = 0; i < TC_FIELDS; i++) {
+        if (tc_double(f, tn_filter[i], &x[i]) < 0) return -1;
+    }
+    if (!(dt > 0)) return 1; /* predict() does nothing */
+    PyObject *last = PyObject_GetAttr(f, tn[TN_LAST]);
+    if (last == NULL) return -1;
+    int ok = 0;
+    PyObject *cached = NULL;
+    if (PyTuple_Check(last) && PyTuple_GET_SIZE(last) == 2 &&
+        PyFloat_AsDouble(PyTuple_GET_ITEM(last, 0)) == dt) {
+        ok = 1;
+        cached = PyTuple_GET_ITEM(last, 1);
+    } else if (!PyErr_Occurred()) { /* the intervals seen: _by_dt */
+        PyObject *by_dt = PyObject_GetAttr(f, tn[TN_BY_DT]), *key = PyFloat_FromDouble(dt);
+        if (by_dt != NULL && key != NULL && PyDict_Check(by_dt)) {
+            cached = PyDict_GetItemWithError(by_dt, key);
+            if (cached != NULL) {
+                ok = 2;
+                Py_INCREF(cached);
+                *seen = cached;
+            }
+        }
+        Py_XDECREF(by_dt);
+        Py_XDECREF(key);
+    }
+    if (ok && PyTuple_Check(cached) && PyTuple_GET_SIZE(cached) == 5) {
+        for (int i = 0; i < 5; i++) steps[i] = PyFloat_AsDouble(PyTuple_GET_ITEM(cached, i));
+    } else {
+        ok = 0;
+    }
+    Py_DECREF(last);
+    return PyErr_Occurred() ? -1 : ok;
+}
+
+/* _LevelRateFilter.predict(dt) with its transition (b, a, q00, q01, q11) */
+static void tc_predict(double *x, const double *s)
+{
+    const double b = s[0], a = s[1], p00 = x[TC_P00], p01 = x[TC_P01], p11 = x[TC_P11];
+    x[TC_X0] += b * x[TC_X1];
+    x[TC_X1] *= a;
+    x[TC_P00] = p00 + 2.0 * b * p01 + b * b * p11 + s[2];
+    x[TC_P01] = a * (p01 + b * p11) + s[3];
+    x[TC_P11] = a * a * p11 + s[4];
+}
+
+/* _LevelRateFilter.update(z, sigma2): the innovation and H·P·Hᵀ */
+static void tc_update(double *x, double z, double sigma2, double *nu_out, double *hph_out)
+{
+    const double c = x[TC_LAG];
+    const double ph0 = x[TC_P00] - c * x[TC_P01];
+    const double ph1 = x[TC_P01] - c * x[TC_P11];
+    const double hph = ph0 - c * ph1;
+    const double nu = z - (x[TC_X0] - c * x[TC_X1]);
+    const double s = hph + x[TC_OVERLAP] * sigma2;
+    const double g0 = ph0 / s, g1 = ph1 / s;
+    x[TC_X0] += g0 * nu;
+    x[TC_X1] += g1 * nu;
+    x[TC_P00] -= g0 * ph0;
+    x[TC_P01] -= g0 * ph1;
+    x[TC_P11] -= g1 * ph1;
+    *nu_out = nu;
+    *hph_out = hph;
+}
+
+static double tc_max(double a, double b) { return b > a ? b : a; } /* Python's max(a, b) */
+static double tc_min(double a, double b) { return b < a ? b : a; } /* Python's min(a, b) */
+
+/* (t, a, b) triples of a recent-values tuple: its count (0-2), -1 when malformed */
+static int tc_recent(PyObject *recent, double (*out)[3])
+{
+    if (!PyTuple_Check(recent) || PyTuple_GET_SIZE(recent) > 2) return -1;
+    int count = (int)PyTuple_GET_SIZE(recent);
+    for (int i = 0; i < count; i++) {
+        PyObject *item = PyTuple_GET_ITEM(recent, i);
+        if (!PyTuple_Check(item) || PyTuple_GET_SIZE(item) != 3) return -1;
+        for (int j = 0; j < 3; j++) out[i][j] = PyFloat_AsDouble(PyTuple_GET_ITEM(item, j));
+    }
+    return PyErr_Occurred() ? -1 : count;
+}
+
+/* (*recent[-1:], (t, a, b)) */
+static PyObject *tc_pushed(PyObject *recent, int count, double t, double a, double b)
+{
+    PyObject *item = Py_BuildValue("(ddd)", t, a, b);
+    if (item == NULL) return NULL;
+    if (count == 0) return Py_BuildValue("(N)", item);
+    PyObject *out = PyTuple_Pack(2, PyTuple_GET_ITEM(recent, count - 1), item);
+    Py_DECREF(item);
+    return out;
+}
+
+static PyObject *empty_tuple(void)
+{
+    static PyObject *empty = NULL;
+    if (empty == NULL) empty = PyTuple_New(0);
+    return empty;
+}
+
+/* Write the filters' values back (and the fast filter's lag when it took the newest hop),
+ * with predict()'s memory of the interval (_last) where it was found in _by_dt. */
+static int tc_write_filters(PyObject *all, Py_ssize_t count, double (*x)[TC_FIELDS],
+                            PyObject **seen, double dt, int fast_lag)
+{
+    for (Py_ssize_t i = 0; i < count; i++) {
+        PyObject *f = PyTuple_GET_ITEM(all, i);
+        const int fields = i == 2 && fast_lag ? TC_LAG + 1 : TC_LAG;
+        for (int j = 0; j < fields; j++) {
+            if (tc_set_double(f, tn_filter[j], x[i][j]) < 0) return -1;
+        }
+        if (seen[i] != NULL) { /* predict() remembers the interval: _last = (dt, cached) */
+            PyObject *last = Py_BuildValue("(dO)", dt, seen[i]);
+            if (last == NULL || PyObject_SetAttr(f, tn[TN_LAST], last) < 0) {
+                Py_XDECREF(last);
+                return -1;
+            }
+            Py_DECREF(last);
+        }
+    }
+    return 0;
+}
+
+/* _published(updated, False): (value, se, rate, mode, updated) of the published filter */
+static PyObject *tc_published(PyObject *tr, const double *quiet, const double *trend,
+                              const double *fast, int trending, int updated)
+{
+    int fast_on = tc_truth(tr, tn[TN_FAST_ON]);
+    if (fast_on < 0) return NULL;
+    const int use_fast = fast_on && fast != NULL;
+    const double *pub = use_fast ? fast : (trending ? trend : quiet);
+    const char *mode = use_fast ? "fast" : (trending ? "trend" : "quiet");
+    return Py_BuildValue("(dddsO)", pub[TC_X0], sqrt(tc_max(0.0, pub[TC_P00])), pub[TC_X1],
+                         mode, updated ? Py_True : Py_False);
+}
+
+/* The window's split scan (split(): a SplitScan or None) has no split beyond split_gate
+ * calm standard errors (ref), as ParameterTracker._split_update reads it outside a change
+ * mode: 1 none (the window stays calm), 0 one (the Python step reads it), -1 an error. */
+static int tc_no_split(PyObject *split, double ref, double split_gate)
+{
+    PyObject *scan = PyObject_CallNoArgs(split);
+    if (scan == NULL) return -1;
+    if (scan == Py_None) {
+        Py_DECREF(scan);
+        return 1;
+    }
+    int quiet = -1;
+    PyObject *row = PyObject_CallMethodNoArgs(scan, tn[TN_BEST]);
+    if (row == Py_None) {
+        quiet = 1;
+    } else if (row != NULL) {
+        PyObject *ratios = PyObject_GetAttr(scan, tn[TN_Z_RATIO]);
+        PyObject *ratio = ratios != NULL ? PyObject_GetItem(ratios, row) : NULL;
+        double z = ratio != NULL ? PyFloat_AsDouble(ratio) : -1.0;
+        if (ratio != NULL && !(z == -1.0 && PyErr_Occurred())) quiet = fabs(z) <= split_gate * ref;
+        Py_XDECREF(ratio);
+        Py_XDECREF(ratios);
+    }
+    Py_XDECREF(row);
+    Py_DECREF(scan);
+    return quiet;
+}
+
+static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
+{
+    PyObject *tr, *zo, *seo, *newest, *split;
+    double t_s;
+    if (!PyArg_ParseTuple(args, "OdOOOO", &tr, &t_s, &zo, &seo, &newest, &split)) return NULL;
+    if (tc_names() < 0) return NULL;
+    const int given = zo != Py_None && seo != Py_None;
+    const double z = given ? PyFloat_AsDouble(zo) : NAN, se = given ? PyFloat_AsDouble(seo) : NAN;
+    if (PyErr_Occurred()) return NULL;
+    const int usable = given && isfinite(z) && se > 0 && isfinite(se);
+    double d[TS_DOUBLES];
+    long n[TI_INTS];
+    for (int i = 0; i < TS_DOUBLES; i++) {
+        if (tc_double(tr, tn_double[i], &d[i]) < 0) return NULL;
+    }
+    for (int i = 0; i < TI_INTS; i++) {
+        PyObject *v = PyObject_GetAttr(tr, tn_int[i]);
+        if (v == NULL) return NULL;
+        n[i] = PyLong_AsLong(v);
+        Py_DECREF(v);
+        if (n[i] == -1 && PyErr_Occurred()) return NULL;
+    }
+    int splitting = tc_truth(tr, tn[TN_SPLITTING]), trending = tc_truth(tr, tn[TN_TRENDING]);
+    if (splitting < 0 || trending < 0) return NULL;
+    if (splitting || n[TI_CHANGE] != 0) Py_RETURN_NONE;
+    PyObject *all = PyObject_GetAttr(tr, tn[TN_ALL]);
+    if (all == NULL) return NULL;
+    PyObject *result = NULL, *hop_recent = NULL, *recent = NULL;
+    PyObject *new_hop_recent = NULL, *new_recent = NULL, *entry = NULL;
+    const Py_ssize_t count = PyTuple_Check(all) ? PyTuple_GET_SIZE(all) : 0;
+    double x[3][TC_FIELDS], steps[5];
+    PyObject *seen[3] = {NULL, NULL, NULL}; /* transitions found in _by_dt, for _last */
+    if (count < 2 || count > 3) {
+        PyErr_SetString(PyExc_ValueError, "tracker_calm: the tracker's filters");
+        goto done;
+    }
+    /* started (the quiet filter's level is not NaN), as ParameterTracker.step reads it */
+    const double dt = t_s - d[TS_T];
+    const double t = t_s > d[TS_T] ? t_s : d[TS_T];
+    for (Py_ssize_t i = 0; i < count; i++) {
+        int got = tc_filter(PyTuple_GET_ITEM(all, i), dt, x[i], steps, &seen[i]);
+        if (got < 0) goto done;
+        if (i == 0 && isnan(x[0][TC_X0])) goto declined;
+        if (!got) goto declined; /* an interval without its cached transition */
+        if (dt > 0) tc_predict(x[i], steps);
+    }
+    double *quiet = x[0], *trend = x[1], *fast = count == 3 ? x[2] : NULL;
+    if (!usable) { /* prediction only: _withheld outside a change mode */
+        if (tc_write_filters(all, count, x, seen, dt, 0) < 0 || tc_set_double(tr, tn_double[TS_T], t) < 0 ||
+            PyObject_SetAttr(tr, tn[TN_RECENT], empty_tuple()) < 0 ||
+            PyObject_SetAttr(tr, tn[TN_CANDIDATE], Py_None) < 0) {
+            goto done;
+        }
+        result = tc_published(tr, quiet, trend, fast, trending, 0);
+        goto done;
+    }
+    const long calm_after = n[TI_CALM_AFTER];
+    const int calm = calm_after <= 0; /* no change mode, not splitting: checked above */
+    const double hop = d[TS_HOP], alpha = d[TS_ALPHA];
+    const double near = 1e-9 * tc_max(1.0, t);
+    long fast_scored = n[TI_FAST_SCORED], fast_hops = n[TI_FAST_HOPS];
+    double fast_cusum = d[TS_FAST_CUSUM], fast_scale2 = d[TS_FAST_SCALE2];
+    int fast_on = -1; /* -1: not stepped */
+    if (newest != Py_None && fast != NULL) {
+        /* _take_newest and _learn_hop_scale */
+        double k, var, centre;
+        if (tc_double(newest, tn[TN_K], &k) < 0 || tc_double(newest, tn[TN_VAR], &var) < 0 ||
+            tc_double(newest, tn[TN_CENTRE], &centre) < 0) {
+            goto done;
+        }
+        fast[TC_LAG] = centre;
+        const double hop_var = var * se * se;
+        double hr[2][3];
+        hop_recent = PyObject_GetAttr(tr, tn[TN_HOP_RECENT]);
+        if (hop_recent == NULL) goto done;
+        int nr = tc_recent(hop_recent, hr);
+        if (nr < 0) goto declined;
+        if (nr && fabs((t - hr[nr - 1][0]) - hop) >= near) nr = 0;
+        if (nr == 2 && calm) {
+            const double d2 = k - 2.0 * hr[1][1] + hr[0][1];
+            const double u = d2 * d2 / (2.0 * (hr[0][2] + hr[1][2] + hop_var));
+            fast_scored += 1;
+            const double weight = tc_max(alpha, 1.0 / (double)fast_scored);
+            const double scale2 = fast_scale2;
+            fast_scale2 += weight * (tc_min(u, TC_SCALE_CAP * scale2) - scale2);
+        }
+        new_hop_recent = tc_pushed(hop_recent, nr, t, k, hop_var);
+        if (new_hop_recent == NULL) goto done;
+        const double r = fast_scale2 * var * se * se;
+        const double c = fast[TC_LAG];
+        const double s_f = fast[TC_P00] - 2.0 * c * fast[TC_P01] + c * c * fast[TC_P11] + r;
+        const double nu_f = k - (fast[TC_X0] - fast[TC_LAG] * fast[TC_X1]);
+        const double nis = nu_f * nu_f / s_f;
+        const double *slow = trending ? trend : quiet;
+        const double nu_s = k - (slow[TC_X0] - centre * slow[TC_X1]);
+        const double spread = -0.5 * log(s_f), half_df = 0.5 * (TC_FAST_DF + 1.0);
+        double llr = (spread - half_df * log1p(nis / TC_FAST_DF)) -
+                     (spread - half_df * log1p(nu_s * nu_s / s_f / TC_FAST_DF));
+        llr = tc_min(TC_FAST_LLR_CAP, tc_max(-TC_FAST_LLR_CAP, llr));
+        fast_cusum = tc_max(0.0, d[TS_FORGET] * fast_cusum + llr);
+        fast_hops = fast_cusum > d[TS_THRESHOLD] ? fast_hops + 1 : 0;
+        const int warm = fast_scored >= TC_FAST_WARM_UP * n[TI_END_HOPS];
+        fast_on = warm && fast_hops >= TC_FAST_CONFIRM_HOPS;
+        double nu, hph;
+        tc_update(fast, k, r + s_f * tc_max(0.0, nis - 1.0) / (TC_FAST_DF + 1.0), &nu, &hph);
+    }
+    /* _update: _learn_scale, the pre-gate, the gate, _select */
+    double scale2 = d[TS_SCALE2];
+    double rc[2][3];
+    recent = PyObject_GetAttr(tr, tn[TN_RECENT]);
+    if (recent == NULL) goto done;
+    int nrc = tc_recent(recent, rc);
+    if (nrc < 0) goto declined;
+    if (nrc == 2 && fabs((t - rc[1][0]) - hop) < near) {
+        if (calm) {
+            const double d2 = z - 2.0 * rc[1][1] + rc[0][1];
+            const double var = (rc[0][2] * rc[0][2] + rc[1][2] * rc[1][2] + se * se) / 3.0;
+            const double u = d[TS_OVERLAP] * d2 * d2 / (4.0 * var);
+            scale2 += alpha * (tc_min(u, TC_SCALE_CAP * scale2) - scale2);
+        }
+    } else if (nrc && fabs((t - rc[nrc - 1][0]) - hop) >= near) {
+        nrc = 0;
+    }
+    const double sigma2 = scale2 * se * se;
+    double se_ref = d[TS_SE_REF];
+    const double ref = sqrt(scale2) * se_ref;
+    const double departure = z - (trend[TC_X0] - trend[TC_LAG] * trend[TC_X1]);
+    const int worth = fabs(departure) > TC_PREGATE * ref || se > TC_SE_SWELL * se_ref;
+    if (split != Py_None && worth) { /* the window's splits are read */
+        int quiet_scan = tc_no_split(split, sqrt(scale2) * se_ref, d[TS_SPLIT_GATE]);
+        if (quiet_scan < 0) goto done;
+        if (!quiet_scan) goto declined; /* a significant split: the Python step reads it */
+    }
+    const double level_before = trending ? trend[TC_X0] : quiet[TC_X0];
+    const double u = departure / sqrt(scale2 * pow(se_ref, 2.0));
+    if (fabs(u) > d[TS_GATE]) goto declined; /* an outlier or a change: the Python step */
+    se_ref += 5.0 * alpha * (se - se_ref);
+    const double common = d[TS_OVERLAP] * sigma2;
+    double nu_q, hph_q, nu_t, hph_t;
+    tc_update(quiet, z, sigma2, &nu_q, &hph_q);
+    tc_update(trend, z, sigma2, &nu_t, &hph_t);
+    const double s_q = hph_q + common, s_t = hph_t + common;
+    const double llr = 0.5 * (nu_q * nu_q / s_q - nu_t * nu_t / s_t) + 0.5 * log(s_q / s_t);
+    const double cusum = tc_max(0.0, d[TS_FORGET] * d[TS_CUSUM] + llr);
+    trending = cusum > d[TS_THRESHOLD];
+    if (trending) { /* quiet.reset(trend.x0, trend.p00) */
+        quiet[TC_X0] = trend[TC_X0];
+        quiet[TC_X1] = 0.0;
+        quiet[TC_P00] = trend[TC_P00];
+        quiet[TC_P01] = 0.0;
+        quiet[TC_P11] = quiet[TC_RATE_Q] * quiet[TC_RATE_Q] * quiet[TC_TAU] / 2.0;
+    }
+    new_recent = tc_pushed(recent, nrc, t, z, se);
+    entry = Py_BuildValue("(dd)", u, level_before);
+    if (new_recent == NULL || entry == NULL) goto done;
+    /* calm: write everything back */
+    PyObject *history = PyObject_GetAttr(tr, tn[TN_HISTORY]);
+    if (history == NULL) goto done;
+    PyObject *appended = PyObject_CallMethodOneArg(history, tn[TN_APPEND], entry);
+    Py_DECREF(history);
+    if (appended == NULL) goto done;
+    Py_DECREF(appended);
+    if (tc_write_filters(all, count, x, seen, dt, fast_on >= 0) < 0) goto done;
+    if (tc_set_double(tr, tn_double[TS_T], t) < 0 || tc_set_double(tr, tn_double[TS_SCALE2], scale2) < 0 ||
+        tc_set_double(tr, tn_double[TS_SE_REF], se_ref) < 0 || tc_set_double(tr, tn_double[TS_CUSUM], cusum) < 0 ||
+        tc_set_double(tr, tn[TN_OUTLIER], 0.0) < 0 ||
+        tc_set_long(tr, tn_int[TI_UPDATES], n[TI_UPDATES] + 1) < 0 ||
+        tc_set_long(tr, tn_int[TI_CALM_AFTER], calm_after - 1) < 0 ||
+        PyObject_SetAttr(tr, tn[TN_TRENDING], trending ? Py_True : Py_False) < 0 ||
+        PyObject_SetAttr(tr, tn[TN_RECENT], new_recent) < 0 ||
+        PyObject_SetAttr(tr, tn[TN_CANDIDATE], Py_None) < 0) {
+        goto done;
+    }
+    if (fast_on >= 0) {
+        if (tc_set_double(tr, tn_double[TS_FAST_CUSUM], fast_cusum) < 0 ||
+            tc_set_double(tr, tn_double[TS_FAST_SCALE2], fast_scale2) < 0 ||
+            tc_set_long(tr, tn_int[TI_FAST_SCORED], fast_scored) < 0 ||
+            tc_set_long(tr, tn_int[TI_FAST_HOPS], fast_hops) < 0 ||
+            PyObject_SetAttr(tr, tn[TN_FAST_ON], fast_on ? Py_True : Py_False) < 0 ||
+            PyObject_SetAttr(tr, tn[TN_HOP_RECENT], new_hop_recent) < 0) {
+            goto done;
+        }
+    }
+    result = tc_published(tr, quiet, trend, fast, trending, 1);
+    goto done;
+declined:
+    if (!PyErr_Occurred()) {
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+done:
+    for (int i = 0; i < 3; i++) Py_XDECREF(seen[i]);
+    Py_DECREF(all);
+    Py_XDECREF(hop_recent);
+    Py_XDECREF(recent);
+    Py_XDECREF(new_hop_recent);
+    Py_XDECREF(new_recent);
+    Py_XDECREF(entry);
     return result;
 }

@@ -30,8 +30,16 @@ from numpy.typing import ArrayLike
 from rtsid.errors import InputDataError, NumericalError, WindowError
 from rtsid.ident.analysis import AnalysisPlan
 from rtsid.ident.assess import withhold_unidentifiable
-from rtsid.ident.fused import BackEndBuffers, fusable, fused_back_end
+from rtsid.ident.fused import _HELD_FLAGS, _OUT, BackEndBuffers, fusable, fused_back_end
 from rtsid.ident.grid import window_ends
+from rtsid.ident.onecall import (
+    OUT_FLAGS,
+    OUT_LEVEL,
+    UNIDENTIFIABLE_MASK,
+    WindowCall,
+    flags_of,
+    one_call_possible,
+)
 from rtsid.ident.records import built
 from rtsid.ident.second_order import OutputErrorDesign
 from rtsid.ident.split import (
@@ -291,6 +299,9 @@ class WindowStream:
         self._buffers = BackEndBuffers()
         self._scan_buffers = ScanBuffers()  # the split scan's, reused every window
         self._newest_rows: tuple[AnalysisPlan | None, int] = (None, 0)  # (plan, its hop's rows)
+        self._one_call = one_call_possible(options)  # windows in one compiled call once planned
+        self._call: WindowCall | None = None  # its buffers for the plan and window length
+        self._design: OutputErrorDesign | None = None  # the design over the call's buffers
 
     def track(self, t_end_s: float, estimate: WindowEstimate | None) -> Tracked:
         """Step the tracker with this window (its end time, s; None: withheld), and with the
@@ -317,11 +328,75 @@ class WindowStream:
         (returned).
         """
         self._split_source = None
+        if self._one_call and valid is None and self.plan is not None:
+            estimate = self._fit_in_one_call(position, torque, explained)
+            if estimate is not None:
+                return estimate
         try:
             return withhold_unidentifiable(self._fit(position, torque, valid, explained))
         except WindowError:
             self._split_source = None
             raise
+
+    def _fit_in_one_call(
+        self, position: ArrayLike, torque: ArrayLike, explained: ArrayLike | None
+    ) -> WindowEstimate | None:
+        """:meth:`_fit` of a planned window without lost samples in one compiled call
+        (:mod:`rtsid.ident.onecall`), the same numbers and the same state afterwards; None:
+        declined, the stream's state untouched (the caller runs :meth:`_fit`)."""
+        plan = self.plan
+        assert plan is not None
+        window_samples = len(position)  # type: ignore[arg-type]
+        call = self._call
+        if call is None or not call.fits(plan, window_samples):
+            rows = round(self.tracker.hop_s * plan.analysis_fs_hz)
+            call = self._call = WindowCall(plan, self.options, window_samples, rows)
+            self._design = OutputErrorDesign.formed(
+                call.regressors, call.projected, call.gram, call.y
+            )
+        held = held_values(self.options, self.held.current())  # from earlier windows only
+        typical = self.excitation.median()
+        done = call(position, torque, explained, held, typical)
+        if done is None:
+            return None
+        out, h, k = done
+        options = self.options
+        self.excitation.add(out[_LEVEL])
+        vafs = (round(out[_VAFS], 12), round(out[_VAFS + 1], 12), round(out[_VAFS + 2], 12))
+        mask = int(out[_FLAGS]) | (vafs[0] < options.low_vaf_percent) | (vafs[2] < 50.0) << 1
+        held_flags = _HELD_FLAGS[k]
+        estimate = built(
+            WindowEstimate,
+            I=out[_PARAMS],
+            B=out[_PARAMS + 1],
+            K=out[_PARAMS + 2],
+            I_se=out[_SE],
+            B_se=out[_SE + 1],
+            K_se=out[_SE + 2],
+            vaf=vafs[0],
+            vaf_irf=vafs[1],
+            vaf_fit=vafs[2],
+            irf=h,
+            lags_s=call.lags_s,
+            fs_hz=call.fs_hz,
+            flags=flags_of(mask),
+            method="output_error",
+            lost_samples=0,
+            I_held=held_flags[0],
+            B_held=held_flags[1],
+        )
+        whole = out[_WHOLE + 3]
+        self.held.learn(out[_WHOLE], out[_WHOLE + 1], round(whole, 12) >= options.low_vaf_percent)
+        z = _NEWEST
+        newest = None if out[z] != out[z] else (out[z], out[z + 1], out[z + 2])
+        design = self._design
+        assert design is not None
+        if mask & UNIDENTIFIABLE_MASK == UNIDENTIFIABLE_MASK:
+            return withhold_unidentifiable(estimate)  # raises, as the step-by-step path
+        self._split_source = _SplitSource(
+            estimate, design, held, plan, window_samples, newest, self._scan_buffers
+        )
+        return estimate
 
     def _fit(
         self,
@@ -395,6 +470,11 @@ class WindowStream:
             result, design, held, plan, window_samples, buffers=self._scan_buffers
         )
         return result
+
+
+#: Where the kernel writes the back end's values (rtsid.ident.fused) and the call's own.
+_PARAMS, _SE, _VAFS, _WHOLE, _NEWEST = _OUT
+_LEVEL, _FLAGS = OUT_LEVEL, OUT_FLAGS
 
 
 class _SplitSource:

@@ -129,10 +129,14 @@ import math
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from rtsid.errors import invalid, require_range
+from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.records import built
 from rtsid.ident.split import NewestPart, SplitScan
+
+_eureka: Any = compiled_kernel()
 
 #: Memory of the filters' likelihood-ratio CUSUM, s.
 SWITCH_MEMORY_S = 1.0
@@ -493,6 +497,19 @@ class ParameterTracker:
         the change mode reads the window estimates' ramp). ``newest``: the window's newest
         hop's K, the fast filter's measurement.
         """
+        if _eureka is not None:  # a calm window in one compiled call (None: not calm)
+            calm = _eureka.tracker_calm(self, t_s, z, se, newest, split)
+            if calm is not None:
+                value, se_now, rate, mode, updated = calm
+                return built(
+                    TrackEstimate,
+                    value=value,
+                    se=se_now,
+                    rate=rate,
+                    updated=updated,
+                    change=False,
+                    mode=mode,
+                )
         usable = (
             z is not None and se is not None and math.isfinite(z) and se > 0 and math.isfinite(se)
         )

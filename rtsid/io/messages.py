@@ -161,7 +161,23 @@ class EstimateMessage:
         ``reason``), the stream's track after it, and the flags the caller adds to the
         estimate's own (e.g. ``over_budget``; ignored when withheld). Keys in field order;
         built as a dict, not as the dataclass (the evaluator publishes one every window, a
-        replay builds tens of thousands a minute)."""
+        replay builds tens of thousands a minute); an estimate with its track in one dict
+        display, without a call per field."""
+        if estimate is not None and track is not None:
+            return _estimate_dict(
+                estimate,
+                track,
+                seq,
+                first,
+                last,
+                fs_hz,
+                robot,
+                joint,
+                flags,
+                compute_ms,
+                latency_ms,
+                reflex_seq,
+            )
         numbers: tuple[Any, ...] = _NO_NUMBERS
         all_flags: list[Flag] = []
         if estimate is not None:
@@ -217,6 +233,65 @@ class EstimateMessage:
         out = _json_object(_estimate_values(self))
         out["flags"] = list(self.flags)
         return out
+
+
+_INF = math.inf
+
+
+def _estimate_dict(
+    e: WindowEstimate,
+    track: Tracked,
+    seq: int,
+    first: int,
+    last: int,
+    fs_hz: float,
+    robot: str,
+    joint: str,
+    flags: Sequence[Flag],
+    compute_ms: float | None,
+    latency_ms: float | None,
+    reflex_seq: int | None,
+) -> dict[str, Any]:
+    """:meth:`EstimateMessage.window_dict` of an estimate and its track: the keys in field
+    order, each number field finite or None (``-inf < x < inf`` is false for NaN and ±inf, as
+    ``math.isfinite``), without a call per field (tests/io/test_messages.py holds it to the
+    dataclass's JSON object)."""
+    inf = _INF
+    k_track, k_track_se, b_track, b_track_se = track.K, track.K_se, track.B, track.B_se
+    k, k_se, b, b_se, i, i_se = e.K, e.K_se, e.B, e.B_se, e.I, e.I_se
+    vaf, vaf_irf, vaf_fit = e.vaf, e.vaf_irf, e.vaf_fit
+    return {
+        "robot": robot,
+        "joint": joint,
+        "t_end_s": last / fs_hz,
+        "K_track": k_track if -inf < k_track < inf else None,
+        "K_track_se": k_track_se if -inf < k_track_se < inf else None,
+        "K": k if -inf < k < inf else None,
+        "K_se": k_se if -inf < k_se < inf else None,
+        "B": b if -inf < b < inf else None,
+        "B_se": b_se if -inf < b_se < inf else None,
+        "B_held": e.B_held,
+        "I": i if -inf < i < inf else None,
+        "I_se": i_se if -inf < i_se < inf else None,
+        "I_held": e.I_held,
+        "vaf": vaf if -inf < vaf < inf else None,
+        "ok": True,
+        "reason": None,
+        "flags": [*e.flags, *flags],
+        "B_track": b_track if -inf < b_track < inf else None,
+        "B_track_se": b_track_se if -inf < b_track_se < inf else None,
+        "vaf_irf": vaf_irf if -inf < vaf_irf < inf else None,
+        "vaf_fit": vaf_fit if -inf < vaf_fit < inf else None,
+        "lost_samples": e.lost_samples,
+        "seq": seq,
+        "window_start_index": first,
+        "window_end_index": last,
+        "t_start_s": first / fs_hz,
+        "compute_ms": compute_ms if compute_ms is None or -inf < compute_ms < inf else None,
+        "latency_ms": latency_ms if latency_ms is None or -inf < latency_ms < inf else None,
+        "reflex_seq": reflex_seq,
+        "host_time_ns": time.time_ns(),
+    }
 
 
 def _json_object(values: Sequence[Any]) -> dict[str, Any]:

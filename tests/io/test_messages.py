@@ -66,6 +66,14 @@ CASES = [
     (None, Reason.GAP, track(), {"flags": (Flag.OVER_BUDGET,), "reflex_seq": 3}),
     (None, Reason.STALE, None, {"compute_ms": 0.0, "latency_ms": None}),
     (estimate(), None, track(B=math.nan, B_se=math.nan), {"reflex_seq": 7, "latency_ms": 1.5}),
+    # every number field of an estimate with its track non-finite (the one-display build)
+    (
+        estimate(B=-math.inf, B_se=math.nan, I=math.nan, vaf_irf=math.inf, vaf_fit=math.nan),
+        None,
+        track(K=math.inf, K_se=-math.inf, B=np.float64(math.nan), B_se=math.nan),
+        {"compute_ms": math.nan, "latency_ms": math.inf, "reflex_seq": 2},
+    ),
+    (estimate(K_se=np.float64(-math.inf), vaf=math.nan), None, track(), {"compute_ms": 0.25}),
 ]
 
 
