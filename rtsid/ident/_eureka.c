@@ -115,34 +115,26 @@ static int get_doubles(PyObject *obj, Py_buffer *view, int writable, const char 
  * one window in one call (what rtsid.ident.window.prepare_window + irf.estimate_irf do in
  * numpy, which stays the reference). Loops are O(N·T) and O(M·L).
  */
+/* kern625 (section at the end of this file): detrend_into's passes merged, the slope returned */
+static double detrend_sloped(const double *x, double *out, Py_ssize_t n, double sign, int kind,
+                             int want_slope);
+static Py_ssize_t fir_decimate_lanes(const double *x, const double *taps, Py_ssize_t nt,
+                                     Py_ssize_t factor, double *out, Py_ssize_t m);
+static double line_slope(const double *x, Py_ssize_t n, double sign) __attribute__((unused));
+/* kern625: the IRF's torque prediction and the three VAFs with the model's torque oe_fit formed */
+static void irf_model_vafs(const double *u, const double *y, Py_ssize_t m, const double *h,
+                           Py_ssize_t lag, double fs, const double *model, Py_ssize_t edge,
+                           double *by_irf, double *vafs);
+
 static void detrend_into(const double *x, double *out, Py_ssize_t n, double sign, int kind)
 {
-    double mean = 0.0, slope = 0.0, tt = 0.0, tx = 0.0;
-    const double centre = (double)(n - 1) / 2.0;
-    for (Py_ssize_t i = 0; i < n; i++) {
-        mean += sign * x[i];
-    }
-    mean /= (double)n;
-    if (kind == 2) {
-        for (Py_ssize_t i = 0; i < n; i++) {
-            double t = (double)i - centre;
-            tt += t * t;
-            tx += t * sign * x[i];
-        }
-        slope = tt > 0.0 ? tx / tt : 0.0;
-    }
-    for (Py_ssize_t i = 0; i < n; i++) {
-        double v = sign * x[i];
-        if (kind >= 1) v -= mean;
-        if (kind == 2) v -= slope * ((double)i - centre);
-        out[i] = v;
-    }
+    (void)detrend_sloped(x, out, n, sign, kind, 0);
 }
 
 static void fir_decimate(const double *x, Py_ssize_t n, const double *taps, Py_ssize_t nt,
                          Py_ssize_t factor, double *out, Py_ssize_t m)
 {
-    for (Py_ssize_t k = 0; k < m; k++) {
+    for (Py_ssize_t k = fir_decimate_lanes(x, taps, nt, factor, out, m); k < m; k++) {
         const double *seg = x + k * factor + nt - 1;
         double acc = 0.0;
         for (Py_ssize_t j = 0; j < nt; j++) {
@@ -194,39 +186,23 @@ static Py_ssize_t band_powers(const double *meas, const double *err, Py_ssize_t 
 /* work: WINDOW_IRF_WORK(n, nh) doubles */
 #define WINDOW_IRF_WORK(n, nh) (2 * (n) + 3 * (nh) + FILTERS_SIZE(nh) + GRAM_SWEEPS_WORK(nh))
 
-static Py_ssize_t window_irf(const double *pos, const double *trq, Py_ssize_t n,
+static Py_ssize_t window_irf_sloped(const double *pos, const double *trq, Py_ssize_t n,
+                                    const double *taps, Py_ssize_t nt, Py_ssize_t factor,
+                                    double sign, int kind, Py_ssize_t lag, double ridge,
+                                    Py_ssize_t sweeps, double fs, double *u, double *y,
+                                    Py_ssize_t m, double *h, double *phi, double *work,
+                                    double *alpha, double *slopes);
+
+/* window_irf: the front end as before (py_window_irf now calls window_irf_sloped, which also
+ * hands back the trends' slopes; other compiled callers keep this one). */
+__attribute__((unused)) static Py_ssize_t window_irf(const double *pos, const double *trq, Py_ssize_t n,
                              const double *taps, Py_ssize_t nt, Py_ssize_t factor, double sign,
                              int kind, Py_ssize_t lag, double ridge, Py_ssize_t sweeps,
                              double fs, double *u, double *y, Py_ssize_t m, double *h,
                              double *phi, double *work, double *alpha)
 {
-    const Py_ssize_t nh = 2 * lag + 1;
-    double *dp = work, *dt = work + n;              /* detrended, n each */
-    double *rr = dt + n;                            /* R reversed, nh */
-    double *sums = rr + nh;                         /* whole-window sums: auto, then cross */
-    double *filters = sums + 2 * nh, *alphas = filters + nh * (nh + 1) / 2; /* EUREKA's, kept */
-    double *rest = filters + FILTERS_SIZE(nh);      /* the sweeps' scratch */
-    detrend_into(pos, dp, n, 1.0, kind);
-    detrend_into(trq, dt, n, sign, kind);
-    fir_decimate(dp, n, taps, nt, factor, u, m);
-    fir_decimate(dt, n, taps, nt, factor, y, m);
-    /* the sums themselves are kept for the sweeps' Gram matrix; sums / m is what
-     * xcorr_blocked(..., m, ...) gives, bit for bit */
-    xcorr_blocked(u, u, m, 0, nh - 1, 1.0, sums);
-    for (Py_ssize_t k = 0; k < nh; k++) phi[k] = sums[k] / (double)m;
-    const double loading = ridge * phi[0];
-    phi[0] += loading;
-    /* phi_uy(k) = sum_t u(t-k) y(t) / m  =  sum_s u(s) y(s+k) / m */
-    double *g = rest; /* the first solve's right-hand side, before the sweeps use rest */
-    xcorr_blocked(u, y, m, -lag, lag, 1.0, sums + nh);
-    for (Py_ssize_t k = 0; k < nh; k++) g[k] = sums[nh + k] / (double)m;
-    /* the four solves share R: its prediction-error filters are formed once */
-    Py_ssize_t status = eureka_filters(phi, rr, filters, alphas, nh, alpha);
-    if (status >= 0) return status;
-    eureka_apply(rr, filters, alphas, g, h, nh);
-    for (Py_ssize_t k = 0; k < nh; k++) h[k] *= fs;
-    gram_sweeps(u, y, m, lag, sums, sums + nh, loading, sweeps, fs, rr, filters, alphas, h, rest);
-    return -1;
+    return window_irf_sloped(pos, trq, n, taps, nt, factor, sign, kind, lag, ridge, sweeps, fs, u,
+                             y, m, h, phi, work, alpha, NULL);
 }
 
 /* ------------------------------------------------------------------ window back end
@@ -1003,7 +979,7 @@ static Py_ssize_t oe_window(const double *u, const double *y, Py_ssize_t m, cons
                             double *regressors, double *projected, double *gram, double *model,
                             double *out, double *work)
 {
-    const Py_ssize_t n = m - 8, edge = lag > 4 ? lag : 4, inner = m - 2 * edge;
+    const Py_ssize_t n = m - 8, edge = lag > 4 ? lag : 4;
     for (int i = 0; i < OW_SIZE; i++) out[i] = NAN;
     Py_ssize_t status = oe_design(u, y, m, fs, regressors, projected, gram);
     if (status != OE_OK) return status;
@@ -1021,9 +997,8 @@ static Py_ssize_t oe_window(const double *u, const double *y, Py_ssize_t m, cons
         for (int i = 0; i < 3; i++) out[OW_WHOLE + i] = out[OW_PARAMS + i];
         out[OW_WHOLE + 3] = vaf;
     }
-    predictions(u, y, m, h, lag, fs, out + OW_PARAMS, edge, work, work + inner, work + 2 * inner);
-    double vafs[3];
-    three_vafs(work, work + inner, work + 2 * inner, inner, vafs);
+    double vafs[3]; /* the model's torque over the stencil rows is oe_fit's, kept in model */
+    irf_model_vafs(u, y, m, h, lag, fs, model, edge, work, vafs);
     out[OW_VAFS] = band_vaf(y, model, n, torque_slope, out[OW_PARAMS + 2] * position_slope,
                             explained, kmax, tw_cos, tw_sin, work);
     out[OW_VAFS + 1] = vafs[1];
@@ -1301,17 +1276,17 @@ static PyObject *py_window_irf(PyObject *self, PyObject *args)
             if (work == NULL) {
                 PyErr_NoMemory();
             } else {
-                double alpha = 0.0;
+                double alpha = 0.0, slopes[2];
                 Py_ssize_t status;
                 /* Short (tens of µs): keep the GIL. Releasing it would let another thread
-                 * take it for a whole switch interval before this one gets it back. */
-                status = window_irf(b[0].buf, b[1].buf, n, b[2].buf, nt, factor, sign, kind, lag,
-                                    ridge, sweeps, fs, b[3].buf, b[4].buf, m, b[5].buf,
-                                    b[6].buf, work, &alpha);
+                 * take it for a whole switch interval before this one gets it back. The
+                 * trends' slopes (line_slope's) come from the detrending's own pass. */
+                status = window_irf_sloped(b[0].buf, b[1].buf, n, b[2].buf, nt, factor, sign,
+                                           kind, lag, ridge, sweeps, fs, b[3].buf, b[4].buf, m,
+                                           b[5].buf, b[6].buf, work, &alpha, slopes);
                 PyMem_Free(work);
                 result = Py_BuildValue("ndddd", status, alpha, standard_deviation(b[3].buf, m),
-                                       line_slope(b[0].buf, n, 1.0),
-                                       line_slope(b[1].buf, n, sign));
+                                       slopes[0], slopes[1]);
             }
         }
     }
@@ -2837,3 +2812,147 @@ static void gram_sweeps(const double *u, const double *y, Py_ssize_t m, Py_ssize
         for (Py_ssize_t j = 0; j < nh; j++) h[j] += delta[j] * fs;
     }
 }
+
+/* ================================================================== kern625 (issue 22)
+ * The window's kernels at the 625 Hz plan (±12 lags, M ≈ 178 analysis samples), where a window's
+ * cost was fixed per-call work rather than O(M·L) sums: the FIR decimation of both signals
+ * (≈ 2·M·T products, T = 39 taps, computed one output at a time), three passes of detrending
+ * with the trend slopes then formed again from the raw samples, and the back end's stencils and
+ * model torque formed a second time for the VAFs. Each function gives the numbers of the loop it
+ * replaces bit for bit (same products, each sum in the same order).
+ */
+
+/* detrend_into's result into out (n samples of sign·x less its mean, and less its line when
+ * kind == 2) in two passes instead of three: the mean's sum and the slope's (independent
+ * accumulators, each in sample order, as detrend_into's separate loops) share one pass.
+ * Returns the slope of sign·x per sample (line_slope's value) when kind == 2 or want_slope,
+ * else 0. */
+static double detrend_sloped(const double *x, double *out, Py_ssize_t n, double sign, int kind,
+                             int want_slope)
+{
+    const double centre = (double)(n - 1) / 2.0;
+    double mean = 0.0, tt = 0.0, tx = 0.0, slope = 0.0;
+    if (kind == 2 || want_slope) {
+        for (Py_ssize_t i = 0; i < n; i++) {
+            const double t = (double)i - centre;
+            mean += sign * x[i];
+            tt += t * t;
+            tx += t * sign * x[i];
+        }
+        slope = tt > 0.0 ? tx / tt : 0.0;
+    } else {
+        for (Py_ssize_t i = 0; i < n; i++) mean += sign * x[i];
+    }
+    mean /= (double)n;
+    if (kind == 2) {
+        for (Py_ssize_t i = 0; i < n; i++) out[i] = sign * x[i] - mean - slope * ((double)i - centre);
+    } else if (kind == 1) {
+        for (Py_ssize_t i = 0; i < n; i++) out[i] = sign * x[i] - mean;
+    } else {
+        for (Py_ssize_t i = 0; i < n; i++) out[i] = sign * x[i];
+    }
+    return slope;
+}
+
+/* fir_decimate's outputs out[k] = Σ_j taps[j]·x[k·factor + nt − 1 − j] (j ascending), BLOCK
+ * outputs at a time in pairs of lanes: a lane's sum is the one-output loop's, product by product.
+ * The pairs' samples lie factor apart (two loads each) unless factor is 1. Returns the first
+ * output left for the scalar loop (m when none). */
+static Py_ssize_t fir_decimate_lanes(const double *x, const double *taps, Py_ssize_t nt,
+                                     Py_ssize_t factor, double *out, Py_ssize_t m)
+{
+    Py_ssize_t k = 0;
+#ifdef LANE_PAIRS
+    const Py_ssize_t f = factor;
+    for (; k + BLOCK <= m; k += BLOCK) {
+        const double *seg = x + k * f + nt - 1; /* output k's newest sample */
+        lane_pair a0 = pair_of(0.0), a1 = a0, a2 = a0, a3 = a0;
+        if (f == 1) {
+            for (Py_ssize_t j = 0; j < nt; j++) {
+                const lane_pair tj = pair_of(taps[j]);
+                const double *s = seg - j;
+                a0 += tj * pair_at(s);
+                a1 += tj * pair_at(s + 2);
+                a2 += tj * pair_at(s + 4);
+                a3 += tj * pair_at(s + 6);
+            }
+        } else {
+            for (Py_ssize_t j = 0; j < nt; j++) {
+                const lane_pair tj = pair_of(taps[j]);
+                const double *s = seg - j;
+                const lane_pair x0 = {s[0], s[f]}, x1 = {s[2 * f], s[3 * f]},
+                                x2 = {s[4 * f], s[5 * f]}, x3 = {s[6 * f], s[7 * f]};
+                a0 += tj * x0;
+                a1 += tj * x1;
+                a2 += tj * x2;
+                a3 += tj * x3;
+            }
+        }
+        memcpy(out + k, &a0, 16);
+        memcpy(out + k + 2, &a1, 16);
+        memcpy(out + k + 4, &a2, 16);
+        memcpy(out + k + 6, &a3, 16);
+    }
+#else
+    (void)x, (void)taps, (void)nt, (void)factor, (void)out, (void)m;
+#endif
+    return k;
+}
+
+/* oe_window's VAFs as predictions() + three_vafs() give them, without forming the model's
+ * torque again: predictions' model torque at sample t (edge ≤ t < m − edge) is
+ * params[0]·(d2·fs²) + params[1]·(d1·fs) + params[2]·u[t] with the same 9-point stencil sums as
+ * oe_design's regressor rows, so it is model[t − 4] of the published oe_fit bit for bit; only the
+ * IRF's prediction (into by_irf, m − 2·edge values) is formed here. */
+static void irf_model_vafs(const double *u, const double *y, Py_ssize_t m, const double *h,
+                           Py_ssize_t lag, double fs, const double *model, Py_ssize_t edge,
+                           double *by_irf, double *vafs)
+{
+    const Py_ssize_t inner = m - 2 * edge;
+    lagged_predict(h, u, 2 * lag + 1, lag, edge, m - edge, by_irf - edge);
+    for (Py_ssize_t i = 0; i < inner; i++) by_irf[i] = by_irf[i] / fs;
+    three_vafs(y + edge, by_irf, model + (edge - 4), inner, vafs);
+}
+
+/* window_irf with the trends' slopes (line_slope's values of the position and the signed
+ * torque, from the detrending's own pass) into slopes[0], slopes[1] unless slopes is NULL. */
+static Py_ssize_t window_irf_sloped(const double *pos, const double *trq, Py_ssize_t n,
+                                    const double *taps, Py_ssize_t nt, Py_ssize_t factor,
+                                    double sign, int kind, Py_ssize_t lag, double ridge,
+                                    Py_ssize_t sweeps, double fs, double *u, double *y,
+                                    Py_ssize_t m, double *h, double *phi, double *work,
+                                    double *alpha, double *slopes)
+{
+    const Py_ssize_t nh = 2 * lag + 1;
+    double *dp = work, *dt = work + n;              /* detrended, n each */
+    double *rr = dt + n;                            /* R reversed, nh */
+    double *sums = rr + nh;                         /* whole-window sums: auto, then cross */
+    double *filters = sums + 2 * nh, *alphas = filters + nh * (nh + 1) / 2; /* EUREKA's, kept */
+    double *rest = filters + FILTERS_SIZE(nh);      /* the sweeps' scratch */
+    const double position_slope = detrend_sloped(pos, dp, n, 1.0, kind, slopes != NULL);
+    const double torque_slope = detrend_sloped(trq, dt, n, sign, kind, slopes != NULL);
+    if (slopes != NULL) {
+        slopes[0] = position_slope;
+        slopes[1] = torque_slope;
+    }
+    fir_decimate(dp, n, taps, nt, factor, u, m);
+    fir_decimate(dt, n, taps, nt, factor, y, m);
+    /* the sums themselves are kept for the sweeps' Gram matrix; sums / m is what
+     * xcorr_blocked(..., m, ...) gives, bit for bit */
+    xcorr_blocked(u, u, m, 0, nh - 1, 1.0, sums);
+    for (Py_ssize_t k = 0; k < nh; k++) phi[k] = sums[k] / (double)m;
+    const double loading = ridge * phi[0];
+    phi[0] += loading;
+    /* phi_uy(k) = sum_t u(t-k) y(t) / m  =  sum_s u(s) y(s+k) / m */
+    double *g = rest; /* the first solve's right-hand side, before the sweeps use rest */
+    xcorr_blocked(u, y, m, -lag, lag, 1.0, sums + nh);
+    for (Py_ssize_t k = 0; k < nh; k++) g[k] = sums[nh + k] / (double)m;
+    /* the four solves share R: its prediction-error filters are formed once */
+    Py_ssize_t status = eureka_filters(phi, rr, filters, alphas, nh, alpha);
+    if (status >= 0) return status;
+    eureka_apply(rr, filters, alphas, g, h, nh);
+    for (Py_ssize_t k = 0; k < nh; k++) h[k] *= fs;
+    gram_sweeps(u, y, m, lag, sums, sums + nh, loading, sweeps, fs, rr, filters, alphas, h, rest);
+    return -1;
+}
+
