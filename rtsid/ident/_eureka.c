@@ -118,9 +118,25 @@ static int get_doubles(PyObject *obj, Py_buffer *view, int writable, const char 
 /* kern625 (section at the end of this file): detrend_into's passes merged, the slope returned */
 static double detrend_sloped(const double *x, double *out, Py_ssize_t n, double sign, int kind,
                              int want_slope);
+/* where phase p of n samples in phases of factor starts (detrend_phases, fir_phases) */
+static double centred_squares(Py_ssize_t n);
+static inline Py_ssize_t phase_start(Py_ssize_t p, Py_ssize_t n, Py_ssize_t factor)
+{
+    const Py_ssize_t rest = n % factor;
+    return p * (n / factor) + (p < rest ? p : rest);
+}
+static double detrend_phases(const double *x, double *out, Py_ssize_t n, double sign, int kind,
+                             int want_slope, Py_ssize_t factor);
+static void fir_phases(const double *phases, Py_ssize_t n, const double *taps, Py_ssize_t nt,
+                       Py_ssize_t factor, double *out, Py_ssize_t m);
 static Py_ssize_t fir_decimate_lanes(const double *x, const double *taps, Py_ssize_t nt,
                                      Py_ssize_t factor, double *out, Py_ssize_t m);
+/* kept for compiled callers elsewhere; the window's kernels now use the forms above */
 static double line_slope(const double *x, Py_ssize_t n, double sign) __attribute__((unused));
+static void detrend_into(const double *x, double *out, Py_ssize_t n, double sign, int kind)
+    __attribute__((unused));
+static void fir_decimate(const double *x, Py_ssize_t n, const double *taps, Py_ssize_t nt,
+                         Py_ssize_t factor, double *out, Py_ssize_t m) __attribute__((unused));
 /* kern625: the IRF's torque prediction and the three VAFs with the model's torque oe_fit formed */
 static void irf_model_vafs(const double *u, const double *y, Py_ssize_t m, const double *h,
                            Py_ssize_t lag, double fs, const double *model, Py_ssize_t edge,
@@ -483,17 +499,19 @@ enum { OE_OK = -1, OE_ZERO_TORQUE = 1, OE_INSEPARABLE = 2 };
 static void without_trend(const double *row, double *out, Py_ssize_t n)
 {
     const double centre = (double)(n - 1) / 2.0;
-    double mean = 0.0, tt = 0.0, tx = 0.0;
+    double mean = 0.0, tx = 0.0;
     for (Py_ssize_t i = 0; i < n; i++) mean += row[i];
     mean /= (double)n;
-    for (Py_ssize_t i = 0; i < n; i++) {
-        double t = (double)i - centre, c = row[i] - mean;
+    /* t = (double)i − centre exactly (steps of 1); Σt² the loop's exact sum (kern625) */
+    double t = -centre;
+    for (Py_ssize_t i = 0; i < n; i++, t += 1.0) {
+        const double c = row[i] - mean;
         out[i] = c;
-        tt += t * t;
         tx += c * t;
     }
-    const double coef = tx / tt;
-    for (Py_ssize_t i = 0; i < n; i++) out[i] -= coef * ((double)i - centre);
+    const double coef = tx / centred_squares(n);
+    t = -centre;
+    for (Py_ssize_t i = 0; i < n; i++, t += 1.0) out[i] -= coef * t;
 }
 
 static Py_ssize_t oe_design(const double *u, const double *y, Py_ssize_t m, double fs,
@@ -1169,8 +1187,8 @@ static PyObject *py_band_limit(PyObject *self, PyObject *args)
         if (work == NULL) {
             PyErr_NoMemory();
         } else {
-            detrend_into(b[0].buf, work, n, sign, 1);
-            fir_decimate(work, n, b[1].buf, nt, factor, b[2].buf, m);
+            (void)detrend_phases(b[0].buf, work, n, sign, 1, 0, factor); /* kern625 */
+            fir_phases(work, n, b[1].buf, nt, factor, b[2].buf, m);
             PyMem_Free(work);
             Py_INCREF(Py_None);
             result = Py_None;
@@ -2822,36 +2840,127 @@ static void gram_sweeps(const double *u, const double *y, Py_ssize_t m, Py_ssize
  * replaces bit for bit (same products, each sum in the same order).
  */
 
-/* detrend_into's result into out (n samples of sign·x less its mean, and less its line when
- * kind == 2) in two passes instead of three: the mean's sum and the slope's (independent
- * accumulators, each in sample order, as detrend_into's separate loops) share one pass.
- * Returns the slope of sign·x per sample (line_slope's value) when kind == 2 or want_slope,
- * else 0. */
-static double detrend_sloped(const double *x, double *out, Py_ssize_t n, double sign, int kind,
-                             int want_slope)
+/* Σ_i (i − (n − 1)/2)² over i = 0 … n − 1, as the loop in sample order sums it: for n < 2^17
+ * each term and each partial sum is a multiple of 1/4 below 2^51, so that loop is exact and
+ * equals n(n² − 1)/12, itself formed exactly here (n(n² − 1) < 2^53, the quotient a multiple of
+ * 1/4). Longer windows sum the loop. */
+static double centred_squares(Py_ssize_t n)
+{
+    if (n < ((Py_ssize_t)1 << 17)) {
+        const double nn = (double)n;
+        return nn * (nn * nn - 1.0) / 12.0;
+    }
+    const double centre = (double)(n - 1) / 2.0;
+    double tt = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double t = (double)i - centre;
+        tt += t * t;
+    }
+    return tt;
+}
+
+/* detrend_into's result (n samples of sign·x less its mean, and less its line when kind == 2)
+ * in two passes instead of three: the mean's sum and the slope's (independent accumulators, each
+ * in sample order, as detrend_into's separate loops) share one pass. The samples are written in
+ * phases of `factor` for fir_phases: phase p (samples p, p + factor, …) from out + phase_start(p)
+ * (factor 1: in order). Returns the slope of sign·x per sample (line_slope's value) when
+ * kind == 2 or want_slope, else 0. */
+static double detrend_phases(const double *x, double *out, Py_ssize_t n, double sign, int kind,
+                             int want_slope, Py_ssize_t factor)
 {
     const double centre = (double)(n - 1) / 2.0;
     double mean = 0.0, tt = 0.0, tx = 0.0, slope = 0.0;
     if (kind == 2 || want_slope) {
-        for (Py_ssize_t i = 0; i < n; i++) {
-            const double t = (double)i - centre;
-            mean += sign * x[i];
-            tt += t * t;
-            tx += t * sign * x[i];
+        tt = centred_squares(n);
+        double t = -centre; /* (double)i − centre, exactly: steps of 1 between half-integers */
+        if (sign == 1.0) { /* sign·x[i] is x[i], (t·sign)·x[i] is t·x[i] */
+            for (Py_ssize_t i = 0; i < n; i++, t += 1.0) {
+                mean += x[i];
+                tx += t * x[i];
+            }
+        } else if (sign == -1.0) { /* a + (−b) is a − b, and (−t)·x is −(t·x), bit for bit */
+            for (Py_ssize_t i = 0; i < n; i++, t += 1.0) {
+                mean -= x[i];
+                tx -= t * x[i];
+            }
+        } else {
+            for (Py_ssize_t i = 0; i < n; i++, t += 1.0) {
+                mean += sign * x[i];
+                tx += t * sign * x[i];
+            }
         }
         slope = tt > 0.0 ? tx / tt : 0.0;
     } else {
         for (Py_ssize_t i = 0; i < n; i++) mean += sign * x[i];
     }
     mean /= (double)n;
-    if (kind == 2) {
-        for (Py_ssize_t i = 0; i < n; i++) out[i] = sign * x[i] - mean - slope * ((double)i - centre);
-    } else if (kind == 1) {
-        for (Py_ssize_t i = 0; i < n; i++) out[i] = sign * x[i] - mean;
-    } else {
-        for (Py_ssize_t i = 0; i < n; i++) out[i] = sign * x[i];
+    const double off = kind >= 1 ? mean : 0.0, line = kind == 2 ? slope : 0.0;
+    for (Py_ssize_t p = 0; p < factor && p < n; p++) {
+        double *phase = out + phase_start(p, n, factor);
+        if (kind == 2) {
+            double t = (double)p - centre;
+            const double step = (double)factor;
+            for (Py_ssize_t i = p; i < n; i += factor, t += step) {
+                *phase++ = sign * x[i] - off - line * t;
+            }
+        } else if (kind == 1) {
+            for (Py_ssize_t i = p; i < n; i += factor) *phase++ = sign * x[i] - off;
+        } else {
+            for (Py_ssize_t i = p; i < n; i += factor) *phase++ = sign * x[i];
+        }
     }
     return slope;
+}
+
+static double detrend_sloped(const double *x, double *out, Py_ssize_t n, double sign, int kind,
+                             int want_slope)
+{
+    return detrend_phases(x, out, n, sign, kind, want_slope, 1);
+}
+
+/* fir_decimate's outputs from the samples in phases (detrend_phases): out[k] = Σ_j taps[j]·
+ * x[k·factor + nt − 1 − j], j ascending. Sample k·factor + d is phase d mod factor's item
+ * k + d div factor, so for each tap the outputs k, k + 1, … read consecutive values: 16 outputs
+ * at a time in pairs of lanes, each lane's sum the one-output loop's, product by product. */
+static void fir_phases(const double *phases, Py_ssize_t n, const double *taps, Py_ssize_t nt,
+                       Py_ssize_t factor, double *out, Py_ssize_t m)
+{
+    Py_ssize_t stack[128];
+    Py_ssize_t *at = nt <= 128 ? stack : PyMem_RawMalloc(sizeof(Py_ssize_t) * (size_t)nt);
+    if (at == NULL) { /* no memory for the table: each sample's place found as it is read */
+        for (Py_ssize_t k = 0; k < m; k++) {
+            double acc = 0.0;
+            for (Py_ssize_t j = 0; j < nt; j++) {
+                const Py_ssize_t i = k * factor + nt - 1 - j;
+                acc += taps[j] * phases[phase_start(i % factor, n, factor) + i / factor];
+            }
+            out[k] = acc;
+        }
+        return;
+    }
+    for (Py_ssize_t j = 0; j < nt; j++) { /* where output 0's sample for tap j lies */
+        const Py_ssize_t d = nt - 1 - j;
+        at[j] = phase_start(d % factor, n, factor) + d / factor;
+    }
+    Py_ssize_t k = 0;
+#ifdef LANE_PAIRS
+    for (; k + 2 * BLOCK <= m; k += 2 * BLOCK) {
+        lane_pair a[8] = {{0.0, 0.0}};
+        for (int b = 1; b < 8; b++) a[b] = a[0];
+        for (Py_ssize_t j = 0; j < nt; j++) {
+            const lane_pair tj = pair_of(taps[j]);
+            const double *s = phases + at[j] + k;
+            for (int b = 0; b < 8; b++) a[b] += tj * pair_at(s + 2 * b);
+        }
+        memcpy(out + k, a, sizeof a);
+    }
+#endif
+    for (; k < m; k++) {
+        double acc = 0.0;
+        for (Py_ssize_t j = 0; j < nt; j++) acc += taps[j] * phases[at[j] + k];
+        out[k] = acc;
+    }
+    if (at != stack) PyMem_RawFree(at);
 }
 
 /* fir_decimate's outputs out[k] = Σ_j taps[j]·x[k·factor + nt − 1 − j] (j ascending), BLOCK
@@ -2929,14 +3038,15 @@ static Py_ssize_t window_irf_sloped(const double *pos, const double *trq, Py_ssi
     double *sums = rr + nh;                         /* whole-window sums: auto, then cross */
     double *filters = sums + 2 * nh, *alphas = filters + nh * (nh + 1) / 2; /* EUREKA's, kept */
     double *rest = filters + FILTERS_SIZE(nh);      /* the sweeps' scratch */
-    const double position_slope = detrend_sloped(pos, dp, n, 1.0, kind, slopes != NULL);
-    const double torque_slope = detrend_sloped(trq, dt, n, sign, kind, slopes != NULL);
+    const int want = slopes != NULL;
+    const double position_slope = detrend_phases(pos, dp, n, 1.0, kind, want, factor);
+    const double torque_slope = detrend_phases(trq, dt, n, sign, kind, want, factor);
     if (slopes != NULL) {
         slopes[0] = position_slope;
         slopes[1] = torque_slope;
     }
-    fir_decimate(dp, n, taps, nt, factor, u, m);
-    fir_decimate(dt, n, taps, nt, factor, y, m);
+    fir_phases(dp, n, taps, nt, factor, u, m);
+    fir_phases(dt, n, taps, nt, factor, y, m);
     /* the sums themselves are kept for the sweeps' Gram matrix; sums / m is what
      * xcorr_blocked(..., m, ...) gives, bit for bit */
     xcorr_blocked(u, u, m, 0, nh - 1, 1.0, sums);
