@@ -2487,9 +2487,24 @@ static void band_smooth(const double *row, const double *r, Py_ssize_t n, Py_ssi
 {
     Py_ssize_t t = 0;
 #ifdef LANE_PAIRS
-    double *padded = PyMem_RawCalloc((size_t)(n + 2 * lags), sizeof(double));
+    /* the padded row, then r mirrored (mirror[lags + e] = r[|e|], kern625) */
+    double *padded = PyMem_RawCalloc((size_t)(n + 4 * lags + 1), sizeof(double));
     if (padded != NULL) {
         memcpy(padded + lags, row, sizeof(double) * (size_t)n);
+        double *mirror = padded + n + 2 * lags;
+        for (Py_ssize_t e = -lags; e <= lags; e++) mirror[lags + e] = r[e < 0 ? -e : e];
+        /* kern625: 2·BLOCK rows at a time while they last (the same sums, fewer broadcasts);
+         * the rows that were padded before still are, so every output is the same */
+        for (; t + 2 * BLOCK <= n; t += 2 * BLOCK) {
+            lane_pair a[8];
+            for (int b = 0; b < 8; b++) a[b] = pair_of(0.0);
+            for (Py_ssize_t e = -lags; e <= lags; e++) {
+                const lane_pair re = pair_of(mirror[lags + e]);
+                const double *src = padded + lags + t + e;
+                for (int b = 0; b < 8; b++) a[b] += pair_at(src + 2 * b) * re;
+            }
+            memcpy(smoothed + t, a, sizeof a);
+        }
         for (; t + BLOCK <= n; t += BLOCK) {
             lane_pair a0 = pair_of(0.0), a1 = a0, a2 = a0, a3 = a0;
             for (Py_ssize_t e = -lags; e <= lags; e++) {
