@@ -129,6 +129,13 @@ static double detrend_phases(const double *x, double *out, Py_ssize_t n, double 
                              int want_slope, Py_ssize_t factor);
 static void fir_phases(const double *phases, Py_ssize_t n, const double *taps, Py_ssize_t nt,
                        Py_ssize_t factor, double *out, Py_ssize_t m);
+/* kern625: the published VAF's DFT from a table of its twiddles kept per plan (band_table): for
+ * each group of 4 bins and each sample, the 4 cosines then the 4 sines (the last group padded
+ * with zeros) */
+#define BAND_TABLE_SIZE(n, kmax) ((((kmax) + 3) / 4) * (n) * 8)
+static Py_ssize_t band_powers_table(const double *meas, const double *err, Py_ssize_t n,
+                                    Py_ssize_t kmax, const double *table, double *total,
+                                    double *left);
 static Py_ssize_t fir_decimate_lanes(const double *x, const double *taps, Py_ssize_t nt,
                                      Py_ssize_t factor, double *out, Py_ssize_t m);
 /* kept for compiled callers elsewhere; the window's kernels now use the forms above */
@@ -689,9 +696,10 @@ static Py_ssize_t oe_fit(const double *regressors, const double *projected, cons
 /* Published VAF over the DFT bins 1 … kmax of the n = m − 8 stencil rows (samples 4 … m−5):
  * measured y + torque trend + explained, model + K·position trend + explained, each centred
  * (as assess.published_vaf with in_band). tw_cos/tw_sin: cos, sin of 2πj/n, j = 0 … n−1. */
-static double band_vaf(const double *y, const double *model, Py_ssize_t n, double torque_slope,
-                       double k_position_slope, const double *explained, Py_ssize_t kmax,
-                       const double *tw_cos, const double *tw_sin, double *scratch)
+static double band_vaf_tabled(const double *y, const double *model, Py_ssize_t n,
+                              double torque_slope, double k_position_slope,
+                              const double *explained, Py_ssize_t kmax, const double *tw_cos,
+                              const double *tw_sin, const double *table, double *scratch)
 {
     double *meas = scratch, *err = scratch + n;
     double mm = 0.0, me = 0.0;
@@ -711,7 +719,8 @@ static double band_vaf(const double *y, const double *model, Py_ssize_t n, doubl
         err[t] -= me;
     }
     double total = 0.0, left = 0.0;
-    Py_ssize_t k = band_powers(meas, err, n, kmax, tw_cos, tw_sin, &total, &left);
+    Py_ssize_t k = table != NULL ? band_powers_table(meas, err, n, kmax, table, &total, &left)
+                                 : band_powers(meas, err, n, kmax, tw_cos, tw_sin, &total, &left);
     for (; k <= kmax; k++) {
         double mr = 0.0, mi = 0.0, er = 0.0, ei = 0.0;
         Py_ssize_t idx = 0;
@@ -729,6 +738,16 @@ static double band_vaf(const double *y, const double *model, Py_ssize_t n, doubl
     if (!(total > 0.0)) return 0.0;
     double v = 1.0 - left / total;
     return (v > 0.0 ? v : 0.0) * 100.0;
+}
+
+/* band_vaf with the twiddles as tw_cos, tw_sin give them; band_vaf_tabled also takes them as
+ * band_table lays them out for a plan (kern625; NULL: not). */
+static double band_vaf(const double *y, const double *model, Py_ssize_t n, double torque_slope,
+                       double k_position_slope, const double *explained, Py_ssize_t kmax,
+                       const double *tw_cos, const double *tw_sin, double *scratch)
+{
+    return band_vaf_tabled(y, model, n, torque_slope, k_position_slope, explained, kmax, tw_cos,
+                           tw_sin, NULL, scratch);
 }
 
 /* Acquire `count` float64 buffers (those from `first_writable` on writable); on failure the
@@ -989,13 +1008,14 @@ static void split_newest(const double *regressors, const double *measured, Py_ss
     out[2] = 0.5 * (double)(first + n - 1);
 }
 
-static Py_ssize_t oe_window(const double *u, const double *y, Py_ssize_t m, const double *h,
-                            Py_ssize_t lag, double fs, int k, const double *held, int learn,
-                            int uncertainty, Py_ssize_t lags, const double *explained,
-                            double torque_slope, double position_slope, Py_ssize_t kmax,
-                            const double *tw_cos, const double *tw_sin, Py_ssize_t newest_rows,
-                            double *regressors, double *projected, double *gram, double *model,
-                            double *out, double *work)
+static Py_ssize_t oe_window_tabled(const double *u, const double *y, Py_ssize_t m,
+                                   const double *h, Py_ssize_t lag, double fs, int k,
+                                   const double *held, int learn, int uncertainty,
+                                   Py_ssize_t lags, const double *explained, double torque_slope,
+                                   double position_slope, Py_ssize_t kmax, const double *tw_cos,
+                                   const double *tw_sin, const double *table,
+                                   Py_ssize_t newest_rows, double *regressors, double *projected,
+                                   double *gram, double *model, double *out, double *work)
 {
     const Py_ssize_t n = m - 8, edge = lag > 4 ? lag : 4;
     for (int i = 0; i < OW_SIZE; i++) out[i] = NAN;
@@ -1017,8 +1037,8 @@ static Py_ssize_t oe_window(const double *u, const double *y, Py_ssize_t m, cons
     }
     double vafs[3]; /* the model's torque over the stencil rows is oe_fit's, kept in model */
     irf_model_vafs(u, y, m, h, lag, fs, model, edge, work, vafs);
-    out[OW_VAFS] = band_vaf(y, model, n, torque_slope, out[OW_PARAMS + 2] * position_slope,
-                            explained, kmax, tw_cos, tw_sin, work);
+    out[OW_VAFS] = band_vaf_tabled(y, model, n, torque_slope, out[OW_PARAMS + 2] * position_slope,
+                                   explained, kmax, tw_cos, tw_sin, table, work);
     out[OW_VAFS + 1] = vafs[1];
     out[OW_VAFS + 2] = vafs[2];
     if (newest_rows > 0) {
@@ -1027,32 +1047,56 @@ static Py_ssize_t oe_window(const double *u, const double *y, Py_ssize_t m, cons
     return OE_OK;
 }
 
-static PyObject *py_oe_window(PyObject *self, PyObject *args)
+/* oe_window as before (py_oe_window and compiled callers); oe_window_tabled also takes the
+ * plan's band_table (NULL: not). */
+__attribute__((unused)) static Py_ssize_t oe_window(const double *u, const double *y, Py_ssize_t m, const double *h,
+                            Py_ssize_t lag, double fs, int k, const double *held, int learn,
+                            int uncertainty, Py_ssize_t lags, const double *explained,
+                            double torque_slope, double position_slope, Py_ssize_t kmax,
+                            const double *tw_cos, const double *tw_sin, Py_ssize_t newest_rows,
+                            double *regressors, double *projected, double *gram, double *model,
+                            double *out, double *work)
 {
-    PyObject *objs[12];
+    return oe_window_tabled(u, y, m, h, lag, fs, k, held, learn, uncertainty, lags, explained,
+                            torque_slope, position_slope, kmax, tw_cos, tw_sin, NULL, newest_rows,
+                            regressors, projected, gram, model, out, work);
+}
+
+/* oe_window's and (tabled) oe_window_tabled's argument handling: the latter takes one more
+ * buffer, the plan's band_table, last. */
+static PyObject *oe_window_entry(PyObject *args, int tabled)
+{
+    PyObject *objs[13], *out_objs[5], *table = NULL;
     double fs, torque_slope, position_slope;
     int k, learn, uncertainty;
     Py_ssize_t lags, kmax, newest_rows;
-    if (!PyArg_ParseTuple(args, "OOOdiOppnOddnOOnOOOOO", &objs[0], &objs[1], &objs[2], &fs, &k,
-                          &objs[3], &learn, &uncertainty, &lags, &objs[4], &torque_slope,
-                          &position_slope, &kmax, &objs[5], &objs[6], &newest_rows, &objs[7],
-                          &objs[8], &objs[9], &objs[10], &objs[11])) {
+    if (!PyArg_ParseTuple(args, tabled ? "OOOdiOppnOddnOOnOOOOOO" : "OOOdiOppnOddnOOnOOOOO",
+                          &objs[0], &objs[1], &objs[2], &fs, &k, &objs[3], &learn, &uncertainty,
+                          &lags, &objs[4], &torque_slope, &position_slope, &kmax, &objs[5],
+                          &objs[6], &newest_rows, &out_objs[0], &out_objs[1], &out_objs[2],
+                          &out_objs[3], &out_objs[4], &table)) {
         return NULL;
     }
-    const char *names[12] = {"u", "y", "h", "held", "explained", "tw_cos", "tw_sin",
-                             "regressors", "projected", "gram", "model", "out"};
+    /* read-only buffers first (the table, when given, after tw_sin), then the writable ones */
+    const int w = tabled ? 8 : 7, count = w + 5; /* w: the first writable */
+    if (tabled) objs[7] = table;
+    for (int i = 0; i < 5; i++) objs[w + i] = out_objs[i];
+    const char *names[13] = {"u", "y", "h", "held", "explained", "tw_cos", "tw_sin"};
+    const char *out_names[5] = {"regressors", "projected", "gram", "model", "out"};
+    names[7] = "table";
+    for (int i = 0; i < 5; i++) names[w + i] = out_names[i];
     int has_explained = objs[4] != Py_None;
     if (!has_explained) objs[4] = objs[1]; /* a stand-in buffer, not read */
-    Py_buffer b[12];
-    if (get_buffers(objs, 12, 7, names, b) < 0) return NULL;
+    Py_buffer b[13];
+    if (get_buffers(objs, count, w, names, b) < 0) return NULL;
     Py_ssize_t m = b[0].len / 8, nh = b[2].len / 8, lag = (nh - 1) / 2, n = m - 8;
     Py_ssize_t edge = lag > 4 ? lag : 4, inner = m - 2 * edge;
     PyObject *result = NULL;
     if (b[1].len != b[0].len || nh % 2 != 1 || lag < 1 || inner < 2 || n < 2 || k < 0 ||
         k > 2 || b[3].len / 8 < 2 || b[4].len != b[0].len || b[5].len / 8 != n ||
-        b[6].len / 8 != n || kmax < 0 || kmax > n / 2 || b[7].len / 8 != 3 * n ||
-        b[8].len / 8 != 4 * n || b[9].len / 8 != 16 || b[10].len / 8 != n ||
-        b[11].len / 8 != OW_SIZE) {
+        b[6].len / 8 != n || kmax < 0 || kmax > n / 2 || b[w].len / 8 != 3 * n ||
+        b[w + 1].len / 8 != 4 * n || b[w + 2].len / 8 != 16 || b[w + 3].len / 8 != n ||
+        b[w + 4].len / 8 != OW_SIZE || (tabled && b[7].len / 8 != BAND_TABLE_SIZE(n, kmax))) {
         PyErr_SetString(PyExc_ValueError, "oe_window: inconsistent sizes");
     } else {
         Py_ssize_t nl = lags < 1 ? 1 : (lags > n - 1 ? n - 1 : lags);
@@ -1061,17 +1105,22 @@ static PyObject *py_oe_window(PyObject *self, PyObject *args)
         if (work == NULL) {
             PyErr_NoMemory();
         } else {
-            Py_ssize_t status = oe_window(
+            Py_ssize_t status = oe_window_tabled(
                 b[0].buf, b[1].buf, m, b[2].buf, lag, fs, k, b[3].buf, learn, uncertainty,
                 lags, has_explained ? b[4].buf : NULL, torque_slope, position_slope, kmax,
-                b[5].buf, b[6].buf, newest_rows, b[7].buf, b[8].buf, b[9].buf, b[10].buf,
-                b[11].buf, work);
+                b[5].buf, b[6].buf, tabled ? b[7].buf : NULL, newest_rows, b[w].buf,
+                b[w + 1].buf, b[w + 2].buf, b[w + 3].buf, b[w + 4].buf, work);
             PyMem_Free(work);
             result = PyLong_FromSsize_t(status);
         }
     }
-    release_buffers(b, 12);
+    release_buffers(b, count);
     return result;
+}
+
+static PyObject *py_oe_window(PyObject *self, PyObject *args)
+{
+    return oe_window_entry(args, 0);
 }
 
 /* ------------------------------------------------------------------ the reflex decimator
@@ -1673,6 +1722,8 @@ static PyObject *py_window_sums(PyObject *self, PyObject *args)
     return result;
 }
 static PyObject *py_evidence_gains(PyObject *self, PyObject *args);
+static PyObject *py_band_table(PyObject *self, PyObject *args);       /* kern625, end of file */
+static PyObject *py_oe_window_tabled(PyObject *self, PyObject *args); /* kern625, end of file */
 static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args);
 static PyObject *py_zero_phase_rows(PyObject *self, PyObject *args);
 static PyObject *py_savgol_pair(PyObject *self, PyObject *args);
@@ -1700,6 +1751,8 @@ static PyMethodDef methods[] = {
      "oe_window(u, y, h, fs, k, held, learn, uncertainty, lags, explained, torque_slope, "
      "position_slope, kmax, tw_cos, tw_sin, newest_rows, regressors, projected, gram, model, "
      "out) -> status: a stream window's output-error back end (OW_* index out)."},
+    {"band_table", py_band_table, METH_VARARGS, "band_table(tw_cos, tw_sin, kmax, table): a plan's published-VAF twiddles for oe_window_tabled (((kmax + 3) // 4) * n * 8 doubles)."},
+    {"oe_window_tabled", py_oe_window_tabled, METH_VARARGS, "oe_window_tabled(..., out, table) -> status: oe_window with the plan's band_table last, the same numbers."},
     {"band_limit", py_band_limit, METH_VARARGS,
      "band_limit(x, taps, factor, sign, out): sign·x, mean removed, FIR-decimated."},
     {"sos_filtfilt", py_sos_filtfilt, METH_VARARGS,
@@ -3081,3 +3134,99 @@ static Py_ssize_t window_irf_sloped(const double *pos, const double *trq, Py_ssi
     return -1;
 }
 
+/* The plan's band table (BAND_TABLE_SIZE(n, kmax) doubles) from tw_cos, tw_sin (cos, sin of
+ * 2πj/n): group g, sample t holds cos and sin of bins 4g + 1 … 4g + 4 at t, the twiddles
+ * band_powers reads (index b·t mod n), 0 past kmax. */
+static void band_table_fill(const double *tw_cos, const double *tw_sin, Py_ssize_t n,
+                            Py_ssize_t kmax, double *table)
+{
+    for (Py_ssize_t g = 0; g < (kmax + 3) / 4; g++) {
+        for (int b = 0; b < 4; b++) {
+            const Py_ssize_t bin = 4 * g + 1 + b;
+            double *at = table + g * n * 8 + b;
+            Py_ssize_t idx = 0;
+            for (Py_ssize_t t = 0; t < n; t++, at += 8) {
+                at[0] = bin <= kmax ? tw_cos[idx] : 0.0;
+                at[4] = bin <= kmax ? tw_sin[idx] : 0.0;
+                idx += bin;
+                if (idx >= n) idx %= n;
+            }
+        }
+    }
+}
+
+/* band_powers' sums from the band table: per group of 4 bins the measured spectrum's real and
+ * imaginary parts in two pairs of lanes each (a lane per bin), the residual's likewise; over t in
+ * order with band_powers' products, so each bin's sums are its; the powers are added to total
+ * and left in bin order. Returns kmax + 1 (no bin left). */
+static Py_ssize_t band_powers_table(const double *meas, const double *err, Py_ssize_t n,
+                                    Py_ssize_t kmax, const double *table, double *total,
+                                    double *left)
+{
+    for (Py_ssize_t g = 0; g < (kmax + 3) / 4; g++) {
+        const double *at = table + g * n * 8;
+#ifdef LANE_PAIRS
+        lane_pair mr0 = pair_of(0.0), mr1 = mr0, mi0 = mr0, mi1 = mr0, er0 = mr0, er1 = mr0,
+                  ei0 = mr0, ei1 = mr0;
+        for (Py_ssize_t t = 0; t < n; t++, at += 8) {
+            const lane_pair m = pair_of(meas[t]), e = pair_of(err[t]);
+            const lane_pair c0 = pair_at(at), c1 = pair_at(at + 2), s0 = pair_at(at + 4),
+                            s1 = pair_at(at + 6);
+            mr0 += m * c0;
+            mr1 += m * c1;
+            mi0 -= m * s0;
+            mi1 -= m * s1;
+            er0 += e * c0;
+            er1 += e * c1;
+            ei0 -= e * s0;
+            ei1 -= e * s1;
+        }
+        double mr[4], mi[4], er[4], ei[4];
+        memcpy(mr, &mr0, 16), memcpy(mr + 2, &mr1, 16), memcpy(mi, &mi0, 16);
+        memcpy(mi + 2, &mi1, 16), memcpy(er, &er0, 16), memcpy(er + 2, &er1, 16);
+        memcpy(ei, &ei0, 16), memcpy(ei + 2, &ei1, 16);
+#else
+        double mr[4] = {0.0}, mi[4] = {0.0}, er[4] = {0.0}, ei[4] = {0.0};
+        for (Py_ssize_t t = 0; t < n; t++, at += 8) {
+            for (int b = 0; b < 4; b++) {
+                mr[b] += meas[t] * at[b];
+                mi[b] -= meas[t] * at[4 + b];
+                er[b] += err[t] * at[b];
+                ei[b] -= err[t] * at[4 + b];
+            }
+        }
+#endif
+        for (int b = 0; b < 4 && 4 * g + 1 + b <= kmax; b++) {
+            *total += mr[b] * mr[b] + mi[b] * mi[b];
+            *left += er[b] * er[b] + ei[b] * ei[b];
+        }
+    }
+    return kmax + 1;
+}
+
+static PyObject *py_band_table(PyObject *self, PyObject *args)
+{
+    PyObject *objs[3];
+    Py_ssize_t kmax;
+    if (!PyArg_ParseTuple(args, "OOnO", &objs[0], &objs[1], &kmax, &objs[2])) return NULL;
+    const char *names[3] = {"tw_cos", "tw_sin", "table"};
+    Py_buffer b[3];
+    if (get_buffers(objs, 3, 2, names, b) < 0) return NULL;
+    const Py_ssize_t n = b[0].len / 8;
+    PyObject *result = NULL;
+    if (b[1].len != b[0].len || kmax < 0 || kmax > n / 2 ||
+        b[2].len / 8 != BAND_TABLE_SIZE(n, kmax)) {
+        PyErr_SetString(PyExc_ValueError, "band_table: inconsistent sizes");
+    } else {
+        band_table_fill(b[0].buf, b[1].buf, n, kmax, b[2].buf);
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+    release_buffers(b, 3);
+    return result;
+}
+
+static PyObject *py_oe_window_tabled(PyObject *self, PyObject *args)
+{
+    return oe_window_entry(args, 1);
+}
