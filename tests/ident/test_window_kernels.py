@@ -70,10 +70,11 @@ def _line_slope(x: list[float], sign: float) -> float:
     return tx / tt
 
 
+@pytest.mark.parametrize("samples", [750, 757])  # Σt² over half-integers and integers
 @pytest.mark.parametrize("detrend", ["linear", "mean", "none"])
-def test_the_front_ends_slopes_are_the_line_slopes_of_the_raw_window(detrend):
+def test_the_front_ends_slopes_are_the_line_slopes_of_the_raw_window(detrend, samples):
     # the slopes now come from the detrending's own pass, not a pass of their own
-    theta, tau = _signal(750, 11)
+    theta, tau = _signal(samples, 11)
     options = EstimatorOptions(lag_s=0.02, detrend=detrend, torque_sign=-1)
     plan = resolve_plan(theta, FS, options)
     *_, slopes = front._front_end(theta, tau, FS, options, plan)
@@ -115,3 +116,37 @@ def test_the_fused_vafs_are_the_separate_calls_bit_for_bit(held, explained):
     )
     at = kernel.OW_VAFS
     assert (buffers.out[at + 1], buffers.out[at + 2]) == (vafs[1], vafs[2])
+
+
+@pytest.mark.parametrize("band_hz", [0.0, 3.0, 30.0, 55.0, 90.0])  # kmax 0, 1, 4k and others
+def test_the_tabled_back_end_is_oe_window_bit_for_bit(band_hz):
+    # the published VAF's DFT from the plan's twiddle table sums each bin as the twiddle
+    # lookups do; every output of the call is oe_window's
+    kernel = compiled_kernel()
+    theta, tau = _signal(750, 31)
+    options = EstimatorOptions(lag_s=0.02)
+    plan = resolve_plan(theta, FS, options)
+    extra = 0.05 * np.cos(np.arange(theta.size) / 30.0)
+    window = analyse_window(theta, tau, FS, options, plan, explained=extra)
+    irf, u, y = window.signals
+    outputs = []
+    for tabled in (False, True):
+        buf = fused.BackEndBuffers().for_window(u.size, irf, plan, max(band_hz, 1e-9))
+        args = [u, y, irf.h, irf.fs_hz, 1, np.array([0.015, 0.0]), True, True, buf.lags]
+        args += [window.score.explained, 0.01, 0.02, buf.kmax, buf.cos, buf.sin, 12]
+        args += [buf.regressors, buf.projected, buf.gram, buf.model, buf.out]
+        entry = kernel.oe_window_tabled if tabled else kernel.oe_window
+        status = entry(*args, buf.table) if tabled else entry(*args)
+        assert status == kernel.OE_OK
+        outputs.append(np.concatenate([buf.out, buf.model, buf.projected.ravel()]))
+    assert outputs[0].tobytes() == outputs[1].tobytes()
+
+
+def test_a_band_table_of_the_wrong_size_is_refused():
+    kernel = compiled_kernel()
+    cos, sin = np.ones(40), np.zeros(40)
+    with pytest.raises(ValueError, match="band_table"):
+        kernel.band_table(cos, sin, 5, np.empty(40 * 8))
+    table = np.empty(2 * 40 * 8)
+    kernel.band_table(cos, sin, 5, table)
+    assert table[8 * 40 + 1 :: 8].tolist() == [0.0] * 40  # bin 6, past kmax, is zero
