@@ -78,9 +78,13 @@ class BackEndBuffers:
             n = m - 8
             self.cos, self.sin = twiddles(n)
             self.kmax = band_bins(n, irf.fs_hz, band_hz)
-            # the published VAF's twiddles laid out for its DFT, once per plan
-            self.table = np.empty((self.kmax + 3) // 4 * n * 8)
-            _eureka.band_table(self.cos, self.sin, self.kmax, self.table)
+            # the published VAF's twiddles laid out for its DFT, once per plan, when they fit
+            # in a core's cache (the 625 Hz plan's: 4 k values; a 2500 Hz plan's, 60 k, would
+            # be streamed from memory every window, so it keeps the twiddle lookups)
+            size = (self.kmax + 3) // 4 * n * 8
+            self.table = np.empty(size if size <= _TABLE_LIMIT else 0)
+            if self.table.size:
+                _eureka.band_table(self.cos, self.sin, self.kmax, self.table)
             self.lags = noise_lags(irf, plan)
             self.lags_s = irf.lags_s  # read-only, shared by the IRFs of this lag grid
             self._shared = (plan, irf.fs_hz, band_hz, m, irf.h.size)
@@ -162,7 +166,7 @@ def fused_back_end(
         buf.held[1] = 0.0 if damping is None else damping
     y_c = np.ascontiguousarray(y)
     explained = score.explained
-    status = _eureka.oe_window_tabled(
+    status = (_eureka.oe_window_tabled if buf.table.size else _tableless)(
         np.ascontiguousarray(u),
         y_c,
         np.ascontiguousarray(irf.h),
@@ -223,5 +227,14 @@ _OUT: tuple[int, int, int, int, int] = (
     if _eureka is None
     else (_eureka.OW_PARAMS, _eureka.OW_SE, _eureka.OW_VAFS, _eureka.OW_WHOLE, _eureka.OW_NEWEST)
 )
+#: The largest band table kept (float64 values: 128 KiB).
+_TABLE_LIMIT = 1 << 14
+
+
+def _tableless(*args: Any) -> int:
+    """``oe_window`` for a plan whose band table is not kept (its last argument, empty)."""
+    return int(_eureka.oe_window(*args[:-1]))
+
+
 #: Whether I and B were held, by the number of held parameters.
 _HELD_FLAGS = ((False, False), (True, False), (True, True))
