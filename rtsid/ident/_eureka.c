@@ -115,34 +115,49 @@ static int get_doubles(PyObject *obj, Py_buffer *view, int writable, const char 
  * one window in one call (what rtsid.ident.window.prepare_window + irf.estimate_irf do in
  * numpy, which stays the reference). Loops are O(N·T) and O(M·L).
  */
+/* kern625 (section at the end of this file): detrend_into's passes merged, the slope returned */
+static double detrend_sloped(const double *x, double *out, Py_ssize_t n, double sign, int kind,
+                             int want_slope);
+/* where phase p of n samples in phases of factor starts (detrend_phases, fir_phases) */
+static double centred_squares(Py_ssize_t n);
+static inline Py_ssize_t phase_start(Py_ssize_t p, Py_ssize_t n, Py_ssize_t factor)
+{
+    const Py_ssize_t rest = n % factor;
+    return p * (n / factor) + (p < rest ? p : rest);
+}
+static double detrend_phases(const double *x, double *out, Py_ssize_t n, double sign, int kind,
+                             int want_slope, Py_ssize_t factor);
+static void fir_phases(const double *phases, Py_ssize_t n, const double *taps, Py_ssize_t nt,
+                       Py_ssize_t factor, double *out, Py_ssize_t m);
+/* kern625: the published VAF's DFT from a table of its twiddles kept per plan (band_table): for
+ * each group of 4 bins and each sample, the 4 cosines then the 4 sines (the last group padded
+ * with zeros) */
+#define BAND_TABLE_SIZE(n, kmax) ((((kmax) + 3) / 4) * (n) * 8)
+static Py_ssize_t band_powers_table(const double *meas, const double *err, Py_ssize_t n,
+                                    Py_ssize_t kmax, const double *table, double *total,
+                                    double *left);
+static Py_ssize_t fir_decimate_lanes(const double *x, const double *taps, Py_ssize_t nt,
+                                     Py_ssize_t factor, double *out, Py_ssize_t m);
+/* kept for compiled callers elsewhere; the window's kernels now use the forms above */
+static double line_slope(const double *x, Py_ssize_t n, double sign) __attribute__((unused));
+static void detrend_into(const double *x, double *out, Py_ssize_t n, double sign, int kind)
+    __attribute__((unused));
+static void fir_decimate(const double *x, Py_ssize_t n, const double *taps, Py_ssize_t nt,
+                         Py_ssize_t factor, double *out, Py_ssize_t m) __attribute__((unused));
+/* kern625: the IRF's torque prediction and the three VAFs with the model's torque oe_fit formed */
+static void irf_model_vafs(const double *u, const double *y, Py_ssize_t m, const double *h,
+                           Py_ssize_t lag, double fs, const double *model, Py_ssize_t edge,
+                           double *by_irf, double *vafs);
+
 static void detrend_into(const double *x, double *out, Py_ssize_t n, double sign, int kind)
 {
-    double mean = 0.0, slope = 0.0, tt = 0.0, tx = 0.0;
-    const double centre = (double)(n - 1) / 2.0;
-    for (Py_ssize_t i = 0; i < n; i++) {
-        mean += sign * x[i];
-    }
-    mean /= (double)n;
-    if (kind == 2) {
-        for (Py_ssize_t i = 0; i < n; i++) {
-            double t = (double)i - centre;
-            tt += t * t;
-            tx += t * sign * x[i];
-        }
-        slope = tt > 0.0 ? tx / tt : 0.0;
-    }
-    for (Py_ssize_t i = 0; i < n; i++) {
-        double v = sign * x[i];
-        if (kind >= 1) v -= mean;
-        if (kind == 2) v -= slope * ((double)i - centre);
-        out[i] = v;
-    }
+    (void)detrend_sloped(x, out, n, sign, kind, 0);
 }
 
 static void fir_decimate(const double *x, Py_ssize_t n, const double *taps, Py_ssize_t nt,
                          Py_ssize_t factor, double *out, Py_ssize_t m)
 {
-    for (Py_ssize_t k = 0; k < m; k++) {
+    for (Py_ssize_t k = fir_decimate_lanes(x, taps, nt, factor, out, m); k < m; k++) {
         const double *seg = x + k * factor + nt - 1;
         double acc = 0.0;
         for (Py_ssize_t j = 0; j < nt; j++) {
@@ -194,39 +209,23 @@ static Py_ssize_t band_powers(const double *meas, const double *err, Py_ssize_t 
 /* work: WINDOW_IRF_WORK(n, nh) doubles */
 #define WINDOW_IRF_WORK(n, nh) (2 * (n) + 3 * (nh) + FILTERS_SIZE(nh) + GRAM_SWEEPS_WORK(nh))
 
-static Py_ssize_t window_irf(const double *pos, const double *trq, Py_ssize_t n,
+static Py_ssize_t window_irf_sloped(const double *pos, const double *trq, Py_ssize_t n,
+                                    const double *taps, Py_ssize_t nt, Py_ssize_t factor,
+                                    double sign, int kind, Py_ssize_t lag, double ridge,
+                                    Py_ssize_t sweeps, double fs, double *u, double *y,
+                                    Py_ssize_t m, double *h, double *phi, double *work,
+                                    double *alpha, double *slopes);
+
+/* window_irf: the front end as before (py_window_irf now calls window_irf_sloped, which also
+ * hands back the trends' slopes; other compiled callers keep this one). */
+__attribute__((unused)) static Py_ssize_t window_irf(const double *pos, const double *trq, Py_ssize_t n,
                              const double *taps, Py_ssize_t nt, Py_ssize_t factor, double sign,
                              int kind, Py_ssize_t lag, double ridge, Py_ssize_t sweeps,
                              double fs, double *u, double *y, Py_ssize_t m, double *h,
                              double *phi, double *work, double *alpha)
 {
-    const Py_ssize_t nh = 2 * lag + 1;
-    double *dp = work, *dt = work + n;              /* detrended, n each */
-    double *rr = dt + n;                            /* R reversed, nh */
-    double *sums = rr + nh;                         /* whole-window sums: auto, then cross */
-    double *filters = sums + 2 * nh, *alphas = filters + nh * (nh + 1) / 2; /* EUREKA's, kept */
-    double *rest = filters + FILTERS_SIZE(nh);      /* the sweeps' scratch */
-    detrend_into(pos, dp, n, 1.0, kind);
-    detrend_into(trq, dt, n, sign, kind);
-    fir_decimate(dp, n, taps, nt, factor, u, m);
-    fir_decimate(dt, n, taps, nt, factor, y, m);
-    /* the sums themselves are kept for the sweeps' Gram matrix; sums / m is what
-     * xcorr_blocked(..., m, ...) gives, bit for bit */
-    xcorr_blocked(u, u, m, 0, nh - 1, 1.0, sums);
-    for (Py_ssize_t k = 0; k < nh; k++) phi[k] = sums[k] / (double)m;
-    const double loading = ridge * phi[0];
-    phi[0] += loading;
-    /* phi_uy(k) = sum_t u(t-k) y(t) / m  =  sum_s u(s) y(s+k) / m */
-    double *g = rest; /* the first solve's right-hand side, before the sweeps use rest */
-    xcorr_blocked(u, y, m, -lag, lag, 1.0, sums + nh);
-    for (Py_ssize_t k = 0; k < nh; k++) g[k] = sums[nh + k] / (double)m;
-    /* the four solves share R: its prediction-error filters are formed once */
-    Py_ssize_t status = eureka_filters(phi, rr, filters, alphas, nh, alpha);
-    if (status >= 0) return status;
-    eureka_apply(rr, filters, alphas, g, h, nh);
-    for (Py_ssize_t k = 0; k < nh; k++) h[k] *= fs;
-    gram_sweeps(u, y, m, lag, sums, sums + nh, loading, sweeps, fs, rr, filters, alphas, h, rest);
-    return -1;
+    return window_irf_sloped(pos, trq, n, taps, nt, factor, sign, kind, lag, ridge, sweeps, fs, u,
+                             y, m, h, phi, work, alpha, NULL);
 }
 
 /* ------------------------------------------------------------------ window back end
@@ -507,17 +506,19 @@ enum { OE_OK = -1, OE_ZERO_TORQUE = 1, OE_INSEPARABLE = 2 };
 static void without_trend(const double *row, double *out, Py_ssize_t n)
 {
     const double centre = (double)(n - 1) / 2.0;
-    double mean = 0.0, tt = 0.0, tx = 0.0;
+    double mean = 0.0, tx = 0.0;
     for (Py_ssize_t i = 0; i < n; i++) mean += row[i];
     mean /= (double)n;
-    for (Py_ssize_t i = 0; i < n; i++) {
-        double t = (double)i - centre, c = row[i] - mean;
+    /* t = (double)i − centre exactly (steps of 1); Σt² the loop's exact sum (kern625) */
+    double t = -centre;
+    for (Py_ssize_t i = 0; i < n; i++, t += 1.0) {
+        const double c = row[i] - mean;
         out[i] = c;
-        tt += t * t;
         tx += c * t;
     }
-    const double coef = tx / tt;
-    for (Py_ssize_t i = 0; i < n; i++) out[i] -= coef * ((double)i - centre);
+    const double coef = tx / centred_squares(n);
+    t = -centre;
+    for (Py_ssize_t i = 0; i < n; i++, t += 1.0) out[i] -= coef * t;
 }
 
 static Py_ssize_t oe_design(const double *u, const double *y, Py_ssize_t m, double fs,
@@ -695,9 +696,10 @@ static Py_ssize_t oe_fit(const double *regressors, const double *projected, cons
 /* Published VAF over the DFT bins 1 … kmax of the n = m − 8 stencil rows (samples 4 … m−5):
  * measured y + torque trend + explained, model + K·position trend + explained, each centred
  * (as assess.published_vaf with in_band). tw_cos/tw_sin: cos, sin of 2πj/n, j = 0 … n−1. */
-static double band_vaf(const double *y, const double *model, Py_ssize_t n, double torque_slope,
-                       double k_position_slope, const double *explained, Py_ssize_t kmax,
-                       const double *tw_cos, const double *tw_sin, double *scratch)
+static double band_vaf_tabled(const double *y, const double *model, Py_ssize_t n,
+                              double torque_slope, double k_position_slope,
+                              const double *explained, Py_ssize_t kmax, const double *tw_cos,
+                              const double *tw_sin, const double *table, double *scratch)
 {
     double *meas = scratch, *err = scratch + n;
     double mm = 0.0, me = 0.0;
@@ -717,7 +719,8 @@ static double band_vaf(const double *y, const double *model, Py_ssize_t n, doubl
         err[t] -= me;
     }
     double total = 0.0, left = 0.0;
-    Py_ssize_t k = band_powers(meas, err, n, kmax, tw_cos, tw_sin, &total, &left);
+    Py_ssize_t k = table != NULL ? band_powers_table(meas, err, n, kmax, table, &total, &left)
+                                 : band_powers(meas, err, n, kmax, tw_cos, tw_sin, &total, &left);
     for (; k <= kmax; k++) {
         double mr = 0.0, mi = 0.0, er = 0.0, ei = 0.0;
         Py_ssize_t idx = 0;
@@ -735,6 +738,16 @@ static double band_vaf(const double *y, const double *model, Py_ssize_t n, doubl
     if (!(total > 0.0)) return 0.0;
     double v = 1.0 - left / total;
     return (v > 0.0 ? v : 0.0) * 100.0;
+}
+
+/* band_vaf with the twiddles as tw_cos, tw_sin give them; band_vaf_tabled also takes them as
+ * band_table lays them out for a plan (kern625; NULL: not). */
+static double band_vaf(const double *y, const double *model, Py_ssize_t n, double torque_slope,
+                       double k_position_slope, const double *explained, Py_ssize_t kmax,
+                       const double *tw_cos, const double *tw_sin, double *scratch)
+{
+    return band_vaf_tabled(y, model, n, torque_slope, k_position_slope, explained, kmax, tw_cos,
+                           tw_sin, NULL, scratch);
 }
 
 /* Acquire `count` float64 buffers (those from `first_writable` on writable); on failure the
@@ -995,15 +1008,16 @@ static void split_newest(const double *regressors, const double *measured, Py_ss
     out[2] = 0.5 * (double)(first + n - 1);
 }
 
-static Py_ssize_t oe_window(const double *u, const double *y, Py_ssize_t m, const double *h,
-                            Py_ssize_t lag, double fs, int k, const double *held, int learn,
-                            int uncertainty, Py_ssize_t lags, const double *explained,
-                            double torque_slope, double position_slope, Py_ssize_t kmax,
-                            const double *tw_cos, const double *tw_sin, Py_ssize_t newest_rows,
-                            double *regressors, double *projected, double *gram, double *model,
-                            double *out, double *work)
+static Py_ssize_t oe_window_tabled(const double *u, const double *y, Py_ssize_t m,
+                                   const double *h, Py_ssize_t lag, double fs, int k,
+                                   const double *held, int learn, int uncertainty,
+                                   Py_ssize_t lags, const double *explained, double torque_slope,
+                                   double position_slope, Py_ssize_t kmax, const double *tw_cos,
+                                   const double *tw_sin, const double *table,
+                                   Py_ssize_t newest_rows, double *regressors, double *projected,
+                                   double *gram, double *model, double *out, double *work)
 {
-    const Py_ssize_t n = m - 8, edge = lag > 4 ? lag : 4, inner = m - 2 * edge;
+    const Py_ssize_t n = m - 8, edge = lag > 4 ? lag : 4;
     for (int i = 0; i < OW_SIZE; i++) out[i] = NAN;
     Py_ssize_t status = oe_design(u, y, m, fs, regressors, projected, gram);
     if (status != OE_OK) return status;
@@ -1021,11 +1035,10 @@ static Py_ssize_t oe_window(const double *u, const double *y, Py_ssize_t m, cons
         for (int i = 0; i < 3; i++) out[OW_WHOLE + i] = out[OW_PARAMS + i];
         out[OW_WHOLE + 3] = vaf;
     }
-    predictions(u, y, m, h, lag, fs, out + OW_PARAMS, edge, work, work + inner, work + 2 * inner);
-    double vafs[3];
-    three_vafs(work, work + inner, work + 2 * inner, inner, vafs);
-    out[OW_VAFS] = band_vaf(y, model, n, torque_slope, out[OW_PARAMS + 2] * position_slope,
-                            explained, kmax, tw_cos, tw_sin, work);
+    double vafs[3]; /* the model's torque over the stencil rows is oe_fit's, kept in model */
+    irf_model_vafs(u, y, m, h, lag, fs, model, edge, work, vafs);
+    out[OW_VAFS] = band_vaf_tabled(y, model, n, torque_slope, out[OW_PARAMS + 2] * position_slope,
+                                   explained, kmax, tw_cos, tw_sin, table, work);
     out[OW_VAFS + 1] = vafs[1];
     out[OW_VAFS + 2] = vafs[2];
     if (newest_rows > 0) {
@@ -1034,32 +1047,56 @@ static Py_ssize_t oe_window(const double *u, const double *y, Py_ssize_t m, cons
     return OE_OK;
 }
 
-static PyObject *py_oe_window(PyObject *self, PyObject *args)
+/* oe_window as before (py_oe_window and compiled callers); oe_window_tabled also takes the
+ * plan's band_table (NULL: not). */
+__attribute__((unused)) static Py_ssize_t oe_window(const double *u, const double *y, Py_ssize_t m, const double *h,
+                            Py_ssize_t lag, double fs, int k, const double *held, int learn,
+                            int uncertainty, Py_ssize_t lags, const double *explained,
+                            double torque_slope, double position_slope, Py_ssize_t kmax,
+                            const double *tw_cos, const double *tw_sin, Py_ssize_t newest_rows,
+                            double *regressors, double *projected, double *gram, double *model,
+                            double *out, double *work)
 {
-    PyObject *objs[12];
+    return oe_window_tabled(u, y, m, h, lag, fs, k, held, learn, uncertainty, lags, explained,
+                            torque_slope, position_slope, kmax, tw_cos, tw_sin, NULL, newest_rows,
+                            regressors, projected, gram, model, out, work);
+}
+
+/* oe_window's and (tabled) oe_window_tabled's argument handling: the latter takes one more
+ * buffer, the plan's band_table, last. */
+static PyObject *oe_window_entry(PyObject *args, int tabled)
+{
+    PyObject *objs[13], *out_objs[5], *table = NULL;
     double fs, torque_slope, position_slope;
     int k, learn, uncertainty;
     Py_ssize_t lags, kmax, newest_rows;
-    if (!PyArg_ParseTuple(args, "OOOdiOppnOddnOOnOOOOO", &objs[0], &objs[1], &objs[2], &fs, &k,
-                          &objs[3], &learn, &uncertainty, &lags, &objs[4], &torque_slope,
-                          &position_slope, &kmax, &objs[5], &objs[6], &newest_rows, &objs[7],
-                          &objs[8], &objs[9], &objs[10], &objs[11])) {
+    if (!PyArg_ParseTuple(args, tabled ? "OOOdiOppnOddnOOnOOOOOO" : "OOOdiOppnOddnOOnOOOOO",
+                          &objs[0], &objs[1], &objs[2], &fs, &k, &objs[3], &learn, &uncertainty,
+                          &lags, &objs[4], &torque_slope, &position_slope, &kmax, &objs[5],
+                          &objs[6], &newest_rows, &out_objs[0], &out_objs[1], &out_objs[2],
+                          &out_objs[3], &out_objs[4], &table)) {
         return NULL;
     }
-    const char *names[12] = {"u", "y", "h", "held", "explained", "tw_cos", "tw_sin",
-                             "regressors", "projected", "gram", "model", "out"};
+    /* read-only buffers first (the table, when given, after tw_sin), then the writable ones */
+    const int w = tabled ? 8 : 7, count = w + 5; /* w: the first writable */
+    if (tabled) objs[7] = table;
+    for (int i = 0; i < 5; i++) objs[w + i] = out_objs[i];
+    const char *names[13] = {"u", "y", "h", "held", "explained", "tw_cos", "tw_sin"};
+    const char *out_names[5] = {"regressors", "projected", "gram", "model", "out"};
+    names[7] = "table";
+    for (int i = 0; i < 5; i++) names[w + i] = out_names[i];
     int has_explained = objs[4] != Py_None;
     if (!has_explained) objs[4] = objs[1]; /* a stand-in buffer, not read */
-    Py_buffer b[12];
-    if (get_buffers(objs, 12, 7, names, b) < 0) return NULL;
+    Py_buffer b[13];
+    if (get_buffers(objs, count, w, names, b) < 0) return NULL;
     Py_ssize_t m = b[0].len / 8, nh = b[2].len / 8, lag = (nh - 1) / 2, n = m - 8;
     Py_ssize_t edge = lag > 4 ? lag : 4, inner = m - 2 * edge;
     PyObject *result = NULL;
     if (b[1].len != b[0].len || nh % 2 != 1 || lag < 1 || inner < 2 || n < 2 || k < 0 ||
         k > 2 || b[3].len / 8 < 2 || b[4].len != b[0].len || b[5].len / 8 != n ||
-        b[6].len / 8 != n || kmax < 0 || kmax > n / 2 || b[7].len / 8 != 3 * n ||
-        b[8].len / 8 != 4 * n || b[9].len / 8 != 16 || b[10].len / 8 != n ||
-        b[11].len / 8 != OW_SIZE) {
+        b[6].len / 8 != n || kmax < 0 || kmax > n / 2 || b[w].len / 8 != 3 * n ||
+        b[w + 1].len / 8 != 4 * n || b[w + 2].len / 8 != 16 || b[w + 3].len / 8 != n ||
+        b[w + 4].len / 8 != OW_SIZE || (tabled && b[7].len / 8 != BAND_TABLE_SIZE(n, kmax))) {
         PyErr_SetString(PyExc_ValueError, "oe_window: inconsistent sizes");
     } else {
         Py_ssize_t nl = lags < 1 ? 1 : (lags > n - 1 ? n - 1 : lags);
@@ -1068,17 +1105,22 @@ static PyObject *py_oe_window(PyObject *self, PyObject *args)
         if (work == NULL) {
             PyErr_NoMemory();
         } else {
-            Py_ssize_t status = oe_window(
+            Py_ssize_t status = oe_window_tabled(
                 b[0].buf, b[1].buf, m, b[2].buf, lag, fs, k, b[3].buf, learn, uncertainty,
                 lags, has_explained ? b[4].buf : NULL, torque_slope, position_slope, kmax,
-                b[5].buf, b[6].buf, newest_rows, b[7].buf, b[8].buf, b[9].buf, b[10].buf,
-                b[11].buf, work);
+                b[5].buf, b[6].buf, tabled ? b[7].buf : NULL, newest_rows, b[w].buf,
+                b[w + 1].buf, b[w + 2].buf, b[w + 3].buf, b[w + 4].buf, work);
             PyMem_Free(work);
             result = PyLong_FromSsize_t(status);
         }
     }
-    release_buffers(b, 12);
+    release_buffers(b, count);
     return result;
+}
+
+static PyObject *py_oe_window(PyObject *self, PyObject *args)
+{
+    return oe_window_entry(args, 0);
 }
 
 /* ------------------------------------------------------------------ the reflex decimator
@@ -1194,8 +1236,8 @@ static PyObject *py_band_limit(PyObject *self, PyObject *args)
         if (work == NULL) {
             PyErr_NoMemory();
         } else {
-            detrend_into(b[0].buf, work, n, sign, 1);
-            fir_decimate(work, n, b[1].buf, nt, factor, b[2].buf, m);
+            (void)detrend_phases(b[0].buf, work, n, sign, 1, 0, factor); /* kern625 */
+            fir_phases(work, n, b[1].buf, nt, factor, b[2].buf, m);
             PyMem_Free(work);
             Py_INCREF(Py_None);
             result = Py_None;
@@ -1301,17 +1343,17 @@ static PyObject *py_window_irf(PyObject *self, PyObject *args)
             if (work == NULL) {
                 PyErr_NoMemory();
             } else {
-                double alpha = 0.0;
+                double alpha = 0.0, slopes[2];
                 Py_ssize_t status;
                 /* Short (tens of µs): keep the GIL. Releasing it would let another thread
-                 * take it for a whole switch interval before this one gets it back. */
-                status = window_irf(b[0].buf, b[1].buf, n, b[2].buf, nt, factor, sign, kind, lag,
-                                    ridge, sweeps, fs, b[3].buf, b[4].buf, m, b[5].buf,
-                                    b[6].buf, work, &alpha);
+                 * take it for a whole switch interval before this one gets it back. The
+                 * trends' slopes (line_slope's) come from the detrending's own pass. */
+                status = window_irf_sloped(b[0].buf, b[1].buf, n, b[2].buf, nt, factor, sign,
+                                           kind, lag, ridge, sweeps, fs, b[3].buf, b[4].buf, m,
+                                           b[5].buf, b[6].buf, work, &alpha, slopes);
                 PyMem_Free(work);
                 result = Py_BuildValue("ndddd", status, alpha, standard_deviation(b[3].buf, m),
-                                       line_slope(b[0].buf, n, 1.0),
-                                       line_slope(b[1].buf, n, sign));
+                                       slopes[0], slopes[1]);
             }
         }
     }
@@ -1680,6 +1722,8 @@ static PyObject *py_window_sums(PyObject *self, PyObject *args)
     return result;
 }
 static PyObject *py_evidence_gains(PyObject *self, PyObject *args);
+static PyObject *py_band_table(PyObject *self, PyObject *args);       /* kern625, end of file */
+static PyObject *py_oe_window_tabled(PyObject *self, PyObject *args); /* kern625, end of file */
 static PyObject *py_low_pass_slopes(PyObject *self, PyObject *args);
 static PyObject *py_zero_phase_rows(PyObject *self, PyObject *args);
 static PyObject *py_savgol_pair(PyObject *self, PyObject *args);
@@ -1710,6 +1754,8 @@ static PyMethodDef methods[] = {
      "oe_window(u, y, h, fs, k, held, learn, uncertainty, lags, explained, torque_slope, "
      "position_slope, kmax, tw_cos, tw_sin, newest_rows, regressors, projected, gram, model, "
      "out) -> status: a stream window's output-error back end (OW_* index out)."},
+    {"band_table", py_band_table, METH_VARARGS, "band_table(tw_cos, tw_sin, kmax, table): a plan's published-VAF twiddles for oe_window_tabled (((kmax + 3) // 4) * n * 8 doubles)."},
+    {"oe_window_tabled", py_oe_window_tabled, METH_VARARGS, "oe_window_tabled(..., out, table) -> status: oe_window with the plan's band_table last, the same numbers."},
     {"band_limit", py_band_limit, METH_VARARGS,
      "band_limit(x, taps, factor, sign, out): sign·x, mean removed, FIR-decimated."},
     {"sos_filtfilt", py_sos_filtfilt, METH_VARARGS,
@@ -2505,9 +2551,24 @@ static void band_smooth(const double *row, const double *r, Py_ssize_t n, Py_ssi
 {
     Py_ssize_t t = 0;
 #ifdef LANE_PAIRS
-    double *padded = PyMem_RawCalloc((size_t)(n + 2 * lags), sizeof(double));
+    /* the padded row, then r mirrored (mirror[lags + e] = r[|e|], kern625) */
+    double *padded = PyMem_RawCalloc((size_t)(n + 4 * lags + 1), sizeof(double));
     if (padded != NULL) {
         memcpy(padded + lags, row, sizeof(double) * (size_t)n);
+        double *mirror = padded + n + 2 * lags;
+        for (Py_ssize_t e = -lags; e <= lags; e++) mirror[lags + e] = r[e < 0 ? -e : e];
+        /* kern625: 2·BLOCK rows at a time while they last (the same sums, fewer broadcasts);
+         * the rows that were padded before still are, so every output is the same */
+        for (; t + 2 * BLOCK <= n; t += 2 * BLOCK) {
+            lane_pair a[8];
+            for (int b = 0; b < 8; b++) a[b] = pair_of(0.0);
+            for (Py_ssize_t e = -lags; e <= lags; e++) {
+                const lane_pair re = pair_of(mirror[lags + e]);
+                const double *src = padded + lags + t + e;
+                for (int b = 0; b < 8; b++) a[b] += pair_at(src + 2 * b) * re;
+            }
+            memcpy(smoothed + t, a, sizeof a);
+        }
         for (; t + BLOCK <= n; t += BLOCK) {
             lane_pair a0 = pair_of(0.0), a1 = a0, a2 = a0, a3 = a0;
             for (Py_ssize_t e = -lags; e <= lags; e++) {
@@ -3671,4 +3732,336 @@ done:
     Py_XDECREF(new_recent);
     Py_XDECREF(entry);
     return result;
+}
+
+/* ================================================================== kern625 (issue 22)
+ * The window's kernels at the 625 Hz plan (±12 lags, M ≈ 178 analysis samples), where a window's
+ * cost was fixed per-call work rather than O(M·L) sums: the FIR decimation of both signals
+ * (≈ 2·M·T products, T = 39 taps, computed one output at a time), three passes of detrending
+ * with the trend slopes then formed again from the raw samples, and the back end's stencils and
+ * model torque formed a second time for the VAFs. Each function gives the numbers of the loop it
+ * replaces bit for bit (same products, each sum in the same order).
+ */
+
+/* Σ_i (i − (n − 1)/2)² over i = 0 … n − 1, as the loop in sample order sums it: for n < 2^17
+ * each term and each partial sum is a multiple of 1/4 below 2^51, so that loop is exact and
+ * equals n(n² − 1)/12, itself formed exactly here (n(n² − 1) < 2^53, the quotient a multiple of
+ * 1/4). Longer windows sum the loop. */
+static double centred_squares(Py_ssize_t n)
+{
+    if (n < ((Py_ssize_t)1 << 17)) {
+        const double nn = (double)n;
+        return nn * (nn * nn - 1.0) / 12.0;
+    }
+    const double centre = (double)(n - 1) / 2.0;
+    double tt = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double t = (double)i - centre;
+        tt += t * t;
+    }
+    return tt;
+}
+
+/* detrend_into's result (n samples of sign·x less its mean, and less its line when kind == 2)
+ * in two passes instead of three: the mean's sum and the slope's (independent accumulators, each
+ * in sample order, as detrend_into's separate loops) share one pass. The samples are written in
+ * phases of `factor` for fir_phases: phase p (samples p, p + factor, …) from out + phase_start(p)
+ * (factor 1: in order). Returns the slope of sign·x per sample (line_slope's value) when
+ * kind == 2 or want_slope, else 0. */
+static double detrend_phases(const double *x, double *out, Py_ssize_t n, double sign, int kind,
+                             int want_slope, Py_ssize_t factor)
+{
+    const double centre = (double)(n - 1) / 2.0;
+    double mean = 0.0, tt = 0.0, tx = 0.0, slope = 0.0;
+    if (kind == 2 || want_slope) {
+        tt = centred_squares(n);
+        double t = -centre; /* (double)i − centre, exactly: steps of 1 between half-integers */
+        if (sign == 1.0) { /* sign·x[i] is x[i], (t·sign)·x[i] is t·x[i] */
+            for (Py_ssize_t i = 0; i < n; i++, t += 1.0) {
+                mean += x[i];
+                tx += t * x[i];
+            }
+        } else if (sign == -1.0) { /* a + (−b) is a − b, and (−t)·x is −(t·x), bit for bit */
+            for (Py_ssize_t i = 0; i < n; i++, t += 1.0) {
+                mean -= x[i];
+                tx -= t * x[i];
+            }
+        } else {
+            for (Py_ssize_t i = 0; i < n; i++, t += 1.0) {
+                mean += sign * x[i];
+                tx += t * sign * x[i];
+            }
+        }
+        slope = tt > 0.0 ? tx / tt : 0.0;
+    } else {
+        for (Py_ssize_t i = 0; i < n; i++) mean += sign * x[i];
+    }
+    mean /= (double)n;
+    const double off = kind >= 1 ? mean : 0.0, line = kind == 2 ? slope : 0.0;
+    for (Py_ssize_t p = 0; p < factor && p < n; p++) {
+        double *phase = out + phase_start(p, n, factor);
+        if (kind == 2) {
+            double t = (double)p - centre;
+            const double step = (double)factor;
+            for (Py_ssize_t i = p; i < n; i += factor, t += step) {
+                *phase++ = sign * x[i] - off - line * t;
+            }
+        } else if (kind == 1) {
+            for (Py_ssize_t i = p; i < n; i += factor) *phase++ = sign * x[i] - off;
+        } else {
+            for (Py_ssize_t i = p; i < n; i += factor) *phase++ = sign * x[i];
+        }
+    }
+    return slope;
+}
+
+static double detrend_sloped(const double *x, double *out, Py_ssize_t n, double sign, int kind,
+                             int want_slope)
+{
+    return detrend_phases(x, out, n, sign, kind, want_slope, 1);
+}
+
+/* fir_decimate's outputs from the samples in phases (detrend_phases): out[k] = Σ_j taps[j]·
+ * x[k·factor + nt − 1 − j], j ascending. Sample k·factor + d is phase d mod factor's item
+ * k + d div factor, so for each tap the outputs k, k + 1, … read consecutive values: 16 outputs
+ * at a time in pairs of lanes, each lane's sum the one-output loop's, product by product. */
+static void fir_phases(const double *phases, Py_ssize_t n, const double *taps, Py_ssize_t nt,
+                       Py_ssize_t factor, double *out, Py_ssize_t m)
+{
+    Py_ssize_t stack[128];
+    Py_ssize_t *at = nt <= 128 ? stack : PyMem_RawMalloc(sizeof(Py_ssize_t) * (size_t)nt);
+    if (at == NULL) { /* no memory for the table: each sample's place found as it is read */
+        for (Py_ssize_t k = 0; k < m; k++) {
+            double acc = 0.0;
+            for (Py_ssize_t j = 0; j < nt; j++) {
+                const Py_ssize_t i = k * factor + nt - 1 - j;
+                acc += taps[j] * phases[phase_start(i % factor, n, factor) + i / factor];
+            }
+            out[k] = acc;
+        }
+        return;
+    }
+    for (Py_ssize_t j = 0; j < nt; j++) { /* where output 0's sample for tap j lies */
+        const Py_ssize_t d = nt - 1 - j;
+        at[j] = phase_start(d % factor, n, factor) + d / factor;
+    }
+    Py_ssize_t k = 0;
+#ifdef LANE_PAIRS
+    for (; k + 2 * BLOCK <= m; k += 2 * BLOCK) {
+        lane_pair a[8] = {{0.0, 0.0}};
+        for (int b = 1; b < 8; b++) a[b] = a[0];
+        for (Py_ssize_t j = 0; j < nt; j++) {
+            const lane_pair tj = pair_of(taps[j]);
+            const double *s = phases + at[j] + k;
+            for (int b = 0; b < 8; b++) a[b] += tj * pair_at(s + 2 * b);
+        }
+        memcpy(out + k, a, sizeof a);
+    }
+#endif
+    for (; k < m; k++) {
+        double acc = 0.0;
+        for (Py_ssize_t j = 0; j < nt; j++) acc += taps[j] * phases[at[j] + k];
+        out[k] = acc;
+    }
+    if (at != stack) PyMem_RawFree(at);
+}
+
+/* fir_decimate's outputs out[k] = Σ_j taps[j]·x[k·factor + nt − 1 − j] (j ascending), BLOCK
+ * outputs at a time in pairs of lanes: a lane's sum is the one-output loop's, product by product.
+ * The pairs' samples lie factor apart (two loads each) unless factor is 1. Returns the first
+ * output left for the scalar loop (m when none). */
+static Py_ssize_t fir_decimate_lanes(const double *x, const double *taps, Py_ssize_t nt,
+                                     Py_ssize_t factor, double *out, Py_ssize_t m)
+{
+    Py_ssize_t k = 0;
+#ifdef LANE_PAIRS
+    const Py_ssize_t f = factor;
+    for (; k + BLOCK <= m; k += BLOCK) {
+        const double *seg = x + k * f + nt - 1; /* output k's newest sample */
+        lane_pair a0 = pair_of(0.0), a1 = a0, a2 = a0, a3 = a0;
+        if (f == 1) {
+            for (Py_ssize_t j = 0; j < nt; j++) {
+                const lane_pair tj = pair_of(taps[j]);
+                const double *s = seg - j;
+                a0 += tj * pair_at(s);
+                a1 += tj * pair_at(s + 2);
+                a2 += tj * pair_at(s + 4);
+                a3 += tj * pair_at(s + 6);
+            }
+        } else {
+            for (Py_ssize_t j = 0; j < nt; j++) {
+                const lane_pair tj = pair_of(taps[j]);
+                const double *s = seg - j;
+                const lane_pair x0 = {s[0], s[f]}, x1 = {s[2 * f], s[3 * f]},
+                                x2 = {s[4 * f], s[5 * f]}, x3 = {s[6 * f], s[7 * f]};
+                a0 += tj * x0;
+                a1 += tj * x1;
+                a2 += tj * x2;
+                a3 += tj * x3;
+            }
+        }
+        memcpy(out + k, &a0, 16);
+        memcpy(out + k + 2, &a1, 16);
+        memcpy(out + k + 4, &a2, 16);
+        memcpy(out + k + 6, &a3, 16);
+    }
+#else
+    (void)x, (void)taps, (void)nt, (void)factor, (void)out, (void)m;
+#endif
+    return k;
+}
+
+/* oe_window's VAFs as predictions() + three_vafs() give them, without forming the model's
+ * torque again: predictions' model torque at sample t (edge ≤ t < m − edge) is
+ * params[0]·(d2·fs²) + params[1]·(d1·fs) + params[2]·u[t] with the same 9-point stencil sums as
+ * oe_design's regressor rows, so it is model[t − 4] of the published oe_fit bit for bit; only the
+ * IRF's prediction (into by_irf, m − 2·edge values) is formed here. */
+static void irf_model_vafs(const double *u, const double *y, Py_ssize_t m, const double *h,
+                           Py_ssize_t lag, double fs, const double *model, Py_ssize_t edge,
+                           double *by_irf, double *vafs)
+{
+    const Py_ssize_t inner = m - 2 * edge;
+    lagged_predict(h, u, 2 * lag + 1, lag, edge, m - edge, by_irf - edge);
+    for (Py_ssize_t i = 0; i < inner; i++) by_irf[i] = by_irf[i] / fs;
+    three_vafs(y + edge, by_irf, model + (edge - 4), inner, vafs);
+}
+
+/* window_irf with the trends' slopes (line_slope's values of the position and the signed
+ * torque, from the detrending's own pass) into slopes[0], slopes[1] unless slopes is NULL. */
+static Py_ssize_t window_irf_sloped(const double *pos, const double *trq, Py_ssize_t n,
+                                    const double *taps, Py_ssize_t nt, Py_ssize_t factor,
+                                    double sign, int kind, Py_ssize_t lag, double ridge,
+                                    Py_ssize_t sweeps, double fs, double *u, double *y,
+                                    Py_ssize_t m, double *h, double *phi, double *work,
+                                    double *alpha, double *slopes)
+{
+    const Py_ssize_t nh = 2 * lag + 1;
+    double *dp = work, *dt = work + n;              /* detrended, n each */
+    double *rr = dt + n;                            /* R reversed, nh */
+    double *sums = rr + nh;                         /* whole-window sums: auto, then cross */
+    double *filters = sums + 2 * nh, *alphas = filters + nh * (nh + 1) / 2; /* EUREKA's, kept */
+    double *rest = filters + FILTERS_SIZE(nh);      /* the sweeps' scratch */
+    const int want = slopes != NULL;
+    const double position_slope = detrend_phases(pos, dp, n, 1.0, kind, want, factor);
+    const double torque_slope = detrend_phases(trq, dt, n, sign, kind, want, factor);
+    if (slopes != NULL) {
+        slopes[0] = position_slope;
+        slopes[1] = torque_slope;
+    }
+    fir_phases(dp, n, taps, nt, factor, u, m);
+    fir_phases(dt, n, taps, nt, factor, y, m);
+    /* the sums themselves are kept for the sweeps' Gram matrix; sums / m is what
+     * xcorr_blocked(..., m, ...) gives, bit for bit */
+    xcorr_blocked(u, u, m, 0, nh - 1, 1.0, sums);
+    for (Py_ssize_t k = 0; k < nh; k++) phi[k] = sums[k] / (double)m;
+    const double loading = ridge * phi[0];
+    phi[0] += loading;
+    /* phi_uy(k) = sum_t u(t-k) y(t) / m  =  sum_s u(s) y(s+k) / m */
+    double *g = rest; /* the first solve's right-hand side, before the sweeps use rest */
+    xcorr_blocked(u, y, m, -lag, lag, 1.0, sums + nh);
+    for (Py_ssize_t k = 0; k < nh; k++) g[k] = sums[nh + k] / (double)m;
+    /* the four solves share R: its prediction-error filters are formed once */
+    Py_ssize_t status = eureka_filters(phi, rr, filters, alphas, nh, alpha);
+    if (status >= 0) return status;
+    eureka_apply(rr, filters, alphas, g, h, nh);
+    for (Py_ssize_t k = 0; k < nh; k++) h[k] *= fs;
+    gram_sweeps(u, y, m, lag, sums, sums + nh, loading, sweeps, fs, rr, filters, alphas, h, rest);
+    return -1;
+}
+
+/* The plan's band table (BAND_TABLE_SIZE(n, kmax) doubles) from tw_cos, tw_sin (cos, sin of
+ * 2πj/n): group g, sample t holds cos and sin of bins 4g + 1 … 4g + 4 at t, the twiddles
+ * band_powers reads (index b·t mod n), 0 past kmax. */
+static void band_table_fill(const double *tw_cos, const double *tw_sin, Py_ssize_t n,
+                            Py_ssize_t kmax, double *table)
+{
+    for (Py_ssize_t g = 0; g < (kmax + 3) / 4; g++) {
+        for (int b = 0; b < 4; b++) {
+            const Py_ssize_t bin = 4 * g + 1 + b;
+            double *at = table + g * n * 8 + b;
+            Py_ssize_t idx = 0;
+            for (Py_ssize_t t = 0; t < n; t++, at += 8) {
+                at[0] = bin <= kmax ? tw_cos[idx] : 0.0;
+                at[4] = bin <= kmax ? tw_sin[idx] : 0.0;
+                idx += bin;
+                if (idx >= n) idx %= n;
+            }
+        }
+    }
+}
+
+/* band_powers' sums from the band table: per group of 4 bins the measured spectrum's real and
+ * imaginary parts in two pairs of lanes each (a lane per bin), the residual's likewise; over t in
+ * order with band_powers' products, so each bin's sums are its; the powers are added to total
+ * and left in bin order. Returns kmax + 1 (no bin left). */
+static Py_ssize_t band_powers_table(const double *meas, const double *err, Py_ssize_t n,
+                                    Py_ssize_t kmax, const double *table, double *total,
+                                    double *left)
+{
+    for (Py_ssize_t g = 0; g < (kmax + 3) / 4; g++) {
+        const double *at = table + g * n * 8;
+#ifdef LANE_PAIRS
+        lane_pair mr0 = pair_of(0.0), mr1 = mr0, mi0 = mr0, mi1 = mr0, er0 = mr0, er1 = mr0,
+                  ei0 = mr0, ei1 = mr0;
+        for (Py_ssize_t t = 0; t < n; t++, at += 8) {
+            const lane_pair m = pair_of(meas[t]), e = pair_of(err[t]);
+            const lane_pair c0 = pair_at(at), c1 = pair_at(at + 2), s0 = pair_at(at + 4),
+                            s1 = pair_at(at + 6);
+            mr0 += m * c0;
+            mr1 += m * c1;
+            mi0 -= m * s0;
+            mi1 -= m * s1;
+            er0 += e * c0;
+            er1 += e * c1;
+            ei0 -= e * s0;
+            ei1 -= e * s1;
+        }
+        double mr[4], mi[4], er[4], ei[4];
+        memcpy(mr, &mr0, 16), memcpy(mr + 2, &mr1, 16), memcpy(mi, &mi0, 16);
+        memcpy(mi + 2, &mi1, 16), memcpy(er, &er0, 16), memcpy(er + 2, &er1, 16);
+        memcpy(ei, &ei0, 16), memcpy(ei + 2, &ei1, 16);
+#else
+        double mr[4] = {0.0}, mi[4] = {0.0}, er[4] = {0.0}, ei[4] = {0.0};
+        for (Py_ssize_t t = 0; t < n; t++, at += 8) {
+            for (int b = 0; b < 4; b++) {
+                mr[b] += meas[t] * at[b];
+                mi[b] -= meas[t] * at[4 + b];
+                er[b] += err[t] * at[b];
+                ei[b] -= err[t] * at[4 + b];
+            }
+        }
+#endif
+        for (int b = 0; b < 4 && 4 * g + 1 + b <= kmax; b++) {
+            *total += mr[b] * mr[b] + mi[b] * mi[b];
+            *left += er[b] * er[b] + ei[b] * ei[b];
+        }
+    }
+    return kmax + 1;
+}
+
+static PyObject *py_band_table(PyObject *self, PyObject *args)
+{
+    PyObject *objs[3];
+    Py_ssize_t kmax;
+    if (!PyArg_ParseTuple(args, "OOnO", &objs[0], &objs[1], &kmax, &objs[2])) return NULL;
+    const char *names[3] = {"tw_cos", "tw_sin", "table"};
+    Py_buffer b[3];
+    if (get_buffers(objs, 3, 2, names, b) < 0) return NULL;
+    const Py_ssize_t n = b[0].len / 8;
+    PyObject *result = NULL;
+    if (b[1].len != b[0].len || kmax < 0 || kmax > n / 2 ||
+        b[2].len / 8 != BAND_TABLE_SIZE(n, kmax)) {
+        PyErr_SetString(PyExc_ValueError, "band_table: inconsistent sizes");
+    } else {
+        band_table_fill(b[0].buf, b[1].buf, n, kmax, b[2].buf);
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+    release_buffers(b, 3);
+    return result;
+}
+
+static PyObject *py_oe_window_tabled(PyObject *self, PyObject *args)
+{
+    return oe_window_entry(args, 1);
 }

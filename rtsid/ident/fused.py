@@ -50,14 +50,15 @@ def fusable(options: EstimatorOptions, score: ScoredBand | None, lost: bool) -> 
 class BackEndBuffers:
     """The kernel's output arrays, allocated once per window size (a stream's windows are
     all alike) instead of once per window, and what every window of one plan shares: the
-    DFT's twiddles, the scored band's last bin and the sandwich's noise lags."""
+    DFT's twiddles (and their table for the published VAF's DFT, ``oe_window_tabled``), the
+    scored band's last bin and the sandwich's noise lags."""
 
     def __init__(self) -> None:
         self._m = -1
         self.regressors = self.projected = self.gram = self.model = self.out = np.empty(0)
         self.held = np.zeros(2)
         self._shared: tuple[Any, ...] = (None,)  # (plan, fs_hz, band_hz, m), then its values
-        self.cos = self.sin = self.lags_s = np.empty(0)
+        self.cos = self.sin = self.lags_s = self.table = np.empty(0)
         self.kmax = self.lags = 0
 
     def for_samples(self, m: int) -> BackEndBuffers:
@@ -77,6 +78,13 @@ class BackEndBuffers:
             n = m - 8
             self.cos, self.sin = twiddles(n)
             self.kmax = band_bins(n, irf.fs_hz, band_hz)
+            # the published VAF's twiddles laid out for its DFT, once per plan, when they fit
+            # in a core's cache (the 625 Hz plan's: 4 k values; a 2500 Hz plan's, 60 k, would
+            # be streamed from memory every window, so it keeps the twiddle lookups)
+            size = (self.kmax + 3) // 4 * n * 8
+            self.table = np.empty(size if size <= _TABLE_LIMIT else 0)
+            if self.table.size:
+                _eureka.band_table(self.cos, self.sin, self.kmax, self.table)
             self.lags = noise_lags(irf, plan)
             self.lags_s = irf.lags_s  # read-only, shared by the IRFs of this lag grid
             self._shared = (plan, irf.fs_hz, band_hz, m, irf.h.size)
@@ -158,7 +166,7 @@ def fused_back_end(
         buf.held[1] = 0.0 if damping is None else damping
     y_c = np.ascontiguousarray(y)
     explained = score.explained
-    status = _eureka.oe_window(
+    status = (_eureka.oe_window_tabled if buf.table.size else _tableless)(
         np.ascontiguousarray(u),
         y_c,
         np.ascontiguousarray(irf.h),
@@ -180,6 +188,7 @@ def fused_back_end(
         buf.gram,
         buf.model,
         buf.out,
+        buf.table,
     )
     if status != _OK:
         raise zero_response() if status == _eureka.OE_ZERO_TORQUE else inseparable_fit()
@@ -218,5 +227,14 @@ _OUT: tuple[int, int, int, int, int] = (
     if _eureka is None
     else (_eureka.OW_PARAMS, _eureka.OW_SE, _eureka.OW_VAFS, _eureka.OW_WHOLE, _eureka.OW_NEWEST)
 )
+#: The largest band table kept (float64 values: 128 KiB).
+_TABLE_LIMIT = 1 << 14
+
+
+def _tableless(*args: Any) -> int:
+    """``oe_window`` for a plan whose band table is not kept (its last argument, empty)."""
+    return int(_eureka.oe_window(*args[:-1]))
+
+
 #: Whether I and B were held, by the number of held parameters.
 _HELD_FLAGS = ((False, False), (True, False), (True, True))
