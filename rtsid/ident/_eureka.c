@@ -3115,7 +3115,8 @@ static PyObject *py_reflex_dynamics_fit(PyObject *self, PyObject *args)
  * in the same order as the separate calls, so the numbers are theirs bit for bit.
  *
  * onecall_window(position, torque, explained, h, arrays, consts, state) -> status
- *   arrays  (taps, tw_cos, tw_sin, u, y, phi, extra, regressors, projected, gram, model, out):
+ *   arrays  (taps, tw_cos, tw_sin, u, y, phi, extra, regressors, projected, gram, model, out,
+ *           table: the plan's band_table or empty):
  *           a stream's buffers for one plan; out holds OW_SIZE values, then OC_LEVEL and
  *           OC_FLAGS;
  *   consts  OC_CONSTS doubles per plan (OC_FACTOR ...);
@@ -3174,8 +3175,10 @@ static int onecall(const double *pos, const double *trq, const double *explained
     if (m <= (4 * lag + 1 > 16 ? 4 * lag + 1 : 16) || m != a[3].len / 8) return OC_DECLINED;
     double alpha = 0.0;
     const int kind = (int)c[OC_DETREND];
-    if (window_irf(pos, trq, n, taps, nt, factor, sign, kind, lag, c[OC_RIDGE],
-                   (Py_ssize_t)c[OC_SWEEPS], c[OC_FS], u, y, m, h, phi, work, &alpha) >= 0) {
+    double slopes[2] = {0.0, 0.0}; /* line_slope's, from the detrending's own pass */
+    if (window_irf_sloped(pos, trq, n, taps, nt, factor, sign, kind, lag, c[OC_RIDGE],
+                          (Py_ssize_t)c[OC_SWEEPS], c[OC_FS], u, y, m, h, phi, work, &alpha,
+                          kind == 2 ? slopes : NULL) >= 0) {
         return OC_DECLINED;
     }
     const double level = standard_deviation(u, m);
@@ -3186,8 +3189,8 @@ static int onecall(const double *pos, const double *trq, const double *explained
     /* scored band (front.scored_band): the trends at the analysis rate, the reflex torque */
     double position_slope = 0.0, torque_slope = 0.0;
     if (kind == 2) {
-        position_slope = line_slope(pos, n, 1.0) * (double)factor;
-        torque_slope = line_slope(trq, n, sign) * (double)factor;
+        position_slope = slopes[0] * (double)factor;
+        torque_slope = slopes[1] * (double)factor;
     }
     if (explained != NULL) {
         detrend_into(explained, work, n, sign, 1);
@@ -3195,11 +3198,13 @@ static int onecall(const double *pos, const double *trq, const double *explained
     }
     /* 4-5. back end (oe_window) */
     const double held[2] = {state[1], state[2]};
-    if (oe_window(u, y, m, h, lag, c[OC_FS], (int)state[0], held, 1, (int)c[OC_UNCERTAINTY],
-                  (Py_ssize_t)c[OC_NOISE_LAGS], explained != NULL ? extra : NULL, torque_slope,
-                  position_slope, (Py_ssize_t)c[OC_KMAX], tw_cos, tw_sin,
-                  (Py_ssize_t)c[OC_NEWEST_ROWS], a[7].buf, a[8].buf, a[9].buf, a[10].buf, out,
-                  work) != OE_OK) {
+    const double *table = a[12].len > 0 ? a[12].buf : NULL;
+    if (oe_window_tabled(u, y, m, h, lag, c[OC_FS], (int)state[0], held, 1,
+                         (int)c[OC_UNCERTAINTY], (Py_ssize_t)c[OC_NOISE_LAGS],
+                         explained != NULL ? extra : NULL, torque_slope, position_slope,
+                         (Py_ssize_t)c[OC_KMAX], tw_cos, tw_sin, table,
+                         (Py_ssize_t)c[OC_NEWEST_ROWS], a[7].buf, a[8].buf, a[9].buf, a[10].buf,
+                         out, work) != OE_OK) {
         return OC_DECLINED;
     }
     out[OC_LEVEL] = level;
@@ -3216,24 +3221,25 @@ static PyObject *py_onecall_window(PyObject *self, PyObject *args)
         return NULL;
     }
     static const char *names[5] = {"position", "torque", "h", "consts", "state"};
-    static const char *array_names[12] = {"taps", "tw_cos", "tw_sin", "u", "y", "phi", "extra",
-                                          "regressors", "projected", "gram", "model", "out"};
-    if (PyTuple_GET_SIZE(arrays) != 12) {
-        PyErr_SetString(PyExc_ValueError, "onecall_window: arrays must hold 12 buffers");
+    static const char *array_names[13] = {"taps", "tw_cos", "tw_sin", "u", "y", "phi", "extra",
+                                          "regressors", "projected", "gram", "model", "out",
+                                          "table"};
+    if (PyTuple_GET_SIZE(arrays) != 13) {
+        PyErr_SetString(PyExc_ValueError, "onecall_window: arrays must hold 13 buffers");
         return NULL;
     }
-    Py_buffer b[6], a[12];
+    Py_buffer b[6], a[13];
     if (get_buffers(objs, 5, 2, names, b) < 0) return NULL;
-    PyObject *items[12];
-    for (int i = 0; i < 12; i++) items[i] = PyTuple_GET_ITEM(arrays, i);
-    if (get_buffers(items, 12, 3, array_names, a) < 0) {
+    PyObject *items[13];
+    for (int i = 0; i < 13; i++) items[i] = PyTuple_GET_ITEM(arrays, i);
+    if (get_buffers(items, 13, 3, array_names, a) < 0) {
         release_buffers(b, 5);
         return NULL;
     }
     int has_explained = explained != Py_None, got = 5;
     if (has_explained && get_doubles(explained, &b[got++], 0, "explained") < 0) {
         release_buffers(b, 5);
-        release_buffers(a, 12);
+        release_buffers(a, 13);
         return NULL;
     }
     PyObject *result = NULL;
@@ -3247,7 +3253,8 @@ static PyObject *py_onecall_window(PyObject *self, PyObject *args)
                n < a[0].len / 8 || a[4].len != a[3].len || a[5].len / 8 != nh ||
                a[6].len != a[3].len || nn < 2 || a[1].len / 8 != nn || a[2].len / 8 != nn ||
                c[OC_KMAX] < 0 || c[OC_KMAX] > nn / 2 || a[7].len / 8 != 3 * nn ||
-               a[8].len / 8 != 4 * nn || a[9].len / 8 != 16 || a[10].len / 8 != nn) {
+               a[8].len / 8 != 4 * nn || a[9].len / 8 != 16 || a[10].len / 8 != nn ||
+               (a[12].len > 0 && a[12].len / 8 != ((Py_ssize_t)c[OC_KMAX] + 3) / 4 * nn * 8)) {
         result = PyLong_FromLong(OC_DECLINED); /* not a window this call fits: the reference */
     } else {
         const Py_ssize_t lag = (nh - 1) / 2, edge = lag > 4 ? lag : 4, inner = m - 2 * edge;
@@ -3268,7 +3275,7 @@ static PyObject *py_onecall_window(PyObject *self, PyObject *args)
         }
     }
     release_buffers(b, got);
-    release_buffers(a, 12);
+    release_buffers(a, 13);
     return result;
 }
 

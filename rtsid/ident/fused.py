@@ -78,13 +78,7 @@ class BackEndBuffers:
             n = m - 8
             self.cos, self.sin = twiddles(n)
             self.kmax = band_bins(n, irf.fs_hz, band_hz)
-            # the published VAF's twiddles laid out for its DFT, once per plan, when they fit
-            # in a core's cache (the 625 Hz plan's: 4 k values; a 2500 Hz plan's, 60 k, would
-            # be streamed from memory every window, so it keeps the twiddle lookups)
-            size = (self.kmax + 3) // 4 * n * 8
-            self.table = np.empty(size if size <= _TABLE_LIMIT else 0)
-            if self.table.size:
-                _eureka.band_table(self.cos, self.sin, self.kmax, self.table)
+            self.table = kept_band_table(self.cos, self.sin, self.kmax)
             self.lags = noise_lags(irf, plan)
             self.lags_s = irf.lags_s  # read-only, shared by the IRFs of this lag grid
             self._shared = (plan, irf.fs_hz, band_hz, m, irf.h.size)
@@ -229,6 +223,20 @@ _OUT: tuple[int, int, int, int, int] = (
 )
 #: The largest band table kept (float64 values: 128 KiB).
 _TABLE_LIMIT = 1 << 14
+
+
+def kept_band_table(cos: FloatArray, sin: FloatArray, kmax: int) -> FloatArray:
+    """The published VAF's twiddles laid out for its DFT (``band_table``), once per plan, when
+    they fit in a core's cache; empty otherwise (``oe_window_tabled`` then looks them up).
+
+    The 625 Hz plan's table is 4 k values; a 2500 Hz plan's, 60 k, would be streamed from
+    memory every window, so that plan keeps the twiddle lookups.
+    """
+    size = (kmax + 3) // 4 * cos.size * 8
+    table = np.empty(size if size <= _TABLE_LIMIT else 0)
+    if table.size:
+        _eureka.band_table(cos, sin, kmax, table)
+    return table
 
 
 def _tableless(*args: Any) -> int:

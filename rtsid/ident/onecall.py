@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from rtsid.ident.analysis import AnalysisPlan
 from rtsid.ident.assess import band_bins, twiddles
 from rtsid.ident.fit import Held, noise_lags
+from rtsid.ident.fused import kept_band_table
 from rtsid.ident.irf import IRF
 from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.options import EstimatorOptions
@@ -125,6 +126,7 @@ class WindowCall:
         self.regressors, self.projected = np.empty((3, n)), np.empty((4, n))
         self.gram, self.model = np.empty((4, 4)), np.empty(n)
         self.out = np.empty(OUT_FLAGS + 1)
+        kmax = band_bins(n, fs_a, band_hz) if n else 0
         self.held = np.zeros(4)  # k, held inertia, held damping, typical level (NaN: none)
         self.arrays = (
             taps,
@@ -139,6 +141,7 @@ class WindowCall:
             self.gram,
             self.model,
             self.out,
+            kept_band_table(cos, sin, kmax) if n else np.empty(0),
         )
         consts = [0.0] * _CONSTS
         consts[0], consts[1], consts[2] = (
@@ -149,7 +152,7 @@ class WindowCall:
         consts[3], consts[4], consts[5], consts[6] = lag, options.refine, options.ridge, fs_a
         consts[7], consts[8] = options.min_excitation_rad, options.min_relative_excitation
         consts[9], consts[10] = float(options.uncertainty), noise_lags(model_irf, plan)
-        consts[11] = band_bins(n, fs_a, band_hz) if n else 0
+        consts[11] = kmax
         consts[12] = newest_rows
         self.consts = np.array(consts, dtype=np.float64)
 
