@@ -920,9 +920,8 @@ def to_data_rate(low: FloatArray, factor: int, n: int, first: int = 0) -> FloatA
     part, first, n = low[j:], first - j * factor, n - j * factor
     slopes = np.diff(part) / float(factor)
     grid = np.empty(part.size * factor)
-    grid[: slopes.size * factor] = (
-        slopes[:, None] * np.arange(float(factor)) + part[:-1, None]
-    ).ravel()
+    intervals = grid[: slopes.size * factor].reshape(slopes.size, factor)  # a view: no copy
+    np.add(slopes[:, None] * np.arange(float(factor)), part[:-1, None], out=intervals)
     grid[slopes.size * factor :] = part[-1]  # held after the last model sample
     if n <= grid.size:
         return grid[first:n]
