@@ -1731,6 +1731,7 @@ static PyObject *py_ankle_frames(PyObject *self, PyObject *args); /* socketcand 
 static PyObject *py_reflex_dynamics_fit(PyObject *self, PyObject *args); /* lanesums */
 static PyObject *py_onecall_window(PyObject *self, PyObject *args); /* onecall, end */
 static PyObject *py_tracker_calm(PyObject *self, PyObject *args); /* onecall, end */
+static PyObject *py_causal_convolve(PyObject *self, PyObject *args); /* lanesums2 */
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1774,6 +1775,7 @@ static PyMethodDef methods[] = {
     {"reflex_dynamics_fit", py_reflex_dynamics_fit, METH_VARARGS, "reflex_dynamics_fit(g, lags, start, low, high, scale, tolerance, max_evaluations, x) -> cost (< 0: singular): the reflex dynamics fit in one call."},
     {"onecall_window", py_onecall_window, METH_VARARGS, "onecall_window(position, torque, explained, h, arrays, consts, state) -> status (0: done, else declined): a stream's window from its checks to its back end (section onecall)."},
     {"tracker_calm", py_tracker_calm, METH_VARARGS, "tracker_calm(tracker, t_s, z, se, newest, split) -> (value, se, rate, mode, updated) or None: ParameterTracker.step of a calm window (section onecall)."},
+    {"causal_convolve", py_causal_convolve, METH_VARARGS, "causal_convolve(r, g, scale, out): out[t] = sum_k (g[k] / scale) r[t-k], the first len(r) samples of numpy.convolve(r, g / scale)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -4071,4 +4073,47 @@ static PyObject *py_band_table(PyObject *self, PyObject *args)
 static PyObject *py_oe_window_tabled(PyObject *self, PyObject *args)
 {
     return oe_window_entry(args, 1);
+}
+
+/* ------------------------------------------------------------------ branch lanesums2 (issue 22)
+ * causal_convolve(r, g, scale, out): out[t] = sum_{k=0}^{min(t, m-1)} (g[k] / scale) * r[t-k]
+ *   for t < n (r of n samples, g of m taps): rtsid.ident.reflex.convolve_causal, the first n
+ *   samples of numpy.convolve(r, g / scale). numpy sums each output by BLAS dots in blocks;
+ *   here each output is summed over k in increasing order (no fused multiply-add), so the two
+ *   agree to rounding (tested to 1e-12 of the largest output). The loop over t inside the loop
+ *   over k vectorises; no output beyond n is formed (numpy forms m - 1 more). O(n·m).
+ */
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
+__attribute__((target_clones("avx2", "default")))
+#endif
+static void causal_convolve_run(const double *r, Py_ssize_t n, const double *g, Py_ssize_t m,
+                                double scale, double *out)
+{
+    for (Py_ssize_t t = 0; t < n; t++) out[t] = 0.0;
+    for (Py_ssize_t k = 0; k < m && k < n; k++) {
+        const double tap = g[k] / scale;
+        const double *src = r - k;
+        for (Py_ssize_t t = k; t < n; t++) out[t] += tap * src[t];
+    }
+}
+
+static PyObject *py_causal_convolve(PyObject *self, PyObject *args)
+{
+    PyObject *objs[3];
+    double scale;
+    if (!PyArg_ParseTuple(args, "OOdO", &objs[0], &objs[1], &scale, &objs[2])) return NULL;
+    const char *names[3] = {"r", "g", "out"};
+    Py_buffer b[3];
+    if (get_buffers(objs, 3, 2, names, b) < 0) return NULL;
+    const Py_ssize_t n = b[0].len / 8, m = b[1].len / 8;
+    PyObject *result = NULL;
+    if (b[2].len != b[0].len || m < 1) {
+        PyErr_SetString(PyExc_ValueError, "causal_convolve: out must have r's size, g a tap");
+    } else {
+        causal_convolve_run(b[0].buf, n, b[1].buf, m, scale, b[2].buf);
+        result = Py_None;
+        Py_INCREF(result);
+    }
+    release_buffers(b, 3);
+    return result;
 }

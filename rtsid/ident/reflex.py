@@ -54,6 +54,7 @@ __all__ = [
     "ToeplitzSystem",
     "bounded_least_squares",
     "convolve_causal",
+    "convolve_causal_reference",
     "decimated",
     "decimated_rows",
     "delay_search_s",
@@ -355,7 +356,22 @@ def _causal_irf(
 
 
 def convolve_causal(r: FloatArray, g: FloatArray, fs_hz: float) -> FloatArray:
-    """``Σ_k g(k)·r(t−k)·Δt`` on the samples of ``r``."""
+    """``Σ_k g(k)·r(t−k)·Δt`` on the samples of ``r`` (``g`` per second, ``fs_hz`` in Hz).
+
+    The compiled ``causal_convolve`` when built: each output summed over ``k`` in order and
+    only the samples of ``r`` formed; equal to the numpy reference
+    (:func:`convolve_causal_reference`, ``RTSID_NUMPY_ONLY=1``) to rounding (tested).
+    """
+    if _eureka is None or g.size == 0:
+        return convolve_causal_reference(r, g, fs_hz)
+    signal = np.ascontiguousarray(r, dtype=np.float64)
+    out = np.empty(signal.size)
+    _eureka.causal_convolve(signal, np.ascontiguousarray(g, dtype=np.float64), fs_hz, out)
+    return out
+
+
+def convolve_causal_reference(r: FloatArray, g: FloatArray, fs_hz: float) -> FloatArray:
+    """:func:`convolve_causal` in numpy: the first ``r.size`` samples of the full convolution."""
     return np.asarray(np.convolve(r, g / fs_hz)[: r.size], dtype=np.float64)
 
 
@@ -904,9 +920,8 @@ def to_data_rate(low: FloatArray, factor: int, n: int, first: int = 0) -> FloatA
     part, first, n = low[j:], first - j * factor, n - j * factor
     slopes = np.diff(part) / float(factor)
     grid = np.empty(part.size * factor)
-    grid[: slopes.size * factor] = (
-        slopes[:, None] * np.arange(float(factor)) + part[:-1, None]
-    ).ravel()
+    intervals = grid[: slopes.size * factor].reshape(slopes.size, factor)  # a view: no copy
+    np.add(slopes[:, None] * np.arange(float(factor)), part[:-1, None], out=intervals)
     grid[slopes.size * factor :] = part[-1]  # held after the last model sample
     if n <= grid.size:
         return grid[first:n]

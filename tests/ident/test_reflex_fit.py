@@ -303,3 +303,36 @@ def test_the_causal_cross_correlation_is_the_two_sided_ones_right_half(
     u, y = np.random.default_rng(n).standard_normal((2, n))
     want = correlation.cross_correlation(u, y, lags)[lags:]
     np.testing.assert_array_equal(correlation.causal_cross_correlation(u, y, lags), want)
+
+
+@pytest.mark.parametrize(("n", "taps"), [(2000, 101), (2000, 9), (60, 101), (101, 101), (1, 1)])
+def test_the_compiled_causal_convolution_is_numpys_to_rounding(n, taps):
+    # the cascade's pathway prediction: the first n samples of numpy.convolve, taps longer or
+    # shorter than the signal; each output summed in another order than numpy's BLAS dots
+    if reflex._eureka is None:
+        pytest.skip("the compiled kernel is not built")
+    r, g = np.random.default_rng(n + taps).standard_normal((2, max(n, taps)))
+    r, g = r[:n].cumsum(), g[:taps] * 1e3
+    want = reflex.convolve_causal_reference(r, g, 100.0)
+    got = reflex.convolve_causal(r, g, 100.0)
+    assert got.shape == want.shape == (n,)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.max(np.abs(want)))
+    assert got[0] == want[0] == r[0] * (g[0] / 100.0)
+
+
+def test_the_numpy_path_convolves_with_numpy(monkeypatch):
+    monkeypatch.setattr(reflex, "_eureka", None)
+    r, g = np.random.default_rng(5).standard_normal((2, 300))
+    want = np.convolve(r, g[:40] / 100.0)[:300]
+    np.testing.assert_array_equal(reflex.convolve_causal(r, g[:40], 100.0), want)
+
+
+def test_the_compiled_convolution_names_inconsistent_sizes():
+    if reflex._eureka is None:
+        pytest.skip("the compiled kernel is not built")
+    with pytest.raises(ValueError, match="causal_convolve: out must have r's size"):
+        reflex._eureka.causal_convolve(np.zeros(10), np.ones(3), 1.0, np.empty(9))
+    with pytest.raises(ValueError, match="causal_convolve: out must have r's size"):
+        reflex._eureka.causal_convolve(np.zeros(10), np.ones(0), 1.0, np.empty(10))
+    with pytest.raises(TypeError, match="out must be a contiguous float64 buffer"):
+        reflex._eureka.causal_convolve(np.zeros(10), np.ones(3), 1.0, np.empty(10, np.float32))
