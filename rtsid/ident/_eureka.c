@@ -3112,15 +3112,14 @@ static PyObject *py_reflex_dynamics_fit(PyObject *self, PyObject *args)
  * declines): the checks of rtsid.ident.check (finite samples, excitation: the sums as
  * window_sums), the analysis length, the front end (window_irf), the band-limited level and
  * its checks (absolute, and relative to the stream's typical level), the trend slopes, the
- * reflex torque band-limited (as band_limit), and the back end (oe_window), plus the flags of
- * rtsid.ident.assess.window_flags that do not depend on the rounded VAFs. The same C functions
+ * reflex torque band-limited (as band_limit), and the back end (oe_window); the caller forms
+ * the estimate's flags (rtsid.ident.assess.window_flags). The same C functions
  * in the same order as the separate calls, so the numbers are theirs bit for bit.
  *
  * onecall_window(position, torque, explained, h, arrays, consts, state) -> status
  *   arrays  (taps, tw_cos, tw_sin, u, y, phi, extra, regressors, projected, gram, model, out,
  *           table: the plan's band_table or empty):
- *           a stream's buffers for one plan; out holds OW_SIZE values, then OC_LEVEL and
- *           OC_FLAGS;
+ *           a stream's buffers for one plan; out holds OW_SIZE values, then OC_LEVEL;
  *   consts  OC_CONSTS doubles per plan (OC_FACTOR ...);
  *   state   (k, held inertia, held damping, typical level or NaN): per window.
  * status 0: done; anything else: the window is declined (a check withholds it, or a fit
@@ -3130,26 +3129,8 @@ enum {
     OC_FACTOR = 0, OC_SIGN, OC_DETREND, OC_LAG, OC_SWEEPS, OC_RIDGE, OC_FS, OC_MIN_EXCITATION,
     OC_MIN_RELATIVE, OC_UNCERTAINTY, OC_NOISE_LAGS, OC_KMAX, OC_NEWEST_ROWS, OC_CONSTS,
 };
-enum { OC_LEVEL = OW_SIZE, OC_FLAGS, OC_OUT_SIZE };
+enum { OC_LEVEL = OW_SIZE, OC_OUT_SIZE };
 enum { OC_DONE = 0, OC_DECLINED = 1 };
-/* window_flags' bits, in its order (low_vaf and model_mismatch are set by the caller) */
-enum {
-    OC_NEGATIVE_STIFFNESS = 4, OC_NEGATIVE_DAMPING = 8, OC_NEGATIVE_INERTIA = 16,
-    OC_INERTIA_UNCERTAIN = 32, OC_STIFFNESS_UNCERTAIN = 64,
-};
-
-static int onecall_flags(const double *params, const double *se)
-{
-    const double inertia = params[0], damping = params[1], stiffness = params[2];
-    int flags = 0;
-    if (stiffness <= 0) flags |= OC_NEGATIVE_STIFFNESS;
-    if (damping <= 0) flags |= OC_NEGATIVE_DAMPING;
-    if (inertia <= 0) flags |= OC_NEGATIVE_INERTIA;
-    if (isfinite(se[0]) && se[0] > 0.25 * fabs(inertia)) flags |= OC_INERTIA_UNCERTAIN;
-    if (isfinite(se[2]) && se[2] > 0.1 * fabs(stiffness)) flags |= OC_STIFFNESS_UNCERTAIN;
-    return flags;
-}
-
 /* The window's checks, front end and back end; b: position, torque, explained (or NULL), h,
  * then the arrays in order. */
 static int onecall(const double *pos, const double *trq, const double *explained, Py_ssize_t n,
@@ -3210,7 +3191,6 @@ static int onecall(const double *pos, const double *trq, const double *explained
         return OC_DECLINED;
     }
     out[OC_LEVEL] = level;
-    out[OC_FLAGS] = (double)onecall_flags(out + OW_PARAMS, out + OW_SE);
     (void)nh;
     return OC_DONE;
 }

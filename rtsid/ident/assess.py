@@ -40,6 +40,7 @@ __all__ = [
     "TorquePredictions",
     "WindowEstimate",
     "assemble",
+    "assemble_parts",
     "assess",
     "band_bins",
     "predict_torque",
@@ -336,6 +337,25 @@ def assemble(
 ) -> WindowEstimate:
     """The :class:`WindowEstimate` of fitted ``params`` (a sequence of three, I, B, K);
     ``held``: whether I and B were held; ``lags_s``: ``irf.lags_s`` when the caller has it."""
+    lags = irf.lags_s if lags_s is None else lags_s
+    return assemble_parts(irf.h, lags, irf.fs_hz, params, se, vafs, method, options, lost, held)
+
+
+def assemble_parts(
+    h: FloatArray,
+    lags_s: FloatArray,
+    fs_hz: float,
+    params: FloatArray | Sequence[float],
+    se: tuple[float, float, float],
+    vafs: tuple[float, float, float],
+    method: str,
+    options: EstimatorOptions,
+    lost: int = 0,
+    held: tuple[bool, bool] = (False, False),
+) -> WindowEstimate:
+    """:func:`assemble` from the IRF's parts (its taps ``h``, N·m/rad/s; lags, s; rate, Hz),
+    for a caller that has them without an :class:`~rtsid.ident.irf.IRF` (the one compiled
+    window call)."""
     inertia, damping, stiffness = float(params[0]), float(params[1]), float(params[2])
     vaf_model, vaf_irf, vaf_fit = vafs
     return built(
@@ -349,9 +369,9 @@ def assemble(
         vaf=vaf_model,
         vaf_irf=vaf_irf,
         vaf_fit=vaf_fit,
-        irf=irf.h,
-        lags_s=irf.lags_s if lags_s is None else lags_s,
-        fs_hz=irf.fs_hz,
+        irf=h,
+        lags_s=lags_s,
+        fs_hz=fs_hz,
         flags=window_flags((inertia, damping, stiffness), se, vafs, options),
         method=method,
         lost_samples=lost,

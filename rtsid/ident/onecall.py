@@ -30,9 +30,8 @@ from rtsid.ident.fused import kept_band_table
 from rtsid.ident.irf import IRF
 from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.options import EstimatorOptions
-from rtsid.verdicts import Flag
 
-__all__ = ["WindowCall", "flags_of", "one_call_possible"]
+__all__ = ["OUT_LEVEL", "WindowCall", "one_call_possible"]
 
 FloatArray = NDArray[np.float64]
 
@@ -41,35 +40,11 @@ _eureka: Any = compiled_kernel()
 _DETREND_CODES = {"none": 0, "mean": 1, "linear": 2}
 
 #: Where ``onecall_window`` writes (``out``): the fused back end's values (``OW_*``), then the
-#: band-limited level (rad) and the flags that do not depend on the VAFs (bits of
-#: :data:`FLAG_ORDER`).
+#: band-limited level (rad). The estimate's flags are :func:`rtsid.ident.assess.window_flags`'s,
+#: formed by the caller as for every other estimate.
 OUT_LEVEL = 16 if _eureka is None else _eureka.OW_SIZE
-OUT_FLAGS = OUT_LEVEL + 1
 #: ``consts`` of one plan, in the kernel's ``OC_*`` order.
 _CONSTS = 13
-
-#: window_flags' order (rtsid.ident.assess.window_flags); bit j of a mask is FLAG_ORDER[j].
-FLAG_ORDER = (
-    Flag.LOW_VAF,
-    Flag.MODEL_MISMATCH,
-    Flag.NEGATIVE_STIFFNESS,
-    Flag.NEGATIVE_DAMPING,
-    Flag.NEGATIVE_INERTIA,
-    Flag.INERTIA_UNCERTAIN,
-    Flag.STIFFNESS_UNCERTAIN,
-)
-#: Every mask's flags tuple, built once (the empty one is ``()``, as window_flags gives).
-_FLAGS_BY_MASK = tuple(
-    tuple(flag for j, flag in enumerate(FLAG_ORDER) if mask >> j & 1)
-    for mask in range(1 << len(FLAG_ORDER))
-)
-#: An estimate with both (negative stiffness, model mismatch) is withheld as unidentifiable.
-UNIDENTIFIABLE_MASK = 0b110
-
-
-def flags_of(mask: int) -> tuple[Flag, ...]:
-    """The flags tuple of a mask of :data:`FLAG_ORDER` bits."""
-    return _FLAGS_BY_MASK[mask]
 
 
 def one_call_possible(options: EstimatorOptions) -> bool:
@@ -103,8 +78,7 @@ class WindowCall:
         The latest window's output-error design and analysed torque (valid until the next
         call), what its split scan reads.
     out : numpy.ndarray
-        The latest window's results (``OW_*`` of the kernel, then :data:`OUT_LEVEL`,
-        :data:`OUT_FLAGS`).
+        The latest window's results (``OW_*`` of the kernel, then :data:`OUT_LEVEL`).
     """
 
     def __init__(
@@ -125,7 +99,7 @@ class WindowCall:
         self.u, self.y, self.extra = np.empty(m), np.empty(m), np.empty(m)
         self.regressors, self.projected = np.empty((3, n)), np.empty((4, n))
         self.gram, self.model = np.empty((4, 4)), np.empty(n)
-        self.out = np.empty(OUT_FLAGS + 1)
+        self.out = np.empty(OUT_LEVEL + 1)
         kmax = band_bins(n, fs_a, band_hz) if n else 0
         self.held = np.zeros(4)  # k, held inertia, held damping, typical level (NaN: none)
         self.arrays = (

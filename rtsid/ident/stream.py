@@ -29,17 +29,10 @@ from numpy.typing import ArrayLike
 
 from rtsid.errors import InputDataError, NumericalError, WindowError
 from rtsid.ident.analysis import AnalysisPlan
-from rtsid.ident.assess import withhold_unidentifiable
+from rtsid.ident.assess import assemble_parts, withhold_unidentifiable
 from rtsid.ident.fused import _HELD_FLAGS, _OUT, BackEndBuffers, fusable, fused_back_end
 from rtsid.ident.grid import window_ends
-from rtsid.ident.onecall import (
-    OUT_FLAGS,
-    OUT_LEVEL,
-    UNIDENTIFIABLE_MASK,
-    WindowCall,
-    flags_of,
-    one_call_possible,
-)
+from rtsid.ident.onecall import OUT_LEVEL, WindowCall, one_call_possible
 from rtsid.ident.records import built
 from rtsid.ident.second_order import OutputErrorDesign
 from rtsid.ident.split import (
@@ -363,27 +356,17 @@ class WindowStream:
         options = self.options
         self.excitation.add(out[_LEVEL])
         vafs = (round(out[_VAFS], 12), round(out[_VAFS + 1], 12), round(out[_VAFS + 2], 12))
-        mask = int(out[_FLAGS]) | (vafs[0] < options.low_vaf_percent) | (vafs[2] < 50.0) << 1
-        held_flags = _HELD_FLAGS[k]
-        estimate = built(
-            WindowEstimate,
-            I=out[_PARAMS],
-            B=out[_PARAMS + 1],
-            K=out[_PARAMS + 2],
-            I_se=out[_SE],
-            B_se=out[_SE + 1],
-            K_se=out[_SE + 2],
-            vaf=vafs[0],
-            vaf_irf=vafs[1],
-            vaf_fit=vafs[2],
-            irf=h,
-            lags_s=call.lags_s,
-            fs_hz=call.fs_hz,
-            flags=flags_of(mask),
-            method="output_error",
-            lost_samples=0,
-            I_held=held_flags[0],
-            B_held=held_flags[1],
+        estimate = assemble_parts(
+            h,
+            call.lags_s,
+            call.fs_hz,
+            out[_PARAMS : _PARAMS + 3],
+            (out[_SE], out[_SE + 1], out[_SE + 2]),
+            vafs,
+            "output_error",
+            options,
+            0,
+            _HELD_FLAGS[k],
         )
         whole = out[_WHOLE + 3]
         self.held.learn(out[_WHOLE], out[_WHOLE + 1], round(whole, 12) >= options.low_vaf_percent)
@@ -391,8 +374,7 @@ class WindowStream:
         newest = None if out[z] != out[z] else (out[z], out[z + 1], out[z + 2])
         design = self._design
         assert design is not None
-        if mask & UNIDENTIFIABLE_MASK == UNIDENTIFIABLE_MASK:
-            return withhold_unidentifiable(estimate)  # raises, as the step-by-step path
+        withhold_unidentifiable(estimate)  # raises, as the step-by-step path
         self._split_source = _SplitSource(
             estimate, design, held, plan, window_samples, newest, self._scan_buffers
         )
@@ -474,7 +456,7 @@ class WindowStream:
 
 #: Where the kernel writes the back end's values (rtsid.ident.fused) and the call's own.
 _PARAMS, _SE, _VAFS, _WHOLE, _NEWEST = _OUT
-_LEVEL, _FLAGS = OUT_LEVEL, OUT_FLAGS
+_LEVEL = OUT_LEVEL
 
 
 class _SplitSource:

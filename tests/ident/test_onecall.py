@@ -118,15 +118,6 @@ def test_a_declined_window_leaves_the_stream_as_the_step_by_step_path_does():
     assert (s.held.current(), s.excitation.median()) == state
 
 
-def test_the_flag_masks_are_window_flags_order():
-    assert onecall.flags_of(0) == ()
-    assert onecall.flags_of(0b1111111) == onecall.FLAG_ORDER
-    assert set(onecall.flags_of(onecall.UNIDENTIFIABLE_MASK)) == {
-        "negative_stiffness",
-        "model_mismatch",
-    }
-
-
 def _assert_same_state(got: ParameterTracker, want: ParameterTracker) -> None:
     for name, value in vars(want).items():
         if name in ("_steps", "_by_dt", "_last"):
