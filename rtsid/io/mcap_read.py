@@ -26,7 +26,7 @@ from typing import IO, Any
 from rtsid import __version__
 from rtsid.errors import InputDataError, RecordingError
 from rtsid.io.files import atomic_write
-from rtsid.io.schemas import SCHEMAS, SampleBatch, decode_samples
+from rtsid.io.schemas import SCHEMAS, SampleBatch, compact_sample_rows, decode_samples
 from rtsid.io.summary_table import (
     ATTACHMENT_NAME,
     KINDS,
@@ -449,28 +449,9 @@ def sample_count(path: str | Path) -> int:
     """
     rows = 0
     for message in _iter_topic(path, "samples", None):
-        counted = _compact_rows(message.data)
+        counted = compact_sample_rows(message.data)
         rows += len(_sample_batch(message, path)) if counted is None else counted
     return rows
-
-
-#: The last column of a compact samples payload and its end.
-_STATUS_COLUMN, _PAYLOAD_END = b'],"status":[', b"]}"
-
-
-def _compact_rows(data: bytes) -> int | None:
-    """Rows of a compact samples payload by its status column (None: another layout)."""
-    if type(data) is not bytes or not data.endswith(_PAYLOAD_END):
-        return None
-    start = data.rfind(_STATUS_COLUMN)
-    if start < 0:
-        return None
-    start += len(_STATUS_COLUMN)
-    stop = len(data) - len(_PAYLOAD_END)
-    items = data[start:stop]
-    if items.strip(b"0123456789,-"):
-        return None  # not a bare list of integers: decode it
-    return items.count(b",") + 1 if items else 0
 
 
 def recover(

@@ -57,6 +57,7 @@ __all__ = [
     "STATUS_SCHEMA",
     "WITHHELD_REASONS",
     "SampleBatch",
+    "compact_sample_rows",
     "decode_samples",
     "decode_samples_json",
     "encode_can_frames",
@@ -531,6 +532,21 @@ def _decode_compact_samples(data: bytes | str, log_time_ns: int) -> SampleBatch 
         return None
     position, torque, valid, status = columns
     return SampleBatch(first_index, fs_hz, position, torque, valid, status, int(log_time_ns))
+
+
+def compact_sample_rows(data: bytes) -> int | None:
+    """Rows of a payload in :func:`encode_samples`'s compact layout, counted by the items of
+    its last column (``status``: integers, one a row) without reading its numbers; None for
+    any other payload (decode it to count it)."""
+    if type(data) is not bytes or not data.endswith(b"]}"):
+        return None
+    start = data.rfind(_COLUMN_SEPARATORS[-1])
+    if start < 0:
+        return None
+    items = data[start + len(_COLUMN_SEPARATORS[-1]) : len(data) - 2]
+    if items.strip(b"0123456789,-"):
+        return None  # not a bare list of integers
+    return items.count(b",") + 1 if items else 0
 
 
 def decode_samples_json(data: bytes | str, log_time_ns: int = 0) -> SampleBatch:
