@@ -229,6 +229,58 @@ def test_a_directory_replays_the_same_with_one_job_or_two(tmp_path, capsys):
         assert len(one) > 100 and one == two
 
 
+@pytest.mark.parametrize("jobs", ["1", "2"])
+def test_a_failing_recording_in_a_directory_is_one_error_and_the_others_are_written(
+    tmp_path, capsys, jobs
+):
+    folder = tmp_path / "recs"
+    folder.mkdir()
+    for name in ("a.mcap", "c.mcap"):
+        shutil.copy(REFERENCE / "sim_3s.mcap", folder / name)
+    (folder / "b.mcap").write_bytes(b"not a recording")
+    assert main(["replay", str(folder), "-o", str(tmp_path / "out"), "--jobs", jobs]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert [line for line in err if not line.startswith("replayed")] == [
+        f"rtsid replay: error: '{folder / 'b.mcap'}' is not an MCAP file (bad magic bytes); "
+        "pass an .mcap recording"
+    ]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a.csv", "c.csv"]
+
+
+def test_one_job_replays_in_this_process_and_two_share_the_folder_with_it(
+    tmp_path, capsys, monkeypatch
+):
+    """This process has imported rtsid already: it replays the first (largest) recording at
+    once while a spawned child starts, and with --jobs 1 it spawns nothing."""
+    import concurrent.futures as cf
+
+    import rtsid.commands.replay as command
+
+    folder = tmp_path / "recs"
+    folder.mkdir()
+    for name in ("a.mcap", "b.mcap"):
+        shutil.copy(REFERENCE / "sim_3s.mcap", folder / name)
+    here: list[str] = []
+    replay_one = command._replay_one
+
+    def replayed_here(path, args, out):
+        here.append(path.name)
+        return replay_one(path, args, out)
+
+    monkeypatch.setattr(command, "_replay_one", replayed_here)  # this process's, not a child's
+    with monkeypatch.context() as no_pool:
+        no_pool.setattr(cf, "ProcessPoolExecutor", None)  # --jobs 1 must not need one
+        assert main(["replay", str(folder), "-o", str(tmp_path / "1"), "--jobs", "1"]) == 0
+    assert here == ["a.mcap", "b.mcap"]
+    here.clear()
+    assert main(["replay", str(folder), "-o", str(tmp_path / "2"), "--jobs", "2"]) == 0
+    assert here == ["a.mcap"]  # b.mcap went to the child
+    capsys.readouterr()
+    for name in ("a.csv", "b.csv"):
+        one, two = (_without_compute_time(tmp_path / jobs / name) for jobs in ("1", "2"))
+        assert len(one) > 100 and one == two
+
+
 def _without_compute_time(path):
     """The rows of an estimates CSV without ``compute_ms`` (how long this run took)."""
     with open(path, newline="") as fh:
@@ -242,6 +294,7 @@ def _without_compute_time(path):
         (["replay", "missing.mcap"], "no such file"),
         (["replay", str(REFERENCE / "sim_3s.mcap"), "--rate", "fast"], "--rate 'fast'"),
         (["replay", str(REFERENCE / "sim_3s.mcap"), "-o", "x.txt"], "use a .csv or .mcap"),
+        (["replay", str(REFERENCE), "--jobs", "-1"], "--jobs -1: use a number"),
     ],
 )
 def test_replay_errors_are_one_line(argv, message, capsys):

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import collections
 import concurrent.futures as cf
 import multiprocessing as mp
+import signal
 import sys
+import threading
 import warnings
 from pathlib import Path
 from typing import Any
@@ -41,7 +44,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "default: a summary only)",
         old=("--out",),
     )
-    parser.add_argument("--jobs", type=int, default=0, help="processes for a directory (0: cores)")
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=0,
+        help="processes for a directory, this one included (0: one a core)",
+    )
 
 
 def _rate(text: str) -> float | None:
@@ -158,20 +166,139 @@ def _replay_directory(folder: Path, args: argparse.Namespace) -> list[list[Any]]
     out_dir = Path(args.output) if args.output else None
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
-    # a child more than there are recordings would only import rtsid (≈ 2 s of CPU) and wait
-    jobs = min(args.jobs or mp.cpu_count(), len(sessions))
-    ctx = mp.get_context("spawn")
+    # this process replays too: a child more than there are other recordings would only
+    # import rtsid (≈ 0.5 s of CPU) and wait
+    children = min(args.jobs or mp.cpu_count(), len(sessions)) - 1
     # Only plain options cross to the spawned children; they publish nothing and draw no bar.
     quiet = argparse.Namespace(config=args.config, rate=args.rate, publish=False, progress=False)
-    with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-        futures = {
-            f: pool.submit(_replay_one, f, quiet, out_dir / f"{f.stem}.csv" if out_dir else None)
-            for f in _longest_first(sessions)
-        }
-        for done, future in enumerate(cf.as_completed(futures.values()), start=1):
-            _recordings_done(done, len(futures), future.result()[0][0])
-        # the table keeps the recordings' order, whichever finished first
-        return [_rewarn(*futures[f].result()) for f in sessions]
+    folder_run = _FolderRun(_longest_first(sessions), quiet, out_dir)
+    if children == 0:
+        folder_run.replay_here()
+    else:
+        folder_run.replay_with(children)
+    # the table keeps the recordings' order, whichever finished first
+    return [_rewarn(*done) for done in folder_run.results(sessions)]
+
+
+class _FolderRun:
+    """The recordings of a folder handed out one at a time, longest first, to this process
+    and to a pool's spawned processes: whichever process finishes a recording takes the next.
+
+    This process needs no start-up (it has imported rtsid already), so it replays from the
+    first moment while the children start; each child is sent its next recording when it
+    finishes one (one at a time: a pool sends a child two, and it kept one that this process
+    could have replayed). A recording that fails is reported after the others have been
+    replayed (their outputs are written).
+    """
+
+    def __init__(self, order: list[Path], args: argparse.Namespace, out_dir: Path | None):
+        self._todo = collections.deque(order)
+        self._args, self._out_dir = args, out_dir
+        self._total = len(order)
+        self._lock = threading.Lock()
+        self._outcomes: dict[Path, tuple[list[Any], list[str]] | BaseException] = {}
+        self._all_done = threading.Event()
+        self._pool: cf.ProcessPoolExecutor | None = None
+
+    def replay_here(self) -> None:
+        """Replay what is left in this process, one recording after another."""
+        while (path := self._take()) is not None:
+            self._replay(path)
+
+    def _replay(self, path: Path) -> None:
+        try:
+            outcome: tuple[list[Any], list[str]] | BaseException = _replay_one(
+                path, self._args, self._output(path)
+            )
+        except Exception as exc:  # reported once the others are done
+            outcome = exc
+        self._finished(path, outcome)
+
+    def replay_with(self, children: int) -> None:
+        """Replay with ``children`` spawned processes beside this one."""
+        ctx = mp.get_context("spawn")
+        with cf.ProcessPoolExecutor(children, ctx, initializer=_init_child) as pool:
+            try:
+                with self._lock:  # the longest to this process, which starts at once
+                    first = self._todo.popleft()
+                    self._pool = pool
+                    for _ in range(children):
+                        self._send_next()
+                self._replay(first)
+                # recordings a broken pool gave back are replayed here too
+                while not self._all_done.is_set():
+                    self.replay_here()
+                    self._all_done.wait(0.2)
+            finally:  # Ctrl-C: nothing more is sent; running recordings end (see run)
+                with self._lock:
+                    self._todo.clear()
+
+    def results(self, order: list[Path]) -> list[tuple[list[Any], list[str]]]:
+        """Each recording's summary row and incomplete-recording warnings, in ``order``;
+        raises the failure of the first in ``order`` that failed (the others' outputs are
+        written by then)."""
+        done: list[tuple[list[Any], list[str]]] = []
+        for path in order:
+            outcome = self._outcomes[path]
+            if isinstance(outcome, BaseException):
+                raise outcome
+            done.append(outcome)
+        return done
+
+    def _output(self, path: Path) -> Path | None:
+        return self._out_dir / f"{path.stem}.csv" if self._out_dir else None
+
+    def _take(self) -> Path | None:
+        with self._lock:
+            return self._todo.popleft() if self._todo else None
+
+    def _send_next(self) -> None:
+        """Send a child the next recording (with the lock held)."""
+        if not self._todo or self._pool is None:
+            return
+        path = self._todo.popleft()
+        try:
+            future = self._pool.submit(_replay_in_child, path, self._args, self._output(path))
+        except (RuntimeError, cf.BrokenExecutor):  # the pool is gone: this process takes it
+            self._todo.appendleft(path)
+            return
+        future.add_done_callback(lambda done: self._child_done(path, done))
+
+    def _child_done(self, path: Path, future: cf.Future[tuple[list[Any], list[str]]]) -> None:
+        try:
+            outcome: tuple[list[Any], list[str]] | BaseException = future.result()
+        except BaseException as exc:  # a failed recording, or a child that died
+            outcome = exc
+        self._finished(path, outcome)
+        with self._lock:
+            self._send_next()
+
+    def _finished(self, path: Path, outcome: tuple[list[Any], list[str]] | BaseException) -> None:
+        with self._lock:
+            self._outcomes[path] = outcome
+            done = len(self._outcomes)
+            name = path.name
+            _recordings_done(done, self._total, name)
+            if done == self._total:
+                self._all_done.set()
+
+
+def _init_child() -> None:
+    """Initializer of a replay child: Ctrl-C (the terminal sends it to the whole process
+    group) ignored while it waits for a recording — a child interrupted in its queue read
+    printed a traceback and broke the pool — and raised in the recording it replays."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _replay_in_child(
+    path: Path, args: argparse.Namespace, out: Path | None
+) -> tuple[list[Any], list[str]]:
+    """:func:`_replay_one` in a child, interruptible by Ctrl-C while it runs."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        return _replay_one(path, args, out)
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _longest_first(sessions: list[Path]) -> list[Path]:
@@ -211,6 +338,10 @@ def run(args: argparse.Namespace) -> int:
     path = Path(args.recording)
     if not path.exists():
         raise InputDataError(f"{path}: no such file or directory")
+    if args.jobs < 0:
+        raise InputDataError(
+            f"--jobs {args.jobs}: use a number of processes ≥ 1, or 0 for one a core"
+        )
     if path.is_dir():
         rows = _replay_directory(path, args)
     else:
