@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import re
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
@@ -265,6 +266,11 @@ def test_one_job_replays_in_this_process_and_two_share_the_folder_with_it(
 
     def replayed_here(path, args, out):
         here.append(path.name)
+        if out is not None and out.parent.name == "2":  # busy until the child wrote its own
+            deadline = time.monotonic() + 120.0
+            while not (out.parent / "b.csv").exists():
+                assert time.monotonic() < deadline, "the child replayed nothing"
+                time.sleep(0.05)
         return replay_one(path, args, out)
 
     monkeypatch.setattr(command, "_replay_one", replayed_here)  # this process's, not a child's
@@ -274,11 +280,29 @@ def test_one_job_replays_in_this_process_and_two_share_the_folder_with_it(
     assert here == ["a.mcap", "b.mcap"]
     here.clear()
     assert main(["replay", str(folder), "-o", str(tmp_path / "2"), "--jobs", "2"]) == 0
-    assert here == ["a.mcap"]  # b.mcap went to the child
+    assert here == ["a.mcap"]  # the largest first; b.mcap went to the child meanwhile
     capsys.readouterr()
     for name in ("a.csv", "b.csv"):
         one, two = (_without_compute_time(tmp_path / jobs / name) for jobs in ("1", "2"))
         assert len(one) > 100 and one == two
+
+
+def test_the_replay_command_is_parsed_before_the_replay_is_imported():
+    """``rtsid replay DIR --jobs N`` spawns its children before it imports the replay
+    (numpy, the reader, the window path: ≈ 2 G instructions here, where every process
+    compiles rtsid from source), so that they import it while this process does too."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; from rtsid.cli import build_parser; build_parser(['replay']); "
+        "print(sorted(m for m in ('numpy', 'rtsid.replay', 'rtsid.io.recording') "
+        "if m in sys.modules))"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
+    )
+    assert done.stdout.strip() == "[]", done.stdout
 
 
 def _without_compute_time(path):

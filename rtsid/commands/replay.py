@@ -11,24 +11,18 @@ import sys
 import threading
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
-from rtsid.benchmarks.table import print_table
 from rtsid.commands.common import add_output
 from rtsid.errors import IncompleteRecordingWarning, InputDataError
-from rtsid.io.estimate_csv import open_output, write_estimates
-from rtsid.io.files import atomic_write
-from rtsid.io.recording import session_parts
-from rtsid.replay import (
-    ReplayResult,
-    recording_config,
-    replay_file,
-    write_estimates_mcap,
-)
-from rtsid.runtime.daemon import DaemonConfig
-from rtsid.verdicts import format_counts
+
+if TYPE_CHECKING:
+    from rtsid.replay import ReplayResult
+    from rtsid.runtime.daemon import DaemonConfig
+
+# The replay itself (numpy, the reader, the window path: ≈ 2 G instructions to import here,
+# where every process compiles rtsid from source) is imported where it is used, so that a
+# directory's children are spawned, and import it, while this process imports it too.
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -65,10 +59,17 @@ def _rate(text: str) -> float | None:
 
 
 def _config(args: argparse.Namespace, path: Path) -> DaemonConfig:
+    from rtsid.replay import recording_config
+    from rtsid.runtime.daemon import DaemonConfig
+
     return DaemonConfig.load(args.config) if args.config else recording_config(path)
 
 
 def _write(result: ReplayResult, out: Path, config: DaemonConfig) -> None:
+    from rtsid.io.estimate_csv import open_output, write_estimates
+    from rtsid.io.files import atomic_write
+    from rtsid.replay import write_estimates_mcap
+
     if out.suffix == ".csv":
         with open_output(out) as fh:
             write_estimates(result.messages, fh)
@@ -89,6 +90,10 @@ def _write(result: ReplayResult, out: Path, config: DaemonConfig) -> None:
 
 
 def _summary_row(result: ReplayResult) -> list[Any]:
+    import numpy as np
+
+    from rtsid.verdicts import format_counts
+
     ok = [m for m in result.messages if m["ok"]]
     med = {
         k: float(np.median([m[k] for m in ok])) if ok else float("nan")
@@ -133,6 +138,8 @@ def _replay_one(
 
 
 def _replay_and_write(path: Path, args: argparse.Namespace, out: Path | None) -> list[Any]:
+    from rtsid.replay import replay_file
+
     config = _config(args, path)
     publish = None
     publisher = None
@@ -160,22 +167,40 @@ def _replay_and_write(path: Path, args: argparse.Namespace, out: Path | None) ->
 
 def _replay_directory(folder: Path, args: argparse.Namespace) -> list[list[Any]]:
     """One job per recording: the parts of a rotated session replay together, as one."""
-    sessions = _sessions(sorted(folder.glob("*.mcap")))
-    if not sessions:
+    files = sorted(folder.glob("*.mcap"))
+    if not files:
         raise InputDataError(f"{folder}: no .mcap recordings in this directory")
+    # this process replays too: a child more than there are other recordings would only
+    # import rtsid and wait
+    children = min(args.jobs or mp.cpu_count(), len(files)) - 1
+    if children == 0:
+        return _replay_folder(folder, files, args, None, [])
+    ctx = mp.get_context("spawn")
+    with cf.ProcessPoolExecutor(children, ctx, initializer=_init_child) as pool:
+        # the children start first, and import the replay while this process lists the
+        # folder and imports it too
+        ready = [pool.submit(_preload) for _ in range(children)]
+        return _replay_folder(folder, files, args, pool, ready)
+
+
+def _replay_folder(
+    folder: Path,
+    files: list[Path],
+    args: argparse.Namespace,
+    pool: cf.ProcessPoolExecutor | None,
+    ready: list[cf.Future[None]],
+) -> list[list[Any]]:
+    sessions = _sessions(files)
     out_dir = Path(args.output) if args.output else None
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
-    # this process replays too: a child more than there are other recordings would only
-    # import rtsid (≈ 0.5 s of CPU) and wait
-    children = min(args.jobs or mp.cpu_count(), len(sessions)) - 1
     # Only plain options cross to the spawned children; they publish nothing and draw no bar.
     quiet = argparse.Namespace(config=args.config, rate=args.rate, publish=False, progress=False)
     folder_run = _FolderRun(_longest_first(sessions), quiet, out_dir)
-    if children == 0:
+    if pool is None:
         folder_run.replay_here()
     else:
-        folder_run.replay_with(children)
+        folder_run.replay_with(pool, ready)
     # the table keeps the recordings' order, whichever finished first
     return [_rewarn(*done) for done in folder_run.results(sessions)]
 
@@ -184,11 +209,11 @@ class _FolderRun:
     """The recordings of a folder handed out one at a time, longest first, to this process
     and to a pool's spawned processes: whichever process finishes a recording takes the next.
 
-    This process needs no start-up (it has imported rtsid already), so it replays from the
-    first moment while the children start; each child is sent its next recording when it
-    finishes one (one at a time: a pool sends a child two, and it kept one that this process
-    could have replayed). A recording that fails is reported after the others have been
-    replayed (their outputs are written).
+    This process needs no start-up (it has imported rtsid already), so it replays the
+    largest recording at once while the children start; a child is sent a recording when it
+    is ready and the next when it finishes one (one at a time: a pool queues two per child,
+    and a child kept one that this process could have replayed). A recording that fails is
+    reported after the others have been replayed (their outputs are written).
     """
 
     def __init__(self, order: list[Path], args: argparse.Namespace, out_dir: Path | None):
@@ -214,24 +239,23 @@ class _FolderRun:
             outcome = exc
         self._finished(path, outcome)
 
-    def replay_with(self, children: int) -> None:
-        """Replay with ``children`` spawned processes beside this one."""
-        ctx = mp.get_context("spawn")
-        with cf.ProcessPoolExecutor(children, ctx, initializer=_init_child) as pool:
-            try:
-                with self._lock:  # the longest to this process, which starts at once
-                    first = self._todo.popleft()
-                    self._pool = pool
-                    for _ in range(children):
-                        self._send_next()
-                self._replay(first)
-                # recordings a broken pool gave back are replayed here too
-                while not self._all_done.is_set():
-                    self.replay_here()
-                    self._all_done.wait(0.2)
-            finally:  # Ctrl-C: nothing more is sent; running recordings end (see run)
-                with self._lock:
-                    self._todo.clear()
+    def replay_with(self, pool: cf.ProcessPoolExecutor, ready: list[cf.Future[None]]) -> None:
+        """Replay with the children of ``pool`` beside this process; each is sent its first
+        recording when its future in ``ready`` is done."""
+        try:
+            with self._lock:  # the longest to this process, which starts at once
+                first = self._todo.popleft()
+                self._pool = pool
+            for future in ready:
+                future.add_done_callback(self._child_ready)
+            self._replay(first)
+            # recordings a broken pool gave back are replayed here too
+            while not self._all_done.is_set():
+                self.replay_here()
+                self._all_done.wait(0.2)
+        finally:  # Ctrl-C: nothing more is sent; running recordings end (see _init_child)
+            with self._lock:
+                self._todo.clear()
 
     def results(self, order: list[Path]) -> list[tuple[list[Any], list[str]]]:
         """Each recording's summary row and incomplete-recording warnings, in ``order``;
@@ -270,6 +294,9 @@ class _FolderRun:
         except BaseException as exc:  # a failed recording, or a child that died
             outcome = exc
         self._finished(path, outcome)
+        self._child_ready(future)
+
+    def _child_ready(self, _: cf.Future[Any]) -> None:
         with self._lock:
             self._send_next()
 
@@ -277,8 +304,8 @@ class _FolderRun:
         with self._lock:
             self._outcomes[path] = outcome
             done = len(self._outcomes)
-            name = path.name
-            _recordings_done(done, self._total, name)
+            if not isinstance(outcome, KeyboardInterrupt):  # no line once Ctrl-C was pressed
+                _recordings_done(done, self._total, path.name)
             if done == self._total:
                 self._all_done.set()
 
@@ -288,6 +315,16 @@ def _init_child() -> None:
     group) ignored while it waits for a recording — a child interrupted in its queue read
     printed a traceback and broke the pool — and raised in the recording it replays."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _preload() -> None:
+    """A child's first task: import what a replay needs — rtsid's replay (compiled from
+    source: this machine writes no bytecode) and scipy.signal, which the first window's plan
+    and the slow lane's first fit design their filters with (4 G instructions, the largest
+    part of a child's start-up) — while this process lists the folder and imports it too."""
+    import scipy.signal  # noqa: F401
+
+    import rtsid.replay  # noqa: F401
 
 
 def _replay_in_child(
@@ -304,6 +341,8 @@ def _replay_in_child(
 def _longest_first(sessions: list[Path]) -> list[Path]:
     """The recordings by size, largest first (the pool takes them in this order): a long
     recording started last would leave the other processes idle while it ends."""
+    from rtsid.io.recording import session_parts
+
     return sorted(sessions, key=lambda f: -sum(p.stat().st_size for p in session_parts(f)))
 
 
@@ -320,6 +359,8 @@ def _recordings_done(done: int, total: int, name: str) -> None:
 
 def _sessions(files: list[Path]) -> list[Path]:
     """The first part of each recording among ``files`` (other parts are read with it)."""
+    from rtsid.io.recording import session_parts
+
     firsts: list[Path] = []
     for f in files:
         first = session_parts(f)[0]
@@ -348,6 +389,8 @@ def run(args: argparse.Namespace) -> int:
         args.progress = True
         out = Path(args.output) if args.output else None
         rows = [_rewarn(*_replay_one(path, args, out))]
+    from rtsid.benchmarks.table import print_table
+
     print_table(
         "Replay",
         [
