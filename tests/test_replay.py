@@ -287,6 +287,50 @@ def test_one_job_replays_in_this_process_and_two_share_the_folder_with_it(
         assert len(one) > 100 and one == two
 
 
+def test_ctrl_c_stops_a_directory_replay_and_its_children(tmp_path):
+    """Ctrl-C (SIGINT to the process group, as a terminal sends it) ends ``replay DIR --jobs
+    2`` with status 130 and one line; no child prints a traceback or outlives it."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    folder, out = tmp_path / "recs", tmp_path / "out"
+    folder.mkdir()
+    for k in range(20):
+        shutil.copy(REFERENCE / "sim_3s.mcap", folder / f"r{k:02d}.mcap")
+    command = [sys.executable, "-m", "rtsid.cli", "replay", str(folder), "--jobs", "2"]
+    proc = subprocess.Popen(
+        [*command, "-o", str(out)],
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 120.0
+        while not (out.exists() and any(out.iterdir())):  # the first recording replayed
+            assert proc.poll() is None and time.monotonic() < deadline
+            time.sleep(0.02)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(timeout=10)
+    assert proc.returncode == 130, err
+    assert "rtsid replay: interrupted" in err and "Traceback" not in err
+    assert len(list(out.iterdir())) < 20  # it stopped: nothing more was sent
+    deadline = time.monotonic() + 10.0
+    while True:  # no process of the group is left
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            break
+        assert time.monotonic() < deadline, "a child outlived the interrupted command"
+        time.sleep(0.05)
+
+
 def test_the_replay_command_is_parsed_before_the_replay_is_imported():
     """``rtsid replay DIR --jobs N`` spawns its children before it imports the replay
     (numpy, the reader, the window path: ≈ 2 G instructions here, where every process
