@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import re
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
@@ -229,6 +230,125 @@ def test_a_directory_replays_the_same_with_one_job_or_two(tmp_path, capsys):
         assert len(one) > 100 and one == two
 
 
+@pytest.mark.parametrize("jobs", ["1", "2"])
+def test_a_failing_recording_in_a_directory_is_one_error_and_the_others_are_written(
+    tmp_path, capsys, jobs
+):
+    folder = tmp_path / "recs"
+    folder.mkdir()
+    for name in ("a.mcap", "c.mcap"):
+        shutil.copy(REFERENCE / "sim_3s.mcap", folder / name)
+    (folder / "b.mcap").write_bytes(b"not a recording")
+    assert main(["replay", str(folder), "-o", str(tmp_path / "out"), "--jobs", jobs]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert [line for line in err if not line.startswith("replayed")] == [
+        f"rtsid replay: error: '{folder / 'b.mcap'}' is not an MCAP file (bad magic bytes); "
+        "pass an .mcap recording"
+    ]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a.csv", "c.csv"]
+
+
+def test_one_job_replays_in_this_process_and_two_share_the_folder_with_it(
+    tmp_path, capsys, monkeypatch
+):
+    """This process has imported rtsid already: it replays the first (largest) recording at
+    once while a spawned child starts, and with --jobs 1 it spawns nothing."""
+    import concurrent.futures as cf
+
+    import rtsid.commands.replay as command
+
+    folder = tmp_path / "recs"
+    folder.mkdir()
+    for name in ("a.mcap", "b.mcap"):
+        shutil.copy(REFERENCE / "sim_3s.mcap", folder / name)
+    here: list[str] = []
+    replay_one = command._replay_one
+
+    def replayed_here(path, args, out):
+        here.append(path.name)
+        if out is not None and out.parent.name == "2":  # busy until the child wrote its own
+            deadline = time.monotonic() + 120.0
+            while not (out.parent / "b.csv").exists():
+                assert time.monotonic() < deadline, "the child replayed nothing"
+                time.sleep(0.05)
+        return replay_one(path, args, out)
+
+    monkeypatch.setattr(command, "_replay_one", replayed_here)  # this process's, not a child's
+    with monkeypatch.context() as no_pool:
+        no_pool.setattr(cf, "ProcessPoolExecutor", None)  # --jobs 1 must not need one
+        assert main(["replay", str(folder), "-o", str(tmp_path / "1"), "--jobs", "1"]) == 0
+    assert here == ["a.mcap", "b.mcap"]
+    here.clear()
+    assert main(["replay", str(folder), "-o", str(tmp_path / "2"), "--jobs", "2"]) == 0
+    assert here == ["a.mcap"]  # the largest first; b.mcap went to the child meanwhile
+    capsys.readouterr()
+    for name in ("a.csv", "b.csv"):
+        one, two = (_without_compute_time(tmp_path / jobs / name) for jobs in ("1", "2"))
+        assert len(one) > 100 and one == two
+
+
+def test_ctrl_c_stops_a_directory_replay_and_its_children(tmp_path):
+    """Ctrl-C (SIGINT to the process group, as a terminal sends it) ends ``replay DIR --jobs
+    2`` with status 130 and one line; no child prints a traceback or outlives it."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    folder, out = tmp_path / "recs", tmp_path / "out"
+    folder.mkdir()
+    for k in range(20):
+        shutil.copy(REFERENCE / "sim_3s.mcap", folder / f"r{k:02d}.mcap")
+    command = [sys.executable, "-m", "rtsid.cli", "replay", str(folder), "--jobs", "2"]
+    proc = subprocess.Popen(
+        [*command, "-o", str(out)],
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 120.0
+        while not (out.exists() and any(out.iterdir())):  # the first recording replayed
+            assert proc.poll() is None and time.monotonic() < deadline
+            time.sleep(0.02)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(timeout=10)
+    assert proc.returncode == 130, err
+    assert "rtsid replay: interrupted" in err and "Traceback" not in err
+    assert len(list(out.iterdir())) < 20  # it stopped: nothing more was sent
+    deadline = time.monotonic() + 10.0
+    while True:  # no process of the group is left
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            break
+        assert time.monotonic() < deadline, "a child outlived the interrupted command"
+        time.sleep(0.05)
+
+
+def test_the_replay_command_is_parsed_before_the_replay_is_imported():
+    """``rtsid replay DIR --jobs N`` spawns its children before it imports the replay
+    (numpy, the reader, the window path: ≈ 2 G instructions here, where every process
+    compiles rtsid from source), so that they import it while this process does too."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; from rtsid.cli import build_parser; build_parser(['replay']); "
+        "print(sorted(m for m in ('numpy', 'rtsid.replay', 'rtsid.io.recording') "
+        "if m in sys.modules))"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
+    )
+    assert done.stdout.strip() == "[]", done.stdout
+
+
 def _without_compute_time(path):
     """The rows of an estimates CSV without ``compute_ms`` (how long this run took)."""
     with open(path, newline="") as fh:
@@ -242,6 +362,7 @@ def _without_compute_time(path):
         (["replay", "missing.mcap"], "no such file"),
         (["replay", str(REFERENCE / "sim_3s.mcap"), "--rate", "fast"], "--rate 'fast'"),
         (["replay", str(REFERENCE / "sim_3s.mcap"), "-o", "x.txt"], "use a .csv or .mcap"),
+        (["replay", str(REFERENCE), "--jobs", "-1"], "--jobs -1: use a number"),
     ],
 )
 def test_replay_errors_are_one_line(argv, message, capsys):

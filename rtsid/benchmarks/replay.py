@@ -6,13 +6,12 @@ replayed with ``rtsid replay``'s code path. Measured in the same run: the estima
 the same windows from arrays in memory (no MCAP decoding, no messages, no slow lane) — the
 ratio shows what replay itself costs —, the same replay on the numpy path (a child process
 with ``RTSID_NUMPY_ONLY=1``), and ``rtsid replay DIR`` over a folder of such recordings with
-``--jobs 1`` and ``--jobs 2``.
+``--jobs 1`` and ``--jobs 2``, each the command in a fresh process as a user runs it.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import io
 import os
 import resource
@@ -93,10 +92,10 @@ REPLAY_FLOOR, JOBS_FLOOR = 150.0, 1.7
 
 
 def _folder_table(folder: Path, seconds: float, count: int) -> Callable[[], None]:
-    """``rtsid replay DIR --jobs 1`` against ``--jobs 2`` on ``count`` recordings; returns
-    the printing of its table."""
-    from rtsid.cli import main  # the command itself: its process pool, its progress line
-
+    """``rtsid replay DIR --jobs 1`` against ``--jobs 2`` on ``count`` recordings, each the
+    command as a user runs it (a fresh process: its own imports included; this process has
+    imported and warmed up the replay already, and the command's process replays too);
+    returns the printing of its table."""
     folder.mkdir()
     for k in range(count):
         build = folder.parent / f"build{k}"
@@ -105,12 +104,16 @@ def _folder_table(folder: Path, seconds: float, count: int) -> Callable[[], None
         path.rename(folder / f"rec{k}.mcap")
     wall: dict[int, float] = {}
     cpu: dict[int, float] = {}
-    startup_s = _pool_startup_s(2)
+    startup_s = _startup_s()
     ceiling = _machine_scaling()
     for jobs in (1, 2):
         started, started_cpu = time.perf_counter(), _children_cpu_s()
-        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-            main(["replay", str(folder), "--jobs", str(jobs)])
+        subprocess.run(
+            [sys.executable, "-m", "rtsid.cli", "replay", str(folder), "--jobs", str(jobs)],
+            capture_output=True,
+            timeout=3600,
+            check=True,
+        )
         wall[jobs] = time.perf_counter() - started
         cpu[jobs] = _children_cpu_s() - started_cpu
     total = count * seconds
@@ -126,8 +129,7 @@ def _folder_table(folder: Path, seconds: float, count: int) -> Callable[[], None
         for jobs in (1, 2)
     ]
     ratio = wall[1] / wall[2]
-    # --jobs 1 runs in one spawned child too: its start-up is paid once either way, the
-    # replays' time is halved at best
+    # each process pays one start-up either way; the replays' time is halved at best
     ideal = wall[1] / (startup_s + max(0.0, wall[1] - startup_s) / 2)
     return lambda: print_table(
         f"rtsid replay DIR: {count} recordings of {seconds / 60:g} min, --jobs 1 and 2 "
@@ -137,41 +139,35 @@ def _folder_table(folder: Path, seconds: float, count: int) -> Callable[[], None
             "seconds",
             "× real time",
             "speed-up",
-            "CPU s, the pool's processes",
+            "CPU s, the command's processes",
             "cores used",
         ],
         rows,
         note=(
             f"Floor: --jobs 2 ≥ {JOBS_FLOOR}× --jobs 1 "
             f"({'met' if ratio >= JOBS_FLOOR else 'NOT met'}: {ratio:.2f}×). Wall time of the "
-            "whole command (spawning the pool included); cores used = the pool's CPU seconds "
-            "(/proc, reaped children) over the wall time: below the job count, the processes "
-            "waited for a CPU (on a machine other work shares, the second core is not all "
-            "this run's). "
-            f"Start-up of a pool of 2 spawned processes, each importing rtsid: {startup_s:.2f} s "
-            f"(so --jobs 2 could reach {ideal:.2f}× here with equal recordings); the machine "
-            f"itself: two CPU-bound processes ran {ceiling:.2f}× one process's work in the same "
-            "time (2.0 on two free cores)."
+            "command in a fresh process, as a user runs it (its imports, and the spawning of "
+            "the child that --jobs 2 adds, included; the command's own process replays too); "
+            "cores used = the CPU seconds of its processes (reaped children) over the wall "
+            "time: below the job count, the processes waited for a CPU or for each other (on "
+            "a machine other work shares, the second core is not all this run's). "
+            f"Start-up of one process to its first window (Python, rtsid compiled from source, "
+            f"scipy.signal): {startup_s:.2f} s (so --jobs 2 could reach {ideal:.2f}× here "
+            "with equal recordings); the machine itself: two CPU-bound processes ran "
+            f"{ceiling:.2f}× one process's work in the same time (2.0 on two free cores)."
         ),
     )
 
 
-def _import_rtsid(_: int) -> int:
-    """A pool task: what a replay's child imports before its first recording."""
-    import rtsid.commands.replay  # noqa: F401
-
-    return os.getpid()
-
-
-def _pool_startup_s(jobs: int) -> float:
-    """Seconds from creating a ``spawn`` pool of ``jobs`` processes to each having imported
-    what ``rtsid replay DIR`` needs (the pool's fixed cost, paid before any recording)."""
-    import concurrent.futures as cf
-    import multiprocessing as mp
-
+def _startup_s() -> float:
+    """Seconds a fresh process takes to import what a replay needs before its first window
+    (what a ``replay DIR`` child preloads): every process of ``--jobs N`` pays it."""
     started = time.perf_counter()
-    with cf.ProcessPoolExecutor(jobs, mp_context=mp.get_context("spawn")) as pool:
-        list(pool.map(_import_rtsid, range(jobs)))
+    subprocess.run(
+        [sys.executable, "-c", "from rtsid.commands.replay import _preload; _preload()"],
+        timeout=600,
+        check=True,
+    )
     return time.perf_counter() - started
 
 

@@ -3,29 +3,26 @@
 from __future__ import annotations
 
 import argparse
+import collections
 import concurrent.futures as cf
 import multiprocessing as mp
+import signal
 import sys
+import threading
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
-from rtsid.benchmarks.table import print_table
 from rtsid.commands.common import add_output
 from rtsid.errors import IncompleteRecordingWarning, InputDataError
-from rtsid.io.estimate_csv import open_output, write_estimates
-from rtsid.io.files import atomic_write
-from rtsid.io.recording import session_parts
-from rtsid.replay import (
-    ReplayResult,
-    recording_config,
-    replay_file,
-    write_estimates_mcap,
-)
-from rtsid.runtime.daemon import DaemonConfig
-from rtsid.verdicts import format_counts
+
+if TYPE_CHECKING:
+    from rtsid.replay import ReplayResult
+    from rtsid.runtime.daemon import DaemonConfig
+
+# The replay itself (numpy, the reader, the window path: ≈ 2 G instructions to import here,
+# where every process compiles rtsid from source) is imported where it is used, so that a
+# directory's children are spawned, and import it, while this process imports it too.
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -41,7 +38,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "default: a summary only)",
         old=("--out",),
     )
-    parser.add_argument("--jobs", type=int, default=0, help="processes for a directory (0: cores)")
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=0,
+        help="processes for a directory, this one included (0: one a core)",
+    )
 
 
 def _rate(text: str) -> float | None:
@@ -57,10 +59,17 @@ def _rate(text: str) -> float | None:
 
 
 def _config(args: argparse.Namespace, path: Path) -> DaemonConfig:
+    from rtsid.replay import recording_config
+    from rtsid.runtime.daemon import DaemonConfig
+
     return DaemonConfig.load(args.config) if args.config else recording_config(path)
 
 
 def _write(result: ReplayResult, out: Path, config: DaemonConfig) -> None:
+    from rtsid.io.estimate_csv import open_output, write_estimates
+    from rtsid.io.files import atomic_write
+    from rtsid.replay import write_estimates_mcap
+
     if out.suffix == ".csv":
         with open_output(out) as fh:
             write_estimates(result.messages, fh)
@@ -81,6 +90,10 @@ def _write(result: ReplayResult, out: Path, config: DaemonConfig) -> None:
 
 
 def _summary_row(result: ReplayResult) -> list[Any]:
+    import numpy as np
+
+    from rtsid.verdicts import format_counts
+
     ok = [m for m in result.messages if m["ok"]]
     med = {
         k: float(np.median([m[k] for m in ok])) if ok else float("nan")
@@ -125,6 +138,8 @@ def _replay_one(
 
 
 def _replay_and_write(path: Path, args: argparse.Namespace, out: Path | None) -> list[Any]:
+    from rtsid.replay import replay_file
+
     config = _config(args, path)
     publish = None
     publisher = None
@@ -152,31 +167,188 @@ def _replay_and_write(path: Path, args: argparse.Namespace, out: Path | None) ->
 
 def _replay_directory(folder: Path, args: argparse.Namespace) -> list[list[Any]]:
     """One job per recording: the parts of a rotated session replay together, as one."""
-    sessions = _sessions(sorted(folder.glob("*.mcap")))
-    if not sessions:
+    files = sorted(folder.glob("*.mcap"))
+    if not files:
         raise InputDataError(f"{folder}: no .mcap recordings in this directory")
+    # this process replays too: a child more than there are other recordings would only
+    # import rtsid and wait
+    children = min(args.jobs or mp.cpu_count(), len(files)) - 1
+    if children == 0:
+        return _replay_folder(files, args, None, [])
+    ctx = mp.get_context("spawn")
+    with cf.ProcessPoolExecutor(children, ctx, initializer=_init_child) as pool:
+        # the children start first, and import the replay while this process lists the
+        # folder and imports it too
+        ready = [pool.submit(_preload) for _ in range(children)]
+        return _replay_folder(files, args, pool, ready)
+
+
+def _replay_folder(
+    files: list[Path],
+    args: argparse.Namespace,
+    pool: cf.ProcessPoolExecutor | None,
+    ready: list[cf.Future[None]],
+) -> list[list[Any]]:
+    """The summary rows of the recordings among ``files``, replayed by this process and by
+    the children of ``pool`` (None: this process alone), each child once its future in
+    ``ready`` is done."""
+    sessions = _sessions(files)
     out_dir = Path(args.output) if args.output else None
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
-    # a child more than there are recordings would only import rtsid (≈ 2 s of CPU) and wait
-    jobs = min(args.jobs or mp.cpu_count(), len(sessions))
-    ctx = mp.get_context("spawn")
     # Only plain options cross to the spawned children; they publish nothing and draw no bar.
     quiet = argparse.Namespace(config=args.config, rate=args.rate, publish=False, progress=False)
-    with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-        futures = {
-            f: pool.submit(_replay_one, f, quiet, out_dir / f"{f.stem}.csv" if out_dir else None)
-            for f in _longest_first(sessions)
-        }
-        for done, future in enumerate(cf.as_completed(futures.values()), start=1):
-            _recordings_done(done, len(futures), future.result()[0][0])
-        # the table keeps the recordings' order, whichever finished first
-        return [_rewarn(*futures[f].result()) for f in sessions]
+    folder_run = _FolderRun(_longest_first(sessions), quiet, out_dir)
+    if pool is None:
+        folder_run.replay_here()
+    else:
+        folder_run.replay_with(pool, ready)
+    # the table keeps the recordings' order, whichever finished first
+    return [_rewarn(*done) for done in folder_run.results(sessions)]
+
+
+class _FolderRun:
+    """The recordings of a folder handed out one at a time, longest first, to this process
+    and to a pool's spawned processes: whichever process finishes a recording takes the next.
+
+    This process is not spawned: it replays the largest recording at once (importing the
+    replay as the children import theirs); a child is sent a recording when it is ready and
+    the next when it finishes one (one at a time: a pool queues two per child, and a child
+    kept one that this process could have replayed). A recording that fails is reported
+    after the others have been replayed (their outputs are written).
+    """
+
+    def __init__(self, order: list[Path], args: argparse.Namespace, out_dir: Path | None):
+        self._todo = collections.deque(order)
+        self._args, self._out_dir = args, out_dir
+        self._total = len(order)
+        self._lock = threading.Lock()
+        self._outcomes: dict[Path, tuple[list[Any], list[str]] | BaseException] = {}
+        self._all_done = threading.Event()
+        self._pool: cf.ProcessPoolExecutor | None = None
+
+    def replay_here(self) -> None:
+        """Replay what is left in this process, one recording after another."""
+        while (path := self._take()) is not None:
+            self._replay(path)
+
+    def _replay(self, path: Path) -> None:
+        try:
+            outcome: tuple[list[Any], list[str]] | BaseException = _replay_one(
+                path, self._args, self._output(path)
+            )
+        except Exception as exc:  # reported once the others are done
+            outcome = exc
+        self._finished(path, outcome)
+
+    def replay_with(self, pool: cf.ProcessPoolExecutor, ready: list[cf.Future[None]]) -> None:
+        """Replay with the children of ``pool`` beside this process; each is sent its first
+        recording when its future in ``ready`` is done."""
+        try:
+            with self._lock:  # the longest to this process, which starts at once
+                first = self._todo.popleft()
+                self._pool = pool
+            for future in ready:
+                future.add_done_callback(self._child_ready)
+            self._replay(first)
+            # recordings a broken pool gave back are replayed here too
+            while not self._all_done.is_set():
+                self.replay_here()
+                self._all_done.wait(0.2)
+        finally:  # Ctrl-C: nothing more is sent; running recordings end (see _init_child)
+            with self._lock:
+                self._todo.clear()
+
+    def results(self, order: list[Path]) -> list[tuple[list[Any], list[str]]]:
+        """Each recording's summary row and incomplete-recording warnings, in ``order``;
+        raises the failure of the first in ``order`` that failed (the others' outputs are
+        written by then)."""
+        done: list[tuple[list[Any], list[str]]] = []
+        for path in order:
+            outcome = self._outcomes[path]
+            if isinstance(outcome, BaseException):
+                raise outcome
+            done.append(outcome)
+        return done
+
+    def _output(self, path: Path) -> Path | None:
+        return self._out_dir / f"{path.stem}.csv" if self._out_dir else None
+
+    def _take(self) -> Path | None:
+        with self._lock:
+            return self._todo.popleft() if self._todo else None
+
+    def _send_next(self) -> None:
+        """Send a child the next recording (with the lock held)."""
+        if not self._todo or self._pool is None:
+            return
+        path = self._todo.popleft()
+        try:
+            future = self._pool.submit(_replay_in_child, path, self._args, self._output(path))
+        except (RuntimeError, cf.BrokenExecutor):  # the pool is gone: this process takes it
+            self._todo.appendleft(path)
+            return
+        future.add_done_callback(lambda done: self._child_done(path, done))
+
+    def _child_done(self, path: Path, future: cf.Future[tuple[list[Any], list[str]]]) -> None:
+        try:
+            outcome: tuple[list[Any], list[str]] | BaseException = future.result()
+        except BaseException as exc:  # a failed recording, or a child that died
+            outcome = exc
+        self._finished(path, outcome)
+        if isinstance(outcome, KeyboardInterrupt):  # Ctrl-C reached the child: send no more
+            with self._lock:
+                self._todo.clear()
+        self._child_ready(future)
+
+    def _child_ready(self, _: cf.Future[Any]) -> None:
+        with self._lock:
+            self._send_next()
+
+    def _finished(self, path: Path, outcome: tuple[list[Any], list[str]] | BaseException) -> None:
+        with self._lock:
+            self._outcomes[path] = outcome
+            done = len(self._outcomes)
+            if not isinstance(outcome, KeyboardInterrupt):  # no line once Ctrl-C was pressed
+                _recordings_done(done, self._total, path.name)
+            if done == self._total:
+                self._all_done.set()
+
+
+def _init_child() -> None:
+    """Initializer of a replay child: Ctrl-C (the terminal sends it to the whole process
+    group) ignored while it waits for a recording — a child interrupted in its queue read
+    printed a traceback and broke the pool — and raised in the recording it replays."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _preload() -> None:
+    """A child's first task: import what a replay needs — rtsid's replay (compiled from
+    source: this machine writes no bytecode) and scipy.signal, which the first window's plan
+    and the slow lane's first fit design their filters with (4.2 G instructions by callgrind,
+    the largest part of a child's start-up) — while this process lists the folder and
+    imports them too."""
+    import scipy.signal  # noqa: F401
+
+    import rtsid.replay  # noqa: F401
+
+
+def _replay_in_child(
+    path: Path, args: argparse.Namespace, out: Path | None
+) -> tuple[list[Any], list[str]]:
+    """:func:`_replay_one` in a child, interruptible by Ctrl-C while it runs."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        return _replay_one(path, args, out)
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _longest_first(sessions: list[Path]) -> list[Path]:
     """The recordings by size, largest first (the pool takes them in this order): a long
     recording started last would leave the other processes idle while it ends."""
+    from rtsid.io.recording import session_parts
+
     return sorted(sessions, key=lambda f: -sum(p.stat().st_size for p in session_parts(f)))
 
 
@@ -193,6 +365,8 @@ def _recordings_done(done: int, total: int, name: str) -> None:
 
 def _sessions(files: list[Path]) -> list[Path]:
     """The first part of each recording among ``files`` (other parts are read with it)."""
+    from rtsid.io.recording import session_parts
+
     firsts: list[Path] = []
     for f in files:
         first = session_parts(f)[0]
@@ -211,12 +385,18 @@ def run(args: argparse.Namespace) -> int:
     path = Path(args.recording)
     if not path.exists():
         raise InputDataError(f"{path}: no such file or directory")
+    if args.jobs < 0:
+        raise InputDataError(
+            f"--jobs {args.jobs}: use a number of processes ≥ 1, or 0 for one a core"
+        )
     if path.is_dir():
         rows = _replay_directory(path, args)
     else:
         args.progress = True
         out = Path(args.output) if args.output else None
         rows = [_rewarn(*_replay_one(path, args, out))]
+    from rtsid.benchmarks.table import print_table
+
     print_table(
         "Replay",
         [
