@@ -50,6 +50,7 @@ from rtsid.link.config import LinkConfig, PlantConfig, link_configs_from_mapping
 from rtsid.link.open import open_link
 from rtsid.link.ring import RingBuffer, Snapshot
 from rtsid.runtime.clock import Deadlines
+from rtsid.runtime.gate import WindowGate
 from rtsid.runtime.power import cpu_latency_request, set_realtime_priority
 from rtsid.runtime.session import SessionDesk, session_message
 from rtsid.runtime.slow_lane import SlowLane
@@ -418,6 +419,7 @@ class Daemon:
                 worker = WindowWorker(ring, evaluator)
                 worker.stalls = self.stalls
                 self.worker = worker
+                self._writer_in_the_gaps(mcap, worker.gate)
                 slow_lane = self._slow_lane(ring, worker, models, mcap, zenoh)
                 # Everything built so far lives for the whole run: move it out of the cyclic
                 # collector's view so full collections stay short (no multi-ms pauses).
@@ -512,9 +514,20 @@ class Daemon:
         gate = self.worker.gate if self.worker is not None else None
         if gate is None:
             return _no_wait
-        settings = self.config.daemon
-        bound_s = min(2 * self.config.worker.hop_s, settings.sample_batch_s / 2)
+        bound_s = self._gate_bound_s()
         return lambda: gate.after_next_window(bound_s)
+
+    def _gate_bound_s(self) -> float:
+        """The longest wait on the window gate: two hops, at most half a sample batch, s."""
+        return min(2 * self.config.worker.hop_s, self.config.daemon.sample_batch_s / 2)
+
+    def _writer_in_the_gaps(self, mcap: McapLogger, gate: WindowGate) -> None:
+        """The MCAP writer thread writes in the worker's gaps: each burst begins as the worker
+        goes to sleep and pauses while a window computes (each wait bounded like the tick's),
+        so its serialising and chunk compression never share a window's time."""
+        bound_s = self._gate_bound_s()
+        mcap.busy = lambda: gate.computing
+        mcap.wait_turn = lambda: gate.after_next_window(bound_s)
 
     def _forward_samples(self, ring: RingBuffer, mcap: McapLogger, zenoh: ZenohPublisher) -> None:
         while True:
