@@ -6,7 +6,7 @@ holding at least the last ``history_s`` (default 10 min). The publishing thread 
 payload it already holds (two list appends, no copy); every 256 messages it seals a block, and
 the daemon's housekeeping tick compresses sealed blocks (zstd level 1,
 :meth:`HistoryStore.compact`) in a gap of the window worker's of their own, so 10 minutes of
-estimates at 250 Hz (a 4 ms hop) take ≈ 25 MiB instead of ≈ 100 MiB. Queries are
+estimates at 250 Hz (a 4 ms hop) take ≈ 16 MiB instead of ≈ 95 MiB. Queries are
 served from the blocks a reader takes under a short lock (references only); decompression and
 the reply are built on zenoh's callback thread, so a flood of queries cannot delay the window
 worker.
@@ -207,14 +207,14 @@ class _RawBlock:
 
 class _PackedBlock:
     """Consecutive messages compressed as one: their payloads joined and zstd-compressed, with
-    each one's end offset in the joined bytes (a JSON estimate shrinks ≈ 4×)."""
+    each one's end offset in the joined bytes (a JSON estimate shrinks ≈ 5.8×)."""
 
     __slots__ = ("data", "ends", "first", "times")
 
-    #: zstd level: level 1 compresses a block of 256 estimates (≈ 160 kB) in ≈ 0.1–0.2 ms of
-    #: CPU with the GIL released, about a fifth of zlib level 1's time (this block's format
-    #: before issue 22) for a smaller result. The join and the offsets around it hold the GIL
-    #: ≈ 0.05 ms.
+    #: zstd level: level 1 compresses a block of 256 of the daemon's estimates (≈ 160 kB)
+    #: 5.8× in 0.61 ms of CPU with the GIL released; zlib level 1 (this block's format before
+    #: issue 22) 4.2× in 1.95 ms (the same 25 blocks back to back, on a loaded machine). The
+    #: join and the offsets around it hold the GIL ≈ 0.05 ms.
     LEVEL = 1
 
     def __init__(self, block: _RawBlock, compressor: zstandard.ZstdCompressor) -> None:
@@ -249,7 +249,7 @@ class MessageRing:
     seals the block (a lock held for a tuple swap). :meth:`compact`, called from another
     thread (the daemon's housekeeping tick), deflates sealed blocks into one compressed bytes
     object each (:class:`_PackedBlock`): a 10-minute history of JSON estimates at 250 Hz
-    holds ≈ 25 MiB instead of ≈ 100 MiB raw. Without :meth:`compact` the sealed blocks stay
+    holds ≈ 16 MiB instead of ≈ 95 MiB raw. Without :meth:`compact` the sealed blocks stay
     raw, still bounded by ``capacity``. The oldest block is dropped once every message in it
     is older than the newest ``capacity - 1``; memory grows while the history fills, up to
     that bound.
