@@ -252,6 +252,25 @@ def _no_wait() -> None:
     """No worker to wait for."""
 
 
+def _collect_in_the_gap() -> int | None:
+    """The collection CPython would have run by now, run here (automatic collection is off
+    while the daemon runs: the housekeeping tick calls this right after the worker has gone
+    to sleep, so no collection runs inside a window). CPython's rule: the oldest generation
+    whose count is past its threshold.
+
+    Returns
+    -------
+    int or None
+        The generation collected (None: none due).
+    """
+    counts, thresholds = gc.get_count(), gc.get_threshold()
+    due = [g for g in range(3) if thresholds[g] and counts[g] > thresholds[g]]
+    if not due:
+        return None
+    gc.collect(due[-1])
+    return due[-1]
+
+
 def _plain(value: Any) -> Any:
     """Dataclasses, mappings and tuples as dicts and lists of plain values."""
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
@@ -335,12 +354,15 @@ class Daemon:
         # kept waiting behind the acquisition, plant or logger threads (latency tails).
         previous_interval = sys.getswitchinterval()
         sys.setswitchinterval(min(previous_interval, self.config.daemon.gil_switch_interval_s))
+        collecting = gc.isenabled()
         try:
             with cpu_latency_request(self.config.daemon.cpu_latency_us), self.stalls:
                 return self._run(duration_s)
         finally:
             sys.setswitchinterval(previous_interval)
             gc.unfreeze()
+            if collecting:
+                gc.enable()
 
     def _run(self, duration_s: float | None) -> RunSummary:
         cfg = self.config
@@ -425,6 +447,10 @@ class Daemon:
                 # collector's view so full collections stay short (no multi-ms pauses).
                 gc.collect()
                 gc.freeze()
+                # and from now on collect only in the worker's gaps (the housekeeping tick,
+                # _collect_in_the_gap): an automatic collection runs in whichever thread
+                # allocates, the worker's window included
+                gc.disable()
                 worker.start()
                 if slow_lane is not None:
                     slow_lane.start()
@@ -479,6 +505,7 @@ class Daemon:
         after_window = self._after_a_window()
         while ticks.wait(self.stop_event):
             after_window()  # the tick runs as the worker goes to sleep, not across a window
+            _collect_in_the_gap()
             with step("housekeeping: estimates to MCAP"):
                 self._log_estimates(mcap)
             with step("housekeeping: samples forwarded"):

@@ -3,6 +3,7 @@ separate process with a subscriber, SIGTERM and SIGKILL."""
 
 from __future__ import annotations
 
+import gc
 import itertools
 import json
 import os
@@ -175,8 +176,20 @@ def test_each_half_of_the_status_tick_begins_as_the_worker_goes_to_sleep(tmp_pat
         return journal_step(name)
 
     daemon.stalls.step = step  # type: ignore[method-assign]
-    summary = daemon.run(duration_s=2.5)
+    thresholds = gc.get_threshold()
+    gc.set_threshold(100, 10, 10)  # collections due every few ticks
+    try:
+        summary = daemon.run(duration_s=2.5)
+    finally:
+        gc.set_threshold(*thresholds)
     assert summary.clean_shutdown and summary.estimates > 100
+    assert gc.isenabled()  # automatic collection is back after the run
+    # every collection ran on the housekeeping thread, right after its gate wait: none
+    # inside a window on the worker (nor on the acquisition or writer threads)
+    collected_on = {s.name for s in daemon.stalls._spans if s.name.startswith("gc gen")}
+    assert len(collected_on) >= 1
+    assert all(name.endswith("(MainThread)") for name in collected_on)
+    assert sum(daemon.stalls.collections) >= 3
     assert len(halves) >= 4 and len(halves) % 2 == 0  # build, then publish, per status
     for (idle, out), (next_idle, next_out) in itertools.pairwise(halves):
         # the worker went to sleep between the two (or the wait's bound ran out, counted)
