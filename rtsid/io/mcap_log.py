@@ -562,7 +562,7 @@ class McapLogger(ThreadOwner):
                 item = None
             if item is not None:
                 self.wait_turn()  # a burst begins as the worker goes to sleep
-                self._write_burst(item)
+                self._write_burst(item, until_s=next_flush)
             now = time.monotonic()
             if now >= next_flush:
                 self._take_turn_if_busy()
@@ -579,16 +579,20 @@ class McapLogger(ThreadOwner):
         with self._c.lock:
             self._c.state = "stopped" if self._c.state != "error" else "error"
 
-    def _write_burst(self, item: tuple[str, int, Any]) -> None:
+    def _write_burst(self, item: tuple[str, int, Any], until_s: float) -> None:
         """Write ``item`` and then whatever else is queued, closing each chunk that is full;
         whenever a window has begun meanwhile, wait for the worker's next sleep before going
-        on (at most a queue's worth of items: the loop comes back to its flush deadline)."""
+        on. The burst ends with the queue empty, at the flush deadline ``until_s``
+        (``time.monotonic()``), on stop, or after a queue's worth of items: the loop comes
+        back to its flush and its stop in bounded time however long the waits."""
         for _ in range(self.config.queue_size + 1):
             with self.timed("mcap writer: write"):
                 self._write(item)
             if self._chunk_bytes >= self.config.chunk_size:
                 self._take_turn_if_busy()
                 self._close_full_chunk()
+            if self._stop.is_set() or time.monotonic() >= until_s:
+                return
             try:
                 item = self._queue.get_nowait()
             except queue.Empty:

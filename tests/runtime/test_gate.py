@@ -162,3 +162,33 @@ def test_a_full_queue_still_drops_and_counts_while_the_writer_waits_for_its_turn
         gate.window_finished()
         gate.worker_waiting()
         wait_for(lambda: logger.stats()["written"] == 17, 10.0, "what was queued")
+
+
+def test_a_writer_kept_waiting_by_a_busy_worker_still_flushes_on_time(tmp_path, wait_for):
+    """A worker that never sleeps runs each of the writer's waits out (bounded): the writer
+    still writes everything, and a long burst ends at the flush deadline, so the file is
+    flushed while the queue drains, not only after it."""
+    gate = WindowGate()
+    steps: list[str] = []
+
+    @contextlib.contextmanager
+    def timed(name: str) -> Iterator[None]:
+        steps.append(name)
+        yield
+
+    config = McapConfig(directory=str(tmp_path), chunk_size=1024, flush_interval_s=0.05)
+    logger = McapLogger(config, robot="r", joint="ankle", fs_hz=2500.0)
+    logger.timed = timed
+    logger.busy = lambda: gate.computing
+    logger.wait_turn = lambda: gate.after_next_window(0.01)
+    gate.window_started()  # and never finished
+    with logger:
+        log_rows(logger, range(100))
+        wait_for(lambda: logger.stats()["written"] == 100, 60.0, "every batch written")
+    assert gate.waited_out >= 100  # each wait ran out
+    writes = [i for i, name in enumerate(steps) if name == "mcap writer: write"]
+    flushes = [i for i, name in enumerate(steps) if name == "mcap writer: flush"]
+    assert flushes and flushes[0] < writes[-1]  # flushed mid-way, not after the last write
+    (path,) = logger.files
+    firsts = [batch.first_index for batch in mcap_read.iter_sample_batches(path)]
+    assert firsts == [100 * b for b in range(100)]
