@@ -586,8 +586,11 @@ class McapLogger(ThreadOwner):
         (``time.monotonic()``), on stop, or after a queue's worth of items: the loop comes
         back to its flush and its stop in bounded time however long the waits."""
         for _ in range(self.config.queue_size + 1):
-            with self.timed("mcap writer: write"):
-                self._write(item)
+            if item[0] == "estimates":
+                self._write_estimates_pausing(item[2])
+            else:
+                with self.timed("mcap writer: write"):
+                    self._write(item)
             if self._chunk_bytes >= self.config.chunk_size:
                 self._take_turn_if_busy()
                 self._close_full_chunk()
@@ -598,6 +601,21 @@ class McapLogger(ThreadOwner):
             except queue.Empty:
                 return
             self._take_turn_if_busy()
+
+    def _write_estimates_pausing(self, batch: Sequence[tuple[bytes, int, Any]]) -> None:
+        """Write a tick's estimates (25 at a 4 ms hop), stopping between two of them when a
+        window has begun, until the worker sleeps again: a window never shares the GIL with
+        the rest of the batch, and waits at most one estimate's write for it."""
+        done = 0
+        while done < len(batch):
+            with self.timed("mcap writer: write"):
+                for estimate, log_time_ns, message in batch[done:]:
+                    self._write_payload("estimate", log_time_ns, estimate, message)
+                    done += 1
+                    if self.busy():
+                        break
+            if done < len(batch):
+                self.wait_turn()
 
     def _take_turn_if_busy(self) -> None:
         """While a window is being computed, wait (bounded) for the worker to go to sleep."""

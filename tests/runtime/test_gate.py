@@ -4,6 +4,7 @@ worker for the tick."""
 from __future__ import annotations
 
 import contextlib
+import json
 import threading
 from collections.abc import Iterator
 
@@ -11,6 +12,7 @@ import numpy as np
 
 from rtsid.io import mcap_read
 from rtsid.io.mcap_log import McapConfig, McapLogger
+from rtsid.io.schemas import ESTIMATE_FIELDS, encode_estimate
 from rtsid.runtime.gate import WindowGate
 
 
@@ -192,3 +194,43 @@ def test_a_writer_kept_waiting_by_a_busy_worker_still_flushes_on_time(tmp_path, 
     (path,) = logger.files
     firsts = [batch.first_index for batch in mcap_read.iter_sample_batches(path)]
     assert firsts == [100 * b for b in range(100)]
+
+
+def test_a_tick_of_estimates_pauses_between_two_when_a_window_begins(tmp_path, wait_for):
+    """The batch of a tick's estimates is written one at a time while no window computes;
+    a window begun after the third stops it there until the worker sleeps again."""
+    gate = WindowGate()
+    written: list[int] = []
+
+    def tap(kind: str, log_time_ns: int, payload: bytes) -> None:
+        written.append(json.loads(payload)["seq"])
+        if len(written) == 3:
+            gate.window_started()  # the worker woke
+
+    config = McapConfig(directory=str(tmp_path), flush_interval_s=10.0)
+    logger = McapLogger(config, robot="r", joint="ankle", fs_hz=2500.0, tap=tap)
+    logger.busy = lambda: gate.computing
+    logger.wait_turn = lambda: gate.after_next_window(30.0)
+    messages = [estimate_message(seq) for seq in range(25)]
+    with logger:
+        logger.log_estimates([(encode_estimate(m), m["host_time_ns"], m) for m in messages])
+        wait_for(lambda: gate.waits == 1, 10.0, "the writer waiting for its turn")
+        gate.worker_waiting()
+        wait_for(lambda: gate.waits == 2, 10.0, "the batch pausing for the window")
+        assert written == [0, 1, 2]
+        gate.window_finished()
+        gate.worker_waiting()
+        wait_for(lambda: len(written) == 25, 10.0, "the rest of the batch")
+    assert written == list(range(25))
+    (path,) = logger.files
+    assert [e["seq"] for e in mcap_read.iter_estimates(path)] == list(range(25))
+
+
+def estimate_message(seq: int) -> dict[str, object]:
+    message: dict[str, object] = dict.fromkeys(ESTIMATE_FIELDS, 0.0)
+    message.update(
+        robot="r", joint="ankle", seq=seq, window_start_index=50 * seq,
+        window_end_index=50 * seq + 749, ok=True, reason=None, flags=[],
+        host_time_ns=1_000_000_000 + seq,
+    )  # fmt: skip
+    return message
