@@ -502,6 +502,9 @@ def print_miss_causes(phase: Phase) -> None:
         f"  {phase.name}: misses by what overlapped them: {listed}; garbage collections by "
         f"generation {worker.get('gc_collections')} taking {worker.get('gc_ms')} ms"
     )
+    waits = worker.get("miss_waits") or {}
+    listed = ", ".join(f"{name}: {count}" for name, count in sorted(waits.items())) or "none"
+    print(f"  {phase.name}: misses by where most of their time went: {listed}")
     overruns = worker.get("overrun_causes") or {}
     listed = ", ".join(f"{name}: {count}" for name, count in sorted(overruns.items())) or "none"
     print(f"  {phase.name}: overruns (windows skipped) by cause: {listed}")

@@ -6,6 +6,9 @@
         bounded queue (put_nowait; full → dropped, counted) ──► "rtsid-mcap" thread
         ──► mcap.Writer (zstd chunks) ──► recordings/rtsid-<robot>-<joint>-<UTC>[-NNN].mcap
 
+- The writer thread keeps clear of the daemon's window worker: it writes in bursts that begin
+  when the worker has just gone to sleep and pauses while a window computes (``wait_turn``,
+  ``busy``), and it closes (compresses, writes) each full chunk itself in such a turn.
 - Chunks are small (``chunk_size``) and the writer flushes every ``flush_interval_s``, so a
   process killed with SIGKILL loses at most about the flush interval plus one chunk; the file
   then lacks its footer and :func:`rtsid.io.mcap_read.recover` rewrites it as a valid one.
@@ -57,6 +60,21 @@ log = logging.getLogger("rtsid.io.mcap")
 
 _KINDS = ("samples", "estimate", "status", "reflex", "can_frames", "session", "marker")
 _STOP_POLL_S = 0.1
+#: Bytes a message record adds to a chunk beyond its payload (opcode, length, channel id,
+#: sequence, log and publish times): how the writer counts a chunk's size itself.
+_RECORD_BYTES = 31
+#: The mcap writer closes a chunk by itself only past this many times ``chunk_size``: the
+#: logger closes it first, in a turn of its own (:meth:`McapLogger._close_full_chunk`).
+_CHUNK_CEILING = 4
+
+
+def _no_wait() -> None:
+    """No one to wait for: write at once."""
+
+
+def _never_busy() -> bool:
+    """No window worker to keep clear of."""
+    return False
 
 
 @dataclass(frozen=True)
@@ -260,6 +278,15 @@ class McapLogger(ThreadOwner):
         #: the daemon sets its stall journal's ``step`` so that a deadline miss can be set
         #: against them; by default nothing is timed)
         self.timed: Callable[[str], AbstractContextManager[Any]] = contextlib.nullcontext
+        #: ``wait_turn()`` waits, bounded, for a moment when the daemon's window worker has
+        #: just gone to sleep, and ``busy()`` says a window is being computed (the daemon sets
+        #: both from its :class:`~rtsid.runtime.gate.WindowGate`): the writer thread writes
+        #: in bursts that begin in the worker's quiet part of the hop and pause while a window
+        #: computes, so its serialising, compressing and writing never share the GIL or a core
+        #: with a window it could make late. By default the writer never waits.
+        self.wait_turn: Callable[[], object] = _no_wait
+        self.busy: Callable[[], bool] = _never_busy
+        self._chunk_bytes = 0  # bytes added to the open chunk (payloads and record heads)
         self._queue: queue.Queue[tuple[str, int, Any]] = queue.Queue(maxsize=config.queue_size)
         self._accepting = False
         self._require_file = False
@@ -534,10 +561,11 @@ class McapLogger(ThreadOwner):
             except queue.Empty:
                 item = None
             if item is not None:
-                with self.timed("mcap writer: write"):
-                    self._write(item)
+                self.wait_turn()  # a burst begins as the worker goes to sleep
+                self._write_burst(item, until_s=next_flush)
             now = time.monotonic()
             if now >= next_flush:
+                self._take_turn_if_busy()
                 with self.timed("mcap writer: flush"):
                     self._flush()
                 next_flush += cfg.flush_interval_s
@@ -550,6 +578,55 @@ class McapLogger(ThreadOwner):
         self._close_file(finish=True)
         with self._c.lock:
             self._c.state = "stopped" if self._c.state != "error" else "error"
+
+    def _write_burst(self, item: tuple[str, int, Any], until_s: float) -> None:
+        """Write ``item`` and then whatever else is queued, closing each chunk that is full;
+        whenever a window has begun meanwhile, wait for the worker's next sleep before going
+        on. The burst ends with the queue empty, at the flush deadline ``until_s``
+        (``time.monotonic()``), on stop, or after a queue's worth of items: the loop comes
+        back to its flush and its stop in bounded time however long the waits."""
+        for _ in range(self.config.queue_size + 1):
+            if item[0] == "estimates":
+                self._write_estimates_pausing(item[2])
+            else:
+                with self.timed("mcap writer: write"):
+                    self._write(item)
+            if self._chunk_bytes >= self.config.chunk_size:
+                self._take_turn_if_busy()
+                self._close_full_chunk()
+            if self._stop.is_set() or time.monotonic() >= until_s:
+                return
+            try:
+                item = self._queue.get_nowait()
+            except queue.Empty:
+                return
+            self._take_turn_if_busy()
+
+    def _write_estimates_pausing(self, batch: Sequence[tuple[bytes, int, Any]]) -> None:
+        """Write a tick's estimates (25 at a 4 ms hop), stopping between two of them when a
+        window has begun, until the worker sleeps again: a window never shares the GIL with
+        the rest of the batch, and waits at most one estimate's write for it."""
+        done = 0
+        while done < len(batch):
+            with self.timed("mcap writer: write"):
+                for estimate, log_time_ns, message in batch[done:]:
+                    self._write_payload("estimate", log_time_ns, estimate, message)
+                    done += 1
+                    if self.busy():
+                        break
+            if done < len(batch):
+                self.wait_turn()
+
+    def _take_turn_if_busy(self) -> None:
+        """While a window is being computed, wait (bounded) for the worker to go to sleep."""
+        if self.busy():
+            self.wait_turn()
+
+    def _close_full_chunk(self) -> None:
+        """Compress and write the open chunk (and its index) now, in the writer's turn,
+        rather than inside whichever ``add_message`` crosses the mcap writer's own limit."""
+        with self.timed("mcap writer: chunk"):
+            self._flush()
 
     def _drain(self) -> None:
         for _ in range(self.config.queue_size + 1):
@@ -594,6 +671,7 @@ class McapLogger(ThreadOwner):
             self._writer.add_message(
                 channel_id=self._channels[kind], log_time=t_ns, data=payload, publish_time=t_ns
             )
+            self._chunk_bytes += len(payload) + _RECORD_BYTES
         except OSError as exc:
             with self._c.lock:
                 self._c.lost += 1
@@ -612,7 +690,8 @@ class McapLogger(ThreadOwner):
         if self._writer is None or self._stream is None:
             return
         try:
-            self._writer.flush()
+            self._writer.flush()  # closes the open chunk: compressed, written with its index
+            self._chunk_bytes = 0
             size = self._stream.tell()
         except OSError as exc:
             self._fail(exc, "flushing")
@@ -654,8 +733,12 @@ class McapLogger(ThreadOwner):
                     self._part += 1
             if stream is None or path is None:
                 raise FileExistsError(errno.EEXIST, "too many recordings with this name", path)
+            # the logger closes chunks at chunk_size itself (_close_full_chunk); the mcap
+            # writer's own limit only bounds a chunk whose close never got a turn
             writer = Writer(
-                stream, chunk_size=self.config.chunk_size, compression=CompressionType.ZSTD
+                stream,
+                chunk_size=_CHUNK_CEILING * self.config.chunk_size,
+                compression=CompressionType.ZSTD,
             )
             writer.start(profile="", library=f"rtsid {__version__}")
             self._channels = self._register(writer)
@@ -683,6 +766,7 @@ class McapLogger(ThreadOwner):
                 self._remove_unstarted(path)
             return
         self._writer, self._stream = writer, stream
+        self._chunk_bytes = 0  # the header's flush closed the first chunk
         self._table = table
         self._file_opened_at = time.monotonic()
         with self._c.lock:

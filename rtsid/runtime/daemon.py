@@ -50,6 +50,7 @@ from rtsid.link.config import LinkConfig, PlantConfig, link_configs_from_mapping
 from rtsid.link.open import open_link
 from rtsid.link.ring import RingBuffer, Snapshot
 from rtsid.runtime.clock import Deadlines
+from rtsid.runtime.gate import WindowGate
 from rtsid.runtime.power import cpu_latency_request, set_realtime_priority
 from rtsid.runtime.session import SessionDesk, session_message
 from rtsid.runtime.slow_lane import SlowLane
@@ -251,6 +252,25 @@ def _no_wait() -> None:
     """No worker to wait for."""
 
 
+def _collect_in_the_gap() -> int | None:
+    """The collection CPython would have run by now, run here (automatic collection is off
+    while the daemon runs: the housekeeping tick calls this right after the worker has gone
+    to sleep, so no collection runs inside a window). CPython's rule: the oldest generation
+    whose count is past its threshold.
+
+    Returns
+    -------
+    int or None
+        The generation collected (None: none due).
+    """
+    counts, thresholds = gc.get_count(), gc.get_threshold()
+    due = [g for g in range(3) if thresholds[g] and counts[g] > thresholds[g]]
+    if not due:
+        return None
+    gc.collect(due[-1])
+    return due[-1]
+
+
 def _plain(value: Any) -> Any:
     """Dataclasses, mappings and tuples as dicts and lists of plain values."""
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
@@ -334,12 +354,15 @@ class Daemon:
         # kept waiting behind the acquisition, plant or logger threads (latency tails).
         previous_interval = sys.getswitchinterval()
         sys.setswitchinterval(min(previous_interval, self.config.daemon.gil_switch_interval_s))
+        collecting = gc.isenabled()
         try:
             with cpu_latency_request(self.config.daemon.cpu_latency_us), self.stalls:
                 return self._run(duration_s)
         finally:
             sys.setswitchinterval(previous_interval)
             gc.unfreeze()
+            if collecting:
+                gc.enable()
 
     def _run(self, duration_s: float | None) -> RunSummary:
         cfg = self.config
@@ -418,11 +441,16 @@ class Daemon:
                 worker = WindowWorker(ring, evaluator)
                 worker.stalls = self.stalls
                 self.worker = worker
+                self._writer_in_the_gaps(mcap, worker.gate)
                 slow_lane = self._slow_lane(ring, worker, models, mcap, zenoh)
                 # Everything built so far lives for the whole run: move it out of the cyclic
                 # collector's view so full collections stay short (no multi-ms pauses).
                 gc.collect()
                 gc.freeze()
+                # and from now on collect only in the worker's gaps (the housekeeping tick,
+                # _collect_in_the_gap): an automatic collection runs in whichever thread
+                # allocates, the worker's window included
+                gc.disable()
                 worker.start()
                 if slow_lane is not None:
                     slow_lane.start()
@@ -477,12 +505,17 @@ class Daemon:
         after_window = self._after_a_window()
         while ticks.wait(self.stop_event):
             after_window()  # the tick runs as the worker goes to sleep, not across a window
+            _collect_in_the_gap()
             with step("housekeeping: estimates to MCAP"):
                 self._log_estimates(mcap)
             with step("housekeeping: samples forwarded"):
                 self._forward_samples(ring, mcap, zenoh)
-            with step("housekeeping: history deflate"):
-                zenoh.compact_history()  # the history's sealed blocks, here, off the worker
+            if zenoh.history_compaction_due:
+                # the history's sealed blocks (about one a second at a 4 ms hop), here, off
+                # the worker, in a gap of their own: by now a window may have begun
+                after_window()
+                with step("housekeeping: history deflate"):
+                    zenoh.compact_history()
             tick += 1
             if tick % status_every == 0:
                 # the status's two halves (build; encode and publish) each after a window
@@ -512,9 +545,20 @@ class Daemon:
         gate = self.worker.gate if self.worker is not None else None
         if gate is None:
             return _no_wait
-        settings = self.config.daemon
-        bound_s = min(2 * self.config.worker.hop_s, settings.sample_batch_s / 2)
+        bound_s = self._gate_bound_s()
         return lambda: gate.after_next_window(bound_s)
+
+    def _gate_bound_s(self) -> float:
+        """The longest wait on the window gate: two hops, at most half a sample batch, s."""
+        return min(2 * self.config.worker.hop_s, self.config.daemon.sample_batch_s / 2)
+
+    def _writer_in_the_gaps(self, mcap: McapLogger, gate: WindowGate) -> None:
+        """The MCAP writer thread writes in the worker's gaps: each burst begins as the worker
+        goes to sleep and pauses while a window computes (each wait bounded like the tick's),
+        so its serialising and chunk compression never share a window's time."""
+        bound_s = self._gate_bound_s()
+        mcap.busy = lambda: gate.computing
+        mcap.wait_turn = lambda: gate.after_next_window(bound_s)
 
     def _forward_samples(self, ring: RingBuffer, mcap: McapLogger, zenoh: ZenohPublisher) -> None:
         while True:

@@ -9,8 +9,16 @@ overlapped it. The daemon logs one line per miss (``deadline miss: window ending
 compute 5.2 ms; during it: gc gen 2 3.1 ms (rtsid-worker), …``) and counts misses by what
 they coincided with (:meth:`StallJournal.causes`), so a cause is measured, not guessed.
 
+Each miss is also split by where its wall time went (:meth:`Miss.dominant_wait`): the worker's
+own CPU (``thread_time``), waiting for a CPU (runnable, not running: the kernel's run-queue
+delay of the worker thread, ``/proc/thread-self/schedstat``, :class:`RunQueueClock`) and the
+rest, asleep while runnable work waited — the GIL held by another thread. A miss that
+overlapped nothing is counted under the largest of the three (``nothing seen: waiting for a
+CPU`` is the machine's other work, not the daemon's), and every miss under ``miss_waits``.
+
 Times are ``time.perf_counter()`` s. The journal's own cost: two ``perf_counter`` calls and
-a deque append per collection and per housekeeping step.
+a deque append per collection and per housekeeping step; the worker reads its run-queue
+clock once per window (a ``pread`` of a proc file, ≈ 5 µs), before the window's clock starts.
 """
 
 from __future__ import annotations
@@ -19,13 +27,14 @@ import collections
 import contextlib
 import gc
 import math
+import os
 import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["Miss", "Span", "StallJournal"]
+__all__ = ["WAITS", "Miss", "RunQueueClock", "Span", "StallJournal"]
 
 #: Spans kept (collections and housekeeping steps): minutes of a daemon's life at a 4 ms hop.
 SPANS_KEPT = 8192
@@ -34,6 +43,51 @@ MISSES_KEPT = 256
 #: Miss lines logged one by one per minute; beyond them one line a minute counts the rest
 #: (a loaded machine misses hundreds a minute: the log stays readable, the status counts all).
 MISS_LINES_PER_MINUTE = 20
+#: Where a missed window's wall time went, by :meth:`Miss.dominant_wait` (the last one where
+#: the run-queue delay is not known).
+WAITS = (
+    "the window's own CPU",
+    "waiting for a CPU",
+    "waiting for the GIL",
+    "waiting for a CPU or the GIL",
+)
+
+
+class RunQueueClock:
+    """The calling thread's time spent runnable but not running (Linux ``schedstat``'s
+    run-queue delay), ns: what the kernel and the hypervisor kept it waiting for a CPU.
+
+    The proc file is opened by the first :meth:`read_ns` and names the thread that opened it,
+    so read it from one thread only (the worker's). Elsewhere (no such file) every read is
+    None and misses are split by CPU time alone.
+    """
+
+    PATH = "/proc/thread-self/schedstat"
+
+    def __init__(self) -> None:
+        self._fd: int | None = None
+        self._unavailable = False
+
+    def read_ns(self) -> int | None:
+        """The thread's run-queue delay since it started, ns (None: not available)."""
+        if self._fd is None:
+            if self._unavailable:
+                return None
+            try:
+                self._fd = os.open(self.PATH, os.O_RDONLY)
+            except OSError:
+                self._unavailable = True
+                return None
+        try:
+            return int(os.pread(self._fd, 128, 0).split()[1])
+        except (OSError, ValueError, IndexError):
+            return None
+
+    def close(self) -> None:
+        """Close the proc file (a later read opens it again, on the reading thread)."""
+        fd, self._fd = self._fd, None
+        if fd is not None:
+            os.close(fd)
 
 
 @dataclass(frozen=True)
@@ -59,11 +113,32 @@ class Miss:
     end_s: float
     overlapped: tuple[Span, ...]
     cpu_ms: float | None = None  # the worker thread's CPU time over the compute span
+    cpu_wait_ms: float | None = None  # of the span, runnable but not running (run queue)
+
+    @property
+    def wall_ms(self) -> float:
+        """The window's compute span, ms."""
+        return 1e3 * (self.end_s - self.start_s)
+
+    def dominant_wait(self) -> str | None:
+        """Where most of the span went (one of :data:`WAITS`): the worker's own CPU, waiting
+        for a CPU, or the rest (asleep though it had work: the GIL). None without CPU time;
+        without the run-queue delay the two waits are one."""
+        if self.cpu_ms is None:
+            return None
+        if self.cpu_wait_ms is None:  # no run-queue clock: the waits are not told apart
+            return WAITS[0] if self.cpu_ms >= self.wall_ms - self.cpu_ms else WAITS[3]
+        queued = self.cpu_wait_ms
+        shares = (self.cpu_ms, queued, self.wall_ms - self.cpu_ms - queued)
+        return WAITS[shares.index(max(shares))]
 
     def describe(self) -> str:
         """One line: ``deadline miss: window ending N, compute X ms; during it: …``."""
         during = ", ".join(f"{s.name} {s.ms:.2f} ms" for s in self.overlapped) or "nothing seen"
-        cpu = "" if self.cpu_ms is None else f" (of it on CPU {self.cpu_ms:.2f} ms)"
+        cpu = "" if self.cpu_ms is None else f" (of it on CPU {self.cpu_ms:.2f} ms"
+        if cpu and self.cpu_wait_ms is not None:
+            cpu += f", waiting for a CPU {self.cpu_wait_ms:.2f} ms"
+        cpu += ")" if cpu else ""
         return (
             f"deadline miss: window ending {self.window_end_index}, compute "
             f"{1e3 * (self.end_s - self.start_s):.2f} ms{cpu}; during it: {during}"
@@ -86,6 +161,8 @@ class StallJournal:
         self.collections = [0, 0, 0]  # by generation
         self.gc_ms = [0.0, 0.0, 0.0]  # time in collections, by generation
         self.miss_causes: collections.Counter[str] = collections.Counter()
+        #: every miss by where most of its time went (:meth:`Miss.dominant_wait`)
+        self.miss_waits: collections.Counter[str] = collections.Counter()
         self._minute_start_s = -math.inf  # the minute of miss_lines' rate limit
         self._logged = 0
         self._unlogged = 0
@@ -125,17 +202,27 @@ class StallJournal:
             self._spans.append(Span(name, started, time.perf_counter()))
 
     def miss(
-        self, window_end_index: int, start_s: float, end_s: float, cpu_ms: float | None = None
+        self,
+        window_end_index: int,
+        start_s: float,
+        end_s: float,
+        cpu_ms: float | None = None,
+        cpu_wait_ms: float | None = None,
     ) -> None:
         """A window whose compute ran from ``start_s`` to ``end_s`` (``cpu_ms`` of it on the
-        worker's CPU, when known) missed its deadline."""
+        worker's CPU and ``cpu_wait_ms`` waiting for one, when known) missed its deadline."""
         running = [Span(f"{name} (still running)", t0, end_s) for name, t0 in self._running_now()]
         overlapped = tuple(
             s for s in [*list(self._spans), *running] if s.end_s >= start_s and s.start_s <= end_s
         )
-        self._misses.append(Miss(window_end_index, start_s, end_s, overlapped, cpu_ms))
-        for cause in {s.name.split(" (")[0] for s in overlapped} or {"nothing seen"}:
+        miss = Miss(window_end_index, start_s, end_s, overlapped, cpu_ms, cpu_wait_ms)
+        self._misses.append(miss)
+        wait = miss.dominant_wait()
+        unseen = "nothing seen" if wait is None else f"nothing seen: {wait}"
+        for cause in {s.name.split(" (")[0] for s in overlapped} or {unseen}:
             self.miss_causes[cause] += 1
+        if wait is not None:
+            self.miss_waits[wait] += 1
 
     def _running_now(self) -> list[tuple[str, float]]:
         """Steps and collections begun and not yet ended (another thread's, e.g.)."""

@@ -55,7 +55,7 @@ from rtsid.link.protocol import (
 )
 from rtsid.link.ring import RingBuffer, Snapshot
 from rtsid.runtime.gate import WindowGate
-from rtsid.runtime.stalls import StallJournal
+from rtsid.runtime.stalls import RunQueueClock, StallJournal
 from rtsid.verdicts import Flag, Reason
 
 __all__ = ["OVERRUN_CAUSES", "WindowWorker", "WorkerConfig", "WorkerCounters", "assess_window"]
@@ -145,6 +145,7 @@ class WorkerCounters:
     compute_s: float = 0.0
     compute_cpu_s: float = 0.0
     miss_causes: dict[str, int] = field(default_factory=dict)
+    miss_waits: dict[str, int] = field(default_factory=dict)
     overrun_causes: dict[str, int] = field(default_factory=dict)
     gc_collections: list[int] = field(default_factory=list)
     gc_ms: list[float] = field(default_factory=list)
@@ -552,6 +553,7 @@ class WindowWorker(ThreadOwner):
         self._first_index = 0  # the stream's first sample (history is never read before it)
         #: Set by the daemon: each window over budget is set against what ran meanwhile.
         self.stalls: StallJournal | None = None
+        self._run_queue = RunQueueClock()  # this thread's waits for a CPU (with stalls only)
         #: Says when a window is computing and when the worker has gone to wait for the next
         #: one: the daemon's housekeeping runs its tick then, not across a window.
         self.gate = WindowGate()
@@ -590,6 +592,7 @@ class WindowWorker(ThreadOwner):
             return {}
         return {
             "miss_causes": stalls.causes(),
+            "miss_waits": dict(stalls.miss_waits),
             "gc_collections": list(stalls.collections),
             "gc_ms": [round(ms, 3) for ms in stalls.gc_ms],
         }
@@ -608,7 +611,10 @@ class WindowWorker(ThreadOwner):
 
     # ------------------------------------------------------------------ the loop
     def _run(self) -> None:  # errors are kept by ThreadOwner; the daemon decides what to do
-        self._loop()
+        try:
+            self._loop()
+        finally:
+            self._run_queue.close()
 
     def _loop(self) -> None:
         hop_s = self.config.hop_s
@@ -688,6 +694,7 @@ class WindowWorker(ThreadOwner):
             self.gate.window_finished()
 
     def _process_window(self, end_index: int) -> dict[str, Any] | None:
+        queued_ns = self._run_queue.read_ns() if self.stalls is not None else None
         started, started_cpu = time.perf_counter(), time.thread_time()
         start = end_index - self.window_samples + 1
         # history before the window, but never before the stream's first sample
@@ -699,6 +706,9 @@ class WindowWorker(ThreadOwner):
             return None
         message = self.evaluator.evaluate(snap, started_s=started, started_cpu_s=started_cpu)
         if self.stalls is not None and Flag.OVER_BUDGET in message.get("flags", ()):
+            ended = time.perf_counter()
+            now_ns = self._run_queue.read_ns() if queued_ns is not None else None
+            waited_ms = None if now_ns is None or queued_ns is None else 1e-6 * (now_ns - queued_ns)
             cpu_ms = self.evaluator.compute_cpu_ms
-            self.stalls.miss(end_index, started, time.perf_counter(), cpu_ms)
+            self.stalls.miss(end_index, started, ended, cpu_ms, waited_ms)
         return message

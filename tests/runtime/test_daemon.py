@@ -3,6 +3,7 @@ separate process with a subscriber, SIGTERM and SIGKILL."""
 
 from __future__ import annotations
 
+import gc
 import itertools
 import json
 import os
@@ -10,6 +11,7 @@ import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -82,14 +84,46 @@ def test_daemon_logs_every_sample_and_every_estimate(tmp_path, free_port):
     assert all(type(reason) is str for reason in summary.withheld)  # values, not Reason members
 
 
+def gate_waits_and_steps(
+    daemon: Daemon, step_name: str, monkeypatch: pytest.MonkeyPatch
+) -> tuple[set[str], list[str | None]]:
+    """Record which threads wait on the worker's window gate, and for each ``step_name``
+    step of the journal whether the housekeeping thread's last act before it was a gate wait
+    (``"MainThread"``) or another step (None)."""
+    from rtsid.runtime.gate import WindowGate
+
+    waiters: set[str] = set()
+    last_wait: list[str | None] = [None]
+    before_step: list[str | None] = []
+    original_wait, journal_step = WindowGate.after_next_window, daemon.stalls.step
+
+    def after_next_window(gate: WindowGate, timeout_s: float) -> bool:
+        name = threading.current_thread().name
+        waiters.add(name)
+        answer = original_wait(gate, timeout_s)
+        if name == "MainThread":
+            last_wait[0] = name
+        return answer
+
+    def step(name: str):
+        if name == step_name:
+            before_step.append(last_wait[0])
+        if threading.current_thread().name == "MainThread":
+            last_wait[0] = None  # a housekeeping step since the wait
+        return journal_step(name)
+
+    monkeypatch.setattr(daemon.stalls, "step", step)
+    monkeypatch.setattr(WindowGate, "after_next_window", after_next_window)
+    return waiters, before_step
+
+
 @pytest.mark.slow  # a real-time daemon run of seconds
 def test_the_history_holds_the_recorded_estimates_deflated_on_the_housekeeping_thread(
     tmp_path, free_port, monkeypatch
 ):
     """At a 4 ms hop the history seals blocks of estimates; the housekeeping tick (never the
-    worker) deflates them, and what the history gives back is byte for byte the file's."""
-    import threading
-
+    worker) deflates them, each after a wait for the worker to go to sleep, and what the
+    history gives back is byte for byte the file's."""
     from rtsid.io import history
 
     stores: list[history.HistoryStore] = []
@@ -100,16 +134,21 @@ def test_the_history_holds_the_recorded_estimates_deflated_on_the_housekeeping_t
         original_init(self, *args, **kw)
         stores.append(self)
 
-    def pack(self, block):
+    def pack(self, block, compressor):
         packed_on.add(threading.current_thread().name)
-        original_pack(self, block)
+        original_pack(self, block, compressor)
 
     monkeypatch.setattr(history.HistoryStore, "__init__", keep)
     monkeypatch.setattr(history._PackedBlock, "__init__", pack)
     monkeypatch.setattr(history.MessageRing, "BLOCK_MESSAGES", 32)  # blocks within seconds
     extra = "[worker]\nhop_s = 0.004\n[slow_lane]\nenabled = false\n"
-    summary = Daemon(DaemonConfig.load(write_config(tmp_path, free_port, extra))).run(3.0)
+    daemon = Daemon(DaemonConfig.load(write_config(tmp_path, free_port, extra)))
+    waiters, deflates = gate_waits_and_steps(daemon, "housekeeping: history deflate", monkeypatch)
+    summary = daemon.run(3.0)
     assert summary.clean_shutdown
+    # each deflate in a gap of its own: the housekeeping waited on the gate just before it
+    assert deflates and all(last == "MainThread" for last in deflates)
+    assert "rtsid-mcap" in waiters  # the MCAP writer keeps to the gate too
     (store,) = stores
     with only_recording(tmp_path).open("rb") as fh:
         recorded = [m.data for _, c, m in make_reader(fh).iter_messages() if c.topic == "/estimate"]
@@ -120,11 +159,14 @@ def test_the_history_holds_the_recorded_estimates_deflated_on_the_housekeeping_t
 
 
 @pytest.mark.slow  # a real-time daemon run of seconds
-def test_each_half_of_the_status_tick_begins_as_the_worker_goes_to_sleep(tmp_path, free_port):
+def test_each_half_of_the_status_tick_begins_as_the_worker_goes_to_sleep(
+    tmp_path, free_port, monkeypatch
+):
     """Issue 22: the status tick's build and its encoding and publication each wait for the
     worker to finish its window and go to wait for the next one, so neither shares the GIL
     with a window from its start; the status content is unchanged (a recorded status has
-    every part, and the worker's counters)."""
+    every part, and the worker's counters). Garbage collection, off while the daemon runs,
+    is run by the housekeeping tick alone."""
     extra = "[worker]\nhop_s = 0.004\n[slow_lane]\nenabled = false\n"
     daemon = Daemon(DaemonConfig.load(write_config(tmp_path, free_port, extra)))
     halves: list[tuple[int, int]] = []  # (worker's sleeps begun, waits run out) at each half
@@ -137,8 +179,29 @@ def test_each_half_of_the_status_tick_begins_as_the_worker_goes_to_sleep(tmp_pat
         return journal_step(name)
 
     daemon.stalls.step = step  # type: ignore[method-assign]
-    summary = daemon.run(duration_s=2.5)
+    disabled_at: list[float] = []  # when the daemon turned automatic collection off
+
+    def disable() -> None:
+        disabled_at.append(time.perf_counter())
+        gc_disable()
+
+    gc_disable = gc.disable
+    monkeypatch.setattr(gc, "disable", disable)
+    thresholds = gc.get_threshold()
+    gc.set_threshold(100, 10, 10)  # collections due every few ticks
+    try:
+        summary = daemon.run(duration_s=2.5)
+    finally:
+        gc.set_threshold(*thresholds)
     assert summary.clean_shutdown and summary.estimates > 100
+    assert gc.isenabled()  # automatic collection is back after the run
+    # every collection ran on the housekeeping thread, right after its gate wait: none
+    # inside a window on the worker (nor on the acquisition or writer threads)
+    (off_s,) = disabled_at
+    collections = [s for s in daemon.stalls._spans if s.name.startswith("gc gen")]
+    after = [s for s in collections if s.start_s > off_s]
+    assert len(after) >= 2
+    assert {s.name.split(" (")[1] for s in after} == {"MainThread)"}
     assert len(halves) >= 4 and len(halves) % 2 == 0  # build, then publish, per status
     for (idle, out), (next_idle, next_out) in itertools.pairwise(halves):
         # the worker went to sleep between the two (or the wait's bound ran out, counted)

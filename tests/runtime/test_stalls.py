@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import gc
+import os
 import time
 
-from rtsid.runtime.stalls import MISS_LINES_PER_MINUTE, StallJournal
+from rtsid.runtime.stalls import MISS_LINES_PER_MINUTE, RunQueueClock, StallJournal
 
 
 def test_a_collection_during_a_missed_window_is_named_and_counted():
@@ -54,3 +55,43 @@ def test_miss_lines_are_limited_a_minute_and_the_rest_counted():
     assert own.startswith("deadline miss: window ending 100,")
     assert journal.miss_lines(now_s=161.0) == []
     assert journal.causes() == {"nothing seen": MISS_LINES_PER_MINUTE + 7}
+
+
+def test_a_miss_that_overlapped_nothing_is_counted_under_where_its_time_went():
+    journal = StallJournal()
+    far = time.perf_counter() + 100.0  # no step near these windows
+    journal.miss(1, far, far + 0.008, cpu_ms=1.0, cpu_wait_ms=6.0)  # runnable, no CPU
+    journal.miss(2, far, far + 0.008, cpu_ms=1.0, cpu_wait_ms=0.5)  # asleep: the GIL
+    journal.miss(3, far, far + 0.008, cpu_ms=7.0, cpu_wait_ms=0.5)  # the window itself
+    journal.miss(4, far, far + 0.008, cpu_ms=1.0)  # no run-queue clock: the waits are one
+    journal.miss(5, far, far + 0.008)  # no CPU time at all: not split
+    assert journal.causes() == {
+        "nothing seen: waiting for a CPU": 1,
+        "nothing seen: waiting for the GIL": 1,
+        "nothing seen: the window's own CPU": 1,
+        "nothing seen: waiting for a CPU or the GIL": 1,
+        "nothing seen": 1,
+    }
+    assert dict(journal.miss_waits) == {
+        "waiting for a CPU": 1,
+        "waiting for the GIL": 1,
+        "the window's own CPU": 1,
+        "waiting for a CPU or the GIL": 1,
+    }
+    first = journal.drain_misses()[0]
+    assert "(of it on CPU 1.00 ms, waiting for a CPU 6.00 ms)" in first.describe()
+
+
+def test_the_run_queue_clock_reads_this_threads_waits_for_a_cpu():
+    clock = RunQueueClock()
+    if not os.path.exists(RunQueueClock.PATH):  # not Linux: every read says so
+        assert clock.read_ns() is None
+        return
+    first = clock.read_ns()
+    sum(range(200_000))  # run a while: the delay never goes back
+    second = clock.read_ns()
+    clock.close()
+    assert first is not None and second is not None and 0 <= first <= second
+    missing = RunQueueClock()
+    missing.PATH = "/proc/no such file"  # type: ignore[misc]
+    assert missing.read_ns() is None and missing.read_ns() is None

@@ -1,3 +1,4 @@
+import os
 import sys
 import time
 
@@ -137,7 +138,7 @@ def test_over_budget_is_counted_and_flagged():
 
 
 def test_a_miss_is_set_against_the_stall_journal():
-    from rtsid.runtime.stalls import StallJournal
+    from rtsid.runtime.stalls import RunQueueClock, StallJournal
 
     published = []
     worker = make_worker(filled_ring(), published, budget_s=1e-6)
@@ -149,9 +150,15 @@ def test_a_miss_is_set_against_the_stall_journal():
     assert (first.window_end_index, second.window_end_index) == (1449, 1499)
     assert [s.name for s in first.overlapped] == ["housekeeping: status (still running)"]
     assert [s.name for s in second.overlapped] == []  # the step had ended
-    assert worker.counters().miss_causes == {"nothing seen": 1, "housekeeping: status": 1}
+    (unseen,) = set(worker.counters().miss_causes) - {"housekeeping: status"}
+    assert unseen.startswith("nothing seen: ")  # split by where its time went
+    assert unseen.removeprefix("nothing seen: ") == second.dominant_wait()
+    assert sum(worker.counters().miss_waits.values()) == 2  # every miss, overlapped or not
     assert first.cpu_ms is not None and 0.0 < first.cpu_ms  # the worker's CPU, in the log line
-    assert f"(of it on CPU {first.cpu_ms:.2f} ms)" in first.describe()
+    assert f"(of it on CPU {first.cpu_ms:.2f} ms" in first.describe()
+    if os.path.exists(RunQueueClock.PATH):  # Linux: the run-queue wait over the window too
+        assert first.cpu_wait_ms is not None and 0.0 <= first.cpu_wait_ms
+        assert f"waiting for a CPU {first.cpu_wait_ms:.2f} ms)" in first.describe()
 
 
 def test_thread_starts_at_the_newest_window_then_reports_stale(wait_for):
