@@ -101,7 +101,7 @@ def _fft_cross(u: FloatArray, y: FloatArray) -> FloatArray:
 def _direct_lags(u: FloatArray, y: FloatArray, first: int, last: int) -> FloatArray:
     """``Σ_t u(t)·y(t+k)`` for ``k = first..last``, in O(N·(last − first + 1)).
 
-    The compiled kernel's ``xcorr_lags`` when it was built (eight lags at a time, each summed
+    The compiled kernel's ``xcorr_lags`` when it was built (sixteen lags at a time, each summed
     over ``t`` in order: its ``xcorr`` loop bit for bit); otherwise ``y`` is zero-padded so that one
     ``valid``-mode correlation yields exactly the wanted lags (a ``full`` correlation would
     cost O(N²) on long records).
