@@ -1732,6 +1732,9 @@ static PyObject *py_reflex_dynamics_fit(PyObject *self, PyObject *args); /* lane
 static PyObject *py_onecall_window(PyObject *self, PyObject *args); /* onecall, end */
 static PyObject *py_tracker_calm(PyObject *self, PyObject *args); /* onecall, end */
 static PyObject *py_causal_convolve(PyObject *self, PyObject *args); /* lanesums2 */
+static PyObject *py_xcorr_lags(PyObject *self, PyObject *args); /* fits4 */
+static PyObject *py_evidence_gains_lanes(PyObject *self, PyObject *args); /* fits4 */
+static PyObject *py_stencil_correlate(PyObject *self, PyObject *args); /* fits4 */
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1776,6 +1779,9 @@ static PyMethodDef methods[] = {
     {"onecall_window", py_onecall_window, METH_VARARGS, "onecall_window(position, torque, explained, h, arrays, consts, state) -> status (0: done, else declined): a stream's window from its checks to its back end (section onecall)."},
     {"tracker_calm", py_tracker_calm, METH_VARARGS, "tracker_calm(tracker, t_s, z, se, newest, split) -> (value, se, rate, mode, updated) or None: ParameterTracker.step of a calm window (section onecall)."},
     {"causal_convolve", py_causal_convolve, METH_VARARGS, "causal_convolve(r, g, scale, out): out[t] = sum_k (g[k] / scale) r[t-k], the first len(r) samples of numpy.convolve(r, g / scale)."},
+    {"xcorr_lags", py_xcorr_lags, METH_VARARGS, "xcorr_lags(u, y, first, last, norm, c): xcorr bit for bit, sixteen lags at a time (section fits4)."},
+    {"evidence_gains_lanes", py_evidence_gains_lanes, METH_VARARGS, "evidence_gains_lanes(torque, regressors, extra, starts, n, out): evidence_gains bit for bit, four windows at a time (section fits4)."},
+    {"stencil_correlate", py_stencil_correlate, METH_VARARGS, "stencil_correlate(x, taps, scale, out): numpy.correlate(x, taps, 'valid') * scale bit for bit (section fits4)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -4093,6 +4099,275 @@ static PyObject *py_causal_convolve(PyObject *self, PyObject *args)
         causal_convolve_run(b[0].buf, n, b[1].buf, m, scale, b[2].buf);
         result = Py_None;
         Py_INCREF(result);
+    }
+    release_buffers(b, 3);
+    return result;
+}
+
+/* ------------------------------------------------------------------ branch fits4 (issue 22)
+ * The slow lane's fits, sixth pass: the same numbers bit for bit, fewer instructions.
+ *
+ * xcorr_lags(u, y, first, last, norm, c): xcorr's c[k − first] = Σ_t u[t]·y[t + k] / norm,
+ *   sixteen lags at a time in four four-double vectors (the last few by xcorr_blocked), each
+ *   lag's sum over t ascending: xcorr bit for bit. rtsid.ident.correlation's direct sums (the reflex IRF's 101-lag
+ *   autocorrelation and right-hand side, the cascade's intrinsic IRF); O(n·lags).
+ */
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
+#define FITS4_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define FITS4_CLONES
+#endif
+typedef double xcorr_lanes_t __attribute__((vector_size(32), aligned(8))); /* unaligned loads */
+#define XCORR_BLOCK 16 /* lags per block: four vectors of four */
+
+/* xcorr's sums XCORR_BLOCK lags at a time (the rest by xcorr_blocked): each lag's own first
+ * samples, the block's common span with the lags in the lanes, then its own last ones — every
+ * lag's sum over t ascending, as xcorr's. */
+FITS4_CLONES static void xcorr_lanes(const double *u, const double *y, Py_ssize_t n,
+                                     Py_ssize_t first, Py_ssize_t last, double norm, double *c)
+{
+    Py_ssize_t k0 = first;
+    for (; k0 + XCORR_BLOCK - 1 <= last; k0 += XCORR_BLOCK) {
+        double acc[XCORR_BLOCK] = {0.0};
+        Py_ssize_t lo[XCORR_BLOCK], hi[XCORR_BLOCK], common_lo = 0, common_hi = n;
+        for (int b = 0; b < XCORR_BLOCK; b++) {
+            const Py_ssize_t k = k0 + b;
+            lo[b] = k < 0 ? -k : 0;
+            hi[b] = k > 0 ? n - k : n;
+            if (lo[b] > common_lo) common_lo = lo[b];
+            if (hi[b] < common_hi) common_hi = hi[b];
+        }
+        if (common_hi < common_lo) common_hi = common_lo;
+        for (int b = 0; b < XCORR_BLOCK; b++)
+            for (Py_ssize_t t = lo[b]; t < common_lo && t < hi[b]; t++)
+                acc[b] += u[t] * y[t + k0 + b];
+        xcorr_lanes_t a[4];
+        memcpy(a, acc, sizeof a);
+        for (Py_ssize_t t = common_lo; t < common_hi; t++) {
+            const xcorr_lanes_t ut = (xcorr_lanes_t){0.0, 0.0, 0.0, 0.0} + u[t];
+            const double *src = y + t + k0;
+            a[0] += ut * *(const xcorr_lanes_t *)src;
+            a[1] += ut * *(const xcorr_lanes_t *)(src + 4);
+            a[2] += ut * *(const xcorr_lanes_t *)(src + 8);
+            a[3] += ut * *(const xcorr_lanes_t *)(src + 12);
+        }
+        memcpy(acc, a, sizeof a);
+        for (int b = 0; b < XCORR_BLOCK; b++) {
+            Py_ssize_t t = common_hi > lo[b] ? common_hi : lo[b];
+            if (common_lo >= hi[b]) t = hi[b]; /* all of this lag's span was its own head */
+            for (; t < hi[b]; t++) acc[b] += u[t] * y[t + k0 + b];
+            c[k0 + b - first] = acc[b] / norm;
+        }
+    }
+    if (k0 <= last) xcorr_blocked(u, y, n, k0, last, norm, c + (k0 - first));
+}
+
+static PyObject *py_xcorr_lags(PyObject *self, PyObject *args)
+{
+    PyObject *objs[3];
+    Py_ssize_t first, last;
+    double norm;
+    if (!PyArg_ParseTuple(args, "OOnndO", &objs[0], &objs[1], &first, &last, &norm, &objs[2]))
+        return NULL;
+    const char *names[3] = {"u", "y", "c"};
+    Py_buffer b[3];
+    if (get_buffers(objs, 3, 2, names, b) < 0) return NULL;
+    const Py_ssize_t n = b[0].len / 8;
+    PyObject *result = NULL;
+    if (b[1].len != b[0].len || b[2].len / 8 != last - first + 1 || first > last || last >= n ||
+        -first >= n) {
+        PyErr_SetString(PyExc_ValueError, "xcorr_lags: inconsistent sizes");
+    } else {
+        xcorr_lanes(b[0].buf, b[1].buf, n, first, last, norm, b[2].buf);
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+    release_buffers(b, 3);
+    return result;
+}
+
+/* evidence_gains_lanes(torque, regressors, extra, starts, n, out): evidence_gains' windows four
+ *   at a time, one window in each lane of a four-double vector: each lane's operations are
+ *   evidence_gain's in its order (the sums over the window's samples ascending, the small
+ *   system per window solved by the same scalar steps), so the gains are evidence_gains' bit
+ *   for bit (tested); a short last group repeats its last window. The slow lane's evidence
+ *   (rtsid.ident.yardstick.WindowVafBasis.least_squares_vaf_gains). O(windows·n).
+ */
+typedef double evidence_lanes __attribute__((vector_size(32)));
+#define EVIDENCE_LANES 4
+
+/* evidence_gain's small system of one window: the unscaled Gram (gram, 16) and right-hand
+ * sides (rhs, 8) in, the two solutions per unscaled centred column out (p). */
+static void evidence_solve(double *gram, const double *rhs, double p[2][4])
+{
+    double scale[4];
+    for (int a = 0; a < 4; a++) scale[a] = sqrt(gram[5 * a]);
+    for (int a = 0; a < 4; a++) {
+        for (int b = a; b < 4; b++) {
+            gram[4 * a + b] /= scale[a] * scale[b];
+            gram[4 * b + a] = gram[4 * a + b];
+        }
+    }
+    int piv[4];
+    lu_factor(gram, 4, piv);
+    for (int j = 0; j < 2; j++) {
+        for (int a = 0; a < 4; a++) p[j][a] = rhs[2 * a + j] / scale[a];
+        lu_solve(gram, 4, piv, p[j]);
+        for (int a = 0; a < 3; a++) p[j][a] /= scale[a]; /* per unscaled centred column */
+    }
+}
+
+#define EVIDENCE_GATHER(base, offset) \
+    ((evidence_lanes){(base)[at[0] + (offset)], (base)[at[1] + (offset)], \
+                      (base)[at[2] + (offset)], (base)[at[3] + (offset)]})
+
+FITS4_CLONES static void evidence_group(const double *x, const double *r, Py_ssize_t stride,
+                                              const double *e, const Py_ssize_t *at, Py_ssize_t n,
+                                              double *gains)
+{
+    const double *r1 = r + stride, *r2 = r + 2 * stride;
+    evidence_lanes mean[5] = {{0}, {0}, {0}, {0}, {0}}; /* θ̈, θ̇, θ, torque, extra */
+    for (Py_ssize_t i = 0; i < n; i++) {
+        mean[0] += EVIDENCE_GATHER(r, i);
+        mean[1] += EVIDENCE_GATHER(r1, i);
+        mean[2] += EVIDENCE_GATHER(r2, i);
+        mean[3] += EVIDENCE_GATHER(x, i);
+        mean[4] += EVIDENCE_GATHER(e, i);
+    }
+    for (int k = 0; k < 5; k++) mean[k] /= (double)n;
+    const double step = 2.0 / (double)(n - 1);
+    evidence_lanes gram[16] = {{0}}, rhs[8] = {{0}}, power = {0};
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double trend = i == n - 1 ? 1.0 : (double)i * step - 1.0;
+        const evidence_lanes col[4] = {EVIDENCE_GATHER(r, i) - mean[0],
+                                       EVIDENCE_GATHER(r1, i) - mean[1],
+                                       EVIDENCE_GATHER(r2, i) - mean[2],
+                                       (evidence_lanes){0} + trend};
+        const evidence_lanes measured = EVIDENCE_GATHER(x, i) - mean[3];
+        const evidence_lanes added = EVIDENCE_GATHER(e, i) - mean[4];
+        for (int a = 0; a < 4; a++) {
+            for (int b = a; b < 4; b++) gram[4 * a + b] += col[a] * col[b];
+            rhs[2 * a] += col[a] * (measured - added);
+            rhs[2 * a + 1] += col[a] * measured;
+        }
+        power += measured * measured;
+    }
+    evidence_lanes pv[2][3];
+    for (int q = 0; q < EVIDENCE_LANES; q++) {
+        double g[16], h[8], p[2][4];
+        for (int k = 0; k < 16; k++) g[k] = gram[k][q];
+        for (int k = 0; k < 8; k++) h[k] = rhs[k][q];
+        evidence_solve(g, h, p);
+        for (int j = 0; j < 2; j++)
+            for (int a = 0; a < 3; a++) pv[j][a][q] = p[j][a];
+    }
+    evidence_lanes left[2] = {{0}, {0}};
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const evidence_lanes c0 = EVIDENCE_GATHER(r, i) - mean[0];
+        const evidence_lanes c1 = EVIDENCE_GATHER(r1, i) - mean[1];
+        const evidence_lanes c2 = EVIDENCE_GATHER(r2, i) - mean[2];
+        const evidence_lanes measured = EVIDENCE_GATHER(x, i) - mean[3];
+        const evidence_lanes added = EVIDENCE_GATHER(e, i) - mean[4];
+        const evidence_lanes with =
+            measured - (pv[0][0] * c0 + pv[0][1] * c1 + pv[0][2] * c2) - added;
+        const evidence_lanes without = measured - (pv[1][0] * c0 + pv[1][1] * c1 + pv[1][2] * c2);
+        left[0] += with * with;
+        left[1] += without * without;
+    }
+    for (int q = 0; q < EVIDENCE_LANES; q++)
+        gains[q] = 100.0 * (1.0 - left[0][q] / power[q]) - 100.0 * (1.0 - left[1][q] / power[q]);
+}
+#undef EVIDENCE_GATHER
+
+static PyObject *py_evidence_gains_lanes(PyObject *self, PyObject *args)
+{
+    PyObject *objs[4], *starts_obj, *out_obj;
+    Py_ssize_t n;
+    if (!PyArg_ParseTuple(args, "OOOOnO", &objs[0], &objs[1], &objs[2], &starts_obj, &n, &out_obj))
+        return NULL;
+    objs[3] = out_obj;
+    const char *names[4] = {"torque", "regressors", "extra", "out"};
+    Py_buffer b[4], s;
+    if (get_buffers(objs, 4, 3, names, b) < 0) return NULL;
+    if (get_indices(starts_obj, &s, "starts") < 0) {
+        release_buffers(b, 4);
+        return NULL;
+    }
+    const Py_ssize_t total = b[0].len / 8, windows = s.len / 8;
+    const long long *starts = (const long long *)s.buf;
+    int ok = n >= 3 && b[1].len == 3 * b[0].len && b[2].len == b[0].len && b[3].len == s.len;
+    for (Py_ssize_t w = 0; ok && w < windows; w++) ok = starts[w] >= 0 && starts[w] + n <= total;
+    PyObject *result = NULL;
+    if (!ok) {
+        PyErr_SetString(PyExc_ValueError, "evidence_gains_lanes: inconsistent sizes");
+    } else {
+        double *out = b[3].buf;
+        for (Py_ssize_t w = 0; w < windows; w += EVIDENCE_LANES) {
+            Py_ssize_t at[EVIDENCE_LANES];
+            double gains[EVIDENCE_LANES];
+            for (int q = 0; q < EVIDENCE_LANES; q++)
+                at[q] = (Py_ssize_t)starts[w + q < windows ? w + q : windows - 1];
+            evidence_group(b[0].buf, b[1].buf, total, b[2].buf, at, n, gains);
+            for (int q = 0; q < EVIDENCE_LANES && w + q < windows; q++) out[w + q] = gains[q];
+        }
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+    PyBuffer_Release(&s);
+    release_buffers(b, 4);
+    return result;
+}
+
+/* stencil_correlate(x, taps, scale, out): out[i] = (Σ_j x[i + j]·taps[j])·scale for the
+ *   len(x) − len(taps) + 1 fully supported samples, each sum from 0 over j ascending: numpy's
+ *   correlate(x, taps, "valid") (its small_correlate loop for up to 11 taps) times scale, bit
+ *   for bit (tested), eight outputs at a time in two four-double vectors (each lane's sum
+ *   over the taps in order, in registers). rtsid.ident.filters.stencil_velocity (the slow
+ *   lane's stretch velocity over a 20 s horizon). O(n·taps).
+ */
+typedef double stencil_lanes __attribute__((vector_size(32), aligned(8))); /* unaligned loads */
+
+FITS4_CLONES static void stencil_correlate_run(const double *x, Py_ssize_t n, const double *taps,
+                                               Py_ssize_t nt, double scale, double *out)
+{
+    const Py_ssize_t m = n - nt + 1;
+    Py_ssize_t i = 0;
+    /* eight outputs at a time, their sums in two vectors in registers over the taps */
+    for (; i + 8 <= m; i += 8) {
+        stencil_lanes a = {0.0, 0.0, 0.0, 0.0}, b = {0.0, 0.0, 0.0, 0.0};
+        for (Py_ssize_t j = 0; j < nt; j++) {
+            const stencil_lanes tap = (stencil_lanes){0.0, 0.0, 0.0, 0.0} + taps[j];
+            a += *(const stencil_lanes *)(x + i + j) * tap;
+            b += *(const stencil_lanes *)(x + i + j + 4) * tap;
+        }
+        a *= scale;
+        b *= scale;
+        memcpy(out + i, &a, sizeof a);
+        memcpy(out + i + 4, &b, sizeof b);
+    }
+    for (; i < m; i++) {
+        double acc = 0.0;
+        for (Py_ssize_t j = 0; j < nt; j++) acc += x[i + j] * taps[j];
+        out[i] = acc * scale;
+    }
+}
+
+static PyObject *py_stencil_correlate(PyObject *self, PyObject *args)
+{
+    PyObject *objs[3];
+    double scale;
+    if (!PyArg_ParseTuple(args, "OOdO", &objs[0], &objs[1], &scale, &objs[2])) return NULL;
+    const char *names[3] = {"x", "taps", "out"};
+    Py_buffer b[3];
+    if (get_buffers(objs, 3, 2, names, b) < 0) return NULL;
+    const Py_ssize_t n = b[0].len / 8, nt = b[1].len / 8;
+    PyObject *result = NULL;
+    if (nt < 1 || nt > n || b[2].len / 8 != n - nt + 1) {
+        PyErr_SetString(PyExc_ValueError, "stencil_correlate: out must have len(x) - len(taps) + 1");
+    } else {
+        stencil_correlate_run(b[0].buf, n, b[1].buf, nt, scale, b[2].buf);
+        Py_INCREF(Py_None);
+        result = Py_None;
     }
     release_buffers(b, 3);
     return result;

@@ -101,14 +101,15 @@ def _fft_cross(u: FloatArray, y: FloatArray) -> FloatArray:
 def _direct_lags(u: FloatArray, y: FloatArray, first: int, last: int) -> FloatArray:
     """``Σ_t u(t)·y(t+k)`` for ``k = first..last``, in O(N·(last − first + 1)).
 
-    The compiled kernel's loop when it was built; otherwise ``y`` is zero-padded so that one
+    The compiled kernel's ``xcorr_lags`` when it was built (sixteen lags at a time, each summed
+    over ``t`` in order: its ``xcorr`` loop bit for bit); otherwise ``y`` is zero-padded so that one
     ``valid``-mode correlation yields exactly the wanted lags (a ``full`` correlation would
     cost O(N²) on long records).
     """
     n = u.size
     if _KERNEL is not None:
         out = np.empty(last - first + 1)
-        _KERNEL.xcorr(np.ascontiguousarray(u), np.ascontiguousarray(y), first, last, 1.0, out)
+        _KERNEL.xcorr_lags(np.ascontiguousarray(u), np.ascontiguousarray(y), first, last, 1.0, out)
         return out
     padded = np.zeros(n + (last - first))
     lo, hi = max(0, first), min(n, n + last)

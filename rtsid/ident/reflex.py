@@ -211,7 +211,7 @@ def stretch_velocity(position: FloatArray, fs_hz: float) -> FloatArray:
     # and numpy.gradient's estimates at the four samples of each end (from those samples
     # alone: the same numbers as over the whole record)
     velocity = np.empty(x.size)
-    velocity[4:-4] = stencil_velocity(x, fs_hz)
+    stencil_velocity(x, fs_hz, out=velocity[4:-4])
     velocity[:4] = np.gradient(x[:5], 1.0 / fs_hz, edge_order=2)[:4]
     velocity[-4:] = np.gradient(x[-5:], 1.0 / fs_hz, edge_order=2)[-4:]
     return velocity

@@ -177,8 +177,9 @@ class WindowVafBasis:
         All windows in one pass: each window's regressors are centred (the offset term
         removed exactly), scaled to unit norm, and the small normal equations (``θ̈, θ̇, θ``
         and the trend, both right-hand sides) of every window formed and solved at once; by
-        the compiled kernel's ``evidence_gains`` when built (the numpy code below is its
-        reference). The same numbers as the per-window ``numpy.linalg.lstsq`` of
+        the compiled kernel's ``evidence_gains_lanes`` when built (four windows at a time,
+        ``evidence_gains``' operations lane by lane: its numbers bit for bit; the numpy code
+        below is the reference). The same numbers as the per-window ``numpy.linalg.lstsq`` of
         :meth:`least_squares_vaf` to rounding (tested to 1e-9).
 
         Parameters
@@ -199,7 +200,7 @@ class WindowVafBasis:
         if _eureka is not None:
             gains = np.empty(starts.size)
             torque, regressors = self.torque, self.regressors
-            _eureka.evidence_gains(torque, regressors, extra, starts, n, gains)
+            _eureka.evidence_gains_lanes(torque, regressors, extra, starts, n, gains)
             return gains
         x = np.empty((starts.size, 4, n))  # per window: centred θ̈, θ̇, θ, and the trend
         x[:, :3] = sliding_window_view(self.regressors, n, axis=1)[:, starts].transpose(1, 0, 2)

@@ -48,3 +48,26 @@ def test_detrend_kinds():
 def test_lag_span_longer_than_window_is_refused(rng):
     with pytest.raises(InputDataError, match="lengthen the window"):
         cross_correlation(rng.standard_normal(10), rng.standard_normal(10), 10)
+
+
+@pytest.mark.parametrize("n", [9, 100, 2001])
+@pytest.mark.parametrize("span", ["causal", "two-sided", "all", "one"])
+def test_the_compiled_lag_sums_are_the_xcorr_loops_bit_for_bit(rng, n, span):
+    from rtsid.ident.levinson import compiled_kernel
+
+    kernel = compiled_kernel()
+    if kernel is None:
+        pytest.skip("the compiled kernel is not built")
+    u, y = rng.standard_normal(n), rng.standard_normal(n)
+    first, last = {
+        "causal": (0, min(100, n - 1)),
+        "two-sided": (-4, 4),
+        "all": (-(n - 1), n - 1),
+        "one": (3, 3),
+    }[span]
+    want, got = np.empty(last - first + 1), np.empty(last - first + 1)
+    kernel.xcorr(u, y, first, last, 1.0, want)
+    kernel.xcorr_lags(u, y, first, last, 1.0, got)
+    np.testing.assert_array_equal(got, want)
+    with pytest.raises(ValueError, match="xcorr_lags: inconsistent sizes"):
+        kernel.xcorr_lags(u, y, first, last, 1.0, np.empty(last - first + 2))

@@ -186,6 +186,28 @@ def test_the_stretch_velocity_is_the_window_paths_first_derivative():
         reflex.stretch_velocity(np.zeros(8), 2500.0)
 
 
+@pytest.mark.parametrize("n", [9, 10, 300, 50_001])
+def test_the_compiled_stencil_velocity_is_numpys_correlation_bit_for_bit(n):
+    from rtsid.ident import filters
+
+    x = np.random.default_rng(n).standard_normal(n).cumsum() * 1e-3
+    want = np.correlate(x, filters._D1, mode="valid") * 2500.0
+    np.testing.assert_array_equal(filters.stencil_velocity(x, 2500.0), want)
+    into = np.full(n + 2, np.nan)
+    filters.stencil_velocity(x, 2500.0, out=into[5 : n - 3])  # a view of a longer array
+    np.testing.assert_array_equal(into[5 : n - 3], want)
+    assert np.isnan(into[:5]).all() and np.isnan(into[n - 3 :]).all()
+    backwards = x[::-1]  # not contiguous: numpy's own correlation
+    np.testing.assert_array_equal(
+        filters.stencil_velocity(backwards, 2500.0),
+        np.correlate(backwards, filters._D1, mode="valid") * 2500.0,
+    )
+    if filters._KERNEL is None:
+        pytest.skip("the compiled kernel is not built: the numpy path was checked")
+    with pytest.raises(ValueError, match="stencil_correlate: out must have"):
+        filters._KERNEL.stencil_correlate(x, filters._D1, 2500.0, np.empty(n))
+
+
 def test_a_prediction_at_the_data_rate_from_a_sample_on_is_the_same_numbers():
     low = np.random.default_rng(2).standard_normal(200)
     whole = reflex.to_data_rate(low, 10, 2_000)

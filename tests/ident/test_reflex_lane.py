@@ -302,6 +302,28 @@ def test_all_windows_in_one_pass_equal_each_windows_own_least_squares(fs_hz, com
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
 
 
+@pytest.mark.parametrize("windows", [1, 4, 7, 40])
+def test_the_evidence_four_windows_at_a_time_is_the_one_window_loop_bit_for_bit(windows):
+    from rtsid.ident import yardstick
+    from rtsid.ident.yardstick import WindowVafBasis
+
+    if yardstick._eureka is None:
+        pytest.skip("the compiled kernel is not built")
+    theta, torque = joint_with_reflex(seconds=12.0, seed=6)
+    basis = WindowVafBasis(theta + 0.2, torque, FS_SIM)
+    extra = np.random.default_rng(windows).standard_normal(theta.size)
+    n = 750
+    starts = np.random.default_rng(1).integers(0, theta.size - n + 1, windows).astype(np.int64)
+    want, got = np.empty(windows), np.empty(windows)
+    args = (basis.torque, basis.regressors, extra, starts, n)
+    yardstick._eureka.evidence_gains(*args, want)
+    yardstick._eureka.evidence_gains_lanes(*args, got)
+    assert np.ptp(want) > 0 or windows == 1
+    np.testing.assert_array_equal(got, want)
+    with pytest.raises(ValueError, match="evidence_gains_lanes: inconsistent sizes"):
+        yardstick._eureka.evidence_gains_lanes(*args, np.empty(windows + 1))
+
+
 def test_the_compiled_evidence_checks_its_windows():
     from rtsid.ident import yardstick
     from rtsid.ident.yardstick import WindowVafBasis
