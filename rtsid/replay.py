@@ -40,6 +40,7 @@ from rtsid.io.mcap_read import (
 from rtsid.io.recording import (
     BLOCK_ROWS,
     SESSION_TOPICS,
+    GridColumns,
     RecordedMessages,
     SampleGrid,
     SessionRecord,
@@ -230,35 +231,41 @@ class WindowCutter:
             self.first,
         )
         slow_lane, live, snapshot = self.slow_lane, self.live, self._snapshot
-        end = self.next_end
-        while end < end_index:
-            if slow_lane is not None:
+        columns = grid.buffers()  # the grid's columns, row 0 at sample columns[-1]
+        ends = range(self.next_end, end_index, hop)
+        # the one window end of the block at which the slow lane's next fit is due (a fit
+        # every few seconds: no per-window call before it)
+        fit_at = slow_lane.next_fit_end(first, ends) if slow_lane is not None else None
+        for end in ends:
+            if end == fit_at:
+                assert slow_lane is not None
                 slow_lane.catch_up(grid, first, end)
+                fit_at = slow_lane.next_fit_end(first, range(end + hop, end_index, hop))
             if live is None or not live.skipped(end):
-                yield snapshot(grid, max(end - reach + 1, first), end + 1)
-            end += hop
-            self.next_end = end
+                yield snapshot(columns, max(end - reach + 1, first), end + 1)
+            self.next_end = end + hop
         keep = self.next_end - self.reach + 1
         if self.slow_lane is not None:
             keep = min(keep, self.slow_lane.oldest_needed(self.first))
         grid.drop_before(keep)
 
-    def _snapshot(self, grid: SampleGrid, start: int, stop: int) -> Snapshot:
-        """Rows ``start .. stop − 1`` as the ring's snapshot (views): recorded samples have no
-        host or bus times (zeros and NaN, read-only columns shared by every window of the
-        same length)."""
+    def _snapshot(self, columns: GridColumns, start: int, stop: int) -> Snapshot:
+        """Rows ``start .. stop − 1`` of the grid's ``columns`` as the ring's snapshot (views):
+        recorded samples have no host or bus times (zeros and NaN, read-only columns shared
+        by every window of the same length)."""
         n = stop - start
         times = self._times.get(n)
         if times is None:
             times = self._times[n] = (_read_only(np.zeros(n)), _read_only(np.full(n, np.nan)))
-        position, torque, valid, status = grid.columns(start, stop)
+        position, torque, valid, status, base = columns
+        rows = slice(start - base, stop - base)
         return built(  # the constructor's record without its frozen __init__ (once a hop)
             Snapshot,
             sample_index=self._sample_index(start, stop),
-            position_rad=position,
-            torque_nm=torque,
-            valid=valid,
-            status=status,
+            position_rad=position[rows],
+            torque_nm=torque[rows],
+            valid=valid[rows],
+            status=status[rows],
             host_time_s=times[0],
             bus_time_s=times[1],
             overwritten=0,
@@ -319,6 +326,14 @@ class ReplayedSlowLane:
         if self._next is None:
             self._next = self.models.first_seq(first)
         return self._next
+
+    def next_fit_end(self, first: int, ends: range) -> int | None:
+        """The first of the window ``ends`` by which a fit is due that has not run (None:
+        none; the schedule's due fit only grows with the window end, so a bisection finds
+        it): :meth:`catch_up` does nothing at the ends before it."""
+        seq, due_seq = self._next_seq(first), self.models.due_seq
+        at = bisect.bisect_left(ends, True, key=lambda end: due_seq(end) >= seq)
+        return ends[at] if at < len(ends) else None
 
     def catch_up(self, grid: SampleGrid, first: int, window_end: int) -> None:
         """Run every fit due by the window ending at ``window_end``."""

@@ -46,6 +46,7 @@ from rtsid.io.summary_table import KINDS, SummaryTable, TableBuilder
 __all__ = [
     "BLOCK_ROWS",
     "SESSION_TOPICS",
+    "GridColumns",
     "RecordedMessages",
     "RecordedTable",
     "Recording",
@@ -94,6 +95,11 @@ def _without_empty_parts(parts: list[Path]) -> list[Path]:
                 stacklevel=3,
             )
     return kept
+
+
+#: A :class:`SampleGrid`'s buffers (position, torque, valid, status) and the sample index of
+#: their row 0 (:meth:`SampleGrid.buffers`).
+GridColumns = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]
 
 
 class SampleGrid:
@@ -200,6 +206,19 @@ class SampleGrid:
             )
         sl = slice(self._lo + start_index - self._first, self._lo + stop_index - self._first)
         return self._position[sl], self._torque[sl], self._valid[sl], self._status[sl]
+
+    def buffers(self) -> GridColumns:
+        """The whole position, torque, valid and status buffers (views, valid until the next
+        append) and the sample index of their row 0: rows ``i − base`` are sample ``i``'s for
+        the samples the grid holds (replay slices each window from them, :meth:`columns`
+        without its call and its checks)."""
+        return (
+            self._position,
+            self._torque,
+            self._valid,
+            self._status,
+            self._first - self._lo,
+        )
 
     def all_rows(self) -> SampleBatch:
         """Every row kept, as views."""
