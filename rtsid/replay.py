@@ -13,6 +13,7 @@ cut short replays to its last complete message with a warning saying how much wa
 from __future__ import annotations
 
 import bisect
+import json
 import math
 import time
 import warnings
@@ -652,19 +653,18 @@ def write_estimates_mcap(
     fs = config.link.fs_hz
     for fit in reflex:  # logged at the sample time from which it applies
         put("reflex", fit["applies_from_index"] / fs, encode_json(fit), fit["seq"])
-    count = 0
-    estimates = channels["estimate"]
+    estimates, add = channels["estimate"], writer.add_message
+    rows: list[Mapping[str, Any]] = []  # the summary table's, added at once
     for message in messages:
         data, plain = estimate_payload(message)
-        _add_message(writer, estimates, message["t_end_s"], data, message["seq"])
-        if plain:  # the payload decodes to the message's values: no json.loads of it
-            table.add("estimate", message)
-        else:
-            table.add_payload("estimate", data)
-        count += 1
+        t = int(message["t_end_s"] * 1e9)  # as _add_message
+        add(estimates, log_time=t, publish_time=t, data=data, sequence=message["seq"])
+        # a plain payload decodes to the message's values: no json.loads of it
+        rows.append(message if plain else json.loads(data))
+    table.add_estimates(rows)
     attach_table(writer, table)
     writer.finish()
-    return count
+    return len(rows)
 
 
 def _add_message(writer: Any, channel: int, t_s: float, data: bytes, seq: int) -> None:

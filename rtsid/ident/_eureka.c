@@ -4123,10 +4123,10 @@ static PyObject *py_causal_convolve(PyObject *self, PyObject *args)
  *   keys are `keys`, in that order) as json.dumps(separators=(",", ":")) writes it: prefixes[k]
  *   (`{"robot":`, `,"joint":`, …) then the value, a number by Python's own repr (float's
  *   shortest round trip, PyOS_double_to_string 'r' as float.__repr__; int's decimal), texts
- *   and lists of texts as json's ASCII encoder writes them. None (the caller encodes it by
- *   rtsid.io.schemas.encode_estimate_reference, the reference) for anything else: another
- *   key order, a non-finite number (null there), a text needing an escape, a value of
- *   another type (numpy integers, mappings, nested lists).
+ *   and lists of texts as json's ASCII encoder writes them (escapes included). None (the
+ *   caller encodes it the Python way, rtsid.io.schemas.estimate_payload) for anything else:
+ *   another key order, a non-finite number (null in the reference), a value of another type
+ *   (numpy integers, mappings, nested lists).
  */
 
 /* The eight bytes at v are all ASCII digits (fast_float's test, little-endian). */
@@ -4338,19 +4338,53 @@ static int rr_put(rr_buf *b, const char *src, Py_ssize_t n)
     return 1;
 }
 
-/* A text as json's ASCII encoder writes it when it needs no escape: 1 done, 0 not such a
- * text, -1 error. */
+/* A text as json's ASCII encoder (encode_basestring_ascii) writes it: printable ASCII as it
+ * is, `"` and `\` escaped, \b \f \n \r \t, every other character as \uXXXX (lowercase hex;
+ * beyond the BMP a surrogate pair). 1 done, -1 error. */
 static int rr_text(rr_buf *b, PyObject *v)
 {
-    Py_ssize_t n;
-    const char *t = PyUnicode_AsUTF8AndSize(v, &n);
-    if (t == NULL) return -1;
-    for (Py_ssize_t k = 0; k < n; k++) {
-        const unsigned char c = (unsigned char)t[k];
-        if (c < 0x20 || c > 0x7e || c == '"' || c == '\\') return 0;
+    static const char hex[] = "0123456789abcdef";
+    const Py_ssize_t n = PyUnicode_GET_LENGTH(v);
+    const int kind = PyUnicode_KIND(v);
+    const void *data = PyUnicode_DATA(v);
+    if (rr_put(b, "\"", 1) < 0) return -1;
+    if (PyUnicode_IS_ASCII(v)) { /* the usual text: printable ASCII, copied whole */
+        const char *t = (const char *)data;
+        Py_ssize_t k = 0;
+        while (k < n && t[k] >= ' ' && t[k] <= '~' && t[k] != '"' && t[k] != '\\') k++;
+        if (k == n) return rr_put(b, t, n) < 0 || rr_put(b, "\"", 1) < 0 ? -1 : 1;
     }
-    if (rr_put(b, "\"", 1) < 0 || rr_put(b, t, n) < 0 || rr_put(b, "\"", 1) < 0) return -1;
-    return 1;
+    for (Py_ssize_t k = 0; k < n; k++) {
+        Py_UCS4 c = PyUnicode_READ(kind, data, k);
+        char out[12];
+        int m = 0;
+        if (c >= ' ' && c <= '~' && c != '"' && c != '\\') {
+            out[m++] = (char)c;
+        } else {
+            out[m++] = '\\';
+            switch (c) {
+            case '\\': out[m++] = '\\'; break;
+            case '"': out[m++] = '"'; break;
+            case '\b': out[m++] = 'b'; break;
+            case '\f': out[m++] = 'f'; break;
+            case '\n': out[m++] = 'n'; break;
+            case '\r': out[m++] = 'r'; break;
+            case '\t': out[m++] = 't'; break;
+            default:
+                if (c >= 0x10000) {
+                    const Py_UCS4 high = Py_UNICODE_HIGH_SURROGATE(c);
+                    out[m++] = 'u';
+                    for (int shift = 12; shift >= 0; shift -= 4) out[m++] = hex[(high >> shift) & 0xf];
+                    c = Py_UNICODE_LOW_SURROGATE(c);
+                    out[m++] = '\\';
+                }
+                out[m++] = 'u';
+                for (int shift = 12; shift >= 0; shift -= 4) out[m++] = hex[(c >> shift) & 0xf];
+            }
+        }
+        if (rr_put(b, out, m) < 0) return -1;
+    }
+    return rr_put(b, "\"", 1) < 0 ? -1 : 1;
 }
 
 /* One value of an estimate: 1 written, 0 not one this encoder writes, -1 error. */
@@ -4364,7 +4398,15 @@ static int rr_value(rr_buf *b, PyObject *v, int top)
         int overflow = 0;
         long long x = PyLong_AsLongLongAndOverflow(v, &overflow);
         if (x == -1 && PyErr_Occurred()) return -1;
-        if (overflow) return 0;
+        if (overflow) { /* beyond 64 bits: int's own decimal, as json writes it */
+            PyObject *text = PyLong_Type.tp_repr(v);
+            if (text == NULL) return -1;
+            Py_ssize_t n;
+            const char *t = PyUnicode_AsUTF8AndSize(text, &n);
+            int done = t == NULL ? -1 : rr_put(b, t, n);
+            Py_DECREF(text);
+            return done;
+        }
         char digits[32];
         int n = snprintf(digits, sizeof digits, "%lld", x);
         return rr_put(b, digits, n);
@@ -4386,8 +4428,7 @@ static int rr_value(rr_buf *b, PyObject *v, int top)
         for (Py_ssize_t k = 0; k < n; k++) {
             if (k > 0 && rr_put(b, ",", 1) < 0) return -1;
             if (!PyUnicode_Check(items[k])) return 0;
-            const int done = rr_text(b, items[k]);
-            if (done <= 0) return done;
+            if (rr_text(b, items[k]) < 0) return -1;
         }
         return rr_put(b, "]", 1);
     }

@@ -302,8 +302,10 @@ def iter_sample_batches(
 
 
 class _SampleBlock:
-    """Preallocated columns that consecutive compact ``/samples`` payloads are decoded into
-    (:func:`~rtsid.io.schemas.decode_samples_into`), handed on as one batch of views."""
+    """Preallocated columns that consecutive ``/samples`` payloads are decoded into (the
+    compact layout in place, :func:`~rtsid.io.schemas.decode_samples_into`; any other, and
+    every payload on the numpy path, by the reference and copied), handed on as one batch of
+    views."""
 
     def __init__(self, rows: int) -> None:
         self.position = np.empty(rows)
@@ -315,15 +317,17 @@ class _SampleBlock:
         self.fs_hz = 0.0
         self.log_time_ns = 0
 
-    def add(self, message: Any) -> bool:
-        """Decode ``message`` after the rows held; False (nothing added) when it is not in the
-        compact layout, does not fit, or does not continue them (another rate, a gap, an
-        overlap) — or says a rate or first index :func:`_sample_batch` refuses."""
+    def add(self, message: Any, path: str | Path) -> bool:
+        """Decode ``message`` after the rows held; False (nothing added) when it does not fit
+        or does not continue them (another rate, a gap, an overlap), or is refused (the
+        caller reads it again, alone, and says why)."""
         done = decode_samples_into(
             message.data, self.position, self.torque, self.valid, self.status, self.rows
         )
-        if done is None:
-            return False
+        if done is None:  # another layout, or the numpy path: the reference, then a copy
+            done = self._copied(message, path)
+            if done is None:
+                return False
         first_index, fs_hz, rows = done
         if self.rows == 0:
             if not (math.isfinite(fs_hz) and fs_hz > 0 and 0 <= first_index < 2**62):
@@ -333,6 +337,22 @@ class _SampleBlock:
             return False
         self.rows += rows
         return True
+
+    def _copied(self, message: Any, path: str | Path) -> tuple[int, float, int] | None:
+        """``message`` read by the reference into the rows after those held (None: refused,
+        or more rows than the block has left)."""
+        try:
+            batch = _sample_batch(message, path)
+        except RecordingError:
+            return None
+        at, n = self.rows, len(batch)
+        if at + n > self.position.size:
+            return None
+        self.position[at : at + n] = batch.position_rad
+        self.torque[at : at + n] = batch.torque_nm
+        self.valid[at : at + n] = batch.valid
+        self.status[at : at + n] = batch.status
+        return batch.first_index, batch.fs_hz, n
 
     def batch(self) -> SampleBatch:
         """The rows held, as views."""
@@ -350,17 +370,17 @@ class _SampleBlock:
 
 def _sample_blocks(messages: Iterable[Any], path: str | Path, rows: int) -> Iterator[SampleBatch]:
     """:func:`iter_sample_batches` in blocks of up to ``rows`` rows: a message that does not
-    continue the block starts the next one; one the block cannot take (another layout, more
-    rows than a block, damage) is read alone by the reference, after the block is yielded (a
-    damaged one raises after every sample before it)."""
+    continue the block starts the next one; one no block can take (more rows than a block,
+    damage) is read alone, after the block is yielded (a damaged one raises after every
+    sample before it)."""
     block = _SampleBlock(rows)
     for message in messages:
-        if block.add(message):
+        if block.add(message, path):
             continue
         if block.rows:
             yield block.batch()
             block = _SampleBlock(rows)
-            if block.add(message):
+            if block.add(message, path):
                 continue
         yield _sample_batch(message, path)
     if block.rows:
