@@ -658,7 +658,7 @@ def write_estimates_mcap(
     for message in messages:
         data, plain = estimate_payload(message)
         t = int(message["t_end_s"] * 1e9)  # as _add_message
-        add(estimates, log_time=t, publish_time=t, data=data, sequence=message["seq"])
+        add(estimates, t, data, t, message["seq"])  # channel, log, data, publish, sequence
         # a plain payload decodes to the message's values: no json.loads of it
         rows.append(message if plain else json.loads(data))
     table.add_estimates(rows)
