@@ -13,6 +13,7 @@ cut short replays to its last complete message with a warning saying how much wa
 from __future__ import annotations
 
 import bisect
+import json
 import math
 import time
 import warnings
@@ -38,7 +39,9 @@ from rtsid.io.mcap_read import (
     sample_count,
 )
 from rtsid.io.recording import (
+    BLOCK_ROWS,
     SESSION_TOPICS,
+    GridColumns,
     RecordedMessages,
     SampleGrid,
     SessionRecord,
@@ -229,35 +232,41 @@ class WindowCutter:
             self.first,
         )
         slow_lane, live, snapshot = self.slow_lane, self.live, self._snapshot
-        end = self.next_end
-        while end < end_index:
-            if slow_lane is not None:
+        columns = grid.buffers()  # the grid's columns, row 0 at sample columns[-1]
+        ends = range(self.next_end, end_index, hop)
+        # the one window end of the block at which the slow lane's next fit is due (a fit
+        # every few seconds: no per-window call before it)
+        fit_at = slow_lane.next_fit_end(first, ends) if slow_lane is not None else None
+        for end in ends:
+            if end == fit_at:
+                assert slow_lane is not None
                 slow_lane.catch_up(grid, first, end)
+                fit_at = slow_lane.next_fit_end(first, range(end + hop, end_index, hop))
             if live is None or not live.skipped(end):
-                yield snapshot(grid, max(end - reach + 1, first), end + 1)
-            end += hop
-            self.next_end = end
+                yield snapshot(columns, max(end - reach + 1, first), end + 1)
+            self.next_end = end + hop
         keep = self.next_end - self.reach + 1
         if self.slow_lane is not None:
             keep = min(keep, self.slow_lane.oldest_needed(self.first))
         grid.drop_before(keep)
 
-    def _snapshot(self, grid: SampleGrid, start: int, stop: int) -> Snapshot:
-        """Rows ``start .. stop − 1`` as the ring's snapshot (views): recorded samples have no
-        host or bus times (zeros and NaN, read-only columns shared by every window of the
-        same length)."""
+    def _snapshot(self, columns: GridColumns, start: int, stop: int) -> Snapshot:
+        """Rows ``start .. stop − 1`` of the grid's ``columns`` as the ring's snapshot (views):
+        recorded samples have no host or bus times (zeros and NaN, read-only columns shared
+        by every window of the same length)."""
         n = stop - start
         times = self._times.get(n)
         if times is None:
             times = self._times[n] = (_read_only(np.zeros(n)), _read_only(np.full(n, np.nan)))
-        position, torque, valid, status = grid.columns(start, stop)
+        position, torque, valid, status, base = columns
+        rows = slice(start - base, stop - base)
         return built(  # the constructor's record without its frozen __init__ (once a hop)
             Snapshot,
             sample_index=self._sample_index(start, stop),
-            position_rad=position,
-            torque_nm=torque,
-            valid=valid,
-            status=status,
+            position_rad=position[rows],
+            torque_nm=torque[rows],
+            valid=valid[rows],
+            status=status[rows],
             host_time_s=times[0],
             bus_time_s=times[1],
             overwritten=0,
@@ -318,6 +327,14 @@ class ReplayedSlowLane:
         if self._next is None:
             self._next = self.models.first_seq(first)
         return self._next
+
+    def next_fit_end(self, first: int, ends: range) -> int | None:
+        """The first of the window ``ends`` by which a fit is due that has not run (None:
+        none; the schedule's due fit only grows with the window end, so a bisection finds
+        it): :meth:`catch_up` does nothing at the ends before it."""
+        seq, due_seq = self._next_seq(first), self.models.due_seq
+        at = bisect.bisect_left(ends, True, key=lambda end: due_seq(end) >= seq)
+        return ends[at] if at < len(ends) else None
 
     def catch_up(self, grid: SampleGrid, first: int, window_end: int) -> None:
         """Run every fit due by the window ending at ``window_end``."""
@@ -440,7 +457,11 @@ def replay_file(
     config = config or recording_config(parts[0])
     result = ReplayResult(source=str(path), parts=parts)
     total = sum(sample_count(p) for p in parts) if progress is not None else 0
-    batches: Iterable[SampleBatch] = _counted(iter_batches(parts), result, progress, total)
+    # as fast as possible: the samples in blocks (fewer steps); paced: as logged (its steps)
+    blocks = BLOCK_ROWS if rate is None else 0
+    batches: Iterable[SampleBatch] = _counted(
+        iter_batches(parts, block_rows=blocks), result, progress, total
+    )
     if rate is not None:
         batches = paced(batches, rate)
     replay_batches(batches, config, result, publish=publish, live=live)
@@ -632,19 +653,18 @@ def write_estimates_mcap(
     fs = config.link.fs_hz
     for fit in reflex:  # logged at the sample time from which it applies
         put("reflex", fit["applies_from_index"] / fs, encode_json(fit), fit["seq"])
-    count = 0
-    estimates = channels["estimate"]
+    estimates, add = channels["estimate"], writer.add_message
+    rows: list[Mapping[str, Any]] = []  # the summary table's, added at once
     for message in messages:
         data, plain = estimate_payload(message)
-        _add_message(writer, estimates, message["t_end_s"], data, message["seq"])
-        if plain:  # the payload decodes to the message's values: no json.loads of it
-            table.add("estimate", message)
-        else:
-            table.add_payload("estimate", data)
-        count += 1
+        t = int(message["t_end_s"] * 1e9)  # as _add_message
+        add(estimates, t, data, t, message["seq"])  # channel, log, data, publish, sequence
+        # a plain payload decodes to the message's values: no json.loads of it
+        rows.append(message if plain else json.loads(data))
+    table.add_estimates(rows)
     attach_table(writer, table)
     writer.finish()
-    return count
+    return len(rows)
 
 
 def _add_message(writer: Any, channel: int, t_s: float, data: bytes, seq: int) -> None:

@@ -1735,6 +1735,8 @@ static PyObject *py_causal_convolve(PyObject *self, PyObject *args); /* lanesums
 static PyObject *py_xcorr_lags(PyObject *self, PyObject *args); /* fits4 */
 static PyObject *py_evidence_gains_lanes(PyObject *self, PyObject *args); /* fits4 */
 static PyObject *py_stencil_correlate(PyObject *self, PyObject *args); /* fits4 */
+static PyObject *py_samples_into(PyObject *self, PyObject *args); /* readrest, end */
+static PyObject *py_estimate_json(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* readrest */
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1782,6 +1784,8 @@ static PyMethodDef methods[] = {
     {"xcorr_lags", py_xcorr_lags, METH_VARARGS, "xcorr_lags(u, y, first, last, norm, c): xcorr bit for bit, sixteen lags at a time (section fits4)."},
     {"evidence_gains_lanes", py_evidence_gains_lanes, METH_VARARGS, "evidence_gains_lanes(torque, regressors, extra, starts, n, out): evidence_gains bit for bit, four windows at a time (section fits4)."},
     {"stencil_correlate", py_stencil_correlate, METH_VARARGS, "stencil_correlate(x, taps, scale, out): numpy.correlate(x, taps, 'valid') * scale bit for bit (section fits4)."},
+    {"samples_into", py_samples_into, METH_VARARGS, "samples_into(data, position, torque, valid, status, offset) -> (first_index, fs_hz, rows) or None: a compact samples payload into preallocated columns (section readrest)."},
+    {"estimate_json", (PyCFunction)(void (*)(void))py_estimate_json, METH_FASTCALL, "estimate_json(message, keys, prefixes) -> bytes or None: an estimate message as json.dumps writes it (section readrest)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -4370,5 +4374,380 @@ static PyObject *py_stencil_correlate(PyObject *self, PyObject *args)
         result = Py_None;
     }
     release_buffers(b, 3);
+    return result;
+}
+
+/* ================================================================== readrest (issue 22)
+ * Replay's own work around the windows, one call per message instead of a dozen Python steps:
+ * reading a recording's /samples payloads and writing its /estimate payloads.
+ *
+ * samples_into(data, position, torque, valid, status, offset) -> (first_index, fs_hz, rows)
+ *   or None: a samples payload in the logger's compact layout (rtsid.io.schemas.encode_samples:
+ *   {"first_index":I,"fs_hz":F,"t_first_s":T,"position_rad":[…],"torque_nm":[…],"valid":[…],
+ *   "status":[…]}, no whitespace) decoded straight into rows offset … offset + rows − 1 of
+ *   preallocated columns (float64, float64, bool, int64, one length). Its numbers are
+ *   json_array's (the same doubles as json.loads, bit for bit: the same correctly rounded
+ *   conversions), their digits read eight at a time. None: another layout (fs_hz an integer
+ *   or null, say), columns of different lengths, more rows than the columns hold after offset,
+ *   or anything json_array refuses; the caller then reads the payload by the reference
+ *   (rtsid.io.schemas.decode_samples), which accepts it or says what is wrong. Rows after
+ *   offset may have been written when it declines.
+ *
+ * estimate_json(message, keys, prefixes) -> bytes or None: an estimate message (a dict whose
+ *   keys are `keys`, in that order) as json.dumps(separators=(",", ":")) writes it: prefixes[k]
+ *   (`{"robot":`, `,"joint":`, …) then the value, a number by Python's own repr (float's
+ *   shortest round trip, PyOS_double_to_string 'r' as float.__repr__; int's decimal), texts
+ *   and lists of texts as json's ASCII encoder writes them (escapes included). None (the
+ *   caller encodes it the Python way, rtsid.io.schemas.estimate_payload) for anything else:
+ *   another key order, a non-finite number (null in the reference), a value of another type
+ *   (numpy integers, mappings, nested lists).
+ */
+
+/* The eight bytes at v are all ASCII digits (fast_float's test, little-endian). */
+static inline int rr_eight_digits(uint64_t v)
+{
+    return !(((v + 0x4646464646464646ULL) | (v - 0x3030303030303030ULL)) & 0x8080808080808080ULL);
+}
+
+/* The value of eight ASCII digits, the first the most significant (little-endian load). */
+static inline uint64_t rr_parse_eight(uint64_t v)
+{
+    const uint64_t mask = 0x000000FF000000FFULL;
+    const uint64_t mul1 = 0x000F424000000064ULL; /* 100 + (1000000 << 32) */
+    const uint64_t mul2 = 0x0000271000000001ULL; /* 1 + (10000 << 32) */
+    v -= 0x3030303030303030ULL;
+    v = (v * 10) + (v >> 8);
+    return (((v & mask) * mul1) + (((v >> 16) & mask) * mul2)) >> 32;
+}
+
+/* A run of digits from s[j]: accumulated into *w while it stays below 2^64 (*overflow set
+ * otherwise); returns the index after the run. */
+static Py_ssize_t rr_digits(const char *s, Py_ssize_t j, Py_ssize_t stop, unsigned long long *w,
+                            int *overflow)
+{
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+    while (j + 8 <= stop && *w < 100000000000ULL) { /* w·10^8 + 8 digits < 10^19 < 2^64 */
+        uint64_t v;
+        memcpy(&v, s + j, 8);
+        if (!rr_eight_digits(v)) break;
+        *w = *w * 100000000ULL + rr_parse_eight(v);
+        j += 8;
+    }
+#endif
+    for (; j < stop && s[j] >= '0' && s[j] <= '9'; j++) {
+        if (*w > (ULLONG_MAX - 9) / 10) {
+            *overflow = 1;
+        } else {
+            *w = *w * 10 + (unsigned)(s[j] - '0');
+        }
+    }
+    return j;
+}
+
+/* One float item (a JSON number with a fraction or exponent, or null) at s[i] into *out;
+ * returns its end or -1. The digits are read once (JSON grammar checked as they are), and the
+ * value formed as decimal_fast forms it; what that does not cover goes to json_item. */
+static Py_ssize_t rr_double(const char *s, Py_ssize_t i, Py_ssize_t stop, double *out)
+{
+    if (s[i] == 'n') return json_item(s, i, stop, 0, (char *)out);
+#if LDBL_MANT_DIG == 64
+    static const long double pow10[28] = {
+        1e0L, 1e1L, 1e2L, 1e3L, 1e4L, 1e5L, 1e6L, 1e7L, 1e8L, 1e9L, 1e10L, 1e11L, 1e12L, 1e13L,
+        1e14L, 1e15L, 1e16L, 1e17L, 1e18L, 1e19L, 1e20L, 1e21L, 1e22L, 1e23L, 1e24L, 1e25L,
+        1e26L, 1e27L};
+    unsigned long long w = 0;
+    int overflow = 0, integer = 1, negative = s[i] == '-';
+    long scale = 0;
+    Py_ssize_t j = i + negative, d;
+    if (j >= stop) return -1;
+    if (s[j] == '0') {
+        j++;
+    } else if (s[j] >= '1' && s[j] <= '9') {
+        j = rr_digits(s, j, stop, &w, &overflow);
+        if (overflow) return json_item(s, i, stop, 0, (char *)out);
+    } else {
+        return -1;
+    }
+    if (j < stop && s[j] == '.') {
+        integer = 0;
+        d = ++j;
+        j = rr_digits(s, j, stop, &w, &overflow);
+        if (j == d) return -1;
+        scale = -(long)(j - d);
+    }
+    if (j < stop && (s[j] == 'e' || s[j] == 'E')) {
+        long exponent = 0;
+        int minus = 0;
+        integer = 0;
+        j++;
+        if (j < stop && (s[j] == '+' || s[j] == '-')) minus = s[j++] == '-';
+        d = j;
+        for (; j < stop && s[j] >= '0' && s[j] <= '9'; j++) {
+            if (exponent <= 100000) exponent = exponent * 10 + (s[j] - '0');
+        }
+        if (j == d) return -1;
+        scale += minus ? -exponent : exponent;
+    }
+    if (integer) return -1; /* json.loads makes an int of it: the reference */
+    if (overflow || j - i >= JSON_NUMBER_MAX) return json_item(s, i, stop, 0, (char *)out);
+    if (w == 0) {
+        *out = negative ? -0.0 : 0.0;
+        return j;
+    }
+    if (scale < -27 || scale > 27) return json_item(s, i, stop, 0, (char *)out);
+    long double r = (long double)w;
+    r = scale < 0 ? r / pow10[-scale] : r * pow10[scale];
+    double v = (double)r;
+    if ((long double)v != r) {
+        double other = r > (long double)v ? nextafter(v, INFINITY) : nextafter(v, -INFINITY);
+        if (((long double)v + (long double)other) * 0.5L == r) /* halfway: one rounding */
+            return json_item(s, i, stop, 0, (char *)out);
+    }
+    if (!(v >= DBL_MIN && v <= DBL_MAX)) return json_item(s, i, stop, 0, (char *)out);
+    *out = negative ? -v : v;
+    return j;
+#else
+    return json_item(s, i, stop, 0, (char *)out);
+#endif
+}
+
+/* The items of the array opening at s[i] (after its '[') into rows offset … of out (item
+ * size `size`, `capacity` rows); returns the index after its ']' or -1, *rows the count. */
+static Py_ssize_t rr_column(const char *s, Py_ssize_t i, Py_ssize_t stop, int kind, char *out,
+                            Py_ssize_t size, Py_ssize_t offset, Py_ssize_t capacity,
+                            Py_ssize_t *rows)
+{
+    Py_ssize_t n = 0;
+    if (i < stop && s[i] == ']') {
+        *rows = 0;
+        return i + 1;
+    }
+    while (i < stop) {
+        if (offset + n >= capacity) return -1;
+        char *item = out + (offset + n) * size;
+        i = kind == 0 ? rr_double(s, i, stop, (double *)item) : json_item(s, i, stop, kind, item);
+        if (i < 0 || i >= stop) return -1;
+        n++;
+        if (s[i] == ']') {
+            *rows = n;
+            return i + 1;
+        }
+        if (s[i] != ',') return -1;
+        i++;
+    }
+    return -1;
+}
+
+/* s[i:] starts with `word`: the index after it, else -1. */
+static Py_ssize_t rr_expect(const char *s, Py_ssize_t i, Py_ssize_t stop, const char *word)
+{
+    const Py_ssize_t n = (Py_ssize_t)strlen(word);
+    return i >= 0 && stop - i >= n && memcmp(s + i, word, (size_t)n) == 0 ? i + n : -1;
+}
+
+static PyObject *py_samples_into(PyObject *self, PyObject *args)
+{
+    static const char *const separators[4] = {
+        ",\"position_rad\":[", "],\"torque_nm\":[", "],\"valid\":[", "],\"status\":["};
+    static const int kinds[4] = {0, 0, 1, 2};
+    static const Py_ssize_t sizes[4] = {8, 8, 1, 8};
+    Py_buffer data, col[4];
+    Py_ssize_t offset;
+    if (!PyArg_ParseTuple(args, "y*w*w*w*w*n", &data, &col[0], &col[1], &col[2], &col[3],
+                          &offset))
+        return NULL;
+    const char *s = (const char *)data.buf;
+    const Py_ssize_t stop = data.len;
+    const Py_ssize_t capacity = col[0].len / 8;
+    long long first_index = 0;
+    double fs_hz = 0.0, ignored;
+    Py_ssize_t rows = -1, n = 0, i;
+    int ok = offset >= 0;
+    for (int c = 0; c < 4; c++) ok = ok && col[c].len == capacity * sizes[c];
+    i = ok ? rr_expect(s, 0, stop, "{\"first_index\":") : -1;
+    if (i >= 0 && i < stop) i = json_item(s, i, stop, 2, (char *)&first_index); else i = -1;
+    i = rr_expect(s, i, stop, ",\"fs_hz\":");
+    if (i >= 0 && i < stop && s[i] != 'n') i = rr_double(s, i, stop, &fs_hz); else i = -1;
+    i = rr_expect(s, i, stop, ",\"t_first_s\":");
+    if (i >= 0 && i < stop) i = rr_double(s, i, stop, &ignored); else i = -1;
+    for (int c = 0; ok && c < 4 && i >= 0; c++) {
+        i = rr_expect(s, i, stop, separators[c]);
+        if (i < 0) break;
+        /* the arrays' closing brackets are part of the next separator */
+        i = rr_column(s, i, stop, kinds[c], (char *)col[c].buf, sizes[c], offset, capacity, &n);
+        if (i < 0) break;
+        i--;
+        if (rows >= 0 && n != rows) i = -1;
+        rows = n;
+    }
+    ok = ok && i >= 0 && i == stop - 2 && s[i] == ']' && s[i + 1] == '}';
+    PyBuffer_Release(&data);
+    for (int c = 0; c < 4; c++) PyBuffer_Release(&col[c]);
+    if (!ok) Py_RETURN_NONE;
+    return Py_BuildValue("(Ldn)", first_index, fs_hz, rows);
+}
+
+/* A growing output buffer: a local array first, then the heap. */
+typedef struct {
+    char *p;
+    Py_ssize_t n, cap;
+    char local[1536];
+} rr_buf;
+
+static int rr_put(rr_buf *b, const char *src, Py_ssize_t n)
+{
+    if (b->n + n > b->cap) {
+        Py_ssize_t cap = 2 * (b->n + n);
+        char *p = b->p == b->local ? PyMem_Malloc((size_t)cap) : PyMem_Realloc(b->p, (size_t)cap);
+        if (p == NULL) {
+            PyErr_NoMemory();
+            return -1;
+        }
+        if (b->p == b->local) memcpy(p, b->local, (size_t)b->n);
+        b->p = p;
+        b->cap = cap;
+    }
+    memcpy(b->p + b->n, src, (size_t)n);
+    b->n += n;
+    return 1;
+}
+
+/* A text as json's ASCII encoder (encode_basestring_ascii) writes it: printable ASCII as it
+ * is, `"` and `\` escaped, \b \f \n \r \t, every other character as \uXXXX (lowercase hex;
+ * beyond the BMP a surrogate pair). 1 done, -1 error. */
+static int rr_text(rr_buf *b, PyObject *v)
+{
+    static const char hex[] = "0123456789abcdef";
+    const Py_ssize_t n = PyUnicode_GET_LENGTH(v);
+    const int kind = PyUnicode_KIND(v);
+    const void *data = PyUnicode_DATA(v);
+    if (rr_put(b, "\"", 1) < 0) return -1;
+    if (PyUnicode_IS_ASCII(v)) { /* the usual text: printable ASCII, copied whole */
+        const char *t = (const char *)data;
+        Py_ssize_t k = 0;
+        while (k < n && t[k] >= ' ' && t[k] <= '~' && t[k] != '"' && t[k] != '\\') k++;
+        if (k == n) return rr_put(b, t, n) < 0 || rr_put(b, "\"", 1) < 0 ? -1 : 1;
+    }
+    for (Py_ssize_t k = 0; k < n; k++) {
+        Py_UCS4 c = PyUnicode_READ(kind, data, k);
+        char out[12];
+        int m = 0;
+        if (c >= ' ' && c <= '~' && c != '"' && c != '\\') {
+            out[m++] = (char)c;
+        } else {
+            out[m++] = '\\';
+            switch (c) {
+            case '\\': out[m++] = '\\'; break;
+            case '"': out[m++] = '"'; break;
+            case '\b': out[m++] = 'b'; break;
+            case '\f': out[m++] = 'f'; break;
+            case '\n': out[m++] = 'n'; break;
+            case '\r': out[m++] = 'r'; break;
+            case '\t': out[m++] = 't'; break;
+            default:
+                if (c >= 0x10000) {
+                    const Py_UCS4 high = Py_UNICODE_HIGH_SURROGATE(c);
+                    out[m++] = 'u';
+                    for (int shift = 12; shift >= 0; shift -= 4) out[m++] = hex[(high >> shift) & 0xf];
+                    c = Py_UNICODE_LOW_SURROGATE(c);
+                    out[m++] = '\\';
+                }
+                out[m++] = 'u';
+                for (int shift = 12; shift >= 0; shift -= 4) out[m++] = hex[(c >> shift) & 0xf];
+            }
+        }
+        if (rr_put(b, out, m) < 0) return -1;
+    }
+    return rr_put(b, "\"", 1) < 0 ? -1 : 1;
+}
+
+/* One value of an estimate: 1 written, 0 not one this encoder writes, -1 error. */
+static int rr_value(rr_buf *b, PyObject *v, int top)
+{
+    if (v == Py_None) return rr_put(b, "null", 4);
+    if (v == Py_True) return rr_put(b, "true", 4);
+    if (v == Py_False) return rr_put(b, "false", 5);
+    if (PyUnicode_Check(v)) return rr_text(b, v);
+    if (PyLong_Check(v)) {
+        int overflow = 0;
+        long long x = PyLong_AsLongLongAndOverflow(v, &overflow);
+        if (x == -1 && PyErr_Occurred()) return -1;
+        if (overflow) { /* beyond 64 bits: int's own decimal, as json writes it */
+            PyObject *text = PyLong_Type.tp_repr(v);
+            if (text == NULL) return -1;
+            Py_ssize_t n;
+            const char *t = PyUnicode_AsUTF8AndSize(text, &n);
+            int done = t == NULL ? -1 : rr_put(b, t, n);
+            Py_DECREF(text);
+            return done;
+        }
+        char digits[32];
+        int n = snprintf(digits, sizeof digits, "%lld", x);
+        return rr_put(b, digits, n);
+    }
+    if (PyFloat_Check(v)) {
+        const double x = PyFloat_AS_DOUBLE(v);
+        if (!isfinite(x)) return 0; /* null in the reference */
+        char *repr = PyOS_double_to_string(x, 'r', 0, Py_DTSF_ADD_DOT_0, NULL);
+        if (repr == NULL) return -1;
+        int done = rr_put(b, repr, (Py_ssize_t)strlen(repr));
+        PyMem_Free(repr);
+        return done;
+    }
+    if (top && (PyList_Check(v) || PyTuple_Check(v))) {
+        PyObject *seq = v;
+        const Py_ssize_t n = PySequence_Fast_GET_SIZE(seq);
+        PyObject **items = PySequence_Fast_ITEMS(seq);
+        if (rr_put(b, "[", 1) < 0) return -1;
+        for (Py_ssize_t k = 0; k < n; k++) {
+            if (k > 0 && rr_put(b, ",", 1) < 0) return -1;
+            if (!PyUnicode_Check(items[k])) return 0;
+            if (rr_text(b, items[k]) < 0) return -1;
+        }
+        return rr_put(b, "]", 1);
+    }
+    return 0;
+}
+
+static PyObject *py_estimate_json(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 3 || !PyTuple_Check(args[1]) || !PyTuple_Check(args[2]) ||
+        PyTuple_GET_SIZE(args[1]) != PyTuple_GET_SIZE(args[2])) {
+        PyErr_SetString(PyExc_TypeError, "estimate_json(message, keys, prefixes): two tuples");
+        return NULL;
+    }
+    PyObject *message = args[0], *keys = args[1], *prefixes = args[2];
+    const Py_ssize_t count = PyTuple_GET_SIZE(keys);
+    if (!PyDict_CheckExact(message) || PyDict_GET_SIZE(message) != count) Py_RETURN_NONE;
+    rr_buf b;
+    b.p = b.local;
+    b.n = 0;
+    b.cap = (Py_ssize_t)sizeof b.local;
+    PyObject *key, *value, *result = NULL;
+    Py_ssize_t pos = 0, k = 0;
+    int done = 1;
+    while (done > 0 && PyDict_Next(message, &pos, &key, &value)) {
+        PyObject *want = PyTuple_GET_ITEM(keys, k);
+        PyObject *prefix = PyTuple_GET_ITEM(prefixes, k);
+        if (key != want && (!PyUnicode_Check(key) || PyUnicode_Compare(key, want) != 0)) {
+            if (PyErr_Occurred()) done = -1; else done = 0;
+            break;
+        }
+        if (!PyBytes_Check(prefix)) {
+            PyErr_SetString(PyExc_TypeError, "estimate_json: prefixes must be bytes");
+            done = -1;
+            break;
+        }
+        done = rr_put(&b, PyBytes_AS_STRING(prefix), PyBytes_GET_SIZE(prefix));
+        if (done > 0) done = rr_value(&b, value, 1);
+        k++;
+    }
+    if (done > 0 && k == count && rr_put(&b, "}", 1) > 0) {
+        result = PyBytes_FromStringAndSize(b.p, b.n);
+    } else if (done >= 0 && !PyErr_Occurred()) {
+        result = Py_None;
+        Py_INCREF(result);
+    }
+    if (b.p != b.local) PyMem_Free(b.p);
     return result;
 }

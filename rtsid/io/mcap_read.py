@@ -23,10 +23,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+import numpy as np
+
 from rtsid import __version__
 from rtsid.errors import InputDataError, RecordingError
 from rtsid.io.files import atomic_write
-from rtsid.io.schemas import SCHEMAS, SampleBatch, compact_sample_rows, decode_samples
+from rtsid.io.schemas import (
+    SCHEMAS,
+    SampleBatch,
+    compact_sample_rows,
+    decode_samples,
+    decode_samples_into,
+)
 from rtsid.io.summary_table import (
     ATTACHMENT_NAME,
     KINDS,
@@ -262,21 +270,121 @@ def _iter_topic(path: str | Path, name: str, report: ReadReport | None) -> Itera
 
 
 def iter_sample_batches(
-    path: str | Path, report: ReadReport | None = None
+    path: str | Path, report: ReadReport | None = None, *, block_rows: int = 0
 ) -> Iterator[SampleBatch]:
     """Raw sample batches of one file in recording order, as numpy arrays (``report`` as in
     :func:`iter_messages`). To read a recording as samples, use :mod:`rtsid.io.recording`.
+
+    Parameters
+    ----------
+    path : str or Path
+    report : ReadReport, optional
+    block_rows : int
+        0: one batch per ``/samples`` message, as logged. Else consecutive messages that
+        continue each other (same rate, each starting where the previous ended) are decoded
+        straight into blocks of up to this many rows, one batch per block (replay's reading:
+        no per-message arrays, copies or steps after it); the same rows either way.
 
     Yields
     ------
     SampleBatch
         ``first_index``, ``fs_hz``, ``position_rad``/``torque_nm`` (float64, NaN for lost
-        rows), ``valid`` (bool), ``status`` (int64), ``log_time_ns``. Consecutive batches are
-        contiguous unless samples were dropped by the logger (then ``first_index`` jumps: a
-        gap, never bridged).
+        rows), ``valid`` (bool), ``status`` (int64), ``log_time_ns`` (a block's: its first
+        message's). Consecutive batches are contiguous unless samples were dropped by the
+        logger (then ``first_index`` jumps: a gap, never bridged).
     """
-    for message in _iter_topic(path, "samples", report):
+    messages = _iter_topic(path, "samples", report)
+    if block_rows > 0:
+        yield from _sample_blocks(messages, path, block_rows)
+        return
+    for message in messages:
         yield _sample_batch(message, path)
+
+
+class _SampleBlock:
+    """Preallocated columns that consecutive ``/samples`` payloads are decoded into (the
+    compact layout in place, :func:`~rtsid.io.schemas.decode_samples_into`; any other, and
+    every payload on the numpy path, by the reference and copied), handed on as one batch of
+    views."""
+
+    def __init__(self, rows: int) -> None:
+        self.position = np.empty(rows)
+        self.torque = np.empty(rows)
+        self.valid = np.empty(rows, dtype=bool)
+        self.status = np.empty(rows, dtype=np.int64)
+        self.rows = 0
+        self.first_index = 0
+        self.fs_hz = 0.0
+        self.log_time_ns = 0
+
+    def add(self, message: Any, path: str | Path) -> bool:
+        """Decode ``message`` after the rows held; False (nothing added) when it does not fit
+        or does not continue them (another rate, a gap, an overlap), or is refused (the
+        caller reads it again, alone, and says why)."""
+        done = decode_samples_into(
+            message.data, self.position, self.torque, self.valid, self.status, self.rows
+        )
+        if done is None:  # another layout, or the numpy path: the reference, then a copy
+            done = self._copied(message, path)
+            if done is None:
+                return False
+        first_index, fs_hz, rows = done
+        if self.rows == 0:
+            if not (math.isfinite(fs_hz) and fs_hz > 0 and 0 <= first_index < 2**62):
+                return False  # the reference reads it again, and refuses it
+            self.first_index, self.fs_hz, self.log_time_ns = first_index, fs_hz, message.log_time
+        elif first_index != self.first_index + self.rows or fs_hz != self.fs_hz:
+            return False
+        self.rows += rows
+        return True
+
+    def _copied(self, message: Any, path: str | Path) -> tuple[int, float, int] | None:
+        """``message`` read by the reference into the rows after those held (None: refused,
+        or more rows than the block has left)."""
+        try:
+            batch = _sample_batch(message, path)
+        except RecordingError:
+            return None
+        at, n = self.rows, len(batch)
+        if at + n > self.position.size:
+            return None
+        self.position[at : at + n] = batch.position_rad
+        self.torque[at : at + n] = batch.torque_nm
+        self.valid[at : at + n] = batch.valid
+        self.status[at : at + n] = batch.status
+        return batch.first_index, batch.fs_hz, n
+
+    def batch(self) -> SampleBatch:
+        """The rows held, as views."""
+        n = self.rows
+        return SampleBatch(
+            self.first_index,
+            self.fs_hz,
+            self.position[:n],
+            self.torque[:n],
+            self.valid[:n],
+            self.status[:n],
+            self.log_time_ns,
+        )
+
+
+def _sample_blocks(messages: Iterable[Any], path: str | Path, rows: int) -> Iterator[SampleBatch]:
+    """:func:`iter_sample_batches` in blocks of up to ``rows`` rows: a message that does not
+    continue the block starts the next one; one no block can take (more rows than a block,
+    damage) is read alone, after the block is yielded (a damaged one raises after every
+    sample before it)."""
+    block = _SampleBlock(rows)
+    for message in messages:
+        if block.add(message, path):
+            continue
+        if block.rows:
+            yield block.batch()
+            block = _SampleBlock(rows)
+            if block.add(message, path):
+                continue
+        yield _sample_batch(message, path)
+    if block.rows:
+        yield block.batch()
 
 
 def _sample_batch(message: Any, path: str | Path) -> SampleBatch:

@@ -44,7 +44,9 @@ from rtsid.io.schemas import SampleBatch
 from rtsid.io.summary_table import KINDS, SummaryTable, TableBuilder
 
 __all__ = [
+    "BLOCK_ROWS",
     "SESSION_TOPICS",
+    "GridColumns",
     "RecordedMessages",
     "RecordedTable",
     "Recording",
@@ -93,6 +95,11 @@ def _without_empty_parts(parts: list[Path]) -> list[Path]:
                 stacklevel=3,
             )
     return kept
+
+
+#: A :class:`SampleGrid`'s buffers (position, torque, valid, status) and the sample index of
+#: their row 0 (:meth:`SampleGrid.buffers`).
+GridColumns = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]
 
 
 class SampleGrid:
@@ -200,6 +207,19 @@ class SampleGrid:
         sl = slice(self._lo + start_index - self._first, self._lo + stop_index - self._first)
         return self._position[sl], self._torque[sl], self._valid[sl], self._status[sl]
 
+    def buffers(self) -> GridColumns:
+        """The whole position, torque, valid and status buffers (views, valid until the next
+        append) and the sample index of their row 0: rows ``i − base`` are sample ``i``'s for
+        the samples the grid holds (replay slices each window from them, :meth:`columns`
+        without its call and its checks)."""
+        return (
+            self._position,
+            self._torque,
+            self._valid,
+            self._status,
+            self._first - self._lo,
+        )
+
     def all_rows(self) -> SampleBatch:
         """Every row kept, as views."""
         return self.rows(self.first_index, self.end_index)
@@ -279,13 +299,22 @@ def _kib(n: int) -> str:
     return f"{n / 1024:.1f} KiB"
 
 
-def iter_batches(paths: Paths) -> Iterator[SampleBatch]:
+#: Rows of the blocks a whole-recording read decodes its samples into (replay, read_recording):
+#: about 3 s at 2500 Hz, a dozen logged batches each.
+BLOCK_ROWS = 1 << 13
+
+
+def iter_batches(paths: Paths, *, block_rows: int = 0) -> Iterator[SampleBatch]:
     """Every ``/samples`` batch of the recording, in file order, part after part.
 
     Parameters
     ----------
     paths : path or sequence of paths
         One file, or the parts of a session in order (see :func:`session_parts`).
+    block_rows : int
+        0: the batches as logged; else consecutive batches joined into blocks of up to this
+        many rows (e.g. :data:`BLOCK_ROWS`), decoded in place
+        (:func:`rtsid.io.mcap_read.iter_sample_batches`): the same rows, fewer steps.
 
     Yields
     ------
@@ -304,7 +333,7 @@ def iter_batches(paths: Paths) -> Iterator[SampleBatch]:
     """
     for part in _as_list(paths):
         tally = _Tally(part)
-        for batch in iter_sample_batches(part, tally.report):
+        for batch in iter_sample_batches(part, tally.report, block_rows=block_rows):
             tally.add_batch(batch)
             yield batch
         tally.warn_if_incomplete()
@@ -361,7 +390,7 @@ def read_recording(paths: Paths) -> Recording:
     """
     parts = session_parts(paths)
     grid: SampleGrid | None = None
-    for batch in iter_batches(parts):
+    for batch in iter_batches(parts, block_rows=BLOCK_ROWS):
         if grid is None:
             grid = SampleGrid(batch.first_index, batch.fs_hz, capacity=1 << 16)
         grid.append(batch)

@@ -7,8 +7,11 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from rtsid.errors import InputDataError
+from rtsid.ident.levinson import HAVE_COMPILED_KERNEL
 from rtsid.io.schemas import (
     CAN_FRAMES_SCHEMA,
     ESTIMATE_FIELDS,
@@ -223,8 +226,11 @@ def _in_schema_order(message: dict[str, object]) -> dict[str, object]:
         ({"I": np.float64("nan")}, False),
         ({"lost_samples": np.int64(3)}, False),  # numpy: the reference converts it
         ({"ok": np.bool_(True)}, False),
-        ({"robot": "NaN-robot", "I": 0.012}, False),  # a text the check cannot tell apart
-        ({"robot": "r{1}", "I": 0.012}, False),
+        # a text the numpy path's check cannot tell apart (the compiled encoder writes it)
+        ({"robot": "NaN-robot", "I": 0.012}, HAVE_COMPILED_KERNEL),
+        ({"robot": "r{1}", "I": 0.012}, HAVE_COMPILED_KERNEL),
+        ({"robot": 'a "quoted" ünïcode\trobot', "I": 0.012}, True),  # escaped texts
+        ({"robot": "\ud800\U0001f600\x7f\\", "reason": "\x00"}, True),  # lone surrogate, astral
         ({"flags": [{True: 1}], "I": 0.012}, False),  # json_safe makes the key "True"
         ({"flags": [np.float32(0.5)], "I": 0.012}, False),
     ],
@@ -265,3 +271,40 @@ def test_replayed_estimates_encode_as_the_reference(tmp_path) -> None:
         payload, plain = estimate_payload(message)
         assert payload == encode_estimate_reference(message)
         assert plain is (json.loads(payload) == message)
+
+
+_TEXTS = st.text(max_size=10)  # escapes, non-ASCII, "NaN", braces
+_VALUES = st.one_of(st.none(), st.booleans(), st.integers(-(2**70), 2**70), st.floats(), _TEXTS)
+
+
+@given(
+    st.lists(_VALUES, min_size=len(ESTIMATE_FIELDS), max_size=len(ESTIMATE_FIELDS)),
+    st.lists(_TEXTS, max_size=3),
+    st.one_of(st.none(), _TEXTS),
+)
+def test_any_plain_values_encode_as_the_reference_byte_for_byte(values, flags, reason) -> None:
+    """The compiled encoder writes what it writes as json.dumps does (floats by their repr,
+    huge integers, texts needing no escape) and leaves the rest to the reference."""
+    message = dict(zip(ESTIMATE_FIELDS, values, strict=True))
+    message.update(flags=flags, reason=reason)
+    payload, plain = estimate_payload(message)
+    assert payload == encode_estimate_reference(message)
+    finite = all(not isinstance(v, float) or math.isfinite(v) for v in message.values())
+    if HAVE_COMPILED_KERNEL:  # the compiled path tells every plain message from the rest
+        assert plain is finite
+    if plain:
+        assert json.loads(payload) == message
+
+
+def test_a_worker_message_takes_the_compiled_encoder() -> None:
+    from rtsid.io import schemas
+
+    message = _in_schema_order(make_estimate(I=0.0125, flags=[Flag.REFLEX_STALE], reason=None))
+    compiled = schemas._ESTIMATE_JSON
+    assert (compiled is not None) is HAVE_COMPILED_KERNEL
+    if compiled is not None:
+        assert compiled(message, ESTIMATE_FIELDS, schemas._ESTIMATE_PREFIXES) == (
+            encode_estimate_reference(message)
+        )
+        shuffled = dict(reversed(list(message.items())))
+        assert compiled(shuffled, ESTIMATE_FIELDS, schemas._ESTIMATE_PREFIXES) is None

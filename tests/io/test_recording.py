@@ -191,3 +191,58 @@ def test_a_recovered_file_is_read_as_itself_not_as_its_damaged_original(tmp_path
     defaults.write_text("")
     assert main(["replay", str(recovered), "--config", str(defaults)]) == 0
     assert "ends early" not in capsys.readouterr().err
+
+
+def grid_of(batches) -> SampleBatch:
+    """Every row of ``batches`` on one grid (gaps invalid, overlaps dropped)."""
+    grid: SampleGrid | None = None
+    for b in batches:
+        grid = grid or SampleGrid(b.first_index, b.fs_hz)
+        grid.append(b)
+    assert grid is not None
+    return grid.all_rows()
+
+
+def test_blocks_hold_the_rows_of_the_batches_as_logged(tmp_path):
+    parts = rotated_session(tmp_path)  # batches of 250, batch 7 never logged: a gap
+    logged = list(iter_batches(parts))
+    blocks = list(iter_batches(parts, block_rows=1000))
+    assert len(blocks) < len(logged)  # joined, four batches a block at most
+    assert all(len(b) <= 1000 for b in blocks)
+    # a block never spans the gap: it ends where the next batch as logged begins
+    assert 1750 in [b.end_index for b in blocks] and 2000 in [b.first_index for b in blocks]
+    a, b = grid_of(logged), grid_of(blocks)
+    assert (a.first_index, a.end_index) == (b.first_index, b.end_index)
+    for x, y in zip(
+        (a.position_rad, a.torque_nm, a.valid, a.status),
+        (b.position_rad, b.torque_nm, b.valid, b.status),
+        strict=True,
+    ):
+        assert x.dtype == y.dtype and x.tobytes() == y.tobytes()
+
+
+def test_a_damaged_batch_in_a_block_is_refused_after_the_rows_before_it(tmp_path):
+    from mcap.writer import Writer
+
+    from rtsid.io.mcap_log import register_channels
+    from rtsid.io.schemas import encode_samples
+
+    path = tmp_path / "damaged.mcap"
+    with path.open("wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        channel = register_channels(writer)["samples"]
+        for k in range(6):
+            b = batch(250 * k, 250)
+            data = encode_samples(k * 250, FS_HZ, b.position_rad, b.torque_nm, b.valid, b.status)
+            if k == 4:
+                data = data.replace(b",", b",,", 1)  # not JSON
+            writer.add_message(channel, log_time=k, data=data, publish_time=k)
+        writer.finish()
+    read: list[SampleBatch] = []
+    with pytest.raises(RecordingError, match="a /samples message does not read") as blocks:
+        read.extend(iter_batches(path, block_rows=1 << 13))
+    assert [(b.first_index, len(b)) for b in read] == [(0, 1000)]  # the four before it
+    with pytest.raises(RecordingError) as logged:
+        list(iter_batches(path))
+    assert str(blocks.value) == str(logged.value)

@@ -20,6 +20,7 @@ from rtsid.io.schemas import (
     SampleBatch,
     _decode_compact_samples,
     decode_samples,
+    decode_samples_into,
     decode_samples_json,
     encode_samples,
 )
@@ -39,10 +40,36 @@ def assert_same(a: SampleBatch, b: SampleBatch) -> None:
 
 
 def both(data: bytes) -> SampleBatch:
-    """The batch by decode_samples, checked equal to the reference's."""
+    """The batch by decode_samples, checked equal to the reference's (and to what
+    decode_samples_into writes into a block, after other rows)."""
     batch = decode_samples(data, 7)
     assert_same(batch, decode_samples_json(data, 7))
+    into = decoded_into(data, offset=3)
+    if HAVE_COMPILED_KERNEL:  # the compiled path reads every compact payload into a block
+        assert into is not None
+    if into is not None:
+        assert_same(into, batch)
     return batch
+
+
+def decoded_into(data: bytes, offset: int, spare: int = 5) -> SampleBatch | None:
+    """decode_samples_into's rows of ``data`` at ``offset`` of columns with room for them and
+    ``spare`` more rows (None when it declines); the rows around them are left as they were."""
+    capacity = offset + data.count(b",") + spare  # at least the rows a payload can hold
+    columns = (
+        np.full(capacity, 1.25),
+        np.full(capacity, 2.5),
+        np.ones(capacity, bool),
+        np.full(capacity, 9, np.int64),
+    )
+    done = decode_samples_into(data, *columns, offset)
+    if done is None:
+        return None
+    first_index, fs_hz, rows = done
+    for column, fill in zip(columns, (1.25, 2.5, True, 9), strict=True):
+        assert (column[:offset] == fill).all() and (column[offset + rows :] == fill).all()
+    position, torque, valid, status = (c[offset : offset + rows] for c in columns)
+    return SampleBatch(first_index, fs_hz, position, torque, valid, status, 7)
 
 
 def payload(values: list[str], *, valid: str = "", status: str = "") -> bytes:
@@ -138,6 +165,7 @@ def test_edge_tokens_read_as_json_loads_reads_them(token: str) -> None:
     ],
 )
 def test_other_layouts_are_read_by_the_reference(data: bytes) -> None:
+    assert decoded_into(data, offset=0) is None  # the block reader leaves them to it
     try:
         expected = decode_samples_json(data, 7)
     except (InputDataError, OverflowError) as exc:
@@ -162,6 +190,7 @@ def test_other_layouts_are_read_by_the_reference(data: bytes) -> None:
     ],
 )
 def test_corrupt_payloads_are_refused_as_the_reference_refuses_them(data: bytes) -> None:
+    assert decoded_into(data, offset=2) is None
     with pytest.raises(InputDataError):
         decode_samples_json(data)
     with pytest.raises(InputDataError):
@@ -177,3 +206,14 @@ def test_the_reference_reads_the_compact_layout_with_json_loads() -> None:
     assert batch.valid.tolist() == [True, False]
     assert batch.status.tolist() == [3, 0]
     assert_same(decode_samples(data, 1), batch)
+
+
+@compiled_only
+def test_a_payload_with_more_rows_than_the_block_holds_is_declined() -> None:
+    data = payload(["0.5", "1.5", "2.5"])
+    block = (np.zeros(4), np.zeros(4), np.zeros(4, bool), np.zeros(4, np.int64))
+    assert decode_samples_into(data, *block, 1) == (10, 2500.0, 3)  # rows 1..3 of 4
+    assert block[0].tolist() == [0.0, 0.5, 1.5, 2.5]
+    assert decode_samples_into(data, *block, 2) is None  # rows 2..4: one too many
+    odd = (np.zeros(4), np.zeros(3), np.zeros(4, bool), np.zeros(4, np.int64))
+    assert decode_samples_into(data, *odd, 0) is None  # columns of different lengths

@@ -131,3 +131,27 @@ def test_rows_of_a_column_must_match_the_counts() -> None:
     )
     with pytest.raises(TableError, match="rows for 4 estimate"):
         SummaryTable.from_npz(short.to_npz())
+
+
+def test_estimates_added_at_once_are_the_rows_added_one_by_one() -> None:
+    messages = [
+        estimate(0.3),
+        estimate(0.4, ok=False, reason="gap", K=None, B_held=None, robot="other"),
+        estimate(0.5, K=True, reflex_seq=3, robot=None, joint=7),  # a bool K: a number
+        estimate(0.6, K="100", B=np.float64(0.9), I=10**400, vaf=float("nan")),  # odd values
+        estimate(0.7, reflex_seq=2**63, host_time_ns=True, reason=3, I_held="yes"),
+        {"t_end_s": 0.8},  # keys missing
+    ]
+    one_by_one, at_once = TableBuilder(), TableBuilder()
+    for message in messages:
+        one_by_one.add("estimate", message)
+    at_once.add_estimates(messages[:2])  # in two calls: the texts' codes carry on
+    at_once.add_estimates(messages[2:])
+    a, b = one_by_one.table(), at_once.table()
+    assert a.counts == b.counts
+    assert a.columns.keys() == b.columns.keys()
+    for key, column in a.columns.items():
+        assert column.dtype == b.columns[key].dtype
+        assert column.tobytes() == b.columns[key].tobytes(), key
+    for key in ("robot", "joint", "reason"):
+        assert a.text(key) == b.text(key)
