@@ -1731,6 +1731,8 @@ static PyObject *py_ankle_frames(PyObject *self, PyObject *args); /* socketcand 
 static PyObject *py_reflex_dynamics_fit(PyObject *self, PyObject *args); /* lanesums */
 static PyObject *py_onecall_window(PyObject *self, PyObject *args); /* onecall, end */
 static PyObject *py_tracker_calm(PyObject *self, PyObject *args); /* onecall, end */
+static PyObject *tc_get(PyObject *obj, PyObject *name);       /* winpath, end */
+static int tc_put(PyObject *obj, PyObject *name, PyObject *value); /* winpath, end */
 static PyObject *py_causal_convolve(PyObject *self, PyObject *args); /* lanesums2 */
 
 static PyMethodDef methods[] = {
@@ -3321,7 +3323,7 @@ static int tc_names(void)
 
 static int tc_double(PyObject *obj, PyObject *name, double *out)
 {
-    PyObject *v = PyObject_GetAttr(obj, name);
+    PyObject *v = tc_get(obj, name);
     if (v == NULL) return -1;
     *out = PyFloat_AsDouble(v);
     Py_DECREF(v);
@@ -3332,7 +3334,7 @@ static int tc_set_double(PyObject *obj, PyObject *name, double value)
 {
     PyObject *v = PyFloat_FromDouble(value);
     if (v == NULL) return -1;
-    int status = PyObject_SetAttr(obj, name, v);
+    int status = tc_put(obj, name, v);
     Py_DECREF(v);
     return status;
 }
@@ -3341,14 +3343,14 @@ static int tc_set_long(PyObject *obj, PyObject *name, long value)
 {
     PyObject *v = PyLong_FromLong(value);
     if (v == NULL) return -1;
-    int status = PyObject_SetAttr(obj, name, v);
+    int status = tc_put(obj, name, v);
     Py_DECREF(v);
     return status;
 }
 
 static int tc_truth(PyObject *obj, PyObject *name)
 {
-    PyObject *v = PyObject_GetAttr(obj, name);
+    PyObject *v = tc_get(obj, name);
     if (v == NULL) return -1;
     int truth = PyObject_IsTrue(v);
     Py_DECREF(v);
@@ -3364,7 +3366,7 @@ static int tc_filter(PyObject *f, double dt, double *x, double *steps, PyObject 
         if (tc_double(f, tn_filter[i], &x[i]) < 0) return -1;
     }
     if (!(dt > 0)) return 1; /* predict() does nothing */
-    PyObject *last = PyObject_GetAttr(f, tn[TN_LAST]);
+    PyObject *last = tc_get(f, tn[TN_LAST]);
     if (last == NULL) return -1;
     int ok = 0;
     PyObject *cached = NULL;
@@ -3373,7 +3375,7 @@ static int tc_filter(PyObject *f, double dt, double *x, double *steps, PyObject 
         ok = 1;
         cached = PyTuple_GET_ITEM(last, 1);
     } else if (!PyErr_Occurred()) { /* the intervals seen: _by_dt */
-        PyObject *by_dt = PyObject_GetAttr(f, tn[TN_BY_DT]), *key = PyFloat_FromDouble(dt);
+        PyObject *by_dt = tc_get(f, tn[TN_BY_DT]), *key = PyFloat_FromDouble(dt);
         if (by_dt != NULL && key != NULL && PyDict_Check(by_dt)) {
             cached = PyDict_GetItemWithError(by_dt, key);
             if (cached != NULL) {
@@ -3471,7 +3473,7 @@ static int tc_write_filters(PyObject *all, Py_ssize_t count, double (*x)[TC_FIEL
         }
         if (seen[i] != NULL) { /* predict() remembers the interval: _last = (dt, cached) */
             PyObject *last = Py_BuildValue("(dO)", dt, seen[i]);
-            if (last == NULL || PyObject_SetAttr(f, tn[TN_LAST], last) < 0) {
+            if (last == NULL || tc_put(f, tn[TN_LAST], last) < 0) {
                 Py_XDECREF(last);
                 return -1;
             }
@@ -3538,7 +3540,7 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
         if (tc_double(tr, tn_double[i], &d[i]) < 0) return NULL;
     }
     for (int i = 0; i < TI_INTS; i++) {
-        PyObject *v = PyObject_GetAttr(tr, tn_int[i]);
+        PyObject *v = tc_get(tr, tn_int[i]);
         if (v == NULL) return NULL;
         n[i] = PyLong_AsLong(v);
         Py_DECREF(v);
@@ -3547,7 +3549,7 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
     int splitting = tc_truth(tr, tn[TN_SPLITTING]), trending = tc_truth(tr, tn[TN_TRENDING]);
     if (splitting < 0 || trending < 0) return NULL;
     if (splitting || n[TI_CHANGE] != 0) Py_RETURN_NONE;
-    PyObject *all = PyObject_GetAttr(tr, tn[TN_ALL]);
+    PyObject *all = tc_get(tr, tn[TN_ALL]);
     if (all == NULL) return NULL;
     PyObject *result = NULL, *hop_recent = NULL, *recent = NULL;
     PyObject *new_hop_recent = NULL, *new_recent = NULL, *entry = NULL;
@@ -3571,8 +3573,8 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
     double *quiet = x[0], *trend = x[1], *fast = count == 3 ? x[2] : NULL;
     if (!usable) { /* prediction only: _withheld outside a change mode */
         if (tc_write_filters(all, count, x, seen, dt, 0) < 0 || tc_set_double(tr, tn_double[TS_T], t) < 0 ||
-            PyObject_SetAttr(tr, tn[TN_RECENT], empty_tuple()) < 0 ||
-            PyObject_SetAttr(tr, tn[TN_CANDIDATE], Py_None) < 0) {
+            tc_put(tr, tn[TN_RECENT], empty_tuple()) < 0 ||
+            tc_put(tr, tn[TN_CANDIDATE], Py_None) < 0) {
             goto done;
         }
         result = tc_published(tr, quiet, trend, fast, trending, 0);
@@ -3595,7 +3597,7 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
         fast[TC_LAG] = centre;
         const double hop_var = var * se * se;
         double hr[2][3];
-        hop_recent = PyObject_GetAttr(tr, tn[TN_HOP_RECENT]);
+        hop_recent = tc_get(tr, tn[TN_HOP_RECENT]);
         if (hop_recent == NULL) goto done;
         int nr = tc_recent(hop_recent, hr);
         if (nr < 0) goto declined;
@@ -3631,7 +3633,7 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
     /* _update: _learn_scale, the pre-gate, the gate, _select */
     double scale2 = d[TS_SCALE2];
     double rc[2][3];
-    recent = PyObject_GetAttr(tr, tn[TN_RECENT]);
+    recent = tc_get(tr, tn[TN_RECENT]);
     if (recent == NULL) goto done;
     int nrc = tc_recent(recent, rc);
     if (nrc < 0) goto declined;
@@ -3678,7 +3680,7 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
     entry = Py_BuildValue("(dd)", u, level_before);
     if (new_recent == NULL || entry == NULL) goto done;
     /* calm: write everything back */
-    PyObject *history = PyObject_GetAttr(tr, tn[TN_HISTORY]);
+    PyObject *history = tc_get(tr, tn[TN_HISTORY]);
     if (history == NULL) goto done;
     PyObject *appended = PyObject_CallMethodOneArg(history, tn[TN_APPEND], entry);
     Py_DECREF(history);
@@ -3690,9 +3692,9 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
         tc_set_double(tr, tn[TN_OUTLIER], 0.0) < 0 ||
         tc_set_long(tr, tn_int[TI_UPDATES], n[TI_UPDATES] + 1) < 0 ||
         tc_set_long(tr, tn_int[TI_CALM_AFTER], calm_after - 1) < 0 ||
-        PyObject_SetAttr(tr, tn[TN_TRENDING], trending ? Py_True : Py_False) < 0 ||
-        PyObject_SetAttr(tr, tn[TN_RECENT], new_recent) < 0 ||
-        PyObject_SetAttr(tr, tn[TN_CANDIDATE], Py_None) < 0) {
+        tc_put(tr, tn[TN_TRENDING], trending ? Py_True : Py_False) < 0 ||
+        tc_put(tr, tn[TN_RECENT], new_recent) < 0 ||
+        tc_put(tr, tn[TN_CANDIDATE], Py_None) < 0) {
         goto done;
     }
     if (fast_on >= 0) {
@@ -3700,8 +3702,8 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
             tc_set_double(tr, tn_double[TS_FAST_SCALE2], fast_scale2) < 0 ||
             tc_set_long(tr, tn_int[TI_FAST_SCORED], fast_scored) < 0 ||
             tc_set_long(tr, tn_int[TI_FAST_HOPS], fast_hops) < 0 ||
-            PyObject_SetAttr(tr, tn[TN_FAST_ON], fast_on ? Py_True : Py_False) < 0 ||
-            PyObject_SetAttr(tr, tn[TN_HOP_RECENT], new_hop_recent) < 0) {
+            tc_put(tr, tn[TN_FAST_ON], fast_on ? Py_True : Py_False) < 0 ||
+            tc_put(tr, tn[TN_HOP_RECENT], new_hop_recent) < 0) {
             goto done;
         }
     }
@@ -4096,4 +4098,38 @@ static PyObject *py_causal_convolve(PyObject *self, PyObject *args)
     }
     release_buffers(b, 3);
     return result;
+}
+
+/* ------------------------------------------------------------------ branch winpath (issue 22)
+ * tc_get / tc_put: tracker_calm's reads and writes of the tracker's (and its filters', the
+ * newest part's) attributes through the instance's __dict__, a dictionary lookup with the
+ * interned name instead of getattr's type walk (≈ 60 reads and 30 writes a window). An
+ * attribute found in the instance's dictionary is what getattr returns and what setattr
+ * replaces: the classes (ParameterTracker, _LevelRateFilter, NewestPart) define no data
+ * descriptor of these names. Anything else (no dictionary, a name not in it: a class attribute,
+ * a property) goes through getattr / setattr as before.
+ */
+static PyObject *tc_get(PyObject *obj, PyObject *name)
+{
+    PyObject **dict = _PyObject_GetDictPtr(obj);
+    if (dict != NULL && *dict != NULL) {
+        PyObject *value = PyDict_GetItemWithError(*dict, name);
+        if (value != NULL) {
+            Py_INCREF(value);
+            return value;
+        }
+        if (PyErr_Occurred()) return NULL;
+    }
+    return PyObject_GetAttr(obj, name);
+}
+
+static int tc_put(PyObject *obj, PyObject *name, PyObject *value)
+{
+    PyObject **dict = _PyObject_GetDictPtr(obj);
+    if (dict != NULL && *dict != NULL) {
+        PyObject *old = PyDict_GetItemWithError(*dict, name);
+        if (old != NULL) return PyDict_SetItem(*dict, name, value);
+        if (PyErr_Occurred()) return -1;
+    }
+    return PyObject_SetAttr(obj, name, value);
 }

@@ -361,7 +361,7 @@ class WindowStream:
         assert plan is not None
         window_samples = len(position)  # type: ignore[arg-type]
         call = self._call
-        if call is None or not call.fits(plan, window_samples):
+        if call is None or call.plan is not plan or call.window_samples != window_samples:
             rows = round(self.tracker.hop_s * plan.analysis_fs_hz)
             call = self._call = WindowCall(plan, self.options, window_samples, rows)
             self._design = OutputErrorDesign.formed(
@@ -393,7 +393,8 @@ class WindowStream:
             out[_WHOLE], out[_WHOLE + 1], round(out[_WHOLE + 3], 12) >= options.low_vaf_percent
         )
         newest = None if out[_NEWEST] != out[_NEWEST] else out[_NEWEST : _NEWEST + 3]
-        withhold_unidentifiable(estimate)  # raises, as the step-by-step path
+        if estimate.flags:  # none: nothing to withhold
+            withhold_unidentifiable(estimate)  # raises, as the step-by-step path
         design = self._design
         assert design is not None
         self._split_source = _SplitSource(
