@@ -120,6 +120,10 @@ static double detrend_sloped(const double *x, double *out, Py_ssize_t n, double 
                              int want_slope);
 /* where phase p of n samples in phases of factor starts (detrend_phases, fir_phases) */
 static double centred_squares(Py_ssize_t n);
+/* winpath (section at the end of this file): two detrending loops two lanes at a time */
+static void minus_line(double *out, Py_ssize_t n, double coef, double t);
+static void phase_minus_line(const double *x, Py_ssize_t p, Py_ssize_t n, Py_ssize_t factor,
+                             double sign, double off, double line, double t, double *phase);
 static inline Py_ssize_t phase_start(Py_ssize_t p, Py_ssize_t n, Py_ssize_t factor)
 {
     const Py_ssize_t rest = n % factor;
@@ -517,8 +521,7 @@ static void without_trend(const double *row, double *out, Py_ssize_t n)
         tx += c * t;
     }
     const double coef = tx / centred_squares(n);
-    t = -centre;
-    for (Py_ssize_t i = 0; i < n; i++, t += 1.0) out[i] -= coef * t;
+    minus_line(out, n, coef, -centre);
 }
 
 static Py_ssize_t oe_design(const double *u, const double *y, Py_ssize_t m, double fs,
@@ -3792,11 +3795,7 @@ static double detrend_phases(const double *x, double *out, Py_ssize_t n, double 
     for (Py_ssize_t p = 0; p < factor && p < n; p++) {
         double *phase = out + phase_start(p, n, factor);
         if (kind == 2) {
-            double t = (double)p - centre;
-            const double step = (double)factor;
-            for (Py_ssize_t i = p; i < n; i += factor, t += step) {
-                *phase++ = sign * x[i] - off - line * t;
-            }
+            phase_minus_line(x, p, n, factor, sign, off, line, (double)p - centre, phase);
         } else if (kind == 1) {
             for (Py_ssize_t i = p; i < n; i += factor) *phase++ = sign * x[i] - off;
         } else {
@@ -4132,4 +4131,47 @@ static int tc_put(PyObject *obj, PyObject *name, PyObject *value)
         if (PyErr_Occurred()) return -1;
     }
     return PyObject_SetAttr(obj, name, value);
+}
+
+/* minus_line(out, n, coef, t): out[i] -= coef·(t + i) for i < n, as the scalar loop
+ * `for (...; t += 1.0) out[i] -= coef * t` of without_trend: t steps by 1 between integers or
+ * half-integers, so t + i in either lane is the scalar loop's t exactly, and each lane does the
+ * same multiply and subtract. */
+static void minus_line(double *out, Py_ssize_t n, double coef, double t)
+{
+    Py_ssize_t i = 0;
+#ifdef LANE_PAIRS
+    const lane_pair c = pair_of(coef), two = pair_of(2.0);
+    lane_pair tp = {t, t + 1.0};
+    for (; i + 2 <= n; i += 2, tp += two) {
+        lane_pair v = pair_at(out + i);
+        v -= c * tp;
+        memcpy(out + i, &v, sizeof v);
+    }
+    t += (double)i;
+#endif
+    for (; i < n; i++, t += 1.0) out[i] -= coef * t;
+}
+
+/* phase_minus_line: one phase of detrend_phases' linear detrending, phase[j] = sign·x[i] − off −
+ * line·t for i = p, p + factor, … < n with t stepping by factor from the given t (integers or
+ * half-integers: every t exact, as the scalar loop's), two outputs at a time, each lane the
+ * scalar expression's operations in its order. */
+static void phase_minus_line(const double *x, Py_ssize_t p, Py_ssize_t n, Py_ssize_t factor,
+                             double sign, double off, double line, double t, double *phase)
+{
+    const double step = (double)factor;
+    Py_ssize_t i = p;
+#ifdef LANE_PAIRS
+    const lane_pair sg = pair_of(sign), of = pair_of(off), ln = pair_of(line);
+    const lane_pair two_steps = pair_of(2.0 * step);
+    lane_pair tp = {t, t + step};
+    for (; i + factor < n; i += 2 * factor, tp += two_steps, phase += 2) {
+        const lane_pair v = {x[i], x[i + factor]};
+        const lane_pair out = sg * v - of - ln * tp;
+        memcpy(phase, &out, sizeof out);
+    }
+    memcpy(&t, &tp, sizeof t); /* the next t: the first lane's */
+#endif
+    for (; i < n; i += factor, t += step) *phase++ = sign * x[i] - off - line * t;
 }
