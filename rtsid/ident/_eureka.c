@@ -120,7 +120,9 @@ static double detrend_sloped(const double *x, double *out, Py_ssize_t n, double 
                              int want_slope);
 /* where phase p of n samples in phases of factor starts (detrend_phases, fir_phases) */
 static double centred_squares(Py_ssize_t n);
-/* winpath (section at the end of this file): two detrending loops two lanes at a time */
+/* winpath (section at the end of this file): loops of the window path two lanes at a time */
+static void stencil_rows(const double *u, Py_ssize_t n, double fs, double *d1, double *d2,
+                         double *u0);
 static void minus_line(double *out, Py_ssize_t n, double coef, double t);
 static void phase_minus_line(const double *x, Py_ssize_t p, Py_ssize_t n, Py_ssize_t factor,
                              double sign, double off, double line, double t, double *phase);
@@ -529,16 +531,7 @@ static Py_ssize_t oe_design(const double *u, const double *y, Py_ssize_t m, doub
 {
     const Py_ssize_t n = m - 8;
     double *d2 = regressors, *d1 = regressors + n, *u0 = regressors + 2 * n;
-    for (Py_ssize_t t = 0; t < n; t++) {
-        double a1 = 0.0, a2 = 0.0;
-        for (int s = 0; s < 9; s++) {
-            a1 += u[t + s] * STENCIL_D1[s];
-            a2 += u[t + s] * STENCIL_D2[s];
-        }
-        d1[t] = a1 * fs;
-        d2[t] = a2 * (fs * fs);
-        u0[t] = u[t + 4];
-    }
+    stencil_rows(u, n, fs, d1, d2, u0);
     for (int r = 0; r < 3; r++) without_trend(regressors + r * n, projected + r * n, n);
     without_trend(y + 4, projected + 3 * n, n);
     for (int a = 0; a < 4; a++) {
@@ -4174,4 +4167,40 @@ static void phase_minus_line(const double *x, Py_ssize_t p, Py_ssize_t n, Py_ssi
     memcpy(&t, &tp, sizeof t); /* the next t: the first lane's */
 #endif
     for (; i < n; i += factor, t += step) *phase++ = sign * x[i] - off - line * t;
+}
+
+/* stencil_rows: oe_design's regressor rows, d1[t] = (Σ_s u[t + s]·STENCIL_D1[s])·fs,
+ * d2[t] = (Σ_s u[t + s]·STENCIL_D2[s])·fs², u0[t] = u[t + 4] for t < n, rows t and t + 1 in the
+ * two lanes: each lane sums its s = 0 … 8 in order from 0.0, as the scalar loop. */
+static void stencil_rows(const double *u, Py_ssize_t n, double fs, double *d1, double *d2,
+                         double *u0)
+{
+    Py_ssize_t t = 0;
+#ifdef LANE_PAIRS
+    const lane_pair f1 = pair_of(fs), f2 = pair_of(fs * fs);
+    for (; t + 2 <= n; t += 2) {
+        lane_pair a1 = pair_of(0.0), a2 = pair_of(0.0);
+        for (int s = 0; s < 9; s++) {
+            const lane_pair v = pair_at(u + t + s);
+            a1 += v * pair_of(STENCIL_D1[s]);
+            a2 += v * pair_of(STENCIL_D2[s]);
+        }
+        a1 *= f1;
+        a2 *= f2;
+        memcpy(d1 + t, &a1, sizeof a1);
+        memcpy(d2 + t, &a2, sizeof a2);
+        u0[t] = u[t + 4];
+        u0[t + 1] = u[t + 5];
+    }
+#endif
+    for (; t < n; t++) {
+        double a1 = 0.0, a2 = 0.0;
+        for (int s = 0; s < 9; s++) {
+            a1 += u[t + s] * STENCIL_D1[s];
+            a2 += u[t + s] * STENCIL_D2[s];
+        }
+        d1[t] = a1 * fs;
+        d2[t] = a2 * (fs * fs);
+        u0[t] = u[t + 4];
+    }
 }
