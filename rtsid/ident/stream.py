@@ -210,6 +210,7 @@ class StreamTracker:
 
     def __init__(self, window_s: float, hop_s: float, options: TrackerOptions) -> None:
         self.options = options
+        self._enabled = options.enabled  # read every window
         self.hop_s = hop_s
         self.stiffness = ParameterTracker(
             window_s,
@@ -239,7 +240,7 @@ class StreamTracker:
         """Advance to ``t_end_s`` (s) and take ``estimate`` if it is a measurement;
         ``split`` computes its window's splits of K, ``newest`` is K of its newest hop
         (:mod:`rtsid.ident.split`)."""
-        if not self.options.enabled:
+        if not self._enabled:
             return _NOT_TRACKED
         flags = () if estimate is None else estimate.flags
         if flags and not _NOT_MEASURED.isdisjoint(flags):
@@ -518,9 +519,9 @@ class _SplitSource:
         if self._newest is not False:
             k, var, row = self._newest  # type: ignore[misc]
             _, _, _, plan, window_samples = self._args
-            return built(
-                NewestPart, k=k, var=var, centre_s=row_offsets_s(row, plan, window_samples)
-            )
+            part = _new_record(NewestPart)  # records.built, without its call
+            part.__dict__.update(k=k, var=var, centre_s=row_offsets_s(row, plan, window_samples))
+            return part
         problem = self.problem()
         return None if problem is None else problem.newest(span_s)
 
