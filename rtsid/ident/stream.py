@@ -390,9 +390,7 @@ class WindowStream:
             0,
             _HELD_FLAGS[k],
         )
-        self.held.learn(
-            out[_WHOLE], out[_WHOLE + 1], round(out[_WHOLE + 3], 12) >= options.low_vaf_percent
-        )
+        self.held.learn(out[_WHOLE], out[_WHOLE + 1], _explains(out[_WHOLE + 3], options))
         newest = None if out[_NEWEST] != out[_NEWEST] else out[_NEWEST : _NEWEST + 3]
         if estimate.flags:  # none: nothing to withhold
             withhold_unidentifiable(estimate)  # raises, as the step-by-step path
@@ -475,6 +473,17 @@ class WindowStream:
             result, design, held, plan, window_samples, buffers=self._scan_buffers
         )
         return result
+
+
+def _explains(vaf_percent: float, options: EstimatorOptions) -> bool:
+    """``round(vaf_percent, 12) >= options.low_vaf_percent`` (the full fit's test, as
+    :func:`rtsid.ident.fused.fused_back_end` makes it), rounding only near the threshold:
+    rounding to 12 decimals moves a VAF (≤ 100 %) by less than 1e-9, so farther away the
+    comparison of the unrounded value is the same."""
+    low = options.low_vaf_percent
+    if abs(vaf_percent - low) > 1e-9:
+        return vaf_percent >= low
+    return round(vaf_percent, 12) >= low  # NaN too: False
 
 
 #: Where the kernel writes the back end's values (rtsid.ident.fused) and the call's own.

@@ -153,3 +153,18 @@ def test_held_values_are_one_object_until_a_median_changes():
     second = held.current()
     assert second is not first
     assert (second.inertia, second.damping) == ((0.011 + 0.012) / 2.0, 1.0)
+
+
+def test_the_full_fits_vaf_test_is_the_rounded_comparison():
+    # the stream rounds the full fit's VAF only near low_vaf_percent; elsewhere it compares
+    # the unrounded value, which must decide the same
+    from rtsid.ident.stream import _explains
+    from rtsid.ident.window import EstimatorOptions
+
+    options = EstimatorOptions()
+    low = options.low_vaf_percent
+    rng = np.random.default_rng(7)
+    near = [low + d for d in (-2e-9, -1e-9, -5e-13, -4e-13, 0.0, 4e-13, 5e-13, 1e-9, 2e-9)]
+    values = [*near, *np.nextafter(low, [-np.inf, np.inf]), *rng.uniform(-50, 100, 200)]
+    for value in [*values, float("nan"), 100.0, 0.0]:
+        assert _explains(float(value), options) == (round(float(value), 12) >= low), value
