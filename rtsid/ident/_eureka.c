@@ -2552,7 +2552,11 @@ static void band_smooth(const double *row, const double *r, Py_ssize_t n, Py_ssi
     Py_ssize_t t = 0;
 #ifdef LANE_PAIRS
     /* the padded row, then r mirrored (mirror[lags + e] = r[|e|], kern625) */
-    double *padded = PyMem_RawCalloc((size_t)(n + 4 * lags + 1), sizeof(double));
+    /* winpath: on the stack when it fits (a stream window's always does), zeroed as calloc's */
+    const size_t padded_size = (size_t)(n + 4 * lags + 1);
+    double stack[1024];
+    double *padded = padded_size <= 1024 ? stack : PyMem_RawCalloc(padded_size, sizeof(double));
+    if (padded == stack) memset(stack, 0, sizeof(double) * padded_size);
     if (padded != NULL) {
         memcpy(padded + lags, row, sizeof(double) * (size_t)n);
         double *mirror = padded + n + 2 * lags;
@@ -2584,7 +2588,7 @@ static void band_smooth(const double *row, const double *r, Py_ssize_t n, Py_ssi
             memcpy(smoothed + t + 4, &a2, 16);
             memcpy(smoothed + t + 6, &a3, 16);
         }
-        PyMem_RawFree(padded);
+        if (padded != stack) PyMem_RawFree(padded);
     }
 #endif
     for (; t < n; t++) {
