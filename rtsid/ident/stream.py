@@ -31,7 +31,14 @@ from rtsid.errors import InputDataError, NumericalError, WindowError
 from rtsid.ident.analysis import AnalysisPlan
 from rtsid.ident.assess import assemble_parts, withhold_unidentifiable
 from rtsid.ident.fit import NOT_HELD
-from rtsid.ident.fused import _HELD_FLAGS, _OUT, BackEndBuffers, fusable, fused_back_end
+from rtsid.ident.fused import (
+    _HELD_FLAGS,
+    _OUT,
+    BackEndBuffers,
+    full_fit_explains,
+    fusable,
+    fused_back_end,
+)
 from rtsid.ident.grid import window_ends
 from rtsid.ident.onecall import OUT_LEVEL, WindowCall, one_call_possible
 from rtsid.ident.records import built
@@ -390,7 +397,7 @@ class WindowStream:
             0,
             _HELD_FLAGS[k],
         )
-        self.held.learn(out[_WHOLE], out[_WHOLE + 1], _explains(out[_WHOLE + 3], options))
+        self.held.learn(out[_WHOLE], out[_WHOLE + 1], full_fit_explains(out[_WHOLE + 3], options))
         newest = None if out[_NEWEST] != out[_NEWEST] else out[_NEWEST : _NEWEST + 3]
         if estimate.flags:  # none: nothing to withhold
             withhold_unidentifiable(estimate)  # raises, as the step-by-step path
@@ -473,17 +480,6 @@ class WindowStream:
             result, design, held, plan, window_samples, buffers=self._scan_buffers
         )
         return result
-
-
-def _explains(vaf_percent: float, options: EstimatorOptions) -> bool:
-    """``round(vaf_percent, 12) >= options.low_vaf_percent`` (the full fit's test, as
-    :func:`rtsid.ident.fused.fused_back_end` makes it), rounding only near the threshold:
-    rounding to 12 decimals moves a VAF (≤ 100 %) by less than 1e-9, so farther away the
-    comparison of the unrounded value is the same."""
-    low = options.low_vaf_percent
-    if abs(vaf_percent - low) > 1e-9:
-        return vaf_percent >= low
-    return round(vaf_percent, 12) >= low  # NaN too: False
 
 
 #: Where the kernel writes the back end's values (rtsid.ident.fused) and the call's own.

@@ -156,9 +156,9 @@ def test_held_values_are_one_object_until_a_median_changes():
 
 
 def test_the_full_fits_vaf_test_is_the_rounded_comparison():
-    # the stream rounds the full fit's VAF only near low_vaf_percent; elsewhere it compares
-    # the unrounded value, which must decide the same
-    from rtsid.ident.stream import _explains
+    # the full fit's VAF is rounded only near low_vaf_percent; elsewhere the comparison of
+    # the unrounded value must decide the same
+    from rtsid.ident.fused import full_fit_explains
     from rtsid.ident.window import EstimatorOptions
 
     options = EstimatorOptions()
@@ -167,4 +167,4 @@ def test_the_full_fits_vaf_test_is_the_rounded_comparison():
     near = [low + d for d in (-2e-9, -1e-9, -5e-13, -4e-13, 0.0, 4e-13, 5e-13, 1e-9, 2e-9)]
     values = [*near, *np.nextafter(low, [-np.inf, np.inf]), *rng.uniform(-50, 100, 200)]
     for value in [*values, float("nan"), 100.0, 0.0]:
-        assert _explains(float(value), options) == (round(float(value), 12) >= low), value
+        assert full_fit_explains(float(value), options) == (round(float(value), 12) >= low), value
