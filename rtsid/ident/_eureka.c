@@ -120,6 +120,12 @@ static double detrend_sloped(const double *x, double *out, Py_ssize_t n, double 
                              int want_slope);
 /* where phase p of n samples in phases of factor starts (detrend_phases, fir_phases) */
 static double centred_squares(Py_ssize_t n);
+/* winpath (section at the end of this file): loops of the window path two lanes at a time */
+static void stencil_rows(const double *u, Py_ssize_t n, double fs, double *d1, double *d2,
+                         double *u0);
+static void minus_line(double *out, Py_ssize_t n, double coef, double t);
+static void phase_minus_line(const double *x, Py_ssize_t p, Py_ssize_t n, Py_ssize_t factor,
+                             double sign, double off, double line, double t, double *phase);
 static inline Py_ssize_t phase_start(Py_ssize_t p, Py_ssize_t n, Py_ssize_t factor)
 {
     const Py_ssize_t rest = n % factor;
@@ -517,8 +523,7 @@ static void without_trend(const double *row, double *out, Py_ssize_t n)
         tx += c * t;
     }
     const double coef = tx / centred_squares(n);
-    t = -centre;
-    for (Py_ssize_t i = 0; i < n; i++, t += 1.0) out[i] -= coef * t;
+    minus_line(out, n, coef, -centre);
 }
 
 static Py_ssize_t oe_design(const double *u, const double *y, Py_ssize_t m, double fs,
@@ -526,16 +531,7 @@ static Py_ssize_t oe_design(const double *u, const double *y, Py_ssize_t m, doub
 {
     const Py_ssize_t n = m - 8;
     double *d2 = regressors, *d1 = regressors + n, *u0 = regressors + 2 * n;
-    for (Py_ssize_t t = 0; t < n; t++) {
-        double a1 = 0.0, a2 = 0.0;
-        for (int s = 0; s < 9; s++) {
-            a1 += u[t + s] * STENCIL_D1[s];
-            a2 += u[t + s] * STENCIL_D2[s];
-        }
-        d1[t] = a1 * fs;
-        d2[t] = a2 * (fs * fs);
-        u0[t] = u[t + 4];
-    }
+    stencil_rows(u, n, fs, d1, d2, u0);
     for (int r = 0; r < 3; r++) without_trend(regressors + r * n, projected + r * n, n);
     without_trend(y + 4, projected + 3 * n, n);
     for (int a = 0; a < 4; a++) {
@@ -1731,6 +1727,8 @@ static PyObject *py_ankle_frames(PyObject *self, PyObject *args); /* socketcand 
 static PyObject *py_reflex_dynamics_fit(PyObject *self, PyObject *args); /* lanesums */
 static PyObject *py_onecall_window(PyObject *self, PyObject *args); /* onecall, end */
 static PyObject *py_tracker_calm(PyObject *self, PyObject *args); /* onecall, end */
+static PyObject *tc_get(PyObject *obj, PyObject *name);       /* winpath, end */
+static int tc_put(PyObject *obj, PyObject *name, PyObject *value); /* winpath, end */
 static PyObject *py_causal_convolve(PyObject *self, PyObject *args); /* lanesums2 */
 static PyObject *py_xcorr_lags(PyObject *self, PyObject *args); /* fits4 */
 static PyObject *py_evidence_gains_lanes(PyObject *self, PyObject *args); /* fits4 */
@@ -2564,7 +2562,11 @@ static void band_smooth(const double *row, const double *r, Py_ssize_t n, Py_ssi
     Py_ssize_t t = 0;
 #ifdef LANE_PAIRS
     /* the padded row, then r mirrored (mirror[lags + e] = r[|e|], kern625) */
-    double *padded = PyMem_RawCalloc((size_t)(n + 4 * lags + 1), sizeof(double));
+    /* winpath: on the stack when it fits (a stream window's always does), zeroed as calloc's */
+    const size_t padded_size = (size_t)(n + 4 * lags + 1);
+    double stack[1024];
+    double *padded = padded_size <= 1024 ? stack : PyMem_RawCalloc(padded_size, sizeof(double));
+    if (padded == stack) memset(stack, 0, sizeof(double) * padded_size);
     if (padded != NULL) {
         memcpy(padded + lags, row, sizeof(double) * (size_t)n);
         double *mirror = padded + n + 2 * lags;
@@ -2596,7 +2598,7 @@ static void band_smooth(const double *row, const double *r, Py_ssize_t n, Py_ssi
             memcpy(smoothed + t + 4, &a2, 16);
             memcpy(smoothed + t + 6, &a3, 16);
         }
-        PyMem_RawFree(padded);
+        if (padded != stack) PyMem_RawFree(padded);
     }
 #endif
     for (; t < n; t++) {
@@ -3331,7 +3333,7 @@ static int tc_names(void)
 
 static int tc_double(PyObject *obj, PyObject *name, double *out)
 {
-    PyObject *v = PyObject_GetAttr(obj, name);
+    PyObject *v = tc_get(obj, name);
     if (v == NULL) return -1;
     *out = PyFloat_AsDouble(v);
     Py_DECREF(v);
@@ -3342,7 +3344,7 @@ static int tc_set_double(PyObject *obj, PyObject *name, double value)
 {
     PyObject *v = PyFloat_FromDouble(value);
     if (v == NULL) return -1;
-    int status = PyObject_SetAttr(obj, name, v);
+    int status = tc_put(obj, name, v);
     Py_DECREF(v);
     return status;
 }
@@ -3351,14 +3353,14 @@ static int tc_set_long(PyObject *obj, PyObject *name, long value)
 {
     PyObject *v = PyLong_FromLong(value);
     if (v == NULL) return -1;
-    int status = PyObject_SetAttr(obj, name, v);
+    int status = tc_put(obj, name, v);
     Py_DECREF(v);
     return status;
 }
 
 static int tc_truth(PyObject *obj, PyObject *name)
 {
-    PyObject *v = PyObject_GetAttr(obj, name);
+    PyObject *v = tc_get(obj, name);
     if (v == NULL) return -1;
     int truth = PyObject_IsTrue(v);
     Py_DECREF(v);
@@ -3374,7 +3376,7 @@ static int tc_filter(PyObject *f, double dt, double *x, double *steps, PyObject 
         if (tc_double(f, tn_filter[i], &x[i]) < 0) return -1;
     }
     if (!(dt > 0)) return 1; /* predict() does nothing */
-    PyObject *last = PyObject_GetAttr(f, tn[TN_LAST]);
+    PyObject *last = tc_get(f, tn[TN_LAST]);
     if (last == NULL) return -1;
     int ok = 0;
     PyObject *cached = NULL;
@@ -3383,7 +3385,7 @@ static int tc_filter(PyObject *f, double dt, double *x, double *steps, PyObject 
         ok = 1;
         cached = PyTuple_GET_ITEM(last, 1);
     } else if (!PyErr_Occurred()) { /* the intervals seen: _by_dt */
-        PyObject *by_dt = PyObject_GetAttr(f, tn[TN_BY_DT]), *key = PyFloat_FromDouble(dt);
+        PyObject *by_dt = tc_get(f, tn[TN_BY_DT]), *key = PyFloat_FromDouble(dt);
         if (by_dt != NULL && key != NULL && PyDict_Check(by_dt)) {
             cached = PyDict_GetItemWithError(by_dt, key);
             if (cached != NULL) {
@@ -3481,7 +3483,7 @@ static int tc_write_filters(PyObject *all, Py_ssize_t count, double (*x)[TC_FIEL
         }
         if (seen[i] != NULL) { /* predict() remembers the interval: _last = (dt, cached) */
             PyObject *last = Py_BuildValue("(dO)", dt, seen[i]);
-            if (last == NULL || PyObject_SetAttr(f, tn[TN_LAST], last) < 0) {
+            if (last == NULL || tc_put(f, tn[TN_LAST], last) < 0) {
                 Py_XDECREF(last);
                 return -1;
             }
@@ -3548,7 +3550,7 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
         if (tc_double(tr, tn_double[i], &d[i]) < 0) return NULL;
     }
     for (int i = 0; i < TI_INTS; i++) {
-        PyObject *v = PyObject_GetAttr(tr, tn_int[i]);
+        PyObject *v = tc_get(tr, tn_int[i]);
         if (v == NULL) return NULL;
         n[i] = PyLong_AsLong(v);
         Py_DECREF(v);
@@ -3557,7 +3559,7 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
     int splitting = tc_truth(tr, tn[TN_SPLITTING]), trending = tc_truth(tr, tn[TN_TRENDING]);
     if (splitting < 0 || trending < 0) return NULL;
     if (splitting || n[TI_CHANGE] != 0) Py_RETURN_NONE;
-    PyObject *all = PyObject_GetAttr(tr, tn[TN_ALL]);
+    PyObject *all = tc_get(tr, tn[TN_ALL]);
     if (all == NULL) return NULL;
     PyObject *result = NULL, *hop_recent = NULL, *recent = NULL;
     PyObject *new_hop_recent = NULL, *new_recent = NULL, *entry = NULL;
@@ -3581,8 +3583,8 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
     double *quiet = x[0], *trend = x[1], *fast = count == 3 ? x[2] : NULL;
     if (!usable) { /* prediction only: _withheld outside a change mode */
         if (tc_write_filters(all, count, x, seen, dt, 0) < 0 || tc_set_double(tr, tn_double[TS_T], t) < 0 ||
-            PyObject_SetAttr(tr, tn[TN_RECENT], empty_tuple()) < 0 ||
-            PyObject_SetAttr(tr, tn[TN_CANDIDATE], Py_None) < 0) {
+            tc_put(tr, tn[TN_RECENT], empty_tuple()) < 0 ||
+            tc_put(tr, tn[TN_CANDIDATE], Py_None) < 0) {
             goto done;
         }
         result = tc_published(tr, quiet, trend, fast, trending, 0);
@@ -3605,7 +3607,7 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
         fast[TC_LAG] = centre;
         const double hop_var = var * se * se;
         double hr[2][3];
-        hop_recent = PyObject_GetAttr(tr, tn[TN_HOP_RECENT]);
+        hop_recent = tc_get(tr, tn[TN_HOP_RECENT]);
         if (hop_recent == NULL) goto done;
         int nr = tc_recent(hop_recent, hr);
         if (nr < 0) goto declined;
@@ -3641,7 +3643,7 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
     /* _update: _learn_scale, the pre-gate, the gate, _select */
     double scale2 = d[TS_SCALE2];
     double rc[2][3];
-    recent = PyObject_GetAttr(tr, tn[TN_RECENT]);
+    recent = tc_get(tr, tn[TN_RECENT]);
     if (recent == NULL) goto done;
     int nrc = tc_recent(recent, rc);
     if (nrc < 0) goto declined;
@@ -3688,7 +3690,7 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
     entry = Py_BuildValue("(dd)", u, level_before);
     if (new_recent == NULL || entry == NULL) goto done;
     /* calm: write everything back */
-    PyObject *history = PyObject_GetAttr(tr, tn[TN_HISTORY]);
+    PyObject *history = tc_get(tr, tn[TN_HISTORY]);
     if (history == NULL) goto done;
     PyObject *appended = PyObject_CallMethodOneArg(history, tn[TN_APPEND], entry);
     Py_DECREF(history);
@@ -3700,9 +3702,9 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
         tc_set_double(tr, tn[TN_OUTLIER], 0.0) < 0 ||
         tc_set_long(tr, tn_int[TI_UPDATES], n[TI_UPDATES] + 1) < 0 ||
         tc_set_long(tr, tn_int[TI_CALM_AFTER], calm_after - 1) < 0 ||
-        PyObject_SetAttr(tr, tn[TN_TRENDING], trending ? Py_True : Py_False) < 0 ||
-        PyObject_SetAttr(tr, tn[TN_RECENT], new_recent) < 0 ||
-        PyObject_SetAttr(tr, tn[TN_CANDIDATE], Py_None) < 0) {
+        tc_put(tr, tn[TN_TRENDING], trending ? Py_True : Py_False) < 0 ||
+        tc_put(tr, tn[TN_RECENT], new_recent) < 0 ||
+        tc_put(tr, tn[TN_CANDIDATE], Py_None) < 0) {
         goto done;
     }
     if (fast_on >= 0) {
@@ -3710,8 +3712,8 @@ static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
             tc_set_double(tr, tn_double[TS_FAST_SCALE2], fast_scale2) < 0 ||
             tc_set_long(tr, tn_int[TI_FAST_SCORED], fast_scored) < 0 ||
             tc_set_long(tr, tn_int[TI_FAST_HOPS], fast_hops) < 0 ||
-            PyObject_SetAttr(tr, tn[TN_FAST_ON], fast_on ? Py_True : Py_False) < 0 ||
-            PyObject_SetAttr(tr, tn[TN_HOP_RECENT], new_hop_recent) < 0) {
+            tc_put(tr, tn[TN_FAST_ON], fast_on ? Py_True : Py_False) < 0 ||
+            tc_put(tr, tn[TN_HOP_RECENT], new_hop_recent) < 0) {
             goto done;
         }
     }
@@ -3800,11 +3802,7 @@ static double detrend_phases(const double *x, double *out, Py_ssize_t n, double 
     for (Py_ssize_t p = 0; p < factor && p < n; p++) {
         double *phase = out + phase_start(p, n, factor);
         if (kind == 2) {
-            double t = (double)p - centre;
-            const double step = (double)factor;
-            for (Py_ssize_t i = p; i < n; i += factor, t += step) {
-                *phase++ = sign * x[i] - off - line * t;
-            }
+            phase_minus_line(x, p, n, factor, sign, off, line, (double)p - centre, phase);
         } else if (kind == 1) {
             for (Py_ssize_t i = p; i < n; i += factor) *phase++ = sign * x[i] - off;
         } else {
@@ -4750,4 +4748,131 @@ static PyObject *py_estimate_json(PyObject *self, PyObject *const *args, Py_ssiz
     }
     if (b.p != b.local) PyMem_Free(b.p);
     return result;
+}
+
+/* ------------------------------------------------------------------ branch winpath (issue 22)
+ * tc_get / tc_put: tracker_calm's reads and writes of the tracker's (and its filters', the
+ * newest part's) attributes through the instance's __dict__, a dictionary lookup with the
+ * interned name instead of getattr's type walk (≈ 60 reads and 30 writes a window). An
+ * attribute found in the instance's dictionary is what getattr returns and what setattr
+ * replaces: the classes (ParameterTracker, _LevelRateFilter, NewestPart) define no data
+ * descriptor of these names. Anything else (no dictionary, a name not in it: a class attribute,
+ * a property) goes through getattr / setattr as before.
+ */
+/* The instance's __dict__ (a new reference) by the public PyObject_GenericGetDict, or NULL
+ * (no error set) for an object without one: its attributes then go through getattr/setattr. */
+static PyObject *instance_dict(PyObject *obj)
+{
+    if (Py_TYPE(obj)->tp_dictoffset == 0) return NULL;
+    PyObject *dict = PyObject_GenericGetDict(obj, NULL);
+    if (dict == NULL || !PyDict_Check(dict)) {
+        Py_XDECREF(dict);
+        PyErr_Clear();
+        return NULL;
+    }
+    return dict;
+}
+
+static PyObject *tc_get(PyObject *obj, PyObject *name)
+{
+    PyObject *dict = instance_dict(obj);
+    if (dict != NULL) {
+        PyObject *value = PyDict_GetItemWithError(dict, name);
+        Py_XINCREF(value);
+        Py_DECREF(dict);
+        if (value != NULL) return value;
+        if (PyErr_Occurred()) return NULL;
+    }
+    return PyObject_GetAttr(obj, name);
+}
+
+static int tc_put(PyObject *obj, PyObject *name, PyObject *value)
+{
+    PyObject *dict = instance_dict(obj);
+    if (dict != NULL) {
+        PyObject *old = PyDict_GetItemWithError(dict, name);
+        int done = old != NULL ? PyDict_SetItem(dict, name, value) : (PyErr_Occurred() ? -1 : 1);
+        Py_DECREF(dict);
+        if (done <= 0) return done;
+    }
+    return PyObject_SetAttr(obj, name, value);
+}
+
+/* minus_line(out, n, coef, t): out[i] -= coef·(t + i) for i < n, as the scalar loop
+ * `for (...; t += 1.0) out[i] -= coef * t` of without_trend: t steps by 1 between integers or
+ * half-integers, so t + i in either lane is the scalar loop's t exactly, and each lane does the
+ * same multiply and subtract. */
+static void minus_line(double *out, Py_ssize_t n, double coef, double t)
+{
+    Py_ssize_t i = 0;
+#ifdef LANE_PAIRS
+    const lane_pair c = pair_of(coef), two = pair_of(2.0);
+    lane_pair tp = {t, t + 1.0};
+    for (; i + 2 <= n; i += 2, tp += two) {
+        lane_pair v = pair_at(out + i);
+        v -= c * tp;
+        memcpy(out + i, &v, sizeof v);
+    }
+    t += (double)i;
+#endif
+    for (; i < n; i++, t += 1.0) out[i] -= coef * t;
+}
+
+/* phase_minus_line: one phase of detrend_phases' linear detrending, phase[j] = sign·x[i] − off −
+ * line·t for i = p, p + factor, … < n with t stepping by factor from the given t (integers or
+ * half-integers: every t exact, as the scalar loop's), two outputs at a time, each lane the
+ * scalar expression's operations in its order. */
+static void phase_minus_line(const double *x, Py_ssize_t p, Py_ssize_t n, Py_ssize_t factor,
+                             double sign, double off, double line, double t, double *phase)
+{
+    const double step = (double)factor;
+    Py_ssize_t i = p;
+#ifdef LANE_PAIRS
+    const lane_pair sg = pair_of(sign), of = pair_of(off), ln = pair_of(line);
+    const lane_pair two_steps = pair_of(2.0 * step);
+    lane_pair tp = {t, t + step};
+    for (; i + factor < n; i += 2 * factor, tp += two_steps, phase += 2) {
+        const lane_pair v = {x[i], x[i + factor]};
+        const lane_pair out = sg * v - of - ln * tp;
+        memcpy(phase, &out, sizeof out);
+    }
+    memcpy(&t, &tp, sizeof t); /* the next t: the first lane's */
+#endif
+    for (; i < n; i += factor, t += step) *phase++ = sign * x[i] - off - line * t;
+}
+
+/* stencil_rows: oe_design's regressor rows, d1[t] = (Σ_s u[t + s]·STENCIL_D1[s])·fs,
+ * d2[t] = (Σ_s u[t + s]·STENCIL_D2[s])·fs², u0[t] = u[t + 4] for t < n, rows t and t + 1 in the
+ * two lanes: each lane sums its s = 0 … 8 in order from 0.0, as the scalar loop. */
+static void stencil_rows(const double *u, Py_ssize_t n, double fs, double *d1, double *d2,
+                         double *u0)
+{
+    Py_ssize_t t = 0;
+#ifdef LANE_PAIRS
+    const lane_pair f1 = pair_of(fs), f2 = pair_of(fs * fs);
+    for (; t + 2 <= n; t += 2) {
+        lane_pair a1 = pair_of(0.0), a2 = pair_of(0.0);
+        for (int s = 0; s < 9; s++) {
+            const lane_pair v = pair_at(u + t + s);
+            a1 += v * pair_of(STENCIL_D1[s]);
+            a2 += v * pair_of(STENCIL_D2[s]);
+        }
+        a1 *= f1;
+        a2 *= f2;
+        memcpy(d1 + t, &a1, sizeof a1);
+        memcpy(d2 + t, &a2, sizeof a2);
+        u0[t] = u[t + 4];
+        u0[t + 1] = u[t + 5];
+    }
+#endif
+    for (; t < n; t++) {
+        double a1 = 0.0, a2 = 0.0;
+        for (int s = 0; s < 9; s++) {
+            a1 += u[t + s] * STENCIL_D1[s];
+            a2 += u[t + s] * STENCIL_D2[s];
+        }
+        d1[t] = a1 * fs;
+        d2[t] = a2 * (fs * fs);
+        u0[t] = u[t + 4];
+    }
 }

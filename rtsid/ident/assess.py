@@ -31,7 +31,6 @@ from rtsid.ident.gaps import WindowGaps
 from rtsid.ident.irf import IRF
 from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.options import EstimatorOptions
-from rtsid.ident.records import built
 from rtsid.ident.second_order import OutputErrorFit
 from rtsid.ident.vaf import vaf
 from rtsid.verdicts import Flag, Reason
@@ -357,18 +356,17 @@ def assemble_parts(
     for a caller that has them without an :class:`~rtsid.ident.irf.IRF` (the one compiled
     window call)."""
     inertia, damping, stiffness = float(params[0]), float(params[1]), float(params[2])
-    vaf_model, vaf_irf, vaf_fit = vafs
-    return built(
-        WindowEstimate,
+    estimate = _new_estimate(WindowEstimate)  # records.built, without its call: every field
+    estimate.__dict__.update(
         I=inertia,
         B=damping,
         K=stiffness,
         I_se=se[0],
         B_se=se[1],
         K_se=se[2],
-        vaf=vaf_model,
-        vaf_irf=vaf_irf,
-        vaf_fit=vaf_fit,
+        vaf=vafs[0],
+        vaf_irf=vafs[1],
+        vaf_fit=vafs[2],
         irf=h,
         lags_s=lags_s,
         fs_hz=fs_hz,
@@ -378,6 +376,10 @@ def assemble_parts(
         I_held=held[0],
         B_held=held[1],
     )
+    return estimate
+
+
+_new_estimate = object.__new__
 
 
 _LOW_VAF, _MISMATCH = Flag.LOW_VAF, Flag.MODEL_MISMATCH

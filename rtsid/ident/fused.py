@@ -29,7 +29,7 @@ from rtsid.ident.options import EstimatorOptions
 from rtsid.ident.records import built
 from rtsid.ident.second_order import OutputErrorDesign, inseparable_fit, zero_response
 
-__all__ = ["BackEndBuffers", "FusedWindow", "fusable", "fused_back_end"]
+__all__ = ["BackEndBuffers", "FusedWindow", "full_fit_explains", "fusable", "fused_back_end"]
 
 FloatArray = NDArray[np.float64]
 
@@ -202,7 +202,7 @@ def fused_back_end(
     )
     newest = None if out[z] != out[z] else (out[z], out[z + 1], out[z + 2])
     design = OutputErrorDesign.formed(buf.regressors, buf.projected, buf.gram, y_c)
-    whole_explained = round(out[w + 3], 12) >= options.low_vaf_percent if learn else False
+    whole_explained = full_fit_explains(out[w + 3], options) if learn else False
     return built(
         FusedWindow,
         estimate=estimate,
@@ -242,6 +242,17 @@ def kept_band_table(cos: FloatArray, sin: FloatArray, kmax: int) -> FloatArray:
 def _tableless(*args: Any) -> int:
     """``oe_window`` for a plan whose band table is not kept (its last argument, empty)."""
     return int(_eureka.oe_window(*args[:-1]))
+
+
+def full_fit_explains(vaf_percent: float, options: EstimatorOptions) -> bool:
+    """Whether the full fit explains enough of the window to learn held values from:
+    ``round(vaf_percent, 12) >= options.low_vaf_percent``, rounding only near the threshold
+    (rounding to 12 decimals moves a VAF, ≤ 100 %, by less than 1e-9, so farther away the
+    unrounded value compares the same; the round costs a decimal conversion each window)."""
+    low = options.low_vaf_percent
+    if abs(vaf_percent - low) > 1e-9:
+        return vaf_percent >= low
+    return round(vaf_percent, 12) >= low  # NaN too: False
 
 
 #: Whether I and B were held, by the number of held parameters.

@@ -36,6 +36,7 @@ __all__ = ["OUT_LEVEL", "WindowCall", "one_call_possible"]
 FloatArray = NDArray[np.float64]
 
 _eureka: Any = compiled_kernel()
+_onecall_window: Any = None if _eureka is None else _eureka.onecall_window
 
 _DETREND_CODES = {"none": 0, "mean": 1, "linear": 2}
 
@@ -102,6 +103,8 @@ class WindowCall:
         self.out = np.empty(OUT_LEVEL + 1)
         kmax = band_bins(n, fs_a, band_hz) if n else 0
         self.held = np.zeros(4)  # k, held inertia, held damping, typical level (NaN: none)
+        self._held: Held | None = None  # what self.held holds (None: nothing written yet)
+        self._k = 0  # parameters held
         self.arrays = (
             taps,
             cos,
@@ -130,10 +133,6 @@ class WindowCall:
         consts[12] = newest_rows
         self.consts = np.array(consts, dtype=np.float64)
 
-    def fits(self, plan: AnalysisPlan, window_samples: int) -> bool:
-        """These buffers serve ``plan``'s windows of ``window_samples`` samples."""
-        return plan is self.plan and window_samples == self.window_samples
-
     def __call__(
         self,
         position: Any,
@@ -157,15 +156,17 @@ class WindowCall:
             The stream's typical band-limited level before this window (None: not known).
         """
         state = self.held
-        inertia, damping = held.inertia, held.damping
-        k = 0 if inertia is None else (1 if damping is None else 2)
-        state[0] = k
-        if k:
-            state[1] = inertia
-            state[2] = 0.0 if damping is None else damping
+        if held is not self._held:  # written once for each held value (a stream keeps it)
+            self._held = held
+            inertia, damping = held.inertia, held.damping
+            self._k = k = 0 if inertia is None else (1 if damping is None else 2)
+            state[0] = k
+            if k:
+                state[1] = inertia
+                state[2] = 0.0 if damping is None else damping
         state[3] = np.nan if typical_rad is None else typical_rad
         h = np.empty(self.nh)
-        status = _eureka.onecall_window(
+        status = _onecall_window(
             np.ascontiguousarray(position, dtype=np.float64),
             np.ascontiguousarray(torque, dtype=np.float64),
             None if explained is None else np.ascontiguousarray(explained, dtype=np.float64),
@@ -176,4 +177,4 @@ class WindowCall:
         )
         if status:
             return None
-        return self.out.tolist(), h, k
+        return self.out.tolist(), h, self._k

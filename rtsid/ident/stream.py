@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 from bisect import bisect_left, insort
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,7 +30,15 @@ from numpy.typing import ArrayLike
 from rtsid.errors import InputDataError, NumericalError, WindowError
 from rtsid.ident.analysis import AnalysisPlan
 from rtsid.ident.assess import assemble_parts, withhold_unidentifiable
-from rtsid.ident.fused import _HELD_FLAGS, _OUT, BackEndBuffers, fusable, fused_back_end
+from rtsid.ident.fit import NOT_HELD
+from rtsid.ident.fused import (
+    _HELD_FLAGS,
+    _OUT,
+    BackEndBuffers,
+    full_fit_explains,
+    fusable,
+    fused_back_end,
+)
 from rtsid.ident.grid import window_ends
 from rtsid.ident.onecall import OUT_LEVEL, WindowCall, one_call_possible
 from rtsid.ident.records import built
@@ -132,14 +140,27 @@ class HeldParameters:
         self.hold = hold
         self._inertia = RunningMedian(horizon_windows, min_windows)
         self._damping = RunningMedian(horizon_windows, min_windows)
+        self._current: Held | None = NOT_HELD if hold == "none" else None  # None: to read
 
     def current(self) -> Held:
-        """What the next window holds."""
+        """What the next window holds: the same object until :meth:`learn` changes a median
+        (a caller may key what it derives from it on its identity)."""
+        current = self._current
+        if current is not None:
+            return current
         inertia = self._inertia.median()
-        if self.hold == "none" or inertia is None:
-            return Held()
+        if inertia is None:
+            self._current = NOT_HELD
+            return NOT_HELD
         damping = self._damping.median() if self.hold == "inertia_damping" else None
-        return Held(inertia, damping)
+        previous = self._previous
+        if previous.inertia != inertia or previous.damping != damping:  # NaN: a new one too
+            previous = self._previous = built(Held, inertia=inertia, damping=damping)
+        self._current = previous
+        return previous
+
+    #: The latest learned values read (NOT_HELD: none yet).
+    _previous: Held = NOT_HELD
 
     def learn(self, inertia: float, damping: float, explained: bool) -> None:
         """Add one window's full fit (I, B and K all fitted) to the horizon.
@@ -150,6 +171,7 @@ class HeldParameters:
         """
         if self.hold == "none" or not explained or not inertia > 0:
             return
+        self._current = None  # read again
         self._inertia.add(inertia)
         if damping > 0:
             self._damping.add(damping)
@@ -166,6 +188,7 @@ class Tracked:
     B_se: float
 
 
+_new_record = object.__new__  # records.built's first step
 _UNTRACKED = TrackEstimate(float("nan"), float("nan"), float("nan"), False, False)
 _NOT_TRACKED = Tracked(*(float("nan"),) * 4)
 #: An estimate carrying one of these flags is not a measurement for the tracker.
@@ -194,6 +217,7 @@ class StreamTracker:
 
     def __init__(self, window_s: float, hop_s: float, options: TrackerOptions) -> None:
         self.options = options
+        self._enabled = options.enabled  # read every window
         self.hop_s = hop_s
         self.stiffness = ParameterTracker(
             window_s,
@@ -223,7 +247,7 @@ class StreamTracker:
         """Advance to ``t_end_s`` (s) and take ``estimate`` if it is a measurement;
         ``split`` computes its window's splits of K, ``newest`` is K of its newest hop
         (:mod:`rtsid.ident.split`)."""
-        if not self.options.enabled:
+        if not self._enabled:
             return _NOT_TRACKED
         flags = () if estimate is None else estimate.flags
         if flags and not _NOT_MEASURED.isdisjoint(flags):
@@ -242,8 +266,9 @@ class StreamTracker:
                 b = self.damping.step(t_end_s, estimate.B, estimate.B_se)
             elif self.damping.started:
                 b = self.damping.step(t_end_s)
-        self._latest = built(Tracked, K=k.value, K_se=k.se, B=b.value, B_se=b.se)
-        return self._latest
+        latest = self._latest = _new_record(Tracked)  # records.built, without its call
+        latest.__dict__.update(K=k.value, K_se=k.se, B=b.value, B_se=b.se)
+        return latest
 
 
 class WindowStream:
@@ -295,6 +320,9 @@ class WindowStream:
         self._one_call = one_call_possible(options)  # windows in one compiled call once planned
         self._call: WindowCall | None = None  # its buffers for the plan and window length
         self._design: OutputErrorDesign | None = None  # the design over the call's buffers
+        # the learned values last read and what the window holds with them (held_values)
+        self._learned: Held | None = None
+        self._held_now = NOT_HELD
 
     def track(self, t_end_s: float, estimate: WindowEstimate | None) -> Tracked:
         """Step the tracker with this window (its end time, s; None: withheld), and with the
@@ -341,40 +369,40 @@ class WindowStream:
         assert plan is not None
         window_samples = len(position)  # type: ignore[arg-type]
         call = self._call
-        if call is None or not call.fits(plan, window_samples):
+        if call is None or call.plan is not plan or call.window_samples != window_samples:
             rows = round(self.tracker.hop_s * plan.analysis_fs_hz)
             call = self._call = WindowCall(plan, self.options, window_samples, rows)
             self._design = OutputErrorDesign.formed(
                 call.regressors, call.projected, call.gram, call.y
             )
-        held = held_values(self.options, self.held.current())  # from earlier windows only
-        typical = self.excitation.median()
-        done = call(position, torque, explained, held, typical)
+        learned = self.held.current()  # from earlier windows only
+        if learned is not self._learned:  # what is held follows the learned values
+            self._learned, self._held_now = learned, held_values(self.options, learned)
+        held = self._held_now
+        done = call(position, torque, explained, held, self.excitation.median())
         if done is None:
             return None
         out, h, k = done
         options = self.options
         self.excitation.add(out[_LEVEL])
-        vafs = (round(out[_VAFS], 12), round(out[_VAFS + 1], 12), round(out[_VAFS + 2], 12))
         estimate = assemble_parts(
             h,
             call.lags_s,
             call.fs_hz,
             out[_PARAMS : _PARAMS + 3],
             (out[_SE], out[_SE + 1], out[_SE + 2]),
-            vafs,
+            (round(out[_VAFS], 12), round(out[_VAFS + 1], 12), round(out[_VAFS + 2], 12)),
             "output_error",
             options,
             0,
             _HELD_FLAGS[k],
         )
-        whole = out[_WHOLE + 3]
-        self.held.learn(out[_WHOLE], out[_WHOLE + 1], round(whole, 12) >= options.low_vaf_percent)
-        z = _NEWEST
-        newest = None if out[z] != out[z] else (out[z], out[z + 1], out[z + 2])
+        self.held.learn(out[_WHOLE], out[_WHOLE + 1], full_fit_explains(out[_WHOLE + 3], options))
+        newest = None if out[_NEWEST] != out[_NEWEST] else out[_NEWEST : _NEWEST + 3]
+        if estimate.flags:  # none: nothing to withhold
+            withhold_unidentifiable(estimate)  # raises, as the step-by-step path
         design = self._design
         assert design is not None
-        withhold_unidentifiable(estimate)  # raises, as the step-by-step path
         self._split_source = _SplitSource(
             estimate, design, held, plan, window_samples, newest, self._scan_buffers
         )
@@ -471,7 +499,7 @@ class _SplitSource:
         held: Held,
         plan: AnalysisPlan,
         window_samples: int,
-        newest: tuple[float, float, float] | bool | None = False,
+        newest: Sequence[float] | bool | None = False,
         buffers: ScanBuffers | None = None,
     ) -> None:
         self.estimate = estimate
@@ -496,9 +524,9 @@ class _SplitSource:
         if self._newest is not False:
             k, var, row = self._newest  # type: ignore[misc]
             _, _, _, plan, window_samples = self._args
-            return built(
-                NewestPart, k=k, var=var, centre_s=row_offsets_s(row, plan, window_samples)
-            )
+            part = _new_record(NewestPart)  # records.built, without its call
+            part.__dict__.update(k=k, var=var, centre_s=row_offsets_s(row, plan, window_samples))
+            return part
         problem = self.problem()
         return None if problem is None else problem.newest(span_s)
 
