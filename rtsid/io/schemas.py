@@ -511,46 +511,25 @@ def decode_samples(data: bytes | str, log_time_ns: int = 0) -> SampleBatch:
 
 #: What separates the columns of a compact samples payload, in :func:`encode_samples`'s order.
 _COLUMN_SEPARATORS = (b',"position_rad":[', b'],"torque_nm":[', b'],"valid":[', b'],"status":[')
-#: Each column's kind for the kernel's ``json_array`` and its dtype.
-_COLUMN_KINDS = ((0, np.float64), (0, np.float64), (1, np.bool_), (2, np.int64))
+#: Each column's dtype, in :func:`encode_samples`'s order.
+_COLUMN_DTYPES = (np.float64, np.float64, np.bool_, np.int64)
 
 
 def _decode_compact_samples(data: bytes | str, log_time_ns: int) -> SampleBatch | None:
-    """A payload in :func:`encode_samples`'s exact layout, its columns read by the compiled
-    kernel; None (the caller reads it with ``json.loads``) for anything else, or without the
-    kernel."""
-    kernel = compiled_kernel()
-    if kernel is None or type(data) is not bytes:
+    """A payload in :func:`encode_samples`'s exact layout, read by the compiled kernel into
+    columns of its own (:func:`decode_samples_into`); None (the caller reads it with
+    ``json.loads``) for anything else, or without the kernel."""
+    if _SAMPLES_INTO is None or type(data) is not bytes:
         return None
-    head_end = data.find(_COLUMN_SEPARATORS[0])
-    if head_end < 0:
+    rows = compact_sample_rows(data)
+    if rows is None:
         return None
-    columns: list[np.ndarray] = []
-    stop = head_end
-    rows = -1  # counted in the first column; the kernel refuses a column of another length
-    for separator, (kind, dtype) in zip(_COLUMN_SEPARATORS, _COLUMN_KINDS, strict=True):
-        if not data.startswith(separator, stop):
-            return None
-        start = stop + len(separator)
-        stop = data.find(b"]", start)
-        if stop < 0:
-            return None
-        if rows < 0:
-            rows = data.count(b",", start, stop) + 1 if stop > start else 0
-        column: np.ndarray = np.empty(rows, dtype)
-        try:
-            kernel.json_array(data, start, stop, kind, column)
-        except ValueError:
-            return None
-        columns.append(column)
-    if stop != len(data) - 2 or data[stop + 1 :] != b"}":
-        return None
-    try:
-        head = json.loads(data[:head_end] + b"}")
-        first_index, fs_hz = int(head["first_index"]), float(head["fs_hz"])
-    except (ValueError, KeyError, TypeError, OverflowError, RecursionError):
-        return None
+    columns = tuple(np.empty(rows, dtype) for dtype in _COLUMN_DTYPES)
     position, torque, valid, status = columns
+    done = decode_samples_into(data, position, torque, valid, status, 0)
+    if done is None or done[2] != rows:
+        return None
+    first_index, fs_hz, _ = done
     return SampleBatch(first_index, fs_hz, position, torque, valid, status, int(log_time_ns))
 
 
