@@ -28,13 +28,14 @@ import contextlib
 import gc
 import math
 import os
+import resource
 import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["WAITS", "Miss", "RunQueueClock", "Span", "StallJournal"]
+__all__ = ["WAITS", "Miss", "RunQueueClock", "Span", "StallJournal", "thread_page_faults"]
 
 #: Spans kept (collections and housekeeping steps): minutes of a daemon's life at a 4 ms hop.
 SPANS_KEPT = 8192
@@ -90,6 +91,21 @@ class RunQueueClock:
             os.close(fd)
 
 
+#: ``getrusage``'s per-thread counters (Linux; None elsewhere).
+_RUSAGE_THREAD: int | None = getattr(resource, "RUSAGE_THREAD", None)
+
+
+def thread_page_faults() -> int | None:
+    """Page faults (minor and major) of the calling thread since it started, or None where
+    the platform does not count per thread: a window's faults are kernel time charged to the
+    worker's CPU (a fresh page zeroed, a huge page among them), which its own arithmetic
+    does not explain."""
+    if _RUSAGE_THREAD is None:
+        return None
+    usage = resource.getrusage(_RUSAGE_THREAD)
+    return int(usage.ru_minflt + usage.ru_majflt)
+
+
 @dataclass(frozen=True)
 class Span:
     """Something that ran in the daemon: ``name`` from ``start_s`` to ``end_s``."""
@@ -114,6 +130,7 @@ class Miss:
     overlapped: tuple[Span, ...]
     cpu_ms: float | None = None  # the worker thread's CPU time over the compute span
     cpu_wait_ms: float | None = None  # of the span, runnable but not running (run queue)
+    page_faults: int | None = None  # the worker thread's page faults over the span
 
     @property
     def wall_ms(self) -> float:
@@ -138,6 +155,8 @@ class Miss:
         cpu = "" if self.cpu_ms is None else f" (of it on CPU {self.cpu_ms:.2f} ms"
         if cpu and self.cpu_wait_ms is not None:
             cpu += f", waiting for a CPU {self.cpu_wait_ms:.2f} ms"
+        if cpu and self.page_faults is not None:
+            cpu += f", {self.page_faults} page faults"
         cpu += ")" if cpu else ""
         return (
             f"deadline miss: window ending {self.window_end_index}, compute "
@@ -208,14 +227,16 @@ class StallJournal:
         end_s: float,
         cpu_ms: float | None = None,
         cpu_wait_ms: float | None = None,
+        page_faults: int | None = None,
     ) -> None:
         """A window whose compute ran from ``start_s`` to ``end_s`` (``cpu_ms`` of it on the
-        worker's CPU and ``cpu_wait_ms`` waiting for one, when known) missed its deadline."""
+        worker's CPU, ``cpu_wait_ms`` waiting for one and ``page_faults`` taken by the worker,
+        when known) missed its deadline."""
         running = [Span(f"{name} (still running)", t0, end_s) for name, t0 in self._running_now()]
         overlapped = tuple(
             s for s in [*list(self._spans), *running] if s.end_s >= start_s and s.start_s <= end_s
         )
-        miss = Miss(window_end_index, start_s, end_s, overlapped, cpu_ms, cpu_wait_ms)
+        miss = Miss(window_end_index, start_s, end_s, overlapped, cpu_ms, cpu_wait_ms, page_faults)
         self._misses.append(miss)
         wait = miss.dominant_wait()
         unseen = "nothing seen" if wait is None else f"nothing seen: {wait}"

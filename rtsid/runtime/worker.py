@@ -55,7 +55,7 @@ from rtsid.link.protocol import (
 )
 from rtsid.link.ring import RingBuffer, Snapshot
 from rtsid.runtime.gate import WindowGate
-from rtsid.runtime.stalls import RunQueueClock, StallJournal
+from rtsid.runtime.stalls import RunQueueClock, StallJournal, thread_page_faults
 from rtsid.verdicts import Flag, Reason
 
 __all__ = ["OVERRUN_CAUSES", "WindowWorker", "WorkerConfig", "WorkerCounters", "assess_window"]
@@ -694,7 +694,9 @@ class WindowWorker(ThreadOwner):
             self.gate.window_finished()
 
     def _process_window(self, end_index: int) -> dict[str, Any] | None:
-        queued_ns = self._run_queue.read_ns() if self.stalls is not None else None
+        journal = self.stalls is not None
+        queued_ns = self._run_queue.read_ns() if journal else None
+        faults = thread_page_faults() if journal else None
         started, started_cpu = time.perf_counter(), time.thread_time()
         start = end_index - self.window_samples + 1
         # history before the window, but never before the stream's first sample
@@ -710,5 +712,7 @@ class WindowWorker(ThreadOwner):
             now_ns = self._run_queue.read_ns() if queued_ns is not None else None
             waited_ms = None if now_ns is None or queued_ns is None else 1e-6 * (now_ns - queued_ns)
             cpu_ms = self.evaluator.compute_cpu_ms
-            self.stalls.miss(end_index, started, ended, cpu_ms, waited_ms)
+            now_faults = thread_page_faults() if faults is not None else None
+            taken = None if now_faults is None or faults is None else now_faults - faults
+            self.stalls.miss(end_index, started, ended, cpu_ms, waited_ms, taken)
         return message

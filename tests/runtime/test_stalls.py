@@ -3,10 +3,19 @@
 from __future__ import annotations
 
 import gc
+import mmap
 import os
+import resource
 import time
 
-from rtsid.runtime.stalls import MISS_LINES_PER_MINUTE, RunQueueClock, StallJournal
+import pytest
+
+from rtsid.runtime.stalls import (
+    MISS_LINES_PER_MINUTE,
+    RunQueueClock,
+    StallJournal,
+    thread_page_faults,
+)
 
 
 def test_a_collection_during_a_missed_window_is_named_and_counted():
@@ -95,3 +104,25 @@ def test_the_run_queue_clock_reads_this_threads_waits_for_a_cpu():
     missing = RunQueueClock()
     missing.PATH = "/proc/no such file"  # type: ignore[misc]
     assert missing.read_ns() is None and missing.read_ns() is None
+
+
+@pytest.mark.skipif(not hasattr(resource, "RUSAGE_THREAD"), reason="per-thread counts: Linux")
+def test_thread_page_faults_count_the_pages_this_thread_touches_first():
+    before = thread_page_faults()
+    pages = mmap.mmap(-1, 256 * mmap.PAGESIZE)  # anonymous: each page faulted on first write
+    try:
+        for page in range(256):
+            pages[page * mmap.PAGESIZE] = 1
+        after = thread_page_faults()
+    finally:
+        pages.close()
+    assert before is not None and after is not None
+    assert after - before >= 256
+
+
+def test_a_miss_line_names_the_page_faults_the_worker_took():
+    journal = StallJournal()
+    far = time.perf_counter() + 1e3
+    journal.miss(7, far, far + 0.006, cpu_ms=3.8, cpu_wait_ms=0.0, page_faults=412)
+    (miss,) = journal.drain_misses()
+    assert "(of it on CPU 3.80 ms, waiting for a CPU 0.00 ms, 412 page faults)" in miss.describe()

@@ -1,4 +1,5 @@
 import os
+import resource
 import sys
 import time
 
@@ -158,7 +159,10 @@ def test_a_miss_is_set_against_the_stall_journal():
     assert f"(of it on CPU {first.cpu_ms:.2f} ms" in first.describe()
     if os.path.exists(RunQueueClock.PATH):  # Linux: the run-queue wait over the window too
         assert first.cpu_wait_ms is not None and 0.0 <= first.cpu_wait_ms
-        assert f"waiting for a CPU {first.cpu_wait_ms:.2f} ms)" in first.describe()
+        assert f"waiting for a CPU {first.cpu_wait_ms:.2f} ms" in first.describe()
+    if hasattr(resource, "RUSAGE_THREAD"):  # Linux: the worker's page faults over the window
+        assert first.page_faults is not None and 0 <= first.page_faults
+        assert f", {first.page_faults} page faults)" in first.describe()
 
 
 def test_thread_starts_at_the_newest_window_then_reports_stale(wait_for):
