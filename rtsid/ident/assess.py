@@ -31,6 +31,7 @@ from rtsid.ident.gaps import WindowGaps
 from rtsid.ident.irf import IRF
 from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.options import EstimatorOptions
+from rtsid.ident.records import built
 from rtsid.ident.second_order import OutputErrorFit
 from rtsid.ident.vaf import vaf
 from rtsid.verdicts import Flag, Reason
@@ -356,8 +357,8 @@ def assemble_parts(
     for a caller that has them without an :class:`~rtsid.ident.irf.IRF` (the one compiled
     window call)."""
     inertia, damping, stiffness = float(params[0]), float(params[1]), float(params[2])
-    estimate = _new_estimate(WindowEstimate)  # records.built, without its call: every field
-    estimate.__dict__.update(
+    return built(
+        WindowEstimate,
         I=inertia,
         B=damping,
         K=stiffness,
@@ -376,10 +377,6 @@ def assemble_parts(
         I_held=held[0],
         B_held=held[1],
     )
-    return estimate
-
-
-_new_estimate = object.__new__
 
 
 _LOW_VAF, _MISMATCH = Flag.LOW_VAF, Flag.MODEL_MISMATCH

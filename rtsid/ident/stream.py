@@ -188,7 +188,6 @@ class Tracked:
     B_se: float
 
 
-_new_record = object.__new__  # records.built's first step
 _UNTRACKED = TrackEstimate(float("nan"), float("nan"), float("nan"), False, False)
 _NOT_TRACKED = Tracked(*(float("nan"),) * 4)
 #: An estimate carrying one of these flags is not a measurement for the tracker.
@@ -266,9 +265,8 @@ class StreamTracker:
                 b = self.damping.step(t_end_s, estimate.B, estimate.B_se)
             elif self.damping.started:
                 b = self.damping.step(t_end_s)
-        latest = self._latest = _new_record(Tracked)  # records.built, without its call
-        latest.__dict__.update(K=k.value, K_se=k.se, B=b.value, B_se=b.se)
-        return latest
+        self._latest = built(Tracked, K=k.value, K_se=k.se, B=b.value, B_se=b.se)
+        return self._latest
 
 
 class WindowStream:
@@ -524,9 +522,9 @@ class _SplitSource:
         if self._newest is not False:
             k, var, row = self._newest  # type: ignore[misc]
             _, _, _, plan, window_samples = self._args
-            part = _new_record(NewestPart)  # records.built, without its call
-            part.__dict__.update(k=k, var=var, centre_s=row_offsets_s(row, plan, window_samples))
-            return part
+            return built(
+                NewestPart, k=k, var=var, centre_s=row_offsets_s(row, plan, window_samples)
+            )
         problem = self.problem()
         return None if problem is None else problem.newest(span_s)
 

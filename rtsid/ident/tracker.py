@@ -137,7 +137,6 @@ from rtsid.ident.records import built
 from rtsid.ident.split import NewestPart, SplitScan
 
 _eureka: Any = compiled_kernel()
-_new_record = object.__new__  # records.built's first step
 
 #: Memory of the filters' likelihood-ratio CUSUM, s.
 SWITCH_MEMORY_S = 1.0
@@ -502,11 +501,15 @@ class ParameterTracker:
             calm = _eureka.tracker_calm(self, t_s, z, se, newest, split)
             if calm is not None:
                 value, se_now, rate, mode, updated = calm
-                track = _new_record(TrackEstimate)  # records.built, without its call
-                track.__dict__.update(
-                    value=value, se=se_now, rate=rate, updated=updated, change=False, mode=mode
+                return built(
+                    TrackEstimate,
+                    value=value,
+                    se=se_now,
+                    rate=rate,
+                    updated=updated,
+                    change=False,
+                    mode=mode,
                 )
-                return track
         usable = (
             z is not None and se is not None and math.isfinite(z) and se > 0 and math.isfinite(se)
         )
