@@ -11,6 +11,7 @@ import pytest
 from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.stream import HeldParameters, StreamTracker
 from rtsid.ident.tracker import TrackerOptions
+from tests.ident.test_window_kernels import _one_output_at_a_time as _fir
 
 _D1 = [1 / 280, -4 / 105, 1 / 5, -4 / 5, 0.0, 4 / 5, -1 / 5, 4 / 105, -1 / 280]
 _D2 = [-1 / 560, 8 / 315, -1 / 5, 8 / 5, -205 / 72, 8 / 5, -1 / 5, 8 / 315, -1 / 560]
@@ -87,18 +88,6 @@ def _linear_detrended(x: list[float], sign: float) -> list[float]:
     slope = tx / _centred_squares(n)
     mean /= n
     return [sign * v - mean - slope * (i - centre) for i, v in enumerate(x)]
-
-
-def _fir(x: list[float], taps: list[float], factor: int) -> list[float]:
-    """fir_decimate's loop: out[k] = Σ_j taps[j]·x[k·factor + T − 1 − j], j ascending."""
-    nt, m = len(taps), (len(x) - len(taps)) // factor + 1
-    out = []
-    for k in range(m):
-        acc = 0.0
-        for j in range(nt):
-            acc += taps[j] * x[k * factor + nt - 1 - j]
-        out.append(acc)
-    return out
 
 
 @compiled
