@@ -13,7 +13,6 @@ cut short replays to its last complete message with a warning saying how much wa
 from __future__ import annotations
 
 import bisect
-import json
 import math
 import time
 import warnings
@@ -653,18 +652,22 @@ def write_estimates_mcap(
     fs = config.link.fs_hz
     for fit in reflex:  # logged at the sample time from which it applies
         put("reflex", fit["applies_from_index"] / fs, encode_json(fit), fit["seq"])
-    estimates, add = channels["estimate"], writer.add_message
-    rows: list[Mapping[str, Any]] = []  # the summary table's, added at once
+    estimates, count = channels["estimate"], 0
+    rows: list[Mapping[str, Any]] = []  # the summary table's, added together
     for message in messages:
         data, plain = estimate_payload(message)
-        t = int(message["t_end_s"] * 1e9)  # as _add_message
-        add(estimates, t, data, t, message["seq"])  # channel, log, data, publish, sequence
-        # a plain payload decodes to the message's values: no json.loads of it
-        rows.append(message if plain else json.loads(data))
+        _add_message(writer, estimates, message["t_end_s"], data, message["seq"])
+        count += 1
+        if plain:  # the payload decodes to the message's values: no json.loads of it
+            rows.append(message)
+        else:  # the table reads it as written (rows before it first: the table keeps order)
+            table.add_estimates(rows)
+            rows.clear()
+            table.add_payload("estimate", data)
     table.add_estimates(rows)
     attach_table(writer, table)
     writer.finish()
-    return len(rows)
+    return count
 
 
 def _add_message(writer: Any, channel: int, t_s: float, data: bytes, seq: int) -> None:
