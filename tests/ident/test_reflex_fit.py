@@ -121,7 +121,9 @@ def test_the_compiled_dynamics_fit_reaches_the_numpy_solvers_optimum(seed):
 
 
 @pytest.mark.parametrize("compiled", [True, False])
-@pytest.mark.parametrize(("rows", "n", "factor"), [(3, 20_000, 25), (1, 5_001, 10), (6, 600, 2)])
+@pytest.mark.parametrize(
+    ("rows", "n", "factor"), [(3, 20_000, 25), (1, 5_001, 10), (6, 600, 2), (2, 5_003, 25)]
+)
 def test_rows_decimated_together_are_scipys_decimate_of_each_bit_for_bit(
     rows, n, factor, compiled, monkeypatch
 ):
@@ -135,7 +137,7 @@ def test_rows_decimated_together_are_scipys_decimate_of_each_bit_for_bit(
 
 
 @pytest.mark.parametrize("compiled", [True, False])
-@pytest.mark.parametrize(("rows", "n"), [(4, 7_000), (3, 2_500), (1, 40)])
+@pytest.mark.parametrize(("rows", "n"), [(4, 7_000), (3, 2_500), (1, 40), (5, 1_003), (7, 2_502)])
 def test_zero_phase_rows_is_scipys_sosfiltfilt_of_each_row_bit_for_bit(
     rows, n, compiled, monkeypatch
 ):
