@@ -188,6 +188,16 @@ def test_the_stretch_velocity_is_the_window_paths_first_derivative():
         reflex.stretch_velocity(np.zeros(8), 2500.0)
 
 
+def test_the_stretch_velocitys_ends_are_numpys_gradient_bit_for_bit():
+    rng = np.random.default_rng(5)
+    for _ in range(500):
+        x = rng.standard_normal(10).cumsum() * 10.0 ** rng.uniform(-6, 2)
+        dt = 1.0 / float(rng.choice([100.0, 1000.0, 2500.0, 2999.0]))
+        head, tail = reflex._gradient_ends(x[:5].tolist(), x[-5:].tolist(), dt)
+        np.testing.assert_array_equal(head, np.gradient(x[:5], dt, edge_order=2)[:4])
+        np.testing.assert_array_equal(tail, np.gradient(x[-5:], dt, edge_order=2)[-4:])
+
+
 @pytest.mark.parametrize("n", [9, 10, 300, 50_001])
 def test_the_compiled_stencil_velocity_is_numpys_correlation_bit_for_bit(n):
     from rtsid.ident import filters
