@@ -38,7 +38,6 @@ from dataclasses import dataclass, field
 from functools import cached_property, lru_cache
 
 import numpy as np
-from numpy.lib.stride_tricks import as_strided
 from numpy.typing import ArrayLike, NDArray
 
 from rtsid.errors import InputDataError
@@ -574,10 +573,9 @@ class _Residue:
             placed[self.rows, np.arange(self.delays.size)] = g[:, None]
             return placed
         first, by_lag, by_delay, _ = strides
-        flat = placed.reshape(-1)[first:]
-        step = flat.itemsize
-        shape = (g.size, self.delays.size)
-        as_strided(flat, shape, (by_lag * step, by_delay * step))[...] = g[:, None]
+        step = placed.itemsize  # a view of the lags' entries (numpy checks it lies within)
+        shape, steps = (g.size, self.delays.size), (by_lag * step, by_delay * step)
+        np.ndarray(shape, np.float64, placed, first * step, steps)[...] = g[:, None]
         return placed
 
 
