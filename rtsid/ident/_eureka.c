@@ -4872,70 +4872,72 @@ static void stencil_rows(const double *u, Py_ssize_t n, double fs, double *d1, d
  * buffer a 4 × 4 block at a time (four vector loads, eight shuffles, four vector stores)
  * instead of one double per lane and step. Copies only: the same numbers bit for bit.
  */
+#define FITS5_LANES 4 /* the lanes of fits3's lanes_t */
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
+#define FITS5_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define FITS5_CLONES
+#endif
 #if defined(__GNUC__) && !defined(__clang__)
-typedef long long lanes_mask_t __attribute__((vector_size(8 * LANES)));
-/* The 4 × 4 block whose rows are a, b, c, d, transposed into out[0..3]. */
-static inline __attribute__((always_inline)) void lanes_transpose(lanes_t a, lanes_t b, lanes_t c,
-                                                                  lanes_t d, lanes_t *out)
+typedef long long lanes_mask_t __attribute__((vector_size(8 * FITS5_LANES)));
+/* The 4 × 4 block whose rows are in[0..3], transposed into out[0..3]. */
+static inline __attribute__((always_inline)) void lanes_transpose(const lanes_t *in, lanes_t *out)
 {
     const lanes_mask_t even = {0, 4, 2, 6}, odd = {1, 5, 3, 7};
     const lanes_mask_t low = {0, 1, 4, 5}, high = {2, 3, 6, 7};
-    const lanes_t ab0 = __builtin_shuffle(a, b, even), ab1 = __builtin_shuffle(a, b, odd);
-    const lanes_t cd0 = __builtin_shuffle(c, d, even), cd1 = __builtin_shuffle(c, d, odd);
+    const lanes_t ab0 = __builtin_shuffle(in[0], in[1], even);
+    const lanes_t ab1 = __builtin_shuffle(in[0], in[1], odd);
+    const lanes_t cd0 = __builtin_shuffle(in[2], in[3], even);
+    const lanes_t cd1 = __builtin_shuffle(in[2], in[3], odd);
     out[0] = __builtin_shuffle(ab0, cd0, low);
     out[1] = __builtin_shuffle(ab1, cd1, low);
     out[2] = __builtin_shuffle(ab0, cd0, high);
     out[3] = __builtin_shuffle(ab1, cd1, high);
 }
-#define LANES_BLOCKS 1
+#define FITS5_BLOCKS 1
 #endif
 
-static inline lanes_t lanes_load(const double *p)
-{
-    lanes_t v;
-    memcpy(&v, p, sizeof v);
-    return v;
-}
-
-/* lanes_extend: scipy's odd extension of the rows row[0..LANES-1] (n samples each) into buf,
+/* lanes_extend: scipy's odd extension of the rows row[0..3] (n samples each) into buf,
  * interleaved (lane q of buf[i] from row q): 2·x[0] − x[e − j] before, x, then
  * 2·x[n−1] − x[n−2−j] after; the interior copied a block at a time. */
-LANES_CLONES static void lanes_extend(const double *const *row, Py_ssize_t n, Py_ssize_t e,
+FITS5_CLONES static void lanes_extend(const double *const *row, Py_ssize_t n, Py_ssize_t e,
                                       lanes_t *buf)
 {
     Py_ssize_t i = 0;
-#ifdef LANES_BLOCKS
-    for (; i + LANES <= n; i += LANES)
-        lanes_transpose(lanes_load(row[0] + i), lanes_load(row[1] + i), lanes_load(row[2] + i),
-                        lanes_load(row[3] + i), buf + e + i);
+#ifdef FITS5_BLOCKS
+    lanes_t block[FITS5_LANES];
+    for (; i + FITS5_LANES <= n; i += FITS5_LANES) {
+        for (int q = 0; q < FITS5_LANES; q++) memcpy(&block[q], row[q] + i, sizeof block[q]);
+        lanes_transpose(block, buf + e + i);
+    }
 #endif
-    for (int q = 0; q < LANES; q++) {
+    for (int q = 0; q < FITS5_LANES; q++) {
         const double *x = row[q];
         double *lane = (double *)buf + q;
         const double first = 2.0 * x[0], last = 2.0 * x[n - 1];
-        for (Py_ssize_t j = 0; j < e; j++) lane[LANES * j] = first - x[e - j];
-        for (Py_ssize_t k = i; k < n; k++) lane[LANES * (e + k)] = x[k];
-        for (Py_ssize_t j = 0; j < e; j++) lane[LANES * (e + n + j)] = last - x[n - 2 - j];
+        for (Py_ssize_t j = 0; j < e; j++) lane[FITS5_LANES * j] = first - x[e - j];
+        for (Py_ssize_t k = i; k < n; k++) lane[FITS5_LANES * (e + k)] = x[k];
+        for (Py_ssize_t j = 0; j < e; j++) lane[FITS5_LANES * (e + n + j)] = last - x[n - 2 - j];
     }
 }
 
 /* lanes_read_out: lane q of buf[factor·k] into out[q][k] for k < kept (rows repeated in a short
  * last group are written twice, with the same values); with factor 1 a block at a time. */
-LANES_CLONES static void lanes_read_out(const lanes_t *buf, Py_ssize_t kept, Py_ssize_t factor,
+FITS5_CLONES static void lanes_read_out(const lanes_t *buf, Py_ssize_t kept, Py_ssize_t factor,
                                         double *const *out)
 {
     Py_ssize_t k = 0;
-#ifdef LANES_BLOCKS
+#ifdef FITS5_BLOCKS
     if (factor == 1) {
-        lanes_t block[LANES];
-        for (; k + LANES <= kept; k += LANES) {
-            lanes_transpose(buf[k], buf[k + 1], buf[k + 2], buf[k + 3], block);
-            for (int q = 0; q < LANES; q++) memcpy(out[q] + k, &block[q], sizeof block[q]);
+        lanes_t block[FITS5_LANES];
+        for (; k + FITS5_LANES <= kept; k += FITS5_LANES) {
+            lanes_transpose(buf + k, block);
+            for (int q = 0; q < FITS5_LANES; q++) memcpy(out[q] + k, &block[q], sizeof block[q]);
         }
     }
 #endif
     for (; k < kept; k++) {
         const lanes_t v = buf[k * factor];
-        for (int q = 0; q < LANES; q++) out[q][k] = v[q];
+        for (int q = 0; q < FITS5_LANES; q++) out[q][k] = v[q];
     }
 }
