@@ -4880,20 +4880,22 @@ static void stencil_rows(const double *u, Py_ssize_t n, double fs, double *d1, d
 #endif
 #if defined(__GNUC__) && !defined(__clang__)
 typedef long long lanes_mask_t __attribute__((vector_size(8 * FITS5_LANES)));
-/* The 4 × 4 block whose rows are in[0..3], transposed into out[0..3]. */
-static inline __attribute__((always_inline)) void lanes_transpose(const lanes_t *in, lanes_t *out)
+/* The 4 × 4 block whose rows are a, b, c, d, transposed into out[0..3]. */
+static inline __attribute__((always_inline)) void lanes_transpose(lanes_t a, lanes_t b, lanes_t c,
+                                                                  lanes_t d, lanes_t *out)
 {
     const lanes_mask_t even = {0, 4, 2, 6}, odd = {1, 5, 3, 7};
     const lanes_mask_t low = {0, 1, 4, 5}, high = {2, 3, 6, 7};
-    const lanes_t ab0 = __builtin_shuffle(in[0], in[1], even);
-    const lanes_t ab1 = __builtin_shuffle(in[0], in[1], odd);
-    const lanes_t cd0 = __builtin_shuffle(in[2], in[3], even);
-    const lanes_t cd1 = __builtin_shuffle(in[2], in[3], odd);
+    const lanes_t ab0 = __builtin_shuffle(a, b, even), ab1 = __builtin_shuffle(a, b, odd);
+    const lanes_t cd0 = __builtin_shuffle(c, d, even), cd1 = __builtin_shuffle(c, d, odd);
     out[0] = __builtin_shuffle(ab0, cd0, low);
     out[1] = __builtin_shuffle(ab1, cd1, low);
     out[2] = __builtin_shuffle(ab0, cd0, high);
     out[3] = __builtin_shuffle(ab1, cd1, high);
 }
+
+/* Four doubles at p (any alignment). */
+#define LANES_AT(v, p) memcpy(&(v), (p), sizeof(v))
 #define FITS5_BLOCKS 1
 #endif
 
@@ -4905,10 +4907,14 @@ FITS5_CLONES static void lanes_extend(const double *const *row, Py_ssize_t n, Py
 {
     Py_ssize_t i = 0;
 #ifdef FITS5_BLOCKS
-    lanes_t block[FITS5_LANES];
+    const double *r0 = row[0], *r1 = row[1], *r2 = row[2], *r3 = row[3];
     for (; i + FITS5_LANES <= n; i += FITS5_LANES) {
-        for (int q = 0; q < FITS5_LANES; q++) memcpy(&block[q], row[q] + i, sizeof block[q]);
-        lanes_transpose(block, buf + e + i);
+        lanes_t a, b, c, d;
+        LANES_AT(a, r0 + i);
+        LANES_AT(b, r1 + i);
+        LANES_AT(c, r2 + i);
+        LANES_AT(d, r3 + i);
+        lanes_transpose(a, b, c, d, buf + e + i);
     }
 #endif
     for (int q = 0; q < FITS5_LANES; q++) {
@@ -4929,10 +4935,14 @@ FITS5_CLONES static void lanes_read_out(const lanes_t *buf, Py_ssize_t kept, Py_
     Py_ssize_t k = 0;
 #ifdef FITS5_BLOCKS
     if (factor == 1) {
-        lanes_t block[FITS5_LANES];
+        double *o0 = out[0], *o1 = out[1], *o2 = out[2], *o3 = out[3];
         for (; k + FITS5_LANES <= kept; k += FITS5_LANES) {
-            lanes_transpose(buf + k, block);
-            for (int q = 0; q < FITS5_LANES; q++) memcpy(out[q] + k, &block[q], sizeof block[q]);
+            lanes_t block[FITS5_LANES];
+            lanes_transpose(buf[k], buf[k + 1], buf[k + 2], buf[k + 3], block);
+            memcpy(o0 + k, &block[0], sizeof block[0]);
+            memcpy(o1 + k, &block[1], sizeof block[1]);
+            memcpy(o2 + k, &block[2], sizeof block[2]);
+            memcpy(o3 + k, &block[3], sizeof block[3]);
         }
     }
 #endif
