@@ -2242,19 +2242,10 @@ LANES_CLONES static void lanes_filtfilt_any(const double *sos, const double *zi,
         lanes_filtfilt(sos, zi, ns, buf, m);
 }
 
-/* scipy's odd extension of the rows row[0..LANES-1] (n samples each) into buf, interleaved:
- * 2·x[0] − x[edge − j] before, x, then 2·x[n−1] − x[n−2−j] after. */
-static void lanes_extend(const double *const *row, Py_ssize_t n, Py_ssize_t e, lanes_t *buf)
-{
-    for (int q = 0; q < LANES; q++) {
-        const double *x = row[q];
-        double *lane = (double *)buf + q;
-        const double first = 2.0 * x[0], last = 2.0 * x[n - 1];
-        for (Py_ssize_t j = 0; j < e; j++) lane[LANES * j] = first - x[e - j];
-        for (Py_ssize_t i = 0; i < n; i++) lane[LANES * (e + i)] = x[i];
-        for (Py_ssize_t j = 0; j < e; j++) lane[LANES * (e + n + j)] = last - x[n - 2 - j];
-    }
-}
+/* fits5 (section at the end of this file): the rows into and out of the interleaved buffer */
+static void lanes_extend(const double *const *row, Py_ssize_t n, Py_ssize_t e, lanes_t *buf);
+static void lanes_read_out(const lanes_t *buf, Py_ssize_t kept, Py_ssize_t factor,
+                           double *const *out);
 
 /* The rows of a sequence of float64 arrays of n samples each: their buffers (rows[r].buf),
  * or NULL with an error set (a row not a contiguous float64 array of n samples). */
@@ -2314,10 +2305,9 @@ static PyObject *py_zero_phase_rows(PyObject *self, PyObject *args)
             }
             lanes_extend(row, n, edge, buf);
             lanes_filtfilt_any(b[0].buf, b[1].buf, (int)ns, buf, n + 2 * edge);
-            for (Py_ssize_t k = 0; k < kept; k++) {
-                const lanes_t v = buf[edge + k * factor];
-                for (int q = 0; q < LANES; q++) out[at[q] * kept + k] = v[q];
-            }
+            double *rows_out[LANES];
+            for (int q = 0; q < LANES; q++) rows_out[q] = out + at[q] * kept;
+            lanes_read_out(buf + edge, kept, factor, rows_out);
         }
         Py_INCREF(Py_None);
         result = Py_None;
@@ -4874,5 +4864,90 @@ static void stencil_rows(const double *u, Py_ssize_t n, double fs, double *d1, d
         d1[t] = a1 * fs;
         d2[t] = a2 * (fs * fs);
         u0[t] = u[t + 4];
+    }
+}
+
+/* ------------------------------------------------------------------ branch fits5 (issue 22)
+ * The slow lane's fits, seventh pass: zero_phase_rows' copies into and out of its interleaved
+ * buffer a 4 × 4 block at a time (four vector loads, eight shuffles, four vector stores)
+ * instead of one double per lane and step. Copies only: the same numbers bit for bit.
+ */
+#define FITS5_LANES 4 /* the lanes of fits3's lanes_t */
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
+#define FITS5_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define FITS5_CLONES
+#endif
+#if defined(__GNUC__) && !defined(__clang__)
+typedef long long lanes_mask_t __attribute__((vector_size(8 * FITS5_LANES)));
+/* The 4 × 4 block whose rows are a, b, c, d, transposed into out[0..3]. */
+static inline __attribute__((always_inline)) void lanes_transpose(lanes_t a, lanes_t b, lanes_t c,
+                                                                  lanes_t d, lanes_t *out)
+{
+    const lanes_mask_t even = {0, 4, 2, 6}, odd = {1, 5, 3, 7};
+    const lanes_mask_t low = {0, 1, 4, 5}, high = {2, 3, 6, 7};
+    const lanes_t ab0 = __builtin_shuffle(a, b, even), ab1 = __builtin_shuffle(a, b, odd);
+    const lanes_t cd0 = __builtin_shuffle(c, d, even), cd1 = __builtin_shuffle(c, d, odd);
+    out[0] = __builtin_shuffle(ab0, cd0, low);
+    out[1] = __builtin_shuffle(ab1, cd1, low);
+    out[2] = __builtin_shuffle(ab0, cd0, high);
+    out[3] = __builtin_shuffle(ab1, cd1, high);
+}
+
+/* Four doubles at p (any alignment). */
+#define LANES_AT(v, p) memcpy(&(v), (p), sizeof(v))
+#define FITS5_BLOCKS 1
+#endif
+
+/* lanes_extend: scipy's odd extension of the rows row[0..3] (n samples each) into buf,
+ * interleaved (lane q of buf[i] from row q): 2·x[0] − x[e − j] before, x, then
+ * 2·x[n−1] − x[n−2−j] after; the interior copied a block at a time. */
+FITS5_CLONES static void lanes_extend(const double *const *row, Py_ssize_t n, Py_ssize_t e,
+                                      lanes_t *buf)
+{
+    Py_ssize_t i = 0;
+#ifdef FITS5_BLOCKS
+    const double *r0 = row[0], *r1 = row[1], *r2 = row[2], *r3 = row[3];
+    for (; i + FITS5_LANES <= n; i += FITS5_LANES) {
+        lanes_t a, b, c, d;
+        LANES_AT(a, r0 + i);
+        LANES_AT(b, r1 + i);
+        LANES_AT(c, r2 + i);
+        LANES_AT(d, r3 + i);
+        lanes_transpose(a, b, c, d, buf + e + i);
+    }
+#endif
+    for (int q = 0; q < FITS5_LANES; q++) {
+        const double *x = row[q];
+        double *lane = (double *)buf + q;
+        const double first = 2.0 * x[0], last = 2.0 * x[n - 1];
+        for (Py_ssize_t j = 0; j < e; j++) lane[FITS5_LANES * j] = first - x[e - j];
+        for (Py_ssize_t k = i; k < n; k++) lane[FITS5_LANES * (e + k)] = x[k];
+        for (Py_ssize_t j = 0; j < e; j++) lane[FITS5_LANES * (e + n + j)] = last - x[n - 2 - j];
+    }
+}
+
+/* lanes_read_out: lane q of buf[factor·k] into out[q][k] for k < kept (rows repeated in a short
+ * last group are written twice, with the same values); with factor 1 a block at a time. */
+FITS5_CLONES static void lanes_read_out(const lanes_t *buf, Py_ssize_t kept, Py_ssize_t factor,
+                                        double *const *out)
+{
+    Py_ssize_t k = 0;
+#ifdef FITS5_BLOCKS
+    if (factor == 1) {
+        double *o0 = out[0], *o1 = out[1], *o2 = out[2], *o3 = out[3];
+        for (; k + FITS5_LANES <= kept; k += FITS5_LANES) {
+            lanes_t block[FITS5_LANES];
+            lanes_transpose(buf[k], buf[k + 1], buf[k + 2], buf[k + 3], block);
+            memcpy(o0 + k, &block[0], sizeof block[0]);
+            memcpy(o1 + k, &block[1], sizeof block[1]);
+            memcpy(o2 + k, &block[2], sizeof block[2]);
+            memcpy(o3 + k, &block[3], sizeof block[3]);
+        }
+    }
+#endif
+    for (; k < kept; k++) {
+        const lanes_t v = buf[k * factor];
+        for (int q = 0; q < FITS5_LANES; q++) out[q][k] = v[q];
     }
 }

@@ -68,10 +68,14 @@ def detrend(x: ArrayLike, kind: str = "linear") -> FloatArray:
     if kind == "none":
         return arr
     if kind == "mean":
-        return arr - arr.sum() / arr.size
+        arr -= arr.sum() / arr.size  # in the copy: the same numbers, no second array
+        return arr
     if kind == "linear":
         t, tt = _centred_ramp(arr.size)
-        return arr - (arr.sum() / arr.size + ((t @ arr) / tt) * t)
+        line = ((t @ arr) / tt) * t
+        line += arr.sum() / arr.size  # mean + slope·t, as the expression added them
+        arr -= line
+        return arr
     raise InputDataError(f"detrend kind {kind!r} is not one of 'linear', 'mean', 'none'")
 
 

@@ -36,6 +36,17 @@ def test_cross_correlation_peaks_at_the_delay(rng):
     assert np.argmax(phi) - 10 == 7
 
 
+@pytest.mark.parametrize("n", [1, 2, 1_001, 50_000])
+def test_detrend_in_its_copy_gives_the_expressions_numbers_bit_for_bit(n):
+    x = np.random.default_rng(n).standard_normal(n).cumsum() + 3.0
+    t = np.arange(n) - (n - 1) / 2.0
+    line = x.sum() / n + ((t @ x) / max(float(t @ t), 1e-300)) * t
+    kept = x.copy()
+    np.testing.assert_array_equal(detrend(x, "linear"), x - line)
+    np.testing.assert_array_equal(detrend(x, "mean"), x - x.sum() / n)
+    np.testing.assert_array_equal(x, kept)  # the input is not changed
+
+
 def test_detrend_kinds():
     t = np.arange(100.0)
     np.testing.assert_allclose(detrend(3 + 0.5 * t), 0, atol=1e-12)

@@ -121,7 +121,9 @@ def test_the_compiled_dynamics_fit_reaches_the_numpy_solvers_optimum(seed):
 
 
 @pytest.mark.parametrize("compiled", [True, False])
-@pytest.mark.parametrize(("rows", "n", "factor"), [(3, 20_000, 25), (1, 5_001, 10), (6, 600, 2)])
+@pytest.mark.parametrize(
+    ("rows", "n", "factor"), [(3, 20_000, 25), (1, 5_001, 10), (6, 600, 2), (2, 5_003, 25)]
+)
 def test_rows_decimated_together_are_scipys_decimate_of_each_bit_for_bit(
     rows, n, factor, compiled, monkeypatch
 ):
@@ -135,7 +137,7 @@ def test_rows_decimated_together_are_scipys_decimate_of_each_bit_for_bit(
 
 
 @pytest.mark.parametrize("compiled", [True, False])
-@pytest.mark.parametrize(("rows", "n"), [(4, 7_000), (3, 2_500), (1, 40)])
+@pytest.mark.parametrize(("rows", "n"), [(4, 7_000), (3, 2_500), (1, 40), (5, 1_003), (7, 2_502)])
 def test_zero_phase_rows_is_scipys_sosfiltfilt_of_each_row_bit_for_bit(
     rows, n, compiled, monkeypatch
 ):
@@ -184,6 +186,16 @@ def test_the_stretch_velocity_is_the_window_paths_first_derivative():
         np.testing.assert_array_equal(reflex.stretch_velocity(x, 2500.0), want)
     with pytest.raises(reflex.InputDataError, match="at least 9 samples"):
         reflex.stretch_velocity(np.zeros(8), 2500.0)
+
+
+def test_the_stretch_velocitys_ends_are_numpys_gradient_bit_for_bit():
+    rng = np.random.default_rng(5)
+    for _ in range(500):
+        x = rng.standard_normal(10).cumsum() * 10.0 ** rng.uniform(-6, 2)
+        dt = 1.0 / float(rng.choice([100.0, 1000.0, 2500.0, 2999.0]))
+        head, tail = reflex._gradient_ends(x[:5].tolist(), x[-5:].tolist(), dt)
+        np.testing.assert_array_equal(head, np.gradient(x[:5], dt, edge_order=2)[:4])
+        np.testing.assert_array_equal(tail, np.gradient(x[-5:], dt, edge_order=2)[-4:])
 
 
 @pytest.mark.parametrize("n", [9, 10, 300, 50_001])

@@ -482,6 +482,35 @@ def test_the_grids_product_scores_equal_the_response_matrixs(n_lags, fs_model):
         assert np.argmax(got) == np.argmax(want)
 
 
+@pytest.mark.parametrize(
+    ("n_lags", "fs_model"), [(101, 100.0), (51, 250.0), (101, 125.0), (3, 100.0)]
+)
+def test_the_grids_strided_placement_is_the_indexed_one_bit_for_bit(n_lags, fs_model):
+    from rtsid.ident import reflex
+
+    grid = reflex._grid(n_lags, fs_model)
+    g = np.random.default_rng(n_lags).standard_normal(n_lags)
+    dots = np.empty(grid.norms.shape)
+    for r in grid.residues:
+        assert r._strides is not None  # these grids' delays are slices, their rows in step
+        indexed = np.zeros((r.table.shape[1], r.delays.size))
+        indexed[r.rows, np.arange(r.delays.size)] = g[:, None]
+        np.testing.assert_array_equal(r.place(g), indexed)
+        dots[r.delays] = (r.table @ indexed).T
+    np.testing.assert_array_equal(grid.scores(g), np.abs(dots / grid.norms).ravel())
+
+
+def test_a_residue_whose_rows_are_not_in_step_is_placed_by_index():
+    from rtsid.ident import reflex
+
+    rows = np.array([[0, 3], [1, 5]])  # the second delay's lags two rows apart
+    residue = reflex._Residue(np.ones((2, 6)), np.array([0, 1]), rows)
+    assert residue._strides is None
+    np.testing.assert_array_equal(
+        residue.place(np.array([2.0, 7.0])), [[2, 0], [7, 0], [0, 0], [0, 2], [0, 0], [0, 7]]
+    )
+
+
 @pytest.mark.parametrize("fs_hz", [FS_SIM, 1000.0])
 def test_the_savitzky_golay_derivatives_are_scipys(fs_hz):
     from scipy import signal
