@@ -30,6 +30,7 @@ import hashlib
 import json
 import os
 import re
+import sys
 from functools import lru_cache
 from importlib.util import find_spec
 from pathlib import Path
@@ -191,7 +192,8 @@ def _versions() -> str | None:
     if found["version"] is None:
         return None
     scipy_version = "+".join(m.group(1) for m in found.values() if m is not None)
-    return f"scipy {scipy_version} numpy {np.__version__} {os.uname().machine}"
+    machine = os.uname().machine if hasattr(os, "uname") else "unknown"
+    return f"scipy {scipy_version} numpy {np.__version__} {sys.platform} {machine}"
 
 
 def _entry_path(key: str) -> Path | None:
