@@ -151,8 +151,10 @@ def _folder_table(folder: Path, seconds: float, count: int) -> Callable[[], None
             "cores used = the CPU seconds of its processes (reaped children) over the wall "
             "time: below the job count, the processes waited for a CPU or for each other (on "
             "a machine other work shares, the second core is not all this run's). "
-            f"Start-up of one process to its first window (Python, rtsid compiled from source, "
-            f"scipy.signal): {startup_s:.2f} s (so --jobs 2 could reach {ideal:.2f}× here "
+            "Start-up of one process to its first window (Python, numpy, rtsid compiled from "
+            "source; no scipy: the filter designs are numpy's or the design cache's, which "
+            f"this run's replay above filled): {startup_s:.2f} s (so --jobs 2 could reach "
+            f"{ideal:.2f}× here "
             "with equal recordings); the machine itself: two CPU-bound processes ran "
             f"{ceiling:.2f}× one process's work in the same time (2.0 on two free cores)."
         ),
@@ -161,7 +163,8 @@ def _folder_table(folder: Path, seconds: float, count: int) -> Callable[[], None
 
 def _startup_s() -> float:
     """Seconds a fresh process takes to import what a replay needs before its first window
-    (what a ``replay DIR`` child preloads): every process of ``--jobs N`` pays it."""
+    (what a ``replay DIR`` child preloads: rtsid's replay, not scipy): every process of
+    ``--jobs N`` pays it."""
     started = time.perf_counter()
     subprocess.run(
         [sys.executable, "-c", "from rtsid.commands.replay import _preload; _preload()"],

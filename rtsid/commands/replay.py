@@ -324,12 +324,10 @@ def _init_child() -> None:
 
 def _preload() -> None:
     """A child's first task: import what a replay needs — rtsid's replay (compiled from
-    source: this machine writes no bytecode) and scipy.signal, which the first window's plan
-    and the slow lane's first fit design their filters with (4.2 G instructions by callgrind,
-    the largest part of a child's start-up) — while this process lists the folder and
-    imports them too."""
-    import scipy.signal  # noqa: F401
-
+    source: this machine writes no bytecode) — while this process lists the folder and
+    imports it too. Not scipy: the filters are designed in numpy or read from the design
+    cache (:mod:`rtsid.ident.designs`; scipy.signal, 4.2 G instructions to import, is
+    imported only by a design the cache does not hold yet)."""
     import rtsid.replay  # noqa: F401
 
 

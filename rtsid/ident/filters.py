@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from rtsid.errors import InputDataError
+from rtsid.ident.designs import firwin_lowpass
 from rtsid.ident.levinson import compiled_kernel
 
 __all__ = [
@@ -45,10 +46,9 @@ def lowpass_taps(fs_hz: float, cutoff_hz: float, factor: int) -> FloatArray:
     """Linear-phase FIR (odd length, Hamming window) for ``cutoff_hz`` at ``fs_hz``.
 
     The transition band reaches from ``cutoff_hz`` to the decimated Nyquist rate
-    ``fs_hz / (2·factor)``, so nothing aliases into the pass band.
+    ``fs_hz / (2·factor)``, so nothing aliases into the pass band. scipy's ``firwin``
+    bit for bit, without importing scipy (:func:`rtsid.ident.designs.firwin_lowpass`).
     """
-    from scipy import signal
-
     nyq_after = fs_hz / (2 * factor)
     if not 0 < cutoff_hz < nyq_after:
         raise InputDataError(
@@ -57,7 +57,7 @@ def lowpass_taps(fs_hz: float, cutoff_hz: float, factor: int) -> FloatArray:
         )
     transition_hz = nyq_after - cutoff_hz
     numtaps = int(np.ceil(3.3 * fs_hz / transition_hz)) | 1
-    taps = signal.firwin(numtaps, (cutoff_hz + nyq_after) / 2, fs=fs_hz, window="hamming")
+    taps = firwin_lowpass(numtaps, (cutoff_hz + nyq_after) / 2, fs_hz)
     taps.setflags(write=False)
     return taps
 
@@ -84,15 +84,14 @@ def band_limit_taps(fs_hz: float, cutoff_hz: float, factor: int) -> FloatArray:
     Returns
     -------
     numpy.ndarray, shape (numtaps,)
-        Odd-length, unit-DC-gain taps (read-only).
+        Odd-length, unit-DC-gain taps (read-only): scipy's ``firwin`` bit for bit, without
+        importing scipy (:func:`rtsid.ident.designs.firwin_lowpass`).
 
     Raises
     ------
     InputDataError
         ``cutoff_hz`` is not below the decimated Nyquist rate.
     """
-    from scipy import signal
-
     nyq_after = fs_hz / (2 * factor)
     if not 0 < cutoff_hz < nyq_after:
         raise InputDataError(
@@ -101,7 +100,7 @@ def band_limit_taps(fs_hz: float, cutoff_hz: float, factor: int) -> FloatArray:
         )
     transition_hz = min(4.0 * cutoff_hz, 2.0 * (nyq_after - cutoff_hz))
     numtaps = int(np.ceil(3.3 * fs_hz / transition_hz)) | 1
-    taps = signal.firwin(numtaps, cutoff_hz, fs=fs_hz, window="hamming")
+    taps = firwin_lowpass(numtaps, cutoff_hz, fs_hz)
     taps.setflags(write=False)
     return taps
 

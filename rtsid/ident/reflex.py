@@ -42,6 +42,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from rtsid.errors import InputDataError
 from rtsid.ident.correlation import auto_correlation, causal_cross_correlation, detrend
+from rtsid.ident.designs import design
 from rtsid.ident.filters import stencil_derivatives, stencil_velocity
 from rtsid.ident.levinson import compiled_kernel, eureka
 
@@ -104,20 +105,17 @@ class _Decimator:
 
 
 def _zero_phase_of(sos: FloatArray) -> _Decimator:
-    """What scipy's ``sosfiltfilt(sos, x)`` (default padding) needs, for the filter ``sos``."""
-    from scipy import signal
-
+    """What scipy's ``sosfiltfilt(sos, x)`` (default padding) needs, for the filter ``sos``
+    (its ``sosfilt_zi`` from the design cache: :func:`rtsid.ident.designs.design`)."""
     zeros = min(int((sos[:, 2] == 0).sum()), int((sos[:, 5] == 0).sum()))
     edge = 3 * (2 * len(sos) + 1 - zeros)
-    return _Decimator(sos, np.asarray(signal.sosfilt_zi(sos)), edge)
+    return _Decimator(sos, design("sosfilt_zi", sos), edge)
 
 
 @lru_cache(maxsize=8)
 def _decimator(factor: int) -> _Decimator:
-    from scipy import signal
-
-    sos = np.asarray(signal.cheby1(8, 0.05, 0.8 / factor, output="sos"), dtype=np.float64)
-    return _zero_phase_of(sos)
+    """The decimator's filter (scipy's ``cheby1``, from the design cache)."""
+    return _zero_phase_of(design("cheby1", 8, 0.05, 0.8 / factor, output="sos"))
 
 
 @lru_cache(maxsize=8)
@@ -1017,15 +1015,13 @@ def stream_taps(factor: int) -> FloatArray:
     numpy.ndarray, shape (2N+1,)
         Symmetric taps at the data's rate, lag ``−N … N``.
     """
-    from scipy import signal
-
     if factor == 1:
         return np.ones(1)
     d = _decimator(factor)
     reach = STREAM_REACH_MODEL_SAMPLES * factor
     impulse = np.zeros(400 * factor)  # the slowest pole (|p| ≈ 0.993 at 25) decays to 1e-12
     impulse[0] = 1.0
-    h = signal.sosfilt(d.sos, impulse)
+    h = design("sosfilt", d.sos, impulse)  # scipy's, from the design cache
     half = np.array([h[: h.size - j] @ h[j:] for j in range(reach + 1)])
     half *= np.cos(0.5 * np.pi * np.arange(reach + 1) / (reach + 1)) ** 2
     taps = np.concatenate((half[:0:-1], half))

@@ -22,6 +22,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
+from rtsid.ident.designs import design
 from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.reflex import zero_phase_rows
 
@@ -42,10 +43,10 @@ def savgol_derivatives(x: FloatArray, fs_hz: float) -> tuple[FloatArray, FloatAr
     ``"interp"``) to rounding (tested to 1e-12): its filters designed once per rate, and at
     each end one cubic fitted to the first (last) 11 samples serving both derivatives.
     """
-    from scipy import ndimage, signal
-
     arr = np.asarray(x, dtype=np.float64)
     if arr.size < SAVGOL_POINTS:  # scipy's own checks and messages
+        from scipy import signal
+
         d1 = signal.savgol_filter(arr, SAVGOL_POINTS, SAVGOL_ORDER, deriv=1, delta=1 / fs_hz)
         d2 = signal.savgol_filter(arr, SAVGOL_POINTS, SAVGOL_ORDER, deriv=2, delta=1 / fs_hz)
         return np.asarray(d1), np.asarray(d2)
@@ -54,6 +55,8 @@ def savgol_derivatives(x: FloatArray, fs_hz: float) -> tuple[FloatArray, FloatAr
         d1, d2 = np.empty(arr.size), np.empty(arr.size)
         _eureka.savgol_pair(np.ascontiguousarray(arr), taps[0], taps[1], d1, d2)
     else:
+        from scipy import ndimage
+
         d1, d2 = (np.asarray(ndimage.convolve1d(arr, t, mode="constant")) for t in taps)
     half, n, dt = SAVGOL_POINTS // 2, arr.size, 1.0 / fs_hz
     at = np.arange(float(SAVGOL_POINTS))
@@ -67,11 +70,10 @@ def savgol_derivatives(x: FloatArray, fs_hz: float) -> tuple[FloatArray, FloatAr
 
 @lru_cache(maxsize=8)
 def _savgol_taps(fs_hz: float) -> tuple[FloatArray, FloatArray]:
-    """The first- and second-derivative Savitzky–Golay filters at ``fs_hz`` (read-only)."""
-    from scipy import signal
-
+    """The first- and second-derivative Savitzky–Golay filters at ``fs_hz`` (read-only;
+    scipy's ``savgol_coeffs``, from the design cache: :func:`rtsid.ident.designs.design`)."""
     taps = tuple(
-        np.asarray(signal.savgol_coeffs(SAVGOL_POINTS, SAVGOL_ORDER, deriv=d, delta=1 / fs_hz))
+        design("savgol_coeffs", SAVGOL_POINTS, SAVGOL_ORDER, deriv=d, delta=1 / fs_hz)
         for d in (1, 2)
     )
     for t in taps:
@@ -107,10 +109,9 @@ def least_squares_window(
 def _basis_lowpass(fs_hz: float) -> FloatArray:
     """The basis's low-pass (second-order sections) at ``fs_hz``, designed once per rate (the
     design costs about a millisecond, as much as filtering a second of data); read-only:
-    scipy's filters take a writable copy."""
-    from scipy import signal
-
-    sos = np.asarray(signal.butter(4, BASIS_LOWPASS_HZ, fs=fs_hz, output="sos"))
+    scipy's filters take a writable copy. scipy's ``butter``, from the design cache
+    (:func:`rtsid.ident.designs.design`)."""
+    sos = design("butter", 4, BASIS_LOWPASS_HZ, fs=fs_hz, output="sos")
     sos.setflags(write=False)
     return sos
 

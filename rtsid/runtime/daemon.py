@@ -319,9 +319,12 @@ class Daemon:
         on_status: Callable[[dict[str, Any], dict[str, Any] | None], None] | None = None,
         message_tap: Callable[[str, int, bytes], None] | None = None,
     ) -> None:
-        # scipy is imported where it is used (a replay's process starts without it); a live
-        # run imports it here, before any of its threads: the first window's plan (and the
-        # plant's filters) would otherwise pay it, ≈ 1 s of CPU, inside their deadlines
+        # scipy is imported where it is used (a replay's process starts without it). A live
+        # run imports scipy.signal here, before any of its threads, although its window path
+        # designs its filters in numpy or reads them from the design cache (rtsid.ident.
+        # designs): the embedded plant filters with scipy.signal as it runs, and a design the
+        # cache does not hold yet (a new rate) would pay the import, ≈ 1 s of CPU, inside a
+        # window's deadline. A daemon starts once a session; its start-up is no deadline.
         import scipy.signal  # noqa: F401
 
         self.config = config
