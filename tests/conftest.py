@@ -7,6 +7,17 @@ import os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")  # as the CLI does; before numpy is imported
 
+import atexit  # noqa: E402
+import shutil  # noqa: E402
+import tempfile  # noqa: E402
+
+# The filter design cache (rtsid.ident.designs) of this test run: a fresh folder, removed at
+# exit, so the tests never write into the user's ~/.cache and start from a cold cache each run
+# (the spawned processes of the tests inherit it).
+_DESIGN_CACHE = tempfile.mkdtemp(prefix="rtsid-test-designs-")
+os.environ.setdefault("RTSID_DESIGN_CACHE", _DESIGN_CACHE)
+atexit.register(shutil.rmtree, _DESIGN_CACHE, ignore_errors=True)
+
 import socket  # noqa: E402
 import threading  # noqa: E402
 import time  # noqa: E402
