@@ -4419,26 +4419,40 @@ static inline uint64_t rr_parse_eight(uint64_t v)
 }
 
 /* A run of digits from s[j]: accumulated into *w while it stays below 2^64 (*overflow set
- * otherwise); returns the index after the run. */
-static Py_ssize_t rr_digits(const char *s, Py_ssize_t j, Py_ssize_t stop, unsigned long long *w,
-                            int *overflow)
+ * otherwise); returns the index after the run. Eight digits at a time while w·10^8 + 99999999
+ * fits in 64 bits, then four while w·10^4 + 9999 does (exact: the same w as one digit at a
+ * time), then one at a time. */
+static inline Py_ssize_t rr_digits(const char *s, Py_ssize_t j, Py_ssize_t stop,
+                                   unsigned long long *w, int *overflow)
 {
+    unsigned long long acc = *w;
 #if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
-    while (j + 8 <= stop && *w < 100000000000ULL) { /* w·10^8 + 8 digits < 10^19 < 2^64 */
+    while (j + 8 <= stop && acc <= 184467440736ULL) { /* (2^64 − 1 − 99999999) / 10^8 */
         uint64_t v;
         memcpy(&v, s + j, 8);
         if (!rr_eight_digits(v)) break;
-        *w = *w * 100000000ULL + rr_parse_eight(v);
+        acc = acc * 100000000ULL + rr_parse_eight(v);
         j += 8;
     }
-#endif
-    for (; j < stop && s[j] >= '0' && s[j] <= '9'; j++) {
-        if (*w > (ULLONG_MAX - 9) / 10) {
-            *overflow = 1;
-        } else {
-            *w = *w * 10 + (unsigned)(s[j] - '0');
+    if (j + 4 <= stop && acc <= 1844674407370954ULL) { /* (2^64 − 1 − 9999) / 10^4 */
+        uint32_t v;
+        memcpy(&v, s + j, 4);
+        if ((((v + 0x46464646U) | (v - 0x30303030U)) & 0x80808080U) == 0) {
+            v -= 0x30303030U;
+            v = (v * 10) + (v >> 8); /* two-digit pairs in bytes 0 and 2 */
+            acc = acc * 10000ULL + ((v & 0x000000FFU) * 100 + ((v >> 16) & 0x000000FFU));
+            j += 4;
         }
     }
+#endif
+    for (; j < stop && (unsigned char)(s[j] - '0') <= 9; j++) {
+        if (acc > (ULLONG_MAX - 9) / 10) {
+            *overflow = 1;
+        } else {
+            acc = acc * 10 + (unsigned)(s[j] - '0');
+        }
+    }
+    *w = acc;
     return j;
 }
 
@@ -4523,7 +4537,18 @@ static Py_ssize_t rr_column(const char *s, Py_ssize_t i, Py_ssize_t stop, int ki
     while (i < stop) {
         if (offset + n >= capacity) return -1;
         char *item = out + (offset + n) * size;
-        i = kind == 0 ? rr_double(s, i, stop, (double *)item) : json_item(s, i, stop, kind, item);
+        if (kind == 0) {
+            i = rr_double(s, i, stop, (double *)item);
+        } else if (kind == 1 && stop - i > 4 && memcmp(s + i, "true", 4) == 0) {
+            *(unsigned char *)item = 1; /* json_item's reading of it, without its calls */
+            i += 4;
+        } else if (kind == 2 && stop - i > 1 && (unsigned char)(s[i] - '0') <= 9 &&
+                   (s[i + 1] == ',' || s[i + 1] == ']')) {
+            *(long long *)item = s[i] - '0'; /* one digit: json_item's value */
+            i += 1;
+        } else {
+            i = json_item(s, i, stop, kind, item);
+        }
         if (i < 0 || i >= stop) return -1;
         n++;
         if (s[i] == ']') {
