@@ -126,6 +126,13 @@ def test_hundreds_of_thousands_of_random_doubles_are_exact() -> None:
         "9007199254740993.0",  # halfway between two doubles: the extended result is a tie
         "9007199254740995.0",
         "4503599627370496.5",
+        # the extended result falls exactly halfway though the decimal is not: rounding it
+        # again would differ from rounding the decimal once (found with fractions.Fraction)
+        "945.8860201190776138",
+        "1.1179182577791514364",
+        "0.05736767927757018340",
+        "0.005646045117947716841",
+        "1337664928726.4984131",
         "0.1",
         "-0.0",
         "0.0",
