@@ -4458,29 +4458,6 @@ static inline Py_ssize_t rr_digits(const char *s, Py_ssize_t j, Py_ssize_t stop,
     return j;
 }
 
-#if LDBL_MANT_DIG == 64
-/* Whether the extended value r lies exactly halfway between two doubles (v, r rounded to
- * double, one of them), where rounding it again can differ from rounding the exact decimal
- * once. A normal x87 extended value's 64-bit significand is stored in its first eight bytes
- * (little-endian): it is halfway iff the eleven bits a double drops read 0b10000000000 —
- * what comparing it with the mean of v and its neighbour tells, without nextafter's calls.
- * Elsewhere, and for r below the normal doubles (more bits dropped), that comparison. */
-static inline int rr_halfway(long double r, double v)
-{
-#if (defined(__x86_64__) || defined(__i386__)) && defined(__BYTE_ORDER__) && \
-    __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
-    if (r >= (long double)DBL_MIN) {
-        uint64_t significand;
-        memcpy(&significand, &r, sizeof significand);
-        return (significand & 0x7FFU) == 0x400U;
-    }
-#endif
-    if ((long double)v == r) return 0;
-    double other = r > (long double)v ? nextafter(v, INFINITY) : nextafter(v, -INFINITY);
-    return ((long double)v + (long double)other) * 0.5L == r;
-}
-#endif
-
 /* One float item (a JSON number with a fraction or exponent, or null) at s[i] into *out;
  * returns its end or -1. The digits are read once (JSON grammar checked as they are), and the
  * value formed as decimal_fast forms it; what that does not cover goes to json_item. */
@@ -4535,7 +4512,11 @@ static Py_ssize_t rr_double(const char *s, Py_ssize_t i, Py_ssize_t stop, double
     long double r = (long double)w;
     r = scale < 0 ? r / pow10[-scale] : r * pow10[scale];
     double v = (double)r;
-    if (rr_halfway(r, v)) return json_item(s, i, stop, 0, (char *)out); /* one rounding */
+    if ((long double)v != r) {
+        double other = r > (long double)v ? nextafter(v, INFINITY) : nextafter(v, -INFINITY);
+        if (((long double)v + (long double)other) * 0.5L == r) /* halfway: one rounding */
+            return json_item(s, i, stop, 0, (char *)out);
+    }
     if (!(v >= DBL_MIN && v <= DBL_MAX)) return json_item(s, i, stop, 0, (char *)out);
     *out = negative ? -v : v;
     return j;
