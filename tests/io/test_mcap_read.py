@@ -288,3 +288,46 @@ def test_sample_count_refuses_a_payload_that_is_not_compact_and_does_not_read(tm
         writer.finish()
     with pytest.raises(RecordingError, match="a /samples message does not read"):
         mcap_read.sample_count(out)
+
+
+@pytest.mark.skipif(mcap_read._CRC32 is None, reason="no compiled kernel")
+def test_the_compiled_crc32_is_zlibs() -> None:
+    import zlib
+
+    rng = np.random.default_rng(11)
+    for n in [*range(0, 200), 1000, 4099, 1 << 16, (1 << 20) + 3]:
+        data = rng.integers(0, 256, n, dtype=np.uint8).tobytes()
+        for value in (0, 1, 0xFFFFFFFF):
+            assert mcap_read._CRC32(data, value) == zlib.crc32(data, value)
+    view = memoryview(bytes(range(256)) * 3)[5:700]  # any buffer, any alignment
+    assert mcap_read._CRC32(view) == zlib.crc32(view)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_a_chunk_whose_crc_does_not_match_stops_the_read_there(
+    recording: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, compiled: bool
+) -> None:
+    """The compiled check and mcap's own (the numpy path's) refuse the same chunk alike: the
+    messages before it read, the report naming the CRC."""
+    import struct
+
+    if not compiled:
+        monkeypatch.setattr(mcap_read, "_CRC32", None)
+    whole = [m.data for t, _c, m in mcap_read.iter_messages(recording) if t == "/samples"]
+    data = bytearray(recording.read_bytes())
+    at = 8 + 1 + 8 + struct.unpack_from("<Q", data, 9)[0]  # the record after the header
+    chunks = []  # the offsets of the chunk records (opcode 6), in file order
+    while len(chunks) < 2:
+        if data[at] == 0x06:
+            chunks.append(at)
+        at += 1 + 8 + struct.unpack_from("<Q", data, at + 1)[0]
+    assert data[chunks[1] + 1 + 8 + 24 + 4 + 4 : chunks[1] + 1 + 8 + 24 + 4 + 4 + 4] == b"zstd"
+    crc_at = chunks[1] + 1 + 8 + 8 + 8 + 8  # opcode, length, start and end times, size
+    struct.pack_into("<I", data, crc_at, struct.unpack_from("<I", data, crc_at)[0] ^ 1)
+    damaged = tmp_path / "crc.mcap"
+    damaged.write_bytes(bytes(data))
+    report = mcap_read.ReadReport(damaged)
+    read = [m.data for t, _c, m in mcap_read.iter_messages(damaged, report) if t == "/samples"]
+    assert 0 < len(read) < len(whole) and read == whole[: len(read)]
+    assert not report.complete and report.error is not None
+    assert report.error.startswith(f"damaged chunk after {report.messages} messages: crc")

@@ -126,6 +126,13 @@ def test_hundreds_of_thousands_of_random_doubles_are_exact() -> None:
         "9007199254740993.0",  # halfway between two doubles: the extended result is a tie
         "9007199254740995.0",
         "4503599627370496.5",
+        # the extended result falls exactly halfway though the decimal is not: rounding it
+        # again would differ from rounding the decimal once (found with fractions.Fraction)
+        "945.8860201190776138",
+        "1.1179182577791514364",
+        "0.05736767927757018340",
+        "0.005646045117947716841",
+        "1337664928726.4984131",
         "0.1",
         "-0.0",
         "0.0",
@@ -217,3 +224,52 @@ def test_a_payload_with_more_rows_than_the_block_holds_is_declined() -> None:
     assert decode_samples_into(data, *block, 2) is None  # rows 2..4: one too many
     odd = (np.zeros(4), np.zeros(3), np.zeros(4, bool), np.zeros(4, np.int64))
     assert decode_samples_into(data, *odd, 0) is None  # columns of different lengths
+
+
+@compiled_only
+def test_every_digit_run_length_reads_as_json_loads_reads_it() -> None:
+    """Runs of 1-30 digits before and after the point (the kernel reads eight, then four,
+    then one at a time, and leaves digits past 2^64 to Python's conversion): json.loads's
+    doubles, bit for bit."""
+    digits = "987654321098765432109876543210"
+    tokens = [
+        f"{sign}{whole}.{fraction}"
+        for sign in ("", "-")
+        for whole in ("0", *(digits[:n] for n in range(1, 31)))
+        for fraction in ("0" * 3 + digits[:5], *(digits[:n] for n in range(1, 31)))
+    ]
+    data = payload(tokens)
+    assert _decode_compact_samples(data, 7) is not None
+    both(data)
+
+
+@compiled_only
+@pytest.mark.parametrize(
+    ("valid", "status"),
+    [
+        ("true,false,true", "0,9,7"),  # the one-item fast paths
+        ("false,true,false", "10,-0,-3"),  # the general reader: several digits, signs
+        ("true,true,true", f"{2**63 - 1},0,123456789012"),
+    ],
+)
+def test_valid_and_status_items_read_as_json_loads_reads_them(valid: str, status: str) -> None:
+    data = payload(["0.5", "1.5", "2.5"], valid=valid, status=status)
+    assert _decode_compact_samples(data, 7) is not None
+    both(data)
+
+
+@pytest.mark.parametrize(
+    "data",
+    [
+        payload(["0.5", "1.5"], status="01,0"),  # a leading zero: not JSON
+        payload(["0.5", "1.5"], valid="true,True"),
+        payload(["0.5", "1.5"], valid="truex,true"),
+        payload(["0.5", "1.5"], status="0,0x"),
+    ],
+)
+def test_items_near_the_fast_paths_are_refused_as_the_reference_refuses_them(
+    data: bytes,
+) -> None:
+    assert decoded_into(data, offset=1) is None
+    with pytest.raises((InputDataError, OverflowError)):
+        decode_samples_json(data)
