@@ -34,9 +34,26 @@
 #define RELEASE_GIL_ABOVE 1000
 
 static double dot_lanes(const double *u, const double *v, Py_ssize_t n, int *done);
+#if defined(__GNUC__) || defined(__clang__)
+#define G7_QUADS 1 /* glue7 (end of file): the window path's loops four lanes wide */
+static double g7_dot(const double *u, const double *v, Py_ssize_t n);
+static Py_ssize_t g7_fir_rows(const double *phases, const Py_ssize_t *at, const double *taps,
+                              Py_ssize_t nt, Py_ssize_t m, double *out);
+static Py_ssize_t g7_smooth_rows(const double *padded, const double *mirror, Py_ssize_t n,
+                                 Py_ssize_t lags, double *smoothed);
+static Py_ssize_t g7_predict_rows(const double *h, const double *u, Py_ssize_t nh,
+                                  Py_ssize_t lag, Py_ssize_t t0, Py_ssize_t t1, double *out);
+static void g7_band_powers(const double *meas, const double *err, Py_ssize_t n,
+                           Py_ssize_t kmax, const double *table, double *total, double *left);
+#endif
+static void xcorr_lanes(const double *u, const double *y, Py_ssize_t n, Py_ssize_t first,
+                        Py_ssize_t last, double norm, double *c); /* fits4 */
 
 static double dot_unrolled(const double *u, const double *v, Py_ssize_t n)
 {
+#ifdef G7_QUADS
+    return g7_dot(u, v, n); /* the same four sums, one vector (glue7) */
+#endif
     int done = 0; /* the same sums in vector lanes where the compiler has them (end of file) */
     double lanes_sum = dot_lanes(u, v, n, &done);
     if (done) return lanes_sum;
@@ -2482,6 +2499,9 @@ static void lagged_predict(const double *h, const double *u, Py_ssize_t nh, Py_s
                            Py_ssize_t t0, Py_ssize_t t1, double *out)
 {
     Py_ssize_t t = t0;
+#ifdef G7_QUADS
+    t = g7_predict_rows(h, u, nh, lag, t0, t1, out); /* glue7, then the rest */
+#endif
 #ifdef LANE_PAIRS
     for (; t + BLOCK <= t1; t += BLOCK) {
         lane_pair a0 = pair_of(0.0), a1 = a0, a2 = a0, a3 = a0;
@@ -2571,6 +2591,9 @@ static void band_smooth(const double *row, const double *r, Py_ssize_t n, Py_ssi
         memcpy(padded + lags, row, sizeof(double) * (size_t)n);
         double *mirror = padded + n + 2 * lags;
         for (Py_ssize_t e = -lags; e <= lags; e++) mirror[lags + e] = r[e < 0 ? -e : e];
+#ifdef G7_QUADS
+        t = g7_smooth_rows(padded, mirror, n, lags, smoothed); /* glue7, then the rest */
+#endif
         /* kern625: 2·BLOCK rows at a time while they last (the same sums, fewer broadcasts);
          * the rows that were padded before still are, so every output is the same */
         for (; t + 2 * BLOCK <= n; t += 2 * BLOCK) {
@@ -3843,6 +3866,9 @@ static void fir_phases(const double *phases, Py_ssize_t n, const double *taps, P
         at[j] = phase_start(d % factor, n, factor) + d / factor;
     }
     Py_ssize_t k = 0;
+#ifdef G7_QUADS
+    k = g7_fir_rows(phases, at, taps, nt, m, out); /* four lanes wide (glue7), then the rest */
+#endif
 #ifdef LANE_PAIRS
     for (; k + 2 * BLOCK <= m; k += 2 * BLOCK) {
         lane_pair a[8] = {{0.0, 0.0}};
@@ -3949,13 +3975,13 @@ static Py_ssize_t window_irf_sloped(const double *pos, const double *trq, Py_ssi
     fir_phases(dt, n, taps, nt, factor, y, m);
     /* the sums themselves are kept for the sweeps' Gram matrix; sums / m is what
      * xcorr_blocked(..., m, ...) gives, bit for bit */
-    xcorr_blocked(u, u, m, 0, nh - 1, 1.0, sums);
+    xcorr_lanes(u, u, m, 0, nh - 1, 1.0, sums); /* xcorr_blocked's sums, sixteen lags at a time */
     for (Py_ssize_t k = 0; k < nh; k++) phi[k] = sums[k] / (double)m;
     const double loading = ridge * phi[0];
     phi[0] += loading;
     /* phi_uy(k) = sum_t u(t-k) y(t) / m  =  sum_s u(s) y(s+k) / m */
     double *g = rest; /* the first solve's right-hand side, before the sweeps use rest */
-    xcorr_blocked(u, y, m, -lag, lag, 1.0, sums + nh);
+    xcorr_lanes(u, y, m, -lag, lag, 1.0, sums + nh);
     for (Py_ssize_t k = 0; k < nh; k++) g[k] = sums[nh + k] / (double)m;
     /* the four solves share R: its prediction-error filters are formed once */
     Py_ssize_t status = eureka_filters(phi, rr, filters, alphas, nh, alpha);
@@ -3995,6 +4021,10 @@ static Py_ssize_t band_powers_table(const double *meas, const double *err, Py_ss
                                     Py_ssize_t kmax, const double *table, double *total,
                                     double *left)
 {
+#ifdef G7_QUADS
+    g7_band_powers(meas, err, n, kmax, table, total, left); /* the bins in four lanes (glue7) */
+    return kmax + 1;
+#endif
     for (Py_ssize_t g = 0; g < (kmax + 3) / 4; g++) {
         const double *at = table + g * n * 8;
 #ifdef LANE_PAIRS
@@ -4876,3 +4906,144 @@ static void stencil_rows(const double *u, Py_ssize_t n, double fs, double *d1, d
         u0[t] = u[t + 4];
     }
 }
+
+/* ================================================================== glue7 (issue 22)
+ * The window path's lane-pair loops four lanes wide. On x86-64 each function below is built
+ * twice (target_clones: an AVX2 clone, chosen at load time where the processor has it, and
+ * the baseline); a four-double vector holds four independent outputs (or, in g7_dot, the
+ * four running sums s0 … s3 that dot_unrolled keeps), and each lane does the IEEE multiply
+ * and add of the scalar loop in the same order: no fused multiply-add (the AVX2 clone enables
+ * neither FMA nor contraction, and the build says -ffp-contract=off), so every output is the
+ * loop's bit for bit, as the lane pairs' were, in half the vector instructions. Where the
+ * compiler has no vector extension (G7_QUADS undefined) the callers keep their lane pairs.
+ *
+ * g7_dot          dot_unrolled's four sums as one vector, the remainder into s0.
+ * g7_fir_rows     fir_phases' outputs 32 (then 16) at a time.
+ * g7_smooth_rows  band_smooth's rows 32 (then 16) at a time over its padded row.
+ * g7_predict_rows lagged_predict's outputs 16 at a time.
+ * g7_band_powers  band_powers_table's groups of four bins, the bins in the lanes.
+ * The front end's correlations use fits4's xcorr_lanes (sixteen lags at a time).
+ */
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
+#define GLUE7_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define GLUE7_CLONES
+#endif
+#ifdef G7_QUADS
+typedef double g7_quad __attribute__((vector_size(32), aligned(8))); /* unaligned loads */
+
+/* macros rather than inline functions: a vector returned by a baseline function changes its
+ * ABI under AVX, which GCC warns of */
+#define g7_at(p) (*(const g7_quad *)(p))
+#define g7_of(x) ((g7_quad){(x), (x), (x), (x)})
+
+GLUE7_CLONES static double g7_dot(const double *u, const double *v, Py_ssize_t n)
+{
+    g7_quad s = g7_of(0.0);
+    Py_ssize_t i = 0;
+    for (; i + 4 <= n; i += 4) s += g7_at(u + i) * g7_at(v + i);
+    double q[4];
+    memcpy(q, &s, sizeof q);
+    for (; i < n; i++) q[0] += u[i] * v[i];
+    return (q[0] + q[1]) + (q[2] + q[3]);
+}
+
+GLUE7_CLONES static Py_ssize_t g7_fir_rows(const double *phases, const Py_ssize_t *at,
+                                           const double *taps, Py_ssize_t nt, Py_ssize_t m,
+                                           double *out)
+{
+    Py_ssize_t k = 0;
+    for (; k + 32 <= m; k += 32) {
+        g7_quad a[8];
+        for (int b = 0; b < 8; b++) a[b] = g7_of(0.0);
+        for (Py_ssize_t j = 0; j < nt; j++) {
+            const g7_quad tj = g7_of(taps[j]);
+            const double *s = phases + at[j] + k;
+            for (int b = 0; b < 8; b++) a[b] += tj * g7_at(s + 4 * b);
+        }
+        memcpy(out + k, a, sizeof a);
+    }
+    for (; k + 16 <= m; k += 16) {
+        g7_quad a[4];
+        for (int b = 0; b < 4; b++) a[b] = g7_of(0.0);
+        for (Py_ssize_t j = 0; j < nt; j++) {
+            const g7_quad tj = g7_of(taps[j]);
+            const double *s = phases + at[j] + k;
+            for (int b = 0; b < 4; b++) a[b] += tj * g7_at(s + 4 * b);
+        }
+        memcpy(out + k, a, sizeof a);
+    }
+    return k;
+}
+
+/* padded: the row with `lags` zeros each side; mirror[lags + e] = r[|e|]. */
+GLUE7_CLONES static Py_ssize_t g7_smooth_rows(const double *padded, const double *mirror,
+                                              Py_ssize_t n, Py_ssize_t lags, double *smoothed)
+{
+    Py_ssize_t t = 0;
+    for (; t + 32 <= n; t += 32) {
+        g7_quad a[8];
+        for (int b = 0; b < 8; b++) a[b] = g7_of(0.0);
+        for (Py_ssize_t e = -lags; e <= lags; e++) {
+            const g7_quad re = g7_of(mirror[lags + e]);
+            const double *src = padded + lags + t + e;
+            for (int b = 0; b < 8; b++) a[b] += g7_at(src + 4 * b) * re;
+        }
+        memcpy(smoothed + t, a, sizeof a);
+    }
+    for (; t + 16 <= n; t += 16) {
+        g7_quad a[4];
+        for (int b = 0; b < 4; b++) a[b] = g7_of(0.0);
+        for (Py_ssize_t e = -lags; e <= lags; e++) {
+            const g7_quad re = g7_of(mirror[lags + e]);
+            const double *src = padded + lags + t + e;
+            for (int b = 0; b < 4; b++) a[b] += g7_at(src + 4 * b) * re;
+        }
+        memcpy(smoothed + t, a, sizeof a);
+    }
+    return t;
+}
+
+GLUE7_CLONES static Py_ssize_t g7_predict_rows(const double *h, const double *u, Py_ssize_t nh,
+                                               Py_ssize_t lag, Py_ssize_t t0, Py_ssize_t t1,
+                                               double *out)
+{
+    Py_ssize_t t = t0;
+    for (; t + 16 <= t1; t += 16) {
+        g7_quad a[4];
+        for (int b = 0; b < 4; b++) a[b] = g7_of(0.0);
+        for (Py_ssize_t j = 0; j < nh; j++) {
+            const g7_quad hj = g7_of(h[j]);
+            const double *src = u + t + lag - j;
+            for (int b = 0; b < 4; b++) a[b] += hj * g7_at(src + 4 * b);
+        }
+        memcpy(out + t, a, sizeof a);
+    }
+    return t;
+}
+
+GLUE7_CLONES static void g7_band_powers(const double *meas, const double *err, Py_ssize_t n,
+                                        Py_ssize_t kmax, const double *table, double *total,
+                                        double *left)
+{
+    for (Py_ssize_t g = 0; g < (kmax + 3) / 4; g++) {
+        const double *at = table + g * n * 8;
+        g7_quad mr = g7_of(0.0), mi = mr, er = mr, ei = mr;
+        for (Py_ssize_t t = 0; t < n; t++, at += 8) {
+            const g7_quad m = g7_of(meas[t]), e = g7_of(err[t]);
+            const g7_quad c = g7_at(at), s = g7_at(at + 4);
+            mr += m * c;
+            mi -= m * s;
+            er += e * c;
+            ei -= e * s;
+        }
+        double r[4][4];
+        memcpy(r[0], &mr, 32), memcpy(r[1], &mi, 32), memcpy(r[2], &er, 32);
+        memcpy(r[3], &ei, 32);
+        for (int b = 0; b < 4 && 4 * g + 1 + b <= kmax; b++) {
+            *total += r[0][b] * r[0][b] + r[1][b] * r[1][b];
+            *left += r[2][b] * r[2][b] + r[3][b] * r[3][b];
+        }
+    }
+}
+#endif /* G7_QUADS */
