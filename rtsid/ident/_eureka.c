@@ -34,8 +34,33 @@
 #define RELEASE_GIL_ABOVE 1000
 
 static double dot_lanes(const double *u, const double *v, Py_ssize_t n, int *done);
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
+#define GLUE7_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define GLUE7_CLONES
+#endif
 #if defined(__GNUC__) || defined(__clang__)
 #define G7_QUADS 1 /* glue7 (end of file): the window path's loops four lanes wide */
+typedef double g7_quad __attribute__((vector_size(32), aligned(8))); /* unaligned loads */
+/* macros rather than inline functions: a vector returned by a baseline function changes its
+ * ABI under AVX, which GCC warns of */
+#define g7_at(p) (*(const g7_quad *)(p))
+#define g7_of(x) ((g7_quad){(x), (x), (x), (x)})
+/* dot_unrolled's four running sums s0 … s3 (s_i over i ≡ i mod 4) as one vector, the
+ * remainder into s0, then (s0 + s1) + (s2 + s3): its result bit for bit. Inlined into the
+ * clones that call it (each with its clone's instructions); g7_dot for everyone else. */
+static inline __attribute__((always_inline)) double g7_dot_inline(const double *u,
+                                                                  const double *v, Py_ssize_t n)
+{
+    g7_quad s = g7_of(0.0);
+    Py_ssize_t i = 0;
+    for (; i + 4 <= n; i += 4) s += g7_at(u + i) * g7_at(v + i);
+    double q[4];
+    memcpy(q, &s, sizeof q);
+    for (; i < n; i++) q[0] += u[i] * v[i];
+    return (q[0] + q[1]) + (q[2] + q[3]);
+}
+#define WINDOW_DOT g7_dot_inline
 static double g7_dot(const double *u, const double *v, Py_ssize_t n);
 static Py_ssize_t g7_fir_rows(const double *phases, const Py_ssize_t *at, const double *taps,
                               Py_ssize_t nt, Py_ssize_t m, double *out);
@@ -45,6 +70,8 @@ static Py_ssize_t g7_predict_rows(const double *h, const double *u, Py_ssize_t n
                                   Py_ssize_t lag, Py_ssize_t t0, Py_ssize_t t1, double *out);
 static void g7_band_powers(const double *meas, const double *err, Py_ssize_t n,
                            Py_ssize_t kmax, const double *table, double *total, double *left);
+#else
+#define WINDOW_DOT dot_unrolled
 #endif
 static void xcorr_lanes(const double *u, const double *y, Py_ssize_t n, Py_ssize_t first,
                         Py_ssize_t last, double norm, double *c); /* fits4 */
@@ -2704,7 +2731,7 @@ static Py_ssize_t band_powers(const double *meas, const double *err, Py_ssize_t 
  * variance alphas[k], and rr (r reversed) as eureka_solve forms it; the same status and alpha.
  * eureka_apply then solves R x = b for any b with eureka_solve's arithmetic, bit for bit, without
  * the filter's half of the work: the refinement sweeps solve with one R four times. */
-static Py_ssize_t eureka_filters(const double *r, double *rr, double *filters, double *alphas,
+GLUE7_CLONES static Py_ssize_t eureka_filters(const double *r, double *rr, double *filters, double *alphas,
                                  Py_ssize_t n, double *alpha_out)
 {
     for (Py_ssize_t j = 0; j < n; j++) rr[j] = r[n - 1 - j];
@@ -2718,7 +2745,7 @@ static Py_ssize_t eureka_filters(const double *r, double *rr, double *filters, d
     alphas[0] = alpha;
     for (Py_ssize_t k = 1; k < n; k++) {
         const double *rk = rr + (n - 1 - k);
-        double refl = -dot_unrolled(cur, rk, k) / alpha;
+        double refl = -WINDOW_DOT(cur, rk, k) / alpha;
         cur[k] = 0.0;
         Py_ssize_t i = 0, j = k;
         for (; i < j; i++, j--) {
@@ -2746,13 +2773,13 @@ static Py_ssize_t eureka_filters(const double *r, double *rr, double *filters, d
     return -1;
 }
 
-static void eureka_apply(const double *rr, const double *filters, const double *alphas,
+GLUE7_CLONES static void eureka_apply(const double *rr, const double *filters, const double *alphas,
                          const double *b, double *x, Py_ssize_t n)
 {
     x[0] = b[0] / alphas[0];
     for (Py_ssize_t k = 1; k < n; k++) {
         const double *rk = rr + (n - 1 - k), *rev = filters + k * (k + 1) / 2;
-        const double mu = (b[k] - dot_unrolled(x, rk, k)) / alphas[k];
+        const double mu = (b[k] - WINDOW_DOT(x, rk, k)) / alphas[k];
         x[k] = 0.0;
         for (Py_ssize_t m = 0; m <= k; m++) x[m] += mu * rev[m];
     }
@@ -2927,7 +2954,7 @@ static void lagged_cross(const double *u, const double *y, Py_ssize_t m, Py_ssiz
 /* sweeps refinement sweeps of h (nh = 2L + 1 values, × fs) with R's EUREKA filters (rr, filters,
  * alphas from eureka_filters): each adds R⁻¹·g·fs with g = (X'y − G·h/fs)/inner − loading·h/fs.
  * work: GRAM_SWEEPS_WORK(nh) doubles. */
-static void gram_sweeps(const double *u, const double *y, Py_ssize_t m, Py_ssize_t lag,
+GLUE7_CLONES static void gram_sweeps(const double *u, const double *y, Py_ssize_t m, Py_ssize_t lag,
                         const double *auto_sums, const double *cross_sums, double loading,
                         Py_ssize_t sweeps, double fs, const double *rr, const double *filters,
                         const double *alphas, double *h, double *work)
@@ -2941,7 +2968,7 @@ static void gram_sweeps(const double *u, const double *y, Py_ssize_t m, Py_ssize
     for (Py_ssize_t s = 0; s < sweeps; s++) {
         for (Py_ssize_t j = 0; j < nh; j++) scaled[j] = h[j] / fs;
         for (Py_ssize_t j = 0; j < nh; j++)
-            g[j] = (xy[j] - dot_unrolled(gram + j * nh, scaled, nh)) / inner - loading * scaled[j];
+            g[j] = (xy[j] - WINDOW_DOT(gram + j * nh, scaled, nh)) / inner - loading * scaled[j];
         eureka_apply(rr, filters, alphas, g, delta, nh);
         for (Py_ssize_t j = 0; j < nh; j++) h[j] += delta[j] * fs;
     }
@@ -4917,35 +4944,20 @@ static void stencil_rows(const double *u, Py_ssize_t n, double fs, double *d1, d
  * loop's bit for bit, as the lane pairs' were, in half the vector instructions. Where the
  * compiler has no vector extension (G7_QUADS undefined) the callers keep their lane pairs.
  *
- * g7_dot          dot_unrolled's four sums as one vector, the remainder into s0.
+ * g7_dot          dot_unrolled's four sums as one vector, the remainder into s0 (inlined as
+ *                 g7_dot_inline, top of file, into eureka_filters, eureka_apply and
+ *                 gram_sweeps, themselves built as clones: EUREKA's element-wise updates
+ *                 four lanes wide too).
  * g7_fir_rows     fir_phases' outputs 32 (then 16) at a time.
  * g7_smooth_rows  band_smooth's rows 32 (then 16) at a time over its padded row.
  * g7_predict_rows lagged_predict's outputs 16 at a time.
  * g7_band_powers  band_powers_table's groups of four bins, the bins in the lanes.
  * The front end's correlations use fits4's xcorr_lanes (sixteen lags at a time).
  */
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
-#define GLUE7_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define GLUE7_CLONES
-#endif
 #ifdef G7_QUADS
-typedef double g7_quad __attribute__((vector_size(32), aligned(8))); /* unaligned loads */
-
-/* macros rather than inline functions: a vector returned by a baseline function changes its
- * ABI under AVX, which GCC warns of */
-#define g7_at(p) (*(const g7_quad *)(p))
-#define g7_of(x) ((g7_quad){(x), (x), (x), (x)})
-
 GLUE7_CLONES static double g7_dot(const double *u, const double *v, Py_ssize_t n)
 {
-    g7_quad s = g7_of(0.0);
-    Py_ssize_t i = 0;
-    for (; i + 4 <= n; i += 4) s += g7_at(u + i) * g7_at(v + i);
-    double q[4];
-    memcpy(q, &s, sizeof q);
-    for (; i < n; i++) q[0] += u[i] * v[i];
-    return (q[0] + q[1]) + (q[2] + q[3]);
+    return g7_dot_inline(u, v, n);
 }
 
 GLUE7_CLONES static Py_ssize_t g7_fir_rows(const double *phases, const Py_ssize_t *at,
