@@ -89,3 +89,30 @@ def test_the_front_ends_filter_and_correlations_are_the_scalar_loops(rows):
     auto = np.empty(2 * plan.lag + 1)
     kernel.xcorr(u, u, 0, 2 * plan.lag, float(u.size), auto)  # one lag at a time
     np.testing.assert_array_equal(irf.phi_uu, auto)
+
+
+def test_the_compiled_rounding_is_pythons_round_to_12_decimals():
+    # a published VAF is round(x, 12): every value here, ties (odd multiples of 2⁻¹³, exact
+    # halves at the 12th decimal) and their neighbours, signed zeros, non-finite values
+    # and values past the fast path's range included
+    rng = np.random.default_rng(22)
+    ties = np.arange(-8192 * 101 + 1, 8192 * 101, 2) / 8192.0
+    values = np.concatenate(
+        [
+            rng.uniform(-200.0, 200.0, 20000),
+            rng.uniform(99.99, 100.0, 20000),
+            ties,
+            np.nextafter(ties, np.inf),
+            np.nextafter(ties, -np.inf),
+            [0.0, -0.0, 1e-13, -1e-13, 5e-13, -5e-13, 100.0, 4095.9, 4096.0, 1e300],
+            [np.nan, np.inf, -np.inf, 99.9999999999995, 0.1 + 0.2],
+        ]
+    ).tolist()
+    rounded = compiled_kernel().round12(*values)
+    want = [round(v, 12) for v in values]
+    same = [
+        (np.isnan(a) and np.isnan(b)) or (a == b and np.copysign(1.0, a) == np.copysign(1.0, b))
+        for a, b in zip(rounded, want, strict=True)
+    ]
+    assert all(same)
+    assert compiled_kernel().round12(3, 2.5) == (3, 2.5)  # not a float: Python's round
