@@ -3180,11 +3180,13 @@ static PyObject *py_reflex_dynamics_fit(PyObject *self, PyObject *args)
  * the estimate's flags (rtsid.ident.assess.window_flags). The same C functions
  * in the same order as the separate calls, so the numbers are theirs bit for bit.
  *
- * onecall_window(position, torque, explained, h, arrays, consts, state) -> status
- *   arrays  (taps, tw_cos, tw_sin, u, y, phi, extra, regressors, projected, gram, model, out,
- *           table: the plan's band_table or empty):
- *           a stream's buffers for one plan; out holds OW_SIZE values, then OC_LEVEL;
- *   consts  OC_CONSTS doubles per plan (OC_FACTOR ...);
+ * onecall_window(position, torque, explained, h, work, consts, state) -> status
+ *   work    one float64 buffer holding a stream's arrays for one plan (glue7: one buffer to
+ *           acquire a window instead of thirteen), in this order: taps, tw_cos, tw_sin, u, y,
+ *           phi, extra, regressors, projected, gram, model, out, table (the plan's band_table
+ *           or empty); out holds OW_SIZE values, then OC_LEVEL;
+ *   consts  OC_CONSTS doubles per plan (OC_FACTOR ...), then each array's (offset, length)
+ *           in work, in doubles (OC_ARRAYS pairs);
  *   state   (k, held inertia, held damping, typical level or NaN): per window.
  * status 0: done; anything else: the window is declined (a check withholds it, or a fit
  * fails): the caller runs the step-by-step path, which says why with its own error.
@@ -3194,6 +3196,7 @@ enum {
     OC_MIN_RELATIVE, OC_UNCERTAINTY, OC_NOISE_LAGS, OC_KMAX, OC_NEWEST_ROWS, OC_CONSTS,
 };
 enum { OC_LEVEL = OW_SIZE, OC_OUT_SIZE };
+enum { OC_ARRAYS = 13 };
 enum { OC_DONE = 0, OC_DECLINED = 1 };
 /* The window's checks, front end and back end; b: position, torque, explained (or NULL), h,
  * then the arrays in order. */
@@ -3261,40 +3264,45 @@ static int onecall(const double *pos, const double *trq, const double *explained
 
 static PyObject *py_onecall_window(PyObject *self, PyObject *args)
 {
-    PyObject *objs[5], *arrays, *explained;
-    if (!PyArg_ParseTuple(args, "OOOOO!OO", &objs[0], &objs[1], &explained, &objs[2],
-                          &PyTuple_Type, &arrays, &objs[3], &objs[4])) {
+    PyObject *objs[6], *explained;
+    if (!PyArg_ParseTuple(args, "OOOOOOO", &objs[0], &objs[1], &explained, &objs[2], &objs[5],
+                          &objs[3], &objs[4])) {
         return NULL;
     }
-    static const char *names[5] = {"position", "torque", "h", "consts", "state"};
-    static const char *array_names[13] = {"taps", "tw_cos", "tw_sin", "u", "y", "phi", "extra",
-                                          "regressors", "projected", "gram", "model", "out",
-                                          "table"};
-    if (PyTuple_GET_SIZE(arrays) != 13) {
-        PyErr_SetString(PyExc_ValueError, "onecall_window: arrays must hold 13 buffers");
-        return NULL;
-    }
-    Py_buffer b[6], a[13];
-    if (get_buffers(objs, 5, 2, names, b) < 0) return NULL;
-    PyObject *items[13];
-    for (int i = 0; i < 13; i++) items[i] = PyTuple_GET_ITEM(arrays, i);
-    if (get_buffers(items, 13, 3, array_names, a) < 0) {
-        release_buffers(b, 5);
-        return NULL;
-    }
-    int has_explained = explained != Py_None, got = 5;
+    static const char *names[6] = {"position", "torque", "h", "consts", "state", "work"};
+    Py_buffer b[7], a[OC_ARRAYS];
+    if (get_buffers(objs, 6, 2, names, b) < 0) return NULL;
+    int has_explained = explained != Py_None, got = 6;
     if (has_explained && get_doubles(explained, &b[got++], 0, "explained") < 0) {
-        release_buffers(b, 5);
-        release_buffers(a, 13);
+        release_buffers(b, 6);
+        return NULL;
+    }
+    /* the arrays as views of work (glue7): only .buf and .len are read below */
+    const double *layout = (const double *)b[3].buf + OC_CONSTS;
+    const Py_ssize_t work_len = b[5].len / 8;
+    int laid_out = b[3].len / 8 == OC_CONSTS + 2 * OC_ARRAYS;
+    for (int i = 0; laid_out && i < OC_ARRAYS; i++) {
+        const double at = layout[2 * i], len = layout[2 * i + 1];
+        laid_out = at >= 0.0 && len >= 0.0 && at == floor(at) && len == floor(len) &&
+                   at + len <= (double)work_len;
+        if (laid_out) {
+            a[i].buf = (double *)b[5].buf + (Py_ssize_t)at;
+            a[i].len = (Py_ssize_t)len * 8;
+        }
+    }
+    if (!laid_out) {
+        PyErr_SetString(PyExc_ValueError, "onecall_window: consts must end with the arrays' "
+                                          "(offset, length) pairs within work");
+        release_buffers(b, got);
         return NULL;
     }
     PyObject *result = NULL;
     const Py_ssize_t n = b[0].len / 8, nh = b[2].len / 8, m = a[3].len / 8, nn = m - 8;
     const double *c = b[3].buf;
-    if (b[3].len / 8 != OC_CONSTS || b[4].len / 8 < 4 || a[11].len / 8 != OC_OUT_SIZE) {
+    if (b[4].len / 8 < 4 || a[11].len / 8 != OC_OUT_SIZE) {
         PyErr_SetString(PyExc_ValueError, "onecall_window: inconsistent sizes");
     } else if (b[0].ndim != 1 || b[1].ndim != 1 || b[1].len != b[0].len ||
-               (has_explained && b[5].len != b[0].len) || c[OC_FACTOR] < 1 || c[OC_LAG] < 1 ||
+               (has_explained && b[6].len != b[0].len) || c[OC_FACTOR] < 1 || c[OC_LAG] < 1 ||
                nh != 2 * (Py_ssize_t)c[OC_LAG] + 1 || a[0].len / 8 < 1 || n < 16 ||
                n < a[0].len / 8 || a[4].len != a[3].len || a[5].len / 8 != nh ||
                a[6].len != a[3].len || nn < 2 || a[1].len / 8 != nn || a[2].len / 8 != nn ||
@@ -3314,14 +3322,13 @@ static PyObject *py_onecall_window(PyObject *self, PyObject *args)
         } else if (work == NULL) {
             PyErr_NoMemory();
         } else {
-            int status = onecall(b[0].buf, b[1].buf, has_explained ? b[5].buf : NULL, n,
+            int status = onecall(b[0].buf, b[1].buf, has_explained ? b[6].buf : NULL, n,
                                  b[2].buf, nh, a, c, b[4].buf, work);
             PyMem_Free(work);
             result = PyLong_FromLong(status);
         }
     }
     release_buffers(b, got);
-    release_buffers(a, 13);
     return result;
 }
 

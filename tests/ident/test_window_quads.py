@@ -6,10 +6,12 @@ block size (32, 16, 8 outputs) and the one-at-a-time remainder run."""
 import numpy as np
 import pytest
 
-from rtsid.ident import front
+from rtsid.ident import front, onecall
 from rtsid.ident.analysis import resolve_plan
+from rtsid.ident.fit import Held
 from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.options import EstimatorOptions
+from rtsid.ident.stream import WindowStream
 from tests.ident.test_window_kernels import FS, _one_output_at_a_time, _signal
 from tests.ident.test_window_path_lanes import _linear_detrended
 
@@ -116,3 +118,26 @@ def test_the_compiled_rounding_is_pythons_round_to_12_decimals():
     ]
     assert all(same)
     assert compiled_kernel().round12(3, 2.5) == (3, 2.5)  # not a float: Python's round
+
+
+def test_the_one_calls_arrays_are_views_of_one_buffer_it_checks():
+    # the kernel takes one buffer and each array's (offset, length): a window through it is
+    # the step-by-step path's, and a layout past the buffer is refused, not read
+    theta, tau = _signal(750, 3)
+    options = EstimatorOptions()
+    plan = resolve_plan(theta, FS, options)
+    call = onecall.WindowCall(plan, options, 750, 12)
+    for view in (call.u, call.y, call.regressors, call.projected, call.gram, call.out):
+        assert view.base is call.work
+    done = call(theta, tau, None, Held(), None)
+    assert done is not None
+    stream = WindowStream(FS, options, 0.02, plan=plan)
+    want = stream.estimate(theta, tau, np.ones(750, dtype=bool))  # the step-by-step path
+    assert (done[0][2], done[1].tolist()) == (want.K, want.irf.tolist())
+    consts = call.consts.copy()
+    consts[-2] = call.work.size  # the table starts past the buffer's end
+    args = (theta, tau, None, np.empty(call.nh), call.work, consts, call.held)
+    with pytest.raises(ValueError, match="within work"):
+        compiled_kernel().onecall_window(*args)
+    with pytest.raises(ValueError, match="within work"):
+        compiled_kernel().onecall_window(*args[:5], call.consts[:-2], call.held)
