@@ -34,9 +34,53 @@
 #define RELEASE_GIL_ABOVE 1000
 
 static double dot_lanes(const double *u, const double *v, Py_ssize_t n, int *done);
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
+#define GLUE7_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define GLUE7_CLONES
+#endif
+#if defined(__GNUC__) || defined(__clang__)
+#define G7_QUADS 1 /* glue7 (end of file): the window path's loops four lanes wide */
+typedef double g7_quad __attribute__((vector_size(32), aligned(8))); /* unaligned loads */
+/* macros rather than inline functions: a vector returned by a baseline function changes its
+ * ABI under AVX, which GCC warns of */
+#define g7_at(p) (*(const g7_quad *)(p))
+#define g7_of(x) ((g7_quad){(x), (x), (x), (x)})
+/* dot_unrolled's four running sums s0 … s3 (s_i over i ≡ i mod 4) as one vector, the
+ * remainder into s0, then (s0 + s1) + (s2 + s3): its result bit for bit. Inlined into the
+ * clones that call it (each with its clone's instructions); g7_dot for everyone else. */
+static inline __attribute__((always_inline)) double g7_dot_inline(const double *u,
+                                                                  const double *v, Py_ssize_t n)
+{
+    g7_quad s = g7_of(0.0);
+    Py_ssize_t i = 0;
+    for (; i + 4 <= n; i += 4) s += g7_at(u + i) * g7_at(v + i);
+    double q[4];
+    memcpy(q, &s, sizeof q);
+    for (; i < n; i++) q[0] += u[i] * v[i];
+    return (q[0] + q[1]) + (q[2] + q[3]);
+}
+#define WINDOW_DOT g7_dot_inline
+static double g7_dot(const double *u, const double *v, Py_ssize_t n);
+static Py_ssize_t g7_fir_rows(const double *phases, const Py_ssize_t *at, const double *taps,
+                              Py_ssize_t nt, Py_ssize_t m, double *out);
+static Py_ssize_t g7_smooth_rows(const double *padded, const double *mirror, Py_ssize_t n,
+                                 Py_ssize_t lags, double *smoothed);
+static Py_ssize_t g7_predict_rows(const double *h, const double *u, Py_ssize_t nh,
+                                  Py_ssize_t lag, Py_ssize_t t0, Py_ssize_t t1, double *out);
+static void g7_band_powers(const double *meas, const double *err, Py_ssize_t n,
+                           Py_ssize_t kmax, const double *table, double *total, double *left);
+#else
+#define WINDOW_DOT dot_unrolled
+#endif
+static void xcorr_lanes(const double *u, const double *y, Py_ssize_t n, Py_ssize_t first,
+                        Py_ssize_t last, double norm, double *c); /* fits4 */
 
 static double dot_unrolled(const double *u, const double *v, Py_ssize_t n)
 {
+#ifdef G7_QUADS
+    return g7_dot(u, v, n); /* the same four sums, one vector (glue7) */
+#endif
     int done = 0; /* the same sums in vector lanes where the compiler has them (end of file) */
     double lanes_sum = dot_lanes(u, v, n, &done);
     if (done) return lanes_sum;
@@ -1736,6 +1780,7 @@ static PyObject *py_stencil_correlate(PyObject *self, PyObject *args); /* fits4 
 static PyObject *py_samples_into(PyObject *self, PyObject *args); /* readrest, end */
 static PyObject *py_estimate_json(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* readrest */
 static PyObject *py_crc32(PyObject *self, PyObject *args); /* rest7, end */
+static PyObject *py_round12(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* glue7 */
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1786,6 +1831,7 @@ static PyMethodDef methods[] = {
     {"samples_into", py_samples_into, METH_VARARGS, "samples_into(data, position, torque, valid, status, offset) -> (first_index, fs_hz, rows) or None: a compact samples payload into preallocated columns (section readrest)."},
     {"estimate_json", (PyCFunction)(void (*)(void))py_estimate_json, METH_FASTCALL, "estimate_json(message, keys, prefixes) -> bytes or None: an estimate message as json.dumps writes it (section readrest)."},
     {"crc32", py_crc32, METH_VARARGS, "crc32(data, value=0) -> int: zlib.crc32(data, value), sixteen bytes at a time (section rest7)."},
+    {"round12", (PyCFunction)(void (*)(void))py_round12, METH_FASTCALL, "round12(*values) -> tuple: round(value, 12) of each float, as Python gives it (section glue7)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -2474,6 +2520,9 @@ static void lagged_predict(const double *h, const double *u, Py_ssize_t nh, Py_s
                            Py_ssize_t t0, Py_ssize_t t1, double *out)
 {
     Py_ssize_t t = t0;
+#ifdef G7_QUADS
+    t = g7_predict_rows(h, u, nh, lag, t0, t1, out); /* glue7, then the rest */
+#endif
 #ifdef LANE_PAIRS
     for (; t + BLOCK <= t1; t += BLOCK) {
         lane_pair a0 = pair_of(0.0), a1 = a0, a2 = a0, a3 = a0;
@@ -2563,6 +2612,9 @@ static void band_smooth(const double *row, const double *r, Py_ssize_t n, Py_ssi
         memcpy(padded + lags, row, sizeof(double) * (size_t)n);
         double *mirror = padded + n + 2 * lags;
         for (Py_ssize_t e = -lags; e <= lags; e++) mirror[lags + e] = r[e < 0 ? -e : e];
+#ifdef G7_QUADS
+        t = g7_smooth_rows(padded, mirror, n, lags, smoothed); /* glue7, then the rest */
+#endif
         /* kern625: 2·BLOCK rows at a time while they last (the same sums, fewer broadcasts);
          * the rows that were padded before still are, so every output is the same */
         for (; t + 2 * BLOCK <= n; t += 2 * BLOCK) {
@@ -2673,7 +2725,7 @@ static Py_ssize_t band_powers(const double *meas, const double *err, Py_ssize_t 
  * variance alphas[k], and rr (r reversed) as eureka_solve forms it; the same status and alpha.
  * eureka_apply then solves R x = b for any b with eureka_solve's arithmetic, bit for bit, without
  * the filter's half of the work: the refinement sweeps solve with one R four times. */
-static Py_ssize_t eureka_filters(const double *r, double *rr, double *filters, double *alphas,
+GLUE7_CLONES static Py_ssize_t eureka_filters(const double *r, double *rr, double *filters, double *alphas,
                                  Py_ssize_t n, double *alpha_out)
 {
     for (Py_ssize_t j = 0; j < n; j++) rr[j] = r[n - 1 - j];
@@ -2687,7 +2739,7 @@ static Py_ssize_t eureka_filters(const double *r, double *rr, double *filters, d
     alphas[0] = alpha;
     for (Py_ssize_t k = 1; k < n; k++) {
         const double *rk = rr + (n - 1 - k);
-        double refl = -dot_unrolled(cur, rk, k) / alpha;
+        double refl = -WINDOW_DOT(cur, rk, k) / alpha;
         cur[k] = 0.0;
         Py_ssize_t i = 0, j = k;
         for (; i < j; i++, j--) {
@@ -2715,13 +2767,13 @@ static Py_ssize_t eureka_filters(const double *r, double *rr, double *filters, d
     return -1;
 }
 
-static void eureka_apply(const double *rr, const double *filters, const double *alphas,
+GLUE7_CLONES static void eureka_apply(const double *rr, const double *filters, const double *alphas,
                          const double *b, double *x, Py_ssize_t n)
 {
     x[0] = b[0] / alphas[0];
     for (Py_ssize_t k = 1; k < n; k++) {
         const double *rk = rr + (n - 1 - k), *rev = filters + k * (k + 1) / 2;
-        const double mu = (b[k] - dot_unrolled(x, rk, k)) / alphas[k];
+        const double mu = (b[k] - WINDOW_DOT(x, rk, k)) / alphas[k];
         x[k] = 0.0;
         for (Py_ssize_t m = 0; m <= k; m++) x[m] += mu * rev[m];
     }
@@ -2896,7 +2948,7 @@ static void lagged_cross(const double *u, const double *y, Py_ssize_t m, Py_ssiz
 /* sweeps refinement sweeps of h (nh = 2L + 1 values, × fs) with R's EUREKA filters (rr, filters,
  * alphas from eureka_filters): each adds R⁻¹·g·fs with g = (X'y − G·h/fs)/inner − loading·h/fs.
  * work: GRAM_SWEEPS_WORK(nh) doubles. */
-static void gram_sweeps(const double *u, const double *y, Py_ssize_t m, Py_ssize_t lag,
+GLUE7_CLONES static void gram_sweeps(const double *u, const double *y, Py_ssize_t m, Py_ssize_t lag,
                         const double *auto_sums, const double *cross_sums, double loading,
                         Py_ssize_t sweeps, double fs, const double *rr, const double *filters,
                         const double *alphas, double *h, double *work)
@@ -2910,7 +2962,7 @@ static void gram_sweeps(const double *u, const double *y, Py_ssize_t m, Py_ssize
     for (Py_ssize_t s = 0; s < sweeps; s++) {
         for (Py_ssize_t j = 0; j < nh; j++) scaled[j] = h[j] / fs;
         for (Py_ssize_t j = 0; j < nh; j++)
-            g[j] = (xy[j] - dot_unrolled(gram + j * nh, scaled, nh)) / inner - loading * scaled[j];
+            g[j] = (xy[j] - WINDOW_DOT(gram + j * nh, scaled, nh)) / inner - loading * scaled[j];
         eureka_apply(rr, filters, alphas, g, delta, nh);
         for (Py_ssize_t j = 0; j < nh; j++) h[j] += delta[j] * fs;
     }
@@ -3120,11 +3172,13 @@ static PyObject *py_reflex_dynamics_fit(PyObject *self, PyObject *args)
  * the estimate's flags (rtsid.ident.assess.window_flags). The same C functions
  * in the same order as the separate calls, so the numbers are theirs bit for bit.
  *
- * onecall_window(position, torque, explained, h, arrays, consts, state) -> status
- *   arrays  (taps, tw_cos, tw_sin, u, y, phi, extra, regressors, projected, gram, model, out,
- *           table: the plan's band_table or empty):
- *           a stream's buffers for one plan; out holds OW_SIZE values, then OC_LEVEL;
- *   consts  OC_CONSTS doubles per plan (OC_FACTOR ...);
+ * onecall_window(position, torque, explained, h, work, consts, state) -> status
+ *   work    one float64 buffer holding a stream's arrays for one plan (glue7: one buffer to
+ *           acquire a window instead of thirteen), in this order: taps, tw_cos, tw_sin, u, y,
+ *           phi, extra, regressors, projected, gram, model, out, table (the plan's band_table
+ *           or empty); out holds OW_SIZE values, then OC_LEVEL;
+ *   consts  OC_CONSTS doubles per plan (OC_FACTOR ...), then each array's (offset, length)
+ *           in work, in doubles (OC_ARRAYS pairs);
  *   state   (k, held inertia, held damping, typical level or NaN): per window.
  * status 0: done; anything else: the window is declined (a check withholds it, or a fit
  * fails): the caller runs the step-by-step path, which says why with its own error.
@@ -3134,6 +3188,7 @@ enum {
     OC_MIN_RELATIVE, OC_UNCERTAINTY, OC_NOISE_LAGS, OC_KMAX, OC_NEWEST_ROWS, OC_CONSTS,
 };
 enum { OC_LEVEL = OW_SIZE, OC_OUT_SIZE };
+enum { OC_ARRAYS = 13 };
 enum { OC_DONE = 0, OC_DECLINED = 1 };
 /* The window's checks, front end and back end; b: position, torque, explained (or NULL), h,
  * then the arrays in order. */
@@ -3201,40 +3256,45 @@ static int onecall(const double *pos, const double *trq, const double *explained
 
 static PyObject *py_onecall_window(PyObject *self, PyObject *args)
 {
-    PyObject *objs[5], *arrays, *explained;
-    if (!PyArg_ParseTuple(args, "OOOOO!OO", &objs[0], &objs[1], &explained, &objs[2],
-                          &PyTuple_Type, &arrays, &objs[3], &objs[4])) {
+    PyObject *objs[6], *explained;
+    if (!PyArg_ParseTuple(args, "OOOOOOO", &objs[0], &objs[1], &explained, &objs[2], &objs[5],
+                          &objs[3], &objs[4])) {
         return NULL;
     }
-    static const char *names[5] = {"position", "torque", "h", "consts", "state"};
-    static const char *array_names[13] = {"taps", "tw_cos", "tw_sin", "u", "y", "phi", "extra",
-                                          "regressors", "projected", "gram", "model", "out",
-                                          "table"};
-    if (PyTuple_GET_SIZE(arrays) != 13) {
-        PyErr_SetString(PyExc_ValueError, "onecall_window: arrays must hold 13 buffers");
-        return NULL;
-    }
-    Py_buffer b[6], a[13];
-    if (get_buffers(objs, 5, 2, names, b) < 0) return NULL;
-    PyObject *items[13];
-    for (int i = 0; i < 13; i++) items[i] = PyTuple_GET_ITEM(arrays, i);
-    if (get_buffers(items, 13, 3, array_names, a) < 0) {
-        release_buffers(b, 5);
-        return NULL;
-    }
-    int has_explained = explained != Py_None, got = 5;
+    static const char *names[6] = {"position", "torque", "h", "consts", "state", "work"};
+    Py_buffer b[7], a[OC_ARRAYS];
+    if (get_buffers(objs, 6, 2, names, b) < 0) return NULL;
+    int has_explained = explained != Py_None, got = 6;
     if (has_explained && get_doubles(explained, &b[got++], 0, "explained") < 0) {
-        release_buffers(b, 5);
-        release_buffers(a, 13);
+        release_buffers(b, 6);
+        return NULL;
+    }
+    /* the arrays as views of work (glue7): only .buf and .len are read below */
+    const double *layout = (const double *)b[3].buf + OC_CONSTS;
+    const Py_ssize_t work_len = b[5].len / 8;
+    int laid_out = b[3].len / 8 == OC_CONSTS + 2 * OC_ARRAYS;
+    for (int i = 0; laid_out && i < OC_ARRAYS; i++) {
+        const double at = layout[2 * i], len = layout[2 * i + 1];
+        laid_out = at >= 0.0 && len >= 0.0 && at == floor(at) && len == floor(len) &&
+                   at + len <= (double)work_len;
+        if (laid_out) {
+            a[i].buf = (double *)b[5].buf + (Py_ssize_t)at;
+            a[i].len = (Py_ssize_t)len * 8;
+        }
+    }
+    if (!laid_out) {
+        PyErr_SetString(PyExc_ValueError, "onecall_window: consts must end with the arrays' "
+                                          "(offset, length) pairs within work");
+        release_buffers(b, got);
         return NULL;
     }
     PyObject *result = NULL;
     const Py_ssize_t n = b[0].len / 8, nh = b[2].len / 8, m = a[3].len / 8, nn = m - 8;
     const double *c = b[3].buf;
-    if (b[3].len / 8 != OC_CONSTS || b[4].len / 8 < 4 || a[11].len / 8 != OC_OUT_SIZE) {
+    if (b[4].len / 8 < 4 || a[11].len / 8 != OC_OUT_SIZE) {
         PyErr_SetString(PyExc_ValueError, "onecall_window: inconsistent sizes");
     } else if (b[0].ndim != 1 || b[1].ndim != 1 || b[1].len != b[0].len ||
-               (has_explained && b[5].len != b[0].len) || c[OC_FACTOR] < 1 || c[OC_LAG] < 1 ||
+               (has_explained && b[6].len != b[0].len) || c[OC_FACTOR] < 1 || c[OC_LAG] < 1 ||
                nh != 2 * (Py_ssize_t)c[OC_LAG] + 1 || a[0].len / 8 < 1 || n < 16 ||
                n < a[0].len / 8 || a[4].len != a[3].len || a[5].len / 8 != nh ||
                a[6].len != a[3].len || nn < 2 || a[1].len / 8 != nn || a[2].len / 8 != nn ||
@@ -3254,14 +3314,13 @@ static PyObject *py_onecall_window(PyObject *self, PyObject *args)
         } else if (work == NULL) {
             PyErr_NoMemory();
         } else {
-            int status = onecall(b[0].buf, b[1].buf, has_explained ? b[5].buf : NULL, n,
+            int status = onecall(b[0].buf, b[1].buf, has_explained ? b[6].buf : NULL, n,
                                  b[2].buf, nh, a, c, b[4].buf, work);
             PyMem_Free(work);
             result = PyLong_FromLong(status);
         }
     }
     release_buffers(b, got);
-    release_buffers(a, 13);
     return result;
 }
 
@@ -3835,6 +3894,9 @@ static void fir_phases(const double *phases, Py_ssize_t n, const double *taps, P
         at[j] = phase_start(d % factor, n, factor) + d / factor;
     }
     Py_ssize_t k = 0;
+#ifdef G7_QUADS
+    k = g7_fir_rows(phases, at, taps, nt, m, out); /* four lanes wide (glue7), then the rest */
+#endif
 #ifdef LANE_PAIRS
     for (; k + 2 * BLOCK <= m; k += 2 * BLOCK) {
         lane_pair a[8] = {{0.0, 0.0}};
@@ -3941,13 +4003,13 @@ static Py_ssize_t window_irf_sloped(const double *pos, const double *trq, Py_ssi
     fir_phases(dt, n, taps, nt, factor, y, m);
     /* the sums themselves are kept for the sweeps' Gram matrix; sums / m is what
      * xcorr_blocked(..., m, ...) gives, bit for bit */
-    xcorr_blocked(u, u, m, 0, nh - 1, 1.0, sums);
+    xcorr_lanes(u, u, m, 0, nh - 1, 1.0, sums); /* xcorr_blocked's sums, sixteen lags at a time */
     for (Py_ssize_t k = 0; k < nh; k++) phi[k] = sums[k] / (double)m;
     const double loading = ridge * phi[0];
     phi[0] += loading;
     /* phi_uy(k) = sum_t u(t-k) y(t) / m  =  sum_s u(s) y(s+k) / m */
     double *g = rest; /* the first solve's right-hand side, before the sweeps use rest */
-    xcorr_blocked(u, y, m, -lag, lag, 1.0, sums + nh);
+    xcorr_lanes(u, y, m, -lag, lag, 1.0, sums + nh);
     for (Py_ssize_t k = 0; k < nh; k++) g[k] = sums[nh + k] / (double)m;
     /* the four solves share R: its prediction-error filters are formed once */
     Py_ssize_t status = eureka_filters(phi, rr, filters, alphas, nh, alpha);
@@ -3987,6 +4049,10 @@ static Py_ssize_t band_powers_table(const double *meas, const double *err, Py_ss
                                     Py_ssize_t kmax, const double *table, double *total,
                                     double *left)
 {
+#ifdef G7_QUADS
+    g7_band_powers(meas, err, n, kmax, table, total, left); /* the bins in four lanes (glue7) */
+    return kmax + 1;
+#endif
     for (Py_ssize_t g = 0; g < (kmax + 3) / 4; g++) {
         const double *at = table + g * n * 8;
 #ifdef LANE_PAIRS
@@ -5125,4 +5191,176 @@ static PyObject *py_crc32(PyObject *self, PyObject *args)
     const uint32_t c = crc_update((uint32_t)value, (const unsigned char *)data.buf, data.len);
     PyBuffer_Release(&data);
     return PyLong_FromUnsignedLong(c);
+}
+
+/* ================================================================== glue7 (issue 22)
+ * The window path's lane-pair loops four lanes wide. On x86-64 each function below is built
+ * twice (target_clones: an AVX2 clone, chosen at load time where the processor has it, and
+ * the baseline); a four-double vector holds four independent outputs (or, in g7_dot, the
+ * four running sums s0 … s3 that dot_unrolled keeps), and each lane does the IEEE multiply
+ * and add of the scalar loop in the same order: no fused multiply-add (the AVX2 clone enables
+ * neither FMA nor contraction, and the build says -ffp-contract=off), so every output is the
+ * loop's bit for bit, as the lane pairs' were, in half the vector instructions. Where the
+ * compiler has no vector extension (G7_QUADS undefined) the callers keep their lane pairs.
+ *
+ * g7_dot          dot_unrolled's four sums as one vector, the remainder into s0 (inlined as
+ *                 g7_dot_inline, top of file, into eureka_filters, eureka_apply and
+ *                 gram_sweeps, themselves built as clones: EUREKA's element-wise updates
+ *                 four lanes wide too).
+ * g7_fir_rows     fir_phases' outputs 32 (then 16) at a time.
+ * g7_smooth_rows  band_smooth's rows 32 (then 16) at a time over its padded row.
+ * g7_predict_rows lagged_predict's outputs 16 at a time.
+ * g7_band_powers  band_powers_table's groups of four bins, the bins in the lanes.
+ * The front end's correlations use fits4's xcorr_lanes (sixteen lags at a time).
+ */
+#ifdef G7_QUADS
+GLUE7_CLONES static double g7_dot(const double *u, const double *v, Py_ssize_t n)
+{
+    return g7_dot_inline(u, v, n);
+}
+
+GLUE7_CLONES static Py_ssize_t g7_fir_rows(const double *phases, const Py_ssize_t *at,
+                                           const double *taps, Py_ssize_t nt, Py_ssize_t m,
+                                           double *out)
+{
+    Py_ssize_t k = 0;
+    for (; k + 32 <= m; k += 32) {
+        g7_quad a[8];
+        for (int b = 0; b < 8; b++) a[b] = g7_of(0.0);
+        for (Py_ssize_t j = 0; j < nt; j++) {
+            const g7_quad tj = g7_of(taps[j]);
+            const double *s = phases + at[j] + k;
+            for (int b = 0; b < 8; b++) a[b] += tj * g7_at(s + 4 * b);
+        }
+        memcpy(out + k, a, sizeof a);
+    }
+    for (; k + 16 <= m; k += 16) {
+        g7_quad a[4];
+        for (int b = 0; b < 4; b++) a[b] = g7_of(0.0);
+        for (Py_ssize_t j = 0; j < nt; j++) {
+            const g7_quad tj = g7_of(taps[j]);
+            const double *s = phases + at[j] + k;
+            for (int b = 0; b < 4; b++) a[b] += tj * g7_at(s + 4 * b);
+        }
+        memcpy(out + k, a, sizeof a);
+    }
+    return k;
+}
+
+/* padded: the row with `lags` zeros each side; mirror[lags + e] = r[|e|]. */
+GLUE7_CLONES static Py_ssize_t g7_smooth_rows(const double *padded, const double *mirror,
+                                              Py_ssize_t n, Py_ssize_t lags, double *smoothed)
+{
+    Py_ssize_t t = 0;
+    for (; t + 32 <= n; t += 32) {
+        g7_quad a[8];
+        for (int b = 0; b < 8; b++) a[b] = g7_of(0.0);
+        for (Py_ssize_t e = -lags; e <= lags; e++) {
+            const g7_quad re = g7_of(mirror[lags + e]);
+            const double *src = padded + lags + t + e;
+            for (int b = 0; b < 8; b++) a[b] += g7_at(src + 4 * b) * re;
+        }
+        memcpy(smoothed + t, a, sizeof a);
+    }
+    for (; t + 16 <= n; t += 16) {
+        g7_quad a[4];
+        for (int b = 0; b < 4; b++) a[b] = g7_of(0.0);
+        for (Py_ssize_t e = -lags; e <= lags; e++) {
+            const g7_quad re = g7_of(mirror[lags + e]);
+            const double *src = padded + lags + t + e;
+            for (int b = 0; b < 4; b++) a[b] += g7_at(src + 4 * b) * re;
+        }
+        memcpy(smoothed + t, a, sizeof a);
+    }
+    return t;
+}
+
+GLUE7_CLONES static Py_ssize_t g7_predict_rows(const double *h, const double *u, Py_ssize_t nh,
+                                               Py_ssize_t lag, Py_ssize_t t0, Py_ssize_t t1,
+                                               double *out)
+{
+    Py_ssize_t t = t0;
+    for (; t + 16 <= t1; t += 16) {
+        g7_quad a[4];
+        for (int b = 0; b < 4; b++) a[b] = g7_of(0.0);
+        for (Py_ssize_t j = 0; j < nh; j++) {
+            const g7_quad hj = g7_of(h[j]);
+            const double *src = u + t + lag - j;
+            for (int b = 0; b < 4; b++) a[b] += hj * g7_at(src + 4 * b);
+        }
+        memcpy(out + t, a, sizeof a);
+    }
+    return t;
+}
+
+GLUE7_CLONES static void g7_band_powers(const double *meas, const double *err, Py_ssize_t n,
+                                        Py_ssize_t kmax, const double *table, double *total,
+                                        double *left)
+{
+    for (Py_ssize_t g = 0; g < (kmax + 3) / 4; g++) {
+        const double *at = table + g * n * 8;
+        g7_quad mr = g7_of(0.0), mi = mr, er = mr, ei = mr;
+        for (Py_ssize_t t = 0; t < n; t++, at += 8) {
+            const g7_quad m = g7_of(meas[t]), e = g7_of(err[t]);
+            const g7_quad c = g7_at(at), s = g7_at(at + 4);
+            mr += m * c;
+            mi -= m * s;
+            er += e * c;
+            ei -= e * s;
+        }
+        double r[4][4];
+        memcpy(r[0], &mr, 32), memcpy(r[1], &mi, 32), memcpy(r[2], &er, 32);
+        memcpy(r[3], &ei, 32);
+        for (int b = 0; b < 4 && 4 * g + 1 + b <= kmax; b++) {
+            *total += r[0][b] * r[0][b] + r[1][b] * r[1][b];
+            *left += r[2][b] * r[2][b] + r[3][b] * r[3][b];
+        }
+    }
+}
+#endif /* G7_QUADS */
+
+/* round12(*values) -> tuple of round(value, 12): the published VAFs' rounding (rtsid.ident.
+ * assess.published_vafs; Python's round is the reference). round(x, 12) is the double nearest
+ * the decimal N·10⁻¹², N the integer nearest the exact x·10¹² (float.__round__: dtoa's digits,
+ * then strtod). N and 10¹² are exact doubles below 2⁵³, so IEEE's correctly rounded N / 10¹² is
+ * that double. N is nearbyint(x·10¹²) when the exact remainder x·10¹² − N (the product's
+ * rounding error by Dekker's split, exact without a fused multiply-add) is clearly inside
+ * ±1/2; near a tie, for |x| ≥ 4096, for NaN, infinities and non-floats Python's round
+ * answers. About 30 instructions a value instead of a decimal conversion (≈ 8 k). */
+static int g7_round12(double x, double *out)
+{
+    static const double scale = 1e12, split = 134217729.0; /* 2^27 + 1 */
+    if (!(fabs(x) < 4096.0)) return 0;
+    const double p = x * scale, n = nearbyint(p);
+    double c = split * x;
+    const double xh = c - (c - x), xl = x - xh;
+    c = split * scale;
+    const double sh = c - (c - scale), sl = scale - sh;
+    const double err = ((xh * sh - p) + xh * sl + xl * sh) + xl * sl; /* x·10¹² − p, exactly */
+    const double r = (p - n) + err;
+    if (!(fabs(r) < 0.499)) return 0;
+    *out = n / scale;
+    return 1;
+}
+
+static PyObject *py_round12(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    PyObject *result = PyTuple_New(nargs);
+    if (result == NULL) return NULL;
+    for (Py_ssize_t i = 0; i < nargs; i++) {
+        double rounded;
+        PyObject *item;
+        if (PyFloat_CheckExact(args[i]) && g7_round12(PyFloat_AS_DOUBLE(args[i]), &rounded)) {
+            item = PyFloat_FromDouble(rounded);
+        } else {
+            item = PyObject_CallMethod(args[i], "__round__", "i", 12); /* the reference */
+        }
+        if (item == NULL) {
+            Py_DECREF(result);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(result, i, item);
+    }
+    return result;
 }

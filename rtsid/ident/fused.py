@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rtsid.ident.analysis import AnalysisPlan
-from rtsid.ident.assess import WindowEstimate, assemble, band_bins, twiddles
+from rtsid.ident.assess import WindowEstimate, assemble, band_bins, published_vafs, twiddles
 from rtsid.ident.fit import Held, noise_lags
 from rtsid.ident.front import ScoredBand
 from rtsid.ident.irf import IRF
@@ -188,7 +188,7 @@ def fused_back_end(
         raise zero_response() if status == _eureka.OE_ZERO_TORQUE else inseparable_fit()
     out = buf.out.tolist()
     p, s, v, w, z = _OUT
-    vafs = (round(out[v], 12), round(out[v + 1], 12), round(out[v + 2], 12))
+    vafs = published_vafs(out[v], out[v + 1], out[v + 2])
     estimate = assemble(
         irf,
         out[p : p + 3],

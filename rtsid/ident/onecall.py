@@ -97,29 +97,23 @@ class WindowCall:
         band_hz = plan.edge_hz if plan.edge_hz is not None else plan.lowpass_hz / 1.5
         model_irf = IRF(h=np.zeros(self.nh), fs_hz=fs_a, phi_uu=np.zeros(self.nh))
         self.lags_s = model_irf.lags_s
-        self.u, self.y, self.extra = np.empty(m), np.empty(m), np.empty(m)
-        self.regressors, self.projected = np.empty((3, n)), np.empty((4, n))
-        self.gram, self.model = np.empty((4, 4)), np.empty(n)
-        self.out = np.empty(OUT_LEVEL + 1)
         kmax = band_bins(n, fs_a, band_hz) if n else 0
         self.held = np.zeros(4)  # k, held inertia, held damping, typical level (NaN: none)
         self._held: Held | None = None  # what self.held holds (None: nothing written yet)
         self._k = 0  # parameters held
-        self.arrays = (
-            taps,
-            cos,
-            sin,
-            self.u,
-            self.y,
-            np.empty(self.nh),
-            self.extra,
-            self.regressors,
-            self.projected,
-            self.gram,
-            self.model,
-            self.out,
-            kept_band_table(cos, sin, kmax) if n else np.empty(0),
-        )
+        table = kept_band_table(cos, sin, kmax) if n else np.empty(0)
+        # the kernel's thirteen arrays as views of one buffer, in its order: one buffer to
+        # acquire a window (about 1 k instructions each) instead of thirteen
+        sizes = (taps.size, n, n, m, m, self.nh, m, 3 * n, 4 * n, 16, n, OUT_LEVEL + 1, table.size)
+        offsets = np.cumsum((0, *sizes[:-1]))
+        self.work = np.empty(sum(sizes))
+        arrays = [self.work[at : at + size] for at, size in zip(offsets, sizes, strict=True)]
+        for view, values in ((0, taps), (1, cos), (2, sin), (12, table)):
+            arrays[view][:] = values
+        self.u, self.y, self.extra = arrays[3], arrays[4], arrays[6]
+        self.regressors, self.projected = arrays[7].reshape(3, n), arrays[8].reshape(4, n)
+        self.gram, self.model, self.out = arrays[9].reshape(4, 4), arrays[10], arrays[11]
+        layout = [float(v) for pair in zip(offsets, sizes, strict=True) for v in pair]
         consts = [0.0] * _CONSTS
         consts[0], consts[1], consts[2] = (
             factor,
@@ -131,7 +125,7 @@ class WindowCall:
         consts[9], consts[10] = float(options.uncertainty), noise_lags(model_irf, plan)
         consts[11] = kmax
         consts[12] = newest_rows
-        self.consts = np.array(consts, dtype=np.float64)
+        self.consts = np.array(consts + layout, dtype=np.float64)
 
     def __call__(
         self,
@@ -171,7 +165,7 @@ class WindowCall:
             np.ascontiguousarray(torque, dtype=np.float64),
             None if explained is None else np.ascontiguousarray(explained, dtype=np.float64),
             h,
-            self.arrays,
+            self.work,
             self.consts,
             state,
         )

@@ -29,7 +29,7 @@ from numpy.typing import ArrayLike
 
 from rtsid.errors import InputDataError, NumericalError, WindowError
 from rtsid.ident.analysis import AnalysisPlan
-from rtsid.ident.assess import assemble_parts, withhold_unidentifiable
+from rtsid.ident.assess import assemble_parts, published_vafs, withhold_unidentifiable
 from rtsid.ident.fit import NOT_HELD
 from rtsid.ident.fused import (
     _HELD_FLAGS,
@@ -389,7 +389,7 @@ class WindowStream:
             call.fs_hz,
             out[_PARAMS : _PARAMS + 3],
             (out[_SE], out[_SE + 1], out[_SE + 2]),
-            (round(out[_VAFS], 12), round(out[_VAFS + 1], 12), round(out[_VAFS + 2], 12)),
+            published_vafs(out[_VAFS], out[_VAFS + 1], out[_VAFS + 2]),
             "output_error",
             options,
             0,
