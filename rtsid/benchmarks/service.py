@@ -505,6 +505,9 @@ def print_miss_causes(phase: Phase) -> None:
     waits = worker.get("miss_waits") or {}
     listed = ", ".join(f"{name}: {count}" for name, count in sorted(waits.items())) or "none"
     print(f"  {phase.name}: misses by where most of their time went: {listed}")
+    stages = worker.get("miss_stages") or {}
+    listed = ", ".join(f"{name}: {count}" for name, count in sorted(stages.items())) or "none"
+    print(f"  {phase.name}: misses by the stage that took most of the worker's CPU: {listed}")
     overruns = worker.get("overrun_causes") or {}
     listed = ", ".join(f"{name}: {count}" for name, count in sorted(overruns.items())) or "none"
     print(f"  {phase.name}: overruns (windows skipped) by cause: {listed}")

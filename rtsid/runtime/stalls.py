@@ -35,6 +35,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
+from rtsid.runtime.stages import WindowStages
+
 __all__ = ["WAITS", "Miss", "RunQueueClock", "Span", "StallJournal", "thread_page_faults"]
 
 #: Spans kept (collections and housekeeping steps): minutes of a daemon's life at a 4 ms hop.
@@ -131,6 +133,7 @@ class Miss:
     cpu_ms: float | None = None  # the worker thread's CPU time over the compute span
     cpu_wait_ms: float | None = None  # of the span, runnable but not running (run queue)
     page_faults: int | None = None  # the worker thread's page faults over the span
+    stages: WindowStages | None = None  # the worker's CPU by stage of the window
 
     @property
     def wall_ms(self) -> float:
@@ -158,9 +161,10 @@ class Miss:
         if cpu and self.page_faults is not None:
             cpu += f", {self.page_faults} page faults"
         cpu += ")" if cpu else ""
+        stages = "" if self.stages is None else f"; {self.stages.describe()}"
         return (
             f"deadline miss: window ending {self.window_end_index}, compute "
-            f"{1e3 * (self.end_s - self.start_s):.2f} ms{cpu}; during it: {during}"
+            f"{1e3 * (self.end_s - self.start_s):.2f} ms{cpu}; during it: {during}{stages}"
         )
 
 
@@ -228,15 +232,18 @@ class StallJournal:
         cpu_ms: float | None = None,
         cpu_wait_ms: float | None = None,
         page_faults: int | None = None,
+        stages: WindowStages | None = None,
     ) -> None:
         """A window whose compute ran from ``start_s`` to ``end_s`` (``cpu_ms`` of it on the
-        worker's CPU, ``cpu_wait_ms`` waiting for one and ``page_faults`` taken by the worker,
-        when known) missed its deadline."""
+        worker's CPU, ``cpu_wait_ms`` waiting for one, ``page_faults`` taken by the worker
+        and its CPU by stage, when known) missed its deadline."""
         running = [Span(f"{name} (still running)", t0, end_s) for name, t0 in self._running_now()]
         overlapped = tuple(
             s for s in [*list(self._spans), *running] if s.end_s >= start_s and s.start_s <= end_s
         )
-        miss = Miss(window_end_index, start_s, end_s, overlapped, cpu_ms, cpu_wait_ms, page_faults)
+        miss = Miss(
+            window_end_index, start_s, end_s, overlapped, cpu_ms, cpu_wait_ms, page_faults, stages
+        )
         self._misses.append(miss)
         wait = miss.dominant_wait()
         unseen = "nothing seen" if wait is None else f"nothing seen: {wait}"

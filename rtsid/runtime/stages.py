@@ -1,0 +1,166 @@
+"""Where a window's CPU went, stage by stage: the worker's per-window stage log.
+
+The miss journal (:mod:`rtsid.runtime.stalls`) tells a missed window's own CPU from its waits;
+a miss of the window's own CPU (issue 22: 2.9–3.8 ms of the worker's CPU where 0.65 ms is
+usual, nothing else running) needs the next split: which stage of the window took it.
+:class:`StageLog` reads the worker thread's CPU clock (``time.thread_time_ns``:
+``CLOCK_THREAD_CPUTIME_ID``; host steal is not in it on a kernel with paravirtual steal
+accounting, interrupts served meanwhile are) at each stage boundary of a window and adds the
+difference to that stage (:data:`STAGES`, in the order a window passes them). The last
+:data:`WINDOWS_KEPT` windows are kept in a ring of preallocated rows; a missed window's row
+goes into its miss line (``…; stages, CPU ms: ring read 0.01, …``) and its largest stage is
+counted (``worker.miss_stages`` in the status).
+
+Its cost: one ``thread_time_ns`` call (a system call: the thread CPU clock has no vDSO path)
+and a few dictionary and list operations per mark, about a dozen marks a window.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
+
+__all__ = ["STAGES", "WINDOWS_KEPT", "StageLog", "WindowStages"]
+
+#: A window's stages, in the order the worker passes them. "between windows" is the worker's
+#: CPU from the previous window's end to this window's start (its loop, its waits, a stale
+#: message); "reflex model" the due slow-lane model looked up (a fit that arrived taken up);
+#: "held parameters", "compiled call" and "assembly" the estimate's parts on the one-call
+#: path (step by step, all of it is "assembly"); "publish" the zenoh put and the estimate
+#: left for the MCAP writer; "window end" what follows until the window is closed (the
+#: journal's bookkeeping).
+STAGES = (
+    "between windows",
+    "ring read",
+    "window check",
+    "reflex model",
+    "reflex prediction",
+    "held parameters",
+    "compiled call",
+    "assembly",
+    "tracker",
+    "message",
+    "publish",
+    "window end",
+)
+#: Windows whose stages are kept (the newest ones).
+WINDOWS_KEPT = 64
+_INDEX = {name: i for i, name in enumerate(STAGES)}
+
+
+@dataclass(frozen=True)
+class WindowStages:
+    """One window's CPU by stage.
+
+    Attributes
+    ----------
+    window_end_index : int
+        The window's last sample.
+    cpu_ns : tuple of int
+        The worker thread's CPU in each of :data:`STAGES`, ns.
+    new_reflex_model : bool
+        The window took up a slow-lane model the window before had not used.
+    """
+
+    window_end_index: int
+    cpu_ns: tuple[int, ...]
+    new_reflex_model: bool = False
+
+    @property
+    def largest(self) -> str:
+        """The stage that took the most CPU."""
+        return STAGES[self.cpu_ns.index(max(self.cpu_ns))]
+
+    def cpu_ms(self, stage: str) -> float:
+        """CPU of one stage, ms."""
+        return 1e-6 * self.cpu_ns[_INDEX[stage]]
+
+    def describe(self) -> str:
+        """``stages, CPU ms: between windows 0.02, ring read 0.01, …`` (window order; the
+        largest stage and a new reflex model named at the end)."""
+        parts = ", ".join(f"{n} {1e-6 * ns:.2f}" for n, ns in zip(STAGES, self.cpu_ns, strict=True))
+        model = ", a new reflex model" if self.new_reflex_model else ""
+        return f"stages, CPU ms: {parts} (largest: {self.largest}{model})"
+
+
+class StageLog:
+    """The worker's CPU per stage of its recent windows (a ring of preallocated rows).
+
+    The worker calls :meth:`begin` as a window starts, :meth:`mark` at the end of each stage
+    (the CPU since the previous mark goes to the named stage; a stage marked twice adds up)
+    and :meth:`end` when the window is done. One thread only (the worker's).
+
+    Parameters
+    ----------
+    clock : callable, optional
+        Thread CPU time, ns (default ``time.thread_time_ns``; tests pass their own).
+    """
+
+    def __init__(self, clock: Callable[[], int] = time.thread_time_ns) -> None:
+        self._clock = clock
+        self._rows = [[0] * len(STAGES) for _ in range(WINDOWS_KEPT)]
+        self._ends = [-1] * WINDOWS_KEPT
+        self._new_model = [False] * WINDOWS_KEPT
+        self._next = 0  # the row the next window takes
+        self._row = self._rows[0]
+        self._last_ns: int | None = None  # the clock at the latest mark (None: never read)
+        self._reflex_seq: int | None = None  # the model the window before used
+        self.windows = 0
+        #: missed windows by their largest stage
+        self.miss_stages: Counter[str] = Counter()
+
+    def begin(self, window_end_index: int) -> None:
+        """A window starts: a fresh row; the CPU since the previous window went between."""
+        slot = self._next
+        self._next = (slot + 1) % WINDOWS_KEPT
+        row = self._row = self._rows[slot]
+        for i in range(len(row)):
+            row[i] = 0
+        self._ends[slot] = window_end_index
+        self._new_model[slot] = False
+        now = self._clock()
+        if self._last_ns is not None:
+            row[0] = now - self._last_ns
+        self._last_ns = now
+        self.windows += 1
+
+    def mark(self, stage: str) -> None:
+        """The named stage of the current window ends now."""
+        now = self._clock()
+        self._row[_INDEX[stage]] += now - (now if self._last_ns is None else self._last_ns)
+        self._last_ns = now
+
+    def reflex_used(self, seq: int | None) -> None:
+        """The slow-lane model the current window used (None: none)."""
+        if seq is not None and seq != self._reflex_seq:
+            self._new_model[(self._next - 1) % WINDOWS_KEPT] = True
+        self._reflex_seq = seq
+
+    def end(self) -> None:
+        """The current window is done (its last stage, "window end", closes now)."""
+        self.mark("window end")
+
+    def latest(self) -> WindowStages | None:
+        """The current (or latest) window's stages; None before the first window."""
+        if not self.windows:
+            return None
+        return self._stages_of((self._next - 1) % WINDOWS_KEPT)
+
+    def recent(self) -> list[WindowStages]:
+        """The kept windows, oldest first."""
+        kept = min(self.windows, WINDOWS_KEPT)
+        first = (self._next - kept) % WINDOWS_KEPT
+        return [self._stages_of((first + k) % WINDOWS_KEPT) for k in range(kept)]
+
+    def missed(self) -> WindowStages | None:
+        """The current window missed its deadline: count its largest stage and return its
+        stages (for the miss line)."""
+        stages = self.latest()
+        if stages is not None:
+            self.miss_stages[stages.largest] += 1
+        return stages
+
+    def _stages_of(self, slot: int) -> WindowStages:
+        return WindowStages(self._ends[slot], tuple(self._rows[slot]), self._new_model[slot])
