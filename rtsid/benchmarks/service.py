@@ -21,6 +21,7 @@ import bisect
 import json
 import multiprocessing as mp
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -192,7 +193,7 @@ class Phase:
     replay: ReplayResult | None = None
 
 
-#: The daemon's deadline-miss log lines printed per phase at most.
+#: The daemon's deadline-miss log lines printed per phase at most (those of the most worker CPU).
 MISS_LINES_SHOWN = 20
 
 SLOW_LANE_MODES = ("off", "process", "thread")
@@ -492,6 +493,12 @@ def _row(phase: Phase, base: Phase | None) -> list[Any]:
     ]
 
 
+def _own_cpu_ms(miss_line: str) -> float:
+    """The worker's CPU over a missed window, from its log line (0: not in it)."""
+    found = re.search(r"on CPU ([0-9.]+) ms", miss_line)
+    return float(found.group(1)) if found else 0.0
+
+
 def print_miss_causes(phase: Phase) -> None:
     """What the phase's deadline misses coincided with, from the daemon's last status
     (:class:`~rtsid.runtime.stalls.StallJournal`), and its garbage collections."""
@@ -511,7 +518,7 @@ def print_miss_causes(phase: Phase) -> None:
     overruns = worker.get("overrun_causes") or {}
     listed = ", ".join(f"{name}: {count}" for name, count in sorted(overruns.items())) or "none"
     print(f"  {phase.name}: overruns (windows skipped) by cause: {listed}")
-    for line in phase.miss_lines[:MISS_LINES_SHOWN]:
+    for line in sorted(phase.miss_lines, key=_own_cpu_ms, reverse=True)[:MISS_LINES_SHOWN]:
         print(f"    {line.split('deadline miss:', 1)[1].strip()}")
     steady = phase.status[2:] or phase.status
     if len(steady) >= 2:  # RSS growth beside what the zenoh history ring took meanwhile

@@ -67,6 +67,17 @@ class WindowStages:
     window_end_index: int
     cpu_ns: tuple[int, ...]
     new_reflex_model: bool = False
+    usual_ns: tuple[int, ...] | None = None  # each stage's median over the kept windows
+
+    @property
+    def most_above_usual(self) -> tuple[str, float] | None:
+        """The stage furthest above its median over the kept windows, and by how much, ms
+        (None: no medians)."""
+        if self.usual_ns is None:
+            return None
+        excess = [ns - usual for ns, usual in zip(self.cpu_ns, self.usual_ns, strict=True)]
+        most = max(excess)
+        return STAGES[excess.index(most)], 1e-6 * most
 
     @property
     def largest(self) -> str:
@@ -82,7 +93,9 @@ class WindowStages:
         largest stage and a new reflex model named at the end)."""
         parts = ", ".join(f"{n} {1e-6 * ns:.2f}" for n, ns in zip(STAGES, self.cpu_ns, strict=True))
         model = ", a new reflex model" if self.new_reflex_model else ""
-        return f"stages, CPU ms: {parts} (largest: {self.largest}{model})"
+        above = self.most_above_usual
+        usual = "" if above is None else f"; most above its usual: {above[0]} +{above[1]:.2f} ms"
+        return f"stages, CPU ms: {parts} (largest: {self.largest}{usual}{model})"
 
 
 class StageLog:
@@ -108,7 +121,8 @@ class StageLog:
         self._last_ns: int | None = None  # the clock at the latest mark (None: never read)
         self._reflex_seq: int | None = None  # the model the window before used
         self.windows = 0
-        #: missed windows by their largest stage
+        #: missed windows by the stage furthest above its usual CPU (its median over the
+        #: kept windows)
         self.miss_stages: Counter[str] = Counter()
 
     def begin(self, window_end_index: int) -> None:
@@ -155,11 +169,23 @@ class StageLog:
         return [self._stages_of((first + k) % WINDOWS_KEPT) for k in range(kept)]
 
     def missed(self) -> WindowStages | None:
-        """The current window missed its deadline: count its largest stage and return its
-        stages (for the miss line)."""
+        """The current window missed its deadline: its stages with each stage's median over
+        the kept windows (for the miss line); the stage furthest above its median is counted.
+        """
         stages = self.latest()
-        if stages is not None:
-            self.miss_stages[stages.largest] += 1
+        if stages is None:
+            return None
+        kept = min(self.windows, WINDOWS_KEPT)
+        middle = kept // 2
+        usual = tuple(
+            sorted(row[i] for row in self._rows[:kept])[middle] for i in range(len(STAGES))
+        )
+        stages = WindowStages(
+            stages.window_end_index, stages.cpu_ns, stages.new_reflex_model, usual
+        )
+        above = stages.most_above_usual
+        assert above is not None
+        self.miss_stages[above[0]] += 1
         return stages
 
     def _stages_of(self, slot: int) -> WindowStages:

@@ -45,6 +45,8 @@ SPANS_KEPT = 8192
 MISSES_KEPT = 256
 #: Miss lines logged one by one per minute; beyond them one line a minute counts the rest
 #: (a loaded machine misses hundreds a minute: the log stays readable, the status counts all).
+#: Misses of the window's own CPU (rare, and what the stage split is for) have a quota of
+#: their own: those waiting for a CPU on a loaded machine do not crowd them out.
 MISS_LINES_PER_MINUTE = 20
 #: Where a missed window's wall time went, by :meth:`Miss.dominant_wait` (the last one where
 #: the run-queue delay is not known).
@@ -188,6 +190,7 @@ class StallJournal:
         self.miss_waits: collections.Counter[str] = collections.Counter()
         self._minute_start_s = -math.inf  # the minute of miss_lines' rate limit
         self._logged = 0
+        self._logged_own = 0  # lines of misses of the window's own CPU, this minute
         self._unlogged = 0
 
     def __enter__(self) -> StallJournal:
@@ -278,8 +281,12 @@ class StallJournal:
                     "by one (the status message's worker.miss_causes counts every miss)"
                 )
             self._minute_start_s, self._logged, self._unlogged = now_s, 0, 0
+            self._logged_own = 0
         for miss in self.drain_misses():
-            if self._logged < MISS_LINES_PER_MINUTE:
+            if miss.dominant_wait() == WAITS[0] and self._logged_own < MISS_LINES_PER_MINUTE:
+                lines.append(miss.describe())
+                self._logged_own += 1
+            elif self._logged < MISS_LINES_PER_MINUTE:
                 lines.append(miss.describe())
                 self._logged += 1
             else:

@@ -108,7 +108,9 @@ def test_a_missed_window_names_the_stage_that_was_slowed(slowed, monkeypatch):
     assert second.stages is not None and second.stages.window_end_index == 1499
     assert second.stages.largest == slowed
     assert second.stages.cpu_ms(slowed) == pytest.approx(3.0, abs=0.05)
-    assert f"(largest: {slowed})" in second.describe()
+    assert second.stages.most_above_usual is not None
+    assert second.stages.most_above_usual[0] == slowed
+    assert f"(largest: {slowed}; most above its usual: {slowed} +" in second.describe()
     assert "stages, CPU ms: between windows" in second.describe()
     assert worker.counters().miss_stages[slowed] == before + 1
     assert published[-1]["ok"]  # the numbers are not the log's business

@@ -126,3 +126,14 @@ def test_a_miss_line_names_the_page_faults_the_worker_took():
     journal.miss(7, far, far + 0.006, cpu_ms=3.8, cpu_wait_ms=0.0, page_faults=412)
     (miss,) = journal.drain_misses()
     assert "(of it on CPU 3.80 ms, waiting for a CPU 0.00 ms, 412 page faults)" in miss.describe()
+
+
+def test_misses_of_the_windows_own_cpu_have_their_own_quota_of_lines():
+    journal = StallJournal()
+    for k in range(MISS_LINES_PER_MINUTE + 5):  # waiting for a CPU: a loaded machine
+        journal.miss(k, 0.0, 0.004, cpu_ms=0.5, cpu_wait_ms=3.5)
+    journal.miss(1000, 0.0, 0.004, cpu_ms=3.8, cpu_wait_ms=0.1)  # the window's own CPU
+    lines = journal.miss_lines(now_s=100.0)
+    assert len(lines) == MISS_LINES_PER_MINUTE + 1
+    assert any("window ending 1000," in line for line in lines)
+    assert journal.miss_waits["the window's own CPU"] == 1
