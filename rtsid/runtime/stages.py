@@ -95,7 +95,23 @@ class WindowStages:
         model = ", a new reflex model" if self.new_reflex_model else ""
         above = self.most_above_usual
         usual = "" if above is None else f"; most above its usual: {above[0]} +{above[1]:.2f} ms"
+        pace = self.fixed_work_pace
+        if pace is not None:
+            usual += f"; the compiled call (the same work every window) at {pace:.1f}× its usual"
         return f"stages, CPU ms: {parts} (largest: {self.largest}{usual}{model})"
+
+    @property
+    def fixed_work_pace(self) -> float | None:
+        """The compiled call's CPU over its median (None: unknown). The call does the same
+        arithmetic in every planned window, so this is the CPU's pace: about 1 when a costly
+        window's excess is some stage's own work, well above 1 when everything ran slow (the
+        host or a sibling taking the core's time, which the thread's CPU clock still counts).
+        """
+        if self.usual_ns is None:
+            return None
+        i = _INDEX["compiled call"]
+        usual = self.usual_ns[i]
+        return self.cpu_ns[i] / usual if usual > 0 and self.cpu_ns[i] > 0 else None
 
 
 class StageLog:

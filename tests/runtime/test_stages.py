@@ -112,6 +112,12 @@ def test_a_missed_window_names_the_stage_that_was_slowed(slowed, monkeypatch):
     assert second.stages.most_above_usual[0] == slowed
     assert f"(largest: {slowed}; most above its usual: {slowed} +" in second.describe()
     assert "stages, CPU ms: between windows" in second.describe()
+    # the compiled call's fixed work as the CPU's pace: slowed itself, or as usual
+    pace = second.stages.fixed_work_pace
+    assert pace is not None and (pace > 100.0 if slowed == "compiled call" else pace == 1.0)
+    assert f"the compiled call (the same work every window) at {pace:.1f}× its usual" in (
+        second.describe()
+    )
     assert worker.counters().miss_stages[slowed] == before + 1
     assert published[-1]["ok"]  # the numbers are not the log's business
 
