@@ -514,7 +514,13 @@ def print_miss_causes(phase: Phase) -> None:
     print(f"  {phase.name}: misses by where most of their time went: {listed}")
     stages = worker.get("miss_stages") or {}
     listed = ", ".join(f"{name}: {count}" for name, count in sorted(stages.items())) or "none"
-    print(f"  {phase.name}: misses by the stage that took most of the worker's CPU: {listed}")
+    print(f"  {phase.name}: misses by the stage furthest above its usual CPU: {listed}")
+    costly = worker.get("costly_stages") or {}
+    listed = ", ".join(f"{name}: {count}" for name, count in sorted(costly.items())) or "none"
+    print(
+        f"  {phase.name}: windows of over 3× the usual CPU (missed or not) by that stage "
+        f"and the CPU's pace (the compiled call's fixed work): {listed}"
+    )
     overruns = worker.get("overrun_causes") or {}
     listed = ", ".join(f"{name}: {count}" for name, count in sorted(overruns.items())) or "none"
     print(f"  {phase.name}: overruns (windows skipped) by cause: {listed}")

@@ -47,6 +47,12 @@ STAGES = (
 )
 #: Windows whose stages are kept (the newest ones).
 WINDOWS_KEPT = 64
+#: A window is costly when its CPU (start to publish) is above this many times the running
+#: mean of the windows before (costly ones left out of the mean).
+COSTLY_FACTOR = 3.0
+#: A costly window whose compiled call ran at this many times its usual CPU or more ran on
+#: a slow CPU (the call's work is the same every window).
+SLOW_PACE = 1.5
 _INDEX = {name: i for i, name in enumerate(STAGES)}
 
 
@@ -140,6 +146,11 @@ class StageLog:
         #: missed windows by the stage furthest above its usual CPU (its median over the
         #: kept windows)
         self.miss_stages: Counter[str] = Counter()
+        #: costly windows (:data:`COSTLY_FACTOR`), missed or not, by that stage and whether
+        #: the CPU ran at its usual pace (:meth:`WindowStages.fixed_work_pace`)
+        self.costly_stages: Counter[str] = Counter()
+        self._start_ns = 0  # the clock as the current window began
+        self._mean_ns = 0.0  # running mean of a usual window's CPU (0: none yet)
 
     def begin(self, window_end_index: int) -> None:
         """A window starts: a fresh row; the CPU since the previous window went between."""
@@ -153,7 +164,7 @@ class StageLog:
         now = self._clock()
         if self._last_ns is not None:
             row[0] = now - self._last_ns
-        self._last_ns = now
+        self._last_ns = self._start_ns = now
         self.windows += 1
 
     def mark(self, stage: str) -> None:
@@ -169,8 +180,24 @@ class StageLog:
         self._reflex_seq = seq
 
     def end(self) -> None:
-        """The current window is done (its last stage, "window end", closes now)."""
+        """The current window is done (its last stage, "window end", closes now); a costly
+        one is counted by its stage."""
         self.mark("window end")
+        cpu = self._last_ns - self._start_ns  # type: ignore[operator]  # set by mark
+        mean = self._mean_ns
+        if self.windows > WINDOWS_KEPT and cpu > COSTLY_FACTOR * mean:
+            self._count_costly()
+        else:  # a mean over about the last 32 usual windows
+            self._mean_ns = mean + (cpu - mean) / 32.0 if mean else float(cpu)
+
+    def _count_costly(self) -> None:
+        stages = self.with_usual()
+        above = stages.most_above_usual if stages is not None else None
+        if stages is None or above is None:
+            return
+        pace = stages.fixed_work_pace
+        slow = pace is not None and pace >= SLOW_PACE
+        self.costly_stages[f"{above[0]}, {'slow CPU' if slow else 'CPU at its pace'}"] += 1
 
     def latest(self) -> WindowStages | None:
         """The current (or latest) window's stages; None before the first window."""
@@ -188,6 +215,16 @@ class StageLog:
         """The current window missed its deadline: its stages with each stage's median over
         the kept windows (for the miss line); the stage furthest above its median is counted.
         """
+        stages = self.with_usual()
+        if stages is None:
+            return None
+        above = stages.most_above_usual
+        assert above is not None
+        self.miss_stages[above[0]] += 1
+        return stages
+
+    def with_usual(self) -> WindowStages | None:
+        """The current window's stages with each stage's median over the kept windows."""
         stages = self.latest()
         if stages is None:
             return None
@@ -196,13 +233,7 @@ class StageLog:
         usual = tuple(
             sorted(row[i] for row in self._rows[:kept])[middle] for i in range(len(STAGES))
         )
-        stages = WindowStages(
-            stages.window_end_index, stages.cpu_ns, stages.new_reflex_model, usual
-        )
-        above = stages.most_above_usual
-        assert above is not None
-        self.miss_stages[above[0]] += 1
-        return stages
+        return WindowStages(stages.window_end_index, stages.cpu_ns, stages.new_reflex_model, usual)
 
     def _stages_of(self, slot: int) -> WindowStages:
         return WindowStages(self._ends[slot], tuple(self._rows[slot]), self._new_model[slot])

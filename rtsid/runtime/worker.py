@@ -151,6 +151,7 @@ class WorkerCounters:
     gc_collections: list[int] = field(default_factory=list)
     gc_ms: list[float] = field(default_factory=list)
     miss_stages: dict[str, int] = field(default_factory=dict)
+    costly_stages: dict[str, int] = field(default_factory=dict)
 
 
 def assess_window(
@@ -611,6 +612,7 @@ class WindowWorker(ThreadOwner):
             compute_s=e.compute_s,
             compute_cpu_s=e.compute_cpu_s,
             miss_stages=dict(self.stages.miss_stages),
+            costly_stages=dict(self.stages.costly_stages),
             **self._stall_counters(),
         )
 

@@ -133,3 +133,27 @@ def test_every_stage_of_a_planned_window_is_named_in_its_miss_line():
     assert miss.stages is not None and min(miss.stages.cpu_ns[:-1]) >= 0
     assert miss.stages.cpu_ms("compiled call") > 0.0  # the one-call path marks its parts
     assert sum(worker.counters().miss_stages.values()) == 3
+
+
+def test_costly_windows_are_counted_by_stage_and_by_the_cpus_pace():
+    clock = FakeThreadClock()
+    log = StageLog(clock)
+
+    def window(end, call_ms=0.3, tracker_ms=0.05):
+        log.begin(end)
+        clock.spend(call_ms)
+        log.mark("compiled call")
+        clock.spend(tracker_ms)
+        log.mark("tracker")
+        log.end()
+
+    for end in range(WINDOWS_KEPT + 5):  # usual windows: nothing costly
+        window(end)
+    assert log.costly_stages == {}
+    window(1000, tracker_ms=3.0)  # the tracker's own work, the CPU at its pace
+    window(1001, call_ms=1.2, tracker_ms=0.6)  # everything four times slower: a slow CPU
+    window(1002)
+    assert log.costly_stages == {
+        "tracker, CPU at its pace": 1,
+        "compiled call, slow CPU": 1,
+    }
