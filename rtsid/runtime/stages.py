@@ -181,14 +181,15 @@ class StageLog:
 
     def end(self) -> None:
         """The current window is done (its last stage, "window end", closes now); a costly
-        one is counted by its stage."""
-        self.mark("window end")
-        cpu = self._last_ns - self._start_ns  # type: ignore[operator]  # set by mark
+        one (its CPU from start to publish) is counted by its stage."""
+        last = self._last_ns
+        cpu = 0 if last is None else last - self._start_ns
         mean = self._mean_ns
         if self.windows > WINDOWS_KEPT and cpu > COSTLY_FACTOR * mean:
             self._count_costly()
         else:  # a mean over about the last 32 usual windows
             self._mean_ns = mean + (cpu - mean) / 32.0 if mean else float(cpu)
+        self.mark("window end")
 
     def _count_costly(self) -> None:
         stages = self.with_usual()

@@ -41,6 +41,9 @@ __all__ = ["WAITS", "Miss", "RunQueueClock", "Span", "StallJournal", "thread_pag
 
 #: Spans kept (collections and housekeeping steps): minutes of a daemon's life at a 4 ms hop.
 SPANS_KEPT = 8192
+#: A span is appended as it ends, so the kept spans are in the order they ended but for a
+#: thread switched out between its clock read and its append: up to this long, s.
+SPAN_ORDER_SLACK_S = 1.0
 #: Missed windows kept for the log.
 MISSES_KEPT = 256
 #: Miss lines logged one by one per minute; beyond them one line a minute counts the rest
@@ -241,9 +244,7 @@ class StallJournal:
         worker's CPU, ``cpu_wait_ms`` waiting for one, ``page_faults`` taken by the worker
         and its CPU by stage, when known) missed its deadline."""
         running = [Span(f"{name} (still running)", t0, end_s) for name, t0 in self._running_now()]
-        overlapped = tuple(
-            s for s in [*list(self._spans), *running] if s.end_s >= start_s and s.start_s <= end_s
-        )
+        overlapped = (*self._spans_overlapping(start_s, end_s), *running)
         miss = Miss(
             window_end_index, start_s, end_s, overlapped, cpu_ms, cpu_wait_ms, page_faults, stages
         )
@@ -254,6 +255,23 @@ class StallJournal:
             self.miss_causes[cause] += 1
         if wait is not None:
             self.miss_waits[wait] += 1
+
+    def _spans_overlapping(self, start_s: float, end_s: float) -> list[Span]:
+        """The kept spans overlapping ``start_s .. end_s``, oldest first. Spans are kept in
+        the order they ended (to within a thread switch), so the search walks back from the
+        newest and stops at the first that ended :data:`SPAN_ORDER_SLACK_S` before the
+        window began: on the worker's thread, right after its missed window, it reads the
+        few recent spans rather than all :data:`SPANS_KEPT` (1–2 ms of Python that delayed
+        the next window)."""
+        found = []
+        oldest_end = start_s - SPAN_ORDER_SLACK_S
+        for span in reversed(list(self._spans)):  # the copy: other threads append meanwhile
+            if span.end_s < oldest_end:
+                break
+            if span.end_s >= start_s and span.start_s <= end_s:
+                found.append(span)
+        found.reverse()
+        return found
 
     def _running_now(self) -> list[tuple[str, float]]:
         """Steps and collections begun and not yet ended (another thread's, e.g.)."""

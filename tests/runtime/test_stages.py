@@ -84,7 +84,7 @@ class SlowCall:
 def test_a_missed_window_names_the_stage_that_was_slowed(slowed, monkeypatch):
     clock = FakeThreadClock()
     published = []
-    worker = make_worker(filled_ring(), published, budget_s=1e-6)  # every window misses
+    worker = make_worker(filled_ring(), published, budget_s=1e-6, max_sample_age_s=60.0)  # all miss
     worker.stages = StageLog(clock)
     worker.evaluator.log_stages(worker.stages)
     worker.stalls = StallJournal()
@@ -123,7 +123,7 @@ def test_a_missed_window_names_the_stage_that_was_slowed(slowed, monkeypatch):
 
 
 def test_every_stage_of_a_planned_window_is_named_in_its_miss_line():
-    worker = make_worker(filled_ring(), [], budget_s=1e-6)  # the real thread CPU clock
+    worker = make_worker(filled_ring(), [], budget_s=1e-6, max_sample_age_s=60.0)
     worker.stalls = StallJournal()
     for end in (1399, 1449, 1499):
         worker.process_window(end)

@@ -13,6 +13,7 @@ import pytest
 from rtsid.runtime.stalls import (
     MISS_LINES_PER_MINUTE,
     RunQueueClock,
+    Span,
     StallJournal,
     thread_page_faults,
 )
@@ -137,3 +138,14 @@ def test_misses_of_the_windows_own_cpu_have_their_own_quota_of_lines():
     assert len(lines) == MISS_LINES_PER_MINUTE + 1
     assert any("window ending 1000," in line for line in lines)
     assert journal.miss_waits["the window's own CPU"] == 1
+
+
+def test_a_miss_finds_its_overlapping_spans_among_many_and_one_appended_late():
+    journal = StallJournal()
+    for k in range(8000):  # a long daemon life of housekeeping steps, 1 ms each, 2 ms apart
+        journal._spans.append(Span(f"step {k}", 0.002 * k, 0.002 * k + 0.001))
+    journal._spans.append(Span("late append", 15.9905, 15.9915))  # ended before the last one
+    journal.miss(1, 15.9905, 15.9945)
+    (miss,) = journal.drain_misses()
+    names = [s.name for s in miss.overlapped]
+    assert names == ["step 7995", "step 7996", "step 7997", "late append"]
