@@ -8,11 +8,14 @@ usual, nothing else running) needs the next split: which stage of the window too
 accounting, interrupts served meanwhile are) at each stage boundary of a window and adds the
 difference to that stage (:data:`STAGES`, in the order a window passes them). The last
 :data:`WINDOWS_KEPT` windows are kept in a ring of preallocated rows; a missed window's row
-goes into its miss line (``…; stages, CPU ms: ring read 0.01, …``) and its largest stage is
-counted (``worker.miss_stages`` in the status).
+goes into its miss line (``…; stages, CPU ms: ring read 0.01, …``) and the stage furthest
+above its median over the kept windows is counted (``worker.miss_stages`` in the status), as
+it is for every costly window, missed or not (``worker.costly_stages``), with the CPU's pace
+read from the compiled call's fixed work (:attr:`WindowStages.fixed_work_pace`).
 
 Its cost: one ``thread_time_ns`` call (a system call: the thread CPU clock has no vDSO path)
-and a few dictionary and list operations per mark, about a dozen marks a window.
+and a few dictionary and list operations per mark, a dozen marks a window: 40 k instructions
+(callgrind) and about 8 µs of the worker's CPU per window (docs/service.md).
 """
 
 from __future__ import annotations
