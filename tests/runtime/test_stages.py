@@ -91,13 +91,15 @@ def test_a_missed_window_names_the_stage_that_was_slowed(slowed, monkeypatch):
     worker.process_window(1399)  # plans the stream: later windows take the one compiled call
     worker.process_window(1449)
     stream = worker.evaluator.stream
+    compiled = stream._call is not None  # RTSID_NUMPY_ONLY=1: the numpy reference, no call
+    if slowed == "compiled call" and not compiled:
+        pytest.skip("the numpy-only path has no compiled window call")
     if slowed == "tracker":
         track = stream.track
         monkeypatch.setattr(stream, "track", lambda *a: (clock.spend(3.0), track(*a))[1])
     elif slowed == "publish":
         worker.evaluator.publish = lambda m: (clock.spend(3.0), published.append(m))
     elif slowed == "compiled call":
-        assert stream._call is not None  # the window path this test is about
         monkeypatch.setattr(stream, "_call", SlowCall(stream._call, clock, 3.0))
     else:
         read = worker.ring.read_since
@@ -114,6 +116,9 @@ def test_a_missed_window_names_the_stage_that_was_slowed(slowed, monkeypatch):
     assert "stages, CPU ms: between windows" in second.describe()
     # the compiled call's fixed work as the CPU's pace: slowed itself, or as usual
     pace = second.stages.fixed_work_pace
+    if not compiled:  # no compiled call: no pace read, none claimed
+        assert pace is None and "the compiled call (the same" not in second.describe()
+        return
     assert pace is not None and (pace > 100.0 if slowed == "compiled call" else pace == 1.0)
     assert f"the compiled call (the same work every window) at {pace:.1f}× its usual" in (
         second.describe()
@@ -131,7 +136,10 @@ def test_every_stage_of_a_planned_window_is_named_in_its_miss_line():
     line = miss.describe()
     assert all(f"{name} " in line for name in STAGES)
     assert miss.stages is not None and min(miss.stages.cpu_ns[:-1]) >= 0
-    assert miss.stages.cpu_ms("compiled call") > 0.0  # the one-call path marks its parts
+    if worker.evaluator.stream._call is not None:  # the one-call path marks its parts
+        assert miss.stages.cpu_ms("compiled call") > 0.0
+    else:  # RTSID_NUMPY_ONLY=1: the whole estimate is "assembly"
+        assert miss.stages.cpu_ms("compiled call") == 0.0 < miss.stages.cpu_ms("assembly")
     assert sum(worker.counters().miss_stages.values()) == 3
 
 
