@@ -21,6 +21,7 @@ import bisect
 import json
 import multiprocessing as mp
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -192,7 +193,7 @@ class Phase:
     replay: ReplayResult | None = None
 
 
-#: The daemon's deadline-miss log lines printed per phase at most.
+#: The daemon's deadline-miss log lines printed per phase at most (those of the most worker CPU).
 MISS_LINES_SHOWN = 20
 
 SLOW_LANE_MODES = ("off", "process", "thread")
@@ -492,6 +493,12 @@ def _row(phase: Phase, base: Phase | None) -> list[Any]:
     ]
 
 
+def _own_cpu_ms(miss_line: str) -> float:
+    """The worker's CPU over a missed window, from its log line (0: not in it)."""
+    found = re.search(r"on CPU ([0-9.]+) ms", miss_line)
+    return float(found.group(1)) if found else 0.0
+
+
 def print_miss_causes(phase: Phase) -> None:
     """What the phase's deadline misses coincided with, from the daemon's last status
     (:class:`~rtsid.runtime.stalls.StallJournal`), and its garbage collections."""
@@ -505,10 +512,19 @@ def print_miss_causes(phase: Phase) -> None:
     waits = worker.get("miss_waits") or {}
     listed = ", ".join(f"{name}: {count}" for name, count in sorted(waits.items())) or "none"
     print(f"  {phase.name}: misses by where most of their time went: {listed}")
+    stages = worker.get("miss_stages") or {}
+    listed = ", ".join(f"{name}: {count}" for name, count in sorted(stages.items())) or "none"
+    print(f"  {phase.name}: misses by the stage furthest above its usual CPU: {listed}")
+    costly = worker.get("costly_stages") or {}
+    listed = ", ".join(f"{name}: {count}" for name, count in sorted(costly.items())) or "none"
+    print(
+        f"  {phase.name}: windows of over 3× the usual CPU (missed or not) by that stage "
+        f"and the CPU's pace (the compiled call's fixed work): {listed}"
+    )
     overruns = worker.get("overrun_causes") or {}
     listed = ", ".join(f"{name}: {count}" for name, count in sorted(overruns.items())) or "none"
     print(f"  {phase.name}: overruns (windows skipped) by cause: {listed}")
-    for line in phase.miss_lines[:MISS_LINES_SHOWN]:
+    for line in sorted(phase.miss_lines, key=_own_cpu_ms, reverse=True)[:MISS_LINES_SHOWN]:
         print(f"    {line.split('deadline miss:', 1)[1].strip()}")
     steady = phase.status[2:] or phase.status
     if len(steady) >= 2:  # RSS growth beside what the zenoh history ring took meanwhile

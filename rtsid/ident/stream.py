@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 from bisect import bisect_left, insort
 from collections import deque
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -321,6 +321,9 @@ class WindowStream:
         # the learned values last read and what the window holds with them (held_values)
         self._learned: Held | None = None
         self._held_now = NOT_HELD
+        #: Called with a stage's name as it ends on the one-call path ("held parameters",
+        #: "compiled call"): the daemon's per-window stage log (None: not logged).
+        self.stage_mark: Callable[[str], None] | None = None
 
     def track(self, t_end_s: float, estimate: WindowEstimate | None) -> Tracked:
         """Step the tracker with this window (its end time, s; None: withheld), and with the
@@ -377,7 +380,12 @@ class WindowStream:
         if learned is not self._learned:  # what is held follows the learned values
             self._learned, self._held_now = learned, held_values(self.options, learned)
         held = self._held_now
+        mark = self.stage_mark
+        if mark is not None:
+            mark("held parameters")
         done = call(position, torque, explained, held, self.excitation.median())
+        if mark is not None:
+            mark("compiled call")
         if done is None:
             return None
         out, h, k = done

@@ -35,14 +35,21 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
+from rtsid.runtime.stages import WindowStages
+
 __all__ = ["WAITS", "Miss", "RunQueueClock", "Span", "StallJournal", "thread_page_faults"]
 
 #: Spans kept (collections and housekeeping steps): minutes of a daemon's life at a 4 ms hop.
 SPANS_KEPT = 8192
+#: A span is appended as it ends, so the kept spans are in the order they ended but for a
+#: thread switched out between its clock read and its append: up to this long, s.
+SPAN_ORDER_SLACK_S = 1.0
 #: Missed windows kept for the log.
 MISSES_KEPT = 256
 #: Miss lines logged one by one per minute; beyond them one line a minute counts the rest
 #: (a loaded machine misses hundreds a minute: the log stays readable, the status counts all).
+#: Misses of the window's own CPU (rare, and what the stage split is for) have a quota of
+#: their own: those waiting for a CPU on a loaded machine do not crowd them out.
 MISS_LINES_PER_MINUTE = 20
 #: Where a missed window's wall time went, by :meth:`Miss.dominant_wait` (the last one where
 #: the run-queue delay is not known).
@@ -131,6 +138,7 @@ class Miss:
     cpu_ms: float | None = None  # the worker thread's CPU time over the compute span
     cpu_wait_ms: float | None = None  # of the span, runnable but not running (run queue)
     page_faults: int | None = None  # the worker thread's page faults over the span
+    stages: WindowStages | None = None  # the worker's CPU by stage of the window
 
     @property
     def wall_ms(self) -> float:
@@ -158,9 +166,10 @@ class Miss:
         if cpu and self.page_faults is not None:
             cpu += f", {self.page_faults} page faults"
         cpu += ")" if cpu else ""
+        stages = "" if self.stages is None else f"; {self.stages.describe()}"
         return (
             f"deadline miss: window ending {self.window_end_index}, compute "
-            f"{1e3 * (self.end_s - self.start_s):.2f} ms{cpu}; during it: {during}"
+            f"{1e3 * (self.end_s - self.start_s):.2f} ms{cpu}; during it: {during}{stages}"
         )
 
 
@@ -184,6 +193,7 @@ class StallJournal:
         self.miss_waits: collections.Counter[str] = collections.Counter()
         self._minute_start_s = -math.inf  # the minute of miss_lines' rate limit
         self._logged = 0
+        self._logged_own = 0  # lines of misses of the window's own CPU, this minute
         self._unlogged = 0
 
     def __enter__(self) -> StallJournal:
@@ -228,15 +238,16 @@ class StallJournal:
         cpu_ms: float | None = None,
         cpu_wait_ms: float | None = None,
         page_faults: int | None = None,
+        stages: WindowStages | None = None,
     ) -> None:
         """A window whose compute ran from ``start_s`` to ``end_s`` (``cpu_ms`` of it on the
-        worker's CPU, ``cpu_wait_ms`` waiting for one and ``page_faults`` taken by the worker,
-        when known) missed its deadline."""
+        worker's CPU, ``cpu_wait_ms`` waiting for one, ``page_faults`` taken by the worker
+        and its CPU by stage, when known) missed its deadline."""
         running = [Span(f"{name} (still running)", t0, end_s) for name, t0 in self._running_now()]
-        overlapped = tuple(
-            s for s in [*list(self._spans), *running] if s.end_s >= start_s and s.start_s <= end_s
+        overlapped = (*self._spans_overlapping(start_s, end_s), *running)
+        miss = Miss(
+            window_end_index, start_s, end_s, overlapped, cpu_ms, cpu_wait_ms, page_faults, stages
         )
-        miss = Miss(window_end_index, start_s, end_s, overlapped, cpu_ms, cpu_wait_ms, page_faults)
         self._misses.append(miss)
         wait = miss.dominant_wait()
         unseen = "nothing seen" if wait is None else f"nothing seen: {wait}"
@@ -244,6 +255,23 @@ class StallJournal:
             self.miss_causes[cause] += 1
         if wait is not None:
             self.miss_waits[wait] += 1
+
+    def _spans_overlapping(self, start_s: float, end_s: float) -> list[Span]:
+        """The kept spans overlapping ``start_s .. end_s``, oldest first. Spans are kept in
+        the order they ended (to within a thread switch), so the search walks back from the
+        newest and stops at the first that ended :data:`SPAN_ORDER_SLACK_S` before the
+        window began: on the worker's thread, right after its missed window, it reads the
+        few recent spans rather than all :data:`SPANS_KEPT` (1–2 ms of Python that delayed
+        the next window)."""
+        found = []
+        oldest_end = start_s - SPAN_ORDER_SLACK_S
+        for span in reversed(list(self._spans)):  # the copy: other threads append meanwhile
+            if span.end_s < oldest_end:
+                break
+            if span.end_s >= start_s and span.start_s <= end_s:
+                found.append(span)
+        found.reverse()
+        return found
 
     def _running_now(self) -> list[tuple[str, float]]:
         """Steps and collections begun and not yet ended (another thread's, e.g.)."""
@@ -271,8 +299,12 @@ class StallJournal:
                     "by one (the status message's worker.miss_causes counts every miss)"
                 )
             self._minute_start_s, self._logged, self._unlogged = now_s, 0, 0
+            self._logged_own = 0
         for miss in self.drain_misses():
-            if self._logged < MISS_LINES_PER_MINUTE:
+            if miss.dominant_wait() == WAITS[0] and self._logged_own < MISS_LINES_PER_MINUTE:
+                lines.append(miss.describe())
+                self._logged_own += 1
+            elif self._logged < MISS_LINES_PER_MINUTE:
                 lines.append(miss.describe())
                 self._logged += 1
             else:

@@ -55,6 +55,7 @@ from rtsid.link.protocol import (
 )
 from rtsid.link.ring import RingBuffer, Snapshot
 from rtsid.runtime.gate import WindowGate
+from rtsid.runtime.stages import StageLog
 from rtsid.runtime.stalls import RunQueueClock, StallJournal, thread_page_faults
 from rtsid.verdicts import Flag, Reason
 
@@ -149,6 +150,8 @@ class WorkerCounters:
     overrun_causes: dict[str, int] = field(default_factory=dict)
     gc_collections: list[int] = field(default_factory=list)
     gc_ms: list[float] = field(default_factory=list)
+    miss_stages: dict[str, int] = field(default_factory=dict)
+    costly_stages: dict[str, int] = field(default_factory=dict)
 
 
 def assess_window(
@@ -304,6 +307,12 @@ class WindowEvaluator:
         self.compute_s = 0.0  # every window's wall time, summed
         self.compute_cpu_s = 0.0  # every window's CPU time, summed
         self.sign = SignCount()  # windows reading K, B, I < 0 (rtsid.ident.sign)
+        self.stages: StageLog | None = None  # the per-window stage log (live: the worker's)
+
+    def log_stages(self, stages: StageLog | None) -> None:
+        """Mark each stage of every window in ``stages`` (None: stop; replay logs none)."""
+        self.stages = stages
+        self.stream.stage_mark = None if stages is None else stages.mark
 
     def first_window_end(self, first_index: int) -> int:
         """The first grid window end whose window starts at or after ``first_index``."""
@@ -359,21 +368,33 @@ class WindowEvaluator:
         first, last = int(window.sample_index[0]), int(window.sample_index[-1])
         if reason is None and last in self.recorded_stale:
             reason = Reason.STALE  # live withheld it so; the tracker steps alike
+        stages = self.stages
+        if stages is not None:
+            stages.mark("window check")
         reflex = _NO_REFLEX
         if reason is None and self.reflex is not None:
             reflex = self._reflex_torque(snap)
         self.last_reflex = reflex
         estimate, reason = self._estimate(window, reason, reflex.torque, all_valid)
+        if stages is not None:
+            stages.mark("assembly")  # the estimate's rest (all of it, step by step)
         track = self.stream.track(last / self.fs_hz, estimate)  # every evaluated window steps it
         compute_s = time.perf_counter() - started
         self._count_compute(compute_s, time.thread_time() - started_cpu)
+        if stages is not None:
+            stages.mark("tracker")
+            stages.reflex_used(reflex.seq)
         overrun = self._over_budget(compute_s)
         if overrun:
             self.misses += 1
         message = self._message(
             first, last, estimate, reason, compute_s, arrival, reflex, track, overrun
         )
+        if stages is not None:
+            stages.mark("message")
         self.publish(message)
+        if stages is not None:
+            stages.mark("publish")
         return message
 
     def _count_compute(self, wall_s: float, cpu_s: float) -> None:
@@ -405,6 +426,9 @@ class WindowEvaluator:
         """The due reflex model's torque over the window, in the recorded torque's sign."""
         assert self.reflex is not None
         update, stale = self._due_reflex(int(snap.sample_index[-1]))
+        stages = self.stages
+        if stages is not None:
+            stages.mark("reflex model")
         if update is None or update.pathway is None:
             self.reflex_flagged[Flag.REFLEX_ABSENT] += 1
             return _ABSENT_REFLEX
@@ -430,6 +454,8 @@ class WindowEvaluator:
             self.reflex_flagged[Flag.REFLEX_ABSENT] += 1
             return _ABSENT_REFLEX
         torque = self.options.torque_sign * predicted
+        if stages is not None:
+            stages.mark("reflex prediction")
         return built(_ReflexUse, seq=update.seq, torque=torque, flags=flags)
 
     def _due_reflex(self, end: int) -> tuple[ReflexUpdate | None, bool]:
@@ -557,6 +583,10 @@ class WindowWorker(ThreadOwner):
         #: Says when a window is computing and when the worker has gone to wait for the next
         #: one: the daemon's housekeeping runs its tick then, not across a window.
         self.gate = WindowGate()
+        #: The worker's CPU by stage of its recent windows (a missed window's goes into its
+        #: miss line): on in every live run.
+        self.stages = StageLog()
+        evaluator.log_stages(self.stages)
 
     @property
     def stream(self) -> WindowStream:
@@ -581,6 +611,8 @@ class WindowWorker(ThreadOwner):
             compute_cpu_ms_last=e.compute_cpu_ms,
             compute_s=e.compute_s,
             compute_cpu_s=e.compute_cpu_s,
+            miss_stages=dict(self.stages.miss_stages),
+            costly_stages=dict(self.stages.costly_stages),
             **self._stall_counters(),
         )
 
@@ -688,9 +720,11 @@ class WindowWorker(ThreadOwner):
             The message, or None when those samples are no longer (or not yet) in the ring.
         """
         self.gate.window_started()
+        self.stages.begin(end_index)
         try:
             return self._process_window(end_index)
         finally:
+            self.stages.end()
             self.gate.window_finished()
 
     def _process_window(self, end_index: int) -> dict[str, Any] | None:
@@ -703,6 +737,7 @@ class WindowWorker(ThreadOwner):
         first = max(start - self.evaluator.history_samples, min(self._first_index, start))
         count = end_index - first + 1
         snap = self.ring.read_since(first, count)
+        self.stages.mark("ring read")
         if len(snap) != count or int(snap.sample_index[0]) != first:
             self._count_overruns(1, OVERRUN_CAUSES[3])  # overwritten before we got to it
             return None
@@ -714,5 +749,6 @@ class WindowWorker(ThreadOwner):
             cpu_ms = self.evaluator.compute_cpu_ms
             now_faults = thread_page_faults() if faults is not None else None
             taken = None if now_faults is None or faults is None else now_faults - faults
-            self.stalls.miss(end_index, started, ended, cpu_ms, waited_ms, taken)
+            stages = self.stages.missed()
+            self.stalls.miss(end_index, started, ended, cpu_ms, waited_ms, taken, stages)
         return message

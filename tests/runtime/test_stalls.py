@@ -13,6 +13,7 @@ import pytest
 from rtsid.runtime.stalls import (
     MISS_LINES_PER_MINUTE,
     RunQueueClock,
+    Span,
     StallJournal,
     thread_page_faults,
 )
@@ -126,3 +127,25 @@ def test_a_miss_line_names_the_page_faults_the_worker_took():
     journal.miss(7, far, far + 0.006, cpu_ms=3.8, cpu_wait_ms=0.0, page_faults=412)
     (miss,) = journal.drain_misses()
     assert "(of it on CPU 3.80 ms, waiting for a CPU 0.00 ms, 412 page faults)" in miss.describe()
+
+
+def test_misses_of_the_windows_own_cpu_have_their_own_quota_of_lines():
+    journal = StallJournal()
+    for k in range(MISS_LINES_PER_MINUTE + 5):  # waiting for a CPU: a loaded machine
+        journal.miss(k, 0.0, 0.004, cpu_ms=0.5, cpu_wait_ms=3.5)
+    journal.miss(1000, 0.0, 0.004, cpu_ms=3.8, cpu_wait_ms=0.1)  # the window's own CPU
+    lines = journal.miss_lines(now_s=100.0)
+    assert len(lines) == MISS_LINES_PER_MINUTE + 1
+    assert any("window ending 1000," in line for line in lines)
+    assert journal.miss_waits["the window's own CPU"] == 1
+
+
+def test_a_miss_finds_its_overlapping_spans_among_many_and_one_appended_late():
+    journal = StallJournal()
+    for k in range(8000):  # a long daemon life of housekeeping steps, 1 ms each, 2 ms apart
+        journal._spans.append(Span(f"step {k}", 0.002 * k, 0.002 * k + 0.001))
+    journal._spans.append(Span("late append", 15.9905, 15.9915))  # ended before the last one
+    journal.miss(1, 15.9905, 15.9945)
+    (miss,) = journal.drain_misses()
+    names = [s.name for s in miss.overlapped]
+    assert names == ["step 7995", "step 7996", "step 7997", "late append"]

@@ -1,0 +1,167 @@
+"""The worker's per-window stage log: which stage of a missed window took its CPU."""
+
+from __future__ import annotations
+
+import pytest
+
+from rtsid.runtime.stages import STAGES, WINDOWS_KEPT, StageLog
+from rtsid.runtime.stalls import StallJournal
+from tests.runtime.test_worker import filled_ring, make_worker
+
+
+class FakeThreadClock:
+    """A thread CPU clock that moves 1 µs per read, and as far as a test pushes it."""
+
+    def __init__(self) -> None:
+        self.ns = 0
+
+    def __call__(self) -> int:
+        self.ns += 1_000
+        return self.ns
+
+    def spend(self, ms: float) -> None:
+        self.ns += round(ms * 1e6)
+
+
+def test_each_mark_charges_the_cpu_since_the_previous_one_to_its_stage():
+    clock = FakeThreadClock()
+    log = StageLog(clock)
+    log.begin(9)
+    clock.spend(0.5)
+    log.mark("ring read")
+    clock.spend(2.0)
+    log.mark("compiled call")
+    clock.spend(0.25)
+    log.mark("compiled call")  # a stage marked twice adds up
+    log.end()
+    clock.spend(1.0)  # the worker's loop, between this window and the next
+    log.begin(19)
+    first, second = log.recent()
+    assert first.window_end_index == 9 and second.window_end_index == 19
+    assert first.cpu_ms("ring read") == pytest.approx(0.501)
+    assert first.cpu_ms("compiled call") == pytest.approx(2.252)
+    assert first.cpu_ms("between windows") == 0.0  # nothing before the first window
+    assert first.largest == "compiled call"
+    assert second.cpu_ms("between windows") == pytest.approx(1.001)
+    assert log.latest() == second
+
+
+def test_the_log_keeps_the_newest_windows_in_a_ring():
+    log = StageLog(FakeThreadClock())
+    for end in range(WINDOWS_KEPT + 10):
+        log.begin(end)
+        log.end()
+    kept = [w.window_end_index for w in log.recent()]
+    assert kept == list(range(10, WINDOWS_KEPT + 10))
+    assert log.windows == WINDOWS_KEPT + 10
+
+
+def test_a_window_taking_up_a_new_reflex_model_is_marked():
+    log = StageLog(FakeThreadClock())
+    for end, seq in [(9, None), (19, 0), (29, 0), (39, 1)]:
+        log.begin(end)
+        log.reflex_used(seq)
+        log.end()
+    assert [w.new_reflex_model for w in log.recent()] == [False, True, False, True]
+    assert "a new reflex model" in log.recent()[-1].describe()
+
+
+class SlowCall:
+    """The stream's compiled window call, which spends ``ms`` of (fake) CPU each time."""
+
+    def __init__(self, call, clock, ms):
+        self._call, self._clock, self._ms = call, clock, ms
+
+    def __getattr__(self, name):
+        return getattr(self._call, name)
+
+    def __call__(self, *args):
+        self._clock.spend(self._ms)
+        return self._call(*args)
+
+
+@pytest.mark.parametrize("slowed", ["tracker", "publish", "compiled call", "ring read"])
+def test_a_missed_window_names_the_stage_that_was_slowed(slowed, monkeypatch):
+    clock = FakeThreadClock()
+    published = []
+    worker = make_worker(filled_ring(), published, budget_s=1e-6, max_sample_age_s=60.0)  # all miss
+    worker.stages = StageLog(clock)
+    worker.evaluator.log_stages(worker.stages)
+    worker.stalls = StallJournal()
+    worker.process_window(1399)  # plans the stream: later windows take the one compiled call
+    worker.process_window(1449)
+    stream = worker.evaluator.stream
+    compiled = stream._call is not None  # RTSID_NUMPY_ONLY=1: the numpy reference, no call
+    if slowed == "compiled call" and not compiled:
+        pytest.skip("the numpy-only path has no compiled window call")
+    if slowed == "tracker":
+        track = stream.track
+        monkeypatch.setattr(stream, "track", lambda *a: (clock.spend(3.0), track(*a))[1])
+    elif slowed == "publish":
+        worker.evaluator.publish = lambda m: (clock.spend(3.0), published.append(m))
+    elif slowed == "compiled call":
+        monkeypatch.setattr(stream, "_call", SlowCall(stream._call, clock, 3.0))
+    else:
+        read = worker.ring.read_since
+        monkeypatch.setattr(worker.ring, "read_since", lambda *a: (clock.spend(3.0), read(*a))[1])
+    before = worker.counters().miss_stages.get(slowed, 0)
+    worker.process_window(1499)
+    *_, second = worker.stalls.drain_misses()
+    assert second.stages is not None and second.stages.window_end_index == 1499
+    assert second.stages.largest == slowed
+    assert second.stages.cpu_ms(slowed) == pytest.approx(3.0, abs=0.05)
+    assert second.stages.most_above_usual is not None
+    assert second.stages.most_above_usual[0] == slowed
+    assert f"(largest: {slowed}; most above its usual: {slowed} +" in second.describe()
+    assert "stages, CPU ms: between windows" in second.describe()
+    # the compiled call's fixed work as the CPU's pace: slowed itself, or as usual
+    pace = second.stages.fixed_work_pace
+    if not compiled:  # no compiled call: no pace read, none claimed
+        assert pace is None and "the compiled call (the same" not in second.describe()
+        return
+    assert pace is not None and (pace > 100.0 if slowed == "compiled call" else pace == 1.0)
+    assert f"the compiled call (the same work every window) at {pace:.1f}× its usual" in (
+        second.describe()
+    )
+    assert worker.counters().miss_stages[slowed] == before + 1
+    assert published[-1]["ok"]  # the numbers are not the log's business
+
+
+def test_every_stage_of_a_planned_window_is_named_in_its_miss_line():
+    worker = make_worker(filled_ring(), [], budget_s=1e-6, max_sample_age_s=60.0)
+    worker.stalls = StallJournal()
+    for end in (1399, 1449, 1499):
+        worker.process_window(end)
+    *_, miss = worker.stalls.drain_misses()
+    line = miss.describe()
+    assert all(f"{name} " in line for name in STAGES)
+    assert miss.stages is not None and min(miss.stages.cpu_ns[:-1]) >= 0
+    if worker.evaluator.stream._call is not None:  # the one-call path marks its parts
+        assert miss.stages.cpu_ms("compiled call") > 0.0
+    else:  # RTSID_NUMPY_ONLY=1: the whole estimate is "assembly"
+        assert miss.stages.cpu_ms("compiled call") == 0.0 < miss.stages.cpu_ms("assembly")
+    assert sum(worker.counters().miss_stages.values()) == 3
+
+
+def test_costly_windows_are_counted_by_stage_and_by_the_cpus_pace():
+    clock = FakeThreadClock()
+    log = StageLog(clock)
+
+    def window(end, call_ms=0.3, tracker_ms=0.05):
+        log.begin(end)
+        clock.spend(call_ms)
+        log.mark("compiled call")
+        clock.spend(tracker_ms)
+        log.mark("tracker")
+        log.end()
+
+    for end in range(WINDOWS_KEPT + 5):  # usual windows: nothing costly
+        window(end)
+    assert log.costly_stages == {}
+    window(1000, tracker_ms=3.0)  # the tracker's own work, the CPU at its pace
+    window(1001, call_ms=1.2, tracker_ms=0.6)  # everything four times slower: a slow CPU
+    window(1002)
+    assert log.costly_stages == {
+        "tracker, CPU at its pace": 1,
+        "compiled call, slow CPU": 1,
+    }
