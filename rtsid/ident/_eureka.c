@@ -2137,40 +2137,11 @@ static double evidence_gain(const double *x, const double *r, Py_ssize_t stride,
     return 100.0 * (1.0 - left[0] / power) - 100.0 * (1.0 - left[1] / power);
 }
 
+static PyObject *evidence_entry(PyObject *args, const char *name, int lanes);
+
 static PyObject *py_evidence_gains(PyObject *self, PyObject *args)
 {
-    PyObject *objs[4], *starts_obj, *out_obj;
-    Py_ssize_t n;
-    if (!PyArg_ParseTuple(args, "OOOOnO", &objs[0], &objs[1], &objs[2], &starts_obj, &n, &out_obj))
-        return NULL;
-    objs[3] = out_obj;
-    const char *names[4] = {"torque", "regressors", "extra", "out"};
-    Py_buffer b[4], s;
-    if (get_buffers(objs, 4, 3, names, b) < 0) return NULL;
-    if (get_indices(starts_obj, &s, "starts") < 0) {
-        release_buffers(b, 4);
-        return NULL;
-    }
-    const Py_ssize_t total = b[0].len / 8, windows = s.len / 8;
-    const long long *starts = (const long long *)s.buf;
-    int ok = n >= 3 && b[1].len == 3 * b[0].len && b[2].len == b[0].len && b[3].len == s.len;
-    for (Py_ssize_t w = 0; ok && w < windows; w++) ok = starts[w] >= 0 && starts[w] + n <= total;
-    PyObject *result = NULL;
-    if (!ok) {
-        PyErr_SetString(PyExc_ValueError, "evidence_gains: inconsistent sizes");
-    } else {
-        const double *x = b[0].buf, *r = b[1].buf, *e = b[2].buf;
-        double *out = b[3].buf;
-        for (Py_ssize_t w = 0; w < windows; w++) {
-            const Py_ssize_t a = (Py_ssize_t)starts[w];
-            out[w] = evidence_gain(x + a, r + a, total, e + a, n);
-        }
-        Py_INCREF(Py_None);
-        result = Py_None;
-    }
-    PyBuffer_Release(&s);
-    release_buffers(b, 4);
-    return result;
+    return evidence_entry(args, "evidence_gains", 0);
 }
 
 /* low_pass_slopes(t, wn, zeta, h, slopes): the reflex dynamics fit's delayed low-pass
@@ -4339,7 +4310,9 @@ FITS4_CLONES static void evidence_group(const double *x, const double *r, Py_ssi
 }
 #undef EVIDENCE_GATHER
 
-static PyObject *py_evidence_gains_lanes(PyObject *self, PyObject *args)
+/* evidence_gains and evidence_gains_lanes: the same arguments and checks, one window at a
+ * time (lanes 0: evidence_gain, the reference) or four at a time (evidence_group). */
+static PyObject *evidence_entry(PyObject *args, const char *name, int lanes)
 {
     PyObject *objs[4], *starts_obj, *out_obj;
     Py_ssize_t n;
@@ -4359,16 +4332,25 @@ static PyObject *py_evidence_gains_lanes(PyObject *self, PyObject *args)
     for (Py_ssize_t w = 0; ok && w < windows; w++) ok = starts[w] >= 0 && starts[w] + n <= total;
     PyObject *result = NULL;
     if (!ok) {
-        PyErr_SetString(PyExc_ValueError, "evidence_gains_lanes: inconsistent sizes");
+        PyErr_Format(PyExc_ValueError, "%s: inconsistent sizes", name);
     } else {
-        double *out = b[3].buf;
-        for (Py_ssize_t w = 0; w < windows; w += EVIDENCE_LANES) {
-            Py_ssize_t at[EVIDENCE_LANES];
-            double gains[EVIDENCE_LANES];
-            for (int q = 0; q < EVIDENCE_LANES; q++)
-                at[q] = (Py_ssize_t)starts[w + q < windows ? w + q : windows - 1];
-            evidence_group(b[0].buf, b[1].buf, total, b[2].buf, at, n, gains);
-            for (int q = 0; q < EVIDENCE_LANES && w + q < windows; q++) out[w + q] = gains[q];
+        if (!lanes) {
+            const double *x = b[0].buf, *r = b[1].buf, *e = b[2].buf;
+            double *out = b[3].buf;
+            for (Py_ssize_t w = 0; w < windows; w++) {
+                const Py_ssize_t a = (Py_ssize_t)starts[w];
+                out[w] = evidence_gain(x + a, r + a, total, e + a, n);
+            }
+        } else {
+            double *out = b[3].buf;
+            for (Py_ssize_t w = 0; w < windows; w += EVIDENCE_LANES) {
+                Py_ssize_t at[EVIDENCE_LANES];
+                double gains[EVIDENCE_LANES];
+                for (int q = 0; q < EVIDENCE_LANES; q++)
+                    at[q] = (Py_ssize_t)starts[w + q < windows ? w + q : windows - 1];
+                evidence_group(b[0].buf, b[1].buf, total, b[2].buf, at, n, gains);
+                for (int q = 0; q < EVIDENCE_LANES && w + q < windows; q++) out[w + q] = gains[q];
+            }
         }
         Py_INCREF(Py_None);
         result = Py_None;
@@ -4376,6 +4358,11 @@ static PyObject *py_evidence_gains_lanes(PyObject *self, PyObject *args)
     PyBuffer_Release(&s);
     release_buffers(b, 4);
     return result;
+}
+
+static PyObject *py_evidence_gains_lanes(PyObject *self, PyObject *args)
+{
+    return evidence_entry(args, "evidence_gains_lanes", 1);
 }
 
 /* stencil_correlate(x, taps, scale, out): out[i] = (Σ_j x[i + j]·taps[j])·scale for the
