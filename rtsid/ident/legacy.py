@@ -26,6 +26,7 @@ from rtsid.ident.assess import (
     WindowEstimate,
     assemble,
     predict_torque,
+    published_vafs,
     supported_edge,
     three_vafs,
 )
@@ -88,7 +89,7 @@ def legacy_back_end(
     )
     _raise_for_fit_status(status)
     se_i, se_b, se_k, vaf_model, vaf_irf, vaf_fit = out.tolist()
-    vafs = (round(vaf_model, 12), round(vaf_irf, 12), round(vaf_fit, 12))
+    vafs = published_vafs(vaf_model, vaf_irf, vaf_fit)
     return assemble(irf, params, (se_i, se_b, se_k), vafs, "relative", options)
 
 
