@@ -18,7 +18,7 @@ from rtsid.errors import IncompleteRecordingWarning, InputDataError
 
 if TYPE_CHECKING:
     from rtsid.replay import ReplayResult
-    from rtsid.runtime.daemon import DaemonConfig
+    from rtsid.runtime.daemon_config import DaemonConfig
 
 # The replay itself (numpy, the reader, the window path: ≈ 2 G instructions to import here,
 # where every process compiles rtsid from source) is imported where it is used, so that a
@@ -60,7 +60,7 @@ def _rate(text: str) -> float | None:
 
 def _config(args: argparse.Namespace, path: Path) -> DaemonConfig:
     from rtsid.replay import recording_config
-    from rtsid.runtime.daemon import DaemonConfig
+    from rtsid.runtime.daemon_config import DaemonConfig
 
     return DaemonConfig.load(args.config) if args.config else recording_config(path)
 

@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from rtsid.link.acquisition import LinkCounters
+from rtsid.link.counters import LinkCounters
 from rtsid.verdicts import Flag, Reason
 
 if TYPE_CHECKING:  # the numerics (scipy) are imported by who runs them, not by readers
