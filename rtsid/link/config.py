@@ -14,15 +14,18 @@ import types
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rtsid.config import invalid, load_toml, require_choice, require_range, section_from_mapping
 from rtsid.errors import ConfigError, InputDataError
-from rtsid.ident.excitation import Multisine, multisine
 from rtsid.link.mapping import ANKLE_MAPPING, protocol_from_config
 from rtsid.link.protocol import PERTURBATION_KINDS
 from rtsid.link.udp import UDP_FIELDS, compile_layout
-from rtsid.sim.reflex import ReflexParameters
+
+if TYPE_CHECKING:  # the plant's simulation, imported where a plant is built: a replay reads
+    # this configuration without it
+    from rtsid.ident.excitation import Multisine
+    from rtsid.sim.reflex import ReflexParameters
 
 __all__ = [
     "FaultConfig",
@@ -435,6 +438,8 @@ class ReflexConfig:
         """The simulated reflex, or None when disabled."""
         if not self.enabled:
             return None
+        from rtsid.sim.reflex import ReflexParameters
+
         return ReflexParameters(self.gain, self.delay_s, self.corner_hz, self.damping_ratio)
 
 
@@ -501,6 +506,8 @@ class TorqueMultisineConfig:
             raise invalid(
                 "plant.torque_multisine.period_s", self.period_s, "a period > 0 s (none declared)"
             )
+        from rtsid.ident.excitation import multisine
+
         try:
             return multisine(
                 fs_hz,

@@ -24,9 +24,9 @@ from rtsid.ident.reflex_lane import SlowLaneSettings
 from rtsid.ident.tracker import TrackerOptions
 from rtsid.ident.window import EstimatorOptions
 from rtsid.io.calibration import robot_calibration
-from rtsid.io.mcap_log import McapConfig
+from rtsid.io.mcap_config import McapConfig
 from rtsid.io.session import SessionConfig
-from rtsid.io.zenoh_link import ZenohConfig
+from rtsid.io.zenoh_config import ZenohConfig
 from rtsid.link.config import LinkConfig, PlantConfig, link_configs_from_mapping
 from rtsid.runtime.worker import WorkerConfig
 
