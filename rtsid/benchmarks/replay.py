@@ -34,7 +34,7 @@ from rtsid.ident.levinson import HAVE_COMPILED_KERNEL
 from rtsid.ident.stream import sliding_estimates
 from rtsid.io.convert import ImportedSamples, read_sample_file, write_recording
 from rtsid.replay import ReplayResult, recording_config, replay_file, write_estimates_mcap
-from rtsid.runtime.daemon import DaemonConfig
+from rtsid.runtime.daemon_config import DaemonConfig
 from rtsid.sim.joint import JointParameters, StiffnessProfile, simulate_impedance
 
 FS_HZ = 2500.0
