@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
+
+import pytest
 
 
 def _modules_after(code: str) -> set[str]:
@@ -64,3 +67,25 @@ def test_the_moved_configuration_and_counters_are_the_same_objects_under_their_o
     assert acquisition_counters is LinkCounters is lazy_counters
     assert acquisition_states is LINK_STATES
     assert daemon_config is DaemonConfig and daemon_sections is SECTIONS
+
+
+def test_a_replay_reads_a_default_protocol_without_cantools_and_python_can():
+    # the recording's [link.protocol] is the default (the built-in ankle protocol): checking
+    # it compiled the packaged DBC with cantools, which imports python-can, in every process
+    recording = Path(__file__).resolve().parents[2] / "replay" / "reference" / "sim_3s.mcap"
+    loaded = _modules_after(
+        "from pathlib import Path; from rtsid.replay import replay_file; "
+        f"assert replay_file(Path({str(recording)!r})).messages"
+    )
+    assert "rtsid.replay" in loaded and not {"cantools", "can"} & loaded
+
+
+def test_a_protocol_section_is_checked_unless_it_is_the_default():
+    from rtsid.errors import ConfigError
+    from rtsid.link.config import ProtocolConfig
+    from rtsid.link.mapping import protocol_from_config
+
+    assert ProtocolConfig().is_default() and protocol_from_config(ProtocolConfig()).builtin
+    assert not ProtocolConfig(position_sign=-1.0).is_default()
+    with pytest.raises(ConfigError, match="NoSuch"):
+        ProtocolConfig(position="NoSuch.Signal")
