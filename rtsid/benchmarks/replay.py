@@ -118,6 +118,9 @@ class FolderRun:
     idle_at_end_s : tuple of float
         Each process's wait at the end, from its last recording to the last recording's
         end (same order), s.
+    busiest_cpu_s : float
+        CPU time of its busiest process by the end of its last recording (start-up
+        included), s: with a core each, the run would have taken about this long.
     """
 
     jobs: int
@@ -125,6 +128,7 @@ class FolderRun:
     cpu_s: float
     startup_s: tuple[float, ...]
     idle_at_end_s: tuple[float, ...]
+    busiest_cpu_s: float
 
 
 def run_folder(folder: Path, jobs: int) -> FolderRun:
@@ -146,6 +150,7 @@ def run_folder(folder: Path, jobs: int) -> FolderRun:
         cpu_s,
         tuple(p["ready_s"] - launched_s for p in processes),
         tuple(p["idle_at_end_s"] for p in processes),
+        max(p["cpu_s"] for p in processes),
     )
 
 
@@ -176,6 +181,8 @@ def _folder_table(folder: Path, seconds: float, count: int) -> Callable[[], None
     pairs = alternated_pairs(folder)
     ratios = [one.wall_s / two.wall_s for one, two in pairs]
     ratio = float(np.median(ratios))
+    # the same by CPU: what the ratio would be if each process had a core of its own
+    cpu_ratio = float(np.median([one.busiest_cpu_s / two.busiest_cpu_s for one, two in pairs]))
     total = count * seconds
     rows = []
     for k, (pair, pair_ratio) in enumerate(zip(pairs, ratios, strict=True), start=1):
@@ -184,8 +191,8 @@ def _folder_table(folder: Path, seconds: float, count: int) -> Callable[[], None
             rows.append([f"pair {k}", *_run_cells(run, total, speed_up)])
     median = {jobs: float(np.median([pair[jobs - 1].wall_s for pair in pairs])) for jobs in (1, 2)}
     rows += [
-        ["median", 1, median[1], total / median[1], 1.0, "", "", "", ""],
-        ["median", 2, median[2], total / median[2], ratio, "", "", "", ""],
+        ["median", 1, median[1], total / median[1], 1.0, "", "", "", "", ""],
+        ["median", 2, median[2], total / median[2], ratio, "", "", "", "", ""],
     ]
     startup_s = float(np.median([pair[0].startup_s[0] for pair in pairs]))
     # each process pays one start-up either way; the replays' time is halved at best
@@ -203,6 +210,7 @@ def _folder_table(folder: Path, seconds: float, count: int) -> Callable[[], None
             "idle at end s (command / child)",
             "CPU s",
             "cores used",
+            "CPU s, busiest process",
         ],
         rows,
         note=(
@@ -217,7 +225,10 @@ def _folder_table(folder: Path, seconds: float, count: int) -> Callable[[], None
             "filled); idle at end = a process's wait from its last recording to the last "
             "recording's end (recordings are not split); cores used = the CPU seconds of its "
             "processes over the wall time (on a machine other work shares, the second core is "
-            f"not all this run's). With the median start-up of --jobs 1, {startup_s:.2f} s, "
+            "not all this run's). By CPU, --jobs 1's process over --jobs 2's busiest, the "
+            f"median pair reads {cpu_ratio:.2f}×: the speed-up with a core for each process "
+            "(CPU time itself grows when the cores are shared). With the median start-up of "
+            f"--jobs 1, {startup_s:.2f} s, "
             f"--jobs 2 could reach {ideal:.2f}× here with equal recordings; the machine "
             f"itself: two CPU-bound processes ran {ceiling:.2f}× one process's work in the "
             "same time (2.0 on two free cores)."
@@ -227,7 +238,7 @@ def _folder_table(folder: Path, seconds: float, count: int) -> Callable[[], None
 
 def _run_cells(run: FolderRun, total_s: float, speed_up: float) -> list[Any]:
     """A run's cells after the first: jobs, seconds, × real time, speed-up, start-ups, idle
-    at end, CPU s, cores used."""
+    at end, CPU s, cores used, the busiest process's CPU s."""
     return [
         run.jobs,
         run.wall_s,
@@ -237,6 +248,7 @@ def _run_cells(run: FolderRun, total_s: float, speed_up: float) -> list[Any]:
         " / ".join(f"{s:.2f}" for s in run.idle_at_end_s),
         run.cpu_s,
         run.cpu_s / run.wall_s,
+        run.busiest_cpu_s,
     ]
 
 

@@ -147,6 +147,8 @@ class Replayed(NamedTuple):
     started_s, ended_s : float
         When that process started and finished it, ``time.monotonic()`` s (one clock for
         every process of a machine: Linux's ``CLOCK_MONOTONIC``).
+    cpu_s : float
+        That process's CPU time when it finished it, its start-up included, s.
     """
 
     row: list[Any]
@@ -154,6 +156,7 @@ class Replayed(NamedTuple):
     pid: int
     started_s: float
     ended_s: float
+    cpu_s: float
 
 
 def _replay_one(path: Path, args: argparse.Namespace, out: Path | None) -> Replayed:
@@ -166,7 +169,7 @@ def _replay_one(path: Path, args: argparse.Namespace, out: Path | None) -> Repla
         if not issubclass(w.category, IncompleteRecordingWarning):
             warnings.showwarning(w.message, w.category, w.filename, w.lineno)
     incomplete = [str(w.message) for w in caught if w.category is IncompleteRecordingWarning]
-    return Replayed(row, incomplete, os.getpid(), started_s, time.monotonic())
+    return Replayed(row, incomplete, os.getpid(), started_s, time.monotonic(), time.process_time())
 
 
 def _replay_and_write(path: Path, args: argparse.Namespace, out: Path | None) -> list[Any]:
@@ -430,8 +433,9 @@ def _write_timing(
     path: Path, ready_s: dict[int, float], done: list[Replayed], finished_s: float
 ) -> None:
     """``--timing JSON``: for each process (this one first), when it had imported the replay
-    and when it started and ended each recording, and how long it idled before the last
-    recording ended (``idle_at_end_s``); times are ``time.monotonic()`` s."""
+    and when it started and ended each recording, how long it idled before the last
+    recording ended (``idle_at_end_s``) and its CPU time by the end of its last recording
+    (``cpu_s``, its start-up included); times are ``time.monotonic()`` s."""
     from rtsid.io.files import atomic_write
 
     # a process's readiness is known once its preload has come back; it always has before
@@ -454,6 +458,7 @@ def _write_timing(
                     for d in mine
                 ],
                 "idle_at_end_s": max(0.0, finished_s - last_s),
+                "cpu_s": max((d.cpu_s for d in mine), default=0.0),
             }
         )
     document = {

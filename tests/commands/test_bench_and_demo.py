@@ -91,9 +91,11 @@ def test_replay_benchmark_compares_replay_with_the_bare_estimator(capsys):
     for r in rows:
         if r.startswith("| pair"):
             cells = [c.strip() for c in r.split("|")]
-            by_jobs.setdefault(cells[2], []).append((cells[6], cells[7]))
+            by_jobs.setdefault(cells[2], []).append((cells[6], cells[7], cells[10]))
+    assert "By CPU, --jobs 1's process over --jobs 2's busiest" in out
     for jobs, count in (("1", 1), ("2", 2)):
-        for startup, idle in by_jobs[jobs]:
+        for startup, idle, busiest_cpu in by_jobs[jobs]:
+            assert float(busiest_cpu) > 0
             assert len(startup.split(" / ")) == count and len(idle.split(" / ")) == count
             assert all(float(s) > 0 for s in startup.split(" / "))
             assert all(float(s) >= 0 for s in idle.split(" / "))

@@ -37,6 +37,8 @@ def _check_timeline(document: dict, names: list[str]) -> list[dict]:
         if spans:
             assert p["ready_s"] <= spans[0][0] and last <= finished
         assert p["idle_at_end_s"] == max(0.0, finished - last)
+        # its CPU time by the end of its last recording, start-up included
+        assert p["cpu_s"] > 0 if spans else p["cpu_s"] == 0
     return processes
 
 
