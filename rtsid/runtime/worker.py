@@ -22,8 +22,9 @@ import os
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -91,9 +92,10 @@ class WorkerConfig:
         A window whose newest sample arrived longer ago than this is ``stale``.
     calibration_file : str
         Robot-dynamics calibration (``rtsid calibrate``) whose predicted robot torque is
-        subtracted from every window before identification ("": none). A relative path is
-        taken from the working directory and kept absolute (so a recording's stored config
-        still finds it when replayed from elsewhere).
+        subtracted from every window before identification ("": none). In a config file, a
+        relative path is taken from the file's folder (as ``protocol.dbc`` and
+        ``plant.player_file``); elsewhere from the working directory. It is kept absolute (so a
+        recording's stored config still finds it when replayed from elsewhere).
     """
 
     window_s: float = 0.3
@@ -116,8 +118,15 @@ class WorkerConfig:
                 raise ConfigError(f"config key 'worker.calibration_file': {exc}") from None
 
     @classmethod
-    def from_mapping(cls, mapping: Any) -> WorkerConfig:
-        """Build from the ``[worker]`` TOML table."""
+    def from_mapping(cls, mapping: Any, base_dir: str | Path | None = None) -> WorkerConfig:
+        """Build from the ``[worker]`` TOML table; a relative ``calibration_file`` is taken
+        from ``base_dir`` (the config file's folder) when given."""
+        calibration = mapping.get("calibration_file") if isinstance(mapping, Mapping) else None
+        if base_dir is not None and isinstance(calibration, str) and calibration:
+            mapping = {
+                **mapping,
+                "calibration_file": str(Path(base_dir) / Path(calibration).expanduser()),
+            }
         return section_from_mapping(cls, mapping, "worker")
 
     @property
