@@ -16,16 +16,38 @@ read from the compiled call's fixed work (:attr:`WindowStages.fixed_work_pace`).
 Its cost: one ``thread_time_ns`` call (a system call: the thread CPU clock has no vDSO path)
 and a few dictionary and list operations per mark, a dozen marks a window: 40 k instructions
 (callgrind) and about 8 µs of the worker's CPU per window (docs/service.md).
+
+What the CPU clock cannot say — whether a costly window's CPU went to page faults, the kernel,
+a preemption or a slow vCPU — the thread's resource counters can (:class:`Usage`,
+``getrusage(RUSAGE_THREAD)``: user and system CPU, minor and major faults, voluntary and
+involuntary context switches, 0.8 µs a read). The log reads them as a window begins and ends
+and around the compiled call, keeps each window's deltas beside its stages, and names the
+cause of every costly and every missed window (:data:`CPU_CAUSES`,
+:meth:`WindowStages.cause`): faults in the compiled call or elsewhere in the window (ours to
+fix), kernel time without faults (interrupts served on the worker's CPU, which this kernel
+charges to the thread), involuntary switches (another thread or the OS took the CPU), or none
+of these with the compiled call's fixed work at a slow pace (the vCPU ran slow: the host).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import resource
 import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
-__all__ = ["STAGES", "WINDOWS_KEPT", "StageLog", "WindowStages"]
+__all__ = [
+    "CPU_CAUSES",
+    "STAGES",
+    "WINDOWS_KEPT",
+    "StageLog",
+    "Usage",
+    "WindowStages",
+    "thread_usage",
+]
 
 #: A window's stages, in the order the worker passes them. "between windows" is the worker's
 #: CPU from the previous window's end to this window's start (its loop, its waits, a stale
@@ -57,6 +79,81 @@ COSTLY_FACTOR = 3.0
 #: a slow CPU (the call's work is the same every window).
 SLOW_PACE = 1.5
 _INDEX = {name: i for i, name in enumerate(STAGES)}
+#: The marks that open and close the compiled call (its usage is read at both).
+_CALL_OPENS, _CALL_CLOSES = "held parameters", "compiled call"
+#: Why a costly (or missed) window took its CPU, by :meth:`WindowStages.cause`, in the order
+#: it is judged: page faults (the compiled call's, or the window's elsewhere), kernel time
+#: without faults, involuntary context switches, a slow CPU (user time inflated with none of
+#: those: the compiled call's fixed work slow too), or the stage's own work.
+CPU_CAUSES = (
+    "page faults in the compiled call",
+    "page faults",
+    "kernel time without page faults",
+    "involuntary switches",
+    "slow CPU, no faults or switches (the host)",
+    "the stage's own work",
+)
+#: System CPU above its usual by at least this share of a window's excess CPU is the kernel's.
+KERNEL_SHARE = 0.5
+
+
+class Usage(NamedTuple):
+    """The worker thread's resource counters (``getrusage(RUSAGE_THREAD)``), or their change
+    over a span (:meth:`since`). Faults and switches are exact counts; the user/system split
+    of CPU time is the kernel's tick-sampled one, scaled to the exact total (a millisecond
+    span's split can be off by a tick)."""
+
+    user_us: int
+    system_us: int
+    minor_faults: int
+    major_faults: int
+    voluntary_switches: int
+    involuntary_switches: int
+
+    @property
+    def faults(self) -> int:
+        """Minor and major page faults."""
+        return self.minor_faults + self.major_faults
+
+    def since(self, earlier: Usage) -> Usage:
+        """The counters' change from ``earlier`` to this reading."""
+        return Usage(
+            self[0] - earlier[0],
+            self[1] - earlier[1],
+            self[2] - earlier[2],
+            self[3] - earlier[3],
+            self[4] - earlier[4],
+            self[5] - earlier[5],
+        )
+
+    def describe(self) -> str:
+        """``user 0.61 / system 0.05 ms, 0 page faults, 1 voluntary / 0 involuntary switches``"""
+        major = f" ({self.major_faults} major)" if self.major_faults else ""
+        return (
+            f"user {1e-3 * self.user_us:.2f} / system {1e-3 * self.system_us:.2f} ms, "
+            f"{self.faults} page faults{major}, {self.voluntary_switches} voluntary / "
+            f"{self.involuntary_switches} involuntary switches"
+        )
+
+
+#: ``getrusage``'s per-thread counters (Linux; None elsewhere).
+_RUSAGE_THREAD: int | None = getattr(resource, "RUSAGE_THREAD", None)
+
+
+def thread_usage() -> Usage | None:
+    """The calling thread's resource counters since it started (None where the platform does
+    not count per thread)."""
+    if _RUSAGE_THREAD is None:
+        return None
+    u = resource.getrusage(_RUSAGE_THREAD)
+    return Usage(
+        round(u.ru_utime * 1e6),
+        round(u.ru_stime * 1e6),
+        u.ru_minflt,
+        u.ru_majflt,
+        u.ru_nvcsw,
+        u.ru_nivcsw,
+    )
 
 
 @dataclass(frozen=True)
@@ -71,12 +168,23 @@ class WindowStages:
         The worker thread's CPU in each of :data:`STAGES`, ns.
     new_reflex_model : bool
         The window took up a slow-lane model the window before had not used.
+    usual_ns : tuple of int, optional
+        Each stage's median CPU over the kept windows, ns (None: not computed).
+    usage : Usage, optional
+        The thread's counters over the window, begin to end (None: not read).
+    call_usage : Usage, optional
+        Over the compiled call alone (None: no compiled call, or not read).
+    usual_usage : Usage, optional
+        Each counter's median over the kept windows (None: not computed).
     """
 
     window_end_index: int
     cpu_ns: tuple[int, ...]
     new_reflex_model: bool = False
-    usual_ns: tuple[int, ...] | None = None  # each stage's median over the kept windows
+    usual_ns: tuple[int, ...] | None = None
+    usage: Usage | None = None
+    call_usage: Usage | None = None
+    usual_usage: Usage | None = None
 
     @property
     def most_above_usual(self) -> tuple[str, float] | None:
@@ -107,7 +215,44 @@ class WindowStages:
         pace = self.fixed_work_pace
         if pace is not None:
             usual += f"; the compiled call (the same work every window) at {pace:.1f}× its usual"
-        return f"stages, CPU ms: {parts} (largest: {self.largest}{usual}{model})"
+        line = f"stages, CPU ms: {parts} (largest: {self.largest}{usual}{model})"
+        if self.usage is not None:
+            line += f"; the window: {self.usage.describe()}"
+        if self.call_usage is not None:
+            line += f"; the compiled call: {self.call_usage.describe()}"
+        cause = self.cause()
+        return line + ("" if cause is None else f"; cause: {cause}")
+
+    def cause(self) -> str | None:
+        """Why the window took its CPU (one of :data:`CPU_CAUSES`), judged in that order from
+        its counters against their medians over the kept windows; None without medians.
+
+        Faults above the usual are the cause whatever else is seen (each is kernel time on
+        the worker's CPU: a fresh page zeroed, a huge page, a compaction); then system CPU
+        above its usual by :data:`KERNEL_SHARE` of the excess (interrupts served meanwhile,
+        charged to the thread here); then involuntary switches above the usual (the CPU
+        taken away mid-window: its caches cold after); then the compiled call's fixed work at
+        :data:`SLOW_PACE` or more (everything slow with no kernel work: the vCPU ran slow);
+        else the stage's own work."""
+        above = self.most_above_usual
+        if above is None:
+            return None
+        usage, usual = self.usage, self.usual_usage
+        if usage is not None and usual is not None:
+            call = self.call_usage
+            if call is not None and call.faults > 0:
+                return CPU_CAUSES[0]
+            if usage.faults > usual.faults:
+                return CPU_CAUSES[1]
+            excess_us = 1e-3 * (sum(self.cpu_ns) - sum(self.usual_ns or ()))
+            if usage.system_us - usual.system_us >= KERNEL_SHARE * max(excess_us, 1.0):
+                return CPU_CAUSES[2]
+            if usage.involuntary_switches > usual.involuntary_switches:
+                return CPU_CAUSES[3]
+        pace = self.fixed_work_pace
+        if pace is not None and pace >= SLOW_PACE:
+            return CPU_CAUSES[4]
+        return CPU_CAUSES[5]
 
     @property
     def fixed_work_pace(self) -> float | None:
@@ -134,13 +279,25 @@ class StageLog:
     ----------
     clock : callable, optional
         Thread CPU time, ns (default ``time.thread_time_ns``; tests pass their own).
+    usage : callable, optional
+        The thread's resource counters (default :func:`thread_usage`; None from it or here:
+        not read).
     """
 
-    def __init__(self, clock: Callable[[], int] = time.thread_time_ns) -> None:
+    def __init__(
+        self,
+        clock: Callable[[], int] = time.thread_time_ns,
+        usage: Callable[[], Usage | None] | None = thread_usage,
+    ) -> None:
         self._clock = clock
+        self._read_usage = usage
         self._rows = [[0] * len(STAGES) for _ in range(WINDOWS_KEPT)]
         self._ends = [-1] * WINDOWS_KEPT
         self._new_model = [False] * WINDOWS_KEPT
+        self._usage: list[Usage | None] = [None] * WINDOWS_KEPT  # over each window
+        self._call_usage: list[Usage | None] = [None] * WINDOWS_KEPT  # over its compiled call
+        self._usage_begun: Usage | None = None  # the counters as the current window began
+        self._call_begun: Usage | None = None  # ... and as its compiled call began
         self._next = 0  # the row the next window takes
         self._row = self._rows[0]
         self._last_ns: int | None = None  # the clock at the latest mark (None: never read)
@@ -152,6 +309,9 @@ class StageLog:
         #: costly windows (:data:`COSTLY_FACTOR`), missed or not, by that stage and whether
         #: the CPU ran at its usual pace (:meth:`WindowStages.fixed_work_pace`)
         self.costly_stages: Counter[str] = Counter()
+        #: missed windows, and costly ones missed or not, by :meth:`WindowStages.cause`
+        self.miss_cpu_causes: Counter[str] = Counter()
+        self.costly_causes: Counter[str] = Counter()
         self._start_ns = 0  # the clock as the current window began
         self._mean_ns = 0.0  # running mean of a usual window's CPU (0: none yet)
 
@@ -164,6 +324,9 @@ class StageLog:
             row[i] = 0
         self._ends[slot] = window_end_index
         self._new_model[slot] = False
+        self._usage[slot] = self._call_usage[slot] = self._call_begun = None
+        read_usage = self._read_usage
+        self._usage_begun = None if read_usage is None else read_usage()
         now = self._clock()
         if self._last_ns is not None:
             row[0] = now - self._last_ns
@@ -171,10 +334,20 @@ class StageLog:
         self.windows += 1
 
     def mark(self, stage: str) -> None:
-        """The named stage of the current window ends now."""
+        """The named stage of the current window ends now (the compiled call's counters are
+        read outside its CPU: before its opening mark's clock, after its closing one's)."""
+        read_usage = self._read_usage
+        if stage == _CALL_OPENS and read_usage is not None:
+            self._call_begun = read_usage()
         now = self._clock()
         self._row[_INDEX[stage]] += now - (now if self._last_ns is None else self._last_ns)
         self._last_ns = now
+        if stage == _CALL_CLOSES and self._call_begun is not None and read_usage is not None:
+            ended = read_usage()
+            if ended is not None:
+                slot = (self._next - 1) % WINDOWS_KEPT
+                self._call_usage[slot] = ended.since(self._call_begun)
+            self._call_begun = None
 
     def reflex_used(self, seq: int | None) -> None:
         """The slow-lane model the current window used (None: none)."""
@@ -187,12 +360,22 @@ class StageLog:
         one (its CPU from start to publish) is counted by its stage."""
         last = self._last_ns
         cpu = 0 if last is None else last - self._start_ns
+        self._window_usage_so_far()
         mean = self._mean_ns
         if self.windows > WINDOWS_KEPT and cpu > COSTLY_FACTOR * mean:
             self._count_costly()
         else:  # a mean over about the last 32 usual windows
             self._mean_ns = mean + (cpu - mean) / 32.0 if mean else float(cpu)
         self.mark("window end")
+
+    def _window_usage_so_far(self) -> None:
+        """The current window's counters from its beginning to now, into its row."""
+        begun, read_usage = self._usage_begun, self._read_usage
+        if begun is None or read_usage is None:
+            return
+        now = read_usage()
+        if now is not None:
+            self._usage[(self._next - 1) % WINDOWS_KEPT] = now.since(begun)
 
     def _count_costly(self) -> None:
         stages = self.with_usual()
@@ -202,6 +385,9 @@ class StageLog:
         pace = stages.fixed_work_pace
         slow = pace is not None and pace >= SLOW_PACE
         self.costly_stages[f"{above[0]}, {'slow CPU' if slow else 'CPU at its pace'}"] += 1
+        cause = stages.cause()
+        if cause is not None:
+            self.costly_causes[cause] += 1
 
     def latest(self) -> WindowStages | None:
         """The current (or latest) window's stages; None before the first window."""
@@ -219,12 +405,16 @@ class StageLog:
         """The current window missed its deadline: its stages with each stage's median over
         the kept windows (for the miss line); the stage furthest above its median is counted.
         """
+        self._window_usage_so_far()
         stages = self.with_usual()
         if stages is None:
             return None
         above = stages.most_above_usual
         assert above is not None
         self.miss_stages[above[0]] += 1
+        cause = stages.cause()
+        if cause is not None:
+            self.miss_cpu_causes[cause] += 1
         return stages
 
     def with_usual(self) -> WindowStages | None:
@@ -237,7 +427,19 @@ class StageLog:
         usual = tuple(
             sorted(row[i] for row in self._rows[:kept])[middle] for i in range(len(STAGES))
         )
-        return WindowStages(stages.window_end_index, stages.cpu_ns, stages.new_reflex_model, usual)
+        read = [u for u in self._usage[:kept] if u is not None]
+        usual_usage = (
+            Usage(*(sorted(column)[len(read) // 2] for column in zip(*read, strict=True)))
+            if read
+            else None
+        )
+        return dataclasses.replace(stages, usual_ns=usual, usual_usage=usual_usage)
 
     def _stages_of(self, slot: int) -> WindowStages:
-        return WindowStages(self._ends[slot], tuple(self._rows[slot]), self._new_model[slot])
+        return WindowStages(
+            self._ends[slot],
+            tuple(self._rows[slot]),
+            self._new_model[slot],
+            usage=self._usage[slot],
+            call_usage=self._call_usage[slot],
+        )
