@@ -37,7 +37,7 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 __all__ = [
     "CPU_CAUSES",
@@ -98,10 +98,10 @@ KERNEL_SHARE = 0.5
 
 
 class Usage(NamedTuple):
-    """The worker thread's resource counters (``getrusage(RUSAGE_THREAD)``), or their change
-    over a span (:meth:`since`). Faults and switches are exact counts; the user/system split
-    of CPU time is the kernel's tick-sampled one, scaled to the exact total (a millisecond
-    span's split can be off by a tick)."""
+    """The change of the worker thread's resource counters (``getrusage(RUSAGE_THREAD)``)
+    over a span (:meth:`between` two readings). Faults and switches are exact counts; the
+    user/system split of CPU time is the kernel's tick-sampled one, scaled to the exact total
+    (a millisecond span's split can be off by a tick)."""
 
     user_us: int
     system_us: int
@@ -115,15 +115,16 @@ class Usage(NamedTuple):
         """Minor and major page faults."""
         return self.minor_faults + self.major_faults
 
-    def since(self, earlier: Usage) -> Usage:
-        """The counters' change from ``earlier`` to this reading."""
-        return Usage(
-            self[0] - earlier[0],
-            self[1] - earlier[1],
-            self[2] - earlier[2],
-            self[3] - earlier[3],
-            self[4] - earlier[4],
-            self[5] - earlier[5],
+    @classmethod
+    def between(cls, earlier: Any, later: Any) -> Usage:
+        """The change from one ``getrusage`` reading to a later one (``struct_rusage``s)."""
+        return cls(
+            round((later.ru_utime - earlier.ru_utime) * 1e6),
+            round((later.ru_stime - earlier.ru_stime) * 1e6),
+            later.ru_minflt - earlier.ru_minflt,
+            later.ru_majflt - earlier.ru_majflt,
+            later.ru_nvcsw - earlier.ru_nvcsw,
+            later.ru_nivcsw - earlier.ru_nivcsw,
         )
 
     def describe(self) -> str:
@@ -140,20 +141,13 @@ class Usage(NamedTuple):
 _RUSAGE_THREAD: int | None = getattr(resource, "RUSAGE_THREAD", None)
 
 
-def thread_usage() -> Usage | None:
-    """The calling thread's resource counters since it started (None where the platform does
-    not count per thread)."""
+def thread_usage() -> Any:
+    """The calling thread's ``getrusage`` reading (a ``resource.struct_rusage``; 0.8 µs), or
+    None where the platform does not count per thread. Two readings make a :class:`Usage`
+    (:meth:`Usage.between`)."""
     if _RUSAGE_THREAD is None:
         return None
-    u = resource.getrusage(_RUSAGE_THREAD)
-    return Usage(
-        round(u.ru_utime * 1e6),
-        round(u.ru_stime * 1e6),
-        u.ru_minflt,
-        u.ru_majflt,
-        u.ru_nvcsw,
-        u.ru_nivcsw,
-    )
+    return resource.getrusage(_RUSAGE_THREAD)
 
 
 @dataclass(frozen=True)
@@ -280,24 +274,27 @@ class StageLog:
     clock : callable, optional
         Thread CPU time, ns (default ``time.thread_time_ns``; tests pass their own).
     usage : callable, optional
-        The thread's resource counters (default :func:`thread_usage`; None from it or here:
-        not read).
+        The thread's ``getrusage`` reading (default :func:`thread_usage`; None from it or
+        here: not read). Four a window (its begin and end, around the compiled call), kept
+        as read: a :class:`Usage` is made of two only for a costly or missed window.
     """
 
     def __init__(
         self,
         clock: Callable[[], int] = time.thread_time_ns,
-        usage: Callable[[], Usage | None] | None = thread_usage,
+        usage: Callable[[], Any] | None = thread_usage,
     ) -> None:
         self._clock = clock
         self._read_usage = usage
         self._rows = [[0] * len(STAGES) for _ in range(WINDOWS_KEPT)]
         self._ends = [-1] * WINDOWS_KEPT
         self._new_model = [False] * WINDOWS_KEPT
-        self._usage: list[Usage | None] = [None] * WINDOWS_KEPT  # over each window
-        self._call_usage: list[Usage | None] = [None] * WINDOWS_KEPT  # over its compiled call
-        self._usage_begun: Usage | None = None  # the counters as the current window began
-        self._call_begun: Usage | None = None  # ... and as its compiled call began
+        # getrusage readings of each kept window: as it began and ended, and as its compiled
+        # call began and ended (None: not read)
+        self._began: list[Any] = [None] * WINDOWS_KEPT
+        self._ended: list[Any] = [None] * WINDOWS_KEPT
+        self._call_began: list[Any] = [None] * WINDOWS_KEPT
+        self._call_ended: list[Any] = [None] * WINDOWS_KEPT
         self._next = 0  # the row the next window takes
         self._row = self._rows[0]
         self._last_ns: int | None = None  # the clock at the latest mark (None: never read)
@@ -324,9 +321,9 @@ class StageLog:
             row[i] = 0
         self._ends[slot] = window_end_index
         self._new_model[slot] = False
-        self._usage[slot] = self._call_usage[slot] = self._call_begun = None
+        self._ended[slot] = self._call_began[slot] = self._call_ended[slot] = None
         read_usage = self._read_usage
-        self._usage_begun = None if read_usage is None else read_usage()
+        self._began[slot] = None if read_usage is None else read_usage()
         now = self._clock()
         if self._last_ns is not None:
             row[0] = now - self._last_ns
@@ -338,16 +335,12 @@ class StageLog:
         read outside its CPU: before its opening mark's clock, after its closing one's)."""
         read_usage = self._read_usage
         if stage == _CALL_OPENS and read_usage is not None:
-            self._call_begun = read_usage()
+            self._call_began[(self._next - 1) % WINDOWS_KEPT] = read_usage()
         now = self._clock()
         self._row[_INDEX[stage]] += now - (now if self._last_ns is None else self._last_ns)
         self._last_ns = now
-        if stage == _CALL_CLOSES and self._call_begun is not None and read_usage is not None:
-            ended = read_usage()
-            if ended is not None:
-                slot = (self._next - 1) % WINDOWS_KEPT
-                self._call_usage[slot] = ended.since(self._call_begun)
-            self._call_begun = None
+        if stage == _CALL_CLOSES and read_usage is not None:
+            self._call_ended[(self._next - 1) % WINDOWS_KEPT] = read_usage()
 
     def reflex_used(self, seq: int | None) -> None:
         """The slow-lane model the current window used (None: none)."""
@@ -369,13 +362,9 @@ class StageLog:
         self.mark("window end")
 
     def _window_usage_so_far(self) -> None:
-        """The current window's counters from its beginning to now, into its row."""
-        begun, read_usage = self._usage_begun, self._read_usage
-        if begun is None or read_usage is None:
-            return
-        now = read_usage()
-        if now is not None:
-            self._usage[(self._next - 1) % WINDOWS_KEPT] = now.since(begun)
+        """Read the current window's counters as of now (its end, or its miss)."""
+        if self._read_usage is not None:
+            self._ended[(self._next - 1) % WINDOWS_KEPT] = self._read_usage()
 
     def _count_costly(self) -> None:
         stages = self.with_usual()
@@ -427,7 +416,11 @@ class StageLog:
         usual = tuple(
             sorted(row[i] for row in self._rows[:kept])[middle] for i in range(len(STAGES))
         )
-        read = [u for u in self._usage[:kept] if u is not None]
+        read = [
+            Usage.between(began, ended)
+            for began, ended in zip(self._began[:kept], self._ended[:kept], strict=True)
+            if began is not None and ended is not None
+        ]
         usual_usage = (
             Usage(*(sorted(column)[len(read) // 2] for column in zip(*read, strict=True)))
             if read
@@ -436,10 +429,16 @@ class StageLog:
         return dataclasses.replace(stages, usual_ns=usual, usual_usage=usual_usage)
 
     def _stages_of(self, slot: int) -> WindowStages:
+        began, ended = self._began[slot], self._ended[slot]
+        call_began, call_ended = self._call_began[slot], self._call_ended[slot]
         return WindowStages(
             self._ends[slot],
             tuple(self._rows[slot]),
             self._new_model[slot],
-            usage=self._usage[slot],
-            call_usage=self._call_usage[slot],
+            usage=None if began is None or ended is None else Usage.between(began, ended),
+            call_usage=(
+                None
+                if call_began is None or call_ended is None
+                else Usage.between(call_began, call_ended)
+            ),
         )

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import gc
+import resource
 from collections import deque
 
 import pytest
 
-from rtsid.runtime.stages import CPU_CAUSES, STAGES, WINDOWS_KEPT, StageLog, Usage
+from rtsid.runtime.stages import CPU_CAUSES, STAGES, WINDOWS_KEPT, StageLog
 from rtsid.runtime.stalls import StallJournal
 from tests.runtime.test_worker import filled_ring, make_worker
 
@@ -177,9 +178,16 @@ class FakeUsage:
         self.clock = clock
         self.system_us = self.faults = self.involuntary = 0
 
-    def __call__(self) -> Usage:
-        user_us = self.clock.ns // 1000 - self.system_us
-        return Usage(user_us, self.system_us, self.faults, 0, 0, self.involuntary)
+    def __call__(self) -> resource.struct_rusage:
+        user_s = 1e-9 * self.clock.ns - 1e-6 * self.system_us
+        fields = [0.0] * 16  # getrusage's order: utime, stime, …, minflt (6), …, nivcsw (15)
+        fields[0], fields[1], fields[6], fields[15] = (
+            user_s,
+            1e-6 * self.system_us,
+            self.faults,
+            self.involuntary,
+        )
+        return resource.struct_rusage(fields)
 
 
 @pytest.mark.parametrize(

@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from rtsid.runtime.stages import thread_usage
+from rtsid.runtime.stages import Usage, thread_usage
 from rtsid.runtime.stalls import (
     MISS_LINES_PER_MINUTE,
     HostCounters,
@@ -119,7 +119,7 @@ def test_thread_usage_counts_the_pages_this_thread_touches_first_as_system_time(
     finally:
         pages.close()
     assert before is not None and after is not None
-    taken = after.since(before)
+    taken = Usage.between(before, after)
     assert taken.faults >= 256 and taken.minor_faults >= 256
     assert taken.user_us >= 0 and taken.system_us >= 0 and taken.involuntary_switches >= 0
     assert f"{taken.faults} page faults" in taken.describe()
