@@ -19,8 +19,9 @@ and a few dictionary and list operations per mark, a dozen marks a window: 40 k 
 
 What the CPU clock cannot say — whether a costly window's CPU went to page faults, the kernel,
 a preemption or a slow vCPU — the thread's resource counters can (:class:`Usage`,
-``getrusage(RUSAGE_THREAD)``: user and system CPU, minor and major faults, voluntary and
-involuntary context switches, 0.8 µs a read). The log reads them as a window begins and ends
+``getrusage(RUSAGE_THREAD)``: user and system CPU, minor and major faults, voluntary
+context switches (the thread waited: for the GIL, mostly) and involuntary ones (its CPU was
+taken), 0.8 µs a read). The log reads them as a window begins and ends
 and around the compiled call, keeps each window's deltas beside its stages, and names the
 cause of every costly and every missed window (:data:`CPU_CAUSES`,
 :meth:`WindowStages.cause`): faults in the compiled call or elsewhere in the window (ours to
@@ -82,10 +83,13 @@ _INDEX = {name: i for i, name in enumerate(STAGES)}
 #: The marks that open and close the compiled call (its usage is read at both).
 _CALL_OPENS, _CALL_CLOSES = "held parameters", "compiled call"
 #: Why a costly (or missed) window took its CPU, by :meth:`WindowStages.cause`, in the order
-#: it is judged: page faults (the compiled call's, or the window's elsewhere), kernel time
-#: without faults, involuntary context switches, a slow CPU (user time inflated with none of
-#: those: the compiled call's fixed work slow too), or the stage's own work.
+#: it is judged: its CPU no more than :data:`USUAL_FACTOR` times its usual (a missed window's
+#: wall time went to waits: for a CPU, the GIL), page faults (the compiled call's, or the
+#: window's elsewhere), kernel time without faults, involuntary context switches, a slow CPU
+#: (user time inflated with none of those: the compiled call's fixed work slow too), or the
+#: stage's own work.
 CPU_CAUSES = (
+    "CPU as usual (its time went to waits)",
     "page faults in the compiled call",
     "page faults",
     "kernel time without page faults",
@@ -95,6 +99,9 @@ CPU_CAUSES = (
 )
 #: System CPU above its usual by at least this share of a window's excess CPU is the kernel's.
 KERNEL_SHARE = 0.5
+#: A window whose CPU is within this many times its usual (the sum of its stages' medians)
+#: did not run long: a miss of such a window waited.
+USUAL_FACTOR = 2.0
 
 
 class Usage(NamedTuple):
@@ -221,6 +228,7 @@ class WindowStages:
         """Why the window took its CPU (one of :data:`CPU_CAUSES`), judged in that order from
         its counters against their medians over the kept windows; None without medians.
 
+        A window whose CPU stayed within :data:`USUAL_FACTOR` of its usual did not run long.
         Faults above the usual are the cause whatever else is seen (each is kernel time on
         the worker's CPU: a fresh page zeroed, a huge page, a compaction); then system CPU
         above its usual by :data:`KERNEL_SHARE` of the excess (interrupts served meanwhile,
@@ -228,25 +236,27 @@ class WindowStages:
         taken away mid-window: its caches cold after); then the compiled call's fixed work at
         :data:`SLOW_PACE` or more (everything slow with no kernel work: the vCPU ran slow);
         else the stage's own work."""
-        above = self.most_above_usual
-        if above is None:
+        if self.usual_ns is None:
             return None
+        usual_ns = sum(self.usual_ns)
+        excess_us = 1e-3 * (sum(self.cpu_ns) - usual_ns)
+        if 1e3 * excess_us <= (USUAL_FACTOR - 1.0) * usual_ns:
+            return CPU_CAUSES[0]
         usage, usual = self.usage, self.usual_usage
         if usage is not None and usual is not None:
             call = self.call_usage
             if call is not None and call.faults > 0:
-                return CPU_CAUSES[0]
-            if usage.faults > usual.faults:
                 return CPU_CAUSES[1]
-            excess_us = 1e-3 * (sum(self.cpu_ns) - sum(self.usual_ns or ()))
-            if usage.system_us - usual.system_us >= KERNEL_SHARE * max(excess_us, 1.0):
+            if usage.faults > usual.faults:
                 return CPU_CAUSES[2]
-            if usage.involuntary_switches > usual.involuntary_switches:
+            if usage.system_us - usual.system_us >= KERNEL_SHARE * excess_us:
                 return CPU_CAUSES[3]
+            if usage.involuntary_switches > usual.involuntary_switches:
+                return CPU_CAUSES[4]
         pace = self.fixed_work_pace
         if pace is not None and pace >= SLOW_PACE:
-            return CPU_CAUSES[4]
-        return CPU_CAUSES[5]
+            return CPU_CAUSES[5]
+        return CPU_CAUSES[6]
 
     @property
     def fixed_work_pace(self) -> float | None:

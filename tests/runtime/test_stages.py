@@ -193,12 +193,12 @@ class FakeUsage:
 @pytest.mark.parametrize(
     ("what", "cause"),
     [
-        ("faults in the call", CPU_CAUSES[0]),
-        ("faults elsewhere", CPU_CAUSES[1]),
-        ("kernel", CPU_CAUSES[2]),
-        ("preempted", CPU_CAUSES[3]),
-        ("slow CPU", CPU_CAUSES[4]),
-        ("tracker", CPU_CAUSES[5]),
+        ("faults in the call", CPU_CAUSES[1]),
+        ("faults elsewhere", CPU_CAUSES[2]),
+        ("kernel", CPU_CAUSES[3]),
+        ("preempted", CPU_CAUSES[4]),
+        ("slow CPU", CPU_CAUSES[5]),
+        ("tracker", CPU_CAUSES[6]),
     ],
 )
 def test_a_costly_window_is_counted_by_why_its_cpu_ran_long(what, cause):
@@ -260,7 +260,13 @@ def test_a_missed_window_is_counted_by_its_cause_and_its_counters_read_so_far():
     log.mark("compiled call")
     missed = log.missed()  # before the window ends: its counters up to now
     assert missed is not None and missed.usage is not None and missed.usage.faults == 3
-    assert log.miss_cpu_causes == {CPU_CAUSES[1]: 1}
+    assert log.miss_cpu_causes == {CPU_CAUSES[2]: 1}
+    log.end()
+    log.begin(5010)  # missed with its CPU as usual: its wall time went to waits
+    usage.faults += 3
+    log.mark("compiled call")
+    assert log.missed() is not None
+    assert log.miss_cpu_causes == {CPU_CAUSES[2]: 1, CPU_CAUSES[0]: 1}
 
 
 def test_without_usage_counters_the_cause_falls_back_on_the_pace():
@@ -278,7 +284,7 @@ def test_without_usage_counters_the_cause_falls_back_on_the_pace():
     stages = log.latest()
     assert stages is not None and stages.usage is None
     assert "; the window:" not in stages.describe()
-    assert log.costly_causes == {CPU_CAUSES[4]: 1}
+    assert log.costly_causes == {CPU_CAUSES[5]: 1}
 
 
 def test_the_worker_keeps_no_more_tracked_objects_however_many_windows_it_runs():
