@@ -553,6 +553,11 @@ def print_miss_causes(phase: Phase) -> None:
             f"  {phase.name}: {what} by why the worker's CPU ran long (its getrusage counters "
             f"over the window and the compiled call): {listed or 'none'}"
         )
+    print(
+        f"  {phase.name}: windows whose worker took page faults: "
+        f"{worker.get('faulted_windows', '—')} of {worker.get('estimates', '—')} estimates "
+        f"({worker.get('window_faults', '—')} faults)"
+    )
     print(f"  {phase.name}: {gc_pauses(worker)}")
     overruns = worker.get("overrun_causes") or {}
     listed = ", ".join(f"{name}: {count}" for name, count in sorted(overruns.items())) or "none"

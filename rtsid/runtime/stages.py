@@ -319,6 +319,10 @@ class StageLog:
         #: missed windows, and costly ones missed or not, by :meth:`WindowStages.cause`
         self.miss_cpu_causes: Counter[str] = Counter()
         self.costly_causes: Counter[str] = Counter()
+        #: windows that took page faults, costly or not, and their faults (the window path
+        #: touching memory it had not: a fresh allocation, memory glibc gave back)
+        self.faulted_windows = 0
+        self.window_faults = 0
         self._start_ns = 0  # the clock as the current window began
         self._mean_ns = 0.0  # running mean of a usual window's CPU (0: none yet)
 
@@ -364,6 +368,7 @@ class StageLog:
         last = self._last_ns
         cpu = 0 if last is None else last - self._start_ns
         self._window_usage_so_far()
+        self._count_faults()
         mean = self._mean_ns
         if self.windows > WINDOWS_KEPT and cpu > COSTLY_FACTOR * mean:
             self._count_costly()
@@ -375,6 +380,17 @@ class StageLog:
         """Read the current window's counters as of now (its end, or its miss)."""
         if self._read_usage is not None:
             self._ended[(self._next - 1) % WINDOWS_KEPT] = self._read_usage()
+
+    def _count_faults(self) -> None:
+        """Count the current window's page faults, if it took any."""
+        slot = (self._next - 1) % WINDOWS_KEPT
+        began, ended = self._began[slot], self._ended[slot]
+        if began is None or ended is None:
+            return
+        faults = ended.ru_minflt - began.ru_minflt + ended.ru_majflt - began.ru_majflt
+        if faults:
+            self.faulted_windows += 1
+            self.window_faults += faults
 
     def _count_costly(self) -> None:
         stages = self.with_usual()

@@ -156,6 +156,9 @@ class WorkerCounters:
     #: (:data:`rtsid.runtime.stages.CPU_CAUSES`)
     miss_cpu_causes: dict[str, int] = field(default_factory=dict)
     costly_causes: dict[str, int] = field(default_factory=dict)
+    #: windows whose worker thread took page faults, and those faults (getrusage)
+    faulted_windows: int = 0
+    window_faults: int = 0
     #: the longest collection while running windows, and at start-up:
     #: ``[generation, wall ms, CPU ms]`` (None: none)
     gc_longest: list[float] | None = None
@@ -624,6 +627,8 @@ class WindowWorker(ThreadOwner):
             costly_stages=dict(self.stages.costly_stages),
             miss_cpu_causes=dict(self.stages.miss_cpu_causes),
             costly_causes=dict(self.stages.costly_causes),
+            faulted_windows=self.stages.faulted_windows,
+            window_faults=self.stages.window_faults,
             **self._stall_counters(),
         )
 

@@ -16,6 +16,9 @@ def test_the_phase_prints_misses_by_cause_and_the_longest_collection_with_its_ge
         "gc_longest": [2, 2.2, 2.05],
         "gc_longest_startup": [2, 41.5, 40.9],
         "gc_frozen": 91234,
+        "estimates": 15000,
+        "faulted_windows": 3,
+        "window_faults": 41,
     }
     phase = Phase("idle machine", status=[{"worker": worker}])
     print_miss_causes(phase)
@@ -31,6 +34,7 @@ def test_the_phase_prints_misses_by_cause_and_the_longest_collection_with_its_ge
         "at start-up: gen 2, 41.50 ms (CPU 40.90 ms); objects frozen 91234" in out
     )
     assert longest_gc_ms(worker) == "2.20 (gen 2)"
+    assert "windows whose worker took page faults: 3 of 15000 estimates (41 faults)" in out
 
 
 def test_a_daemon_that_reports_no_collection_prints_none():

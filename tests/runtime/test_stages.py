@@ -232,8 +232,11 @@ def test_a_costly_window_is_counted_by_why_its_cpu_ran_long(what, cause):
 
     for end in range(WINDOWS_KEPT + 5):
         window(end)
+    assert log.faulted_windows == log.window_faults == 0
     window(1000, what)
     assert log.costly_causes == {cause: 1}
+    faulted = what.startswith("faults")
+    assert (log.faulted_windows, log.window_faults) == ((1, 600) if faulted else (0, 0))
     stages = log.latest()
     assert stages is not None and stages.usage is not None and stages.call_usage is not None
     inside = what in ("faults in the call", "kernel")
