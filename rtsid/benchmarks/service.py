@@ -556,7 +556,8 @@ def print_miss_causes(phase: Phase) -> None:
     print(
         f"  {phase.name}: windows whose worker took page faults: "
         f"{worker.get('faulted_windows', '—')} of {worker.get('estimates', '—')} estimates "
-        f"({worker.get('window_faults', '—')} faults)"
+        f"({worker.get('window_faults', '—')} faults); of them in the compiled call "
+        f"{worker.get('faulted_calls', '—')} ({worker.get('call_faults', '—')} faults)"
     )
     print(f"  {phase.name}: {gc_pauses(worker)}")
     overruns = worker.get("overrun_causes") or {}

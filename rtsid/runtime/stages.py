@@ -323,6 +323,9 @@ class StageLog:
         #: touching memory it had not: a fresh allocation, memory glibc gave back)
         self.faulted_windows = 0
         self.window_faults = 0
+        #: ... of them, compiled calls that took page faults, and their faults
+        self.faulted_calls = 0
+        self.call_faults = 0
         self._start_ns = 0  # the clock as the current window began
         self._mean_ns = 0.0  # running mean of a usual window's CPU (0: none yet)
 
@@ -354,7 +357,14 @@ class StageLog:
         self._row[_INDEX[stage]] += now - (now if self._last_ns is None else self._last_ns)
         self._last_ns = now
         if stage == _CALL_CLOSES and read_usage is not None:
-            self._call_ended[(self._next - 1) % WINDOWS_KEPT] = read_usage()
+            slot = (self._next - 1) % WINDOWS_KEPT
+            ended = self._call_ended[slot] = read_usage()
+            began = self._call_began[slot]
+            if began is not None and ended is not None:
+                faults = ended.ru_minflt - began.ru_minflt + ended.ru_majflt - began.ru_majflt
+                if faults:
+                    self.faulted_calls += 1
+                    self.call_faults += faults
 
     def reflex_used(self, seq: int | None) -> None:
         """The slow-lane model the current window used (None: none)."""

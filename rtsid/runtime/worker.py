@@ -156,9 +156,12 @@ class WorkerCounters:
     #: (:data:`rtsid.runtime.stages.CPU_CAUSES`)
     miss_cpu_causes: dict[str, int] = field(default_factory=dict)
     costly_causes: dict[str, int] = field(default_factory=dict)
-    #: windows whose worker thread took page faults, and those faults (getrusage)
+    #: windows whose worker thread took page faults, and those faults (getrusage); of them,
+    #: in the compiled call
     faulted_windows: int = 0
     window_faults: int = 0
+    faulted_calls: int = 0
+    call_faults: int = 0
     #: the longest collection while running windows, and at start-up:
     #: ``[generation, wall ms, CPU ms]`` (None: none)
     gc_longest: list[float] | None = None
@@ -629,6 +632,8 @@ class WindowWorker(ThreadOwner):
             costly_causes=dict(self.stages.costly_causes),
             faulted_windows=self.stages.faulted_windows,
             window_faults=self.stages.window_faults,
+            faulted_calls=self.stages.faulted_calls,
+            call_faults=self.stages.call_faults,
             **self._stall_counters(),
         )
 

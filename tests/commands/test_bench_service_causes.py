@@ -19,6 +19,8 @@ def test_the_phase_prints_misses_by_cause_and_the_longest_collection_with_its_ge
         "estimates": 15000,
         "faulted_windows": 3,
         "window_faults": 41,
+        "faulted_calls": 1,
+        "call_faults": 12,
     }
     phase = Phase("idle machine", status=[{"worker": worker}])
     print_miss_causes(phase)
@@ -34,7 +36,10 @@ def test_the_phase_prints_misses_by_cause_and_the_longest_collection_with_its_ge
         "at start-up: gen 2, 41.50 ms (CPU 40.90 ms); objects frozen 91234" in out
     )
     assert longest_gc_ms(worker) == "2.20 (gen 2)"
-    assert "windows whose worker took page faults: 3 of 15000 estimates (41 faults)" in out
+    assert (
+        "windows whose worker took page faults: 3 of 15000 estimates (41 faults); of them in the "
+        "compiled call 1 (12 faults)" in out
+    )
 
 
 def test_a_daemon_that_reports_no_collection_prints_none():

@@ -237,6 +237,8 @@ def test_a_costly_window_is_counted_by_why_its_cpu_ran_long(what, cause):
     assert log.costly_causes == {cause: 1}
     faulted = what.startswith("faults")
     assert (log.faulted_windows, log.window_faults) == ((1, 600) if faulted else (0, 0))
+    in_call = what == "faults in the call"
+    assert (log.faulted_calls, log.call_faults) == ((1, 600) if in_call else (0, 0))
     stages = log.latest()
     assert stages is not None and stages.usage is not None and stages.call_usage is not None
     inside = what in ("faults in the call", "kernel")
