@@ -108,7 +108,8 @@ class Usage(NamedTuple):
     """The change of the worker thread's resource counters (``getrusage(RUSAGE_THREAD)``)
     over a span (:meth:`between` two readings). Faults and switches are exact counts; the
     user/system split of CPU time is the kernel's tick-sampled one, scaled to the exact total
-    (a millisecond span's split can be off by a tick)."""
+    and kept monotonic by moving time between the two (a millisecond span's split can be off
+    by a tick or more)."""
 
     user_us: int
     system_us: int
