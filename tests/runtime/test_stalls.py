@@ -181,3 +181,21 @@ def test_the_kept_spans_are_not_walked_by_later_collections():
     gc.collect(0)  # what CPython's young collections do to tuples of plain values
     assert len(journal.spans()) == 5000
     assert len(gc.get_objects()) - tracked < 100  # not one tracked object per span
+
+
+def test_the_host_counters_are_read_from_the_proc_files_lines(tmp_path):
+    stat = tmp_path / "stat"
+    stat.write_text(
+        "cpu  100 2 30 4000 5 0 6 37 0 0\ncpu0 50 1 15 2000 2 0 3 20 0 0\n"
+        "intr 123456 7 8 9\nctxt 999\n"
+    )
+    vmstat = tmp_path / "vmstat"
+    vmstat.write_text("nr_free_pages 1\npgmajfault 26\ncompact_stall 3\nthp_fault_alloc 228\n")
+    counters = HostCounters()
+    counters.STAT, counters.VMSTAT = str(stat), str(vmstat)  # type: ignore[misc]
+    reading = counters.read()
+    assert reading is not None
+    tick_ms = 1e3 / os.sysconf("SC_CLK_TCK")
+    assert reading[1:] == (37 * tick_ms, 123456, 3, 228, 26)
+    vmstat.write_text("nr_free_pages 1\n")  # a kernel without the counters: 0, not a failure
+    assert counters.read()[3:] == (0, 0, 0)  # type: ignore[index]
