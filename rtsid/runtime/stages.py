@@ -46,6 +46,7 @@ __all__ = [
     "WINDOWS_KEPT",
     "StageLog",
     "Usage",
+    "UsualUsage",
     "WindowStages",
     "thread_usage",
 ]
@@ -158,6 +159,15 @@ def thread_usage() -> Any:
     return resource.getrusage(_RUSAGE_THREAD)
 
 
+class UsualUsage(NamedTuple):
+    """A window's usual page faults, system CPU (µs) and involuntary switches: their medians
+    over the kept windows."""
+
+    faults: int
+    system_us: int
+    involuntary_switches: int
+
+
 @dataclass(frozen=True)
 class WindowStages:
     """One window's CPU by stage.
@@ -176,8 +186,9 @@ class WindowStages:
         The thread's counters over the window, begin to end (None: not read).
     call_usage : Usage, optional
         Over the compiled call alone (None: no compiled call, or not read).
-    usual_usage : Usage, optional
-        Each counter's median over the kept windows (None: not computed).
+    usual_usage : UsualUsage, optional
+        The counters' medians over the kept windows that :meth:`cause` compares with (None:
+        not computed).
     """
 
     window_end_index: int
@@ -186,7 +197,7 @@ class WindowStages:
     usual_ns: tuple[int, ...] | None = None
     usage: Usage | None = None
     call_usage: Usage | None = None
-    usual_usage: Usage | None = None
+    usual_usage: UsualUsage | None = None
 
     @property
     def most_above_usual(self) -> tuple[str, float] | None:
@@ -453,17 +464,24 @@ class StageLog:
         usual = tuple(
             sorted(row[i] for row in self._rows[:kept])[middle] for i in range(len(STAGES))
         )
+        return dataclasses.replace(stages, usual_ns=usual, usual_usage=self._usual_usage(kept))
+
+    def _usual_usage(self, kept: int) -> UsualUsage | None:
+        """The medians :meth:`WindowStages.cause` compares with, over the ``kept`` windows
+        whose counters were read (three columns of plain integers: on the worker's thread
+        right after a miss, 64 ``Usage`` objects cost twice the stages' medians)."""
         read = [
-            Usage.between(began, ended)
+            (began, ended)
             for began, ended in zip(self._began[:kept], self._ended[:kept], strict=True)
             if began is not None and ended is not None
         ]
-        usual_usage = (
-            Usage(*(sorted(column)[len(read) // 2] for column in zip(*read, strict=True)))
-            if read
-            else None
-        )
-        return dataclasses.replace(stages, usual_ns=usual, usual_usage=usual_usage)
+        if not read:
+            return None
+        middle = len(read) // 2
+        faults = sorted(e.ru_minflt + e.ru_majflt - b.ru_minflt - b.ru_majflt for b, e in read)
+        system = sorted(e.ru_stime - b.ru_stime for b, e in read)
+        switches = sorted(e.ru_nivcsw - b.ru_nivcsw for b, e in read)
+        return UsualUsage(faults[middle], round(system[middle] * 1e6), switches[middle])
 
     def _stages_of(self, slot: int) -> WindowStages:
         began, ended = self._began[slot], self._ended[slot]
