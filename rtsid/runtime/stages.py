@@ -86,20 +86,25 @@ _CALL_OPENS, _CALL_CLOSES = "held parameters", "compiled call"
 #: Why a costly (or missed) window took its CPU, by :meth:`WindowStages.cause`, in the order
 #: it is judged: its CPU no more than :data:`USUAL_FACTOR` times its usual (a missed window's
 #: wall time went to waits: for a CPU, the GIL), page faults (the compiled call's, or the
-#: window's elsewhere), kernel time without faults, involuntary context switches, a slow CPU
-#: (user time inflated with none of those: the compiled call's fixed work slow too), or the
-#: stage's own work.
+#: window's elsewhere), kernel time without faults, waits for the GIL (voluntary switches: each
+#: hand-over costs the waiter CPU too), involuntary context switches, a slow CPU (user time
+#: inflated with none of those: the compiled call's fixed work slow too), or the stage's own
+#: work.
 CPU_CAUSES = (
     "CPU as usual (its time went to waits)",
     "page faults in the compiled call",
     "page faults",
     "kernel time without page faults",
+    "GIL waits (voluntary switches)",
     "involuntary switches",
     "slow CPU, no faults or switches (the host)",
     "the stage's own work",
 )
 #: System CPU above its usual by at least this share of a window's excess CPU is the kernel's.
 KERNEL_SHARE = 0.5
+#: Voluntary switches above a window's usual that make its cause the GIL: at the daemon's
+#: 0.1 ms switch interval, 2 ms of waiting for another thread of ours.
+GIL_WAITS = 20
 #: A window whose CPU is within this many times its usual (the sum of its stages' medians)
 #: did not run long: a miss of such a window waited.
 USUAL_FACTOR = 2.0
@@ -160,11 +165,12 @@ def thread_usage() -> Any:
 
 
 class UsualUsage(NamedTuple):
-    """A window's usual page faults, system CPU (µs) and involuntary switches: their medians
-    over the kept windows."""
+    """A window's usual page faults, system CPU (µs) and context switches: their medians over
+    the kept windows."""
 
     faults: int
     system_us: int
+    voluntary_switches: int
     involuntary_switches: int
 
 
@@ -244,10 +250,11 @@ class WindowStages:
         Faults above the usual are the cause whatever else is seen (each is kernel time on
         the worker's CPU: a fresh page zeroed, a huge page, a compaction); then system CPU
         above its usual by :data:`KERNEL_SHARE` of the excess (interrupts served meanwhile,
-        charged to the thread here); then involuntary switches above the usual (the CPU
-        taken away mid-window: its caches cold after); then the compiled call's fixed work at
-        :data:`SLOW_PACE` or more (everything slow with no kernel work: the vCPU ran slow);
-        else the stage's own work."""
+        charged to the thread here); then :data:`GIL_WAITS` voluntary switches above the
+        usual (the GIL held by another thread of ours: each hand-over costs the waiter CPU);
+        then involuntary switches above the usual (the CPU taken away mid-window: its caches
+        cold after); then the compiled call's fixed work at :data:`SLOW_PACE` or more
+        (everything slow with no kernel work: the vCPU ran slow); else the stage's own work."""
         if self.usual_ns is None:
             return None
         usual_ns = sum(self.usual_ns)
@@ -263,12 +270,14 @@ class WindowStages:
                 return CPU_CAUSES[2]
             if usage.system_us - usual.system_us >= KERNEL_SHARE * excess_us:
                 return CPU_CAUSES[3]
-            if usage.involuntary_switches > usual.involuntary_switches:
+            if usage.voluntary_switches - usual.voluntary_switches >= GIL_WAITS:
                 return CPU_CAUSES[4]
+            if usage.involuntary_switches > usual.involuntary_switches:
+                return CPU_CAUSES[5]
         pace = self.fixed_work_pace
         if pace is not None and pace >= SLOW_PACE:
-            return CPU_CAUSES[5]
-        return CPU_CAUSES[6]
+            return CPU_CAUSES[6]
+        return CPU_CAUSES[7]
 
     @property
     def fixed_work_pace(self) -> float | None:
@@ -480,8 +489,11 @@ class StageLog:
         middle = len(read) // 2
         faults = sorted(e.ru_minflt + e.ru_majflt - b.ru_minflt - b.ru_majflt for b, e in read)
         system = sorted(e.ru_stime - b.ru_stime for b, e in read)
+        waits = sorted(e.ru_nvcsw - b.ru_nvcsw for b, e in read)
         switches = sorted(e.ru_nivcsw - b.ru_nivcsw for b, e in read)
-        return UsualUsage(faults[middle], round(system[middle] * 1e6), switches[middle])
+        return UsualUsage(
+            faults[middle], round(system[middle] * 1e6), waits[middle], switches[middle]
+        )
 
     def _stages_of(self, slot: int) -> WindowStages:
         began, ended = self._began[slot], self._ended[slot]

@@ -9,8 +9,8 @@ from rtsid.runtime.stages import CPU_CAUSES
 def test_the_phase_prints_misses_by_cause_and_the_longest_collection_with_its_generation(capsys):
     worker = {
         "miss_causes": {"nothing seen: the window's own CPU": 2},
-        "miss_cpu_causes": {CPU_CAUSES[1]: 1, CPU_CAUSES[5]: 1},
-        "costly_causes": {CPU_CAUSES[5]: 7, CPU_CAUSES[4]: 2},
+        "miss_cpu_causes": {CPU_CAUSES[1]: 1, CPU_CAUSES[6]: 1},
+        "costly_causes": {CPU_CAUSES[6]: 7, CPU_CAUSES[5]: 2},
         "gc_collections": [40, 3, 1],
         "gc_ms": [8.0, 1.5, 2.2],
         "gc_longest": [2, 2.2, 2.05],
@@ -27,10 +27,10 @@ def test_the_phase_prints_misses_by_cause_and_the_longest_collection_with_its_ge
     out = capsys.readouterr().out
     assert (
         "idle machine: misses by why the worker's CPU ran long (its getrusage counters over the "
-        f"window and the compiled call): {CPU_CAUSES[1]}: 1, {CPU_CAUSES[5]}: 1" in out
+        f"window and the compiled call): {CPU_CAUSES[1]}: 1, {CPU_CAUSES[6]}: 1" in out
     )
     assert "windows of over 3× by why the worker's CPU ran long" in out
-    assert f"{CPU_CAUSES[4]}: 2, {CPU_CAUSES[5]}: 7" in out
+    assert f"{CPU_CAUSES[5]}: 2, {CPU_CAUSES[6]}: 7" in out
     assert (
         "longest garbage collection while running windows: gen 2, 2.20 ms (CPU 2.05 ms); "
         "at start-up: gen 2, 41.50 ms (CPU 40.90 ms); objects frozen 91234" in out

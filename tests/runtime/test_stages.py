@@ -176,15 +176,16 @@ class FakeUsage:
 
     def __init__(self, clock: FakeThreadClock) -> None:
         self.clock = clock
-        self.system_us = self.faults = self.involuntary = 0
+        self.system_us = self.faults = self.involuntary = self.voluntary = 0
 
     def __call__(self) -> resource.struct_rusage:
         user_s = 1e-9 * self.clock.ns - 1e-6 * self.system_us
         fields = [0.0] * 16  # getrusage's order: utime, stime, …, minflt (6), …, nivcsw (15)
-        fields[0], fields[1], fields[6], fields[15] = (
+        fields[0], fields[1], fields[6], fields[14], fields[15] = (
             user_s,
             1e-6 * self.system_us,
             self.faults,
+            self.voluntary,
             self.involuntary,
         )
         return resource.struct_rusage(fields)
@@ -196,9 +197,10 @@ class FakeUsage:
         ("faults in the call", CPU_CAUSES[1]),
         ("faults elsewhere", CPU_CAUSES[2]),
         ("kernel", CPU_CAUSES[3]),
-        ("preempted", CPU_CAUSES[4]),
-        ("slow CPU", CPU_CAUSES[5]),
-        ("tracker", CPU_CAUSES[6]),
+        ("GIL", CPU_CAUSES[4]),
+        ("preempted", CPU_CAUSES[5]),
+        ("slow CPU", CPU_CAUSES[6]),
+        ("tracker", CPU_CAUSES[7]),
     ],
 )
 def test_a_costly_window_is_counted_by_why_its_cpu_ran_long(what, cause):
@@ -226,6 +228,9 @@ def test_a_costly_window_is_counted_by_why_its_cpu_ran_long(what, cause):
         elif slowed == "preempted":
             usage.involuntary += 1
             clock.spend(1.5)  # its caches cold after
+        elif slowed == "GIL":  # another thread held the GIL: 130 hand-overs, each some CPU
+            usage.voluntary += 130
+            clock.spend(1.0)
         clock.spend(3.0 if slowed == "tracker" else 0.6 if slowed == "slow CPU" else 0.05)
         log.mark("tracker")
         log.end()
@@ -289,7 +294,7 @@ def test_without_usage_counters_the_cause_falls_back_on_the_pace():
     stages = log.latest()
     assert stages is not None and stages.usage is None
     assert "; the window:" not in stages.describe()
-    assert log.costly_causes == {CPU_CAUSES[5]: 1}
+    assert log.costly_causes == {CPU_CAUSES[6]: 1}
 
 
 def test_the_worker_keeps_no_more_tracked_objects_however_many_windows_it_runs():
