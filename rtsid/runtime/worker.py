@@ -57,7 +57,7 @@ from rtsid.link.protocol import (
 from rtsid.link.ring import RingBuffer, Snapshot
 from rtsid.runtime.gate import WindowGate
 from rtsid.runtime.stages import StageLog
-from rtsid.runtime.stalls import RunQueueClock, StallJournal, thread_page_faults
+from rtsid.runtime.stalls import RunQueueClock, StallJournal
 from rtsid.verdicts import Flag, Reason
 
 __all__ = ["OVERRUN_CAUSES", "WindowWorker", "WorkerConfig", "WorkerCounters", "assess_window"]
@@ -161,6 +161,21 @@ class WorkerCounters:
     gc_ms: list[float] = field(default_factory=list)
     miss_stages: dict[str, int] = field(default_factory=dict)
     costly_stages: dict[str, int] = field(default_factory=dict)
+    #: missed windows, and costly ones missed or not, by why their CPU ran long
+    #: (:data:`rtsid.runtime.stages.CPU_CAUSES`)
+    miss_cpu_causes: dict[str, int] = field(default_factory=dict)
+    costly_causes: dict[str, int] = field(default_factory=dict)
+    #: windows whose worker thread took page faults, and those faults (getrusage); of them,
+    #: in the compiled call
+    faulted_windows: int = 0
+    window_faults: int = 0
+    faulted_calls: int = 0
+    call_faults: int = 0
+    #: the longest collection while running windows, and at start-up:
+    #: ``[generation, wall ms, CPU ms]`` (None: none)
+    gc_longest: list[float] | None = None
+    gc_longest_startup: list[float] | None = None
+    gc_frozen: int = 0  # objects moved out of the collector's view (gc.freeze)
 
 
 def assess_window(
@@ -622,6 +637,12 @@ class WindowWorker(ThreadOwner):
             compute_cpu_s=e.compute_cpu_s,
             miss_stages=dict(self.stages.miss_stages),
             costly_stages=dict(self.stages.costly_stages),
+            miss_cpu_causes=dict(self.stages.miss_cpu_causes),
+            costly_causes=dict(self.stages.costly_causes),
+            faulted_windows=self.stages.faulted_windows,
+            window_faults=self.stages.window_faults,
+            faulted_calls=self.stages.faulted_calls,
+            call_faults=self.stages.call_faults,
             **self._stall_counters(),
         )
 
@@ -634,8 +655,7 @@ class WindowWorker(ThreadOwner):
         return {
             "miss_causes": stalls.causes(),
             "miss_waits": dict(stalls.miss_waits),
-            "gc_collections": list(stalls.collections),
-            "gc_ms": [round(ms, 3) for ms in stalls.gc_ms],
+            **stalls.gc_counters(),
         }
 
     # ------------------------------------------------------------------ the grid
@@ -739,7 +759,6 @@ class WindowWorker(ThreadOwner):
     def _process_window(self, end_index: int) -> dict[str, Any] | None:
         journal = self.stalls is not None
         queued_ns = self._run_queue.read_ns() if journal else None
-        faults = thread_page_faults() if journal else None
         started, started_cpu = time.perf_counter(), time.thread_time()
         start = end_index - self.window_samples + 1
         # history before the window, but never before the stream's first sample
@@ -756,8 +775,7 @@ class WindowWorker(ThreadOwner):
             now_ns = self._run_queue.read_ns() if queued_ns is not None else None
             waited_ms = None if now_ns is None or queued_ns is None else 1e-6 * (now_ns - queued_ns)
             cpu_ms = self.evaluator.compute_cpu_ms
-            now_faults = thread_page_faults() if faults is not None else None
-            taken = None if now_faults is None or faults is None else now_faults - faults
-            stages = self.stages.missed()
-            self.stalls.miss(end_index, started, ended, cpu_ms, waited_ms, taken, stages)
+            stages = self.stages.missed()  # with the thread's counters over the window
+            host = self.stalls.host_since_tick()
+            self.stalls.miss(end_index, started, ended, cpu_ms, waited_ms, stages, host)
         return message
