@@ -64,7 +64,9 @@ def detrend(x: ArrayLike, kind: str = "linear") -> FloatArray:
     numpy.ndarray, shape (n,)
         The detrended copy.
     """
-    arr = np.asarray(x, dtype=np.float64)
+    # contiguous, as the copy it used to make was: BLAS's dot and numpy's sum of a strided
+    # array add in another order (other bits)
+    arr = np.ascontiguousarray(x, dtype=np.float64)
     if kind == "none":
         return np.array(arr)
     if kind == "mean":

@@ -257,7 +257,9 @@ def _all_finite(position: FloatArray, torque: FloatArray) -> bool:
     """No NaN nor infinity in either (the compiled ``all_finite`` when built: one pass, no
     temporaries)."""
     if _eureka is not None:
-        return bool(_eureka.all_finite(position, torque))
+        return bool(
+            _eureka.all_finite(np.ascontiguousarray(position), np.ascontiguousarray(torque))
+        )
     return bool(np.isfinite(position).all() and np.isfinite(torque).all())
 
 

@@ -158,3 +158,14 @@ def test_consecutive_fits_equal_fits_formed_afresh_and_lost_samples_reset_the_st
     # leaves anything, so the one after it starts afresh
     assert carried[0] == 0 and carried[1] == 27_500 - update - 10 and carried[2:] == [0, 0]
     assert afresh[0][2] is None and afresh[2][2] is None
+
+
+def test_a_fit_of_strided_rows_is_the_fit_of_their_copies(monkeypatch):
+    monkeypatch.setattr(reflex_lane, "EVIDENCE_BASES", BasisStore())
+    theta, torque = joint_with_reflex(seconds=8.0, seed=6)
+    rows = np.stack((theta, torque), axis=1)  # columns: strided views
+    settings = SlowLaneSettings(horizon_s=8.0)
+    strided = fit_reflex_update(0, 0, rows[:, 0], rows[:, 1], None, FS, settings)
+    reflex_lane.EVIDENCE_BASES.clear()
+    assert _fields(strided) == _fields(fit_reflex_update(0, 0, theta, torque, None, FS, settings))
+    assert strided.error is None
