@@ -296,10 +296,14 @@ class BasisStore:
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self.clear()
+        self._forget()
 
     def clear(self) -> None:
         """Forget the kept record (e.g. when the next record's samples were bridged)."""
+        with self._lock:
+            self._forget()
+
+    def _forget(self) -> None:
         self._fs_hz = 0.0
         self._origin = 0  # absolute index of the buffers' first sample
         self._x = np.empty(0)  # position, by absolute index − origin
@@ -336,7 +340,7 @@ class BasisStore:
         valid until the next call; the buffers then hold ``x`` and them."""
         n, half = x.size, SAVGOL_POINTS // 2
         if n < 2 * SAVGOL_POINTS:
-            self.clear()
+            self._forget()
             return savgol_derivatives(x, fs_hz)
         lo, hi = self._carried_span(x, fs_hz, first)
         self._make_room(first, n, lo, hi)
