@@ -1781,6 +1781,8 @@ static PyObject *py_samples_into(PyObject *self, PyObject *args); /* readrest, e
 static PyObject *py_estimate_json(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* readrest */
 static PyObject *py_crc32(PyObject *self, PyObject *args); /* rest7, end */
 static PyObject *py_round12(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* glue7 */
+static PyObject *py_savgol_range(PyObject *self, PyObject *args); /* fits6, end */
+static PyObject *py_all_finite(PyObject *self, PyObject *args); /* fits6, end */
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1832,6 +1834,8 @@ static PyMethodDef methods[] = {
     {"estimate_json", (PyCFunction)(void (*)(void))py_estimate_json, METH_FASTCALL, "estimate_json(message, keys, prefixes) -> bytes or None: an estimate message as json.dumps writes it (section readrest)."},
     {"crc32", py_crc32, METH_VARARGS, "crc32(data, value=0) -> int: zlib.crc32(data, value), sixteen bytes at a time (section rest7)."},
     {"round12", (PyCFunction)(void (*)(void))py_round12, METH_FASTCALL, "round12(*values) -> tuple: round(value, 12) of each float, as Python gives it (section glue7)."},
+    {"savgol_range", py_savgol_range, METH_VARARGS, "savgol_range(x, taps1, taps2, lo, hi, d1, d2): savgol_pair's interior outputs lo … hi − 1 only (section fits6)."},
+    {"all_finite", py_all_finite, METH_VARARGS, "all_finite(x, y) -> bool: no NaN nor infinity in x nor y (section fits6)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -5351,3 +5355,92 @@ static PyObject *py_round12(PyObject *self, PyObject *const *args, Py_ssize_t na
     }
     return result;
 }
+
+/* ------------------------------------------------------------------ branch fits6 (issue 22)
+ * The slow lane's fits, eighth pass: what a fit can take from the previous one bit for bit.
+ *
+ * savgol_range(x, taps1, taps2, lo, hi, d1, d2): the interior outputs i in [lo, hi) of
+ *   savgol_pair (ndimage's correlation of each filter, its order of operations: the same
+ *   ndimage_interior and ndimage_point of section fits3) written into d1 and d2, nothing else
+ *   written: each interior output depends on x[i − half … i + half] alone, so a record's
+ *   interior outputs are those of any record holding those samples (the slow lane's evidence
+ *   basis keeps the previous fit's and forms only the new ones: rtsid.ident.yardstick.
+ *   BasisStore). half ≤ lo ≤ hi ≤ n − half (half = taps // 2), else a ValueError. O((hi − lo)·taps).
+ * all_finite(x, y) -> bool: no NaN nor infinity in x nor in y (numpy.isfinite(x).all() and
+ *   numpy.isfinite(y).all()), from the sum of v·0 over both, four lanes at a time (0 for
+ *   finite v, NaN for a NaN or an infinity). O(n).
+ */
+#define FITS6_LANES 4
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
+#define FITS6_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define FITS6_CLONES
+#endif
+typedef double fits6_lanes __attribute__((vector_size(8 * FITS6_LANES)));
+typedef double fits6_lanes_u __attribute__((vector_size(8 * FITS6_LANES), aligned(8)));
+
+static void savgol_interior_range(const double *x, Py_ssize_t lo, Py_ssize_t hi,
+                                  const double *taps, Py_ssize_t size, double *out)
+{
+    double reversed[64];
+    for (Py_ssize_t k = 0; k < size; k++) reversed[k] = taps[size - 1 - k];
+    const Py_ssize_t half = size / 2;
+    const double *fw = reversed + half;
+    const int symmetry = ndimage_symmetry(fw, half);
+    /* the records x[lo − half … hi + half): its interior outputs are outputs lo … hi − 1 */
+    const double *sub = x + lo - half;
+    const Py_ssize_t m = hi - lo + 2 * half;
+    double *sub_out = out + lo - half;
+    const Py_ssize_t formed = hi > lo ? ndimage_interior(sub, m, fw, half, symmetry, sub_out) : 0;
+    for (Py_ssize_t i = formed > half ? formed : half; i < m - half; i++)
+        sub_out[i] = ndimage_point(sub, m, i, fw, half, symmetry, 1);
+}
+
+static PyObject *py_savgol_range(PyObject *self, PyObject *args)
+{
+    PyObject *objs[5];
+    Py_ssize_t lo, hi;
+    if (!PyArg_ParseTuple(args, "OOOnnOO", &objs[0], &objs[1], &objs[2], &lo, &hi, &objs[3],
+                          &objs[4]))
+        return NULL;
+    const char *names[5] = {"x", "taps1", "taps2", "d1", "d2"};
+    Py_buffer b[5];
+    if (get_buffers(objs, 5, 3, names, b) < 0) return NULL;
+    const Py_ssize_t n = b[0].len / 8, size = b[1].len / 8, half = size / 2;
+    PyObject *result = NULL;
+    if (size < 1 || size > 63 || size % 2 == 0 || b[2].len != b[1].len || b[3].len != b[0].len ||
+        b[4].len != b[0].len || lo < half || hi < lo || hi > n - half) {
+        PyErr_SetString(PyExc_ValueError, "savgol_range: inconsistent sizes or range");
+    } else {
+        savgol_interior_range(b[0].buf, lo, hi, b[1].buf, size, b[3].buf);
+        savgol_interior_range(b[0].buf, lo, hi, b[2].buf, size, b[4].buf);
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+    release_buffers(b, 5);
+    return result;
+}
+
+FITS6_CLONES static int all_finite_run(const double *x, Py_ssize_t n)
+{
+    fits6_lanes acc = {0.0, 0.0, 0.0, 0.0};
+    Py_ssize_t i = 0;
+    for (; i + FITS6_LANES <= n; i += FITS6_LANES) acc += *(const fits6_lanes_u *)(x + i) * 0.0;
+    double rest = 0.0;
+    for (; i < n; i++) rest += x[i] * 0.0;
+    return acc[0] == 0.0 && acc[1] == 0.0 && acc[2] == 0.0 && acc[3] == 0.0 && rest == 0.0;
+}
+
+static PyObject *py_all_finite(PyObject *self, PyObject *args)
+{
+    PyObject *objs[2];
+    if (!PyArg_ParseTuple(args, "OO", &objs[0], &objs[1])) return NULL;
+    const char *names[2] = {"x", "y"};
+    Py_buffer b[2];
+    if (get_buffers(objs, 2, 2, names, b) < 0) return NULL;
+    const int finite = all_finite_run(b[0].buf, b[0].len / 8) && all_finite_run(b[1].buf, b[1].len / 8);
+    release_buffers(b, 2);
+    return PyBool_FromLong(finite);
+}
+#undef FITS6_LANES
+#undef FITS6_CLONES
