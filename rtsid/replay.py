@@ -562,7 +562,8 @@ def replay_batches(
         if publish is not None:
             publish(message)
 
-    evaluator = recorded_evaluator(config, sink)
+    # without a publisher, each message only goes into the result: no call in between
+    evaluator = recorded_evaluator(config, sink if publish is not None else result.messages.append)
     slow_lane = (
         ReplayedSlowLane(evaluator, result.reflex.append, live) if evaluator.reflex else None
     )

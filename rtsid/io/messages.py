@@ -235,7 +235,7 @@ class EstimateMessage:
         return out
 
 
-_INF = math.inf
+_INF, _NEG_INF = math.inf, -math.inf
 
 
 def _estimate_dict(
@@ -255,43 +255,47 @@ def _estimate_dict(
     """:meth:`EstimateMessage.window_dict` of an estimate and its track: the keys in field
     order, each number field finite or None (``-inf < x < inf`` is false for NaN and ±inf, as
     ``math.isfinite``), without a call per field (tests/io/test_messages.py holds it to the
-    dataclass's JSON object)."""
-    inf = _INF
+    dataclass's JSON object).
+
+    The dict is a copy of :data:`_ESTIMATE_KEYS` (its keys in field order, ``ok`` true)
+    with the values set: a 30-key display is built as two dicts merged, a copy of one
+    already laid out is not rehashed (a third of the instructions)."""
+    inf, ninf = _INF, _NEG_INF
     k_track, k_track_se, b_track, b_track_se = track.K, track.K_se, track.B, track.B_se
     k, k_se, b, b_se, i, i_se = e.K, e.K_se, e.B, e.B_se, e.I, e.I_se
     vaf, vaf_irf, vaf_fit = e.vaf, e.vaf_irf, e.vaf_fit
-    return {
-        "robot": robot,
-        "joint": joint,
-        "t_end_s": last / fs_hz,
-        "K_track": k_track if -inf < k_track < inf else None,
-        "K_track_se": k_track_se if -inf < k_track_se < inf else None,
-        "K": k if -inf < k < inf else None,
-        "K_se": k_se if -inf < k_se < inf else None,
-        "B": b if -inf < b < inf else None,
-        "B_se": b_se if -inf < b_se < inf else None,
-        "B_held": e.B_held,
-        "I": i if -inf < i < inf else None,
-        "I_se": i_se if -inf < i_se < inf else None,
-        "I_held": e.I_held,
-        "vaf": vaf if -inf < vaf < inf else None,
-        "ok": True,
-        "reason": None,
-        "flags": [*e.flags, *flags],
-        "B_track": b_track if -inf < b_track < inf else None,
-        "B_track_se": b_track_se if -inf < b_track_se < inf else None,
-        "vaf_irf": vaf_irf if -inf < vaf_irf < inf else None,
-        "vaf_fit": vaf_fit if -inf < vaf_fit < inf else None,
-        "lost_samples": e.lost_samples,
-        "seq": seq,
-        "window_start_index": first,
-        "window_end_index": last,
-        "t_start_s": first / fs_hz,
-        "compute_ms": compute_ms if compute_ms is None or -inf < compute_ms < inf else None,
-        "latency_ms": latency_ms if latency_ms is None or -inf < latency_ms < inf else None,
-        "reflex_seq": reflex_seq,
-        "host_time_ns": time.time_ns(),
-    }
+    m = _ESTIMATE_KEYS.copy()
+    m["robot"] = robot
+    m["joint"] = joint
+    m["t_end_s"] = last / fs_hz
+    m["K_track"] = k_track if ninf < k_track < inf else None
+    m["K_track_se"] = k_track_se if ninf < k_track_se < inf else None
+    m["K"] = k if ninf < k < inf else None
+    m["K_se"] = k_se if ninf < k_se < inf else None
+    m["B"] = b if ninf < b < inf else None
+    m["B_se"] = b_se if ninf < b_se < inf else None
+    m["B_held"] = e.B_held
+    m["I"] = i if ninf < i < inf else None
+    m["I_se"] = i_se if ninf < i_se < inf else None
+    m["I_held"] = e.I_held
+    m["vaf"] = vaf if ninf < vaf < inf else None
+    m["flags"] = [*e.flags, *flags]
+    m["B_track"] = b_track if ninf < b_track < inf else None
+    m["B_track_se"] = b_track_se if ninf < b_track_se < inf else None
+    m["vaf_irf"] = vaf_irf if ninf < vaf_irf < inf else None
+    m["vaf_fit"] = vaf_fit if ninf < vaf_fit < inf else None
+    m["lost_samples"] = e.lost_samples
+    m["seq"] = seq
+    m["window_start_index"] = first
+    m["window_end_index"] = last
+    m["t_start_s"] = first / fs_hz
+    if compute_ms is not None:
+        m["compute_ms"] = compute_ms if ninf < compute_ms < inf else None
+    if latency_ms is not None:
+        m["latency_ms"] = latency_ms if ninf < latency_ms < inf else None
+    m["reflex_seq"] = reflex_seq
+    m["host_time_ns"] = time.time_ns()
+    return m
 
 
 def _json_object(values: Sequence[Any]) -> dict[str, Any]:
@@ -306,6 +310,9 @@ def _json_object(values: Sequence[Any]) -> dict[str, Any]:
 
 #: The estimate message's field names, in order (the JSON keys, the CSV columns).
 _ESTIMATE_NAMES = tuple(f.name for f in dataclasses.fields(EstimateMessage))
+#: An estimate's message before its values (:func:`_estimate_dict` copies it): every key in
+#: field order, None, but ``ok`` true.
+_ESTIMATE_KEYS: dict[str, Any] = {**dict.fromkeys(_ESTIMATE_NAMES), "ok": True}
 #: An estimate message's field values, in that order.
 _estimate_values = operator.attrgetter(*_ESTIMATE_NAMES)
 #: Where the fields typed ``float`` (or ``float | None``) are in that order.

@@ -289,6 +289,7 @@ class WindowEvaluator:
             ReflexStream.prepare(fs_hz, reflex.settings.cascade().fs_out_hz)
         self.reflex_flagged: Counter[str] = Counter()
         self.last_reflex = _NO_REFLEX  # the slow lane's part in the latest window
+        self._unapplied = _NO_REFLEX  # the latest model judged absent from the data, as used
         # a replay following a live run: window end -> (reflex_seq, absent, stale) as live had
         self.recorded_reflex: dict[int, tuple[int | None, bool, bool]] | None = None
         # ... and the windows it withheld as stale (its samples' age is not in a recording)
@@ -489,7 +490,10 @@ class WindowEvaluator:
             flags = (Flag.REFLEX_STALE,)
             self.reflex_flagged[Flag.REFLEX_STALE] += 1
         if not update.applied:  # the reflex pathway is not in the data: nothing to subtract
-            return built(_ReflexUse, seq=update.seq, torque=None, flags=flags)
+            unapplied = self._unapplied  # the same for every window of the model
+            if unapplied.seq != update.seq or unapplied.flags != flags:
+                unapplied = self._unapplied = _ReflexUse(update.seq, None, flags)
+            return unapplied
         rows_valid = valid[lo:hi]
         try:
             predicted = predict_reflex_torque(
@@ -573,7 +577,7 @@ class WindowEvaluator:
     ) -> dict[str, Any]:
         if overrun is None:
             overrun = self._over_budget(compute_s)
-        flags = (*((Flag.OVER_BUDGET,) if overrun else ()), *reflex.flags)
+        flags = (Flag.OVER_BUDGET, *reflex.flags) if overrun else reflex.flags
         latency = None if last_arrival_s is None else (time.monotonic() - last_arrival_s) * 1e3
         seq = self._seq
         self._seq += 1
