@@ -1782,6 +1782,7 @@ static PyObject *py_estimate_json(PyObject *self, PyObject *const *args, Py_ssiz
 static PyObject *py_crc32(PyObject *self, PyObject *args); /* rest7, end */
 static PyObject *py_round12(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* glue7 */
 static PyObject *py_window_scan(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* eval8 */
+static PyObject *py_finite_dict(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* eval8 */
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1834,6 +1835,7 @@ static PyMethodDef methods[] = {
     {"crc32", py_crc32, METH_VARARGS, "crc32(data, value=0) -> int: zlib.crc32(data, value), sixteen bytes at a time (section rest7)."},
     {"round12", (PyCFunction)(void (*)(void))py_round12, METH_FASTCALL, "round12(*values) -> tuple: round(value, 12) of each float, as Python gives it (section glue7)."},
     {"window_scan", (PyCFunction)(void (*)(void))py_window_scan, METH_FASTCALL, "window_scan(position, torque, valid, status, start, stop) -> (status bits raised, all valid, sums finite) or None (section eval8)."},
+    {"finite_dict", (PyCFunction)(void (*)(void))py_finite_dict, METH_FASTCALL, "finite_dict(names, values) -> dict of names to values, non-finite floats as None (section eval8)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -5440,4 +5442,30 @@ static PyObject *py_window_scan(PyObject *self, PyObject *const *args, Py_ssize_
     for (int i = 0; i < 4; i++) PyBuffer_Release(&b[i]);
     return Py_BuildValue("(KOO)", raised, all_valid ? Py_True : Py_False,
                          isfinite(sp) && isfinite(st) ? Py_True : Py_False);
+}
+
+/* finite_dict(names, values) -> dict: {names[i]: values[i]} in order, a float that is not
+ * finite (JSON has no NaN) as None: rtsid.io.messages._json_object's comprehension (the
+ * reference) in one call, the dict sized once for its keys instead of grown key by key (a
+ * copy of a laid-out dict, its values then replaced, measured 15 % more instructions). */
+static PyObject *py_finite_dict(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 2 || !PyTuple_Check(args[0]) || !PyTuple_Check(args[1]) ||
+        PyTuple_GET_SIZE(args[0]) != PyTuple_GET_SIZE(args[1])) {
+        PyErr_SetString(PyExc_TypeError, "finite_dict(names, values): two tuples of one length");
+        return NULL;
+    }
+    const Py_ssize_t n = PyTuple_GET_SIZE(args[0]);
+    PyObject *out = _PyDict_NewPresized(n);
+    if (out == NULL) return NULL;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        PyObject *value = PyTuple_GET_ITEM(args[1], i);
+        if (PyFloat_Check(value) && !isfinite(PyFloat_AS_DOUBLE(value))) value = Py_None;
+        if (PyDict_SetItem(out, PyTuple_GET_ITEM(args[0], i), value) < 0) {
+            Py_DECREF(out);
+            return NULL;
+        }
+    }
+    return out;
 }

@@ -20,6 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from rtsid.ident.levinson import compiled_kernel
 from rtsid.link.acquisition import LinkCounters
 from rtsid.verdicts import Flag, Reason
 
@@ -161,8 +162,8 @@ class EstimateMessage:
         ``reason``), the stream's track after it, and the flags the caller adds to the
         estimate's own (e.g. ``over_budget``; ignored when withheld). Keys in field order;
         built as a dict, not as the dataclass (the evaluator publishes one every window, a
-        replay builds tens of thousands a minute); an estimate with its track in one dict
-        display, without a call per field."""
+        replay builds tens of thousands a minute): the field values in one tuple, made the
+        JSON object in one step (:func:`_json_object`), without a call per field."""
         if estimate is not None and track is not None:
             return _estimate_dict(
                 estimate,
@@ -189,7 +190,7 @@ class EstimateMessage:
         if track is not None:
             tracked = (track.K, track.K_se, track.B, track.B_se)
         k_track, k_track_se, b_track, b_track_se = tracked
-        values = [
+        values = (
             robot,
             joint,
             last / fs_hz,
@@ -220,22 +221,14 @@ class EstimateMessage:
             latency_ms,
             reflex_seq,
             time.time_ns(),
-        ]
-        isfinite = math.isfinite
-        for j in _NUMBER_POSITIONS:  # the number fields: JSON has no NaN
-            value = values[j]
-            if value is not None and not isfinite(value):
-                values[j] = None
-        return dict(zip(_ESTIMATE_NAMES, values, strict=True))
+        )
+        return _json_object(values)  # the number fields finite or None: JSON has no NaN
 
     def as_dict(self) -> dict[str, Any]:
         """The JSON object: non-finite numbers as ``None``, flags as a list."""
         out = _json_object(_estimate_values(self))
         out["flags"] = list(self.flags)
         return out
-
-
-_INF, _NEG_INF = math.inf, -math.inf
 
 
 def _estimate_dict(
@@ -252,53 +245,46 @@ def _estimate_dict(
     latency_ms: float | None,
     reflex_seq: int | None,
 ) -> dict[str, Any]:
-    """:meth:`EstimateMessage.window_dict` of an estimate and its track: the keys in field
-    order, each number field finite or None (``-inf < x < inf`` is false for NaN and ±inf, as
-    ``math.isfinite``), without a call per field (tests/io/test_messages.py holds it to the
-    dataclass's JSON object).
-
-    The dict is a copy of :data:`_ESTIMATE_KEYS` (its keys in field order, ``ok`` true)
-    with the values set: a 30-key display is built as two dicts merged, a copy of one
-    already laid out is not rehashed (a third of the instructions)."""
-    inf, ninf = _INF, _NEG_INF
-    k_track, k_track_se, b_track, b_track_se = track.K, track.K_se, track.B, track.B_se
-    k, k_se, b, b_se, i, i_se = e.K, e.K_se, e.B, e.B_se, e.I, e.I_se
-    vaf, vaf_irf, vaf_fit = e.vaf, e.vaf_irf, e.vaf_fit
-    m = _ESTIMATE_KEYS.copy()
-    m["robot"] = robot
-    m["joint"] = joint
-    m["t_end_s"] = last / fs_hz
-    m["K_track"] = k_track if ninf < k_track < inf else None
-    m["K_track_se"] = k_track_se if ninf < k_track_se < inf else None
-    m["K"] = k if ninf < k < inf else None
-    m["K_se"] = k_se if ninf < k_se < inf else None
-    m["B"] = b if ninf < b < inf else None
-    m["B_se"] = b_se if ninf < b_se < inf else None
-    m["B_held"] = e.B_held
-    m["I"] = i if ninf < i < inf else None
-    m["I_se"] = i_se if ninf < i_se < inf else None
-    m["I_held"] = e.I_held
-    m["vaf"] = vaf if ninf < vaf < inf else None
-    m["flags"] = [*e.flags, *flags]
-    m["B_track"] = b_track if ninf < b_track < inf else None
-    m["B_track_se"] = b_track_se if ninf < b_track_se < inf else None
-    m["vaf_irf"] = vaf_irf if ninf < vaf_irf < inf else None
-    m["vaf_fit"] = vaf_fit if ninf < vaf_fit < inf else None
-    m["lost_samples"] = e.lost_samples
-    m["seq"] = seq
-    m["window_start_index"] = first
-    m["window_end_index"] = last
-    m["t_start_s"] = first / fs_hz
-    if compute_ms is not None:
-        m["compute_ms"] = compute_ms if ninf < compute_ms < inf else None
-    if latency_ms is not None:
-        m["latency_ms"] = latency_ms if ninf < latency_ms < inf else None
-    m["reflex_seq"] = reflex_seq
-    m["host_time_ns"] = time.time_ns()
-    return m
+    """:meth:`EstimateMessage.window_dict` of an estimate and its track: its field values in
+    one tuple, made the JSON object by :func:`_json_object` (tests/io/test_messages.py holds it
+    to the dataclass's JSON object)."""
+    return _json_object(
+        (
+            robot,
+            joint,
+            last / fs_hz,
+            track.K,
+            track.K_se,
+            e.K,
+            e.K_se,
+            e.B,
+            e.B_se,
+            e.B_held,
+            e.I,
+            e.I_se,
+            e.I_held,
+            e.vaf,
+            True,
+            None,
+            [*e.flags, *flags],
+            track.B,
+            track.B_se,
+            e.vaf_irf,
+            e.vaf_fit,
+            e.lost_samples,
+            seq,
+            first,
+            last,
+            first / fs_hz,
+            compute_ms,
+            latency_ms,
+            reflex_seq,
+            time.time_ns(),
+        )
+    )
 
 
-def _json_object(values: Sequence[Any]) -> dict[str, Any]:
+def _json_object_reference(values: Sequence[Any]) -> dict[str, Any]:
     """An estimate message's field values as its JSON object: non-finite floats (JSON has no
     NaN) as None."""
     isfinite = math.isfinite
@@ -308,20 +294,20 @@ def _json_object(values: Sequence[Any]) -> dict[str, Any]:
     }
 
 
+def _json_object(values: Sequence[Any]) -> dict[str, Any]:
+    """:func:`_json_object_reference` of a tuple of values, in one compiled call when the
+    kernel was built (``finite_dict``: the dict sized once for its 30 keys; a dict display
+    that long is built as two dicts merged)."""
+    if _FINITE_DICT is not None and type(values) is tuple:
+        return _FINITE_DICT(_ESTIMATE_NAMES, values)  # type: ignore[no-any-return]
+    return _json_object_reference(values)
+
+
 #: The estimate message's field names, in order (the JSON keys, the CSV columns).
 _ESTIMATE_NAMES = tuple(f.name for f in dataclasses.fields(EstimateMessage))
-#: An estimate's message before its values (:func:`_estimate_dict` copies it): every key in
-#: field order, None, but ``ok`` true.
-_ESTIMATE_KEYS: dict[str, Any] = {**dict.fromkeys(_ESTIMATE_NAMES), "ok": True}
+_FINITE_DICT = getattr(compiled_kernel(), "finite_dict", None)
 #: An estimate message's field values, in that order.
 _estimate_values = operator.attrgetter(*_ESTIMATE_NAMES)
-#: Where the fields typed ``float`` (or ``float | None``) are in that order.
-_NUMBER_POSITIONS = tuple(
-    j
-    for j, f in enumerate(dataclasses.fields(EstimateMessage))
-    if f.type in ("float", "float | None")
-)
-
 
 #: What an estimate message takes from the window's estimate (None when withheld).
 _WINDOW_NUMBERS = (
