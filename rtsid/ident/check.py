@@ -134,7 +134,7 @@ def window_scan(
     if _eureka is not None:
         scanned = _eureka.window_scan(position, torque, valid, status, start, stop)
         if scanned is not None:
-            return scanned  # type: ignore[no-any-return]
+            return scanned
     return window_scan_reference(position, torque, valid, status, start, stop)
 
 

@@ -299,7 +299,7 @@ def _json_object(values: Sequence[Any]) -> dict[str, Any]:
     kernel was built (``finite_dict``: the dict sized once for its 30 keys; a dict display
     that long is built as two dicts merged)."""
     if _FINITE_DICT is not None and type(values) is tuple:
-        return _FINITE_DICT(_ESTIMATE_NAMES, values)  # type: ignore[no-any-return]
+        return _FINITE_DICT(_ESTIMATE_NAMES, values)
     return _json_object_reference(values)
 
 
