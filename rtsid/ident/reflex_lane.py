@@ -436,6 +436,9 @@ class ReflexModels:
         self.minimum = round(cascade_minimum_s(settings.cascade()) * fs_hz)
         self._updates: dict[int, ReflexUpdate] = {}
         self._lock = threading.Lock()
+        # (due fit, the newest usable fit at or before it) of the latest window asked about:
+        # the windows of one due fit (every update_s) share it until a fit is added
+        self._newest_usable: tuple[int, ReflexUpdate | None] | None = None
 
     # -------------------------------------------------------------- schedule
     def fit_span(self, seq: int, first_index: int) -> tuple[int, int] | None:
@@ -460,6 +463,7 @@ class ReflexModels:
         live slow lane leaves windows on a model this far behind)."""
         with self._lock:
             self._updates[update.seq] = update
+            self._newest_usable = None
             oldest = update.seq - (self.stale_after // self.update + 2)
             if keep_from is not None:
                 oldest = min(oldest, keep_from)
@@ -471,15 +475,24 @@ class ReflexModels:
         is stale (not the due one, or older than ``stale_after_s``). ``(None, False)``:
         none yet."""
         due = self.due_seq(window_end)
-        with self._lock:
-            usable = [s for s, u in self._updates.items() if s <= due and u.pathway is not None]
-            if not usable:
-                return None, False
-            seq = max(usable)
-            update = self._updates[seq]
-        failed_since = seq != due
+        newest = self._newest_usable
+        if newest is None or newest[0] != due:
+            newest = self._newest_usable_at(due)
+        update = newest[1]
+        if update is None:
+            return None, False
+        failed_since = update.seq != due
         too_old = window_end + 1 - update.end_index > self.stale_after
         return update, failed_since or too_old
+
+    def _newest_usable_at(self, due: int) -> tuple[int, ReflexUpdate | None]:
+        """``(due, the newest kept fit at or before fit due with a pathway)``, kept for the
+        next windows of the same due fit (until :meth:`add` forgets it, under the same lock)."""
+        with self._lock:
+            usable = [s for s, u in self._updates.items() if s <= due and u.pathway is not None]
+            newest = (due, self._updates[max(usable)] if usable else None)
+            self._newest_usable = newest
+        return newest
 
     def update_of(self, seq: int) -> ReflexUpdate | None:
         """Fit ``seq``, if kept."""

@@ -17,7 +17,6 @@ counted as overruns); compute beyond the budget counts a deadline miss.
 from __future__ import annotations
 
 import logging
-import math
 import os
 import threading
 import time
@@ -27,8 +26,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from rtsid.config import require_range, section_from_mapping
 from rtsid.errors import (
     ConfigError,
@@ -37,7 +34,7 @@ from rtsid.errors import (
     TorqueSignError,
     WindowError,
 )
-from rtsid.ident.check import window_sums
+from rtsid.ident.check import window_scan
 from rtsid.ident.grid import first_window_end
 from rtsid.ident.records import built
 from rtsid.ident.reflex import ReflexStream
@@ -48,6 +45,7 @@ from rtsid.ident.tracker import TrackerOptions
 from rtsid.ident.window import EstimatorOptions, WindowEstimate
 from rtsid.io.calibration import Calibration, load_calibration
 from rtsid.io.messages import EstimateMessage, ReflexMessage
+from rtsid.io.recording import GridColumns
 from rtsid.lifecycle import ThreadOwner
 from rtsid.link.protocol import (
     STATUS_DISCONTINUITY,
@@ -192,8 +190,7 @@ def assess_window(
     max_age_s : float
         Largest acceptable age of the newest sample, s.
     all_valid : bool, optional
-        Whether every row of ``snap`` is valid, when the caller knows it already (default:
-        read from ``snap.valid``).
+        Ignored (the one pass over the rows reads it anyway); kept for callers that pass it.
 
     Returns
     -------
@@ -205,24 +202,22 @@ def assess_window(
     """
     if now_s - float(snap.host_time_s[-1]) > max_age_s:
         return Reason.STALE
-    raised = int(np.bitwise_or.reduce(snap.status))  # every row's status bits, one pass
+    rows = len(snap)
+    raised, _, finite = window_scan(
+        snap.position_rad, snap.torque_nm, snap.valid, snap.status, 0, rows
+    )
+    return scanned_reason(raised, finite)
+
+
+def scanned_reason(raised: int, finite: bool) -> Reason | None:
+    """What a window's rows say against estimating it (:func:`~rtsid.ident.check.window_scan`
+    read them): its rows' status bits ``raised`` and whether its valid rows are ``finite``;
+    None when nothing does."""
     if raised & STATUS_DISCONTINUITY:
         return Reason.GAP  # the signal itself jumps: no sum over valid samples bridges that
     if raised & _SATURATED:
         return Reason.SATURATED
-    valid = snap.valid  # lost rows hold no value (a recording stores NaN there)
-    if all_valid is None:
-        all_valid = bool(np.logical_and.reduce(valid))
-    position, torque = (
-        (snap.position_rad, snap.torque_nm)
-        if all_valid
-        else (
-            snap.position_rad[valid],
-            snap.torque_nm[valid],
-        )
-    )
-    position_sum, torque_sum, _ = window_sums(position, torque)  # finite iff every term is
-    if not (math.isfinite(position_sum) and math.isfinite(torque_sum)):
+    if not finite:  # lost rows hold no value (a recording stores NaN there): not counted
         return Reason.NAN
     return None
 
@@ -318,6 +313,7 @@ class WindowEvaluator:
             ReflexStream.prepare(fs_hz, reflex.settings.cascade().fs_out_hz)
         self.reflex_flagged: Counter[str] = Counter()
         self.last_reflex = _NO_REFLEX  # the slow lane's part in the latest window
+        self._unapplied = _NO_REFLEX  # the latest model judged absent from the data, as used
         # a replay following a live run: window end -> (reflex_seq, absent, stale) as live had
         self.recorded_reflex: dict[int, tuple[int | None, bool, bool]] | None = None
         # ... and the windows it withheld as stale (its samples' age is not in a recording)
@@ -332,6 +328,9 @@ class WindowEvaluator:
         self.compute_cpu_s = 0.0  # every window's CPU time, summed
         self.sign = SignCount()  # windows reading K, B, I < 0 (rtsid.ident.sign)
         self.stages: StageLog | None = None  # the per-window stage log (live: the worker's)
+        # read every window: the staleness limit (live) and the compute budget, s
+        self._max_age_s = config.max_sample_age_s
+        self._budget_s = config.effective_budget_s
 
     def log_stages(self, stages: StageLog | None) -> None:
         """Mark each stage of every window in ``stages`` (None: stop; replay logs none)."""
@@ -381,30 +380,82 @@ class WindowEvaluator:
         started_cpu_s : float, optional
             ``thread_time()`` then, on this thread (default: now).
         """
+        first = int(snap.sample_index[0])
+        columns = (snap.position_rad, snap.torque_nm, snap.valid, snap.status, first)
+        arrival = float(snap.host_time_s[-1]) if self.live else None
+        return self.evaluate_rows(
+            columns,
+            first,
+            first + len(snap),
+            arrival_s=arrival,
+            started_s=started_s,
+            started_cpu_s=started_cpu_s,
+        )
+
+    def evaluate_rows(
+        self,
+        columns: GridColumns,
+        start: int,
+        stop: int,
+        *,
+        arrival_s: float | None = None,
+        started_s: float | None = None,
+        started_cpu_s: float | None = None,
+    ) -> dict[str, Any]:
+        """:meth:`evaluate` of samples ``start .. stop − 1`` held in ``columns`` (replay: the
+        recording's grid, whose windows are rows of the same columns; no snapshot cut).
+
+        Parameters
+        ----------
+        columns : tuple
+            Position (rad), torque (N·m), valid and status columns, and the sample index of
+            their row 0 (:meth:`rtsid.io.recording.SampleGrid.buffers`).
+        start, stop : int
+            The window's samples, after up to :attr:`history_samples` of history.
+        arrival_s : float, optional
+            ``time.monotonic()`` when the newest sample arrived (live; None: recorded
+            samples, never stale).
+        started_s, started_cpu_s : float, optional
+            As :meth:`evaluate`.
+        """
         started = time.perf_counter() if started_s is None else started_s
         started_cpu = time.thread_time() if started_cpu_s is None else started_cpu_s
-        window = snap.tail(self.window_samples)
-        arrival = float(window.host_time_s[-1]) if self.live else None
-        now = time.monotonic() if arrival is not None else math.inf
-        max_age = self.config.max_sample_age_s if self.live else math.inf
-        all_valid = bool(np.logical_and.reduce(window.valid))  # read once, used twice
-        reason = assess_window(window, now, max_age, all_valid)
-        first, last = int(window.sample_index[0]), int(window.sample_index[-1])
-        if reason is None and last in self.recorded_stale:
-            reason = Reason.STALE  # live withheld it so; the tracker steps alike
+        position, torque, valid, status, base = columns
+        last = stop - 1
+        first = max(start, stop - self.window_samples)
+        lo, hi = first - base, stop - base  # the window's rows
+        all_valid = True
+        if arrival_s is not None and self._stale(arrival_s, last):
+            reason: Reason | None = Reason.STALE
+        else:
+            raised, all_valid, finite = window_scan(position, torque, valid, status, lo, hi)
+            reason = scanned_reason(raised, finite) if raised or not finite else None
+            if reason is None and last in self.recorded_stale:
+                reason = Reason.STALE  # live withheld it so; the tracker steps alike
         stages = self.stages
         if stages is not None:
             stages.mark("window check")
         reflex = _NO_REFLEX
         if reason is None and self.reflex is not None:
-            reflex = self._reflex_torque(snap)
+            reflex = self._reflex_torque(position, valid, start - base, hi, start)
         self.last_reflex = reflex
-        estimate, reason = self._estimate(window, reason, reflex.torque, all_valid)
+        estimate = None
+        if reason is None:
+            window_valid = None if all_valid else valid[lo:hi]
+            estimate, reason = self._estimate(
+                position[lo:hi], torque[lo:hi], window_valid, reflex.torque
+            )
+        else:
+            self.withheld[reason] += 1
         if stages is not None:
             stages.mark("assembly")  # the estimate's rest (all of it, step by step)
         track = self.stream.track(last / self.fs_hz, estimate)  # every evaluated window steps it
+        # the window's compute time: wall (the deadline's) and this thread's CPU
         compute_s = time.perf_counter() - started
-        self._count_compute(compute_s, time.thread_time() - started_cpu)
+        cpu_s = time.thread_time() - started_cpu
+        self.compute_ms, self.compute_cpu_ms = compute_s * 1e3, cpu_s * 1e3
+        self.compute_s += compute_s
+        self.compute_cpu_s += cpu_s
         if stages is not None:
             stages.mark("tracker")
             stages.reflex_used(reflex.seq)
@@ -412,7 +463,7 @@ class WindowEvaluator:
         if overrun:
             self.misses += 1
         message = self._message(
-            first, last, estimate, reason, compute_s, arrival, reflex, track, overrun
+            first, last, estimate, reason, compute_s, arrival_s, reflex, track, overrun
         )
         if stages is not None:
             stages.mark("message")
@@ -421,17 +472,15 @@ class WindowEvaluator:
             stages.mark("publish")
         return message
 
-    def _count_compute(self, wall_s: float, cpu_s: float) -> None:
-        """Add one window's compute time: wall (the deadline's) and this thread's CPU."""
-        self.compute_ms = wall_s * 1e3
-        self.compute_cpu_ms = cpu_s * 1e3
-        self.compute_s += wall_s
-        self.compute_cpu_s += cpu_s
+    def _stale(self, arrival_s: float, window_end: int) -> bool:
+        """A live window (ending at sample ``window_end``) whose newest sample arrived (at
+        ``arrival_s``, ``time.monotonic()``) longer than ``max_sample_age_s`` ago."""
+        return time.monotonic() - arrival_s > self._max_age_s
 
     def _over_budget(self, compute_s: float) -> bool:
         """A live window whose compute overran the budget (recorded samples have no deadline:
         a replay's numbers and flags never depend on how busy the computer was)."""
-        return self.live and compute_s > self.config.effective_budget_s
+        return self.live and compute_s > self._budget_s
 
     def publish_stale(self, end_index: int) -> None:
         """No samples are arriving: say so once per hop for the window that is due.
@@ -446,10 +495,14 @@ class WindowEvaluator:
             self._message(start, end_index, None, Reason.STALE, 0.0, None, _NO_REFLEX, track)
         )
 
-    def _reflex_torque(self, snap: Snapshot) -> _ReflexUse:
-        """The due reflex model's torque over the window, in the recorded torque's sign."""
+    def _reflex_torque(
+        self, position: Any, valid: Any, lo: int, hi: int, first_index: int
+    ) -> _ReflexUse:
+        """The due reflex model's torque over the window, in the recorded torque's sign, from
+        rows ``lo .. hi − 1`` of the ``position`` and ``valid`` columns (the window and its
+        history; sample ``first_index`` first)."""
         assert self.reflex is not None
-        update, stale = self._due_reflex(int(snap.sample_index[-1]))
+        update, stale = self._due_reflex(first_index + hi - lo - 1)
         stages = self.stages
         if stages is not None:
             stages.mark("reflex model")
@@ -461,17 +514,20 @@ class WindowEvaluator:
             flags = (Flag.REFLEX_STALE,)
             self.reflex_flagged[Flag.REFLEX_STALE] += 1
         if not update.applied:  # the reflex pathway is not in the data: nothing to subtract
-            return built(_ReflexUse, seq=update.seq, torque=None, flags=flags)
-        valid = None if snap.valid.all() else snap.valid
+            unapplied = self._unapplied  # the same for every window of the model
+            if unapplied.seq != update.seq or unapplied.flags != flags:
+                unapplied = self._unapplied = _ReflexUse(update.seq, None, flags)
+            return unapplied
+        rows_valid = valid[lo:hi]
         try:
             predicted = predict_reflex_torque(
                 update.pathway,
-                snap.position_rad,
-                valid,
+                position[lo:hi],
+                None if rows_valid.all() else rows_valid,
                 self.fs_hz,
                 self.window_samples,
                 self.reflex.settings,
-                first_index=int(snap.sample_index[0]),
+                first_index=first_index,
                 stream=self.reflex_stream,
             )
         except InputDataError:  # the history has too many lost samples to predict from
@@ -497,26 +553,18 @@ class WindowEvaluator:
         return self.reflex.update_of(seq), stale
 
     def _estimate(
-        self,
-        snap: Snapshot,
-        reason: Reason | None,
-        reflex_torque: Any = None,
-        all_valid: bool | None = None,
+        self, position: Any, torque: Any, valid: Any, reflex_torque: Any = None
     ) -> tuple[WindowEstimate | None, Reason | None]:
-        if reason is not None:
-            self.withheld[reason] += 1
-            return None, reason
-        torque = snap.torque_nm
+        """The window's estimate, or why it is withheld (counted): ``valid`` None when every
+        row is."""
         if self.calibration is not None:
-            torque = torque - self.calibration.torque_offset(snap.position_rad)
+            torque = torque - self.calibration.torque_offset(position)
         if reflex_torque is not None:
             torque = torque - reflex_torque
-        planned = self.stream.plan is not None
+        stream = self.stream
+        planned = stream.plan is not None
         try:
-            if all_valid is None:
-                all_valid = bool(np.logical_and.reduce(snap.valid))
-            valid = None if all_valid else snap.valid
-            estimate = self.stream.estimate(snap.position_rad, torque, valid, reflex_torque)
+            estimate = stream.estimate(position, torque, valid, reflex_torque)
         except WindowError as exc:
             self.withheld[exc.reason] += 1
             return None, exc.reason
@@ -525,8 +573,8 @@ class WindowEvaluator:
             return None, Reason.NUMERICAL
         self.estimates += 1
         self._refuse_inverted_sign(estimate)
-        if not planned and self.stream.plan is not None:
-            log.info("%s/%s %s", self.robot, self.joint, self.stream.plan.describe())
+        if not planned and stream.plan is not None:
+            log.info("%s/%s %s", self.robot, self.joint, stream.plan.describe())
         return estimate, None
 
     def _refuse_inverted_sign(self, e: WindowEstimate) -> None:
@@ -553,7 +601,7 @@ class WindowEvaluator:
     ) -> dict[str, Any]:
         if overrun is None:
             overrun = self._over_budget(compute_s)
-        flags = (*((Flag.OVER_BUDGET,) if overrun else ()), *reflex.flags)
+        flags = (Flag.OVER_BUDGET, *reflex.flags) if overrun else reflex.flags
         latency = None if last_arrival_s is None else (time.monotonic() - last_arrival_s) * 1e3
         seq = self._seq
         self._seq += 1
