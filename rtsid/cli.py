@@ -99,6 +99,19 @@ def _one_line_warnings(command: str) -> Iterator[list[str]]:
                     incomplete.append(str(w.message))
 
 
+def _forget_the_interrupt() -> None:
+    """Let a handled Ctrl-C end ``python -m rtsid.cli`` with status 130, not by SIGINT.
+
+    CPython (3.8 on) marks an interrupt "unhandled" whenever a KeyboardInterrupt leaves an
+    ``exec``/``eval`` of a string (``dataclasses`` and ``namedtuple`` build their methods so,
+    e.g. at an import the interrupt lands in), even when a caller catches it later; under
+    ``python -m`` the interpreter then kills itself with SIGINT after ``main`` returned 130
+    (status −2, no traceback: a replay interrupted mid-import did so). Each run of a string
+    clears that mark as it starts, so one empty run here does.
+    """
+    exec("")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``rtsid`` console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -117,6 +130,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         print(f"rtsid {args.command}: interrupted", file=sys.stderr)
+        _forget_the_interrupt()
         return 130
     except BrokenPipeError:
         # The reader went away (e.g. `rtsid identify … | head`): stop quietly.

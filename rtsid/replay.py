@@ -216,6 +216,14 @@ class WindowCutter:
 
     def add(self, batch: SampleBatch) -> Iterator[Snapshot]:
         """The windows ``batch`` completes (it follows the previous batch on the grid)."""
+        snapshot = self._snapshot
+        for columns, start, stop in self.spans(batch):
+            yield snapshot(columns, start, stop)
+
+    def spans(self, batch: SampleBatch) -> Iterator[tuple[GridColumns, int, int]]:
+        """:meth:`add` without the snapshots: each window ``batch`` completes as the grid's
+        ``columns`` (valid until the next batch) and its samples ``start .. stop − 1``
+        (history included), what :meth:`WindowEvaluator.evaluate_rows` takes."""
         grid = self.grid
         if grid is None:
             grid = self.grid = SampleGrid(batch.first_index, batch.fs_hz, capacity=8 * self.reach)
@@ -230,7 +238,7 @@ class WindowCutter:
             self.reach,
             self.first,
         )
-        slow_lane, live, snapshot = self.slow_lane, self.live, self._snapshot
+        slow_lane, live = self.slow_lane, self.live
         columns = grid.buffers()  # the grid's columns, row 0 at sample columns[-1]
         ends = range(self.next_end, end_index, hop)
         # the one window end of the block at which the slow lane's next fit is due (a fit
@@ -242,7 +250,7 @@ class WindowCutter:
                 slow_lane.catch_up(grid, first, end)
                 fit_at = slow_lane.next_fit_end(first, range(end + hop, end_index, hop))
             if live is None or not live.skipped(end):
-                yield snapshot(columns, max(end - reach + 1, first), end + 1)
+                yield columns, max(end - reach + 1, first), end + 1
             self.next_end = end + hop
         keep = self.next_end - self.reach + 1
         if self.slow_lane is not None:
@@ -554,7 +562,8 @@ def replay_batches(
         if publish is not None:
             publish(message)
 
-    evaluator = recorded_evaluator(config, sink)
+    # without a publisher, each message only goes into the result: no call in between
+    evaluator = recorded_evaluator(config, sink if publish is not None else result.messages.append)
     slow_lane = (
         ReplayedSlowLane(evaluator, result.reflex.append, live) if evaluator.reflex else None
     )
@@ -562,10 +571,10 @@ def replay_batches(
         evaluator.recorded_reflex = live.reflex
         evaluator.recorded_stale = live.stale
     started = time.perf_counter()
-    cutter, evaluate = WindowCutter(evaluator, slow_lane, live), evaluator.evaluate
-    for batch in batches:  # a block's windows in one loop: iter_windows without its generator
-        for snap in cutter.add(batch):
-            evaluate(snap)
+    cutter, evaluate = WindowCutter(evaluator, slow_lane, live), evaluator.evaluate_rows
+    for batch in batches:  # a block's windows in one loop, each rows of the grid's columns
+        for columns, start, stop in cutter.spans(batch):
+            evaluate(columns, start, stop)
             if evaluated is not None:
                 evaluated(evaluator)
     result.elapsed_s = time.perf_counter() - started

@@ -216,6 +216,21 @@ def test_a_relative_calibration_path_is_kept_absolute(tmp_path, monkeypatch):
     assert WorkerConfig(calibration_file=config.calibration_file) == config
 
 
+def test_a_config_files_relative_calibration_path_is_taken_from_its_folder(tmp_path, monkeypatch):
+    """As ``protocol.dbc`` and ``plant.player_file``: a rig folder's config finds the
+    calibration beside it from whatever folder the daemon is started in."""
+    rig = tmp_path / "rig"
+    rig.mkdir()
+    position, torque = simulate(NO_PERSON, 1.0)
+    save_calibration(Calibration(identify_robot([(position, torque)], FS)), rig / "c.json")
+    (rig / "rig.toml").write_text('[worker]\ncalibration_file = "c.json"\n')
+    monkeypatch.chdir(tmp_path)  # not the rig's folder
+    assert DaemonConfig.load(rig / "rig.toml").worker.calibration_file == str(rig / "c.json")
+    (rig / "rig.toml").write_text('[worker]\ncalibration_file = "missing.json"\n')
+    with pytest.raises(ConfigError, match="worker.calibration_file.*missing.json"):
+        DaemonConfig.load(rig / "rig.toml")
+
+
 def test_benchmark_table_shows_the_calibration_beating_the_source(capsys):
     assert main(["bench", "calibrate", "--quick"]) == 0
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("|")]

@@ -74,3 +74,25 @@ def test_the_desk_commands_start_without_the_numerics():
         [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True
     )
     assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_an_interrupt_caught_inside_a_string_run_still_exits_130(tmp_path):
+    """A Ctrl-C whose KeyboardInterrupt left an ``exec`` of a string (a dataclass being
+    built at an import, when the signal lands) ends ``python -m`` with 130 and one line, not
+    by SIGINT (the interpreter marks such an interrupt unhandled, caught or not)."""
+    import subprocess
+    import sys
+
+    (tmp_path / "interrupted_command.py").write_text(
+        "def add_arguments(parser):\n    pass\n\n\n"
+        "def run(args):\n    exec('raise KeyboardInterrupt')\n"
+    )
+    (tmp_path / "entry.py").write_text(
+        "from rtsid import cli\n"
+        "cli.COMMANDS['interrupted'] = ('interrupted_command', 'raises Ctrl-C in a string run')\n"
+        "raise SystemExit(cli.main(['interrupted']))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-m", "entry"], cwd=tmp_path, capture_output=True, text=True, timeout=60
+    )
+    assert (done.returncode, done.stderr) == (130, "rtsid interrupted: interrupted\n")

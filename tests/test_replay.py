@@ -393,12 +393,10 @@ def test_replay_follows_the_windows_a_live_worker_skipped(tmp_path, free_port, m
     their samples had not come) and withholds windows whose samples were too old when it
     ran: the held I/B and the tracker see neither, and a replay must follow both (it once
     estimated the announced-then-skipped windows, one held-I/B step off live)."""
-    from rtsid.runtime import worker
-    from rtsid.runtime.worker import WindowWorker
-    from rtsid.verdicts import Reason
+    from rtsid.runtime.worker import WindowEvaluator, WindowWorker
 
     process_window = WindowWorker.process_window
-    assess_window = worker.assess_window
+    stale = WindowEvaluator._stale
     skipped, too_old = [], []
 
     def fall_behind(self, end_index):  # as if the worker had been late for these windows
@@ -410,15 +408,14 @@ def test_replay_follows_the_windows_a_live_worker_skipped(tmp_path, free_port, m
             return None
         return process_window(self, end_index)
 
-    def aged(snap, now_s, max_age_s, all_valid=None):  # samples too old when the window ran
-        end = int(snap.sample_index[-1])
+    def aged(self, arrival_s, end):  # samples too old when the window ran
         if 4000 <= end <= 4500 and (end // 50) % 3 == 0:
             too_old.append(end)
-            return Reason.STALE
-        return assess_window(snap, now_s, max_age_s, all_valid)
+            return True
+        return stale(self, arrival_s, end)
 
     monkeypatch.setattr(WindowWorker, "process_window", fall_behind)
-    monkeypatch.setattr(worker, "assess_window", aged)
+    monkeypatch.setattr(WindowEvaluator, "_stale", aged)
     config = DaemonConfig.from_mapping(
         {
             "zenoh": {"listen": [f"tcp/127.0.0.1:{free_port}"]},

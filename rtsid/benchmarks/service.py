@@ -488,9 +488,34 @@ def _row(phase: Phase, base: Phase | None) -> list[Any]:
         rss[-1] if rss else float("nan"),
         acq.get("lost_samples", "—"),
         mcap.get("dropped", "—"),
+        longest_gc_ms(worker),
         phase.steal_percent,
         ratio,
     ]
+
+
+def _pause(pause: Any) -> str:
+    """``gen 2, 3.10 ms (CPU 2.95 ms)`` from a status's ``[generation, ms, CPU ms]``."""
+    if not pause:
+        return "none"
+    generation, ms, cpu_ms = pause
+    return f"gen {int(generation)}, {ms:.2f} ms (CPU {cpu_ms:.2f} ms)"
+
+
+def gc_pauses(worker: dict[str, Any]) -> str:
+    """The daemon's longest garbage collection while it ran windows, with its generation,
+    beside the start-up's and the objects frozen out of the collector's view."""
+    return (
+        f"longest garbage collection while running windows: {_pause(worker.get('gc_longest'))}"
+        f"; at start-up: {_pause(worker.get('gc_longest_startup'))}; objects frozen "
+        f"{worker.get('gc_frozen', '—')}"
+    )
+
+
+def longest_gc_ms(worker: dict[str, Any]) -> str:
+    """The table's cell: the longest collection while running windows, ms (generation)."""
+    pause = worker.get("gc_longest")
+    return "—" if not pause else f"{pause[1]:.2f} (gen {int(pause[0])})"
 
 
 def _own_cpu_ms(miss_line: str) -> float:
@@ -521,6 +546,20 @@ def print_miss_causes(phase: Phase) -> None:
         f"  {phase.name}: windows of over 3× the usual CPU (missed or not) by that stage "
         f"and the CPU's pace (the compiled call's fixed work): {listed}"
     )
+    for key, what in (("miss_cpu_causes", "misses"), ("costly_causes", "windows of over 3×")):
+        causes = worker.get(key) or {}
+        listed = ", ".join(f"{name}: {count}" for name, count in sorted(causes.items()))
+        print(
+            f"  {phase.name}: {what} by why the worker's CPU ran long (its getrusage counters "
+            f"over the window and the compiled call): {listed or 'none'}"
+        )
+    print(
+        f"  {phase.name}: windows whose worker took page faults: "
+        f"{worker.get('faulted_windows', '—')} of {worker.get('estimates', '—')} estimates "
+        f"({worker.get('window_faults', '—')} faults); of them in the compiled call "
+        f"{worker.get('faulted_calls', '—')} ({worker.get('call_faults', '—')} faults)"
+    )
+    print(f"  {phase.name}: {gc_pauses(worker)}")
     overruns = worker.get("overrun_causes") or {}
     listed = ", ".join(f"{name}: {count}" for name, count in sorted(overruns.items())) or "none"
     print(f"  {phase.name}: overruns (windows skipped) by cause: {listed}")
@@ -670,6 +709,7 @@ def run(args: argparse.Namespace) -> int:
             "RSS end MiB",
             "lost samples",
             "MCAP dropped",
+            "longest gc ms (gen)",
             "VM steal %",
             "e2e p99 / idle",
         ],
@@ -688,7 +728,8 @@ def run(args: argparse.Namespace) -> int:
             "(steal time of all CPUs, sampled every 5 ms here). Worker CPU ms/window = the "
             "worker thread's CPU time per evaluated window (status totals); compute wall / CPU "
             "> 1 is time the worker was ready but not running (the GIL, or a CPU given to "
-            f"others). {_floors(hop_s)}"
+            "others). Longest gc = the daemon's longest garbage collection after its start-up "
+            f"(wall; it holds the GIL). {_floors(hop_s)}"
         ),
     )
     if not args.no_replay:

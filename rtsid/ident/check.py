@@ -33,6 +33,7 @@ __all__ = [
     "check_band_limited_level",
     "check_relative_excitation",
     "check_window",
+    "window_scan",
     "window_sums",
     "without_lost",
 ]
@@ -92,6 +93,71 @@ def window_sums(position: FloatArray, torque: FloatArray) -> tuple[float, float,
     if _eureka is not None and position.dtype == np.float64 and torque.dtype == np.float64:
         return _eureka.window_sums(np.ascontiguousarray(position), np.ascontiguousarray(torque))
     return float(np.add.reduce(position)), float(np.add.reduce(torque)), float(position @ position)
+
+
+def window_scan(
+    position: FloatArray,
+    torque: FloatArray,
+    valid: NDArray[np.bool_],
+    status: NDArray[np.integer[Any]],
+    start: int,
+    stop: int,
+) -> tuple[int, bool, bool]:
+    """The checks' reading of rows ``start .. stop − 1`` of a window's columns, in one pass.
+
+    Parameters
+    ----------
+    position, torque : numpy.ndarray of float64, shape (n,)
+        Joint angle (rad) and torque (N·m); lost rows hold no value (NaN in a recording).
+    valid : numpy.ndarray of bool, shape (n,)
+        False for lost rows.
+    status : numpy.ndarray of unsigned int, shape (n,)
+        Each row's status bits (``rtsid.link.protocol.STATUS_*``).
+    start, stop : int
+        The rows to read (the window's, within columns that may hold more).
+
+    Returns
+    -------
+    raised : int
+        The status bits any row raises (their OR).
+    all_valid : bool
+        Every row is valid.
+    finite : bool
+        The valid rows' position and torque are finite: their sums are (a sum is finite only
+        if every term is; rad and N·m never overflow).
+
+    Notes
+    -----
+    One compiled pass (``window_scan``) when the kernel was built and the columns are the data
+    path's types; numpy's reductions otherwise, the reference it is tested equal to.
+    """
+    if _eureka is not None:
+        scanned = _eureka.window_scan(position, torque, valid, status, start, stop)
+        if scanned is not None:
+            return scanned
+    return window_scan_reference(position, torque, valid, status, start, stop)
+
+
+def window_scan_reference(
+    position: FloatArray,
+    torque: FloatArray,
+    valid: NDArray[np.bool_],
+    status: NDArray[np.integer[Any]],
+    start: int,
+    stop: int,
+) -> tuple[int, bool, bool]:
+    """:func:`window_scan` by numpy's reductions (the reference)."""
+    rows = slice(start, stop)
+    raised = int(np.bitwise_or.reduce(status[rows]))
+    valid = valid[rows]
+    all_valid = bool(np.logical_and.reduce(valid))
+    position, torque = position[rows], torque[rows]
+    if not all_valid:
+        position, torque = position[valid], torque[valid]
+    finite = math.isfinite(float(np.add.reduce(position))) and math.isfinite(
+        float(np.add.reduce(torque))
+    )
+    return raised, all_valid, finite
 
 
 def without_lost(

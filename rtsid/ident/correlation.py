@@ -64,18 +64,18 @@ def detrend(x: ArrayLike, kind: str = "linear") -> FloatArray:
     numpy.ndarray, shape (n,)
         The detrended copy.
     """
-    arr = np.array(x, dtype=np.float64)
+    # contiguous, as the copy it used to make was: BLAS's dot and numpy's sum of a strided
+    # array add in another order (other bits)
+    arr = np.ascontiguousarray(x, dtype=np.float64)
     if kind == "none":
-        return arr
+        return np.array(arr)
     if kind == "mean":
-        arr -= arr.sum() / arr.size  # in the copy: the same numbers, no second array
-        return arr
+        return np.subtract(arr, arr.sum() / arr.size)  # no copy of x first: the same numbers
     if kind == "linear":
         t, tt = _centred_ramp(arr.size)
         line = ((t @ arr) / tt) * t
         line += arr.sum() / arr.size  # mean + slope·t, as the expression added them
-        arr -= line
-        return arr
+        return np.subtract(arr, line, out=line)  # x − line into the line: no copy of x
     raise InputDataError(f"detrend kind {kind!r} is not one of 'linear', 'mean', 'none'")
 
 

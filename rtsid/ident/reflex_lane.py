@@ -30,13 +30,14 @@ from numpy.typing import NDArray
 
 from rtsid.errors import ConfigError, InputDataError, invalid, require_choice, require_range
 from rtsid.ident.cascade import CascadeFit, CascadeSettings, cascade_minimum_s, fit_parallel_cascade
+from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.reflex import (
     REFLEX_VARIANTS,
     ReflexPathway,
     ReflexStream,
     prediction_history_s,
 )
-from rtsid.ident.yardstick import WindowVafBasis
+from rtsid.ident.yardstick import BasisStore, WindowVafBasis
 
 __all__ = [
     "ReflexModels",
@@ -53,6 +54,8 @@ FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
 LANE_MODES = ("process", "thread")
+
+_eureka = compiled_kernel()
 
 
 @dataclass(frozen=True)
@@ -219,23 +222,45 @@ def fit_reflex_update(
     settings: SlowLaneSettings,
 ) -> ReflexUpdate:
     """Fit the parallel cascade to one horizon of samples (torque sign-corrected and with the
-    robot's own dynamics removed). Never raises for bad data: the update carries the error."""
+    robot's own dynamics removed). Never raises for bad data: the update carries the error.
+
+    The evidence basis' derivative rows of the samples this horizon shares with the previous
+    one this process fitted are carried over (:data:`EVIDENCE_BASES`, keyed by absolute
+    sample index from ``start_index`` and checked sample by sample): the same numbers bit for
+    bit as forming them afresh, so a fit does not depend on which fits ran before it (a replay
+    equals live). A horizon with bridged samples neither uses nor leaves anything there.
+    """
     end_index = start_index + position.size
+    bridging = valid is not None and not bool(valid.all())
+    if bridging:
+        EVIDENCE_BASES.clear()
     try:
         pos = bridged(np.asarray(position, dtype=np.float64), valid, fs_hz, settings)
         tor = bridged(np.asarray(torque, dtype=np.float64), valid, fs_hz, settings)
-        if not (np.isfinite(pos).all() and np.isfinite(tor).all()):
+        if not _all_finite(pos, tor):
             raise InputDataError("a valid sample is NaN or infinite")
         cascade = fit_parallel_cascade(pos, tor, fs_hz, settings.cascade())
         first = round(cascade.reflex.history_s * fs_hz)
-        # the prediction only where the evidence reads it (zero before: not read)
-        reflex_torque = np.zeros(pos.size)
+        # the prediction only where the evidence reads it
         lead = evidence_lead(pos.size, fs_hz, first)
-        reflex_torque[lead:] = cascade.record_reflex_torque(pos, fs_hz, lead)
-        evidence = window_vaf_gain(pos, tor, reflex_torque, fs_hz, first)
+        reflex_torque = cascade.record_reflex_torque(pos, fs_hz, lead)
+        gains = _evidence_gains(
+            pos, tor, reflex_torque, lead, fs_hz, first, None if bridging else start_index
+        )
+        evidence = _median_gain(gains)
     except (InputDataError, ArithmeticError, np.linalg.LinAlgError) as exc:
         return ReflexUpdate.failed(seq, start_index, end_index, str(exc))
     return _update_from(seq, start_index, end_index, cascade, evidence, settings)
+
+
+def _all_finite(position: FloatArray, torque: FloatArray) -> bool:
+    """No NaN nor infinity in either (the compiled ``all_finite`` when built: one pass, no
+    temporaries)."""
+    if _eureka is not None:
+        return bool(
+            _eureka.all_finite(np.ascontiguousarray(position), np.ascontiguousarray(torque))
+        )
+    return bool(np.isfinite(position).all() and np.isfinite(torque).all())
 
 
 #: The short windows :func:`window_vaf_gain` scores: the fast lane's length, every
@@ -282,7 +307,11 @@ def window_vaf_gain(
     (float, float)
         The median VAF gain, percentage points, and the share of windows it raises.
     """
-    gains = window_vaf_gains(position, torque, reflex_torque, fs_hz, first)
+    return _median_gain(window_vaf_gains(position, torque, reflex_torque, fs_hz, first))
+
+
+def _median_gain(gains: FloatArray) -> tuple[float, float]:
+    """:func:`window_vaf_gain`'s median gain and share of windows improved."""
     if gains.size == 0:
         raise InputDataError("the horizon is shorter than one evidence window")
     return float(np.median(gains)), float(np.mean(gains > 0))
@@ -301,13 +330,38 @@ def window_vaf_gains(
     The basis is formed over the scored span and the ``EVIDENCE_SETTLING_S`` before it, not
     over the whole horizon: the same numbers to rounding, at the cost of what is scored.
     """
+    lead = evidence_lead(position.size, fs_hz, first)
+    return _evidence_gains(position, torque, reflex_torque[lead:], lead, fs_hz, first, None)
+
+
+#: The evidence bases' Savitzky–Golay rows kept from one fit to the next in this process (the
+#: slow lane's worker process or thread, a replay's fits in line): bounded (one basis), keyed
+#: by absolute sample index and checked sample by sample, so the numbers are those of a basis
+#: formed afresh (:class:`rtsid.ident.yardstick.BasisStore`).
+EVIDENCE_BASES = BasisStore()
+
+
+def _evidence_gains(
+    position: FloatArray,
+    torque: FloatArray,
+    reflex_tail: FloatArray,
+    lead: int,
+    fs_hz: float,
+    first: int,
+    start_index: int | None,
+) -> FloatArray:
+    """:func:`window_vaf_gains` with the reflex torque from sample ``lead`` on only
+    (``reflex_tail``, ``n − lead`` samples); with ``start_index`` (the absolute index of
+    ``position[0]``) the basis from :data:`EVIDENCE_BASES`."""
     n = round(EVIDENCE_WINDOW_S * fs_hz)
     first = max(first, position.size - round(EVIDENCE_SPAN_S * fs_hz))
-    lead = evidence_lead(position.size, fs_hz, first)  # the basis starts here
-    basis = WindowVafBasis(position[lead:], torque[lead:], fs_hz)
+    if start_index is None:
+        basis = WindowVafBasis(position[lead:], torque[lead:], fs_hz)
+    else:
+        basis = EVIDENCE_BASES.basis(position[lead:], torque[lead:], fs_hz, start_index + lead)
     step = max(1, round(EVIDENCE_STEP_S * fs_hz))
     starts = np.arange(first - lead, position.size - lead - n + 1, step)
-    return basis.least_squares_vaf_gains(starts, n, reflex_torque[lead:])
+    return basis.least_squares_vaf_gains(starts, n, reflex_tail)
 
 
 def evidence_lead(n: int, fs_hz: float, first: int = 0) -> int:
@@ -382,6 +436,9 @@ class ReflexModels:
         self.minimum = round(cascade_minimum_s(settings.cascade()) * fs_hz)
         self._updates: dict[int, ReflexUpdate] = {}
         self._lock = threading.Lock()
+        # (due fit, the newest usable fit at or before it) of the latest window asked about:
+        # the windows of one due fit (every update_s) share it until a fit is added
+        self._newest_usable: tuple[int, ReflexUpdate | None] | None = None
 
     # -------------------------------------------------------------- schedule
     def fit_span(self, seq: int, first_index: int) -> tuple[int, int] | None:
@@ -406,6 +463,7 @@ class ReflexModels:
         live slow lane leaves windows on a model this far behind)."""
         with self._lock:
             self._updates[update.seq] = update
+            self._newest_usable = None
             oldest = update.seq - (self.stale_after // self.update + 2)
             if keep_from is not None:
                 oldest = min(oldest, keep_from)
@@ -417,15 +475,24 @@ class ReflexModels:
         is stale (not the due one, or older than ``stale_after_s``). ``(None, False)``:
         none yet."""
         due = self.due_seq(window_end)
-        with self._lock:
-            usable = [s for s, u in self._updates.items() if s <= due and u.pathway is not None]
-            if not usable:
-                return None, False
-            seq = max(usable)
-            update = self._updates[seq]
-        failed_since = seq != due
+        newest = self._newest_usable
+        if newest is None or newest[0] != due:
+            newest = self._newest_usable_at(due)
+        update = newest[1]
+        if update is None:
+            return None, False
+        failed_since = update.seq != due
         too_old = window_end + 1 - update.end_index > self.stale_after
         return update, failed_since or too_old
+
+    def _newest_usable_at(self, due: int) -> tuple[int, ReflexUpdate | None]:
+        """``(due, the newest kept fit at or before fit due with a pathway)``, kept for the
+        next windows of the same due fit (until :meth:`add` forgets it, under the same lock)."""
+        with self._lock:
+            usable = [s for s, u in self._updates.items() if s <= due and u.pathway is not None]
+            newest = (due, self._updates[max(usable)] if usable else None)
+            self._newest_usable = newest
+        return newest
 
     def update_of(self, seq: int) -> ReflexUpdate | None:
         """Fit ``seq``, if kept."""

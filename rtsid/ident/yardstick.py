@@ -11,11 +11,13 @@
 
 The benchmarks score every estimator against these; the slow lane uses the same basis to
 judge, from its own data, whether subtracting a reflex model helps the windows
-(:func:`rtsid.ident.reflex_lane.window_vaf_gain`).
+(:func:`rtsid.ident.reflex_lane.window_vaf_gain`), its Savitzky–Golay rows carried from one
+fit to the next where they are the same numbers (:class:`BasisStore`).
 """
 
 from __future__ import annotations
 
+import threading
 from functools import lru_cache
 
 import numpy as np
@@ -26,7 +28,7 @@ from rtsid.ident.designs import design
 from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.reflex import zero_phase_rows
 
-__all__ = ["WindowVafBasis", "least_squares_window", "savgol_derivatives"]
+__all__ = ["BasisStore", "WindowVafBasis", "least_squares_window", "savgol_derivatives"]
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
@@ -58,6 +60,13 @@ def savgol_derivatives(x: FloatArray, fs_hz: float) -> tuple[FloatArray, FloatAr
         from scipy import ndimage
 
         d1, d2 = (np.asarray(ndimage.convolve1d(arr, t, mode="constant")) for t in taps)
+    _savgol_ends(arr, fs_hz, d1, d2)
+    return d1, d2
+
+
+def _savgol_ends(arr: FloatArray, fs_hz: float, d1: FloatArray, d2: FloatArray) -> None:
+    """:func:`savgol_derivatives`' first and last ``SAVGOL_POINTS // 2`` samples into ``d1``
+    and ``d2``: at each end one cubic fitted to the first (last) 11 samples."""
     half, n, dt = SAVGOL_POINTS // 2, arr.size, 1.0 / fs_hz
     at = np.arange(float(SAVGOL_POINTS))
     for start, first in ((0, 0), (n - SAVGOL_POINTS, n - half)):
@@ -65,7 +74,28 @@ def savgol_derivatives(x: FloatArray, fs_hz: float) -> tuple[FloatArray, FloatAr
         points = at[first - start : first - start + half]
         d1[first : first + half] = np.polyval(np.polyder(cubic, 1), points) / dt
         d2[first : first + half] = np.polyval(np.polyder(cubic, 2), points) / dt**2
-    return d1, d2
+
+
+def _savgol_interior(
+    arr: FloatArray, fs_hz: float, lo: int, hi: int, d1: FloatArray, d2: FloatArray
+) -> None:
+    """:func:`savgol_derivatives`' interior samples ``lo … hi − 1`` (``SAVGOL_POINTS // 2 ≤
+    lo``, ``hi ≤ n − SAVGOL_POINTS // 2``) into ``d1`` and ``d2``, nothing else written: each
+    is the convolution at that sample alone, the same numbers bit for bit whatever part of a
+    record it is formed in (the compiled ``savgol_range``, ndimage's on the samples it reads
+    otherwise; tested)."""
+    if hi <= lo:
+        return
+    taps = _savgol_taps(float(fs_hz))
+    if _eureka is not None:
+        _eureka.savgol_range(arr, taps[0], taps[1], lo, hi, d1, d2)
+        return
+    from scipy import ndimage
+
+    half = SAVGOL_POINTS // 2
+    part = arr[lo - half : hi + half]
+    for t, out in zip(taps, (d1, d2), strict=True):
+        out[lo:hi] = ndimage.convolve1d(part, t, mode="constant")[half:-half]
 
 
 @lru_cache(maxsize=8)
@@ -125,10 +155,18 @@ class WindowVafBasis:
         The record (rad, N·m; torque sign-corrected).
     fs_hz : float
         Sampling rate, Hz.
+    derivatives : (numpy.ndarray, numpy.ndarray), optional
+        ``savgol_derivatives(position, fs_hz)`` when already formed (:class:`BasisStore`).
     """
 
-    def __init__(self, position: FloatArray, torque: FloatArray, fs_hz: float) -> None:
-        d1, d2 = savgol_derivatives(position, fs_hz)
+    def __init__(
+        self,
+        position: FloatArray,
+        torque: FloatArray,
+        fs_hz: float,
+        derivatives: tuple[FloatArray, FloatArray] | None = None,
+    ) -> None:
+        d1, d2 = derivatives if derivatives is not None else savgol_derivatives(position, fs_hz)
         # scipy's sosfiltfilt of each row, compiled when built (the same numbers bit for bit)
         low = zero_phase_rows(_basis_lowpass(float(fs_hz)), (torque, d2, d1, position))
         self.torque = low[0]
@@ -231,3 +269,123 @@ class WindowVafBasis:
 def _power(rows: FloatArray) -> FloatArray:
     """Each row's sum of squares."""
     return np.asarray(np.einsum("wn,wn->w", rows, rows), dtype=np.float64)
+
+
+#: A :class:`BasisStore`'s buffers hold this many records' length (a record moved to their
+#: start when it would run past their end: once every few fits).
+STORE_RECORDS = 3
+
+
+class BasisStore:
+    """Window VAF bases whose Savitzky–Golay rows carry over from one record to the next.
+
+    The slow lane's evidence basis spans the newest 11 s of each fit's horizon, and
+    consecutive fits share 9 of them. A derivative at a sample away from a record's ends is
+    the convolution of the 11 position samples around it: the same numbers bit for bit in any
+    record holding those samples. So the store keeps the last record's position and
+    derivatives by absolute sample index and forms only what is new: the samples not in the
+    last record, and each end's cubic. What it carries is checked, not assumed: the samples
+    behind every carried derivative must equal the kept ones bit for bit (a record of other
+    data at the same indices carries nothing). The 40 Hz low-pass after it is formed afresh:
+    run forwards from a record's start and backwards from its end, it does not give the same
+    bits on the shared samples of two records (measured: its states stay apart by rounding).
+
+    Memory: ``STORE_RECORDS`` records' length of position and two derivatives (≈ 2 MB at
+    2500 Hz and 11 s). Thread-safe (one basis formed at a time).
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._forget()
+
+    def clear(self) -> None:
+        """Forget the kept record (e.g. when the next record's samples were bridged)."""
+        with self._lock:
+            self._forget()
+
+    def _forget(self) -> None:
+        self._fs_hz = 0.0
+        self._origin = 0  # absolute index of the buffers' first sample
+        self._x = np.empty(0)  # position, by absolute index − origin
+        self._d = np.empty((2, 0))  # first and second derivative, likewise
+        self._interior = (0, 0)  # absolute [a, b): kept derivatives formed as interior ones
+        #: Derivatives the last :meth:`basis` carried over instead of forming them (samples).
+        self.carried = 0
+
+    def basis(
+        self, position: FloatArray, torque: FloatArray, fs_hz: float, first_index: int
+    ) -> WindowVafBasis:
+        """``WindowVafBasis(position, torque, fs_hz)``, the same numbers bit for bit, with the
+        derivatives of the samples it shares with the last record carried over.
+
+        Parameters
+        ----------
+        position, torque : numpy.ndarray, shape (N,)
+            The record (rad, N·m; torque sign-corrected).
+        fs_hz : float
+            Sampling rate, Hz.
+        first_index : int
+            Absolute index of the record's first sample (a sample's index says which
+            sample it is from record to record).
+        """
+        arr = np.ascontiguousarray(position, dtype=np.float64)
+        with self._lock:
+            d1, d2 = self._derivatives(arr, float(fs_hz), int(first_index))
+            return WindowVafBasis(arr, torque, fs_hz, derivatives=(d1, d2))
+
+    def _derivatives(
+        self, x: FloatArray, fs_hz: float, first: int
+    ) -> tuple[FloatArray, FloatArray]:
+        """:func:`savgol_derivatives` of ``x`` (samples ``first …``) as views of the buffers,
+        valid until the next call; the buffers then hold ``x`` and them."""
+        n, half = x.size, SAVGOL_POINTS // 2
+        if n < 2 * SAVGOL_POINTS:
+            self._forget()
+            return savgol_derivatives(x, fs_hz)
+        lo, hi = self._carried_span(x, fs_hz, first)
+        self._make_room(first, n, lo, hi)
+        at = first - self._origin
+        kept_x, d1, d2 = self._x[at : at + n], self._d[0, at : at + n], self._d[1, at : at + n]
+        a, b = lo - first, hi - first  # carried: x[a − half : b + half] and d[a : b]
+        if b > a:
+            kept_x[: a - half] = x[: a - half]
+            kept_x[b + half :] = x[b + half :]
+        else:
+            a = b = half
+            kept_x[:] = x
+        _savgol_interior(x, fs_hz, half, a, d1, d2)
+        _savgol_interior(x, fs_hz, b, n - half, d1, d2)
+        _savgol_ends(x, fs_hz, d1, d2)
+        self._fs_hz, self._interior, self.carried = fs_hz, (first + half, first + n - half), b - a
+        return d1, d2
+
+    def _carried_span(self, x: FloatArray, fs_hz: float, first: int) -> tuple[int, int]:
+        """The absolute samples ``[lo, hi)`` whose kept derivatives serve ``x`` (its interior,
+        the kept record's interior, and the samples behind them equal bit for bit); an empty
+        span when none do."""
+        half = SAVGOL_POINTS // 2
+        lo = max(first + half, self._interior[0])
+        hi = min(first + x.size - half, self._interior[1])
+        if fs_hz != self._fs_hz or hi <= lo:
+            return first, first
+        new = x[lo - half - first : hi + half - first].view(np.int64)
+        kept = self._x[lo - half - self._origin : hi + half - self._origin].view(np.int64)
+        return (lo, hi) if np.array_equal(new, kept) else (first, first)
+
+    def _make_room(self, first: int, n: int, lo: int, hi: int) -> None:
+        """Make the buffers hold samples ``first … first + n − 1`` in place, keeping the
+        position over ``[lo − half, hi + half)`` and the derivatives over ``[lo, hi)``."""
+        at = first - self._origin
+        if at >= 0 and at + n <= self._x.size:
+            return
+        size = max(self._x.size, STORE_RECORDS * n)
+        x, d = np.empty(size), np.empty((2, size))
+        if hi > lo:
+            half = SAVGOL_POINTS // 2
+            old, new = (
+                slice(lo - self._origin - half, hi - self._origin + half),
+                slice(lo - first - half, hi - first + half),
+            )
+            x[new] = self._x[old]
+            d[:, new] = self._d[:, old]
+        self._origin, self._x, self._d = first, x, d

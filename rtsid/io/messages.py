@@ -20,6 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from rtsid.ident.levinson import compiled_kernel
 from rtsid.link.counters import LinkCounters
 from rtsid.verdicts import Flag, Reason
 
@@ -161,8 +162,8 @@ class EstimateMessage:
         ``reason``), the stream's track after it, and the flags the caller adds to the
         estimate's own (e.g. ``over_budget``; ignored when withheld). Keys in field order;
         built as a dict, not as the dataclass (the evaluator publishes one every window, a
-        replay builds tens of thousands a minute); an estimate with its track in one dict
-        display, without a call per field."""
+        replay builds tens of thousands a minute): the field values in one tuple, made the
+        JSON object in one step (:func:`_json_object`), without a call per field."""
         if estimate is not None and track is not None:
             return _estimate_dict(
                 estimate,
@@ -189,7 +190,7 @@ class EstimateMessage:
         if track is not None:
             tracked = (track.K, track.K_se, track.B, track.B_se)
         k_track, k_track_se, b_track, b_track_se = tracked
-        values = [
+        values = (
             robot,
             joint,
             last / fs_hz,
@@ -220,22 +221,14 @@ class EstimateMessage:
             latency_ms,
             reflex_seq,
             time.time_ns(),
-        ]
-        isfinite = math.isfinite
-        for j in _NUMBER_POSITIONS:  # the number fields: JSON has no NaN
-            value = values[j]
-            if value is not None and not isfinite(value):
-                values[j] = None
-        return dict(zip(_ESTIMATE_NAMES, values, strict=True))
+        )
+        return _json_object(values)  # the number fields finite or None: JSON has no NaN
 
     def as_dict(self) -> dict[str, Any]:
         """The JSON object: non-finite numbers as ``None``, flags as a list."""
         out = _json_object(_estimate_values(self))
         out["flags"] = list(self.flags)
         return out
-
-
-_INF = math.inf
 
 
 def _estimate_dict(
@@ -252,49 +245,46 @@ def _estimate_dict(
     latency_ms: float | None,
     reflex_seq: int | None,
 ) -> dict[str, Any]:
-    """:meth:`EstimateMessage.window_dict` of an estimate and its track: the keys in field
-    order, each number field finite or None (``-inf < x < inf`` is false for NaN and ±inf, as
-    ``math.isfinite``), without a call per field (tests/io/test_messages.py holds it to the
-    dataclass's JSON object)."""
-    inf = _INF
-    k_track, k_track_se, b_track, b_track_se = track.K, track.K_se, track.B, track.B_se
-    k, k_se, b, b_se, i, i_se = e.K, e.K_se, e.B, e.B_se, e.I, e.I_se
-    vaf, vaf_irf, vaf_fit = e.vaf, e.vaf_irf, e.vaf_fit
-    return {
-        "robot": robot,
-        "joint": joint,
-        "t_end_s": last / fs_hz,
-        "K_track": k_track if -inf < k_track < inf else None,
-        "K_track_se": k_track_se if -inf < k_track_se < inf else None,
-        "K": k if -inf < k < inf else None,
-        "K_se": k_se if -inf < k_se < inf else None,
-        "B": b if -inf < b < inf else None,
-        "B_se": b_se if -inf < b_se < inf else None,
-        "B_held": e.B_held,
-        "I": i if -inf < i < inf else None,
-        "I_se": i_se if -inf < i_se < inf else None,
-        "I_held": e.I_held,
-        "vaf": vaf if -inf < vaf < inf else None,
-        "ok": True,
-        "reason": None,
-        "flags": [*e.flags, *flags],
-        "B_track": b_track if -inf < b_track < inf else None,
-        "B_track_se": b_track_se if -inf < b_track_se < inf else None,
-        "vaf_irf": vaf_irf if -inf < vaf_irf < inf else None,
-        "vaf_fit": vaf_fit if -inf < vaf_fit < inf else None,
-        "lost_samples": e.lost_samples,
-        "seq": seq,
-        "window_start_index": first,
-        "window_end_index": last,
-        "t_start_s": first / fs_hz,
-        "compute_ms": compute_ms if compute_ms is None or -inf < compute_ms < inf else None,
-        "latency_ms": latency_ms if latency_ms is None or -inf < latency_ms < inf else None,
-        "reflex_seq": reflex_seq,
-        "host_time_ns": time.time_ns(),
-    }
+    """:meth:`EstimateMessage.window_dict` of an estimate and its track: its field values in
+    one tuple, made the JSON object by :func:`_json_object` (tests/io/test_messages.py holds it
+    to the dataclass's JSON object)."""
+    return _json_object(
+        (
+            robot,
+            joint,
+            last / fs_hz,
+            track.K,
+            track.K_se,
+            e.K,
+            e.K_se,
+            e.B,
+            e.B_se,
+            e.B_held,
+            e.I,
+            e.I_se,
+            e.I_held,
+            e.vaf,
+            True,
+            None,
+            [*e.flags, *flags],
+            track.B,
+            track.B_se,
+            e.vaf_irf,
+            e.vaf_fit,
+            e.lost_samples,
+            seq,
+            first,
+            last,
+            first / fs_hz,
+            compute_ms,
+            latency_ms,
+            reflex_seq,
+            time.time_ns(),
+        )
+    )
 
 
-def _json_object(values: Sequence[Any]) -> dict[str, Any]:
+def _json_object_reference(values: Sequence[Any]) -> dict[str, Any]:
     """An estimate message's field values as its JSON object: non-finite floats (JSON has no
     NaN) as None."""
     isfinite = math.isfinite
@@ -304,17 +294,20 @@ def _json_object(values: Sequence[Any]) -> dict[str, Any]:
     }
 
 
+def _json_object(values: Sequence[Any]) -> dict[str, Any]:
+    """:func:`_json_object_reference` of a tuple of values, in one compiled call when the
+    kernel was built (``finite_dict``: the dict sized once for its 30 keys; a dict display
+    that long is built as two dicts merged)."""
+    if _FINITE_DICT is not None and type(values) is tuple:
+        return _FINITE_DICT(_ESTIMATE_NAMES, values)
+    return _json_object_reference(values)
+
+
 #: The estimate message's field names, in order (the JSON keys, the CSV columns).
 _ESTIMATE_NAMES = tuple(f.name for f in dataclasses.fields(EstimateMessage))
+_FINITE_DICT = getattr(compiled_kernel(), "finite_dict", None)
 #: An estimate message's field values, in that order.
 _estimate_values = operator.attrgetter(*_ESTIMATE_NAMES)
-#: Where the fields typed ``float`` (or ``float | None``) are in that order.
-_NUMBER_POSITIONS = tuple(
-    j
-    for j, f in enumerate(dataclasses.fields(EstimateMessage))
-    if f.type in ("float", "float | None")
-)
-
 
 #: What an estimate message takes from the window's estimate (None when withheld).
 _WINDOW_NUMBERS = (

@@ -192,7 +192,7 @@ class DaemonConfig:
             estimator=section_from_mapping(
                 EstimatorOptions, document.get("estimator"), "estimator"
             ),
-            worker=WorkerConfig.from_mapping(document.get("worker")),
+            worker=WorkerConfig.from_mapping(document.get("worker"), base_dir),
             slow_lane=section_from_mapping(
                 SlowLaneSettings, document.get("slow_lane"), "slow_lane"
             ),

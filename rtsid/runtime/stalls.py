@@ -16,6 +16,18 @@ rest, asleep while runnable work waited — the GIL held by another thread. A mi
 overlapped nothing is counted under the largest of the three (``nothing seen: waiting for a
 CPU`` is the machine's other work, not the daemon's), and every miss under ``miss_waits``.
 
+A miss line also carries the worker thread's counters over the window (user and system CPU,
+page faults, context switches: :class:`~rtsid.runtime.stages.Usage`, read by the stage log)
+and the host's since the housekeeping tick before it (:class:`HostCounters`: steal time,
+interrupts, and ``/proc/vmstat``'s compaction stalls, huge-page faults and major faults), so
+a window whose CPU ran long says whether its kernel, its neighbours or the host took it.
+
+Garbage collections are timed in wall and in the collecting thread's CPU time; the longest
+since the daemon began running windows (:meth:`StallJournal.running`) is kept with its
+generation (:attr:`StallJournal.longest_gc`), apart from the start-up's. Spans are kept as
+plain tuples of a string and two floats, which the collector stops tracking at their first
+collection: the kept spans (thousands) are not walked by every later full collection.
+
 Times are ``time.perf_counter()`` s. The journal's own cost: two ``perf_counter`` calls and
 a deque append per collection and per housekeeping step; the worker reads its run-queue
 clock once per window (a ``pread`` of a proc file, ≈ 5 µs), before the window's clock starts.
@@ -28,16 +40,24 @@ import contextlib
 import gc
 import math
 import os
-import resource
 import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 from rtsid.runtime.stages import WindowStages
 
-__all__ = ["WAITS", "Miss", "RunQueueClock", "Span", "StallJournal", "thread_page_faults"]
+__all__ = [
+    "WAITS",
+    "GcPause",
+    "HostCounters",
+    "HostReading",
+    "Miss",
+    "RunQueueClock",
+    "Span",
+    "StallJournal",
+]
 
 #: Spans kept (collections and housekeeping steps): minutes of a daemon's life at a 4 ms hop.
 SPANS_KEPT = 8192
@@ -98,19 +118,95 @@ class RunQueueClock:
             os.close(fd)
 
 
-#: ``getrusage``'s per-thread counters (Linux; None elsewhere).
-_RUSAGE_THREAD: int | None = getattr(resource, "RUSAGE_THREAD", None)
+class HostReading(NamedTuple):
+    """The machine's counters at one time (:meth:`HostCounters.read`), or their change over a
+    span (:meth:`since`): ``at_s`` (``perf_counter``; over a span, its length), the
+    hypervisor's steal time (all CPUs, ms; ``/proc/stat``, 10 ms ticks), interrupts served
+    (all CPUs) and ``/proc/vmstat``'s direct compaction stalls, transparent huge pages
+    allocated at a fault, and major faults."""
+
+    at_s: float
+    steal_ms: float
+    interrupts: int
+    compact_stall: int
+    thp_fault_alloc: int
+    pgmajfault: int
+
+    def since(self, earlier: HostReading) -> HostReading:
+        """The change from ``earlier`` to this reading."""
+        return HostReading(
+            self.at_s - earlier.at_s,
+            self.steal_ms - earlier.steal_ms,
+            self.interrupts - earlier.interrupts,
+            self.compact_stall - earlier.compact_stall,
+            self.thp_fault_alloc - earlier.thp_fault_alloc,
+            self.pgmajfault - earlier.pgmajfault,
+        )
+
+    def describe(self) -> str:
+        """``host over 0.06 s: steal 0 ms, 312 interrupts, compact_stall 0, …``"""
+        return (
+            f"host over {self.at_s:.2f} s: steal {self.steal_ms:.0f} ms, {self.interrupts} "
+            f"interrupts, compact_stall {self.compact_stall}, thp_fault_alloc "
+            f"{self.thp_fault_alloc}, pgmajfault {self.pgmajfault}"
+        )
 
 
-def thread_page_faults() -> int | None:
-    """Page faults (minor and major) of the calling thread since it started, or None where
-    the platform does not count per thread: a window's faults are kernel time charged to the
-    worker's CPU (a fresh page zeroed, a huge page among them), which its own arithmetic
-    does not explain."""
-    if _RUSAGE_THREAD is None:
-        return None
-    usage = resource.getrusage(_RUSAGE_THREAD)
-    return int(usage.ru_minflt + usage.ru_majflt)
+class HostCounters:
+    """Reads the machine's :class:`HostReading` from ``/proc/stat`` and ``/proc/vmstat`` (one
+    ``read`` of each and a few ``bytes.find``: ≈ 20 µs, the kernel's formatting of the files
+    most of it; a tick's and a missed window's, not every window's). None where either file
+    is missing or unreadable."""
+
+    STAT, VMSTAT = "/proc/stat", "/proc/vmstat"
+    VMSTAT_FIELDS = (b"compact_stall", b"thp_fault_alloc", b"pgmajfault")
+
+    def __init__(self) -> None:
+        self._tick_ms = 1e3 / os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 10.0
+
+    @staticmethod
+    def _contents(path: str) -> bytes:
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            return b"\n" + os.read(fd, 1 << 16)  # a line break before the first line too
+        finally:
+            os.close(fd)
+
+    @staticmethod
+    def _number_after(text: bytes, key: bytes) -> int:
+        """The number after ``key`` at the start of a line of ``text`` (0: no such line)."""
+        at = text.find(b"\n" + key + b" ")
+        if at < 0:
+            return 0
+        at += len(key) + 2
+        end = text.find(b"\n", at)
+        return int(text[at : end if end >= 0 else len(text)].split(b" ", 1)[0])
+
+    def read(self) -> HostReading | None:
+        """The counters now (None: not available)."""
+        at = time.perf_counter()
+        try:
+            stat, vmstat = self._contents(self.STAT), self._contents(self.VMSTAT)
+            cpu = stat[1 : stat.index(b"\n", 1)].split()  # cpu user nice system … steal
+            steal = int(cpu[8]) if len(cpu) > 8 else 0
+            interrupts = self._number_after(stat, b"intr")
+            counts = [self._number_after(vmstat, name) for name in self.VMSTAT_FIELDS]
+        except (OSError, ValueError):
+            return None
+        return HostReading(at, steal * self._tick_ms, interrupts, *counts)
+
+
+class GcPause(NamedTuple):
+    """One garbage collection: its generation, wall time and the collecting thread's CPU
+    time, ms."""
+
+    generation: int
+    ms: float
+    cpu_ms: float
+
+    def describe(self) -> str:
+        """``gen 2, 3.10 ms (CPU 2.95 ms)``"""
+        return f"gen {self.generation}, {self.ms:.2f} ms (CPU {self.cpu_ms:.2f} ms)"
 
 
 @dataclass(frozen=True)
@@ -137,8 +233,8 @@ class Miss:
     overlapped: tuple[Span, ...]
     cpu_ms: float | None = None  # the worker thread's CPU time over the compute span
     cpu_wait_ms: float | None = None  # of the span, runnable but not running (run queue)
-    page_faults: int | None = None  # the worker thread's page faults over the span
-    stages: WindowStages | None = None  # the worker's CPU by stage of the window
+    stages: WindowStages | None = None  # the worker's CPU by stage, and its counters
+    host: HostReading | None = None  # the host's counters since the tick before the window
 
     @property
     def wall_ms(self) -> float:
@@ -163,13 +259,12 @@ class Miss:
         cpu = "" if self.cpu_ms is None else f" (of it on CPU {self.cpu_ms:.2f} ms"
         if cpu and self.cpu_wait_ms is not None:
             cpu += f", waiting for a CPU {self.cpu_wait_ms:.2f} ms"
-        if cpu and self.page_faults is not None:
-            cpu += f", {self.page_faults} page faults"
         cpu += ")" if cpu else ""
         stages = "" if self.stages is None else f"; {self.stages.describe()}"
+        host = "" if self.host is None else f"; {self.host.describe()}"
         return (
             f"deadline miss: window ending {self.window_end_index}, compute "
-            f"{1e3 * (self.end_s - self.start_s):.2f} ms{cpu}; during it: {during}{stages}"
+            f"{1e3 * (self.end_s - self.start_s):.2f} ms{cpu}; during it: {during}{stages}{host}"
         )
 
 
@@ -182,9 +277,19 @@ class StallJournal:
     """
 
     def __init__(self) -> None:
-        self._spans: collections.deque[Span] = collections.deque(maxlen=SPANS_KEPT)
+        # (name, start s, end s): plain tuples, untracked by the collector once it saw them
+        self._spans: collections.deque[tuple[str, float, float]] = collections.deque(
+            maxlen=SPANS_KEPT
+        )
         self._misses: collections.deque[Miss] = collections.deque(maxlen=MISSES_KEPT)
         self._gc_started: dict[int, float] = {}  # thread id -> collection start
+        self._gc_cpu_started: dict[int, int] = {}  # thread id -> its CPU clock then, ns
+        self._running_windows = False  # the daemon runs windows (after its start-up)
+        #: the longest collection since :meth:`running`, and the longest before it
+        self.longest_gc: GcPause | None = None
+        self.longest_startup_gc: GcPause | None = None
+        self._host = HostCounters()
+        self._host_tick: HostReading | None = None  # the latest :meth:`note_host`
         self._running: dict[object, tuple[str, float]] = {}  # steps begun: name, start
         self.collections = [0, 0, 0]  # by generation
         self.gc_ms = [0.0, 0.0, 0.0]  # time in collections, by generation
@@ -205,18 +310,44 @@ class StallJournal:
             gc.callbacks.remove(self._on_gc)
 
     # ------------------------------------------------------------------ recording
+    def running(self) -> None:
+        """The daemon's start-up is over: collections from now on are the running daemon's
+        (:attr:`longest_gc`)."""
+        self._running_windows = True
+
     def _on_gc(self, phase: str, info: dict[str, Any]) -> None:
         now = time.perf_counter()
+        cpu_now = time.thread_time_ns()
         thread = threading.get_ident()
         if phase == "start":
             self._gc_started[thread] = now
+            self._gc_cpu_started[thread] = cpu_now
             return
         started = self._gc_started.pop(thread, now)
+        cpu_ms = 1e-6 * (cpu_now - self._gc_cpu_started.pop(thread, cpu_now))
         generation = int(info.get("generation", 0))
         self.collections[generation] += 1
         self.gc_ms[generation] += 1e3 * (now - started)
+        pause = GcPause(generation, 1e3 * (now - started), cpu_ms)
+        if self._running_windows:
+            if self.longest_gc is None or pause.ms > self.longest_gc.ms:
+                self.longest_gc = pause
+        elif self.longest_startup_gc is None or pause.ms > self.longest_startup_gc.ms:
+            self.longest_startup_gc = pause
         name = f"gc gen {generation} ({threading.current_thread().name})"
-        self._spans.append(Span(name, started, now))
+        self._spans.append((name, started, now))
+
+    def note_host(self) -> None:
+        """Read the host's counters (the housekeeping tick): a miss's are taken since."""
+        self._host_tick = self._host.read()
+
+    def host_since_tick(self) -> HostReading | None:
+        """The host's counters since the latest :meth:`note_host` (None: not read)."""
+        before = self._host_tick
+        if before is None:
+            return None
+        now = self._host.read()
+        return None if now is None else now.since(before)
 
     @contextlib.contextmanager
     def step(self, name: str) -> Iterator[None]:
@@ -228,7 +359,7 @@ class StallJournal:
             yield
         finally:
             del self._running[key]
-            self._spans.append(Span(name, started, time.perf_counter()))
+            self._spans.append((name, started, time.perf_counter()))
 
     def miss(
         self,
@@ -237,17 +368,15 @@ class StallJournal:
         end_s: float,
         cpu_ms: float | None = None,
         cpu_wait_ms: float | None = None,
-        page_faults: int | None = None,
         stages: WindowStages | None = None,
+        host: HostReading | None = None,
     ) -> None:
         """A window whose compute ran from ``start_s`` to ``end_s`` (``cpu_ms`` of it on the
-        worker's CPU, ``cpu_wait_ms`` waiting for one, ``page_faults`` taken by the worker
-        and its CPU by stage, when known) missed its deadline."""
+        worker's CPU, ``cpu_wait_ms`` waiting for one, its CPU by stage and counters, and the
+        host's counters since the tick before it, when known) missed its deadline."""
         running = [Span(f"{name} (still running)", t0, end_s) for name, t0 in self._running_now()]
         overlapped = (*self._spans_overlapping(start_s, end_s), *running)
-        miss = Miss(
-            window_end_index, start_s, end_s, overlapped, cpu_ms, cpu_wait_ms, page_faults, stages
-        )
+        miss = Miss(window_end_index, start_s, end_s, overlapped, cpu_ms, cpu_wait_ms, stages, host)
         self._misses.append(miss)
         wait = miss.dominant_wait()
         unseen = "nothing seen" if wait is None else f"nothing seen: {wait}"
@@ -265,11 +394,11 @@ class StallJournal:
         the next window)."""
         found = []
         oldest_end = start_s - SPAN_ORDER_SLACK_S
-        for span in reversed(list(self._spans)):  # the copy: other threads append meanwhile
-            if span.end_s < oldest_end:
+        for name, began, ended in reversed(list(self._spans)):  # a copy: others append
+            if ended < oldest_end:
                 break
-            if span.end_s >= start_s and span.start_s <= end_s:
-                found.append(span)
+            if ended >= start_s and began <= end_s:
+                found.append(Span(name, began, ended))
         found.reverse()
         return found
 
@@ -280,6 +409,10 @@ class StallJournal:
         return steps + collections_
 
     # ------------------------------------------------------------------ reading
+    def spans(self) -> list[Span]:
+        """The kept spans, in the order they ended (to within a thread switch)."""
+        return [Span(*span) for span in list(self._spans)]
+
     def drain_misses(self) -> list[Miss]:
         """Misses recorded since the last call, oldest first."""
         out = []
@@ -314,3 +447,19 @@ class StallJournal:
     def causes(self) -> dict[str, int]:
         """Misses by what overlapped them (a miss counts once per kind of span)."""
         return dict(self.miss_causes)
+
+    def gc_counters(self) -> dict[str, Any]:
+        """The collections for the status: by generation (count, wall ms), the longest since
+        the daemon ran windows and at its start-up (``[generation, ms, CPU ms]``, None: none
+        yet), and the objects frozen out of the collector's view (``gc.freeze``)."""
+
+        def plain(pause: GcPause | None) -> list[float] | None:
+            return None if pause is None else [pause[0], round(pause[1], 3), round(pause[2], 3)]
+
+        return {
+            "gc_collections": list(self.collections),
+            "gc_ms": [round(ms, 3) for ms in self.gc_ms],
+            "gc_longest": plain(self.longest_gc),
+            "gc_longest_startup": plain(self.longest_startup_gc),
+            "gc_frozen": gc.get_freeze_count(),
+        }

@@ -17,16 +17,14 @@ counted as overruns); compute beyond the budget counts a deadline miss.
 from __future__ import annotations
 
 import logging
-import math
 import os
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from rtsid.config import require_range, section_from_mapping
 from rtsid.errors import (
@@ -36,7 +34,7 @@ from rtsid.errors import (
     TorqueSignError,
     WindowError,
 )
-from rtsid.ident.check import window_sums
+from rtsid.ident.check import window_scan
 from rtsid.ident.grid import first_window_end
 from rtsid.ident.records import built
 from rtsid.ident.reflex import ReflexStream
@@ -47,6 +45,7 @@ from rtsid.ident.tracker import TrackerOptions
 from rtsid.ident.window import EstimatorOptions, WindowEstimate
 from rtsid.io.calibration import Calibration, load_calibration
 from rtsid.io.messages import EstimateMessage, ReflexMessage
+from rtsid.io.recording import GridColumns
 from rtsid.lifecycle import ThreadOwner
 from rtsid.link.protocol import (
     STATUS_DISCONTINUITY,
@@ -56,7 +55,7 @@ from rtsid.link.protocol import (
 from rtsid.link.ring import RingBuffer, Snapshot
 from rtsid.runtime.gate import WindowGate
 from rtsid.runtime.stages import StageLog
-from rtsid.runtime.stalls import RunQueueClock, StallJournal, thread_page_faults
+from rtsid.runtime.stalls import RunQueueClock, StallJournal
 from rtsid.verdicts import Flag, Reason
 
 __all__ = ["OVERRUN_CAUSES", "WindowWorker", "WorkerConfig", "WorkerCounters", "assess_window"]
@@ -91,9 +90,10 @@ class WorkerConfig:
         A window whose newest sample arrived longer ago than this is ``stale``.
     calibration_file : str
         Robot-dynamics calibration (``rtsid calibrate``) whose predicted robot torque is
-        subtracted from every window before identification ("": none). A relative path is
-        taken from the working directory and kept absolute (so a recording's stored config
-        still finds it when replayed from elsewhere).
+        subtracted from every window before identification ("": none). In a config file, a
+        relative path is taken from the file's folder (as ``protocol.dbc`` and
+        ``plant.player_file``); elsewhere from the working directory. It is kept absolute (so a
+        recording's stored config still finds it when replayed from elsewhere).
     """
 
     window_s: float = 0.3
@@ -116,8 +116,15 @@ class WorkerConfig:
                 raise ConfigError(f"config key 'worker.calibration_file': {exc}") from None
 
     @classmethod
-    def from_mapping(cls, mapping: Any) -> WorkerConfig:
-        """Build from the ``[worker]`` TOML table."""
+    def from_mapping(cls, mapping: Any, base_dir: str | Path | None = None) -> WorkerConfig:
+        """Build from the ``[worker]`` TOML table; a relative ``calibration_file`` is taken
+        from ``base_dir`` (the config file's folder) when given."""
+        calibration = mapping.get("calibration_file") if isinstance(mapping, Mapping) else None
+        if base_dir is not None and isinstance(calibration, str) and calibration:
+            mapping = {
+                **mapping,
+                "calibration_file": str(Path(base_dir) / Path(calibration).expanduser()),
+            }
         return section_from_mapping(cls, mapping, "worker")
 
     @property
@@ -152,6 +159,21 @@ class WorkerCounters:
     gc_ms: list[float] = field(default_factory=list)
     miss_stages: dict[str, int] = field(default_factory=dict)
     costly_stages: dict[str, int] = field(default_factory=dict)
+    #: missed windows, and costly ones missed or not, by why their CPU ran long
+    #: (:data:`rtsid.runtime.stages.CPU_CAUSES`)
+    miss_cpu_causes: dict[str, int] = field(default_factory=dict)
+    costly_causes: dict[str, int] = field(default_factory=dict)
+    #: windows whose worker thread took page faults, and those faults (getrusage); of them,
+    #: in the compiled call
+    faulted_windows: int = 0
+    window_faults: int = 0
+    faulted_calls: int = 0
+    call_faults: int = 0
+    #: the longest collection while running windows, and at start-up:
+    #: ``[generation, wall ms, CPU ms]`` (None: none)
+    gc_longest: list[float] | None = None
+    gc_longest_startup: list[float] | None = None
+    gc_frozen: int = 0  # objects moved out of the collector's view (gc.freeze)
 
 
 def assess_window(
@@ -168,8 +190,7 @@ def assess_window(
     max_age_s : float
         Largest acceptable age of the newest sample, s.
     all_valid : bool, optional
-        Whether every row of ``snap`` is valid, when the caller knows it already (default:
-        read from ``snap.valid``).
+        Ignored (the one pass over the rows reads it anyway); kept for callers that pass it.
 
     Returns
     -------
@@ -181,24 +202,22 @@ def assess_window(
     """
     if now_s - float(snap.host_time_s[-1]) > max_age_s:
         return Reason.STALE
-    raised = int(np.bitwise_or.reduce(snap.status))  # every row's status bits, one pass
+    rows = len(snap)
+    raised, _, finite = window_scan(
+        snap.position_rad, snap.torque_nm, snap.valid, snap.status, 0, rows
+    )
+    return scanned_reason(raised, finite)
+
+
+def scanned_reason(raised: int, finite: bool) -> Reason | None:
+    """What a window's rows say against estimating it (:func:`~rtsid.ident.check.window_scan`
+    read them): its rows' status bits ``raised`` and whether its valid rows are ``finite``;
+    None when nothing does."""
     if raised & STATUS_DISCONTINUITY:
         return Reason.GAP  # the signal itself jumps: no sum over valid samples bridges that
     if raised & _SATURATED:
         return Reason.SATURATED
-    valid = snap.valid  # lost rows hold no value (a recording stores NaN there)
-    if all_valid is None:
-        all_valid = bool(np.logical_and.reduce(valid))
-    position, torque = (
-        (snap.position_rad, snap.torque_nm)
-        if all_valid
-        else (
-            snap.position_rad[valid],
-            snap.torque_nm[valid],
-        )
-    )
-    position_sum, torque_sum, _ = window_sums(position, torque)  # finite iff every term is
-    if not (math.isfinite(position_sum) and math.isfinite(torque_sum)):
+    if not finite:  # lost rows hold no value (a recording stores NaN there): not counted
         return Reason.NAN
     return None
 
@@ -294,6 +313,7 @@ class WindowEvaluator:
             ReflexStream.prepare(fs_hz, reflex.settings.cascade().fs_out_hz)
         self.reflex_flagged: Counter[str] = Counter()
         self.last_reflex = _NO_REFLEX  # the slow lane's part in the latest window
+        self._unapplied = _NO_REFLEX  # the latest model judged absent from the data, as used
         # a replay following a live run: window end -> (reflex_seq, absent, stale) as live had
         self.recorded_reflex: dict[int, tuple[int | None, bool, bool]] | None = None
         # ... and the windows it withheld as stale (its samples' age is not in a recording)
@@ -308,6 +328,9 @@ class WindowEvaluator:
         self.compute_cpu_s = 0.0  # every window's CPU time, summed
         self.sign = SignCount()  # windows reading K, B, I < 0 (rtsid.ident.sign)
         self.stages: StageLog | None = None  # the per-window stage log (live: the worker's)
+        # read every window: the staleness limit (live) and the compute budget, s
+        self._max_age_s = config.max_sample_age_s
+        self._budget_s = config.effective_budget_s
 
     def log_stages(self, stages: StageLog | None) -> None:
         """Mark each stage of every window in ``stages`` (None: stop; replay logs none)."""
@@ -357,30 +380,82 @@ class WindowEvaluator:
         started_cpu_s : float, optional
             ``thread_time()`` then, on this thread (default: now).
         """
+        first = int(snap.sample_index[0])
+        columns = (snap.position_rad, snap.torque_nm, snap.valid, snap.status, first)
+        arrival = float(snap.host_time_s[-1]) if self.live else None
+        return self.evaluate_rows(
+            columns,
+            first,
+            first + len(snap),
+            arrival_s=arrival,
+            started_s=started_s,
+            started_cpu_s=started_cpu_s,
+        )
+
+    def evaluate_rows(
+        self,
+        columns: GridColumns,
+        start: int,
+        stop: int,
+        *,
+        arrival_s: float | None = None,
+        started_s: float | None = None,
+        started_cpu_s: float | None = None,
+    ) -> dict[str, Any]:
+        """:meth:`evaluate` of samples ``start .. stop − 1`` held in ``columns`` (replay: the
+        recording's grid, whose windows are rows of the same columns; no snapshot cut).
+
+        Parameters
+        ----------
+        columns : tuple
+            Position (rad), torque (N·m), valid and status columns, and the sample index of
+            their row 0 (:meth:`rtsid.io.recording.SampleGrid.buffers`).
+        start, stop : int
+            The window's samples, after up to :attr:`history_samples` of history.
+        arrival_s : float, optional
+            ``time.monotonic()`` when the newest sample arrived (live; None: recorded
+            samples, never stale).
+        started_s, started_cpu_s : float, optional
+            As :meth:`evaluate`.
+        """
         started = time.perf_counter() if started_s is None else started_s
         started_cpu = time.thread_time() if started_cpu_s is None else started_cpu_s
-        window = snap.tail(self.window_samples)
-        arrival = float(window.host_time_s[-1]) if self.live else None
-        now = time.monotonic() if arrival is not None else math.inf
-        max_age = self.config.max_sample_age_s if self.live else math.inf
-        all_valid = bool(np.logical_and.reduce(window.valid))  # read once, used twice
-        reason = assess_window(window, now, max_age, all_valid)
-        first, last = int(window.sample_index[0]), int(window.sample_index[-1])
-        if reason is None and last in self.recorded_stale:
-            reason = Reason.STALE  # live withheld it so; the tracker steps alike
+        position, torque, valid, status, base = columns
+        last = stop - 1
+        first = max(start, stop - self.window_samples)
+        lo, hi = first - base, stop - base  # the window's rows
+        all_valid = True
+        if arrival_s is not None and self._stale(arrival_s, last):
+            reason: Reason | None = Reason.STALE
+        else:
+            raised, all_valid, finite = window_scan(position, torque, valid, status, lo, hi)
+            reason = scanned_reason(raised, finite) if raised or not finite else None
+            if reason is None and last in self.recorded_stale:
+                reason = Reason.STALE  # live withheld it so; the tracker steps alike
         stages = self.stages
         if stages is not None:
             stages.mark("window check")
         reflex = _NO_REFLEX
         if reason is None and self.reflex is not None:
-            reflex = self._reflex_torque(snap)
+            reflex = self._reflex_torque(position, valid, start - base, hi, start)
         self.last_reflex = reflex
-        estimate, reason = self._estimate(window, reason, reflex.torque, all_valid)
+        estimate = None
+        if reason is None:
+            window_valid = None if all_valid else valid[lo:hi]
+            estimate, reason = self._estimate(
+                position[lo:hi], torque[lo:hi], window_valid, reflex.torque
+            )
+        else:
+            self.withheld[reason] += 1
         if stages is not None:
             stages.mark("assembly")  # the estimate's rest (all of it, step by step)
         track = self.stream.track(last / self.fs_hz, estimate)  # every evaluated window steps it
+        # the window's compute time: wall (the deadline's) and this thread's CPU
         compute_s = time.perf_counter() - started
-        self._count_compute(compute_s, time.thread_time() - started_cpu)
+        cpu_s = time.thread_time() - started_cpu
+        self.compute_ms, self.compute_cpu_ms = compute_s * 1e3, cpu_s * 1e3
+        self.compute_s += compute_s
+        self.compute_cpu_s += cpu_s
         if stages is not None:
             stages.mark("tracker")
             stages.reflex_used(reflex.seq)
@@ -388,7 +463,7 @@ class WindowEvaluator:
         if overrun:
             self.misses += 1
         message = self._message(
-            first, last, estimate, reason, compute_s, arrival, reflex, track, overrun
+            first, last, estimate, reason, compute_s, arrival_s, reflex, track, overrun
         )
         if stages is not None:
             stages.mark("message")
@@ -397,17 +472,15 @@ class WindowEvaluator:
             stages.mark("publish")
         return message
 
-    def _count_compute(self, wall_s: float, cpu_s: float) -> None:
-        """Add one window's compute time: wall (the deadline's) and this thread's CPU."""
-        self.compute_ms = wall_s * 1e3
-        self.compute_cpu_ms = cpu_s * 1e3
-        self.compute_s += wall_s
-        self.compute_cpu_s += cpu_s
+    def _stale(self, arrival_s: float, window_end: int) -> bool:
+        """A live window (ending at sample ``window_end``) whose newest sample arrived (at
+        ``arrival_s``, ``time.monotonic()``) longer than ``max_sample_age_s`` ago."""
+        return time.monotonic() - arrival_s > self._max_age_s
 
     def _over_budget(self, compute_s: float) -> bool:
         """A live window whose compute overran the budget (recorded samples have no deadline:
         a replay's numbers and flags never depend on how busy the computer was)."""
-        return self.live and compute_s > self.config.effective_budget_s
+        return self.live and compute_s > self._budget_s
 
     def publish_stale(self, end_index: int) -> None:
         """No samples are arriving: say so once per hop for the window that is due.
@@ -422,10 +495,14 @@ class WindowEvaluator:
             self._message(start, end_index, None, Reason.STALE, 0.0, None, _NO_REFLEX, track)
         )
 
-    def _reflex_torque(self, snap: Snapshot) -> _ReflexUse:
-        """The due reflex model's torque over the window, in the recorded torque's sign."""
+    def _reflex_torque(
+        self, position: Any, valid: Any, lo: int, hi: int, first_index: int
+    ) -> _ReflexUse:
+        """The due reflex model's torque over the window, in the recorded torque's sign, from
+        rows ``lo .. hi − 1`` of the ``position`` and ``valid`` columns (the window and its
+        history; sample ``first_index`` first)."""
         assert self.reflex is not None
-        update, stale = self._due_reflex(int(snap.sample_index[-1]))
+        update, stale = self._due_reflex(first_index + hi - lo - 1)
         stages = self.stages
         if stages is not None:
             stages.mark("reflex model")
@@ -437,17 +514,20 @@ class WindowEvaluator:
             flags = (Flag.REFLEX_STALE,)
             self.reflex_flagged[Flag.REFLEX_STALE] += 1
         if not update.applied:  # the reflex pathway is not in the data: nothing to subtract
-            return built(_ReflexUse, seq=update.seq, torque=None, flags=flags)
-        valid = None if snap.valid.all() else snap.valid
+            unapplied = self._unapplied  # the same for every window of the model
+            if unapplied.seq != update.seq or unapplied.flags != flags:
+                unapplied = self._unapplied = _ReflexUse(update.seq, None, flags)
+            return unapplied
+        rows_valid = valid[lo:hi]
         try:
             predicted = predict_reflex_torque(
                 update.pathway,
-                snap.position_rad,
-                valid,
+                position[lo:hi],
+                None if rows_valid.all() else rows_valid,
                 self.fs_hz,
                 self.window_samples,
                 self.reflex.settings,
-                first_index=int(snap.sample_index[0]),
+                first_index=first_index,
                 stream=self.reflex_stream,
             )
         except InputDataError:  # the history has too many lost samples to predict from
@@ -473,26 +553,18 @@ class WindowEvaluator:
         return self.reflex.update_of(seq), stale
 
     def _estimate(
-        self,
-        snap: Snapshot,
-        reason: Reason | None,
-        reflex_torque: Any = None,
-        all_valid: bool | None = None,
+        self, position: Any, torque: Any, valid: Any, reflex_torque: Any = None
     ) -> tuple[WindowEstimate | None, Reason | None]:
-        if reason is not None:
-            self.withheld[reason] += 1
-            return None, reason
-        torque = snap.torque_nm
+        """The window's estimate, or why it is withheld (counted): ``valid`` None when every
+        row is."""
         if self.calibration is not None:
-            torque = torque - self.calibration.torque_offset(snap.position_rad)
+            torque = torque - self.calibration.torque_offset(position)
         if reflex_torque is not None:
             torque = torque - reflex_torque
-        planned = self.stream.plan is not None
+        stream = self.stream
+        planned = stream.plan is not None
         try:
-            if all_valid is None:
-                all_valid = bool(np.logical_and.reduce(snap.valid))
-            valid = None if all_valid else snap.valid
-            estimate = self.stream.estimate(snap.position_rad, torque, valid, reflex_torque)
+            estimate = stream.estimate(position, torque, valid, reflex_torque)
         except WindowError as exc:
             self.withheld[exc.reason] += 1
             return None, exc.reason
@@ -501,8 +573,8 @@ class WindowEvaluator:
             return None, Reason.NUMERICAL
         self.estimates += 1
         self._refuse_inverted_sign(estimate)
-        if not planned and self.stream.plan is not None:
-            log.info("%s/%s %s", self.robot, self.joint, self.stream.plan.describe())
+        if not planned and stream.plan is not None:
+            log.info("%s/%s %s", self.robot, self.joint, stream.plan.describe())
         return estimate, None
 
     def _refuse_inverted_sign(self, e: WindowEstimate) -> None:
@@ -529,7 +601,7 @@ class WindowEvaluator:
     ) -> dict[str, Any]:
         if overrun is None:
             overrun = self._over_budget(compute_s)
-        flags = (*((Flag.OVER_BUDGET,) if overrun else ()), *reflex.flags)
+        flags = (Flag.OVER_BUDGET, *reflex.flags) if overrun else reflex.flags
         latency = None if last_arrival_s is None else (time.monotonic() - last_arrival_s) * 1e3
         seq = self._seq
         self._seq += 1
@@ -613,6 +685,12 @@ class WindowWorker(ThreadOwner):
             compute_cpu_s=e.compute_cpu_s,
             miss_stages=dict(self.stages.miss_stages),
             costly_stages=dict(self.stages.costly_stages),
+            miss_cpu_causes=dict(self.stages.miss_cpu_causes),
+            costly_causes=dict(self.stages.costly_causes),
+            faulted_windows=self.stages.faulted_windows,
+            window_faults=self.stages.window_faults,
+            faulted_calls=self.stages.faulted_calls,
+            call_faults=self.stages.call_faults,
             **self._stall_counters(),
         )
 
@@ -625,8 +703,7 @@ class WindowWorker(ThreadOwner):
         return {
             "miss_causes": stalls.causes(),
             "miss_waits": dict(stalls.miss_waits),
-            "gc_collections": list(stalls.collections),
-            "gc_ms": [round(ms, 3) for ms in stalls.gc_ms],
+            **stalls.gc_counters(),
         }
 
     # ------------------------------------------------------------------ the grid
@@ -730,7 +807,6 @@ class WindowWorker(ThreadOwner):
     def _process_window(self, end_index: int) -> dict[str, Any] | None:
         journal = self.stalls is not None
         queued_ns = self._run_queue.read_ns() if journal else None
-        faults = thread_page_faults() if journal else None
         started, started_cpu = time.perf_counter(), time.thread_time()
         start = end_index - self.window_samples + 1
         # history before the window, but never before the stream's first sample
@@ -747,8 +823,7 @@ class WindowWorker(ThreadOwner):
             now_ns = self._run_queue.read_ns() if queued_ns is not None else None
             waited_ms = None if now_ns is None or queued_ns is None else 1e-6 * (now_ns - queued_ns)
             cpu_ms = self.evaluator.compute_cpu_ms
-            now_faults = thread_page_faults() if faults is not None else None
-            taken = None if now_faults is None or faults is None else now_faults - faults
-            stages = self.stages.missed()
-            self.stalls.miss(end_index, started, ended, cpu_ms, waited_ms, taken, stages)
+            stages = self.stages.missed()  # with the thread's counters over the window
+            host = self.stalls.host_since_tick()
+            self.stalls.miss(end_index, started, ended, cpu_ms, waited_ms, stages, host)
         return message

@@ -566,3 +566,28 @@ def test_a_fit_is_the_same_on_the_compiled_and_the_numpy_path(reflex_gain, monke
     if reflex_gain:  # a low-pass to find: a well-defined optimum
         for field in ("gain", "delay_s", "corner_hz", "damping_ratio"):
             assert getattr(got, field) == pytest.approx(getattr(want, field), rel=1e-9)
+
+
+def test_the_due_model_kept_per_due_fit_is_the_scan_of_the_kept_fits(pathway):
+    # model_for keeps the newest usable fit of the latest due fit; every add forgets it, so
+    # each answer is the scan of the fits kept then (a fit arriving late, for a due fit
+    # already asked about, included)
+    def scanned(models, end):
+        due = models.due_seq(end)
+        usable = [u for s, u in models._updates.items() if s <= due and u.pathway is not None]
+        if not usable:
+            return None, False
+        update = max(usable, key=lambda u: u.seq)
+        stale = update.seq != due or end + 1 - update.end_index > models.stale_after
+        return update, stale
+
+    models = ReflexModels(FS, SETTINGS)
+    ends = range(4999, 30_000, 250)
+    arrivals = {6000: fitted(pathway, 2, 0, 4000), 9000: ReflexUpdate.failed(3, 0, 6000, "gap")}
+    arrivals |= {12_000: fitted(pathway, 4, 0, 8000), 12_500: fitted(pathway, 3, 0, 6000)}
+    arrivals |= {20_000: fitted(pathway, 7, 0, 14_000)}
+    for end in ends:
+        if end + 1 in arrivals:  # a fit lands just before this window
+            models.add(arrivals[end + 1])
+        assert models.model_for(end) == scanned(models, end), end
+        assert models.model_for(end) == scanned(models, end), end  # again, from what it kept

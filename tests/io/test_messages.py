@@ -12,6 +12,7 @@ import pytest
 
 from rtsid.ident.assess import WindowEstimate
 from rtsid.ident.stream import Tracked
+from rtsid.io import messages
 from rtsid.io.messages import ESTIMATE_SCHEMA, EstimateMessage
 from rtsid.verdicts import Flag, Reason
 
@@ -88,3 +89,20 @@ def test_window_dict_is_the_messages_json_object(window, reason, tracked, extra)
         assert type(fast[key]) is type(slow[key]), key
         assert fast[key] == slow[key], key
     assert [*fast, "host_time_ns"] == list(ESTIMATE_SCHEMA["properties"])
+
+
+@pytest.mark.skipif(messages._FINITE_DICT is None, reason="compiled kernel not built")
+@pytest.mark.parametrize("seed", range(4))
+def test_the_compiled_json_object_is_the_comprehensions(seed) -> None:
+    # finite_dict (one call, the dict sized once) against the reference: every key in order,
+    # every value the same object but a non-finite float (Python's or numpy's) as None
+    rng = np.random.default_rng(seed)
+    pool: list[Any] = [1.5, -0.0, math.nan, math.inf, -math.inf, np.float64(math.nan)]
+    pool += [np.float64(2.5), np.float64(-math.inf), 3, True, None, "r", [Flag.LOW_VAF], 10**20]
+    values = tuple(pool[int(k)] for k in rng.integers(0, len(pool), len(messages._ESTIMATE_NAMES)))
+    got = messages._json_object(values)
+    want = messages._json_object_reference(values)
+    assert list(got) == list(want) == list(messages._ESTIMATE_NAMES)
+    assert all(got[k] is want[k] for k in want)
+    with pytest.raises(TypeError):
+        messages._FINITE_DICT(messages._ESTIMATE_NAMES, values[:-1])

@@ -198,7 +198,7 @@ def test_each_half_of_the_status_tick_begins_as_the_worker_goes_to_sleep(
     # every collection ran on the housekeeping thread, right after its gate wait: none
     # inside a window on the worker (nor on the acquisition or writer threads)
     (off_s,) = disabled_at
-    collections = [s for s in daemon.stalls._spans if s.name.startswith("gc gen")]
+    collections = [s for s in daemon.stalls.spans() if s.name.startswith("gc gen")]
     after = [s for s in collections if s.start_s > off_s]
     assert len(after) >= 2
     assert {s.name.split(" (")[1] for s in after} == {"MainThread)"}
@@ -213,6 +213,10 @@ def test_each_half_of_the_status_tick_begins_as_the_worker_goes_to_sleep(
     assert {"acquisition", "worker", "mcap", "zenoh", "session"} <= set(final)
     assert final["worker"]["estimates"] == summary.estimates
     assert set(final["worker"]) >= {"miss_causes", "overrun_causes", "gc_collections"}
+    assert set(final["worker"]) >= {"miss_cpu_causes", "costly_causes", "gc_frozen"}
+    # the start-up's full collections apart from the running daemon's, which are young here
+    assert final["worker"]["gc_longest_startup"][0] == 2
+    assert final["worker"]["gc_frozen"] > 10_000  # the start-up's objects, frozen
 
 
 @pytest.mark.slow  # a real-time daemon run of seconds

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import gc
+import resource
+from collections import deque
+
 import pytest
 
-from rtsid.runtime.stages import STAGES, WINDOWS_KEPT, StageLog
+from rtsid.runtime.stages import CPU_CAUSES, STAGES, WINDOWS_KEPT, StageLog
 from rtsid.runtime.stalls import StallJournal
 from tests.runtime.test_worker import filled_ring, make_worker
 
@@ -165,3 +169,152 @@ def test_costly_windows_are_counted_by_stage_and_by_the_cpus_pace():
         "tracker, CPU at its pace": 1,
         "compiled call, slow CPU": 1,
     }
+
+
+class FakeUsage:
+    """The thread's resource counters, moved by the test (and its user time by the clock)."""
+
+    def __init__(self, clock: FakeThreadClock) -> None:
+        self.clock = clock
+        self.system_us = self.faults = self.involuntary = self.voluntary = 0
+
+    def __call__(self) -> resource.struct_rusage:
+        user_s = 1e-9 * self.clock.ns - 1e-6 * self.system_us
+        fields = [0.0] * 16  # getrusage's order: utime, stime, …, minflt (6), …, nivcsw (15)
+        fields[0], fields[1], fields[6], fields[14], fields[15] = (
+            user_s,
+            1e-6 * self.system_us,
+            self.faults,
+            self.voluntary,
+            self.involuntary,
+        )
+        return resource.struct_rusage(fields)
+
+
+@pytest.mark.parametrize(
+    ("what", "cause"),
+    [
+        ("faults in the call", CPU_CAUSES[1]),
+        ("faults elsewhere", CPU_CAUSES[2]),
+        ("kernel", CPU_CAUSES[3]),
+        ("GIL", CPU_CAUSES[4]),
+        ("preempted", CPU_CAUSES[5]),
+        ("slow CPU", CPU_CAUSES[6]),
+        ("tracker", CPU_CAUSES[7]),
+    ],
+)
+def test_a_costly_window_is_counted_by_why_its_cpu_ran_long(what, cause):
+    clock = FakeThreadClock()
+    usage = FakeUsage(clock)
+    log = StageLog(clock, usage)
+
+    def window(end, slowed=None):
+        log.begin(end)
+        clock.spend(0.05)
+        log.mark("held parameters")
+        if slowed == "faults in the call":  # 600 pages zeroed: kernel time in the call
+            usage.faults += 600
+            usage.system_us += 1500
+            clock.spend(1.5)
+        elif slowed == "kernel":  # interrupts served on the worker's CPU, no faults
+            usage.system_us += 1500
+            clock.spend(1.5)
+        clock.spend(0.3 * (4.0 if slowed == "slow CPU" else 1.0))
+        log.mark("compiled call")
+        if slowed == "faults elsewhere":
+            usage.faults += 600
+            usage.system_us += 1500
+            clock.spend(1.5)
+        elif slowed == "preempted":
+            usage.involuntary += 1
+            clock.spend(1.5)  # its caches cold after
+        elif slowed == "GIL":  # another thread held the GIL: 130 hand-overs, each some CPU
+            usage.voluntary += 130
+            clock.spend(1.0)
+        clock.spend(3.0 if slowed == "tracker" else 0.6 if slowed == "slow CPU" else 0.05)
+        log.mark("tracker")
+        log.end()
+
+    for end in range(WINDOWS_KEPT + 5):
+        window(end)
+    assert log.faulted_windows == log.window_faults == 0
+    window(1000, what)
+    assert log.costly_causes == {cause: 1}
+    faulted = what.startswith("faults")
+    assert (log.faulted_windows, log.window_faults) == ((1, 600) if faulted else (0, 0))
+    in_call = what == "faults in the call"
+    assert (log.faulted_calls, log.call_faults) == ((1, 600) if in_call else (0, 0))
+    stages = log.latest()
+    assert stages is not None and stages.usage is not None and stages.call_usage is not None
+    inside = what in ("faults in the call", "kernel")
+    assert stages.call_usage.faults == (600 if what == "faults in the call" else 0)
+    assert stages.call_usage.system_us == (1500 if inside else 0)
+    assert stages.usage.faults == (600 if what.startswith("faults") else 0)
+    usual = log.with_usual()
+    assert usual is not None and usual.cause() == cause
+    line = usual.describe()
+    assert f"; cause: {cause}" in line and "; the window: user " in line
+    assert "; the compiled call: user " in line
+
+
+def test_a_missed_window_is_counted_by_its_cause_and_its_counters_read_so_far():
+    clock = FakeThreadClock()
+    usage = FakeUsage(clock)
+    log = StageLog(clock, usage)
+    for end in range(WINDOWS_KEPT):
+        log.begin(end)
+        log.end()
+    log.begin(5000)
+    usage.faults += 3
+    clock.spend(2.0)
+    log.mark("compiled call")
+    missed = log.missed()  # before the window ends: its counters up to now
+    assert missed is not None and missed.usage is not None and missed.usage.faults == 3
+    assert log.miss_cpu_causes == {CPU_CAUSES[2]: 1}
+    log.end()
+    log.begin(5010)  # missed with its CPU as usual: its wall time went to waits
+    usage.faults += 3
+    log.mark("compiled call")
+    assert log.missed() is not None
+    assert log.miss_cpu_causes == {CPU_CAUSES[2]: 1, CPU_CAUSES[0]: 1}
+
+
+def test_without_usage_counters_the_cause_falls_back_on_the_pace():
+    clock = FakeThreadClock()
+    log = StageLog(clock, usage=None)
+    for end in range(WINDOWS_KEPT + 1):
+        log.begin(end)
+        clock.spend(0.3)
+        log.mark("compiled call")
+        log.end()
+    log.begin(99)
+    clock.spend(1.5)
+    log.mark("compiled call")
+    log.end()
+    stages = log.latest()
+    assert stages is not None and stages.usage is None
+    assert "; the window:" not in stages.describe()
+    assert log.costly_causes == {CPU_CAUSES[6]: 1}
+
+
+def test_the_worker_keeps_no_more_tracked_objects_however_many_windows_it_runs():
+    """Windows missed and logged leave nothing the collector must walk later: the stage log's
+    rows and counters are preallocated or plain tuples, the journal's spans and misses bounded."""
+    published: deque[dict] = deque(maxlen=1)  # the newest message only
+    worker = make_worker(filled_ring(), published, budget_s=1e-6, max_sample_age_s=60.0)
+    worker.stalls = StallJournal()
+    ends = [749 + 50 * k for k in range(16)]  # every grid window the ring holds
+
+    def run_windows(rounds: int) -> None:
+        for _ in range(rounds):
+            for end in ends:
+                worker.process_window(end)
+            worker.stalls.drain_misses()
+
+    run_windows(8)  # warm: plan, held parameters, the rings filled
+    gc.collect()
+    tracked = len(gc.get_objects())
+    run_windows(40)  # 640 more missed windows, each logged with its stages and counters
+    gc.collect(0)
+    assert len(gc.get_objects()) - tracked < 50
+    assert worker.stages.windows == 48 * len(ends)

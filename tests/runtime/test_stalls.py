@@ -10,12 +10,13 @@ import time
 
 import pytest
 
+from rtsid.runtime.stages import Usage, thread_usage
 from rtsid.runtime.stalls import (
     MISS_LINES_PER_MINUTE,
+    HostCounters,
+    HostReading,
     RunQueueClock,
-    Span,
     StallJournal,
-    thread_page_faults,
 )
 
 
@@ -108,44 +109,93 @@ def test_the_run_queue_clock_reads_this_threads_waits_for_a_cpu():
 
 
 @pytest.mark.skipif(not hasattr(resource, "RUSAGE_THREAD"), reason="per-thread counts: Linux")
-def test_thread_page_faults_count_the_pages_this_thread_touches_first():
-    before = thread_page_faults()
+def test_thread_usage_counts_the_pages_this_thread_touches_first_as_system_time():
+    before = thread_usage()
     pages = mmap.mmap(-1, 256 * mmap.PAGESIZE)  # anonymous: each page faulted on first write
     try:
         for page in range(256):
             pages[page * mmap.PAGESIZE] = 1
-        after = thread_page_faults()
+        after = thread_usage()
     finally:
         pages.close()
     assert before is not None and after is not None
-    assert after - before >= 256
+    taken = Usage.between(before, after)
+    assert taken.faults >= 256 and taken.minor_faults >= 256
+    assert taken.user_us >= 0 and taken.system_us >= 0 and taken.involuntary_switches >= 0
+    assert f"{taken.faults} page faults" in taken.describe()
 
 
-def test_a_miss_line_names_the_page_faults_the_worker_took():
+def test_a_miss_line_names_the_host_counters_since_the_tick_before_it():
     journal = StallJournal()
     far = time.perf_counter() + 1e3
-    journal.miss(7, far, far + 0.006, cpu_ms=3.8, cpu_wait_ms=0.0, page_faults=412)
+    host = HostReading(0.06, 10.0, 312, 0, 2, 0)
+    journal.miss(7, far, far + 0.006, cpu_ms=3.8, cpu_wait_ms=0.0, host=host)
     (miss,) = journal.drain_misses()
-    assert "(of it on CPU 3.80 ms, waiting for a CPU 0.00 ms, 412 page faults)" in miss.describe()
+    assert miss.describe().endswith(
+        "; host over 0.06 s: steal 10 ms, 312 interrupts, compact_stall 0, thp_fault_alloc 2, "
+        "pgmajfault 0"
+    )
 
 
-def test_misses_of_the_windows_own_cpu_have_their_own_quota_of_lines():
+@pytest.mark.skipif(not os.path.exists("/proc/vmstat"), reason="the host's counters: Linux")
+def test_the_host_counters_only_grow_between_a_tick_and_a_miss():
     journal = StallJournal()
-    for k in range(MISS_LINES_PER_MINUTE + 5):  # waiting for a CPU: a loaded machine
-        journal.miss(k, 0.0, 0.004, cpu_ms=0.5, cpu_wait_ms=3.5)
-    journal.miss(1000, 0.0, 0.004, cpu_ms=3.8, cpu_wait_ms=0.1)  # the window's own CPU
-    lines = journal.miss_lines(now_s=100.0)
-    assert len(lines) == MISS_LINES_PER_MINUTE + 1
-    assert any("window ending 1000," in line for line in lines)
-    assert journal.miss_waits["the window's own CPU"] == 1
+    assert journal.host_since_tick() is None  # no tick yet: nothing to take them since
+    journal.note_host()
+    sum(range(100_000))
+    since = journal.host_since_tick()
+    assert since is not None and since.at_s > 0.0
+    assert min(since[1:]) >= 0  # steal, interrupts, compactions, huge pages, major faults
+    missing = HostCounters()
+    missing.VMSTAT = "/proc/no such file"  # type: ignore[misc]
+    assert missing.read() is None
 
 
-def test_a_miss_finds_its_overlapping_spans_among_many_and_one_appended_late():
+def test_the_longest_collection_is_kept_apart_from_the_start_ups():
+    with StallJournal() as journal:
+        gc.collect()  # start-up: the daemon collects all it built, then freezes it
+        startup = journal.longest_startup_gc
+        assert journal.longest_gc is None
+        journal.running()
+        gc.collect(0)
+        gc.collect(0)
+    assert startup is not None and startup.generation == 2 and startup.ms > 0.0
+    assert startup.cpu_ms >= 0.0
+    longest = journal.longest_gc
+    assert longest is not None and longest.generation == 0
+    counters = journal.gc_counters()
+    assert counters["gc_longest"] == [0, round(longest.ms, 3), round(longest.cpu_ms, 3)]
+    assert counters["gc_longest_startup"][0] == 2
+    assert counters["gc_collections"][0] >= 2 and counters["gc_frozen"] == gc.get_freeze_count()
+
+
+def test_the_kept_spans_are_not_walked_by_later_collections():
+    """Thousands of spans kept (a busy daemon's minutes) leave the collector's view at the
+    first young collection: a full collection's work does not grow with them."""
     journal = StallJournal()
-    for k in range(8000):  # a long daemon life of housekeeping steps, 1 ms each, 2 ms apart
-        journal._spans.append(Span(f"step {k}", 0.002 * k, 0.002 * k + 0.001))
-    journal._spans.append(Span("late append", 15.9905, 15.9915))  # ended before the last one
-    journal.miss(1, 15.9905, 15.9945)
-    (miss,) = journal.drain_misses()
-    names = [s.name for s in miss.overlapped]
-    assert names == ["step 7995", "step 7996", "step 7997", "late append"]
+    gc.collect()
+    tracked = len(gc.get_objects())
+    for k in range(5000):
+        with journal.step(f"housekeeping: step {k % 4}"):
+            pass
+    gc.collect(0)  # what CPython's young collections do to tuples of plain values
+    assert len(journal.spans()) == 5000
+    assert len(gc.get_objects()) - tracked < 100  # not one tracked object per span
+
+
+def test_the_host_counters_are_read_from_the_proc_files_lines(tmp_path):
+    stat = tmp_path / "stat"
+    stat.write_text(
+        "cpu  100 2 30 4000 5 0 6 37 0 0\ncpu0 50 1 15 2000 2 0 3 20 0 0\n"
+        "intr 123456 7 8 9\nctxt 999\n"
+    )
+    vmstat = tmp_path / "vmstat"
+    vmstat.write_text("nr_free_pages 1\npgmajfault 26\ncompact_stall 3\nthp_fault_alloc 228\n")
+    counters = HostCounters()
+    counters.STAT, counters.VMSTAT = str(stat), str(vmstat)  # type: ignore[misc]
+    reading = counters.read()
+    assert reading is not None
+    tick_ms = 1e3 / os.sysconf("SC_CLK_TCK")
+    assert reading[1:] == (37 * tick_ms, 123456, 3, 228, 26)
+    vmstat.write_text("nr_free_pages 1\n")  # a kernel without the counters: 0, not a failure
+    assert counters.read()[3:] == (0, 0, 0)  # type: ignore[index]

@@ -160,9 +160,10 @@ def test_a_miss_is_set_against_the_stall_journal():
     if os.path.exists(RunQueueClock.PATH):  # Linux: the run-queue wait over the window too
         assert first.cpu_wait_ms is not None and 0.0 <= first.cpu_wait_ms
         assert f"waiting for a CPU {first.cpu_wait_ms:.2f} ms" in first.describe()
-    if hasattr(resource, "RUSAGE_THREAD"):  # Linux: the worker's page faults over the window
-        assert first.page_faults is not None and 0 <= first.page_faults
-        assert f", {first.page_faults} page faults)" in first.describe()
+    if hasattr(resource, "RUSAGE_THREAD"):  # Linux: the worker's counters over the window
+        usage = first.stages.usage if first.stages is not None else None
+        assert usage is not None and usage.faults >= 0 and usage.user_us >= 0
+        assert f"; the window: {usage.describe()}" in first.describe()
 
 
 def test_thread_starts_at_the_newest_window_then_reports_stale(wait_for):

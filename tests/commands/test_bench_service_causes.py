@@ -1,0 +1,47 @@
+"""``rtsid bench service`` prints each phase's misses by cause and its longest collection."""
+
+from __future__ import annotations
+
+from rtsid.benchmarks.service import Phase, gc_pauses, longest_gc_ms, print_miss_causes
+from rtsid.runtime.stages import CPU_CAUSES
+
+
+def test_the_phase_prints_misses_by_cause_and_the_longest_collection_with_its_generation(capsys):
+    worker = {
+        "miss_causes": {"nothing seen: the window's own CPU": 2},
+        "miss_cpu_causes": {CPU_CAUSES[1]: 1, CPU_CAUSES[6]: 1},
+        "costly_causes": {CPU_CAUSES[6]: 7, CPU_CAUSES[5]: 2},
+        "gc_collections": [40, 3, 1],
+        "gc_ms": [8.0, 1.5, 2.2],
+        "gc_longest": [2, 2.2, 2.05],
+        "gc_longest_startup": [2, 41.5, 40.9],
+        "gc_frozen": 91234,
+        "estimates": 15000,
+        "faulted_windows": 3,
+        "window_faults": 41,
+        "faulted_calls": 1,
+        "call_faults": 12,
+    }
+    phase = Phase("idle machine", status=[{"worker": worker}])
+    print_miss_causes(phase)
+    out = capsys.readouterr().out
+    assert (
+        "idle machine: misses by why the worker's CPU ran long (its getrusage counters over the "
+        f"window and the compiled call): {CPU_CAUSES[1]}: 1, {CPU_CAUSES[6]}: 1" in out
+    )
+    assert "windows of over 3× by why the worker's CPU ran long" in out
+    assert f"{CPU_CAUSES[5]}: 2, {CPU_CAUSES[6]}: 7" in out
+    assert (
+        "longest garbage collection while running windows: gen 2, 2.20 ms (CPU 2.05 ms); "
+        "at start-up: gen 2, 41.50 ms (CPU 40.90 ms); objects frozen 91234" in out
+    )
+    assert longest_gc_ms(worker) == "2.20 (gen 2)"
+    assert (
+        "windows whose worker took page faults: 3 of 15000 estimates (41 faults); of them in the "
+        "compiled call 1 (12 faults)" in out
+    )
+
+
+def test_a_daemon_that_reports_no_collection_prints_none():
+    assert gc_pauses({}).startswith("longest garbage collection while running windows: none;")
+    assert longest_gc_ms({"gc_longest": None}) == "—"
