@@ -13,6 +13,7 @@ import sys
 import threading
 import time
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -209,13 +210,19 @@ def _replay_directory(folder: Path, args: argparse.Namespace) -> list[list[Any]]
     # import rtsid and wait
     children = min(args.jobs or mp.cpu_count(), len(files)) - 1
     if children == 0:
-        return _replay_folder(files, args, None, [])
+        rows, write_timing = _replay_folder(files, args, None, [])
+        write_timing({})
+        return rows
     ctx = mp.get_context("spawn")
     with cf.ProcessPoolExecutor(children, ctx, initializer=_init_child) as pool:
         # the children start first, and import the replay while this process lists the
         # folder and imports it too
         ready = [pool.submit(_preload) for _ in range(children)]
-        return _replay_folder(files, args, pool, ready)
+        rows, write_timing = _replay_folder(files, args, pool, ready)
+    # the pool has waited for every child's preload: one that was ready only after the last
+    # recording ended (it replayed none) is in the timing too
+    write_timing(dict(f.result() for f in ready if not f.cancelled() and f.exception() is None))
+    return rows
 
 
 def _replay_folder(
@@ -223,10 +230,11 @@ def _replay_folder(
     args: argparse.Namespace,
     pool: cf.ProcessPoolExecutor | None,
     ready: list[cf.Future[tuple[int, float]]],
-) -> list[list[Any]]:
+) -> tuple[list[list[Any]], Callable[[dict[int, float]], None]]:
     """The summary rows of the recordings among ``files``, replayed by this process and by
     the children of ``pool`` (None: this process alone), each child once its future in
-    ``ready`` is done; with ``args.timing``, the run's timeline written there."""
+    ``ready`` is done; and the writing of the run's timeline to ``args.timing`` (nothing
+    without it), given when the children that replayed nothing were ready."""
     sessions = _sessions(files)
     out_dir = Path(args.output) if args.output else None
     if out_dir is not None:
@@ -241,9 +249,13 @@ def _replay_folder(
     finished_s = time.monotonic()
     # the table keeps the recordings' order, whichever finished first
     done = folder_run.results(sessions)
-    if args.timing:
-        _write_timing(Path(args.timing), folder_run.ready_s, done, finished_s)
-    return [_rewarn(d.row, d.incomplete) for d in done]
+
+    def write_timing(late_ready_s: dict[int, float]) -> None:
+        if args.timing:
+            ready_s = late_ready_s | folder_run.ready_s
+            _write_timing(Path(args.timing), ready_s, done, finished_s)
+
+    return [_rewarn(d.row, d.incomplete) for d in done], write_timing
 
 
 class _FolderRun:

@@ -91,3 +91,14 @@ def test_a_timing_file_in_a_missing_folder_is_one_error(tmp_path, capsys):
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert len(err) == 1 and err[0].startswith("rtsid replay: error: ") and "no" in err[0]
     assert not missing.parent.exists()
+
+
+def test_a_child_that_replayed_nothing_is_in_the_timing_too(tmp_path, capsys):
+    # 3 s recordings replay faster than a child starts: the command may replay both before
+    # its child is ready; the child is listed either way (ready, idle, no recordings)
+    folder = _folder(tmp_path, ("a.mcap", "b.mcap"))
+    timing = tmp_path / "timing.json"
+    assert main(["replay", str(folder), "--jobs", "2", "--timing", str(timing)]) == 0
+    capsys.readouterr()
+    processes = _check_timeline(json.loads(timing.read_text()), ["a.mcap", "b.mcap"])
+    assert [p["role"] for p in processes] == ["command", "child"]
