@@ -52,7 +52,7 @@ from rtsid.io.recording import (
 from rtsid.io.schemas import SCHEMAS, SampleBatch, encode_json, estimate_payload
 from rtsid.io.summary_table import TableBuilder, attach_table
 from rtsid.link.ring import Snapshot
-from rtsid.runtime.daemon import DaemonConfig
+from rtsid.runtime.daemon_config import DaemonConfig
 from rtsid.runtime.worker import WindowEvaluator
 from rtsid.verdicts import Reason
 

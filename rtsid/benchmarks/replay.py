@@ -6,13 +6,15 @@ replayed with ``rtsid replay``'s code path. Measured in the same run: the estima
 the same windows from arrays in memory (no MCAP decoding, no messages, no slow lane) — the
 ratio shows what replay itself costs —, the same replay on the numpy path (a child process
 with ``RTSID_NUMPY_ONLY=1``), and ``rtsid replay DIR`` over a folder of such recordings with
-``--jobs 1`` and ``--jobs 2``, each the command in a fresh process as a user runs it.
+``--jobs 1`` and ``--jobs 2`` in alternated pairs (the median speed-up), each the command in a
+fresh process as a user runs it, with each process's start-up and idle time at the end.
 """
 
 from __future__ import annotations
 
 import argparse
 import io
+import json
 import os
 import resource
 import subprocess
@@ -20,7 +22,9 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -30,7 +34,7 @@ from rtsid.ident.levinson import HAVE_COMPILED_KERNEL
 from rtsid.ident.stream import sliding_estimates
 from rtsid.io.convert import ImportedSamples, read_sample_file, write_recording
 from rtsid.replay import ReplayResult, recording_config, replay_file, write_estimates_mcap
-from rtsid.runtime.daemon import DaemonConfig
+from rtsid.runtime.daemon_config import DaemonConfig
 from rtsid.sim.joint import JointParameters, StiffnessProfile, simulate_impedance
 
 FS_HZ = 2500.0
@@ -91,87 +95,161 @@ def _children_cpu_s() -> float:
 REPLAY_FLOOR, JOBS_FLOOR = 150.0, 1.7
 
 
+#: Alternated pairs of ``--jobs 1`` and ``--jobs 2`` runs the folder table takes the median of
+#: (one pair read anywhere from 1.2× to 2.1× on this shared 2-core VM).
+PAIRS = 3
+
+
+@dataclass(frozen=True)
+class FolderRun:
+    """One ``rtsid replay DIR --jobs N`` command, as a user runs it (a fresh process).
+
+    Attributes
+    ----------
+    jobs : int
+        ``--jobs``.
+    wall_s : float
+        From launching the command to its exit, s.
+    cpu_s : float
+        CPU seconds of its processes (reaped children), s.
+    startup_s : tuple of float
+        From launching the command to each process having imported the replay (the
+        command's own first), s: ``--timing``'s ``ready_s``.
+    idle_at_end_s : tuple of float
+        Each process's wait at the end, from its last recording to the last recording's
+        end (same order), s.
+    busiest_cpu_s : float
+        CPU time of its busiest process by the end of its last recording (start-up
+        included), s: with a core each, the run would have taken about this long.
+    """
+
+    jobs: int
+    wall_s: float
+    cpu_s: float
+    startup_s: tuple[float, ...]
+    idle_at_end_s: tuple[float, ...]
+    busiest_cpu_s: float
+
+
+def run_folder(folder: Path, jobs: int) -> FolderRun:
+    """Run ``rtsid replay folder --jobs jobs`` in a fresh process, with ``--timing``."""
+    with tempfile.TemporaryDirectory(prefix="rtsid-bench-timing-") as tmp:
+        timing = Path(tmp) / "timing.json"
+        command = [sys.executable, "-m", "rtsid.cli", "replay", str(folder), "--jobs", str(jobs)]
+        started_cpu = _children_cpu_s()
+        launched_s = time.monotonic()
+        subprocess.run(
+            [*command, "--timing", str(timing)], capture_output=True, timeout=3600, check=True
+        )
+        wall_s = time.monotonic() - launched_s
+        cpu_s = _children_cpu_s() - started_cpu
+        processes = json.loads(timing.read_text())["processes"]
+    return FolderRun(
+        jobs,
+        wall_s,
+        cpu_s,
+        tuple(p["ready_s"] - launched_s for p in processes),
+        tuple(p["idle_at_end_s"] for p in processes),
+        max(p["cpu_s"] for p in processes),
+    )
+
+
+def alternated_pairs(folder: Path, pairs: int = PAIRS) -> list[tuple[FolderRun, FolderRun]]:
+    """``pairs`` pairs of ``--jobs 1`` and ``--jobs 2`` runs over ``folder``, the order
+    alternated (1-2, 2-1, …) so that a host slowing down or speeding up over the runs favours
+    neither; each pair as ``(jobs 1, jobs 2)``."""
+    done = []
+    for k in range(pairs):
+        order = (1, 2) if k % 2 == 0 else (2, 1)
+        runs = {jobs: run_folder(folder, jobs) for jobs in order}
+        done.append((runs[1], runs[2]))
+    return done
+
+
 def _folder_table(folder: Path, seconds: float, count: int) -> Callable[[], None]:
-    """``rtsid replay DIR --jobs 1`` against ``--jobs 2`` on ``count`` recordings, each the
-    command as a user runs it (a fresh process: its own imports included; this process has
-    imported and warmed up the replay already, and the command's process replays too);
-    returns the printing of its table."""
+    """``rtsid replay DIR --jobs 1`` against ``--jobs 2`` on ``count`` recordings, in
+    :data:`PAIRS` alternated pairs, each the command as a user runs it (a fresh process: its
+    own imports included; the command's process replays too); returns the printing of its
+    table."""
     folder.mkdir()
     for k in range(count):
         build = folder.parent / f"build{k}"
         build.mkdir()
         path, _, _ = _recording(build, seconds)
         path.rename(folder / f"rec{k}.mcap")
-    wall: dict[int, float] = {}
-    cpu: dict[int, float] = {}
-    startup_s = _startup_s()
     ceiling = _machine_scaling()
-    for jobs in (1, 2):
-        started, started_cpu = time.perf_counter(), _children_cpu_s()
-        subprocess.run(
-            [sys.executable, "-m", "rtsid.cli", "replay", str(folder), "--jobs", str(jobs)],
-            capture_output=True,
-            timeout=3600,
-            check=True,
-        )
-        wall[jobs] = time.perf_counter() - started
-        cpu[jobs] = _children_cpu_s() - started_cpu
+    pairs = alternated_pairs(folder)
+    ratios = [one.wall_s / two.wall_s for one, two in pairs]
+    ratio = float(np.median(ratios))
+    # the same by CPU: what the ratio would be if each process had a core of its own
+    cpu_ratio = float(np.median([one.busiest_cpu_s / two.busiest_cpu_s for one, two in pairs]))
     total = count * seconds
-    rows = [
-        [
-            jobs,
-            wall[jobs],
-            total / wall[jobs],
-            wall[1] / wall[jobs],
-            cpu[jobs],
-            cpu[jobs] / wall[jobs],
-        ]
-        for jobs in (1, 2)
+    rows = []
+    for k, (pair, pair_ratio) in enumerate(zip(pairs, ratios, strict=True), start=1):
+        for run in pair:
+            speed_up = pair_ratio if run.jobs == 2 else 1.0
+            rows.append([f"pair {k}", *_run_cells(run, total, speed_up)])
+    median = {jobs: float(np.median([pair[jobs - 1].wall_s for pair in pairs])) for jobs in (1, 2)}
+    rows += [
+        ["median", 1, median[1], total / median[1], 1.0, "", "", "", "", ""],
+        ["median", 2, median[2], total / median[2], ratio, "", "", "", "", ""],
     ]
-    ratio = wall[1] / wall[2]
+    startup_s = float(np.median([pair[0].startup_s[0] for pair in pairs]))
     # each process pays one start-up either way; the replays' time is halved at best
-    ideal = wall[1] / (startup_s + max(0.0, wall[1] - startup_s) / 2)
+    ideal = median[1] / (startup_s + max(0.0, median[1] - startup_s) / 2)
     return lambda: print_table(
-        f"rtsid replay DIR: {count} recordings of {seconds / 60:g} min, --jobs 1 and 2 "
-        f"({os.cpu_count()} cores)",
+        f"rtsid replay DIR: {count} recordings of {seconds / 60:g} min, --jobs 1 and 2 in "
+        f"{len(pairs)} alternated pairs ({os.cpu_count()} cores)",
         [
+            "run",
             "--jobs",
             "seconds",
             "× real time",
             "speed-up",
-            "CPU s, the command's processes",
+            "start-up s (command / child)",
+            "idle at end s (command / child)",
+            "CPU s",
             "cores used",
+            "CPU s, busiest process",
         ],
         rows,
         note=(
-            f"Floor: --jobs 2 ≥ {JOBS_FLOOR}× --jobs 1 "
-            f"({'met' if ratio >= JOBS_FLOOR else 'NOT met'}: {ratio:.2f}×). Wall time of the "
-            "command in a fresh process, as a user runs it (its imports, and the spawning of "
-            "the child that --jobs 2 adds, included; the command's own process replays too); "
-            "cores used = the CPU seconds of its processes (reaped children) over the wall "
-            "time: below the job count, the processes waited for a CPU or for each other (on "
-            "a machine other work shares, the second core is not all this run's). "
-            "Start-up of one process to its first window (Python, numpy, rtsid compiled from "
-            "source; no scipy: the filter designs are numpy's or the design cache's, which "
-            f"this run's replay above filled): {startup_s:.2f} s (so --jobs 2 could reach "
-            f"{ideal:.2f}× here "
-            "with equal recordings); the machine itself: two CPU-bound processes ran "
-            f"{ceiling:.2f}× one process's work in the same time (2.0 on two free cores)."
+            f"Floor: --jobs 2 ≥ {JOBS_FLOOR}× --jobs 1, the median of the pairs' speed-ups "
+            f"({'met' if ratio >= JOBS_FLOOR else 'NOT met'}: {ratio:.2f}×; pairs "
+            f"{', '.join(f'{r:.2f}' for r in ratios)}). Wall time of the command in a fresh "
+            "process, as a user runs it (its imports, and the spawning of the child that "
+            "--jobs 2 adds, included; the command's own process replays too); start-up = "
+            "from launching the command to each process having imported the replay (Python, "
+            "numpy, rtsid compiled from source where no bytecode is written; no scipy: the "
+            "filter designs are numpy's or the design cache's, which this run's replay above "
+            "filled); idle at end = a process's wait from its last recording to the last "
+            "recording's end (recordings are not split); cores used = the CPU seconds of its "
+            "processes over the wall time (on a machine other work shares, the second core is "
+            "not all this run's). By CPU, --jobs 1's process over --jobs 2's busiest, the "
+            f"median pair reads {cpu_ratio:.2f}×: the speed-up with a core for each process "
+            "(CPU time itself grows when the cores are shared). With the median start-up of "
+            f"--jobs 1, {startup_s:.2f} s, "
+            f"--jobs 2 could reach {ideal:.2f}× here with equal recordings; the machine "
+            f"itself: two CPU-bound processes ran {ceiling:.2f}× one process's work in the "
+            "same time (2.0 on two free cores)."
         ),
     )
 
 
-def _startup_s() -> float:
-    """Seconds a fresh process takes to import what a replay needs before its first window
-    (what a ``replay DIR`` child preloads: rtsid's replay, not scipy): every process of
-    ``--jobs N`` pays it."""
-    started = time.perf_counter()
-    subprocess.run(
-        [sys.executable, "-c", "from rtsid.commands.replay import _preload; _preload()"],
-        timeout=600,
-        check=True,
-    )
-    return time.perf_counter() - started
+def _run_cells(run: FolderRun, total_s: float, speed_up: float) -> list[Any]:
+    """A run's cells after the first: jobs, seconds, × real time, speed-up, start-ups, idle
+    at end, CPU s, cores used, the busiest process's CPU s."""
+    return [
+        run.jobs,
+        run.wall_s,
+        total_s / run.wall_s,
+        speed_up,
+        " / ".join(f"{s:.2f}" for s in run.startup_s),
+        " / ".join(f"{s:.2f}" for s in run.idle_at_end_s),
+        run.cpu_s,
+        run.cpu_s / run.wall_s,
+        run.busiest_cpu_s,
+    ]
 
 
 def _machine_scaling(seconds: float = 1.0) -> float:

@@ -5,20 +5,24 @@ from __future__ import annotations
 import argparse
 import collections
 import concurrent.futures as cf
+import json
 import multiprocessing as mp
+import os
 import signal
 import sys
 import threading
+import time
 import warnings
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from rtsid.commands.common import add_output
 from rtsid.errors import IncompleteRecordingWarning, InputDataError
 
 if TYPE_CHECKING:
     from rtsid.replay import ReplayResult
-    from rtsid.runtime.daemon import DaemonConfig
+    from rtsid.runtime.daemon_config import DaemonConfig
 
 # The replay itself (numpy, the reader, the window path: ≈ 2 G instructions to import here,
 # where every process compiles rtsid from source) is imported where it is used, so that a
@@ -44,6 +48,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=0,
         help="processes for a directory, this one included (0: one a core)",
     )
+    parser.add_argument(
+        "--timing",
+        metavar="JSON",
+        help="also write when each process was ready and replayed each recording (to tune "
+        "--jobs; see docs/workflow.md)",
+    )
 
 
 def _rate(text: str) -> float | None:
@@ -60,7 +70,7 @@ def _rate(text: str) -> float | None:
 
 def _config(args: argparse.Namespace, path: Path) -> DaemonConfig:
     from rtsid.replay import recording_config
-    from rtsid.runtime.daemon import DaemonConfig
+    from rtsid.runtime.daemon_config import DaemonConfig
 
     return DaemonConfig.load(args.config) if args.config else recording_config(path)
 
@@ -123,18 +133,44 @@ def _progress(done: int, total: int) -> None:
         sys.stderr.flush()
 
 
-def _replay_one(
-    path: Path, args: argparse.Namespace, out: Path | None
-) -> tuple[list[Any], list[str]]:
-    """Summary row and the incomplete-recording warnings (returned: a spawned child's
-    warnings would not reach the parent's command line)."""
+class Replayed(NamedTuple):
+    """One recording replayed, as the process that replayed it hands it back.
+
+    Attributes
+    ----------
+    row : list
+        The recording's summary row.
+    incomplete : list of str
+        Its incomplete-recording warnings (returned: a spawned child's warnings would not
+        reach the parent's command line).
+    pid : int
+        The process that replayed it.
+    started_s, ended_s : float
+        When that process started and finished it, ``time.monotonic()`` s (one clock for
+        every process of a machine: Linux's ``CLOCK_MONOTONIC``).
+    cpu_s : float
+        That process's CPU time when it finished it, its start-up included, s.
+    """
+
+    row: list[Any]
+    incomplete: list[str]
+    pid: int
+    started_s: float
+    ended_s: float
+    cpu_s: float
+
+
+def _replay_one(path: Path, args: argparse.Namespace, out: Path | None) -> Replayed:
+    """Replay ``path`` (writing ``out``) in this process; its summary row and warnings."""
+    started_s = time.monotonic()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", IncompleteRecordingWarning)
         row = _replay_and_write(path, args, out)
     for w in caught:
         if not issubclass(w.category, IncompleteRecordingWarning):
             warnings.showwarning(w.message, w.category, w.filename, w.lineno)
-    return row, [str(w.message) for w in caught if w.category is IncompleteRecordingWarning]
+    incomplete = [str(w.message) for w in caught if w.category is IncompleteRecordingWarning]
+    return Replayed(row, incomplete, os.getpid(), started_s, time.monotonic(), time.process_time())
 
 
 def _replay_and_write(path: Path, args: argparse.Namespace, out: Path | None) -> list[Any]:
@@ -174,24 +210,31 @@ def _replay_directory(folder: Path, args: argparse.Namespace) -> list[list[Any]]
     # import rtsid and wait
     children = min(args.jobs or mp.cpu_count(), len(files)) - 1
     if children == 0:
-        return _replay_folder(files, args, None, [])
+        rows, write_timing = _replay_folder(files, args, None, [])
+        write_timing({})
+        return rows
     ctx = mp.get_context("spawn")
     with cf.ProcessPoolExecutor(children, ctx, initializer=_init_child) as pool:
         # the children start first, and import the replay while this process lists the
         # folder and imports it too
         ready = [pool.submit(_preload) for _ in range(children)]
-        return _replay_folder(files, args, pool, ready)
+        rows, write_timing = _replay_folder(files, args, pool, ready)
+    # the pool has waited for every child's preload: one that was ready only after the last
+    # recording ended (it replayed none) is in the timing too
+    write_timing(dict(f.result() for f in ready if not f.cancelled() and f.exception() is None))
+    return rows
 
 
 def _replay_folder(
     files: list[Path],
     args: argparse.Namespace,
     pool: cf.ProcessPoolExecutor | None,
-    ready: list[cf.Future[None]],
-) -> list[list[Any]]:
+    ready: list[cf.Future[tuple[int, float]]],
+) -> tuple[list[list[Any]], Callable[[dict[int, float]], None]]:
     """The summary rows of the recordings among ``files``, replayed by this process and by
     the children of ``pool`` (None: this process alone), each child once its future in
-    ``ready`` is done."""
+    ``ready`` is done; and the writing of the run's timeline to ``args.timing`` (nothing
+    without it), given when the children that replayed nothing were ready."""
     sessions = _sessions(files)
     out_dir = Path(args.output) if args.output else None
     if out_dir is not None:
@@ -203,8 +246,16 @@ def _replay_folder(
         folder_run.replay_here()
     else:
         folder_run.replay_with(pool, ready)
+    finished_s = time.monotonic()
     # the table keeps the recordings' order, whichever finished first
-    return [_rewarn(*done) for done in folder_run.results(sessions)]
+    done = folder_run.results(sessions)
+
+    def write_timing(late_ready_s: dict[int, float]) -> None:
+        if args.timing:
+            ready_s = late_ready_s | folder_run.ready_s
+            _write_timing(Path(args.timing), ready_s, done, finished_s)
+
+    return [_rewarn(d.row, d.incomplete) for d in done], write_timing
 
 
 class _FolderRun:
@@ -223,25 +274,28 @@ class _FolderRun:
         self._args, self._out_dir = args, out_dir
         self._total = len(order)
         self._lock = threading.Lock()
-        self._outcomes: dict[Path, tuple[list[Any], list[str]] | BaseException] = {}
+        self._outcomes: dict[Path, Replayed | BaseException] = {}
         self._all_done = threading.Event()
         self._pool: cf.ProcessPoolExecutor | None = None
+        #: when each process (by pid) had imported the replay, ``time.monotonic()`` s
+        self.ready_s: dict[int, float] = {}
 
     def replay_here(self) -> None:
         """Replay what is left in this process, one recording after another."""
+        self._preload_here()
         while (path := self._take()) is not None:
             self._replay(path)
 
     def _replay(self, path: Path) -> None:
         try:
-            outcome: tuple[list[Any], list[str]] | BaseException = _replay_one(
-                path, self._args, self._output(path)
-            )
+            outcome: Replayed | BaseException = _replay_one(path, self._args, self._output(path))
         except Exception as exc:  # reported once the others are done
             outcome = exc
         self._finished(path, outcome)
 
-    def replay_with(self, pool: cf.ProcessPoolExecutor, ready: list[cf.Future[None]]) -> None:
+    def replay_with(
+        self, pool: cf.ProcessPoolExecutor, ready: list[cf.Future[tuple[int, float]]]
+    ) -> None:
         """Replay with the children of ``pool`` beside this process; each is sent its first
         recording when its future in ``ready`` is done."""
         try:
@@ -249,7 +303,8 @@ class _FolderRun:
                 first = self._todo.popleft()
                 self._pool = pool
             for future in ready:
-                future.add_done_callback(self._child_ready)
+                future.add_done_callback(self._child_preloaded)
+            self._preload_here()
             self._replay(first)
             # recordings a broken pool gave back are replayed here too
             while not self._all_done.is_set():
@@ -259,11 +314,11 @@ class _FolderRun:
             with self._lock:
                 self._todo.clear()
 
-    def results(self, order: list[Path]) -> list[tuple[list[Any], list[str]]]:
+    def results(self, order: list[Path]) -> list[Replayed]:
         """Each recording's summary row and incomplete-recording warnings, in ``order``;
         raises the failure of the first in ``order`` that failed (the others' outputs are
         written by then)."""
-        done: list[tuple[list[Any], list[str]]] = []
+        done: list[Replayed] = []
         for path in order:
             outcome = self._outcomes[path]
             if isinstance(outcome, BaseException):
@@ -290,9 +345,9 @@ class _FolderRun:
             return
         future.add_done_callback(lambda done: self._child_done(path, done))
 
-    def _child_done(self, path: Path, future: cf.Future[tuple[list[Any], list[str]]]) -> None:
+    def _child_done(self, path: Path, future: cf.Future[Replayed]) -> None:
         try:
-            outcome: tuple[list[Any], list[str]] | BaseException = future.result()
+            outcome: Replayed | BaseException = future.result()
         except BaseException as exc:  # a failed recording, or a child that died
             outcome = exc
         self._finished(path, outcome)
@@ -305,7 +360,19 @@ class _FolderRun:
         with self._lock:
             self._send_next()
 
-    def _finished(self, path: Path, outcome: tuple[list[Any], list[str]] | BaseException) -> None:
+    def _child_preloaded(self, future: cf.Future[tuple[int, float]]) -> None:
+        if not future.cancelled() and future.exception() is None:
+            pid, ready_s = future.result()
+            self.ready_s[pid] = ready_s
+        self._child_ready(future)
+
+    def _preload_here(self) -> None:
+        """Import the replay in this process (once), noting when it was done."""
+        if os.getpid() not in self.ready_s:
+            pid, ready_s = _preload()
+            self.ready_s[pid] = ready_s
+
+    def _finished(self, path: Path, outcome: Replayed | BaseException) -> None:
         with self._lock:
             self._outcomes[path] = outcome
             done = len(self._outcomes)
@@ -322,18 +389,19 @@ def _init_child() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _preload() -> None:
+def _preload() -> tuple[int, float]:
     """A child's first task: import what a replay needs — rtsid's replay (compiled from
     source: this machine writes no bytecode) — while this process lists the folder and
     imports it too. Not scipy: the filters are designed in numpy or read from the design
     cache (:mod:`rtsid.ident.designs`; scipy.signal, 4.2 G instructions to import, is
-    imported only by a design the cache does not hold yet)."""
+    imported only by a design the cache does not hold yet). Returns this process's id and
+    when it was done, ``time.monotonic()`` s."""
     import rtsid.replay  # noqa: F401
 
+    return os.getpid(), time.monotonic()
 
-def _replay_in_child(
-    path: Path, args: argparse.Namespace, out: Path | None
-) -> tuple[list[Any], list[str]]:
+
+def _replay_in_child(path: Path, args: argparse.Namespace, out: Path | None) -> Replayed:
     """:func:`_replay_one` in a child, interruptible by Ctrl-C while it runs."""
     signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
@@ -373,6 +441,48 @@ def _sessions(files: list[Path]) -> list[Path]:
     return firsts
 
 
+def _write_timing(
+    path: Path, ready_s: dict[int, float], done: list[Replayed], finished_s: float
+) -> None:
+    """``--timing JSON``: for each process (this one first), when it had imported the replay
+    and when it started and ended each recording, how long it idled before the last
+    recording ended (``idle_at_end_s``) and its CPU time by the end of its last recording
+    (``cpu_s``, its start-up included); times are ``time.monotonic()`` s."""
+    from rtsid.io.files import atomic_write
+
+    # a process's readiness is known once its preload has come back; it always has before
+    # the process is sent a recording, but the first start stands in, should it not
+    first_s: dict[int, float] = {}
+    for d in done:
+        first_s[d.pid] = min(first_s.get(d.pid, d.started_s), d.started_s)
+    ready_s = first_s | ready_s
+    processes = []
+    for pid in sorted(ready_s, key=lambda p: (p != os.getpid(), ready_s[p])):
+        mine = sorted((d for d in done if d.pid == pid), key=lambda d: d.started_s)
+        last_s = mine[-1].ended_s if mine else ready_s[pid]
+        processes.append(
+            {
+                "pid": pid,
+                "role": "command" if pid == os.getpid() else "child",
+                "ready_s": ready_s[pid],
+                "recordings": [
+                    {"recording": d.row[0], "started_s": d.started_s, "ended_s": d.ended_s}
+                    for d in mine
+                ],
+                "idle_at_end_s": max(0.0, finished_s - last_s),
+                "cpu_s": max((d.cpu_s for d in mine), default=0.0),
+            }
+        )
+    document = {
+        "clock": "time.monotonic() s (Linux CLOCK_MONOTONIC: one clock for every process)",
+        "finished_s": finished_s,
+        "processes": processes,
+    }
+    with atomic_write(path, "w", what="timing") as fh:
+        json.dump(document, fh, indent=1)
+        fh.write("\n")
+
+
 def _rewarn(row: list[Any], incomplete: list[str]) -> list[Any]:
     for message in incomplete:
         warnings.warn(IncompleteRecordingWarning(message), stacklevel=2)
@@ -392,7 +502,11 @@ def run(args: argparse.Namespace) -> int:
     else:
         args.progress = True
         out = Path(args.output) if args.output else None
-        rows = [_rewarn(*_replay_one(path, args, out))]
+        pid, ready_s = _preload()
+        done = _replay_one(path, args, out)
+        if args.timing:
+            _write_timing(Path(args.timing), {pid: ready_s}, [done], time.monotonic())
+        rows = [_rewarn(done.row, done.incomplete)]
     from rtsid.benchmarks.table import print_table
 
     print_table(

@@ -32,7 +32,6 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from contextlib import AbstractContextManager
-from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any
@@ -40,8 +39,8 @@ from typing import IO, Any
 import numpy as np
 
 from rtsid import __version__
-from rtsid.config import invalid, require_range, section_from_mapping
 from rtsid.errors import InputDataError, RecordingError
+from rtsid.io.mcap_config import McapConfig
 from rtsid.io.schemas import (
     SCHEMAS,
     encode_can_frames,
@@ -75,59 +74,6 @@ def _no_wait() -> None:
 def _never_busy() -> bool:
     """No window worker to keep clear of."""
     return False
-
-
-@dataclass(frozen=True)
-class McapConfig:
-    """The ``[mcap]`` config section.
-
-    Attributes
-    ----------
-    directory : str
-        Where recordings go (created if missing).
-    enabled : bool
-        False: nothing is written (the logger's methods still accept messages).
-    chunk_size : int
-        Uncompressed bytes after which a chunk is closed, compressed (zstd) and written.
-    flush_interval_s : float
-        The open chunk is written and the file flushed at least this often, s. Bounds what a
-        SIGKILL loses.
-    rotate_size_mb : float
-        Start a new file once the current one reaches this size, MiB (0: never).
-    rotate_interval_s : float
-        Start a new file after this long, s (0: never).
-    queue_size : int
-        Messages waiting for the writer thread; beyond it messages are dropped and counted.
-    log_can_frames : bool
-        Also record raw CAN frames (channel ``/can_frames``).
-    retry_interval_s : float
-        After a write error, try a new file this often, s.
-    """
-
-    directory: str = "./recordings"
-    enabled: bool = True
-    chunk_size: int = 64 * 1024
-    flush_interval_s: float = 0.5
-    rotate_size_mb: float = 1024.0
-    rotate_interval_s: float = 3600.0
-    queue_size: int = 4096
-    log_can_frames: bool = False
-    retry_interval_s: float = 5.0
-
-    def __post_init__(self) -> None:
-        require_range("chunk_size", self.chunk_size, 1024, 64 * 1024 * 1024)
-        require_range("flush_interval_s", self.flush_interval_s, 0.0, 10.0, low_inclusive=False)
-        require_range("rotate_size_mb", self.rotate_size_mb, 0.0)
-        require_range("rotate_interval_s", self.rotate_interval_s, 0.0)
-        require_range("queue_size", self.queue_size, 16, 1_000_000)
-        require_range("retry_interval_s", self.retry_interval_s, 0.0, 3600.0, low_inclusive=False)
-        if not self.directory:
-            raise invalid("directory", self.directory, "a directory path")
-
-    @classmethod
-    def from_mapping(cls, mapping: Mapping[str, Any] | None) -> McapConfig:
-        """Build from the ``[mcap]`` TOML table (unknown keys and bad values rejected)."""
-        return section_from_mapping(cls, mapping, "mcap")
 
 
 def recording_name(

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from rtsid.ident.levinson import compiled_kernel
-from rtsid.link.acquisition import LinkCounters
+from rtsid.link.counters import LinkCounters
 from rtsid.verdicts import Flag, Reason
 
 if TYPE_CHECKING:  # the numerics (scipy) are imported by who runs them, not by readers

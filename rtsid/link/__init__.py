@@ -12,7 +12,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from rtsid.link.acquisition import Acquisition, LinkCounters
+    from rtsid.link.acquisition import Acquisition
     from rtsid.link.config import (
         FaultConfig,
         LinkConfig,
@@ -23,6 +23,7 @@ if TYPE_CHECKING:
         link_configs_from_mapping,
         load_link_configs,
     )
+    from rtsid.link.counters import LinkCounters
     from rtsid.link.open import LinkHandle, bus_factory, open_link
     from rtsid.link.plant import VirtualPlant
     from rtsid.link.protocol import Command
@@ -34,7 +35,7 @@ if TYPE_CHECKING:
 #: the virtual plant and its numerics (scipy, ~1 s).
 _SUBMODULE = {
     "Acquisition": "rtsid.link.acquisition",
-    "LinkCounters": "rtsid.link.acquisition",
+    "LinkCounters": "rtsid.link.counters",
     "FaultConfig": "rtsid.link.config",
     "LinkConfig": "rtsid.link.config",
     "PlantConfig": "rtsid.link.config",

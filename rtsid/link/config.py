@@ -10,19 +10,23 @@ naming ``section.key``.
 
 from __future__ import annotations
 
+import dataclasses
 import types
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rtsid.config import invalid, load_toml, require_choice, require_range, section_from_mapping
 from rtsid.errors import ConfigError, InputDataError
-from rtsid.ident.excitation import Multisine, multisine
 from rtsid.link.mapping import ANKLE_MAPPING, protocol_from_config
 from rtsid.link.protocol import PERTURBATION_KINDS
 from rtsid.link.udp import UDP_FIELDS, compile_layout
-from rtsid.sim.reflex import ReflexParameters
+
+if TYPE_CHECKING:  # the plant's simulation, imported where a plant is built: a replay reads
+    # this configuration without it
+    from rtsid.ident.excitation import Multisine
+    from rtsid.sim.reflex import ReflexParameters
 
 __all__ = [
     "FaultConfig",
@@ -134,7 +138,15 @@ class ProtocolConfig:
         require_choice("torque_sign", self.torque_sign, (1.0, -1.0))
         require_choice("marker_on", self.marker_on, ("change", "nonzero"))
         require_choice("checksum", self.checksum, ("nibble_xor", "none"))
-        protocol_from_config(self)  # every mapping error now, not at the first frame
+        if not self.is_default():
+            protocol_from_config(self)  # every mapping error now, not at the first frame
+
+    def is_default(self) -> bool:
+        """Every key at its default: the built-in ankle protocol, which compiles (tested) and
+        is compiled where a link opens. Compiling it again to check it loaded the packaged
+        DBC with cantools (and python-can with it: ≈ 0.37 G instructions) in every process
+        that only reads a configuration, each process of ``replay DIR --jobs N`` among them."""
+        return all(getattr(self, f.name) == f.default for f in dataclasses.fields(self))
 
 
 @dataclass(frozen=True)
@@ -435,6 +447,8 @@ class ReflexConfig:
         """The simulated reflex, or None when disabled."""
         if not self.enabled:
             return None
+        from rtsid.sim.reflex import ReflexParameters
+
         return ReflexParameters(self.gain, self.delay_s, self.corner_hz, self.damping_ratio)
 
 
@@ -501,6 +515,8 @@ class TorqueMultisineConfig:
             raise invalid(
                 "plant.torque_multisine.period_s", self.period_s, "a period > 0 s (none declared)"
             )
+        from rtsid.ident.excitation import multisine
+
         try:
             return multisine(
                 fs_hz,

@@ -32,9 +32,8 @@ import types
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import can
 import numpy as np
 from numpy.typing import NDArray
 
@@ -61,6 +60,9 @@ from rtsid.link.protocol import (
     quantise_position,
     quantise_torque,
 )
+
+if TYPE_CHECKING:  # python-can (asyncio, sqlite3, …) is imported where frames are made
+    import can
 
 __all__ = [
     "ANGLE_UNITS",
@@ -519,6 +521,8 @@ class MappedProtocol:
                 },
                 padding=True,
             )
+        import can
+
         return can.Message(arbitration_id=m.frame_id, data=data, is_extended_id=m.is_extended_frame)
 
     def decode_command(self, msg: can.Message) -> Command | None:
@@ -637,6 +641,8 @@ def _zeros(message: Any) -> dict[str, int]:
 
 
 def _frame(frame_id: int, extended: bool, data: bytes, timestamp: float = 0.0) -> can.Message:
+    import can  # python-can where a frame is made: a config's check does not import it
+
     return can.Message(
         arbitration_id=frame_id,
         data=data,

@@ -77,8 +77,28 @@ def test_replay_benchmark_compares_replay_with_the_bare_estimator(capsys):
     # replay, the same on the numpy path, the bare estimator: 6 s, 300 ms every 20 ms
     assert windows == [286, 286, 286]
     assert "numpy path" in out and "Floor (issue 22)" in out
-    jobs = [r.split("|")[1].strip() for r in rows if r.split("|")[1].strip() in ("1", "2")]
-    assert jobs == ["1", "2"] and "--jobs 2 ≥ 1.7× --jobs 1" in out
+    # the folder table: three alternated pairs (1-2, 2-1, 1-2) and their medians
+    runs = [
+        [c.strip() for c in r.split("|")[1:3]] for r in rows if r.startswith(("| pair", "| median"))
+    ]
+    assert runs == [
+        *(["pair 1", "1"], ["pair 1", "2"], ["pair 2", "1"], ["pair 2", "2"]),
+        *(["pair 3", "1"], ["pair 3", "2"], ["median", "1"], ["median", "2"]),
+    ]
+    assert "--jobs 2 ≥ 1.7× --jobs 1, the median of the pairs' speed-ups" in out
+    # each run's start-up per process (--timing): one for --jobs 1, two for --jobs 2
+    by_jobs = {}
+    for r in rows:
+        if r.startswith("| pair"):
+            cells = [c.strip() for c in r.split("|")]
+            by_jobs.setdefault(cells[2], []).append((cells[6], cells[7], cells[10]))
+    assert "By CPU, --jobs 1's process over --jobs 2's busiest" in out
+    for jobs, count in (("1", 1), ("2", 2)):
+        for startup, idle, busiest_cpu in by_jobs[jobs]:
+            assert float(busiest_cpu) > 0
+            assert len(startup.split(" / ")) == count and len(idle.split(" / ")) == count
+            assert all(float(s) > 0 for s in startup.split(" / "))
+            assert all(float(s) >= 0 for s in idle.split(" / "))
     # where the replay's CPU went: the three parts add up to the whole
     split = {r.split("|")[1].strip(): r.split("|") for r in rows}
     parts = [v for k, v in split.items() if k.startswith(("window path", "slow-lane", "the rest"))]

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
+
+import pytest
 
 
 def _modules_after(code: str) -> set[str]:
@@ -20,3 +23,69 @@ def test_a_replay_childs_preload_imports_the_replay_and_no_scipy():
     loaded = _modules_after("from rtsid.commands.replay import _preload; _preload()")
     assert "rtsid.replay" in loaded
     assert not {m for m in loaded if m == "scipy" or m.startswith("scipy.")}
+
+
+def test_a_replay_childs_preload_imports_no_live_machinery():
+    # a replay reads a configuration and the status schema's counter names: it needs neither
+    # the daemon, the acquisition thread, the virtual plant and its simulation, python-can
+    # (asyncio, sqlite3, ssl), the MCAP writer nor the zenoh publisher (2.28 G -> 1.67 G
+    # instructions a child's preload took)
+    loaded = _modules_after("from rtsid.commands.replay import _preload; _preload()")
+    live = {
+        "rtsid.runtime.daemon",
+        "rtsid.link.acquisition",
+        "rtsid.link.open",
+        "rtsid.link.plant",
+        "rtsid.link.socketcand",
+        "rtsid.sim",
+        "rtsid.io.mcap_log",
+        "rtsid.io.zenoh_link",
+        "rtsid.io.history",
+        "can",
+        "asyncio",
+        "sqlite3",
+    }
+    assert "rtsid.runtime.daemon_config" in loaded
+    assert not live & loaded, sorted(live & loaded)
+
+
+def test_the_moved_configuration_and_counters_are_the_same_objects_under_their_old_names():
+    # one definition each: the daemon and the acquisition import them back
+    from rtsid.io.mcap_config import McapConfig
+    from rtsid.io.mcap_log import McapConfig as logger_config
+    from rtsid.io.zenoh_config import ZenohConfig
+    from rtsid.io.zenoh_link import ZenohConfig as publisher_config
+    from rtsid.link import LinkCounters as lazy_counters
+    from rtsid.link.acquisition import LINK_STATES as acquisition_states
+    from rtsid.link.acquisition import LinkCounters as acquisition_counters
+    from rtsid.link.counters import LINK_STATES, LinkCounters
+    from rtsid.runtime.daemon import SECTIONS as daemon_sections
+    from rtsid.runtime.daemon import DaemonConfig as daemon_config
+    from rtsid.runtime.daemon_config import SECTIONS, DaemonConfig
+
+    assert logger_config is McapConfig and publisher_config is ZenohConfig
+    assert acquisition_counters is LinkCounters is lazy_counters
+    assert acquisition_states is LINK_STATES
+    assert daemon_config is DaemonConfig and daemon_sections is SECTIONS
+
+
+def test_a_replay_reads_a_default_protocol_without_cantools_and_python_can():
+    # the recording's [link.protocol] is the default (the built-in ankle protocol): checking
+    # it compiled the packaged DBC with cantools, which imports python-can, in every process
+    recording = Path(__file__).resolve().parents[2] / "replay" / "reference" / "sim_3s.mcap"
+    loaded = _modules_after(
+        "from pathlib import Path; from rtsid.replay import replay_file; "
+        f"assert replay_file(Path({str(recording)!r})).messages"
+    )
+    assert "rtsid.replay" in loaded and not {"cantools", "can"} & loaded
+
+
+def test_a_protocol_section_is_checked_unless_it_is_the_default():
+    from rtsid.errors import ConfigError
+    from rtsid.link.config import ProtocolConfig
+    from rtsid.link.mapping import protocol_from_config
+
+    assert ProtocolConfig().is_default() and protocol_from_config(ProtocolConfig()).builtin
+    assert not ProtocolConfig(position_sign=-1.0).is_default()
+    with pytest.raises(ConfigError, match="NoSuch"):
+        ProtocolConfig(position="NoSuch.Signal")
