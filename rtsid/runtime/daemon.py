@@ -47,7 +47,7 @@ from rtsid.runtime.gate import WindowGate
 from rtsid.runtime.power import cpu_latency_request, set_realtime_priority
 from rtsid.runtime.session import SessionDesk, session_message
 from rtsid.runtime.slow_lane import SlowLane
-from rtsid.runtime.stalls import StallJournal
+from rtsid.runtime.stalls import StallJournal, freeze_survivors
 from rtsid.runtime.worker import WindowEvaluator, WindowWorker
 from rtsid.verdicts import plain_counts
 
@@ -90,7 +90,7 @@ def _collect_in_the_gap() -> int | None:
         return None
     gc.collect(due[-1])
     if due[-1] == 2:
-        gc.freeze()
+        freeze_survivors()
     return due[-1]
 
 
@@ -99,7 +99,7 @@ def _freeze_what_lives() -> None:
     what is built by now lives for the whole run, and later full collections need not walk
     it)."""
     gc.collect()
-    gc.freeze()
+    freeze_survivors()
 
 
 @dataclass(frozen=True)

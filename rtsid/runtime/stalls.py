@@ -209,6 +209,26 @@ class GcPause(NamedTuple):
         return f"gen {self.generation}, {self.ms:.2f} ms (CPU {self.cpu_ms:.2f} ms)"
 
 
+#: Objects :func:`freeze_survivors` moved out of the collector's view in this process.
+_frozen = 0
+
+
+def freeze_survivors() -> None:
+    """``gc.freeze()`` right after a full collection, counting what it freezes: the objects
+    the collector still tracks (the survivors, and what came since), listed in time
+    proportional to them alone. ``gc.get_freeze_count`` walks all that was ever frozen
+    instead (9 ms at the daemon's 90 000 objects, the GIL held: reading it in every status
+    made the status step miss 4 ms windows)."""
+    global _frozen
+    _frozen += len(gc.get_objects())
+    gc.freeze()
+
+
+def frozen_count() -> int:
+    """Objects :func:`freeze_survivors` froze in this process so far."""
+    return _frozen
+
+
 @dataclass(frozen=True)
 class Span:
     """Something that ran in the daemon: ``name`` from ``start_s`` to ``end_s``."""
@@ -461,5 +481,5 @@ class StallJournal:
             "gc_ms": [round(ms, 3) for ms in self.gc_ms],
             "gc_longest": plain(self.longest_gc),
             "gc_longest_startup": plain(self.longest_startup_gc),
-            "gc_frozen": gc.get_freeze_count(),
+            "gc_frozen": frozen_count(),
         }

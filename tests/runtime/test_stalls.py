@@ -17,6 +17,8 @@ from rtsid.runtime.stalls import (
     HostReading,
     RunQueueClock,
     StallJournal,
+    freeze_survivors,
+    frozen_count,
 )
 
 
@@ -166,7 +168,17 @@ def test_the_longest_collection_is_kept_apart_from_the_start_ups():
     counters = journal.gc_counters()
     assert counters["gc_longest"] == [0, round(longest.ms, 3), round(longest.cpu_ms, 3)]
     assert counters["gc_longest_startup"][0] == 2
-    assert counters["gc_collections"][0] >= 2 and counters["gc_frozen"] == gc.get_freeze_count()
+    assert counters["gc_collections"][0] >= 2 and counters["gc_frozen"] == frozen_count()
+
+
+def test_what_is_frozen_is_counted_as_it_is_frozen():
+    """The status's frozen count follows ``gc.get_freeze_count`` without calling it (it walks
+    every frozen object: milliseconds, the GIL held)."""
+    kept = [[k] for k in range(5000)]  # containers the collector tracks
+    gc.collect()
+    before, counted = gc.get_freeze_count(), frozen_count()
+    freeze_survivors()
+    assert frozen_count() - counted == gc.get_freeze_count() - before >= len(kept)
 
 
 def test_the_kept_spans_are_not_walked_by_later_collections():
