@@ -50,6 +50,15 @@ def require_finite(key: str, value: object) -> None:
 MAX_CONFIG_BYTES = 1 << 20
 
 
+def from_config_folder(value: Any, base_dir: str | Path | None) -> Any:
+    """A path key's value as read from a config file: a relative path (``~`` expanded) taken
+    from ``base_dir``, the file's folder; anything else (absolute, empty, not a string, no
+    file) unchanged, for the section's own check to judge."""
+    if base_dir is None or not isinstance(value, str) or not value:
+        return value
+    return str(Path(base_dir) / Path(value).expanduser())
+
+
 def load_toml(path: str | Path) -> dict[str, Any]:
     """Read a TOML file; a missing, unreadable, binary, oversized or malformed file is a
     ConfigError naming the file and the fix."""

@@ -17,7 +17,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from rtsid.config import invalid, load_toml, require_choice, require_range, section_from_mapping
+from rtsid.config import (
+    from_config_folder,
+    invalid,
+    load_toml,
+    require_choice,
+    require_range,
+    section_from_mapping,
+)
 from rtsid.errors import ConfigError, InputDataError
 from rtsid.link.mapping import ANKLE_MAPPING, protocol_from_config
 from rtsid.link.protocol import PERTURBATION_KINDS
@@ -687,9 +694,8 @@ def plant_config_from_mapping(
     when given.
     """
     values = dict(mapping or {})
-    player = values.get("player_file")
-    if base_dir is not None and isinstance(player, str) and player:
-        values["player_file"] = str(Path(base_dir) / Path(player).expanduser())
+    if "player_file" in values:
+        values["player_file"] = from_config_folder(values["player_file"], base_dir)
     subs: dict[str, Any] = {}
     for key, cls, attr in (
         ("faults", FaultConfig, "faults"),
@@ -718,9 +724,8 @@ def link_config_from_mapping(
         if table is not None and not isinstance(table, Mapping):
             raise invalid(f"link.{key}", table, f"a table [link.{key}]")
         table = dict(table or {})
-        dbc = table.get("dbc")
-        if key == "protocol" and base_dir is not None and isinstance(dbc, str) and dbc:
-            table["dbc"] = str(Path(base_dir) / Path(dbc).expanduser())
+        if key == "protocol" and "dbc" in table:
+            table["dbc"] = from_config_folder(table["dbc"], base_dir)
         subs[key] = section_from_mapping(cls, table, f"link.{key}")
     return section_from_mapping(LinkConfig, {**values, **subs}, "link")
 

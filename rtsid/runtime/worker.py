@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from rtsid.config import require_range, section_from_mapping
+from rtsid.config import from_config_folder, require_range, section_from_mapping
 from rtsid.errors import (
     ConfigError,
     InputDataError,
@@ -119,12 +119,9 @@ class WorkerConfig:
     def from_mapping(cls, mapping: Any, base_dir: str | Path | None = None) -> WorkerConfig:
         """Build from the ``[worker]`` TOML table; a relative ``calibration_file`` is taken
         from ``base_dir`` (the config file's folder) when given."""
-        calibration = mapping.get("calibration_file") if isinstance(mapping, Mapping) else None
-        if base_dir is not None and isinstance(calibration, str) and calibration:
-            mapping = {
-                **mapping,
-                "calibration_file": str(Path(base_dir) / Path(calibration).expanduser()),
-            }
+        if isinstance(mapping, Mapping) and "calibration_file" in mapping:
+            path = from_config_folder(mapping["calibration_file"], base_dir)
+            mapping = {**mapping, "calibration_file": path}
         return section_from_mapping(cls, mapping, "worker")
 
     @property
