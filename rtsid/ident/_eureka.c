@@ -1785,6 +1785,7 @@ static PyObject *py_savgol_range(PyObject *self, PyObject *args); /* fits6, end 
 static PyObject *py_all_finite(PyObject *self, PyObject *args); /* fits6, end */
 static PyObject *py_window_scan(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* eval8 */
 static PyObject *py_finite_dict(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* eval8 */
+static PyObject *py_mdl_rank(PyObject *self, PyObject *args); /* fits7, end */
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1840,6 +1841,7 @@ static PyMethodDef methods[] = {
     {"all_finite", py_all_finite, METH_VARARGS, "all_finite(x, y) -> bool: no NaN nor infinity in x nor y (section fits6)."},
     {"window_scan", (PyCFunction)(void (*)(void))py_window_scan, METH_FASTCALL, "window_scan(position, torque, valid, status, start, stop) -> (status bits raised, all valid, sums finite) or None (section eval8)."},
     {"finite_dict", (PyCFunction)(void (*)(void))py_finite_dict, METH_FASTCALL, "finite_dict(names, values) -> dict of names to values, non-finite floats as None (section eval8)."},
+    {"mdl_rank", py_mdl_rank, METH_VARARGS, "mdl_rank(phi_rr, full, power_e, n_samples, out) -> rank: reflex.mdl_projection's rank and projected solution (into out) without a full eigendecomposition (section fits7)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -5561,4 +5563,295 @@ static PyObject *py_finite_dict(PyObject *self, PyObject *const *args, Py_ssize_
         }
     }
     return out;
+}
+
+/* ------------------------------------------------------------------ branch fits7 (issue 22)
+ * The slow lane's fits, ninth pass: the MDL rank without a full eigendecomposition.
+ *
+ * mdl_rank(phi_rr, full, power_e, n_samples, out) -> rank: rtsid.ident.reflex.mdl_projection
+ *   for a symmetric Toeplitz matrix T (first column phi_rr, size L + 1 ≥ 4) and its EUREKA
+ *   solution `full`. T is centrosymmetric, so it splits into its symmetric and skew-symmetric
+ *   halves (as reflex._centrosymmetric_halves); each half is reduced to tridiagonal form by
+ *   Householder reflections, its eigenvalues found by implicit QL with Wilkinson-like shifts
+ *   (tql2's iteration), and each rotation applied to the half's coefficient vector Q^T·y
+ *   instead of accumulated into an eigenvector matrix: every eigenvalue and every coefficient
+ *   vᵢᵀ·full for O(m²) per half after the O(m³/3·4) reduction (numpy's dsyevd forms all m
+ *   vectors). The components explaining the most output variance are kept at the rank where
+ *   V(M)·(1 + M·ln N / N) is smallest, and the projected solution Σ_kept cᵢ·vᵢ is formed as
+ *   Q·Z·u (u: the kept coefficients, the others zero) by the rotations recorded, applied in
+ *   reverse, then the reflections: one vector, whatever the rank. The same eigenpairs as
+ *   numpy.linalg.eigh to rounding (not the same bits: the numpy reference stays on the
+ *   RTSID_NUMPY_ONLY=1 path, tested to agree). Returns −1 when QL does not converge
+ *   (60 sweeps for one eigenvalue) or memory runs out (a MemoryError is set for the latter).
+ */
+typedef struct {
+    Py_ssize_t *at; /* the rotation's first index i (it rotates i and i + 1) */
+    double *cs;     /* its cosine and sine, two per rotation */
+    Py_ssize_t count, room;
+} fits7_rotations;
+
+static int fits7_record(fits7_rotations *r, Py_ssize_t i, double c, double s)
+{
+    if (r->count == r->room) {
+        const Py_ssize_t room = r->room ? 2 * r->room : 1024;
+        Py_ssize_t *at = PyMem_RawRealloc(r->at, (size_t)room * sizeof(Py_ssize_t));
+        if (at == NULL) return -1;
+        r->at = at;
+        double *cs = PyMem_RawRealloc(r->cs, (size_t)room * 2 * sizeof(double));
+        if (cs == NULL) return -1;
+        r->cs = cs;
+        r->room = room;
+    }
+    r->at[r->count] = i;
+    r->cs[2 * r->count] = c;
+    r->cs[2 * r->count + 1] = s;
+    r->count++;
+    return 0;
+}
+
+/* Householder reduction of the symmetric a (m × m, row-major, overwritten) to tridiagonal
+ * d (m), e (m: e[i] couples i and i + 1, e[m − 1] = 0). The reflection k (I − βₖ·vₖ·vₖᵀ acting
+ * on rows and columns k + 1 … m − 1) is kept in a's column k below its diagonal, βₖ in beta[k]. */
+static void fits7_tridiagonal(double *a, Py_ssize_t m, double *d, double *e, double *beta,
+                              double *p)
+{
+    for (Py_ssize_t k = 0; k + 2 < m; k++) {
+        double sigma = 0.0;
+        for (Py_ssize_t i = k + 2; i < m; i++) sigma += a[i * m + k] * a[i * m + k];
+        const double x0 = a[(k + 1) * m + k];
+        if (sigma == 0.0) {
+            beta[k] = 0.0;
+            e[k] = x0;
+            continue;
+        }
+        const double norm = sqrt(x0 * x0 + sigma);
+        const double alpha = x0 > 0.0 ? -norm : norm;
+        /* v = x − α·e₁ (v₀ = x₀ − α, no cancellation), β = 2 / vᵀv */
+        a[(k + 1) * m + k] = x0 - alpha;
+        const double vv = (x0 - alpha) * (x0 - alpha) + sigma;
+        const double b = 2.0 / vv;
+        beta[k] = b;
+        e[k] = alpha;
+        /* p = β·A₂₂·v, w = p − (β·pᵀv / 2)·v, A₂₂ −= v·wᵀ + w·vᵀ (lower triangle and diagonal) */
+        double pv = 0.0;
+        for (Py_ssize_t i = k + 1; i < m; i++) {
+            double s = 0.0;
+            for (Py_ssize_t j = k + 1; j <= i; j++) s += a[i * m + j] * a[j * m + k];
+            for (Py_ssize_t j = i + 1; j < m; j++) s += a[j * m + i] * a[j * m + k];
+            p[i] = b * s;
+            pv += p[i] * a[i * m + k];
+        }
+        const double half = 0.5 * b * pv;
+        for (Py_ssize_t i = k + 1; i < m; i++) p[i] -= half * a[i * m + k];
+        for (Py_ssize_t i = k + 1; i < m; i++) {
+            const double vi = a[i * m + k], wi = p[i];
+            for (Py_ssize_t j = k + 1; j <= i; j++)
+                a[i * m + j] -= vi * p[j] + wi * a[j * m + k];
+        }
+    }
+    for (Py_ssize_t k = 0; k < m; k++) d[k] = a[k * m + k];
+    if (m >= 2) {
+        const Py_ssize_t k = m - 2;
+        e[k] = a[(k + 1) * m + k];
+        beta[k] = 0.0;
+    }
+    e[m - 1] = 0.0;
+}
+
+/* y ← Qᵀ·y (forward = 1: the reflections 0, 1, … in turn) or y ← Q·y (forward = 0). */
+static void fits7_reflect(const double *a, const double *beta, Py_ssize_t m, double *y, int forward)
+{
+    for (Py_ssize_t step = 0; step + 2 < m; step++) {
+        const Py_ssize_t k = forward ? step : m - 3 - step;
+        if (beta[k] == 0.0) continue;
+        double s = 0.0;
+        for (Py_ssize_t i = k + 1; i < m; i++) s += a[i * m + k] * y[i];
+        s *= beta[k];
+        for (Py_ssize_t i = k + 1; i < m; i++) y[i] -= s * a[i * m + k];
+    }
+}
+
+/* Implicit QL on the tridiagonal (d, e) of size m (tql2's iteration): the eigenvalues into d,
+ * each rotation applied to w (w ← Zᵀ·w) and recorded. 0, or −1 (no convergence, no memory). */
+static int fits7_ql(double *d, double *e, Py_ssize_t m, double *w, fits7_rotations *rot)
+{
+    for (Py_ssize_t l = 0; l < m; l++) {
+        int sweeps = 0;
+        Py_ssize_t k;
+        do {
+            for (k = l; k + 1 < m; k++) {
+                const double dd = fabs(d[k]) + fabs(d[k + 1]);
+                if (fabs(e[k]) + dd == dd) break;
+            }
+            if (k == l) break;
+            if (++sweeps > 60) return -1;
+            double g = (d[l + 1] - d[l]) / (2.0 * e[l]);
+            double r = hypot(g, 1.0);
+            g = d[k] - d[l] + e[l] / (g + copysign(r, g));
+            double s = 1.0, c = 1.0, p = 0.0;
+            Py_ssize_t i;
+            int underflow = 0;
+            for (i = k - 1; i >= l; i--) {
+                const double f = s * e[i], b = c * e[i];
+                r = hypot(f, g);
+                e[i + 1] = r;
+                if (r == 0.0) {
+                    d[i + 1] -= p;
+                    e[k] = 0.0;
+                    underflow = 1;
+                    break;
+                }
+                s = f / r;
+                c = g / r;
+                g = d[i + 1] - p;
+                r = (d[i] - g) * s + 2.0 * c * b;
+                p = s * r;
+                d[i + 1] = g + p;
+                g = c * r - b;
+                const double wi = w[i], wn = w[i + 1];
+                w[i + 1] = s * wi + c * wn;
+                w[i] = c * wi - s * wn;
+                if (fits7_record(rot, i, c, s) < 0) return -1;
+            }
+            if (underflow) continue;
+            d[l] -= p;
+            e[l] = g;
+            e[k] = 0.0;
+        } while (1);
+    }
+    return 0;
+}
+
+/* u ← Z·u for Z the product of the recorded rotations (applied last first). */
+static void fits7_unrotate(const fits7_rotations *rot, double *u)
+{
+    for (Py_ssize_t q = rot->count - 1; q >= 0; q--) {
+        const Py_ssize_t i = rot->at[q];
+        const double c = rot->cs[2 * q], s = rot->cs[2 * q + 1];
+        const double ui = u[i], un = u[i + 1];
+        u[i] = c * ui + s * un;
+        u[i + 1] = c * un - s * ui;
+    }
+}
+
+/* One half: its matrix a (m × m, overwritten), y its folded solution (overwritten with the
+ * coefficients), lambda its eigenvalues; rot its rotations. */
+static int fits7_half(double *a, Py_ssize_t m, double *y, double *lambda, double *e,
+                      double *beta, double *p, fits7_rotations *rot)
+{
+    fits7_tridiagonal(a, m, lambda, e, beta, p);
+    fits7_reflect(a, beta, m, y, 1);
+    return fits7_ql(lambda, e, m, y, rot);
+}
+
+static Py_ssize_t fits7_mdl(const double *phi, const double *full, double power_e, double samples,
+                            Py_ssize_t n, double *out, double *work, fits7_rotations rot[2])
+{
+    const Py_ssize_t half = n / 2, ms = n - half, mk = half;
+    const double root_half = sqrt(0.5);
+    double *as = work, *ak = as + ms * ms;
+    double *ys = ak + mk * mk, *yk = ys + ms, *ls = yk + mk, *lk = ls + ms;
+    double *e = lk + mk, *bs = e + n, *bk = bs + n, *p = bk + n, *explained = p + n, *u = explained + n;
+    Py_ssize_t *order = (Py_ssize_t *)(u + n);
+    /* the halves, as reflex._centrosymmetric_halves forms them, and the solution folded */
+    for (Py_ssize_t i = 0; i < half; i++) {
+        for (Py_ssize_t j = 0; j < half; j++) {
+            const double near = phi[i > j ? i - j : j - i], far = phi[n - 1 - i - j];
+            as[i * ms + j] = near + far;
+            ak[i * mk + j] = near - far;
+        }
+        ys[i] = root_half * (full[i] + full[n - 1 - i]);
+        yk[i] = root_half * (full[i] - full[n - 1 - i]);
+    }
+    if (n % 2) {
+        for (Py_ssize_t i = 0; i < half; i++)
+            as[i * ms + half] = as[half * ms + i] = sqrt(2.0) * phi[half - i];
+        as[half * ms + half] = phi[0];
+        ys[half] = full[half];
+    }
+    if (fits7_half(as, ms, ys, ls, e, bs, p, &rot[0]) < 0) return -1;
+    if (fits7_half(ak, mk, yk, lk, e, bk, p, &rot[1]) < 0) return -1;
+    /* the variance each component explains, largest first (ties in index order) */
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double lambda = i < ms ? ls[i] : lk[i - ms], c = i < ms ? ys[i] : yk[i - ms];
+        explained[i] = (lambda > 0.0 ? lambda : 0.0) * c * c;
+        Py_ssize_t j = i;
+        for (; j > 0 && explained[order[j - 1]] < explained[i]; j--) order[j] = order[j - 1];
+        order[j] = i;
+    }
+    /* numpy's expressions: power_e − cumsum, max(·, 1e-300)·(1 + M·ln N / N), first minimum */
+    double explained_sum = 0.0, best = INFINITY;
+    Py_ssize_t rank = 1;
+    const double log_n = log(samples);
+    for (Py_ssize_t r = 1; r <= n; r++) {
+        explained_sum += explained[order[r - 1]];
+        const double residual = power_e - explained_sum;
+        const double mdl =
+            (residual > 1e-300 ? residual : 1e-300) * (1.0 + (double)r * log_n / samples);
+        if (mdl < best) {
+            best = mdl;
+            rank = r;
+        }
+    }
+    /* Σ_kept cᵢ·vᵢ: each half's Q·Z·u (u: the kept coefficients), unfolded as
+     * ToeplitzSystem.of unfolds its vectors */
+    for (Py_ssize_t i = 0; i < n; i++) u[i] = 0.0;
+    for (Py_ssize_t r = 0; r < rank; r++) {
+        const Py_ssize_t i = order[r];
+        u[i] = i < ms ? ys[i] : yk[i - ms];
+    }
+    double *us = u, *uk = u + ms;
+    fits7_unrotate(&rot[0], us);
+    fits7_unrotate(&rot[1], uk);
+    fits7_reflect(as, bs, ms, us, 0);
+    fits7_reflect(ak, bk, mk, uk, 0);
+    for (Py_ssize_t i = 0; i < half; i++) {
+        out[i] = root_half * us[i] + root_half * uk[i];
+        out[n - 1 - i] = root_half * us[i] - root_half * uk[i];
+    }
+    if (n % 2) out[half] = us[half];
+    return rank;
+}
+
+static PyObject *py_mdl_rank(PyObject *self, PyObject *args)
+{
+    (void)self;
+    PyObject *objs[3];
+    double power_e, samples;
+    if (!PyArg_ParseTuple(args, "OOddO", &objs[0], &objs[1], &power_e, &samples, &objs[2]))
+        return NULL;
+    const char *names[3] = {"phi_rr", "full", "out"};
+    Py_buffer b[3];
+    if (get_buffers(objs, 3, 2, names, b) < 0) return NULL;
+    const Py_ssize_t n = b[0].len / 8;
+    PyObject *result = NULL;
+    if (n < 4 || b[1].len != b[0].len || b[2].len != b[0].len) {
+        PyErr_SetString(PyExc_ValueError, "mdl_rank: inconsistent sizes (at least 4 lags)");
+        release_buffers(b, 3);
+        return NULL;
+    }
+    const Py_ssize_t half = n / 2, ms = n - half;
+    const size_t doubles = (size_t)(ms * ms + half * half + 11 * n);
+    double *work = PyMem_Malloc(doubles * sizeof(double) + (size_t)n * sizeof(Py_ssize_t));
+    fits7_rotations rot[2] = {{NULL, NULL, 0, 0}, {NULL, NULL, 0, 0}};
+    if (work == NULL) {
+        PyErr_NoMemory();
+    } else {
+        Py_ssize_t rank;
+        Py_BEGIN_ALLOW_THREADS
+        rank = fits7_mdl(b[0].buf, b[1].buf, power_e, samples, n, b[2].buf, work, rot);
+        Py_END_ALLOW_THREADS
+        if (rank < 0)
+            PyErr_SetString(PyExc_ArithmeticError,
+                            "mdl_rank: the eigenvalue iteration did not converge");
+        else
+            result = PyLong_FromSsize_t(rank);
+    }
+    for (int h = 0; h < 2; h++) {
+        PyMem_RawFree(rot[h].at);
+        PyMem_RawFree(rot[h].cs);
+    }
+    PyMem_Free(work);
+    release_buffers(b, 3);
+    return result;
 }
