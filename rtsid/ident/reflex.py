@@ -256,6 +256,15 @@ class ToeplitzSystem:
         return self._eigenpairs[1]
 
     @cached_property
+    def decomposition(self) -> bytes | None:
+        """The compiled ``mdl_decompose``'s tridiagonal halves, eigenvalues and rotations (what
+        :func:`mdl_projection` needs of the matrix, formed on first use); None on the numpy
+        path or below 4 lags."""
+        if _eureka is None or self.phi_rr.size < 4:
+            return None
+        return bytes(_eureka.mdl_decompose(np.ascontiguousarray(self.phi_rr, dtype=np.float64)))
+
+    @cached_property
     def _eigenpairs(self) -> tuple[FloatArray, FloatArray]:
         """The eigenvalues and vectors.
 
@@ -368,25 +377,25 @@ def mdl_projection(
     Raises
     ------
     ArithmeticError
-        The compiled eigenvalue iteration did not converge (not seen: 60 sweeps an eigenvalue).
+        The compiled eigenvalue iteration did not converge (60 sweeps for one eigenvalue; not
+        seen).
 
     Notes
     -----
-    The compiled ``mdl_rank`` (section ``fits7`` of ``_eureka.c``) reduces each
-    centrosymmetric half to tridiagonal form and applies implicit QL's rotations to the
-    solution's coefficients instead of accumulating eigenvectors, then forms only the kept
-    components' sum: the eigenpairs of :func:`mdl_on_eigenpairs` (``numpy.linalg.eigh``, the
+    The compiled ``mdl_decompose`` (section ``fits7`` of ``_eureka.c``, once per system:
+    :attr:`ToeplitzSystem.decomposition`) reduces each centrosymmetric half to tridiagonal
+    form and records implicit QL's rotations instead of accumulating eigenvectors; ``mdl_rank``
+    applies them to the solution's coefficients and forms only the kept components' sum: the eigenpairs of :func:`mdl_on_eigenpairs` (``numpy.linalg.eigh``, the
     ``RTSID_NUMPY_ONLY=1`` path) to rounding, not bit for bit (tested: the same ranks, the
     projection within 1e-11 of its largest value).
     """
     full = eureka(phi_rr, phi_re)
-    if _eureka is not None and phi_rr.size >= 4:
-        projected = np.empty(phi_rr.size)
-        rank = _eureka.mdl_rank(
-            np.ascontiguousarray(phi_rr, dtype=np.float64), full, power_e, float(n), projected
-        )
-        return projected, int(rank)
     system = system or ToeplitzSystem.of(phi_rr)
+    decomposition = system.decomposition
+    if decomposition is not None:
+        projected = np.empty(phi_rr.size)
+        rank = _eureka.mdl_rank(decomposition, full, power_e, float(n), projected)
+        return projected, int(rank)
     return mdl_on_eigenpairs(system.eigenvalues, system.vectors, full, power_e, n)
 
 

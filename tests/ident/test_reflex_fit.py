@@ -354,8 +354,8 @@ def test_the_compiled_mdl_rank_of_an_output_it_all_explains_is_one_component():
     phi, phi_re, _, n = _mdl_problem(101, 0)
     full = eureka(phi, phi_re)
     out = np.empty(101)
-    assert reflex._eureka.mdl_rank(phi, full, 0.0, float(n), out) == 1
     system = reflex.ToeplitzSystem.of(phi)
+    assert reflex._eureka.mdl_rank(system.decomposition, full, 0.0, float(n), out) == 1
     want, rank = reflex.mdl_on_eigenpairs(system.eigenvalues, system.vectors, full, 0.0, n)
     assert rank == 1
     np.testing.assert_allclose(out, want, rtol=0, atol=1e-11 * np.abs(want).max())
@@ -364,10 +364,13 @@ def test_the_compiled_mdl_rank_of_an_output_it_all_explains_is_one_component():
 def test_the_compiled_mdl_rank_names_inconsistent_sizes():
     if reflex._eureka is None:
         pytest.skip("the compiled kernel is not built")
+    with pytest.raises(ValueError, match="mdl_decompose: at least 4 lags"):
+        reflex._eureka.mdl_decompose(np.ones(3))
+    decomposition = reflex.ToeplitzSystem.of(_mdl_problem(8, 0)[0]).decomposition
     with pytest.raises(ValueError, match="mdl_rank: inconsistent sizes"):
-        reflex._eureka.mdl_rank(np.ones(3), np.ones(3), 1.0, 10.0, np.empty(3))
-    with pytest.raises(ValueError, match="mdl_rank: inconsistent sizes"):
-        reflex._eureka.mdl_rank(np.ones(8), np.ones(7), 1.0, 10.0, np.empty(8))
+        reflex._eureka.mdl_rank(decomposition, np.ones(7), 1.0, 10.0, np.empty(8))
+    with pytest.raises(ValueError, match="mdl_rank: not a decomposition"):
+        reflex._eureka.mdl_rank(decomposition[:-8], np.ones(8), 1.0, 10.0, np.empty(8))
 
 
 def test_a_rect_cascade_forms_no_eigenvectors_on_the_compiled_path(monkeypatch):
