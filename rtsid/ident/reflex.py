@@ -385,7 +385,8 @@ def mdl_projection(
     The compiled ``mdl_decompose`` (section ``fits7`` of ``_eureka.c``, once per system:
     :attr:`ToeplitzSystem.decomposition`) reduces each centrosymmetric half to tridiagonal
     form and records implicit QL's rotations instead of accumulating eigenvectors; ``mdl_rank``
-    applies them to the solution's coefficients and forms only the kept components' sum: the eigenpairs of :func:`mdl_on_eigenpairs` (``numpy.linalg.eigh``, the
+    applies them to the solution's coefficients and forms only the kept components' sum:
+    the eigenpairs of :func:`mdl_on_eigenpairs` (``numpy.linalg.eigh``, the
     ``RTSID_NUMPY_ONLY=1`` path) to rounding, not bit for bit (tested: the same ranks, the
     projection within 1e-11 of its largest value).
     """
