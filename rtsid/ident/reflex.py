@@ -61,6 +61,7 @@ __all__ = [
     "delay_search_s",
     "fit_reflex_dynamics",
     "fit_reflex_pathway",
+    "mdl_on_eigenpairs",
     "mdl_projection",
     "prediction_history_s",
     "stream_taps",
@@ -365,8 +366,8 @@ def mdl_projection(
     n : int
         Samples behind the correlations.
     system : ToeplitzSystem, optional
-        ``ToeplitzSystem.of(phi_rr)``, when already formed (the same numbers either way; the
-        compiled path needs no eigenvectors and does not use it).
+        ``ToeplitzSystem.of(phi_rr)``, when already formed (the same numbers either way): the
+        compiled path uses its ``decomposition``, the numpy path its eigenpairs.
 
     Returns
     -------
