@@ -1785,6 +1785,8 @@ static PyObject *py_savgol_range(PyObject *self, PyObject *args); /* fits6, end 
 static PyObject *py_all_finite(PyObject *self, PyObject *args); /* fits6, end */
 static PyObject *py_window_scan(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* eval8 */
 static PyObject *py_finite_dict(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* eval8 */
+static PyObject *py_mdl_decompose(PyObject *self, PyObject *args); /* fits7, end */
+static PyObject *py_mdl_rank(PyObject *self, PyObject *args); /* fits7, end */
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1840,6 +1842,8 @@ static PyMethodDef methods[] = {
     {"all_finite", py_all_finite, METH_VARARGS, "all_finite(x, y) -> bool: no NaN nor infinity in x nor y (section fits6)."},
     {"window_scan", (PyCFunction)(void (*)(void))py_window_scan, METH_FASTCALL, "window_scan(position, torque, valid, status, start, stop) -> (status bits raised, all valid, sums finite) or None (section eval8)."},
     {"finite_dict", (PyCFunction)(void (*)(void))py_finite_dict, METH_FASTCALL, "finite_dict(names, values) -> dict of names to values, non-finite floats as None (section eval8)."},
+    {"mdl_decompose", py_mdl_decompose, METH_VARARGS, "mdl_decompose(phi_rr) -> bytes: a symmetric Toeplitz matrix's halves tridiagonalised, their eigenvalues and QL rotations, for mdl_rank (section fits7)."},
+    {"mdl_rank", py_mdl_rank, METH_VARARGS, "mdl_rank(decomposition, full, power_e, n_samples, out) -> rank: reflex.mdl_projection's rank and projected solution (into out) without eigenvectors (section fits7)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -5562,3 +5566,412 @@ static PyObject *py_finite_dict(PyObject *self, PyObject *const *args, Py_ssize_
     }
     return out;
 }
+
+/* ------------------------------------------------------------------ branch fits7 (issue 22)
+ * The slow lane's fits, ninth pass: the MDL rank without a full eigendecomposition.
+ *
+ * mdl_decompose(phi_rr) -> bytes, then mdl_rank(decomposition, full, power_e, n_samples, out)
+ *   -> rank: rtsid.ident.reflex.mdl_projection for a symmetric Toeplitz matrix T (first column
+ *   phi_rr, size n = L + 1 ≥ 4) and its EUREKA solution `full`. T is centrosymmetric, so it
+ *   splits into its symmetric and skew-symmetric halves (as reflex._centrosymmetric_halves);
+ *   mdl_decompose reduces each half to tridiagonal form by Householder reflections (the whole
+ *   trailing block updated, so every product runs along rows, four lanes of partial sums) and
+ *   finds its eigenvalues by implicit QL (tql2's iteration), recording each rotation instead
+ *   of accumulating eigenvectors: O(m³) with a small constant for the reduction, O(m²) for
+ *   QL (numpy's dsyevd also forms every eigenvector). Formed once per system (a cascade's
+ *   alternations share it: reflex.ToeplitzSystem keeps it). mdl_rank folds `full` on each
+ *   half, applies the reflections and the rotations to it (every coefficient vᵢᵀ·full,
+ *   O(m²)), keeps the components explaining the most output variance up to the rank where
+ *   V(M)·(1 + M·ln N / N) is smallest (numpy's expressions), and forms Σ_kept cᵢ·vᵢ as Q·Z·u
+ *   (u: the kept coefficients, the others zero) by the rotations in reverse, then the
+ *   reflections: one vector, whatever the rank. The eigenpairs of numpy.linalg.eigh to
+ *   rounding, not the same bits (the numpy reference stays the RTSID_NUMPY_ONLY=1 path, tested
+ *   to agree). mdl_decompose raises ArithmeticError when QL does not converge (60 sweeps for
+ *   one eigenvalue); mdl_rank a ValueError for bytes that are not a decomposition.
+ */
+typedef struct {
+    Py_ssize_t *at; /* the rotation's first index i (it rotates i and i + 1) */
+    double *cs;     /* its cosine and sine, two per rotation */
+    Py_ssize_t count, room;
+} fits7_rotations;
+
+static int fits7_record(fits7_rotations *r, Py_ssize_t i, double c, double s)
+{
+    if (r->count == r->room) {
+        const Py_ssize_t room = r->room ? 2 * r->room : 1024;
+        Py_ssize_t *at = PyMem_RawRealloc(r->at, (size_t)room * sizeof(Py_ssize_t));
+        if (at == NULL) return -1;
+        r->at = at;
+        double *cs = PyMem_RawRealloc(r->cs, (size_t)room * 2 * sizeof(double));
+        if (cs == NULL) return -1;
+        r->cs = cs;
+        r->room = room;
+    }
+    r->at[r->count] = i;
+    r->cs[2 * r->count] = c;
+    r->cs[2 * r->count + 1] = s;
+    r->count++;
+    return 0;
+}
+
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
+#define FITS7_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define FITS7_CLONES
+#endif
+typedef double fits7_lanes __attribute__((vector_size(32)));
+typedef double fits7_lanes_u __attribute__((vector_size(32), aligned(8)));
+
+/* Σ x[j]·y[j], four lanes of partial sums (then lanes 0 + 1 + 2 + 3, then the tail) */
+FITS7_CLONES static double fits7_dot(const double *x, const double *y, Py_ssize_t n)
+{
+    fits7_lanes acc = {0.0, 0.0, 0.0, 0.0};
+    Py_ssize_t j = 0;
+    for (; j + 4 <= n; j += 4) acc += *(const fits7_lanes_u *)(x + j) * *(const fits7_lanes_u *)(y + j);
+    double s = ((acc[0] + acc[1]) + acc[2]) + acc[3];
+    for (; j < n; j++) s += x[j] * y[j];
+    return s;
+}
+
+/* row[j] −= v_i·w[j] + w_i·v[j], j < n */
+FITS7_CLONES static void fits7_rank2_row(double *row, double vi, const double *w, double wi,
+                                         const double *v, Py_ssize_t n)
+{
+    for (Py_ssize_t j = 0; j < n; j++) row[j] -= vi * w[j] + wi * v[j];
+}
+
+/* Householder reduction of the symmetric a (m × m, row-major, both triangles, overwritten) to
+ * tridiagonal d (m), e (m: e[i] couples i and i + 1, e[m − 1] = 0). Reflection k
+ * (I − βₖ·vₖ·vₖᵀ on rows and columns k + 1 … m − 1) is kept in a's row k right of the
+ * diagonal (vₖ, contiguous), βₖ in beta[k]; the trailing block is updated whole (both
+ * triangles), so every product runs along rows. */
+static void fits7_tridiagonal(double *a, Py_ssize_t m, double *d, double *e, double *beta,
+                              double *p)
+{
+    for (Py_ssize_t k = 0; k + 2 < m; k++) {
+        double *v = a + k * m + k + 1; /* row k's tail: the column below the diagonal */
+        const Py_ssize_t r = m - k - 1;
+        const double x0 = v[0];
+        const double sigma = fits7_dot(v + 1, v + 1, r - 1);
+        d[k] = a[k * m + k];
+        if (sigma == 0.0) {
+            beta[k] = 0.0;
+            e[k] = x0;
+            continue;
+        }
+        const double norm = sqrt(x0 * x0 + sigma);
+        const double alpha = x0 > 0.0 ? -norm : norm;
+        /* v = x − α·e₁ (v₀ = x₀ − α, no cancellation), β = 2 / vᵀv */
+        v[0] = x0 - alpha;
+        const double b = 2.0 / (v[0] * v[0] + sigma);
+        beta[k] = b;
+        e[k] = alpha;
+        /* p = β·A₂₂·v, w = p − (β·pᵀv / 2)·v, A₂₂ −= v·wᵀ + w·vᵀ */
+        double *block = a + (k + 1) * m + k + 1;
+        for (Py_ssize_t i = 0; i < r; i++) p[i] = b * fits7_dot(block + i * m, v, r);
+        const double half = 0.5 * b * fits7_dot(p, v, r);
+        for (Py_ssize_t i = 0; i < r; i++) p[i] -= half * v[i];
+        for (Py_ssize_t i = 0; i < r; i++) fits7_rank2_row(block + i * m, v[i], p, p[i], v, r);
+    }
+    for (Py_ssize_t k = m - 2 > 0 ? m - 2 : 0; k < m; k++) d[k] = a[k * m + k];
+    if (m >= 2) {
+        e[m - 2] = a[(m - 1) * m + m - 2];
+        beta[m - 2] = 0.0;
+    }
+    e[m - 1] = 0.0;
+}
+
+/* y ← Qᵀ·y (forward = 1: the reflections 0, 1, … in turn) or y ← Q·y (forward = 0). */
+static void fits7_reflect(const double *a, const double *beta, Py_ssize_t m, double *y, int forward)
+{
+    for (Py_ssize_t step = 0; step + 2 < m; step++) {
+        const Py_ssize_t k = forward ? step : m - 3 - step;
+        if (beta[k] == 0.0) continue;
+        const double *v = a + k * m + k + 1;
+        const Py_ssize_t r = m - k - 1;
+        const double s = beta[k] * fits7_dot(v, y + k + 1, r);
+        for (Py_ssize_t i = 0; i < r; i++) y[k + 1 + i] -= s * v[i];
+    }
+}
+
+/* Implicit QL on the tridiagonal (d, e) of size m (tql2's iteration): the eigenvalues into d,
+ * each rotation recorded (not accumulated into vectors). 0, or −1 (no convergence, no memory). */
+static int fits7_ql(double *d, double *e, Py_ssize_t m, fits7_rotations *rot)
+{
+    for (Py_ssize_t l = 0; l < m; l++) {
+        int sweeps = 0;
+        Py_ssize_t k;
+        do {
+            for (k = l; k + 1 < m; k++) {
+                const double dd = fabs(d[k]) + fabs(d[k + 1]);
+                if (fabs(e[k]) + dd == dd) break;
+            }
+            if (k == l) break;
+            if (++sweeps > 60) return -1;
+            double g = (d[l + 1] - d[l]) / (2.0 * e[l]);
+            double r = hypot(g, 1.0);
+            g = d[k] - d[l] + e[l] / (g + copysign(r, g));
+            double s = 1.0, c = 1.0, p = 0.0;
+            int underflow = 0;
+            for (Py_ssize_t i = k - 1; i >= l; i--) {
+                const double f = s * e[i], b = c * e[i];
+                r = sqrt(f * f + g * g); /* f, g: of the matrix's scale, far from overflow */
+                e[i + 1] = r;
+                if (r == 0.0) {
+                    d[i + 1] -= p;
+                    e[k] = 0.0;
+                    underflow = 1;
+                    break;
+                }
+                s = f / r;
+                c = g / r;
+                g = d[i + 1] - p;
+                r = (d[i] - g) * s + 2.0 * c * b;
+                p = s * r;
+                d[i + 1] = g + p;
+                g = c * r - b;
+                if (fits7_record(rot, i, c, s) < 0) return -1;
+            }
+            if (underflow) continue;
+            d[l] -= p;
+            e[l] = g;
+            e[k] = 0.0;
+        } while (1);
+    }
+    return 0;
+}
+
+/* w ← Zᵀ·w (the recorded rotations in order: w's coefficients on the eigenvectors) */
+static void fits7_rotate(const double *rotations, Py_ssize_t count, double *w)
+{
+    for (Py_ssize_t q = 0; q < count; q++) {
+        const Py_ssize_t i = (Py_ssize_t)rotations[3 * q];
+        const double c = rotations[3 * q + 1], s = rotations[3 * q + 2];
+        const double wi = w[i], wn = w[i + 1];
+        w[i + 1] = s * wi + c * wn;
+        w[i] = c * wi - s * wn;
+    }
+}
+
+/* u ← Z·u (the recorded rotations, last first) */
+static void fits7_unrotate(const double *rotations, Py_ssize_t count, double *u)
+{
+    for (Py_ssize_t q = count - 1; q >= 0; q--) {
+        const Py_ssize_t i = (Py_ssize_t)rotations[3 * q];
+        const double c = rotations[3 * q + 1], s = rotations[3 * q + 2];
+        const double ui = u[i], un = u[i + 1];
+        u[i] = c * ui + s * un;
+        u[i + 1] = c * un - s * ui;
+    }
+}
+
+/* A decomposition, as mdl_decompose packs it into one bytes object of doubles:
+ * [n, rotations of the symmetric half, of the skew half], then each half's reflections (its
+ * matrix after fits7_tridiagonal, m × m), their β (m), its eigenvalues (m), and each half's
+ * rotations (i, c, s). */
+typedef struct {
+    Py_ssize_t n, ms, mk, count_s, count_k;
+    const double *as, *ak, *bs, *bk, *ls, *lk, *rot_s, *rot_k;
+} fits7_decomposition;
+
+static Py_ssize_t fits7_packed_doubles(Py_ssize_t n, Py_ssize_t count_s, Py_ssize_t count_k)
+{
+    const Py_ssize_t mk = n / 2, ms = n - mk;
+    return 3 + ms * ms + mk * mk + 2 * n + 3 * (count_s + count_k);
+}
+
+static int fits7_unpack(const double *packed, Py_ssize_t doubles, fits7_decomposition *t)
+{
+    if (doubles < 3) return -1;
+    t->n = (Py_ssize_t)packed[0];
+    t->count_s = (Py_ssize_t)packed[1];
+    t->count_k = (Py_ssize_t)packed[2];
+    if (t->n < 4 || t->count_s < 0 || t->count_k < 0 ||
+        fits7_packed_doubles(t->n, t->count_s, t->count_k) != doubles)
+        return -1;
+    t->mk = t->n / 2;
+    t->ms = t->n - t->mk;
+    t->as = packed + 3;
+    t->ak = t->as + t->ms * t->ms;
+    t->bs = t->ak + t->mk * t->mk;
+    t->bk = t->bs + t->ms;
+    t->ls = t->bk + t->mk;
+    t->lk = t->ls + t->ms;
+    t->rot_s = t->lk + t->mk;
+    t->rot_k = t->rot_s + 3 * t->count_s;
+    return 0;
+}
+
+/* The halves of T (as reflex._centrosymmetric_halves forms them, both triangles) into as and
+ * ak, tridiagonalised, and their eigenvalues and rotations: 0, or −1. */
+static int fits7_decompose(const double *phi, Py_ssize_t n, double *as, double *ak, double *bs,
+                           double *bk, double *ls, double *lk, double *e, double *p,
+                           fits7_rotations rot[2])
+{
+    const Py_ssize_t half = n / 2, ms = n - half, mk = half;
+    for (Py_ssize_t i = 0; i < half; i++) {
+        for (Py_ssize_t j = 0; j < half; j++) {
+            const double near = phi[i > j ? i - j : j - i], far = phi[n - 1 - i - j];
+            as[i * ms + j] = near + far;
+            ak[i * mk + j] = near - far;
+        }
+    }
+    if (n % 2) {
+        for (Py_ssize_t i = 0; i < half; i++)
+            as[i * ms + half] = as[half * ms + i] = sqrt(2.0) * phi[half - i];
+        as[half * ms + half] = phi[0];
+    }
+    fits7_tridiagonal(as, ms, ls, e, bs, p);
+    if (fits7_ql(ls, e, ms, &rot[0]) < 0) return -1;
+    fits7_tridiagonal(ak, mk, lk, e, bk, p);
+    return fits7_ql(lk, e, mk, &rot[1]);
+}
+
+static Py_ssize_t fits7_mdl(const fits7_decomposition *t, const double *full, double power_e,
+                            double samples, double *out, double *work)
+{
+    const Py_ssize_t n = t->n, half = t->mk, ms = t->ms;
+    const double root_half = sqrt(0.5);
+    double *ys = work, *yk = ys + ms, *explained = yk + half, *u = explained + n;
+    Py_ssize_t *order = (Py_ssize_t *)(u + n);
+    /* the solution folded on each half's basis, then on its eigenvectors (Zᵀ·Qᵀ·y) */
+    for (Py_ssize_t i = 0; i < half; i++) {
+        ys[i] = root_half * (full[i] + full[n - 1 - i]);
+        yk[i] = root_half * (full[i] - full[n - 1 - i]);
+    }
+    if (n % 2) ys[half] = full[half];
+    fits7_reflect(t->as, t->bs, ms, ys, 1);
+    fits7_rotate(t->rot_s, t->count_s, ys);
+    fits7_reflect(t->ak, t->bk, half, yk, 1);
+    fits7_rotate(t->rot_k, t->count_k, yk);
+    /* the variance each component explains, largest first (ties in index order) */
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double lambda = i < ms ? t->ls[i] : t->lk[i - ms], c = ys[i]; /* yk follows ys */
+        explained[i] = (lambda > 0.0 ? lambda : 0.0) * c * c;
+        Py_ssize_t j = i;
+        for (; j > 0 && explained[order[j - 1]] < explained[i]; j--) order[j] = order[j - 1];
+        order[j] = i;
+    }
+    /* numpy's expressions: power_e − cumsum, max(·, 1e-300)·(1 + M·ln N / N), first minimum */
+    double explained_sum = 0.0, best = INFINITY;
+    Py_ssize_t rank = 1;
+    const double log_n = log(samples);
+    for (Py_ssize_t r = 1; r <= n; r++) {
+        explained_sum += explained[order[r - 1]];
+        const double residual = power_e - explained_sum;
+        const double mdl =
+            (residual > 1e-300 ? residual : 1e-300) * (1.0 + (double)r * log_n / samples);
+        if (mdl < best) {
+            best = mdl;
+            rank = r;
+        }
+    }
+    /* Σ_kept cᵢ·vᵢ: each half's Q·Z·u (u: the kept coefficients, the others zero), unfolded
+     * as ToeplitzSystem's vectors are */
+    for (Py_ssize_t i = 0; i < n; i++) u[i] = 0.0;
+    for (Py_ssize_t r = 0; r < rank; r++) u[order[r]] = ys[order[r]];
+    double *us = u, *uk = u + ms;
+    fits7_unrotate(t->rot_s, t->count_s, us);
+    fits7_reflect(t->as, t->bs, ms, us, 0);
+    fits7_unrotate(t->rot_k, t->count_k, uk);
+    fits7_reflect(t->ak, t->bk, half, uk, 0);
+    for (Py_ssize_t i = 0; i < half; i++) {
+        out[i] = root_half * us[i] + root_half * uk[i];
+        out[n - 1 - i] = root_half * us[i] - root_half * uk[i];
+    }
+    if (n % 2) out[half] = us[half];
+    return rank;
+}
+
+static PyObject *py_mdl_decompose(PyObject *self, PyObject *args)
+{
+    (void)self;
+    PyObject *obj;
+    if (!PyArg_ParseTuple(args, "O", &obj)) return NULL;
+    Py_buffer b;
+    if (get_doubles(obj, &b, 0, "phi_rr") < 0) return NULL;
+    const Py_ssize_t n = b.len / 8, mk = n / 2, ms = n - mk;
+    if (n < 4) {
+        PyBuffer_Release(&b);
+        PyErr_SetString(PyExc_ValueError, "mdl_decompose: at least 4 lags");
+        return NULL;
+    }
+    double *work = PyMem_Malloc((size_t)(ms * ms + mk * mk + 6 * n) * sizeof(double));
+    fits7_rotations rot[2] = {{NULL, NULL, 0, 0}, {NULL, NULL, 0, 0}};
+    PyObject *result = NULL;
+    if (work == NULL) {
+        PyErr_NoMemory();
+    } else {
+        double *as = work, *ak = as + ms * ms, *bs = ak + mk * mk, *bk = bs + ms, *ls = bk + mk;
+        double *lk = ls + ms, *e = lk + mk, *p = e + n;
+        int status;
+        Py_BEGIN_ALLOW_THREADS
+        status = fits7_decompose(b.buf, n, as, ak, bs, bk, ls, lk, e, p, rot);
+        Py_END_ALLOW_THREADS
+        if (status < 0) {
+            PyErr_SetString(PyExc_ArithmeticError,
+                            "mdl_decompose: the eigenvalue iteration did not converge");
+        } else {
+            const Py_ssize_t doubles = fits7_packed_doubles(n, rot[0].count, rot[1].count);
+            result = PyBytes_FromStringAndSize(NULL, doubles * 8);
+            if (result != NULL) {
+                double *packed = (double *)PyBytes_AS_STRING(result);
+                packed[0] = (double)n;
+                packed[1] = (double)rot[0].count;
+                packed[2] = (double)rot[1].count;
+                memcpy(packed + 3, work, (size_t)(ms * ms + mk * mk + 2 * n) * sizeof(double));
+                double *r = packed + 3 + ms * ms + mk * mk + 2 * n;
+                for (int h = 0; h < 2; h++) {
+                    for (Py_ssize_t q = 0; q < rot[h].count; q++, r += 3) {
+                        r[0] = (double)rot[h].at[q];
+                        r[1] = rot[h].cs[2 * q];
+                        r[2] = rot[h].cs[2 * q + 1];
+                    }
+                }
+            }
+        }
+    }
+    for (int h = 0; h < 2; h++) {
+        PyMem_RawFree(rot[h].at);
+        PyMem_RawFree(rot[h].cs);
+    }
+    PyMem_Free(work);
+    PyBuffer_Release(&b);
+    return result;
+}
+
+static PyObject *py_mdl_rank(PyObject *self, PyObject *args)
+{
+    (void)self;
+    PyObject *objs[2];
+    const char *packed;
+    Py_ssize_t packed_bytes;
+    double power_e, samples;
+    if (!PyArg_ParseTuple(args, "y#OddO", &packed, &packed_bytes, &objs[0], &power_e, &samples,
+                          &objs[1]))
+        return NULL;
+    fits7_decomposition t;
+    if (packed_bytes % 8 || fits7_unpack((const double *)packed, packed_bytes / 8, &t) < 0) {
+        PyErr_SetString(PyExc_ValueError, "mdl_rank: not a decomposition from mdl_decompose");
+        return NULL;
+    }
+    const char *names[2] = {"full", "out"};
+    Py_buffer b[2];
+    if (get_buffers(objs, 2, 1, names, b) < 0) return NULL;
+    PyObject *result = NULL;
+    const Py_ssize_t n = t.n;
+    double *work = NULL;
+    if (b[0].len / 8 != n || b[1].len / 8 != n) {
+        PyErr_SetString(PyExc_ValueError, "mdl_rank: inconsistent sizes");
+    } else if ((work = PyMem_Malloc((size_t)(4 * n) * sizeof(double) +
+                                    (size_t)n * sizeof(Py_ssize_t))) == NULL) {
+        PyErr_NoMemory();
+    } else {
+        const Py_ssize_t rank = fits7_mdl(&t, b[0].buf, power_e, samples, b[1].buf, work);
+        result = PyLong_FromSsize_t(rank);
+    }
+    PyMem_Free(work);
+    release_buffers(b, 2);
+    return result;
+}
+#undef FITS7_CLONES

@@ -61,6 +61,7 @@ __all__ = [
     "delay_search_s",
     "fit_reflex_dynamics",
     "fit_reflex_pathway",
+    "mdl_on_eigenpairs",
     "mdl_projection",
     "prediction_history_s",
     "stream_taps",
@@ -233,26 +234,40 @@ def _gradient_ends(
 
 @dataclass(frozen=True)
 class ToeplitzSystem:
-    """An IRF input's symmetric Toeplitz matrix and its eigendecomposition, formed once per
-    input and lag span (a cascade's ``rect`` alternations all fit the same input).
+    """An IRF input's symmetric Toeplitz matrix, formed once per input and lag span (a
+    cascade's ``rect`` alternations all fit the same input), and its eigendecomposition when
+    asked for (the numpy path's MDL rank; the compiled one needs none, :func:`mdl_projection`).
 
     Attributes
     ----------
     phi_rr : numpy.ndarray, shape (L+1,)
         First column: the input's autocorrelation at lags ``0 … L``.
-    eigenvalues : numpy.ndarray, shape (L+1,)
-        Of the matrix, ascending (``numpy.linalg.eigh``).
-    vectors : numpy.ndarray, shape (L+1, L+1)
-        The eigenvectors, by column.
     """
 
     phi_rr: FloatArray
-    eigenvalues: FloatArray
-    vectors: FloatArray
 
-    @classmethod
-    def of(cls, phi_rr: FloatArray) -> ToeplitzSystem:
-        """The system whose first column is ``phi_rr``.
+    @property
+    def eigenvalues(self) -> FloatArray:
+        """Of the matrix, ascending (``numpy.linalg.eigh``'s order), shape (L+1,)."""
+        return self._eigenpairs[0]
+
+    @property
+    def vectors(self) -> FloatArray:
+        """The eigenvectors, by column, shape (L+1, L+1)."""
+        return self._eigenpairs[1]
+
+    @cached_property
+    def decomposition(self) -> bytes | None:
+        """The compiled ``mdl_decompose``'s tridiagonal halves, eigenvalues and rotations (what
+        :func:`mdl_projection` needs of the matrix, formed on first use); None on the numpy
+        path or below 4 lags."""
+        if _eureka is None or self.phi_rr.size < 4:
+            return None
+        return bytes(_eureka.mdl_decompose(np.ascontiguousarray(self.phi_rr, dtype=np.float64)))
+
+    @cached_property
+    def _eigenpairs(self) -> tuple[FloatArray, FloatArray]:
+        """The eigenvalues and vectors.
 
         A symmetric Toeplitz matrix is centrosymmetric, so each eigenvector is symmetric or
         skew-symmetric about its middle: the matrix splits into two of half the size (the
@@ -260,11 +275,12 @@ class ToeplitzSystem:
         half-size ``eigh`` cost a quarter of the whole one (the same eigenpairs to rounding,
         tested against ``numpy.linalg.eigh`` of the whole matrix).
         """
+        phi_rr = self.phi_rr
         lags = phi_rr.size
         if lags < 4:
             index = np.abs(np.arange(lags)[:, None] - np.arange(lags)[None, :])
             eigenvalues, vectors = np.linalg.eigh(phi_rr[index])
-            return cls(phi_rr, eigenvalues, vectors)
+            return eigenvalues, vectors
         symmetric, skew = _centrosymmetric_halves(phi_rr)
         values_s, vectors_s = np.linalg.eigh(symmetric)
         values_k, vectors_k = np.linalg.eigh(skew)
@@ -280,7 +296,12 @@ class ToeplitzSystem:
         b[lags - half :] = -b[half - 1 :: -1]
         eigenvalues = np.concatenate((values_s, values_k))
         order = np.argsort(eigenvalues, kind="stable")
-        return cls(phi_rr, eigenvalues[order], np.ascontiguousarray(vectors[:, order]))
+        return eigenvalues[order], np.ascontiguousarray(vectors[:, order])
+
+    @classmethod
+    def of(cls, phi_rr: FloatArray) -> ToeplitzSystem:
+        """The system whose first column is ``phi_rr``."""
+        return cls(phi_rr)
 
     @classmethod
     def of_input(cls, r: FloatArray, lags: int) -> ToeplitzSystem:
@@ -345,24 +366,51 @@ def mdl_projection(
     n : int
         Samples behind the correlations.
     system : ToeplitzSystem, optional
-        ``ToeplitzSystem.of(phi_rr)``, when already formed (the same numbers either way).
+        ``ToeplitzSystem.of(phi_rr)``, when already formed (the same numbers either way): the
+        compiled path uses its ``decomposition``, the numpy path its eigenpairs.
 
     Returns
     -------
     (numpy.ndarray, int)
         The solution (in correlation units) projected on the ``M`` leading components, and
         ``M``.
+
+    Raises
+    ------
+    ArithmeticError
+        The compiled eigenvalue iteration did not converge (60 sweeps for one eigenvalue; not
+        seen).
+
+    Notes
+    -----
+    The compiled ``mdl_decompose`` (section ``fits7`` of ``_eureka.c``, once per system:
+    :attr:`ToeplitzSystem.decomposition`) reduces each centrosymmetric half to tridiagonal
+    form and records implicit QL's rotations instead of accumulating eigenvectors; ``mdl_rank``
+    applies them to the solution's coefficients and forms only the kept components' sum:
+    the eigenpairs of :func:`mdl_on_eigenpairs` (``numpy.linalg.eigh``, the
+    ``RTSID_NUMPY_ONLY=1`` path) to rounding, not bit for bit (tested: the same ranks, the
+    projection within 1e-11 of its largest value).
     """
     full = eureka(phi_rr, phi_re)
-    lags = phi_rr.size
-    if system is None:
-        system = ToeplitzSystem.of(phi_rr)
-    vectors = system.vectors
+    system = system or ToeplitzSystem.of(phi_rr)
+    decomposition = system.decomposition
+    if decomposition is not None:
+        projected = np.empty(phi_rr.size)
+        rank = _eureka.mdl_rank(decomposition, full, power_e, float(n), projected)
+        return projected, int(rank)
+    return mdl_on_eigenpairs(system.eigenvalues, system.vectors, full, power_e, n)
+
+
+def mdl_on_eigenpairs(
+    eigenvalues: FloatArray, vectors: FloatArray, full: FloatArray, power_e: float, n: int
+) -> tuple[FloatArray, int]:
+    """:func:`mdl_projection` from the matrix's eigenpairs (ascending, vectors by column) and
+    the full solution ``full``: the numpy reference (``RTSID_NUMPY_ONLY=1``)."""
     coefficients = vectors.T @ full
-    explained = np.maximum(system.eigenvalues, 0.0) * coefficients**2
+    explained = np.maximum(eigenvalues, 0.0) * coefficients**2
     order = np.argsort(explained)[::-1]
     residual = power_e - np.cumsum(explained[order])
-    ranks = np.arange(1, lags + 1)
+    ranks = np.arange(1, full.size + 1)
     mdl = np.maximum(residual, 1e-300) * (1.0 + ranks * np.log(n) / n)
     rank = int(ranks[np.argmin(mdl)])
     kept = order[:rank]

@@ -66,14 +66,42 @@ def savgol_derivatives(x: FloatArray, fs_hz: float) -> tuple[FloatArray, FloatAr
 
 def _savgol_ends(arr: FloatArray, fs_hz: float, d1: FloatArray, d2: FloatArray) -> None:
     """:func:`savgol_derivatives`' first and last ``SAVGOL_POINTS // 2`` samples into ``d1``
-    and ``d2``: at each end one cubic fitted to the first (last) 11 samples."""
-    half, n, dt = SAVGOL_POINTS // 2, arr.size, 1.0 / fs_hz
+    and ``d2``: at each end one cubic fitted to the first (last) 11 samples, its derivatives
+    there a fixed linear map of those samples (:func:`_savgol_end_maps`)."""
+    half, n = SAVGOL_POINTS // 2, arr.size
+    maps = _savgol_end_maps(float(fs_hz))
+    for (start, first), (m1, m2) in zip(((0, 0), (n - SAVGOL_POINTS, n - half)), maps, strict=True):
+        samples = arr[start : start + SAVGOL_POINTS]
+        d1[first : first + half] = m1 @ samples
+        d2[first : first + half] = m2 @ samples
+
+
+@lru_cache(maxsize=8)
+def _savgol_end_maps(fs_hz: float) -> tuple[tuple[FloatArray, FloatArray], ...]:
+    """For the first and the last end, the maps (shape ``(SAVGOL_POINTS // 2,
+    SAVGOL_POINTS)``, 1/s and 1/s²) from an end's 11 samples to the first and second
+    derivatives of the cubic fitted to them (``numpy.polyfit``'s least squares on the unit
+    samples; a fit is linear in its samples), at the end's own samples (read-only).
+
+    The same values as fitting each end's cubic (``numpy.polyfit``, ``polyder``,
+    ``polyval``) to rounding, not bit for bit; a matrix-vector product a row instead of two
+    least-squares solves and their Python a basis (branch ``fits7``)."""
+    half = SAVGOL_POINTS // 2
     at = np.arange(float(SAVGOL_POINTS))
-    for start, first in ((0, 0), (n - SAVGOL_POINTS, n - half)):
-        cubic = np.polyfit(at, arr[start : start + SAVGOL_POINTS], SAVGOL_ORDER)
-        points = at[first - start : first - start + half]
-        d1[first : first + half] = np.polyval(np.polyder(cubic, 1), points) / dt
-        d2[first : first + half] = np.polyval(np.polyder(cubic, 2), points) / dt**2
+    cubics = np.polyfit(at, np.eye(SAVGOL_POINTS), SAVGOL_ORDER)  # (order + 1, points)
+    powers = np.arange(SAVGOL_ORDER, -1, -1)  # numpy.polyfit's order: highest power first
+    maps = []
+    for offset in (0, SAVGOL_POINTS - half):
+        t = at[offset : offset + half, None]
+        slope = np.where(powers >= 1, powers * t ** np.maximum(powers - 1, 0), 0.0)
+        curvature = np.where(
+            powers >= 2, powers * (powers - 1) * t ** np.maximum(powers - 2, 0), 0.0
+        )
+        pair = (slope @ cubics * fs_hz, curvature @ cubics * fs_hz**2)
+        for m in pair:
+            m.setflags(write=False)
+        maps.append(pair)
+    return tuple(maps)
 
 
 def _savgol_interior(

@@ -5,6 +5,7 @@ import pytest
 from scipy import optimize
 
 from rtsid.ident import reflex
+from rtsid.ident.levinson import eureka
 from rtsid.ident.reflex import bounded_least_squares, fit_reflex_dynamics
 
 LAGS_S = np.arange(101) / 100.0
@@ -302,11 +303,94 @@ def test_the_toeplitz_systems_halves_give_the_whole_matrixs_eigenpairs(lags):
     e = np.convolve(r - r.mean(), np.exp(-np.arange(30) / 8.0))[: r.size]
     e += np.random.default_rng(1).standard_normal(r.size)
     phi_re = np.array([(r - r.mean())[: r.size - k] @ e[k:] for k in range(lags)]) / r.size
-    whole = reflex.ToeplitzSystem(phi, *np.linalg.eigh(matrix))
-    got, rank = reflex.mdl_projection(phi, phi_re, float(e @ e) / e.size, e.size, system)
-    ref, ref_rank = reflex.mdl_projection(phi, phi_re, float(e @ e) / e.size, e.size, whole)
+    full = eureka(phi, phi_re)
+    power = float(e @ e) / e.size
+    got, rank = reflex.mdl_on_eigenpairs(system.eigenvalues, v, full, power, e.size)
+    ref, ref_rank = reflex.mdl_on_eigenpairs(*np.linalg.eigh(matrix), full, power, e.size)
     assert rank == ref_rank
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-11 * np.abs(ref).max())
+
+
+def _mdl_problem(lags, seed):
+    """A rectified input's autocorrelation, a reflex-like output's cross-correlation (noise
+    from small to dominant), the output's power and its samples."""
+    from rtsid.ident.correlation import auto_correlation
+
+    rng = np.random.default_rng(1000 * seed + lags)
+    r = np.maximum(rng.standard_normal(4000), 0.0)
+    r -= r.mean()
+    e = np.convolve(r, np.exp(-np.arange(30) / (2.0 + seed)))[: r.size]
+    e += (0.1 + seed / 5.0) * rng.standard_normal(r.size)
+    phi_re = np.array([r[: r.size - k] @ e[k:] for k in range(lags)]) / r.size
+    return auto_correlation(r, lags - 1), phi_re, float(e @ e) / e.size, e.size
+
+
+@pytest.mark.parametrize("lags", [4, 5, 6, 7, 60, 100, 101])
+def test_the_compiled_mdl_rank_is_the_eigendecompositions_to_rounding(lags, monkeypatch):
+    # branch fits7: tridiagonal QL with its rotations on the coefficients, no eigenvectors
+    if reflex._eureka is None:
+        pytest.skip("the compiled kernel is not built")
+    ranks = set()
+    for seed in range(12):
+        phi, phi_re, power, n = _mdl_problem(lags, seed)
+        got, rank = reflex.mdl_projection(phi, phi_re, power, n)
+        system = reflex.ToeplitzSystem.of(phi)
+        want, want_rank = reflex.mdl_on_eigenpairs(
+            system.eigenvalues, system.vectors, eureka(phi, phi_re), power, n
+        )
+        assert rank == want_rank
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-11 * np.abs(want).max())
+        ranks.add(rank)
+    assert len(ranks) > 1  # the noise moves the rank: the criterion is exercised, not pinned
+    with monkeypatch.context() as m:  # the numpy path is the eigenpairs' (the reference)
+        m.setattr(reflex, "_eureka", None)
+        np.testing.assert_array_equal(reflex.mdl_projection(phi, phi_re, power, n)[0], want)
+
+
+def test_the_compiled_mdl_rank_of_an_output_it_all_explains_is_one_component():
+    # power_e 0: every residual is at the 1e-300 floor, the description length grows with M
+    if reflex._eureka is None:
+        pytest.skip("the compiled kernel is not built")
+    phi, phi_re, _, n = _mdl_problem(101, 0)
+    full = eureka(phi, phi_re)
+    out = np.empty(101)
+    system = reflex.ToeplitzSystem.of(phi)
+    assert reflex._eureka.mdl_rank(system.decomposition, full, 0.0, float(n), out) == 1
+    want, rank = reflex.mdl_on_eigenpairs(system.eigenvalues, system.vectors, full, 0.0, n)
+    assert rank == 1
+    np.testing.assert_allclose(out, want, rtol=0, atol=1e-11 * np.abs(want).max())
+
+
+def test_the_compiled_mdl_rank_names_inconsistent_sizes():
+    if reflex._eureka is None:
+        pytest.skip("the compiled kernel is not built")
+    with pytest.raises(ValueError, match="mdl_decompose: at least 4 lags"):
+        reflex._eureka.mdl_decompose(np.ones(3))
+    decomposition = reflex.ToeplitzSystem.of(_mdl_problem(8, 0)[0]).decomposition
+    with pytest.raises(ValueError, match="mdl_rank: inconsistent sizes"):
+        reflex._eureka.mdl_rank(decomposition, np.ones(7), 1.0, 10.0, np.empty(8))
+    with pytest.raises(ValueError, match="mdl_rank: not a decomposition"):
+        reflex._eureka.mdl_rank(decomposition[:-8], np.ones(8), 1.0, 10.0, np.empty(8))
+
+
+def test_a_rect_cascade_forms_no_eigenvectors_on_the_compiled_path(monkeypatch):
+    from rtsid.ident.cascade import CascadeSettings, fit_parallel_cascade
+    from rtsid.sim.joint import JointParameters
+    from rtsid.sim.reflex import ReflexParameters, prbs_ankle_with_reflex
+
+    if reflex._eureka is None:
+        pytest.skip("the compiled kernel is not built")
+    formed = []
+    halves = reflex._centrosymmetric_halves
+    monkeypatch.setattr(reflex, "_centrosymmetric_halves", lambda p: formed.append(1) or halves(p))
+    theta, torque = prbs_ankle_with_reflex(
+        6.0, 2500.0, JointParameters(0.015, 0.8, 150.0), ReflexParameters(10.0, 0.04, 3.0, 0.7)
+    )
+    fit = fit_parallel_cascade(theta, torque, 2500.0, CascadeSettings(variant="rect"))
+    assert fit.reflex.rank >= 1 and formed == []
+    monkeypatch.setattr(reflex, "_eureka", None)  # the numpy path forms them, once
+    fit = fit_parallel_cascade(theta, torque, 2500.0, CascadeSettings(variant="rect"))
+    assert fit.reflex.rank >= 1 and formed == [1]
 
 
 @pytest.mark.parametrize(
