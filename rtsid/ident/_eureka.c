@@ -1785,6 +1785,8 @@ static PyObject *py_savgol_range(PyObject *self, PyObject *args); /* fits6, end 
 static PyObject *py_all_finite(PyObject *self, PyObject *args); /* fits6, end */
 static PyObject *py_window_scan(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* eval8 */
 static PyObject *py_finite_dict(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* eval8 */
+static PyObject *py_median_new(PyObject *self, PyObject *args); /* stream8, end */
+static PyObject *py_stream_window(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* stream8 */
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1840,6 +1842,8 @@ static PyMethodDef methods[] = {
     {"all_finite", py_all_finite, METH_VARARGS, "all_finite(x, y) -> bool: no NaN nor infinity in x nor y (section fits6)."},
     {"window_scan", (PyCFunction)(void (*)(void))py_window_scan, METH_FASTCALL, "window_scan(position, torque, valid, status, start, stop) -> (status bits raised, all valid, sums finite) or None (section eval8)."},
     {"finite_dict", (PyCFunction)(void (*)(void))py_finite_dict, METH_FASTCALL, "finite_dict(names, values) -> dict of names to values, non-finite floats as None (section eval8)."},
+    {"median_new", py_median_new, METH_VARARGS, "median_new(horizon, min_count) -> a running median (add, median): rtsid.ident.stream.RunningMedian compiled (section stream8)."},
+    {"stream_window", (PyCFunction)(void (*)(void))py_stream_window, METH_FASTCALL, "stream_window(position, torque, explained, h, work, consts, state, out, excitation, inertia, damping, context) -> None or (estimate, learned, newest): onecall_window and the stream's bookkeeping (section stream8)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -5561,4 +5565,356 @@ static PyObject *py_finite_dict(PyObject *self, PyObject *const *args, Py_ssize_
         }
     }
     return out;
+}
+
+/* ================================================================== stream8 (issue 22)
+ * The stream's per-window bookkeeping around onecall_window, in C: what rtsid.ident.stream
+ * does in Python for every window of the one-call path (its Python stays the reference, run
+ * with RTSID_NUMPY_ONLY=1 and for every window the one call declines; tests/ident/
+ * test_stream8.py holds the two together bit for bit).
+ *
+ * median_new(horizon, min_count) -> a running median, RunningMedian's rule (add, median,
+ *   min_count): the last `horizon` values in a ring and the finite ones sorted (inserted and
+ *   removed by the same bisections as bisect.insort / bisect_left, so the same multiset), NaN
+ *   counted; the median the middle value or the mean of the two middle ones, NaN while a NaN
+ *   is in the horizon, None before min_count values.
+ * stream_window(position, torque, explained, h, work, consts, state, out, excitation, inertia,
+ *   damping, context) -> None (declined: the stream untouched) or (estimate, learned, newest):
+ *   onecall_window, then WindowStream._fit_in_one_call's bookkeeping: the typical level read
+ *   from and the window's level added to `excitation`; the published VAFs rounded as
+ *   published_vafs; the flags of assess.window_flags; the WindowEstimate built as
+ *   records.built builds it; the full fit learned by `inertia` and `damping` as
+ *   HeldParameters.learn (full_fit_explains's test; learned: whether it was); newest: the
+ *   newest hop's (K, variance, centre row) or None.
+ *   context = (WindowEstimate, field names, lags_s, fs_hz, method, lost, held flags by k (3
+ *   pairs), the seven flags in window_flags' order, low_vaf_percent, k): built once per plan
+ *   and held value.
+ */
+typedef struct {
+    PyObject_HEAD
+    Py_ssize_t horizon, min_count, count, head, nans, nsorted;
+    double *ring, *sorted;
+} S8Median;
+
+static void s8_median_dealloc(S8Median *self)
+{
+    PyMem_Free(self->ring);
+    PyMem_Free(self->sorted);
+    Py_TYPE(self)->tp_free((PyObject *)self);
+}
+
+/* RunningMedian.add: the oldest leaves a full horizon, the value enters */
+static void s8_median_push(S8Median *m, double value)
+{
+    double *s = m->sorted;
+    if (m->count == m->horizon) {
+        const double oldest = m->ring[m->head];
+        if (isnan(oldest)) {
+            m->nans -= 1;
+        } else { /* del sorted[bisect_left(sorted, oldest)] */
+            Py_ssize_t lo = 0, hi = m->nsorted;
+            while (lo < hi) {
+                const Py_ssize_t mid = (lo + hi) / 2;
+                if (s[mid] < oldest) lo = mid + 1;
+                else hi = mid;
+            }
+            memmove(s + lo, s + lo + 1, sizeof(double) * (size_t)(m->nsorted - lo - 1));
+            m->nsorted -= 1;
+        }
+        m->ring[m->head] = value;
+        m->head = (m->head + 1) % m->horizon;
+    } else {
+        m->ring[(m->head + m->count) % m->horizon] = value;
+        m->count += 1;
+    }
+    if (isnan(value)) {
+        m->nans += 1;
+    } else { /* insort(sorted, value): bisect_right */
+        Py_ssize_t lo = 0, hi = m->nsorted;
+        while (lo < hi) {
+            const Py_ssize_t mid = (lo + hi) / 2;
+            if (value < s[mid]) hi = mid;
+            else lo = mid + 1;
+        }
+        memmove(s + lo + 1, s + lo, sizeof(double) * (size_t)(m->nsorted - lo));
+        s[lo] = value;
+        m->nsorted += 1;
+    }
+}
+
+/* RunningMedian.median: 0 None, else 1 with *out */
+static int s8_median_value(const S8Median *m, double *out)
+{
+    const Py_ssize_t n = m->nsorted;
+    if (m->nans) {
+        if (n + m->nans < m->min_count) return 0;
+        *out = NAN;
+        return 1;
+    }
+    if (n < m->min_count) return 0;
+    const Py_ssize_t half = n / 2;
+    *out = n % 2 ? m->sorted[half] : (m->sorted[half - 1] + m->sorted[half]) / 2.0;
+    return 1;
+}
+
+static PyObject *s8_median_add(S8Median *self, PyObject *value)
+{
+    const double v = PyFloat_AsDouble(value);
+    if (v == -1.0 && PyErr_Occurred()) return NULL;
+    s8_median_push(self, v);
+    Py_RETURN_NONE;
+}
+
+static PyObject *s8_median_median(S8Median *self, PyObject *unused)
+{
+    (void)unused;
+    double v;
+    if (!s8_median_value(self, &v)) Py_RETURN_NONE;
+    return PyFloat_FromDouble(v);
+}
+
+static PyMethodDef s8_median_methods[] = {
+    {"add", (PyCFunction)s8_median_add, METH_O, "add(value): RunningMedian.add."},
+    {"median", (PyCFunction)s8_median_median, METH_NOARGS,
+     "median() -> float or None: RunningMedian.median."},
+    {NULL, NULL, 0, NULL},
+};
+
+static PyObject *s8_median_min_count(S8Median *self, void *closure)
+{
+    (void)closure;
+    return PyLong_FromSsize_t(self->min_count);
+}
+
+static PyGetSetDef s8_median_getset[] = {
+    {"min_count", (getter)s8_median_min_count, NULL, "values needed before a median", NULL},
+    {NULL, NULL, NULL, NULL, NULL},
+};
+
+static PyTypeObject S8MedianType = {
+    PyVarObject_HEAD_INIT(NULL, 0).tp_name = "rtsid.ident._eureka.RunningMedian",
+    .tp_basicsize = sizeof(S8Median),
+    .tp_dealloc = (destructor)s8_median_dealloc,
+    .tp_flags = Py_TPFLAGS_DEFAULT,
+    .tp_doc = "The compiled RunningMedian (section stream8): median_new(horizon, min_count).",
+    .tp_methods = s8_median_methods,
+    .tp_getset = s8_median_getset,
+};
+
+static PyObject *py_median_new(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_ssize_t horizon, min_count;
+    if (!PyArg_ParseTuple(args, "nn", &horizon, &min_count)) return NULL;
+    if (PyType_Ready(&S8MedianType) < 0) return NULL;
+    S8Median *m = PyObject_New(S8Median, &S8MedianType);
+    if (m == NULL) return NULL;
+    /* RunningMedian.__init__: max(1, horizon); max(1, min(min_count, horizon)) */
+    m->horizon = horizon > 1 ? horizon : 1;
+    const Py_ssize_t least = min_count < horizon ? min_count : horizon;
+    m->min_count = least > 1 ? least : 1;
+    m->count = m->head = m->nans = m->nsorted = 0;
+    m->ring = PyMem_Malloc(sizeof(double) * (size_t)m->horizon);
+    m->sorted = PyMem_Malloc(sizeof(double) * (size_t)m->horizon);
+    if (m->ring == NULL || m->sorted == NULL) {
+        Py_DECREF(m);
+        return PyErr_NoMemory();
+    }
+    return (PyObject *)m;
+}
+
+static S8Median *s8_as_median(PyObject *obj, const char *name)
+{
+    if (Py_TYPE(obj) != &S8MedianType) {
+        PyErr_Format(PyExc_TypeError, "stream_window: %s must be a compiled running median", name);
+        return NULL;
+    }
+    return (S8Median *)obj;
+}
+
+/* round(x, 12) as Python gives it: glue7's, else float.__round__ (the reference) */
+static int s8_round12(double x, double *out)
+{
+    if (g7_round12(x, out)) return 0;
+    PyObject *f = PyFloat_FromDouble(x);
+    if (f == NULL) return -1;
+    PyObject *r = PyObject_CallMethod(f, "__round__", "i", 12);
+    Py_DECREF(f);
+    if (r == NULL) return -1;
+    *out = PyFloat_AsDouble(r);
+    Py_DECREF(r);
+    return PyErr_Occurred() ? -1 : 0;
+}
+
+enum {
+    S8C_CLASS, S8C_NAMES, S8C_LAGS, S8C_FS, S8C_METHOD, S8C_LOST, S8C_HELD, S8C_FLAGS,
+    S8C_LOW_VAF, S8C_K, S8C_SIZE
+};
+enum { S8_FIELDS = 17 };
+
+/* assess.window_flags: the flags in a fixed order */
+static PyObject *s8_flags(const double *p, const double *se, const double *vafs, double low,
+                          PyObject *table)
+{
+    PyObject *raised[7];
+    int n = 0;
+    if (vafs[0] < low) raised[n++] = PyTuple_GET_ITEM(table, 0);
+    if (vafs[2] < 50.0) raised[n++] = PyTuple_GET_ITEM(table, 1);
+    if (p[2] <= 0) raised[n++] = PyTuple_GET_ITEM(table, 2);
+    if (p[1] <= 0) raised[n++] = PyTuple_GET_ITEM(table, 3);
+    if (p[0] <= 0) raised[n++] = PyTuple_GET_ITEM(table, 4);
+    if (isfinite(se[0]) && se[0] > 0.25 * fabs(p[0])) raised[n++] = PyTuple_GET_ITEM(table, 5);
+    if (isfinite(se[2]) && se[2] > 0.1 * fabs(p[2])) raised[n++] = PyTuple_GET_ITEM(table, 6);
+    PyObject *flags = PyTuple_New(n);
+    if (flags == NULL) return NULL;
+    for (int i = 0; i < n; i++) {
+        Py_INCREF(raised[i]);
+        PyTuple_SET_ITEM(flags, i, raised[i]);
+    }
+    return flags;
+}
+
+/* records.built(WindowEstimate, ...): the instance's __dict__ filled in field order */
+static PyObject *s8_estimate(PyObject *ctx, const double *p, const double *se,
+                             const double *vafs, PyObject *h, PyObject *flags)
+{
+    PyObject *cls = PyTuple_GET_ITEM(ctx, S8C_CLASS), *names = PyTuple_GET_ITEM(ctx, S8C_NAMES);
+    const long k = PyLong_AsLong(PyTuple_GET_ITEM(ctx, S8C_K));
+    PyObject *held = PyTuple_GET_ITEM(PyTuple_GET_ITEM(ctx, S8C_HELD), k);
+    PyObject *values[S8_FIELDS];
+    const double numbers[9] = {p[0], p[1], p[2], se[0], se[1], se[2], vafs[0], vafs[1], vafs[2]};
+    int made = 0;
+    for (; made < 9; made++) {
+        if ((values[made] = PyFloat_FromDouble(numbers[made])) == NULL) break;
+    }
+    PyObject *record = NULL, *dict = NULL;
+    if (made < 9) goto done;
+    values[9] = h;
+    values[10] = PyTuple_GET_ITEM(ctx, S8C_LAGS);
+    values[11] = PyTuple_GET_ITEM(ctx, S8C_FS);
+    values[12] = flags;
+    values[13] = PyTuple_GET_ITEM(ctx, S8C_METHOD);
+    values[14] = PyTuple_GET_ITEM(ctx, S8C_LOST);
+    values[15] = PyTuple_GET_ITEM(held, 0);
+    values[16] = PyTuple_GET_ITEM(held, 1);
+    record = PyBaseObject_Type.tp_new((PyTypeObject *)cls, empty_tuple(), NULL);
+    if (record == NULL) goto done;
+    dict = PyObject_GenericGetDict(record, NULL);
+    if (dict == NULL) goto fail;
+    for (int i = 0; i < S8_FIELDS; i++) {
+        if (PyDict_SetItem(dict, PyTuple_GET_ITEM(names, i), values[i]) < 0) goto fail;
+    }
+    goto done;
+fail:
+    Py_CLEAR(record);
+done:
+    Py_XDECREF(dict);
+    for (int i = 0; i < made; i++) Py_DECREF(values[i]);
+    return record;
+}
+
+static PyObject *py_stream_window(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 12) {
+        PyErr_SetString(PyExc_TypeError, "stream_window(position, torque, explained, h, work, "
+                                         "consts, state, out, excitation, inertia, damping, "
+                                         "context)");
+        return NULL;
+    }
+    S8Median *excitation = s8_as_median(args[8], "excitation");
+    S8Median *inertia = excitation ? s8_as_median(args[9], "inertia") : NULL;
+    S8Median *damping = inertia ? s8_as_median(args[10], "damping") : NULL;
+    PyObject *ctx = args[11];
+    if (damping == NULL) return NULL;
+    if (!PyTuple_Check(ctx) || PyTuple_GET_SIZE(ctx) != S8C_SIZE ||
+        !PyTuple_Check(PyTuple_GET_ITEM(ctx, S8C_NAMES)) ||
+        PyTuple_GET_SIZE(PyTuple_GET_ITEM(ctx, S8C_NAMES)) != S8_FIELDS ||
+        !PyTuple_Check(PyTuple_GET_ITEM(ctx, S8C_FLAGS)) ||
+        PyTuple_GET_SIZE(PyTuple_GET_ITEM(ctx, S8C_FLAGS)) != 7 ||
+        !PyTuple_Check(PyTuple_GET_ITEM(ctx, S8C_HELD)) ||
+        PyTuple_GET_SIZE(PyTuple_GET_ITEM(ctx, S8C_HELD)) != 3 ||
+        !PyType_Check(PyTuple_GET_ITEM(ctx, S8C_CLASS))) {
+        PyErr_SetString(PyExc_ValueError, "stream_window: a malformed context");
+        return NULL;
+    }
+    const long k = PyLong_AsLong(PyTuple_GET_ITEM(ctx, S8C_K));
+    const double low = PyFloat_AsDouble(PyTuple_GET_ITEM(ctx, S8C_LOW_VAF));
+    if (PyErr_Occurred()) return NULL;
+    if (k < 0 || k > 2) {
+        PyErr_SetString(PyExc_ValueError, "stream_window: k must be 0, 1 or 2");
+        return NULL;
+    }
+    PyObject *held = PyTuple_GET_ITEM(PyTuple_GET_ITEM(ctx, S8C_HELD), k);
+    if (!PyTuple_Check(held) || PyTuple_GET_SIZE(held) != 2) {
+        PyErr_SetString(PyExc_ValueError, "stream_window: held flags must be pairs");
+        return NULL;
+    }
+    Py_buffer sb, ob;
+    if (get_doubles(args[6], &sb, 1, "state") < 0) return NULL;
+    if (get_doubles(args[7], &ob, 0, "out") < 0) {
+        PyBuffer_Release(&sb);
+        return NULL;
+    }
+    PyObject *result = NULL, *status = NULL, *flags = NULL, *estimate = NULL, *newest = NULL;
+    if (sb.len / 8 < 4 || ob.len / 8 != OC_OUT_SIZE) {
+        PyErr_SetString(PyExc_ValueError, "stream_window: state or out of the wrong size");
+        goto done;
+    }
+    double *state = sb.buf;
+    const double *out = ob.buf;
+    double typical;
+    state[3] = s8_median_value(excitation, &typical) ? typical : NAN;
+    PyObject *call = PyTuple_Pack(7, args[0], args[1], args[2], args[3], args[4], args[5],
+                                  args[6]);
+    if (call == NULL) goto done;
+    status = py_onecall_window(self, call);
+    Py_DECREF(call);
+    if (status == NULL) goto done;
+    if (PyLong_AsLong(status) != OC_DONE) {
+        if (!PyErr_Occurred()) {
+            Py_INCREF(Py_None);
+            result = Py_None;
+        }
+        goto done;
+    }
+    s8_median_push(excitation, out[OC_LEVEL]);
+    double vafs[3];
+    for (int i = 0; i < 3; i++) {
+        if (s8_round12(out[OW_VAFS + i], &vafs[i]) < 0) goto done;
+    }
+    flags = s8_flags(out + OW_PARAMS, out + OW_SE, vafs, low, PyTuple_GET_ITEM(ctx, S8C_FLAGS));
+    if (flags == NULL) goto done;
+    estimate = s8_estimate(ctx, out + OW_PARAMS, out + OW_SE, vafs, args[3], flags);
+    if (estimate == NULL) goto done;
+    /* HeldParameters.learn(whole I, whole B, full_fit_explains(whole VAF)) */
+    const double whole_vaf = out[OW_WHOLE + 3];
+    int explains;
+    if (fabs(whole_vaf - low) > 1e-9) {
+        explains = whole_vaf >= low;
+    } else {
+        double rounded;
+        if (s8_round12(whole_vaf, &rounded) < 0) goto done;
+        explains = rounded >= low;
+    }
+    const int learned = explains && out[OW_WHOLE] > 0;
+    if (learned) {
+        s8_median_push(inertia, out[OW_WHOLE]);
+        if (out[OW_WHOLE + 1] > 0) s8_median_push(damping, out[OW_WHOLE + 1]);
+    }
+    if (isnan(out[OW_NEWEST])) {
+        Py_INCREF(Py_None);
+        newest = Py_None;
+    } else {
+        newest = Py_BuildValue("(ddd)", out[OW_NEWEST], out[OW_NEWEST + 1], out[OW_NEWEST + 2]);
+        if (newest == NULL) goto done;
+    }
+    result = PyTuple_Pack(3, estimate, learned ? Py_True : Py_False, newest);
+done:
+    Py_XDECREF(status);
+    Py_XDECREF(flags);
+    Py_XDECREF(estimate);
+    Py_XDECREF(newest);
+    PyBuffer_Release(&sb);
+    PyBuffer_Release(&ob);
+    return result;
 }
