@@ -1787,6 +1787,7 @@ static PyObject *py_window_scan(PyObject *self, PyObject *const *args, Py_ssize_
 static PyObject *py_finite_dict(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* eval8 */
 static PyObject *py_median_new(PyObject *self, PyObject *args); /* stream8, end */
 static PyObject *py_stream_window(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* stream8 */
+static PyObject *py_tracker_step(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* stream8 */
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1844,6 +1845,7 @@ static PyMethodDef methods[] = {
     {"finite_dict", (PyCFunction)(void (*)(void))py_finite_dict, METH_FASTCALL, "finite_dict(names, values) -> dict of names to values, non-finite floats as None (section eval8)."},
     {"median_new", py_median_new, METH_VARARGS, "median_new(horizon, min_count) -> a running median (add, median): rtsid.ident.stream.RunningMedian compiled (section stream8)."},
     {"stream_window", (PyCFunction)(void (*)(void))py_stream_window, METH_FASTCALL, "stream_window(position, torque, explained, h, work, consts, state, out, excitation, inertia, damping, context) -> None or (estimate, learned, newest): onecall_window and the stream's bookkeeping (section stream8)."},
+    {"tracker_step", (PyCFunction)(void (*)(void))py_tracker_step, METH_FASTCALL, "tracker_step(tracker, t_s, z, se, newest, split, record) -> TrackEstimate or None: tracker_calm reading and writing the instance dictionaries directly, answering the record (section stream8)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -5916,5 +5918,405 @@ done:
     Py_XDECREF(newest);
     PyBuffer_Release(&sb);
     PyBuffer_Release(&ob);
+    return result;
+}
+
+/* tracker_step(tracker, t_s, z, se, newest, split, record) -> TrackEstimate or None:
+ * tracker_calm (section onecall) with what it re-did each window taken out. The tracker's and
+ * its filters' instance dictionaries are fetched once a call (not once an attribute: ≈ 90 a
+ * window), values are read and written in them directly (a name missing from a dictionary
+ * declines: the Python step, the reference, runs), a value that did not change is not
+ * written again, and the answer is the TrackEstimate record itself, built as records.built
+ * builds it (record = (TrackEstimate, its field names, "quiet", "trend", "fast")), instead of
+ * a tuple the caller re-packed. The same operations in the same order as the Python step
+ * (ParameterTracker.step of a calm window), so the same doubles; tests/ident/test_onecall.py
+ * and test_stream8.py hold it to the Python step, state included.
+ */
+enum { T8_TRACKER, T8_QUIET, T8_TREND, T8_FAST, T8_DICTS };
+
+/* The value of name in dict (borrowed), NULL with *missing set when absent (no error). */
+static PyObject *t8_item(PyObject *dict, PyObject *name, int *missing)
+{
+    PyObject *v = PyDict_GetItemWithError(dict, name);
+    if (v == NULL && !PyErr_Occurred()) *missing = 1;
+    return v;
+}
+
+static int t8_double(PyObject *dict, PyObject *name, double *out, int *missing)
+{
+    PyObject *v = t8_item(dict, name, missing);
+    if (v == NULL) return -1;
+    *out = PyFloat_CheckExact(v) ? PyFloat_AS_DOUBLE(v) : PyFloat_AsDouble(v);
+    return *out == -1.0 && PyErr_Occurred() ? -1 : 0;
+}
+
+/* dict[name] = value, unless it holds that float already (bit for bit: NaN and -0.0 too) */
+static int t8_set_double(PyObject *dict, PyObject *name, double value)
+{
+    PyObject *old = PyDict_GetItemWithError(dict, name);
+    if (old != NULL && PyFloat_CheckExact(old)) {
+        const double was = PyFloat_AS_DOUBLE(old);
+        if (memcmp(&was, &value, sizeof value) == 0) return 0;
+    }
+    if (old == NULL && PyErr_Occurred()) return -1;
+    PyObject *v = PyFloat_FromDouble(value);
+    if (v == NULL) return -1;
+    int status = PyDict_SetItem(dict, name, v);
+    Py_DECREF(v);
+    return status;
+}
+
+static int t8_set_long(PyObject *dict, PyObject *name, long value)
+{
+    PyObject *v = PyLong_FromLong(value);
+    if (v == NULL) return -1;
+    int status = PyDict_SetItem(dict, name, v);
+    Py_DECREF(v);
+    return status;
+}
+
+/* dict[name] = value (a singleton or a new object), unless it holds that object already */
+static int t8_set(PyObject *dict, PyObject *name, PyObject *value)
+{
+    PyObject *old = PyDict_GetItemWithError(dict, name);
+    if (old == value) return 0;
+    if (old == NULL && PyErr_Occurred()) return -1;
+    return PyDict_SetItem(dict, name, value);
+}
+
+/* records.built(TrackEstimate, value=..., se=..., rate=..., updated=..., change=False, mode=) */
+static PyObject *t8_record(PyObject *record, double value, double se, double rate, int updated,
+                           int mode)
+{
+    PyObject *cls = PyTuple_GET_ITEM(record, 0), *names = PyTuple_GET_ITEM(record, 1);
+    PyObject *values[6] = {PyFloat_FromDouble(value), PyFloat_FromDouble(se),
+                           PyFloat_FromDouble(rate), NULL, NULL, NULL};
+    PyObject *out = NULL, *dict = NULL;
+    if (values[0] == NULL || values[1] == NULL || values[2] == NULL) goto done;
+    values[3] = updated ? Py_True : Py_False;
+    values[4] = Py_False;
+    values[5] = PyTuple_GET_ITEM(record, 2 + mode);
+    out = PyBaseObject_Type.tp_new((PyTypeObject *)cls, empty_tuple(), NULL);
+    if (out == NULL) goto done;
+    dict = PyObject_GenericGetDict(out, NULL);
+    if (dict == NULL) goto fail;
+    for (int i = 0; i < 6; i++) {
+        if (PyDict_SetItem(dict, PyTuple_GET_ITEM(names, i), values[i]) < 0) goto fail;
+    }
+    goto done;
+fail:
+    Py_CLEAR(out);
+done:
+    Py_XDECREF(dict);
+    for (int i = 0; i < 3; i++) Py_XDECREF(values[i]);
+    return out;
+}
+
+/* _published(updated, False) of the filters' new values */
+static PyObject *t8_published(PyObject *record, int fast_on, const double *quiet,
+                              const double *trend, const double *fast, int trending, int updated)
+{
+    const int use_fast = fast_on && fast != NULL;
+    const double *pub = use_fast ? fast : (trending ? trend : quiet);
+    const int mode = use_fast ? 2 : (trending ? 1 : 0);
+    return t8_record(record, pub[TC_X0], sqrt(tc_max(0.0, pub[TC_P00])), pub[TC_X1], updated,
+                     mode);
+}
+
+/* A filter's fields from its dictionary, and its cached transition for dt as tc_filter: 1 the
+ * last interval's, 2 another seen before (*seen, a new reference), 0 none (or a name missing:
+ * *missing). */
+static int t8_filter(PyObject *fd, double dt, double *x, double *steps, PyObject **seen,
+                     int *missing)
+{
+    for (int i = 0; i < TC_FIELDS; i++) {
+        if (t8_double(fd, tn_filter[i], &x[i], missing) < 0) return *missing ? 0 : -1;
+    }
+    if (!(dt > 0)) return 1; /* predict() does nothing */
+    PyObject *last = t8_item(fd, tn[TN_LAST], missing);
+    if (last == NULL) return *missing ? 0 : -1;
+    PyObject *cached = NULL;
+    int ok = 0;
+    if (PyTuple_Check(last) && PyTuple_GET_SIZE(last) == 2 &&
+        PyFloat_AsDouble(PyTuple_GET_ITEM(last, 0)) == dt) {
+        ok = 1;
+        cached = PyTuple_GET_ITEM(last, 1);
+    } else if (!PyErr_Occurred()) { /* the intervals seen: _by_dt */
+        PyObject *by_dt = t8_item(fd, tn[TN_BY_DT], missing);
+        PyObject *key = by_dt != NULL ? PyFloat_FromDouble(dt) : NULL;
+        if (key != NULL && PyDict_Check(by_dt)) {
+            cached = PyDict_GetItemWithError(by_dt, key);
+            if (cached != NULL) {
+                ok = 2;
+                Py_INCREF(cached);
+                *seen = cached;
+            }
+        }
+        Py_XDECREF(key);
+    }
+    if (ok && PyTuple_Check(cached) && PyTuple_GET_SIZE(cached) == 5) {
+        for (int i = 0; i < 5; i++) steps[i] = PyFloat_AsDouble(PyTuple_GET_ITEM(cached, i));
+    } else {
+        ok = 0;
+    }
+    return PyErr_Occurred() ? -1 : ok;
+}
+
+static PyObject *t8_dict(PyObject *obj)
+{
+    PyObject *dict = instance_dict(obj);
+    if (dict == NULL && !PyErr_Occurred()) {
+        PyErr_SetString(PyExc_TypeError, "tracker_step: the tracker and its filters must keep "
+                                         "their state in an instance dictionary");
+    }
+    return dict;
+}
+
+static PyObject *py_tracker_step(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 7) {
+        PyErr_SetString(PyExc_TypeError,
+                        "tracker_step(tracker, t_s, z, se, newest, split, record)");
+        return NULL;
+    }
+    PyObject *tr = args[0], *zo = args[2], *seo = args[3], *newest = args[4], *split = args[5];
+    PyObject *record = args[6];
+    const double t_s = PyFloat_AsDouble(args[1]);
+    if (t_s == -1.0 && PyErr_Occurred()) return NULL;
+    if (!PyTuple_Check(record) || PyTuple_GET_SIZE(record) != 5 ||
+        !PyType_Check(PyTuple_GET_ITEM(record, 0)) ||
+        !PyTuple_Check(PyTuple_GET_ITEM(record, 1)) ||
+        PyTuple_GET_SIZE(PyTuple_GET_ITEM(record, 1)) != 6) {
+        PyErr_SetString(PyExc_ValueError, "tracker_step: record must be (TrackEstimate, its six "
+                                          "field names, the three modes)");
+        return NULL;
+    }
+    if (tc_names() < 0) return NULL;
+    const int given = zo != Py_None && seo != Py_None;
+    const double z = given ? PyFloat_AsDouble(zo) : NAN, se = given ? PyFloat_AsDouble(seo) : NAN;
+    if (PyErr_Occurred()) return NULL;
+    const int usable = given && isfinite(z) && se > 0 && isfinite(se);
+    PyObject *dicts[T8_DICTS] = {NULL, NULL, NULL, NULL};
+    PyObject *result = NULL, *new_hop_recent = NULL, *new_recent = NULL, *entry = NULL;
+    PyObject *seen[3] = {NULL, NULL, NULL}; /* transitions found in _by_dt, for _last */
+    int missing = 0, fast_on = -1; /* fast_on -1: the fast filter not stepped */
+    double d[TS_DOUBLES];
+    long n[TI_INTS];
+    PyObject *td = dicts[T8_TRACKER] = t8_dict(tr);
+    if (td == NULL) goto done;
+    for (int i = 0; i < TS_DOUBLES; i++) {
+        if (t8_double(td, tn_double[i], &d[i], &missing) < 0) goto declined;
+    }
+    for (int i = 0; i < TI_INTS; i++) {
+        PyObject *v = t8_item(td, tn_int[i], &missing);
+        if (v == NULL) goto declined;
+        n[i] = PyLong_AsLong(v);
+        if (n[i] == -1 && PyErr_Occurred()) goto done;
+    }
+    PyObject *flag_items[3] = {t8_item(td, tn[TN_SPLITTING], &missing),
+                               t8_item(td, tn[TN_TRENDING], &missing),
+                               t8_item(td, tn[TN_FAST_ON], &missing)};
+    if (flag_items[0] == NULL || flag_items[1] == NULL || flag_items[2] == NULL) goto declined;
+    const int splitting = PyObject_IsTrue(flag_items[0]);
+    int trending = PyObject_IsTrue(flag_items[1]);
+    const int was_fast_on = PyObject_IsTrue(flag_items[2]);
+    if (splitting < 0 || trending < 0 || was_fast_on < 0) goto done;
+    if (splitting || n[TI_CHANGE] != 0) goto declined;
+    PyObject *all = t8_item(td, tn[TN_ALL], &missing);
+    if (all == NULL) goto declined;
+    const Py_ssize_t count = PyTuple_Check(all) ? PyTuple_GET_SIZE(all) : 0;
+    if (count < 2 || count > 3) {
+        PyErr_SetString(PyExc_ValueError, "tracker_step: the tracker's filters");
+        goto done;
+    }
+    double x[3][TC_FIELDS], steps[5];
+    const double dt = t_s - d[TS_T];
+    const double t = t_s > d[TS_T] ? t_s : d[TS_T];
+    for (Py_ssize_t i = 0; i < count; i++) {
+        PyObject *fd = dicts[T8_QUIET + i] = t8_dict(PyTuple_GET_ITEM(all, i));
+        if (fd == NULL) goto done;
+        int got = t8_filter(fd, dt, x[i], steps, &seen[i], &missing);
+        if (got < 0) goto done;
+        if (i == 0 && isnan(x[0][TC_X0])) goto declined; /* not started */
+        if (!got) goto declined; /* an interval without its cached transition */
+        if (dt > 0) tc_predict(x[i], steps);
+    }
+    double *quiet = x[0], *trend = x[1], *fast = count == 3 ? x[2] : NULL;
+    if (!usable) { /* prediction only: _withheld outside a change mode */
+        for (Py_ssize_t i = 0; i < count; i++) {
+            for (int j = 0; j < TC_LAG; j++) {
+                if (t8_set_double(dicts[T8_QUIET + i], tn_filter[j], x[i][j]) < 0) goto done;
+            }
+        }
+        if (t8_set_double(td, tn_double[TS_T], t) < 0 ||
+            t8_set(td, tn[TN_RECENT], empty_tuple()) < 0 ||
+            t8_set(td, tn[TN_CANDIDATE], Py_None) < 0) {
+            goto done;
+        }
+        goto remember;
+    }
+    const long calm_after = n[TI_CALM_AFTER];
+    const int calm = calm_after <= 0; /* no change mode, not splitting: checked above */
+    const double hop = d[TS_HOP], alpha = d[TS_ALPHA];
+    const double near = 1e-9 * tc_max(1.0, t);
+    long fast_scored = n[TI_FAST_SCORED], fast_hops = n[TI_FAST_HOPS];
+    double fast_cusum = d[TS_FAST_CUSUM], fast_scale2 = d[TS_FAST_SCALE2];
+    if (newest != Py_None && fast != NULL) {
+        /* _take_newest and _learn_hop_scale */
+        double k, var, centre;
+        PyObject *nd = instance_dict(newest);
+        if (nd == NULL) {
+            if (!PyErr_Occurred()) goto declined;
+            goto done;
+        }
+        int bad = t8_double(nd, tn[TN_K], &k, &missing) < 0 ||
+                  t8_double(nd, tn[TN_VAR], &var, &missing) < 0 ||
+                  t8_double(nd, tn[TN_CENTRE], &centre, &missing) < 0;
+        Py_DECREF(nd);
+        if (bad) goto declined;
+        fast[TC_LAG] = centre;
+        const double hop_var = var * se * se;
+        double hr[2][3];
+        PyObject *hop_recent = t8_item(td, tn[TN_HOP_RECENT], &missing);
+        if (hop_recent == NULL) goto declined;
+        int nr = tc_recent(hop_recent, hr);
+        if (nr < 0) goto declined;
+        if (nr && fabs((t - hr[nr - 1][0]) - hop) >= near) nr = 0;
+        if (nr == 2 && calm) {
+            const double d2 = k - 2.0 * hr[1][1] + hr[0][1];
+            const double u = d2 * d2 / (2.0 * (hr[0][2] + hr[1][2] + hop_var));
+            fast_scored += 1;
+            const double weight = tc_max(alpha, 1.0 / (double)fast_scored);
+            const double scale2 = fast_scale2;
+            fast_scale2 += weight * (tc_min(u, TC_SCALE_CAP * scale2) - scale2);
+        }
+        new_hop_recent = tc_pushed(hop_recent, nr, t, k, hop_var);
+        if (new_hop_recent == NULL) goto done;
+        const double r = fast_scale2 * var * se * se;
+        const double c = fast[TC_LAG];
+        const double s_f = fast[TC_P00] - 2.0 * c * fast[TC_P01] + c * c * fast[TC_P11] + r;
+        const double nu_f = k - (fast[TC_X0] - fast[TC_LAG] * fast[TC_X1]);
+        const double nis = nu_f * nu_f / s_f;
+        const double *slow = trending ? trend : quiet;
+        const double nu_s = k - (slow[TC_X0] - centre * slow[TC_X1]);
+        const double spread = -0.5 * log(s_f), half_df = 0.5 * (TC_FAST_DF + 1.0);
+        double llr = (spread - half_df * log1p(nis / TC_FAST_DF)) -
+                     (spread - half_df * log1p(nu_s * nu_s / s_f / TC_FAST_DF));
+        llr = tc_min(TC_FAST_LLR_CAP, tc_max(-TC_FAST_LLR_CAP, llr));
+        fast_cusum = tc_max(0.0, d[TS_FORGET] * fast_cusum + llr);
+        fast_hops = fast_cusum > d[TS_THRESHOLD] ? fast_hops + 1 : 0;
+        const int warm = fast_scored >= TC_FAST_WARM_UP * n[TI_END_HOPS];
+        fast_on = warm && fast_hops >= TC_FAST_CONFIRM_HOPS;
+        double nu, hph;
+        tc_update(fast, k, r + s_f * tc_max(0.0, nis - 1.0) / (TC_FAST_DF + 1.0), &nu, &hph);
+    }
+    /* _update: _learn_scale, the pre-gate, the gate, _select */
+    double scale2 = d[TS_SCALE2];
+    double rc[2][3];
+    PyObject *recent = t8_item(td, tn[TN_RECENT], &missing);
+    if (recent == NULL) goto declined;
+    int nrc = tc_recent(recent, rc);
+    if (nrc < 0) goto declined;
+    if (nrc == 2 && fabs((t - rc[1][0]) - hop) < near) {
+        if (calm) {
+            const double d2 = z - 2.0 * rc[1][1] + rc[0][1];
+            const double var = (rc[0][2] * rc[0][2] + rc[1][2] * rc[1][2] + se * se) / 3.0;
+            const double u = d[TS_OVERLAP] * d2 * d2 / (4.0 * var);
+            scale2 += alpha * (tc_min(u, TC_SCALE_CAP * scale2) - scale2);
+        }
+    } else if (nrc && fabs((t - rc[nrc - 1][0]) - hop) >= near) {
+        nrc = 0;
+    }
+    const double sigma2 = scale2 * se * se;
+    double se_ref = d[TS_SE_REF];
+    const double ref = sqrt(scale2) * se_ref;
+    const double departure = z - (trend[TC_X0] - trend[TC_LAG] * trend[TC_X1]);
+    const int worth = fabs(departure) > TC_PREGATE * ref || se > TC_SE_SWELL * se_ref;
+    if (split != Py_None && worth) { /* the window's splits are read */
+        int quiet_scan = tc_no_split(split, sqrt(scale2) * se_ref, d[TS_SPLIT_GATE]);
+        if (quiet_scan < 0) goto done;
+        if (!quiet_scan) goto declined; /* a significant split: the Python step reads it */
+    }
+    const double level_before = trending ? trend[TC_X0] : quiet[TC_X0];
+    const double u = departure / sqrt(scale2 * pow(se_ref, 2.0));
+    if (fabs(u) > d[TS_GATE]) goto declined; /* an outlier or a change: the Python step */
+    se_ref += 5.0 * alpha * (se - se_ref);
+    const double common = d[TS_OVERLAP] * sigma2;
+    double nu_q, hph_q, nu_t, hph_t;
+    tc_update(quiet, z, sigma2, &nu_q, &hph_q);
+    tc_update(trend, z, sigma2, &nu_t, &hph_t);
+    const double s_q = hph_q + common, s_t = hph_t + common;
+    const double llr = 0.5 * (nu_q * nu_q / s_q - nu_t * nu_t / s_t) + 0.5 * log(s_q / s_t);
+    const double cusum = tc_max(0.0, d[TS_FORGET] * d[TS_CUSUM] + llr);
+    trending = cusum > d[TS_THRESHOLD];
+    if (trending) { /* quiet.reset(trend.x0, trend.p00) */
+        quiet[TC_X0] = trend[TC_X0];
+        quiet[TC_X1] = 0.0;
+        quiet[TC_P00] = trend[TC_P00];
+        quiet[TC_P01] = 0.0;
+        quiet[TC_P11] = quiet[TC_RATE_Q] * quiet[TC_RATE_Q] * quiet[TC_TAU] / 2.0;
+    }
+    new_recent = tc_pushed(recent, nrc, t, z, se);
+    entry = Py_BuildValue("(dd)", u, level_before);
+    if (new_recent == NULL || entry == NULL) goto done;
+    /* calm: write everything back */
+    PyObject *history = t8_item(td, tn[TN_HISTORY], &missing);
+    if (history == NULL) goto declined;
+    PyObject *appended = PyObject_CallMethodOneArg(history, tn[TN_APPEND], entry);
+    if (appended == NULL) goto done;
+    Py_DECREF(appended);
+    for (Py_ssize_t i = 0; i < count; i++) {
+        const int fields = i == 2 && fast_on >= 0 ? TC_LAG + 1 : TC_LAG;
+        for (int j = 0; j < fields; j++) {
+            if (t8_set_double(dicts[T8_QUIET + i], tn_filter[j], x[i][j]) < 0) goto done;
+        }
+    }
+    if (t8_set_double(td, tn_double[TS_T], t) < 0 ||
+        t8_set_double(td, tn_double[TS_SCALE2], scale2) < 0 ||
+        t8_set_double(td, tn_double[TS_SE_REF], se_ref) < 0 ||
+        t8_set_double(td, tn_double[TS_CUSUM], cusum) < 0 ||
+        t8_set_double(td, tn[TN_OUTLIER], 0.0) < 0 ||
+        t8_set_long(td, tn_int[TI_UPDATES], n[TI_UPDATES] + 1) < 0 ||
+        t8_set_long(td, tn_int[TI_CALM_AFTER], calm_after - 1) < 0 ||
+        t8_set(td, tn[TN_TRENDING], trending ? Py_True : Py_False) < 0 ||
+        t8_set(td, tn[TN_RECENT], new_recent) < 0 ||
+        t8_set(td, tn[TN_CANDIDATE], Py_None) < 0) {
+        goto done;
+    }
+    if (fast_on >= 0) {
+        if (t8_set_double(td, tn_double[TS_FAST_CUSUM], fast_cusum) < 0 ||
+            t8_set_double(td, tn_double[TS_FAST_SCALE2], fast_scale2) < 0 ||
+            t8_set_long(td, tn_int[TI_FAST_SCORED], fast_scored) < 0 ||
+            t8_set_long(td, tn_int[TI_FAST_HOPS], fast_hops) < 0 ||
+            t8_set(td, tn[TN_FAST_ON], fast_on ? Py_True : Py_False) < 0 ||
+            t8_set(td, tn[TN_HOP_RECENT], new_hop_recent) < 0) {
+            goto done;
+        }
+    }
+remember: /* predict() remembers an interval found in _by_dt: _last = (dt, cached) */
+    for (Py_ssize_t i = 0; i < count; i++) {
+        if (seen[i] == NULL) continue;
+        PyObject *last = Py_BuildValue("(dO)", dt, seen[i]);
+        if (last == NULL || PyDict_SetItem(dicts[T8_QUIET + i], tn[TN_LAST], last) < 0) {
+            Py_XDECREF(last);
+            goto done;
+        }
+        Py_DECREF(last);
+    }
+    result = t8_published(record, fast_on >= 0 ? fast_on : was_fast_on, quiet, trend, fast,
+                          trending, usable);
+    goto done;
+declined:
+    if (!PyErr_Occurred()) {
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+done:
+    for (int i = 0; i < 3; i++) Py_XDECREF(seen[i]);
+    for (int i = 0; i < T8_DICTS; i++) Py_XDECREF(dicts[i]);
+    Py_XDECREF(new_hop_recent);
+    Py_XDECREF(new_recent);
+    Py_XDECREF(entry);
     return result;
 }
