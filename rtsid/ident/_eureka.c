@@ -1770,9 +1770,6 @@ static PyObject *py_savgol_pair(PyObject *self, PyObject *args);
 static PyObject *py_ankle_frames(PyObject *self, PyObject *args); /* socketcand frames, end */
 static PyObject *py_reflex_dynamics_fit(PyObject *self, PyObject *args); /* lanesums */
 static PyObject *py_onecall_window(PyObject *self, PyObject *args); /* onecall, end */
-static PyObject *py_tracker_calm(PyObject *self, PyObject *args); /* onecall, end */
-static PyObject *tc_get(PyObject *obj, PyObject *name);       /* winpath, end */
-static int tc_put(PyObject *obj, PyObject *name, PyObject *value); /* winpath, end */
 static PyObject *py_causal_convolve(PyObject *self, PyObject *args); /* lanesums2 */
 static PyObject *py_xcorr_lags(PyObject *self, PyObject *args); /* fits4 */
 static PyObject *py_evidence_gains_lanes(PyObject *self, PyObject *args); /* fits4 */
@@ -1830,7 +1827,6 @@ static PyMethodDef methods[] = {
     {"ankle_frames", py_ankle_frames, METH_VARARGS, "ankle_frames(data, ident, position_scale, torque_scale, counter, position, torque, status, bus_time) -> n (< 0: not the common case): socketcand state frames of the built-in protocol."},
     {"reflex_dynamics_fit", py_reflex_dynamics_fit, METH_VARARGS, "reflex_dynamics_fit(g, lags, start, low, high, scale, tolerance, max_evaluations, x) -> cost (< 0: singular): the reflex dynamics fit in one call."},
     {"onecall_window", py_onecall_window, METH_VARARGS, "onecall_window(position, torque, explained, h, arrays, consts, state) -> status (0: done, else declined): a stream's window from its checks to its back end (section onecall)."},
-    {"tracker_calm", py_tracker_calm, METH_VARARGS, "tracker_calm(tracker, t_s, z, se, newest, split) -> (value, se, rate, mode, updated) or None: ParameterTracker.step of a calm window (section onecall)."},
     {"causal_convolve", py_causal_convolve, METH_VARARGS, "causal_convolve(r, g, scale, out): out[t] = sum_k (g[k] / scale) r[t-k], the first len(r) samples of numpy.convolve(r, g / scale)."},
     {"xcorr_lags", py_xcorr_lags, METH_VARARGS, "xcorr_lags(u, y, first, last, norm, c): xcorr bit for bit, sixteen lags at a time (section fits4)."},
     {"evidence_gains_lanes", py_evidence_gains_lanes, METH_VARARGS, "evidence_gains_lanes(torque, regressors, extra, starts, n, out): evidence_gains bit for bit, four windows at a time (section fits4)."},
@@ -1845,7 +1841,7 @@ static PyMethodDef methods[] = {
     {"finite_dict", (PyCFunction)(void (*)(void))py_finite_dict, METH_FASTCALL, "finite_dict(names, values) -> dict of names to values, non-finite floats as None (section eval8)."},
     {"median_new", py_median_new, METH_VARARGS, "median_new(horizon, min_count) -> a running median (add, median): rtsid.ident.stream.RunningMedian compiled (section stream8)."},
     {"stream_window", (PyCFunction)(void (*)(void))py_stream_window, METH_FASTCALL, "stream_window(position, torque, explained, h, work, consts, state, out, excitation, inertia, damping, context) -> None or (estimate, learned, newest): onecall_window and the stream's bookkeeping (section stream8)."},
-    {"tracker_step", (PyCFunction)(void (*)(void))py_tracker_step, METH_FASTCALL, "tracker_step(tracker, t_s, z, se, newest, split, record) -> TrackEstimate or None: tracker_calm reading and writing the instance dictionaries directly, answering the record (section stream8)."},
+    {"tracker_step", (PyCFunction)(void (*)(void))py_tracker_step, METH_FASTCALL, "tracker_step(tracker, t_s, z, se, newest, split, record) -> TrackEstimate or None: ParameterTracker.step of a calm window, read and written in the instance dictionaries (section stream8)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -3309,15 +3305,12 @@ static PyObject *py_onecall_window(PyObject *self, PyObject *args)
     return result;
 }
 
-/* tracker_calm(tracker, t_s, z, se, newest, split) -> (value, se, rate, mode, updated) or None:
- * rtsid.ident.tracker.ParameterTracker.step for a calm window, the one most windows are: the
- * tracker started, no change mode, the interval one the filters' cached
- * transitions know, no significant split in the window's scan (split() is called when the
- * window departs, as the Python step does) and the window within change_gate; or a window
- * without a usable estimate (the prediction only). Everything is
- * computed on copies and written back to the tracker's attributes only when the window is
- * calm; None leaves the tracker untouched (the caller runs the Python step, the reference).
- * The same operations in the same order as the Python step, so the same doubles. */
+/* The tracker's calm step: rtsid.ident.tracker.ParameterTracker.step for a calm window, the one
+ * most windows are (the tracker started, no change mode, the interval one the filters' cached
+ * transitions know, no significant split in the window's scan, the window within change_gate;
+ * or a window without a usable estimate: the prediction only). Its entry point is tracker_step
+ * (section stream8, which replaced this section's tracker_calm); below, the names it reads and
+ * writes and its arithmetic, the same operations in the same order as the Python step. */
 enum { TC_X0, TC_X1, TC_P00, TC_P01, TC_P11, TC_LAG, TC_OVERLAP, TC_RATE_Q, TC_TAU, TC_FIELDS };
 static const char *const TC_FILTER_NAMES[TC_FIELDS] = {"x0", "x1", "p00", "p01", "p11",
                                                          "lag", "overlap", "rate_q", "tau"};
@@ -3365,81 +3358,6 @@ static int tc_names(void)
         return -1;
     }
     return 0;
-}
-
-static int tc_double(PyObject *obj, PyObject *name, double *out)
-{
-    PyObject *v = tc_get(obj, name);
-    if (v == NULL) return -1;
-    *out = PyFloat_AsDouble(v);
-    Py_DECREF(v);
-    return *out == -1.0 && PyErr_Occurred() ? -1 : 0;
-}
-
-static int tc_set_double(PyObject *obj, PyObject *name, double value)
-{
-    PyObject *v = PyFloat_FromDouble(value);
-    if (v == NULL) return -1;
-    int status = tc_put(obj, name, v);
-    Py_DECREF(v);
-    return status;
-}
-
-static int tc_set_long(PyObject *obj, PyObject *name, long value)
-{
-    PyObject *v = PyLong_FromLong(value);
-    if (v == NULL) return -1;
-    int status = tc_put(obj, name, v);
-    Py_DECREF(v);
-    return status;
-}
-
-static int tc_truth(PyObject *obj, PyObject *name)
-{
-    PyObject *v = tc_get(obj, name);
-    if (v == NULL) return -1;
-    int truth = PyObject_IsTrue(v);
-    Py_DECREF(v);
-    return truth;
-}
-
-/* A filter's fields, and its cached transition for dt: 1 the last interval's, 2 another
- * interval seen before (*seen: its transition, a new reference, for the filter's _last), 0
- * none cached (the Python step computes it). */
-static int tc_filter(PyObject *f, double dt, double *x, double *steps, PyObject **seen)
-{
-    for (int i = 0; i < TC_FIELDS; i++) {
-        if (tc_double(f, tn_filter[i], &x[i]) < 0) return -1;
-    }
-    if (!(dt > 0)) return 1; /* predict() does nothing */
-    PyObject *last = tc_get(f, tn[TN_LAST]);
-    if (last == NULL) return -1;
-    int ok = 0;
-    PyObject *cached = NULL;
-    if (PyTuple_Check(last) && PyTuple_GET_SIZE(last) == 2 &&
-        PyFloat_AsDouble(PyTuple_GET_ITEM(last, 0)) == dt) {
-        ok = 1;
-        cached = PyTuple_GET_ITEM(last, 1);
-    } else if (!PyErr_Occurred()) { /* the intervals seen: _by_dt */
-        PyObject *by_dt = tc_get(f, tn[TN_BY_DT]), *key = PyFloat_FromDouble(dt);
-        if (by_dt != NULL && key != NULL && PyDict_Check(by_dt)) {
-            cached = PyDict_GetItemWithError(by_dt, key);
-            if (cached != NULL) {
-                ok = 2;
-                Py_INCREF(cached);
-                *seen = cached;
-            }
-        }
-        Py_XDECREF(by_dt);
-        Py_XDECREF(key);
-    }
-    if (ok && PyTuple_Check(cached) && PyTuple_GET_SIZE(cached) == 5) {
-        for (int i = 0; i < 5; i++) steps[i] = PyFloat_AsDouble(PyTuple_GET_ITEM(cached, i));
-    } else {
-        ok = 0;
-    }
-    Py_DECREF(last);
-    return PyErr_Occurred() ? -1 : ok;
 }
 
 /* _LevelRateFilter.predict(dt) with its transition (b, a, q00, q01, q11) */
@@ -3506,42 +3424,6 @@ static PyObject *empty_tuple(void)
     return empty;
 }
 
-/* Write the filters' values back (and the fast filter's lag when it took the newest hop),
- * with predict()'s memory of the interval (_last) where it was found in _by_dt. */
-static int tc_write_filters(PyObject *all, Py_ssize_t count, double (*x)[TC_FIELDS],
-                            PyObject **seen, double dt, int fast_lag)
-{
-    for (Py_ssize_t i = 0; i < count; i++) {
-        PyObject *f = PyTuple_GET_ITEM(all, i);
-        const int fields = i == 2 && fast_lag ? TC_LAG + 1 : TC_LAG;
-        for (int j = 0; j < fields; j++) {
-            if (tc_set_double(f, tn_filter[j], x[i][j]) < 0) return -1;
-        }
-        if (seen[i] != NULL) { /* predict() remembers the interval: _last = (dt, cached) */
-            PyObject *last = Py_BuildValue("(dO)", dt, seen[i]);
-            if (last == NULL || tc_put(f, tn[TN_LAST], last) < 0) {
-                Py_XDECREF(last);
-                return -1;
-            }
-            Py_DECREF(last);
-        }
-    }
-    return 0;
-}
-
-/* _published(updated, False): (value, se, rate, mode, updated) of the published filter */
-static PyObject *tc_published(PyObject *tr, const double *quiet, const double *trend,
-                              const double *fast, int trending, int updated)
-{
-    int fast_on = tc_truth(tr, tn[TN_FAST_ON]);
-    if (fast_on < 0) return NULL;
-    const int use_fast = fast_on && fast != NULL;
-    const double *pub = use_fast ? fast : (trending ? trend : quiet);
-    const char *mode = use_fast ? "fast" : (trending ? "trend" : "quiet");
-    return Py_BuildValue("(dddsO)", pub[TC_X0], sqrt(tc_max(0.0, pub[TC_P00])), pub[TC_X1],
-                         mode, updated ? Py_True : Py_False);
-}
-
 /* The window's split scan (split(): a SplitScan or None) has no split beyond split_gate
  * calm standard errors (ref), as ParameterTracker._split_update reads it outside a change
  * mode: 1 none (the window stays calm), 0 one (the Python step reads it), -1 an error. */
@@ -3568,207 +3450,6 @@ static int tc_no_split(PyObject *split, double ref, double split_gate)
     Py_XDECREF(row);
     Py_DECREF(scan);
     return quiet;
-}
-
-static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
-{
-    PyObject *tr, *zo, *seo, *newest, *split;
-    double t_s;
-    if (!PyArg_ParseTuple(args, "OdOOOO", &tr, &t_s, &zo, &seo, &newest, &split)) return NULL;
-    if (tc_names() < 0) return NULL;
-    const int given = zo != Py_None && seo != Py_None;
-    const double z = given ? PyFloat_AsDouble(zo) : NAN, se = given ? PyFloat_AsDouble(seo) : NAN;
-    if (PyErr_Occurred()) return NULL;
-    const int usable = given && isfinite(z) && se > 0 && isfinite(se);
-    double d[TS_DOUBLES];
-    long n[TI_INTS];
-    for (int i = 0; i < TS_DOUBLES; i++) {
-        if (tc_double(tr, tn_double[i], &d[i]) < 0) return NULL;
-    }
-    for (int i = 0; i < TI_INTS; i++) {
-        PyObject *v = tc_get(tr, tn_int[i]);
-        if (v == NULL) return NULL;
-        n[i] = PyLong_AsLong(v);
-        Py_DECREF(v);
-        if (n[i] == -1 && PyErr_Occurred()) return NULL;
-    }
-    int splitting = tc_truth(tr, tn[TN_SPLITTING]), trending = tc_truth(tr, tn[TN_TRENDING]);
-    if (splitting < 0 || trending < 0) return NULL;
-    if (splitting || n[TI_CHANGE] != 0) Py_RETURN_NONE;
-    PyObject *all = tc_get(tr, tn[TN_ALL]);
-    if (all == NULL) return NULL;
-    PyObject *result = NULL, *hop_recent = NULL, *recent = NULL;
-    PyObject *new_hop_recent = NULL, *new_recent = NULL, *entry = NULL;
-    const Py_ssize_t count = PyTuple_Check(all) ? PyTuple_GET_SIZE(all) : 0;
-    double x[3][TC_FIELDS], steps[5];
-    PyObject *seen[3] = {NULL, NULL, NULL}; /* transitions found in _by_dt, for _last */
-    if (count < 2 || count > 3) {
-        PyErr_SetString(PyExc_ValueError, "tracker_calm: the tracker's filters");
-        goto done;
-    }
-    /* started (the quiet filter's level is not NaN), as ParameterTracker.step reads it */
-    const double dt = t_s - d[TS_T];
-    const double t = t_s > d[TS_T] ? t_s : d[TS_T];
-    for (Py_ssize_t i = 0; i < count; i++) {
-        int got = tc_filter(PyTuple_GET_ITEM(all, i), dt, x[i], steps, &seen[i]);
-        if (got < 0) goto done;
-        if (i == 0 && isnan(x[0][TC_X0])) goto declined;
-        if (!got) goto declined; /* an interval without its cached transition */
-        if (dt > 0) tc_predict(x[i], steps);
-    }
-    double *quiet = x[0], *trend = x[1], *fast = count == 3 ? x[2] : NULL;
-    if (!usable) { /* prediction only: _withheld outside a change mode */
-        if (tc_write_filters(all, count, x, seen, dt, 0) < 0 || tc_set_double(tr, tn_double[TS_T], t) < 0 ||
-            tc_put(tr, tn[TN_RECENT], empty_tuple()) < 0 ||
-            tc_put(tr, tn[TN_CANDIDATE], Py_None) < 0) {
-            goto done;
-        }
-        result = tc_published(tr, quiet, trend, fast, trending, 0);
-        goto done;
-    }
-    const long calm_after = n[TI_CALM_AFTER];
-    const int calm = calm_after <= 0; /* no change mode, not splitting: checked above */
-    const double hop = d[TS_HOP], alpha = d[TS_ALPHA];
-    const double near = 1e-9 * tc_max(1.0, t);
-    long fast_scored = n[TI_FAST_SCORED], fast_hops = n[TI_FAST_HOPS];
-    double fast_cusum = d[TS_FAST_CUSUM], fast_scale2 = d[TS_FAST_SCALE2];
-    int fast_on = -1; /* -1: not stepped */
-    if (newest != Py_None && fast != NULL) {
-        /* _take_newest and _learn_hop_scale */
-        double k, var, centre;
-        if (tc_double(newest, tn[TN_K], &k) < 0 || tc_double(newest, tn[TN_VAR], &var) < 0 ||
-            tc_double(newest, tn[TN_CENTRE], &centre) < 0) {
-            goto done;
-        }
-        fast[TC_LAG] = centre;
-        const double hop_var = var * se * se;
-        double hr[2][3];
-        hop_recent = tc_get(tr, tn[TN_HOP_RECENT]);
-        if (hop_recent == NULL) goto done;
-        int nr = tc_recent(hop_recent, hr);
-        if (nr < 0) goto declined;
-        if (nr && fabs((t - hr[nr - 1][0]) - hop) >= near) nr = 0;
-        if (nr == 2 && calm) {
-            const double d2 = k - 2.0 * hr[1][1] + hr[0][1];
-            const double u = d2 * d2 / (2.0 * (hr[0][2] + hr[1][2] + hop_var));
-            fast_scored += 1;
-            const double weight = tc_max(alpha, 1.0 / (double)fast_scored);
-            const double scale2 = fast_scale2;
-            fast_scale2 += weight * (tc_min(u, TC_SCALE_CAP * scale2) - scale2);
-        }
-        new_hop_recent = tc_pushed(hop_recent, nr, t, k, hop_var);
-        if (new_hop_recent == NULL) goto done;
-        const double r = fast_scale2 * var * se * se;
-        const double c = fast[TC_LAG];
-        const double s_f = fast[TC_P00] - 2.0 * c * fast[TC_P01] + c * c * fast[TC_P11] + r;
-        const double nu_f = k - (fast[TC_X0] - fast[TC_LAG] * fast[TC_X1]);
-        const double nis = nu_f * nu_f / s_f;
-        const double *slow = trending ? trend : quiet;
-        const double nu_s = k - (slow[TC_X0] - centre * slow[TC_X1]);
-        const double spread = -0.5 * log(s_f), half_df = 0.5 * (TC_FAST_DF + 1.0);
-        double llr = (spread - half_df * log1p(nis / TC_FAST_DF)) -
-                     (spread - half_df * log1p(nu_s * nu_s / s_f / TC_FAST_DF));
-        llr = tc_min(TC_FAST_LLR_CAP, tc_max(-TC_FAST_LLR_CAP, llr));
-        fast_cusum = tc_max(0.0, d[TS_FORGET] * fast_cusum + llr);
-        fast_hops = fast_cusum > d[TS_THRESHOLD] ? fast_hops + 1 : 0;
-        const int warm = fast_scored >= TC_FAST_WARM_UP * n[TI_END_HOPS];
-        fast_on = warm && fast_hops >= TC_FAST_CONFIRM_HOPS;
-        double nu, hph;
-        tc_update(fast, k, r + s_f * tc_max(0.0, nis - 1.0) / (TC_FAST_DF + 1.0), &nu, &hph);
-    }
-    /* _update: _learn_scale, the pre-gate, the gate, _select */
-    double scale2 = d[TS_SCALE2];
-    double rc[2][3];
-    recent = tc_get(tr, tn[TN_RECENT]);
-    if (recent == NULL) goto done;
-    int nrc = tc_recent(recent, rc);
-    if (nrc < 0) goto declined;
-    if (nrc == 2 && fabs((t - rc[1][0]) - hop) < near) {
-        if (calm) {
-            const double d2 = z - 2.0 * rc[1][1] + rc[0][1];
-            const double var = (rc[0][2] * rc[0][2] + rc[1][2] * rc[1][2] + se * se) / 3.0;
-            const double u = d[TS_OVERLAP] * d2 * d2 / (4.0 * var);
-            scale2 += alpha * (tc_min(u, TC_SCALE_CAP * scale2) - scale2);
-        }
-    } else if (nrc && fabs((t - rc[nrc - 1][0]) - hop) >= near) {
-        nrc = 0;
-    }
-    const double sigma2 = scale2 * se * se;
-    double se_ref = d[TS_SE_REF];
-    const double ref = sqrt(scale2) * se_ref;
-    const double departure = z - (trend[TC_X0] - trend[TC_LAG] * trend[TC_X1]);
-    const int worth = fabs(departure) > TC_PREGATE * ref || se > TC_SE_SWELL * se_ref;
-    if (split != Py_None && worth) { /* the window's splits are read */
-        int quiet_scan = tc_no_split(split, sqrt(scale2) * se_ref, d[TS_SPLIT_GATE]);
-        if (quiet_scan < 0) goto done;
-        if (!quiet_scan) goto declined; /* a significant split: the Python step reads it */
-    }
-    const double level_before = trending ? trend[TC_X0] : quiet[TC_X0];
-    const double u = departure / sqrt(scale2 * pow(se_ref, 2.0));
-    if (fabs(u) > d[TS_GATE]) goto declined; /* an outlier or a change: the Python step */
-    se_ref += 5.0 * alpha * (se - se_ref);
-    const double common = d[TS_OVERLAP] * sigma2;
-    double nu_q, hph_q, nu_t, hph_t;
-    tc_update(quiet, z, sigma2, &nu_q, &hph_q);
-    tc_update(trend, z, sigma2, &nu_t, &hph_t);
-    const double s_q = hph_q + common, s_t = hph_t + common;
-    const double llr = 0.5 * (nu_q * nu_q / s_q - nu_t * nu_t / s_t) + 0.5 * log(s_q / s_t);
-    const double cusum = tc_max(0.0, d[TS_FORGET] * d[TS_CUSUM] + llr);
-    trending = cusum > d[TS_THRESHOLD];
-    if (trending) { /* quiet.reset(trend.x0, trend.p00) */
-        quiet[TC_X0] = trend[TC_X0];
-        quiet[TC_X1] = 0.0;
-        quiet[TC_P00] = trend[TC_P00];
-        quiet[TC_P01] = 0.0;
-        quiet[TC_P11] = quiet[TC_RATE_Q] * quiet[TC_RATE_Q] * quiet[TC_TAU] / 2.0;
-    }
-    new_recent = tc_pushed(recent, nrc, t, z, se);
-    entry = Py_BuildValue("(dd)", u, level_before);
-    if (new_recent == NULL || entry == NULL) goto done;
-    /* calm: write everything back */
-    PyObject *history = tc_get(tr, tn[TN_HISTORY]);
-    if (history == NULL) goto done;
-    PyObject *appended = PyObject_CallMethodOneArg(history, tn[TN_APPEND], entry);
-    Py_DECREF(history);
-    if (appended == NULL) goto done;
-    Py_DECREF(appended);
-    if (tc_write_filters(all, count, x, seen, dt, fast_on >= 0) < 0) goto done;
-    if (tc_set_double(tr, tn_double[TS_T], t) < 0 || tc_set_double(tr, tn_double[TS_SCALE2], scale2) < 0 ||
-        tc_set_double(tr, tn_double[TS_SE_REF], se_ref) < 0 || tc_set_double(tr, tn_double[TS_CUSUM], cusum) < 0 ||
-        tc_set_double(tr, tn[TN_OUTLIER], 0.0) < 0 ||
-        tc_set_long(tr, tn_int[TI_UPDATES], n[TI_UPDATES] + 1) < 0 ||
-        tc_set_long(tr, tn_int[TI_CALM_AFTER], calm_after - 1) < 0 ||
-        tc_put(tr, tn[TN_TRENDING], trending ? Py_True : Py_False) < 0 ||
-        tc_put(tr, tn[TN_RECENT], new_recent) < 0 ||
-        tc_put(tr, tn[TN_CANDIDATE], Py_None) < 0) {
-        goto done;
-    }
-    if (fast_on >= 0) {
-        if (tc_set_double(tr, tn_double[TS_FAST_CUSUM], fast_cusum) < 0 ||
-            tc_set_double(tr, tn_double[TS_FAST_SCALE2], fast_scale2) < 0 ||
-            tc_set_long(tr, tn_int[TI_FAST_SCORED], fast_scored) < 0 ||
-            tc_set_long(tr, tn_int[TI_FAST_HOPS], fast_hops) < 0 ||
-            tc_put(tr, tn[TN_FAST_ON], fast_on ? Py_True : Py_False) < 0 ||
-            tc_put(tr, tn[TN_HOP_RECENT], new_hop_recent) < 0) {
-            goto done;
-        }
-    }
-    result = tc_published(tr, quiet, trend, fast, trending, 1);
-    goto done;
-declined:
-    if (!PyErr_Occurred()) {
-        Py_INCREF(Py_None);
-        result = Py_None;
-    }
-done:
-    for (int i = 0; i < 3; i++) Py_XDECREF(seen[i]);
-    Py_DECREF(all);
-    Py_XDECREF(hop_recent);
-    Py_XDECREF(recent);
-    Py_XDECREF(new_hop_recent);
-    Py_XDECREF(new_recent);
-    Py_XDECREF(entry);
-    return result;
 }
 
 /* ================================================================== kern625 (issue 22)
@@ -4835,16 +4516,15 @@ static PyObject *py_estimate_json(PyObject *self, PyObject *const *args, Py_ssiz
 }
 
 /* ------------------------------------------------------------------ branch winpath (issue 22)
- * tc_get / tc_put: tracker_calm's reads and writes of the tracker's (and its filters', the
- * newest part's) attributes through the instance's __dict__, a dictionary lookup with the
- * interned name instead of getattr's type walk (≈ 60 reads and 30 writes a window). An
- * attribute found in the instance's dictionary is what getattr returns and what setattr
- * replaces: the classes (ParameterTracker, _LevelRateFilter, NewestPart) define no data
- * descriptor of these names. Anything else (no dictionary, a name not in it: a class attribute,
- * a property) goes through getattr / setattr as before.
+ * instance_dict: the tracker's (and its filters', the newest part's) attributes are read and
+ * written through the instance's __dict__ (section stream8's tracker_step), a dictionary lookup
+ * with the interned name instead of getattr's type walk. An attribute found in the instance's
+ * dictionary is what getattr returns and what setattr replaces: the classes (ParameterTracker,
+ * _LevelRateFilter, NewestPart) define no data descriptor of these names
+ * (tests/ident/test_window_path_lanes.py).
  */
 /* The instance's __dict__ (a new reference) by the public PyObject_GenericGetDict, or NULL
- * (no error set) for an object without one: its attributes then go through getattr/setattr. */
+ * (no error set) for an object without one. */
 static PyObject *instance_dict(PyObject *obj)
 {
     if (Py_TYPE(obj)->tp_dictoffset == 0) return NULL;
@@ -4855,31 +4535,6 @@ static PyObject *instance_dict(PyObject *obj)
         return NULL;
     }
     return dict;
-}
-
-static PyObject *tc_get(PyObject *obj, PyObject *name)
-{
-    PyObject *dict = instance_dict(obj);
-    if (dict != NULL) {
-        PyObject *value = PyDict_GetItemWithError(dict, name);
-        Py_XINCREF(value);
-        Py_DECREF(dict);
-        if (value != NULL) return value;
-        if (PyErr_Occurred()) return NULL;
-    }
-    return PyObject_GetAttr(obj, name);
-}
-
-static int tc_put(PyObject *obj, PyObject *name, PyObject *value)
-{
-    PyObject *dict = instance_dict(obj);
-    if (dict != NULL) {
-        PyObject *old = PyDict_GetItemWithError(dict, name);
-        int done = old != NULL ? PyDict_SetItem(dict, name, value) : (PyErr_Occurred() ? -1 : 1);
-        Py_DECREF(dict);
-        if (done <= 0) return done;
-    }
-    return PyObject_SetAttr(obj, name, value);
 }
 
 /* minus_line(out, n, coef, t): out[i] -= coef·(t + i) for i < n, as the scalar loop
@@ -5922,9 +5577,9 @@ done:
 }
 
 /* tracker_step(tracker, t_s, z, se, newest, split, record) -> TrackEstimate or None:
- * tracker_calm (section onecall) with what it re-did each window taken out. The tracker's and
- * its filters' instance dictionaries are fetched once a call (not once an attribute: ≈ 90 a
- * window), values are read and written in them directly (a name missing from a dictionary
+ * the calm step (section onecall's former tracker_calm) with what it re-did each window taken
+ * out. The tracker's and its filters' instance dictionaries are fetched once a call (not once
+ * an attribute: ≈ 90 a window), values are read and written in them directly (a name missing from a dictionary
  * declines: the Python step, the reference, runs), a value that did not change is not
  * written again, and the answer is the TrackEstimate record itself, built as records.built
  * builds it (record = (TrackEstimate, its field names, "quiet", "trend", "fast")), instead of

@@ -1,5 +1,5 @@
 """A stream's window in one compiled call (rtsid.ident.onecall) and the tracker's calm step
-(``tracker_calm``) against the step-by-step path they replace: bit for bit, state included."""
+(``tracker_step``) against the step-by-step path they replace: bit for bit, state included."""
 
 import math
 
