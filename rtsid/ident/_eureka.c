@@ -5244,8 +5244,10 @@ static PyObject *py_finite_dict(PyObject *self, PyObject *const *args, Py_ssize_
  *   HeldParameters.learn (full_fit_explains's test; learned: whether it was); newest: the
  *   newest hop's (K, variance, centre row) or None.
  *   context = (WindowEstimate, field names, lags_s, fs_hz, method, lost, held flags by k (3
- *   pairs), the seven flags in window_flags' order, low_vaf_percent, k): built once per plan
- *   and held value.
+ *   pairs), the seven flags in window_flags' order, low_vaf_percent, k, newest) with newest =
+ *   (NewestPart, window_samples - 1, factor, delay, fs_hz): built once per plan and held
+ *   value. The newest hop's record is built as split.row_offsets_s places its centre row:
+ *   centre_s = (window_samples - 1 - ((row + 4) * factor + delay)) / fs_hz.
  */
 typedef struct {
     PyObject_HEAD
@@ -5405,7 +5407,7 @@ static int s8_round12(double x, double *out)
 
 enum {
     S8C_CLASS, S8C_NAMES, S8C_LAGS, S8C_FS, S8C_METHOD, S8C_LOST, S8C_HELD, S8C_FLAGS,
-    S8C_LOW_VAF, S8C_K, S8C_SIZE
+    S8C_LOW_VAF, S8C_K, S8C_NEWEST, S8C_SIZE
 };
 enum { S8_FIELDS = 17 };
 
@@ -5470,6 +5472,37 @@ done:
     return record;
 }
 
+/* records.built(NewestPart, k=, var=, centre_s=row_offsets_s(row, plan, window_samples)) */
+static PyObject *s8_newest(PyObject *spec, const double *kvr)
+{
+    double c[4];
+    for (int i = 0; i < 4; i++) c[i] = PyFloat_AsDouble(PyTuple_GET_ITEM(spec, 1 + i));
+    if (PyErr_Occurred()) return NULL;
+    const double centre = (c[0] - ((kvr[2] + 4.0) * c[1] + c[2])) / c[3];
+    static PyObject *names[3] = {NULL, NULL, NULL};
+    static const char *const fields[3] = {"k", "var", "centre_s"};
+    if (tc_intern(names, fields, 3) < 0) return NULL;
+    PyObject *values[3] = {PyFloat_FromDouble(kvr[0]), PyFloat_FromDouble(kvr[1]),
+                           PyFloat_FromDouble(centre)};
+    PyObject *record = NULL, *dict = NULL;
+    if (values[0] == NULL || values[1] == NULL || values[2] == NULL) goto done;
+    record = PyBaseObject_Type.tp_new((PyTypeObject *)PyTuple_GET_ITEM(spec, 0), empty_tuple(),
+                                      NULL);
+    if (record == NULL) goto done;
+    dict = PyObject_GenericGetDict(record, NULL);
+    if (dict == NULL) goto fail;
+    for (int i = 0; i < 3; i++) {
+        if (PyDict_SetItem(dict, names[i], values[i]) < 0) goto fail;
+    }
+    goto done;
+fail:
+    Py_CLEAR(record);
+done:
+    Py_XDECREF(dict);
+    for (int i = 0; i < 3; i++) Py_XDECREF(values[i]);
+    return record;
+}
+
 static PyObject *py_stream_window(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
     if (nargs != 12) {
@@ -5489,6 +5522,9 @@ static PyObject *py_stream_window(PyObject *self, PyObject *const *args, Py_ssiz
         !PyTuple_Check(PyTuple_GET_ITEM(ctx, S8C_FLAGS)) ||
         PyTuple_GET_SIZE(PyTuple_GET_ITEM(ctx, S8C_FLAGS)) != 7 ||
         !PyTuple_Check(PyTuple_GET_ITEM(ctx, S8C_HELD)) ||
+        !PyTuple_Check(PyTuple_GET_ITEM(ctx, S8C_NEWEST)) ||
+        PyTuple_GET_SIZE(PyTuple_GET_ITEM(ctx, S8C_NEWEST)) != 5 ||
+        !PyType_Check(PyTuple_GET_ITEM(PyTuple_GET_ITEM(ctx, S8C_NEWEST), 0)) ||
         PyTuple_GET_SIZE(PyTuple_GET_ITEM(ctx, S8C_HELD)) != 3 ||
         !PyType_Check(PyTuple_GET_ITEM(ctx, S8C_CLASS))) {
         PyErr_SetString(PyExc_ValueError, "stream_window: a malformed context");
@@ -5562,7 +5598,7 @@ static PyObject *py_stream_window(PyObject *self, PyObject *const *args, Py_ssiz
         Py_INCREF(Py_None);
         newest = Py_None;
     } else {
-        newest = Py_BuildValue("(ddd)", out[OW_NEWEST], out[OW_NEWEST + 1], out[OW_NEWEST + 2]);
+        newest = s8_newest(PyTuple_GET_ITEM(ctx, S8C_NEWEST), out + OW_NEWEST);
         if (newest == NULL) goto done;
     }
     result = PyTuple_Pack(3, estimate, learned ? Py_True : Py_False, newest);
@@ -5605,15 +5641,11 @@ static int t8_double(PyObject *dict, PyObject *name, double *out, int *missing)
     return *out == -1.0 && PyErr_Occurred() ? -1 : 0;
 }
 
-/* dict[name] = value, unless it holds that float already (bit for bit: NaN and -0.0 too) */
-static int t8_set_double(PyObject *dict, PyObject *name, double value)
+/* dict[name] = value, unless value is bit for bit (NaN and -0.0 too) what the call read there
+ * at its start (was: no second lookup) */
+static int t8_set_double(PyObject *dict, PyObject *name, double value, double was)
 {
-    PyObject *old = PyDict_GetItemWithError(dict, name);
-    if (old != NULL && PyFloat_CheckExact(old)) {
-        const double was = PyFloat_AS_DOUBLE(old);
-        if (memcmp(&was, &value, sizeof value) == 0) return 0;
-    }
-    if (old == NULL && PyErr_Occurred()) return -1;
+    if (memcmp(&was, &value, sizeof value) == 0) return 0;
     PyObject *v = PyFloat_FromDouble(value);
     if (v == NULL) return -1;
     int status = PyDict_SetItem(dict, name, v);
@@ -5778,6 +5810,8 @@ static PyObject *py_tracker_step(PyObject *self, PyObject *const *args, Py_ssize
     const int was_fast_on = PyObject_IsTrue(flag_items[2]);
     if (splitting < 0 || trending < 0 || was_fast_on < 0) goto done;
     if (splitting || n[TI_CHANGE] != 0) goto declined;
+    double outlier;
+    if (t8_double(td, tn[TN_OUTLIER], &outlier, &missing) < 0) goto declined;
     PyObject *all = t8_item(td, tn[TN_ALL], &missing);
     if (all == NULL) goto declined;
     const Py_ssize_t count = PyTuple_Check(all) ? PyTuple_GET_SIZE(all) : 0;
@@ -5785,7 +5819,7 @@ static PyObject *py_tracker_step(PyObject *self, PyObject *const *args, Py_ssize
         PyErr_SetString(PyExc_ValueError, "tracker_step: the tracker's filters");
         goto done;
     }
-    double x[3][TC_FIELDS], steps[5];
+    double x[3][TC_FIELDS], read[3][TC_FIELDS], steps[5];
     const double dt = t_s - d[TS_T];
     const double t = t_s > d[TS_T] ? t_s : d[TS_T];
     for (Py_ssize_t i = 0; i < count; i++) {
@@ -5795,16 +5829,19 @@ static PyObject *py_tracker_step(PyObject *self, PyObject *const *args, Py_ssize
         if (got < 0) goto done;
         if (i == 0 && isnan(x[0][TC_X0])) goto declined; /* not started */
         if (!got) goto declined; /* an interval without its cached transition */
+        memcpy(read[i], x[i], sizeof read[i]);
         if (dt > 0) tc_predict(x[i], steps);
     }
     double *quiet = x[0], *trend = x[1], *fast = count == 3 ? x[2] : NULL;
     if (!usable) { /* prediction only: _withheld outside a change mode */
         for (Py_ssize_t i = 0; i < count; i++) {
             for (int j = 0; j < TC_LAG; j++) {
-                if (t8_set_double(dicts[T8_QUIET + i], tn_filter[j], x[i][j]) < 0) goto done;
+                if (t8_set_double(dicts[T8_QUIET + i], tn_filter[j], x[i][j], read[i][j]) < 0) {
+                    goto done;
+                }
             }
         }
-        if (t8_set_double(td, tn_double[TS_T], t) < 0 ||
+        if (t8_set_double(td, tn_double[TS_T], t, d[TS_T]) < 0 ||
             t8_set(td, tn[TN_RECENT], empty_tuple()) < 0 ||
             t8_set(td, tn[TN_CANDIDATE], Py_None) < 0) {
             goto done;
@@ -5924,14 +5961,16 @@ static PyObject *py_tracker_step(PyObject *self, PyObject *const *args, Py_ssize
     for (Py_ssize_t i = 0; i < count; i++) {
         const int fields = i == 2 && fast_on >= 0 ? TC_LAG + 1 : TC_LAG;
         for (int j = 0; j < fields; j++) {
-            if (t8_set_double(dicts[T8_QUIET + i], tn_filter[j], x[i][j]) < 0) goto done;
+            if (t8_set_double(dicts[T8_QUIET + i], tn_filter[j], x[i][j], read[i][j]) < 0) {
+                goto done;
+            }
         }
     }
-    if (t8_set_double(td, tn_double[TS_T], t) < 0 ||
-        t8_set_double(td, tn_double[TS_SCALE2], scale2) < 0 ||
-        t8_set_double(td, tn_double[TS_SE_REF], se_ref) < 0 ||
-        t8_set_double(td, tn_double[TS_CUSUM], cusum) < 0 ||
-        t8_set_double(td, tn[TN_OUTLIER], 0.0) < 0 ||
+    if (t8_set_double(td, tn_double[TS_T], t, d[TS_T]) < 0 ||
+        t8_set_double(td, tn_double[TS_SCALE2], scale2, d[TS_SCALE2]) < 0 ||
+        t8_set_double(td, tn_double[TS_SE_REF], se_ref, d[TS_SE_REF]) < 0 ||
+        t8_set_double(td, tn_double[TS_CUSUM], cusum, d[TS_CUSUM]) < 0 ||
+        t8_set_double(td, tn[TN_OUTLIER], 0.0, outlier) < 0 ||
         t8_set_long(td, tn_int[TI_UPDATES], n[TI_UPDATES] + 1) < 0 ||
         t8_set_long(td, tn_int[TI_CALM_AFTER], calm_after - 1) < 0 ||
         t8_set(td, tn[TN_TRENDING], trending ? Py_True : Py_False) < 0 ||
@@ -5940,8 +5979,8 @@ static PyObject *py_tracker_step(PyObject *self, PyObject *const *args, Py_ssize
         goto done;
     }
     if (fast_on >= 0) {
-        if (t8_set_double(td, tn_double[TS_FAST_CUSUM], fast_cusum) < 0 ||
-            t8_set_double(td, tn_double[TS_FAST_SCALE2], fast_scale2) < 0 ||
+        if (t8_set_double(td, tn_double[TS_FAST_CUSUM], fast_cusum, d[TS_FAST_CUSUM]) < 0 ||
+            t8_set_double(td, tn_double[TS_FAST_SCALE2], fast_scale2, d[TS_FAST_SCALE2]) < 0 ||
             t8_set_long(td, tn_int[TI_FAST_SCORED], fast_scored) < 0 ||
             t8_set_long(td, tn_int[TI_FAST_HOPS], fast_hops) < 0 ||
             t8_set(td, tn[TN_FAST_ON], fast_on ? Py_True : Py_False) < 0 ||

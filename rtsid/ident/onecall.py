@@ -30,6 +30,7 @@ from rtsid.ident.fused import _HELD_FLAGS, kept_band_table
 from rtsid.ident.irf import IRF
 from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.options import EstimatorOptions
+from rtsid.ident.split import NewestPart
 
 __all__ = ["OUT_LEVEL", "WindowCall", "one_call_possible"]
 
@@ -130,7 +131,10 @@ class WindowCall:
         # stream_window's context for each count of held parameters (its "k")
         low = float(options.low_vaf_percent)
         fixed = (WindowEstimate, ESTIMATE_FIELDS, self.lags_s, fs_a, "output_error", 0)
-        self._contexts = tuple((*fixed, _HELD_FLAGS, FLAG_ORDER, low, k) for k in range(3))
+        # the newest hop's record: its centre row placed as split.row_offsets_s places it
+        delay = (plan.taps.size - 1) / 2.0
+        newest = (NewestPart, float(window_samples - 1), float(factor), delay, plan.fs_hz)
+        self._contexts = tuple((*fixed, _HELD_FLAGS, FLAG_ORDER, low, k, newest) for k in range(3))
 
     def __call__(
         self,
@@ -179,7 +183,7 @@ class WindowCall:
         held: Held,
         excitation: Any,
         learned: tuple[Any, Any],
-    ) -> tuple[WindowEstimate, bool, tuple[float, float, float] | None] | None:
+    ) -> tuple[WindowEstimate, bool, NewestPart | None] | None:
         """One window and the stream's bookkeeping in one compiled call (``stream_window``):
         what :meth:`__call__` and :meth:`rtsid.ident.stream.WindowStream._fit_in_one_call`
         do with its results (the typical level read from and this window's added to

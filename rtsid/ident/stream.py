@@ -563,13 +563,14 @@ class _SplitSource:
         held: Held,
         plan: AnalysisPlan,
         window_samples: int,
-        newest: Sequence[float] | bool | None = False,
+        newest: NewestPart | Sequence[float] | bool | None = False,
         buffers: ScanBuffers | None = None,
     ) -> None:
         self.estimate = estimate
         self._args = (design, held.inertia, held.damping, plan, window_samples)
         self._problem: SplitProblem | bool | None = False  # False: not built yet
-        # the compiled back end's (K, variance, centre row) of the newest hop (False: not read)
+        # the compiled back end's (K, variance, centre row) of the newest hop, or its record
+        # (stream_window's) (False: not read)
         self._newest = newest
         self._buffers = buffers
 
@@ -583,9 +584,10 @@ class _SplitSource:
 
     def newest(self, span_s: float) -> NewestPart | None:
         """The newest hop's K (the compiled back end read it for the stream's hop)."""
-        if self._newest is None:
-            return None
-        if self._newest is not False:
+        newest = self._newest
+        if newest is None or type(newest) is NewestPart:  # the compiled call's record
+            return newest
+        if newest is not False:
             k, var, row = self._newest  # type: ignore[misc]
             _, _, _, plan, window_samples = self._args
             return built(
@@ -692,4 +694,13 @@ def sliding_estimates(
             reason = exc.reason
         except NumericalError:
             reason = Reason.NUMERICAL
-        yield WindowResult(start, stop, t_end, est, reason, stream.track(t_end, est))
+        track = stream.track(t_end, est)
+        yield built(
+            WindowResult,
+            start=start,
+            stop=stop,
+            t_end_s=t_end,
+            estimate=est,
+            reason=reason,
+            track=track,
+        )

@@ -504,7 +504,7 @@ class ParameterTracker:
         if _eureka is not None:  # a calm window in one compiled call (None: not calm)
             calm = _eureka.tracker_step(self, t_s, z, se, newest, split, _RECORD)
             if calm is not None:
-                return calm  # type: ignore[no-any-return]
+                return calm
         usable = (
             z is not None and se is not None and math.isfinite(z) and se > 0 and math.isfinite(se)
         )

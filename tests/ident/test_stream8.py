@@ -3,6 +3,7 @@ Python reference (rtsid.ident.stream): the running medians, and a whole stream w
 parameters, typical excitation, flags and estimates are kept by the compiled
 ``stream_window``, bit for bit, state included."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -10,6 +11,7 @@ import pytest
 
 from rtsid.ident import onecall, stream, tracker
 from rtsid.ident.excitation import filtered_noise
+from rtsid.ident.split import NewestPart
 from rtsid.ident.stream import RunningMedian, WindowStream, running_median, sliding_estimates
 from rtsid.ident.tracker import TrackerOptions
 from rtsid.ident.window import EstimatorOptions
@@ -158,3 +160,42 @@ def test_the_bookkept_stream_is_the_python_reference_bit_for_bit(options, monkey
     assert _same(got_stream.excitation.median(), want_stream.excitation.median())
     for mine, theirs in zip(got_stream.held.medians, want_stream.held.medians, strict=True):
         assert _same(mine.median(), theirs.median())
+
+
+def _same_as_constructed(record) -> None:
+    """``record`` (built in C) equals its class's constructor given the same fields."""
+    cls = type(record)
+    assert dataclasses.is_dataclass(cls) and cls.__dataclass_params__.frozen
+    values = {f.name: getattr(record, f.name) for f in dataclasses.fields(cls)}
+    assert list(vars(record)) == list(values), cls.__name__  # every field, in order
+    again = cls(**values)
+    for name, value in values.items():
+        assert getattr(again, name) is value or _same(getattr(again, name), value), name
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        setattr(record, next(iter(values)), 0)
+
+
+def test_the_records_built_in_c_are_their_constructors(monkeypatch):
+    theta, tau = _hostile_recording(4.0, 12)
+    got, s = _stream(theta, tau, EstimatorOptions(), compiled=True, monkeypatch=monkeypatch)
+    estimates = [w.estimate for w in got if w.estimate is not None]
+    assert len(estimates) > 100
+    for estimate in estimates[::10]:
+        _same_as_constructed(estimate)
+    for w in got[::10]:
+        _same_as_constructed(w)  # the WindowResult
+    # the tracker's calm step answers a TrackEstimate record, the stream's call a NewestPart
+    k = s.tracker.stiffness
+    steps = []
+    for i, w in enumerate(got[-20:]):
+        steps.append(k.step(w.t_end_s + 1.0 + 0.02 * i, 150.0 + i % 3, 2.0))
+    calm = [step for step in steps if step.mode in ("quiet", "trend", "fast")]
+    assert calm
+    for step in calm:
+        _same_as_constructed(step)
+    estimate = s.estimate(theta[-750:], tau[-750:])  # one window more, its source kept
+    source = s._split_source
+    assert source is not None and source.estimate is estimate
+    part = source.newest(0.02)
+    assert type(part) is NewestPart  # as stream_window built it
+    _same_as_constructed(part)
