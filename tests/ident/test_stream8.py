@@ -199,3 +199,16 @@ def test_the_records_built_in_c_are_their_constructors(monkeypatch):
     part = source.newest(0.02)
     assert type(part) is NewestPart  # as stream_window built it
     _same_as_constructed(part)
+
+
+def test_held_values_give_the_learned_record_when_they_hold_its_values():
+    from rtsid.ident.fit import NOT_HELD, Held, held_values
+
+    learned = Held(0.012, 0.9)
+    both = EstimatorOptions(hold="inertia_damping")
+    assert held_values(both, learned) is learned  # what a stream reads every window
+    assert held_values(both, NOT_HELD) is NOT_HELD
+    inertia_only = held_values(EstimatorOptions(hold="inertia"), learned)
+    assert inertia_only == Held(0.012, None) and inertia_only is not learned
+    given = held_values(EstimatorOptions(hold="inertia_damping", hold_inertia=0.02), learned)
+    assert given == Held(0.02, 0.9)
