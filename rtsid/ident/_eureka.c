@@ -1785,6 +1785,7 @@ static PyObject *py_finite_dict(PyObject *self, PyObject *const *args, Py_ssize_
 static PyObject *py_median_new(PyObject *self, PyObject *args); /* stream8, end */
 static PyObject *py_stream_window(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* stream8 */
 static PyObject *py_tracker_step(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* stream8 */
+static PyObject *py_window_flags(PyObject *self, PyObject *args); /* stream8 */
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1842,6 +1843,7 @@ static PyMethodDef methods[] = {
     {"median_new", py_median_new, METH_VARARGS, "median_new(horizon, min_count) -> a running median (add, median): rtsid.ident.stream.RunningMedian compiled (section stream8)."},
     {"stream_window", (PyCFunction)(void (*)(void))py_stream_window, METH_FASTCALL, "stream_window(position, torque, explained, h, work, consts, state, out, excitation, inertia, damping, context) -> None or (estimate, learned, newest): onecall_window and the stream's bookkeeping (section stream8)."},
     {"tracker_step", (PyCFunction)(void (*)(void))py_tracker_step, METH_FASTCALL, "tracker_step(tracker, t_s, z, se, newest, split, record) -> TrackEstimate or None: ParameterTracker.step of a calm window, read and written in the instance dictionaries (section stream8)."},
+    {"window_flags", py_window_flags, METH_VARARGS, "window_flags(params, se, vafs, low_vaf_percent, flags) -> tuple: stream_window's flags, rtsid.ident.assess.window_flags compiled (section stream8)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -5248,6 +5250,8 @@ static PyObject *py_finite_dict(PyObject *self, PyObject *const *args, Py_ssize_
  *   (NewestPart, window_samples - 1, factor, delay, fs_hz): built once per plan and held
  *   value. The newest hop's record is built as split.row_offsets_s places its centre row:
  *   centre_s = (window_samples - 1 - ((row + 4) * factor + delay)) / fs_hz.
+ * window_flags(params, se, vafs, low_vaf_percent, flags) -> tuple: the flags stream_window
+ *   raises, for tests to hold to assess.window_flags on any numbers.
  */
 typedef struct {
     PyObject_HEAD
@@ -5431,6 +5435,24 @@ static PyObject *s8_flags(const double *p, const double *se, const double *vafs,
         PyTuple_SET_ITEM(flags, i, raised[i]);
     }
     return flags;
+}
+
+/* window_flags(params, se, vafs, low_vaf_percent, table) -> tuple: s8_flags from Python, so
+ * that tests hold it to assess.window_flags (the reference) on any numbers */
+static PyObject *py_window_flags(PyObject *self, PyObject *args)
+{
+    (void)self;
+    double p[3], se[3], vafs[3], low;
+    PyObject *table;
+    if (!PyArg_ParseTuple(args, "(ddd)(ddd)(ddd)dO!", &p[0], &p[1], &p[2], &se[0], &se[1],
+                          &se[2], &vafs[0], &vafs[1], &vafs[2], &low, &PyTuple_Type, &table)) {
+        return NULL;
+    }
+    if (PyTuple_GET_SIZE(table) != 7) {
+        PyErr_SetString(PyExc_ValueError, "window_flags: table must hold the seven flags");
+        return NULL;
+    }
+    return s8_flags(p, se, vafs, low, table);
 }
 
 /* records.built(WindowEstimate, ...): the instance's __dict__ filled in field order */

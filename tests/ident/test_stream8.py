@@ -212,3 +212,30 @@ def test_held_values_give_the_learned_record_when_they_hold_its_values():
     assert inertia_only == Held(0.012, None) and inertia_only is not learned
     given = held_values(EstimatorOptions(hold="inertia_damping", hold_inertia=0.02), learned)
     assert given == Held(0.02, 0.9)
+
+
+def test_the_compiled_flags_are_window_flags_on_any_numbers():
+    from rtsid.ident import assess
+
+    kernel = stream._eureka
+    rng = np.random.default_rng(8)
+    options = EstimatorOptions()
+    low = float(options.low_vaf_percent)
+    edges = [0.0, -0.0, math.nan, math.inf, -math.inf, 1e-300, -1e-300]
+    for _ in range(4000):
+        params = tuple(
+            float(rng.choice(edges)) if rng.random() < 0.15 else float(rng.normal(0, 100))
+            for _ in range(3)
+        )
+        # standard errors near each threshold (SE 25 % of |I|, 10 % of |K|), NaN when held
+        se = [abs(params[i]) * float(rng.choice([0.1, 0.25, 0.26, 0.24])) for i in range(3)]
+        se = tuple(math.nan if rng.random() < 0.2 else v for v in se)
+        vafs = tuple(
+            float(rng.choice([low, 50.0, math.nan, low - 1e-12, 49.9, 100.0]))
+            if rng.random() < 0.3
+            else float(rng.uniform(-50.0, 100.0))
+            for _ in range(3)
+        )
+        want = assess.window_flags(params, se, vafs, options)  # type: ignore[arg-type]
+        got = kernel.window_flags(params, se, vafs, low, assess.FLAG_ORDER)
+        assert got == want and all(g is w for g, w in zip(got, want, strict=True))
