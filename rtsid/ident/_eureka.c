@@ -1770,9 +1770,6 @@ static PyObject *py_savgol_pair(PyObject *self, PyObject *args);
 static PyObject *py_ankle_frames(PyObject *self, PyObject *args); /* socketcand frames, end */
 static PyObject *py_reflex_dynamics_fit(PyObject *self, PyObject *args); /* lanesums */
 static PyObject *py_onecall_window(PyObject *self, PyObject *args); /* onecall, end */
-static PyObject *py_tracker_calm(PyObject *self, PyObject *args); /* onecall, end */
-static PyObject *tc_get(PyObject *obj, PyObject *name);       /* winpath, end */
-static int tc_put(PyObject *obj, PyObject *name, PyObject *value); /* winpath, end */
 static PyObject *py_causal_convolve(PyObject *self, PyObject *args); /* lanesums2 */
 static PyObject *py_xcorr_lags(PyObject *self, PyObject *args); /* fits4 */
 static PyObject *py_evidence_gains_lanes(PyObject *self, PyObject *args); /* fits4 */
@@ -1787,6 +1784,10 @@ static PyObject *py_window_scan(PyObject *self, PyObject *const *args, Py_ssize_
 static PyObject *py_finite_dict(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* eval8 */
 static PyObject *py_mdl_decompose(PyObject *self, PyObject *args); /* fits7, end */
 static PyObject *py_mdl_rank(PyObject *self, PyObject *args); /* fits7, end */
+static PyObject *py_median_new(PyObject *self, PyObject *args); /* stream8, end */
+static PyObject *py_stream_window(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* stream8 */
+static PyObject *py_tracker_step(PyObject *self, PyObject *const *args, Py_ssize_t nargs); /* stream8 */
+static PyObject *py_window_flags(PyObject *self, PyObject *args); /* stream8 */
 
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS,
@@ -1829,7 +1830,6 @@ static PyMethodDef methods[] = {
     {"ankle_frames", py_ankle_frames, METH_VARARGS, "ankle_frames(data, ident, position_scale, torque_scale, counter, position, torque, status, bus_time) -> n (< 0: not the common case): socketcand state frames of the built-in protocol."},
     {"reflex_dynamics_fit", py_reflex_dynamics_fit, METH_VARARGS, "reflex_dynamics_fit(g, lags, start, low, high, scale, tolerance, max_evaluations, x) -> cost (< 0: singular): the reflex dynamics fit in one call."},
     {"onecall_window", py_onecall_window, METH_VARARGS, "onecall_window(position, torque, explained, h, arrays, consts, state) -> status (0: done, else declined): a stream's window from its checks to its back end (section onecall)."},
-    {"tracker_calm", py_tracker_calm, METH_VARARGS, "tracker_calm(tracker, t_s, z, se, newest, split) -> (value, se, rate, mode, updated) or None: ParameterTracker.step of a calm window (section onecall)."},
     {"causal_convolve", py_causal_convolve, METH_VARARGS, "causal_convolve(r, g, scale, out): out[t] = sum_k (g[k] / scale) r[t-k], the first len(r) samples of numpy.convolve(r, g / scale)."},
     {"xcorr_lags", py_xcorr_lags, METH_VARARGS, "xcorr_lags(u, y, first, last, norm, c): xcorr bit for bit, sixteen lags at a time (section fits4)."},
     {"evidence_gains_lanes", py_evidence_gains_lanes, METH_VARARGS, "evidence_gains_lanes(torque, regressors, extra, starts, n, out): evidence_gains bit for bit, four windows at a time (section fits4)."},
@@ -1844,6 +1844,10 @@ static PyMethodDef methods[] = {
     {"finite_dict", (PyCFunction)(void (*)(void))py_finite_dict, METH_FASTCALL, "finite_dict(names, values) -> dict of names to values, non-finite floats as None (section eval8)."},
     {"mdl_decompose", py_mdl_decompose, METH_VARARGS, "mdl_decompose(phi_rr) -> bytes: a symmetric Toeplitz matrix's halves tridiagonalised, their eigenvalues and QL rotations, for mdl_rank (section fits7)."},
     {"mdl_rank", py_mdl_rank, METH_VARARGS, "mdl_rank(decomposition, full, power_e, n_samples, out) -> rank: reflex.mdl_projection's rank and projected solution (into out) without eigenvectors (section fits7)."},
+    {"median_new", py_median_new, METH_VARARGS, "median_new(horizon, min_count) -> a running median (add, median): rtsid.ident.stream.RunningMedian compiled (section stream8)."},
+    {"stream_window", (PyCFunction)(void (*)(void))py_stream_window, METH_FASTCALL, "stream_window(position, torque, explained, h, work, consts, state, out, excitation, inertia, damping, context) -> None or (estimate, learned, newest): onecall_window and the stream's bookkeeping (section stream8)."},
+    {"tracker_step", (PyCFunction)(void (*)(void))py_tracker_step, METH_FASTCALL, "tracker_step(tracker, t_s, z, se, newest, split, record) -> TrackEstimate or None: ParameterTracker.step of a calm window, read and written in the instance dictionaries (section stream8)."},
+    {"window_flags", py_window_flags, METH_VARARGS, "window_flags(params, se, vafs, low_vaf_percent, flags) -> tuple: stream_window's flags, rtsid.ident.assess.window_flags compiled (section stream8)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -3307,15 +3311,12 @@ static PyObject *py_onecall_window(PyObject *self, PyObject *args)
     return result;
 }
 
-/* tracker_calm(tracker, t_s, z, se, newest, split) -> (value, se, rate, mode, updated) or None:
- * rtsid.ident.tracker.ParameterTracker.step for a calm window, the one most windows are: the
- * tracker started, no change mode, the interval one the filters' cached
- * transitions know, no significant split in the window's scan (split() is called when the
- * window departs, as the Python step does) and the window within change_gate; or a window
- * without a usable estimate (the prediction only). Everything is
- * computed on copies and written back to the tracker's attributes only when the window is
- * calm; None leaves the tracker untouched (the caller runs the Python step, the reference).
- * The same operations in the same order as the Python step, so the same doubles. */
+/* The tracker's calm step: rtsid.ident.tracker.ParameterTracker.step for a calm window, the one
+ * most windows are (the tracker started, no change mode, the interval one the filters' cached
+ * transitions know, no significant split in the window's scan, the window within change_gate;
+ * or a window without a usable estimate: the prediction only). Its entry point is tracker_step
+ * (section stream8, which replaced this section's tracker_calm); below, the names it reads and
+ * writes and its arithmetic, the same operations in the same order as the Python step. */
 enum { TC_X0, TC_X1, TC_P00, TC_P01, TC_P11, TC_LAG, TC_OVERLAP, TC_RATE_Q, TC_TAU, TC_FIELDS };
 static const char *const TC_FILTER_NAMES[TC_FIELDS] = {"x0", "x1", "p00", "p01", "p11",
                                                          "lag", "overlap", "rate_q", "tau"};
@@ -3363,81 +3364,6 @@ static int tc_names(void)
         return -1;
     }
     return 0;
-}
-
-static int tc_double(PyObject *obj, PyObject *name, double *out)
-{
-    PyObject *v = tc_get(obj, name);
-    if (v == NULL) return -1;
-    *out = PyFloat_AsDouble(v);
-    Py_DECREF(v);
-    return *out == -1.0 && PyErr_Occurred() ? -1 : 0;
-}
-
-static int tc_set_double(PyObject *obj, PyObject *name, double value)
-{
-    PyObject *v = PyFloat_FromDouble(value);
-    if (v == NULL) return -1;
-    int status = tc_put(obj, name, v);
-    Py_DECREF(v);
-    return status;
-}
-
-static int tc_set_long(PyObject *obj, PyObject *name, long value)
-{
-    PyObject *v = PyLong_FromLong(value);
-    if (v == NULL) return -1;
-    int status = tc_put(obj, name, v);
-    Py_DECREF(v);
-    return status;
-}
-
-static int tc_truth(PyObject *obj, PyObject *name)
-{
-    PyObject *v = tc_get(obj, name);
-    if (v == NULL) return -1;
-    int truth = PyObject_IsTrue(v);
-    Py_DECREF(v);
-    return truth;
-}
-
-/* A filter's fields, and its cached transition for dt: 1 the last interval's, 2 another
- * interval seen before (*seen: its transition, a new reference, for the filter's _last), 0
- * none cached (the Python step computes it). */
-static int tc_filter(PyObject *f, double dt, double *x, double *steps, PyObject **seen)
-{
-    for (int i = 0; i < TC_FIELDS; i++) {
-        if (tc_double(f, tn_filter[i], &x[i]) < 0) return -1;
-    }
-    if (!(dt > 0)) return 1; /* predict() does nothing */
-    PyObject *last = tc_get(f, tn[TN_LAST]);
-    if (last == NULL) return -1;
-    int ok = 0;
-    PyObject *cached = NULL;
-    if (PyTuple_Check(last) && PyTuple_GET_SIZE(last) == 2 &&
-        PyFloat_AsDouble(PyTuple_GET_ITEM(last, 0)) == dt) {
-        ok = 1;
-        cached = PyTuple_GET_ITEM(last, 1);
-    } else if (!PyErr_Occurred()) { /* the intervals seen: _by_dt */
-        PyObject *by_dt = tc_get(f, tn[TN_BY_DT]), *key = PyFloat_FromDouble(dt);
-        if (by_dt != NULL && key != NULL && PyDict_Check(by_dt)) {
-            cached = PyDict_GetItemWithError(by_dt, key);
-            if (cached != NULL) {
-                ok = 2;
-                Py_INCREF(cached);
-                *seen = cached;
-            }
-        }
-        Py_XDECREF(by_dt);
-        Py_XDECREF(key);
-    }
-    if (ok && PyTuple_Check(cached) && PyTuple_GET_SIZE(cached) == 5) {
-        for (int i = 0; i < 5; i++) steps[i] = PyFloat_AsDouble(PyTuple_GET_ITEM(cached, i));
-    } else {
-        ok = 0;
-    }
-    Py_DECREF(last);
-    return PyErr_Occurred() ? -1 : ok;
 }
 
 /* _LevelRateFilter.predict(dt) with its transition (b, a, q00, q01, q11) */
@@ -3504,42 +3430,6 @@ static PyObject *empty_tuple(void)
     return empty;
 }
 
-/* Write the filters' values back (and the fast filter's lag when it took the newest hop),
- * with predict()'s memory of the interval (_last) where it was found in _by_dt. */
-static int tc_write_filters(PyObject *all, Py_ssize_t count, double (*x)[TC_FIELDS],
-                            PyObject **seen, double dt, int fast_lag)
-{
-    for (Py_ssize_t i = 0; i < count; i++) {
-        PyObject *f = PyTuple_GET_ITEM(all, i);
-        const int fields = i == 2 && fast_lag ? TC_LAG + 1 : TC_LAG;
-        for (int j = 0; j < fields; j++) {
-            if (tc_set_double(f, tn_filter[j], x[i][j]) < 0) return -1;
-        }
-        if (seen[i] != NULL) { /* predict() remembers the interval: _last = (dt, cached) */
-            PyObject *last = Py_BuildValue("(dO)", dt, seen[i]);
-            if (last == NULL || tc_put(f, tn[TN_LAST], last) < 0) {
-                Py_XDECREF(last);
-                return -1;
-            }
-            Py_DECREF(last);
-        }
-    }
-    return 0;
-}
-
-/* _published(updated, False): (value, se, rate, mode, updated) of the published filter */
-static PyObject *tc_published(PyObject *tr, const double *quiet, const double *trend,
-                              const double *fast, int trending, int updated)
-{
-    int fast_on = tc_truth(tr, tn[TN_FAST_ON]);
-    if (fast_on < 0) return NULL;
-    const int use_fast = fast_on && fast != NULL;
-    const double *pub = use_fast ? fast : (trending ? trend : quiet);
-    const char *mode = use_fast ? "fast" : (trending ? "trend" : "quiet");
-    return Py_BuildValue("(dddsO)", pub[TC_X0], sqrt(tc_max(0.0, pub[TC_P00])), pub[TC_X1],
-                         mode, updated ? Py_True : Py_False);
-}
-
 /* The window's split scan (split(): a SplitScan or None) has no split beyond split_gate
  * calm standard errors (ref), as ParameterTracker._split_update reads it outside a change
  * mode: 1 none (the window stays calm), 0 one (the Python step reads it), -1 an error. */
@@ -3566,207 +3456,6 @@ static int tc_no_split(PyObject *split, double ref, double split_gate)
     Py_XDECREF(row);
     Py_DECREF(scan);
     return quiet;
-}
-
-static PyObject *py_tracker_calm(PyObject *self, PyObject *args)
-{
-    PyObject *tr, *zo, *seo, *newest, *split;
-    double t_s;
-    if (!PyArg_ParseTuple(args, "OdOOOO", &tr, &t_s, &zo, &seo, &newest, &split)) return NULL;
-    if (tc_names() < 0) return NULL;
-    const int given = zo != Py_None && seo != Py_None;
-    const double z = given ? PyFloat_AsDouble(zo) : NAN, se = given ? PyFloat_AsDouble(seo) : NAN;
-    if (PyErr_Occurred()) return NULL;
-    const int usable = given && isfinite(z) && se > 0 && isfinite(se);
-    double d[TS_DOUBLES];
-    long n[TI_INTS];
-    for (int i = 0; i < TS_DOUBLES; i++) {
-        if (tc_double(tr, tn_double[i], &d[i]) < 0) return NULL;
-    }
-    for (int i = 0; i < TI_INTS; i++) {
-        PyObject *v = tc_get(tr, tn_int[i]);
-        if (v == NULL) return NULL;
-        n[i] = PyLong_AsLong(v);
-        Py_DECREF(v);
-        if (n[i] == -1 && PyErr_Occurred()) return NULL;
-    }
-    int splitting = tc_truth(tr, tn[TN_SPLITTING]), trending = tc_truth(tr, tn[TN_TRENDING]);
-    if (splitting < 0 || trending < 0) return NULL;
-    if (splitting || n[TI_CHANGE] != 0) Py_RETURN_NONE;
-    PyObject *all = tc_get(tr, tn[TN_ALL]);
-    if (all == NULL) return NULL;
-    PyObject *result = NULL, *hop_recent = NULL, *recent = NULL;
-    PyObject *new_hop_recent = NULL, *new_recent = NULL, *entry = NULL;
-    const Py_ssize_t count = PyTuple_Check(all) ? PyTuple_GET_SIZE(all) : 0;
-    double x[3][TC_FIELDS], steps[5];
-    PyObject *seen[3] = {NULL, NULL, NULL}; /* transitions found in _by_dt, for _last */
-    if (count < 2 || count > 3) {
-        PyErr_SetString(PyExc_ValueError, "tracker_calm: the tracker's filters");
-        goto done;
-    }
-    /* started (the quiet filter's level is not NaN), as ParameterTracker.step reads it */
-    const double dt = t_s - d[TS_T];
-    const double t = t_s > d[TS_T] ? t_s : d[TS_T];
-    for (Py_ssize_t i = 0; i < count; i++) {
-        int got = tc_filter(PyTuple_GET_ITEM(all, i), dt, x[i], steps, &seen[i]);
-        if (got < 0) goto done;
-        if (i == 0 && isnan(x[0][TC_X0])) goto declined;
-        if (!got) goto declined; /* an interval without its cached transition */
-        if (dt > 0) tc_predict(x[i], steps);
-    }
-    double *quiet = x[0], *trend = x[1], *fast = count == 3 ? x[2] : NULL;
-    if (!usable) { /* prediction only: _withheld outside a change mode */
-        if (tc_write_filters(all, count, x, seen, dt, 0) < 0 || tc_set_double(tr, tn_double[TS_T], t) < 0 ||
-            tc_put(tr, tn[TN_RECENT], empty_tuple()) < 0 ||
-            tc_put(tr, tn[TN_CANDIDATE], Py_None) < 0) {
-            goto done;
-        }
-        result = tc_published(tr, quiet, trend, fast, trending, 0);
-        goto done;
-    }
-    const long calm_after = n[TI_CALM_AFTER];
-    const int calm = calm_after <= 0; /* no change mode, not splitting: checked above */
-    const double hop = d[TS_HOP], alpha = d[TS_ALPHA];
-    const double near = 1e-9 * tc_max(1.0, t);
-    long fast_scored = n[TI_FAST_SCORED], fast_hops = n[TI_FAST_HOPS];
-    double fast_cusum = d[TS_FAST_CUSUM], fast_scale2 = d[TS_FAST_SCALE2];
-    int fast_on = -1; /* -1: not stepped */
-    if (newest != Py_None && fast != NULL) {
-        /* _take_newest and _learn_hop_scale */
-        double k, var, centre;
-        if (tc_double(newest, tn[TN_K], &k) < 0 || tc_double(newest, tn[TN_VAR], &var) < 0 ||
-            tc_double(newest, tn[TN_CENTRE], &centre) < 0) {
-            goto done;
-        }
-        fast[TC_LAG] = centre;
-        const double hop_var = var * se * se;
-        double hr[2][3];
-        hop_recent = tc_get(tr, tn[TN_HOP_RECENT]);
-        if (hop_recent == NULL) goto done;
-        int nr = tc_recent(hop_recent, hr);
-        if (nr < 0) goto declined;
-        if (nr && fabs((t - hr[nr - 1][0]) - hop) >= near) nr = 0;
-        if (nr == 2 && calm) {
-            const double d2 = k - 2.0 * hr[1][1] + hr[0][1];
-            const double u = d2 * d2 / (2.0 * (hr[0][2] + hr[1][2] + hop_var));
-            fast_scored += 1;
-            const double weight = tc_max(alpha, 1.0 / (double)fast_scored);
-            const double scale2 = fast_scale2;
-            fast_scale2 += weight * (tc_min(u, TC_SCALE_CAP * scale2) - scale2);
-        }
-        new_hop_recent = tc_pushed(hop_recent, nr, t, k, hop_var);
-        if (new_hop_recent == NULL) goto done;
-        const double r = fast_scale2 * var * se * se;
-        const double c = fast[TC_LAG];
-        const double s_f = fast[TC_P00] - 2.0 * c * fast[TC_P01] + c * c * fast[TC_P11] + r;
-        const double nu_f = k - (fast[TC_X0] - fast[TC_LAG] * fast[TC_X1]);
-        const double nis = nu_f * nu_f / s_f;
-        const double *slow = trending ? trend : quiet;
-        const double nu_s = k - (slow[TC_X0] - centre * slow[TC_X1]);
-        const double spread = -0.5 * log(s_f), half_df = 0.5 * (TC_FAST_DF + 1.0);
-        double llr = (spread - half_df * log1p(nis / TC_FAST_DF)) -
-                     (spread - half_df * log1p(nu_s * nu_s / s_f / TC_FAST_DF));
-        llr = tc_min(TC_FAST_LLR_CAP, tc_max(-TC_FAST_LLR_CAP, llr));
-        fast_cusum = tc_max(0.0, d[TS_FORGET] * fast_cusum + llr);
-        fast_hops = fast_cusum > d[TS_THRESHOLD] ? fast_hops + 1 : 0;
-        const int warm = fast_scored >= TC_FAST_WARM_UP * n[TI_END_HOPS];
-        fast_on = warm && fast_hops >= TC_FAST_CONFIRM_HOPS;
-        double nu, hph;
-        tc_update(fast, k, r + s_f * tc_max(0.0, nis - 1.0) / (TC_FAST_DF + 1.0), &nu, &hph);
-    }
-    /* _update: _learn_scale, the pre-gate, the gate, _select */
-    double scale2 = d[TS_SCALE2];
-    double rc[2][3];
-    recent = tc_get(tr, tn[TN_RECENT]);
-    if (recent == NULL) goto done;
-    int nrc = tc_recent(recent, rc);
-    if (nrc < 0) goto declined;
-    if (nrc == 2 && fabs((t - rc[1][0]) - hop) < near) {
-        if (calm) {
-            const double d2 = z - 2.0 * rc[1][1] + rc[0][1];
-            const double var = (rc[0][2] * rc[0][2] + rc[1][2] * rc[1][2] + se * se) / 3.0;
-            const double u = d[TS_OVERLAP] * d2 * d2 / (4.0 * var);
-            scale2 += alpha * (tc_min(u, TC_SCALE_CAP * scale2) - scale2);
-        }
-    } else if (nrc && fabs((t - rc[nrc - 1][0]) - hop) >= near) {
-        nrc = 0;
-    }
-    const double sigma2 = scale2 * se * se;
-    double se_ref = d[TS_SE_REF];
-    const double ref = sqrt(scale2) * se_ref;
-    const double departure = z - (trend[TC_X0] - trend[TC_LAG] * trend[TC_X1]);
-    const int worth = fabs(departure) > TC_PREGATE * ref || se > TC_SE_SWELL * se_ref;
-    if (split != Py_None && worth) { /* the window's splits are read */
-        int quiet_scan = tc_no_split(split, sqrt(scale2) * se_ref, d[TS_SPLIT_GATE]);
-        if (quiet_scan < 0) goto done;
-        if (!quiet_scan) goto declined; /* a significant split: the Python step reads it */
-    }
-    const double level_before = trending ? trend[TC_X0] : quiet[TC_X0];
-    const double u = departure / sqrt(scale2 * pow(se_ref, 2.0));
-    if (fabs(u) > d[TS_GATE]) goto declined; /* an outlier or a change: the Python step */
-    se_ref += 5.0 * alpha * (se - se_ref);
-    const double common = d[TS_OVERLAP] * sigma2;
-    double nu_q, hph_q, nu_t, hph_t;
-    tc_update(quiet, z, sigma2, &nu_q, &hph_q);
-    tc_update(trend, z, sigma2, &nu_t, &hph_t);
-    const double s_q = hph_q + common, s_t = hph_t + common;
-    const double llr = 0.5 * (nu_q * nu_q / s_q - nu_t * nu_t / s_t) + 0.5 * log(s_q / s_t);
-    const double cusum = tc_max(0.0, d[TS_FORGET] * d[TS_CUSUM] + llr);
-    trending = cusum > d[TS_THRESHOLD];
-    if (trending) { /* quiet.reset(trend.x0, trend.p00) */
-        quiet[TC_X0] = trend[TC_X0];
-        quiet[TC_X1] = 0.0;
-        quiet[TC_P00] = trend[TC_P00];
-        quiet[TC_P01] = 0.0;
-        quiet[TC_P11] = quiet[TC_RATE_Q] * quiet[TC_RATE_Q] * quiet[TC_TAU] / 2.0;
-    }
-    new_recent = tc_pushed(recent, nrc, t, z, se);
-    entry = Py_BuildValue("(dd)", u, level_before);
-    if (new_recent == NULL || entry == NULL) goto done;
-    /* calm: write everything back */
-    PyObject *history = tc_get(tr, tn[TN_HISTORY]);
-    if (history == NULL) goto done;
-    PyObject *appended = PyObject_CallMethodOneArg(history, tn[TN_APPEND], entry);
-    Py_DECREF(history);
-    if (appended == NULL) goto done;
-    Py_DECREF(appended);
-    if (tc_write_filters(all, count, x, seen, dt, fast_on >= 0) < 0) goto done;
-    if (tc_set_double(tr, tn_double[TS_T], t) < 0 || tc_set_double(tr, tn_double[TS_SCALE2], scale2) < 0 ||
-        tc_set_double(tr, tn_double[TS_SE_REF], se_ref) < 0 || tc_set_double(tr, tn_double[TS_CUSUM], cusum) < 0 ||
-        tc_set_double(tr, tn[TN_OUTLIER], 0.0) < 0 ||
-        tc_set_long(tr, tn_int[TI_UPDATES], n[TI_UPDATES] + 1) < 0 ||
-        tc_set_long(tr, tn_int[TI_CALM_AFTER], calm_after - 1) < 0 ||
-        tc_put(tr, tn[TN_TRENDING], trending ? Py_True : Py_False) < 0 ||
-        tc_put(tr, tn[TN_RECENT], new_recent) < 0 ||
-        tc_put(tr, tn[TN_CANDIDATE], Py_None) < 0) {
-        goto done;
-    }
-    if (fast_on >= 0) {
-        if (tc_set_double(tr, tn_double[TS_FAST_CUSUM], fast_cusum) < 0 ||
-            tc_set_double(tr, tn_double[TS_FAST_SCALE2], fast_scale2) < 0 ||
-            tc_set_long(tr, tn_int[TI_FAST_SCORED], fast_scored) < 0 ||
-            tc_set_long(tr, tn_int[TI_FAST_HOPS], fast_hops) < 0 ||
-            tc_put(tr, tn[TN_FAST_ON], fast_on ? Py_True : Py_False) < 0 ||
-            tc_put(tr, tn[TN_HOP_RECENT], new_hop_recent) < 0) {
-            goto done;
-        }
-    }
-    result = tc_published(tr, quiet, trend, fast, trending, 1);
-    goto done;
-declined:
-    if (!PyErr_Occurred()) {
-        Py_INCREF(Py_None);
-        result = Py_None;
-    }
-done:
-    for (int i = 0; i < 3; i++) Py_XDECREF(seen[i]);
-    Py_DECREF(all);
-    Py_XDECREF(hop_recent);
-    Py_XDECREF(recent);
-    Py_XDECREF(new_hop_recent);
-    Py_XDECREF(new_recent);
-    Py_XDECREF(entry);
-    return result;
 }
 
 /* ================================================================== kern625 (issue 22)
@@ -4833,16 +4522,15 @@ static PyObject *py_estimate_json(PyObject *self, PyObject *const *args, Py_ssiz
 }
 
 /* ------------------------------------------------------------------ branch winpath (issue 22)
- * tc_get / tc_put: tracker_calm's reads and writes of the tracker's (and its filters', the
- * newest part's) attributes through the instance's __dict__, a dictionary lookup with the
- * interned name instead of getattr's type walk (≈ 60 reads and 30 writes a window). An
- * attribute found in the instance's dictionary is what getattr returns and what setattr
- * replaces: the classes (ParameterTracker, _LevelRateFilter, NewestPart) define no data
- * descriptor of these names. Anything else (no dictionary, a name not in it: a class attribute,
- * a property) goes through getattr / setattr as before.
+ * instance_dict: the tracker's (and its filters', the newest part's) attributes are read and
+ * written through the instance's __dict__ (section stream8's tracker_step), a dictionary lookup
+ * with the interned name instead of getattr's type walk. An attribute found in the instance's
+ * dictionary is what getattr returns and what setattr replaces: the classes (ParameterTracker,
+ * _LevelRateFilter, NewestPart) define no data descriptor of these names
+ * (tests/ident/test_window_path_lanes.py).
  */
 /* The instance's __dict__ (a new reference) by the public PyObject_GenericGetDict, or NULL
- * (no error set) for an object without one: its attributes then go through getattr/setattr. */
+ * (no error set) for an object without one. */
 static PyObject *instance_dict(PyObject *obj)
 {
     if (Py_TYPE(obj)->tp_dictoffset == 0) return NULL;
@@ -4853,31 +4541,6 @@ static PyObject *instance_dict(PyObject *obj)
         return NULL;
     }
     return dict;
-}
-
-static PyObject *tc_get(PyObject *obj, PyObject *name)
-{
-    PyObject *dict = instance_dict(obj);
-    if (dict != NULL) {
-        PyObject *value = PyDict_GetItemWithError(dict, name);
-        Py_XINCREF(value);
-        Py_DECREF(dict);
-        if (value != NULL) return value;
-        if (PyErr_Occurred()) return NULL;
-    }
-    return PyObject_GetAttr(obj, name);
-}
-
-static int tc_put(PyObject *obj, PyObject *name, PyObject *value)
-{
-    PyObject *dict = instance_dict(obj);
-    if (dict != NULL) {
-        PyObject *old = PyDict_GetItemWithError(dict, name);
-        int done = old != NULL ? PyDict_SetItem(dict, name, value) : (PyErr_Occurred() ? -1 : 1);
-        Py_DECREF(dict);
-        if (done <= 0) return done;
-    }
-    return PyObject_SetAttr(obj, name, value);
 }
 
 /* minus_line(out, n, coef, t): out[i] -= coef·(t + i) for i < n, as the scalar loop
@@ -5975,3 +5638,814 @@ static PyObject *py_mdl_rank(PyObject *self, PyObject *args)
     return result;
 }
 #undef FITS7_CLONES
+
+/* ================================================================== stream8 (issue 22)
+ * The stream's per-window bookkeeping around onecall_window, in C: what rtsid.ident.stream
+ * does in Python for every window of the one-call path (its Python stays the reference, run
+ * with RTSID_NUMPY_ONLY=1 and for every window the one call declines; tests/ident/
+ * test_stream8.py holds the two together bit for bit).
+ *
+ * median_new(horizon, min_count) -> a running median, RunningMedian's rule (add, median,
+ *   min_count): the last `horizon` values in a ring and the finite ones sorted (inserted and
+ *   removed by the same bisections as bisect.insort / bisect_left, so the same multiset), NaN
+ *   counted; the median the middle value or the mean of the two middle ones, NaN while a NaN
+ *   is in the horizon, None before min_count values.
+ * stream_window(position, torque, explained, h, work, consts, state, out, excitation, inertia,
+ *   damping, context) -> None (declined: the stream untouched) or (estimate, learned, newest):
+ *   onecall_window, then WindowStream._fit_in_one_call's bookkeeping: the typical level read
+ *   from and the window's level added to `excitation`; the published VAFs rounded as
+ *   published_vafs; the flags of assess.window_flags; the WindowEstimate built as
+ *   records.built builds it; the full fit learned by `inertia` and `damping` as
+ *   HeldParameters.learn (full_fit_explains's test; learned: whether it was); newest: the
+ *   newest hop's (K, variance, centre row) or None.
+ *   context = (WindowEstimate, field names, lags_s, fs_hz, method, lost, held flags by k (3
+ *   pairs), the seven flags in window_flags' order, low_vaf_percent, k, newest) with newest =
+ *   (NewestPart, window_samples - 1, factor, delay, fs_hz): built once per plan and held
+ *   value. The newest hop's record is built as split.row_offsets_s places its centre row:
+ *   centre_s = (window_samples - 1 - ((row + 4) * factor + delay)) / fs_hz.
+ * window_flags(params, se, vafs, low_vaf_percent, flags) -> tuple: the flags stream_window
+ *   raises, for tests to hold to assess.window_flags on any numbers.
+ */
+typedef struct {
+    PyObject_HEAD
+    Py_ssize_t horizon, min_count, count, head, nans, nsorted;
+    double *ring, *sorted;
+} S8Median;
+
+static void s8_median_dealloc(S8Median *self)
+{
+    PyMem_Free(self->ring);
+    PyMem_Free(self->sorted);
+    Py_TYPE(self)->tp_free((PyObject *)self);
+}
+
+/* RunningMedian.add: the oldest leaves a full horizon, the value enters */
+static void s8_median_push(S8Median *m, double value)
+{
+    double *s = m->sorted;
+    if (m->count == m->horizon) {
+        const double oldest = m->ring[m->head];
+        if (isnan(oldest)) {
+            m->nans -= 1;
+        } else { /* del sorted[bisect_left(sorted, oldest)] */
+            Py_ssize_t lo = 0, hi = m->nsorted;
+            while (lo < hi) {
+                const Py_ssize_t mid = (lo + hi) / 2;
+                if (s[mid] < oldest) lo = mid + 1;
+                else hi = mid;
+            }
+            memmove(s + lo, s + lo + 1, sizeof(double) * (size_t)(m->nsorted - lo - 1));
+            m->nsorted -= 1;
+        }
+        m->ring[m->head] = value;
+        m->head = (m->head + 1) % m->horizon;
+    } else {
+        m->ring[(m->head + m->count) % m->horizon] = value;
+        m->count += 1;
+    }
+    if (isnan(value)) {
+        m->nans += 1;
+    } else { /* insort(sorted, value): bisect_right */
+        Py_ssize_t lo = 0, hi = m->nsorted;
+        while (lo < hi) {
+            const Py_ssize_t mid = (lo + hi) / 2;
+            if (value < s[mid]) hi = mid;
+            else lo = mid + 1;
+        }
+        memmove(s + lo + 1, s + lo, sizeof(double) * (size_t)(m->nsorted - lo));
+        s[lo] = value;
+        m->nsorted += 1;
+    }
+}
+
+/* RunningMedian.median: 0 None, else 1 with *out */
+static int s8_median_value(const S8Median *m, double *out)
+{
+    const Py_ssize_t n = m->nsorted;
+    if (m->nans) {
+        if (n + m->nans < m->min_count) return 0;
+        *out = NAN;
+        return 1;
+    }
+    if (n < m->min_count) return 0;
+    const Py_ssize_t half = n / 2;
+    *out = n % 2 ? m->sorted[half] : (m->sorted[half - 1] + m->sorted[half]) / 2.0;
+    return 1;
+}
+
+static PyObject *s8_median_add(S8Median *self, PyObject *value)
+{
+    const double v = PyFloat_AsDouble(value);
+    if (v == -1.0 && PyErr_Occurred()) return NULL;
+    s8_median_push(self, v);
+    Py_RETURN_NONE;
+}
+
+static PyObject *s8_median_median(S8Median *self, PyObject *unused)
+{
+    (void)unused;
+    double v;
+    if (!s8_median_value(self, &v)) Py_RETURN_NONE;
+    return PyFloat_FromDouble(v);
+}
+
+static PyMethodDef s8_median_methods[] = {
+    {"add", (PyCFunction)s8_median_add, METH_O, "add(value): RunningMedian.add."},
+    {"median", (PyCFunction)s8_median_median, METH_NOARGS,
+     "median() -> float or None: RunningMedian.median."},
+    {NULL, NULL, 0, NULL},
+};
+
+static PyObject *s8_median_min_count(S8Median *self, void *closure)
+{
+    (void)closure;
+    return PyLong_FromSsize_t(self->min_count);
+}
+
+static PyGetSetDef s8_median_getset[] = {
+    {"min_count", (getter)s8_median_min_count, NULL, "values needed before a median", NULL},
+    {NULL, NULL, NULL, NULL, NULL},
+};
+
+static PyTypeObject S8MedianType = {
+    PyVarObject_HEAD_INIT(NULL, 0).tp_name = "rtsid.ident._eureka.RunningMedian",
+    .tp_basicsize = sizeof(S8Median),
+    .tp_dealloc = (destructor)s8_median_dealloc,
+    .tp_flags = Py_TPFLAGS_DEFAULT,
+    .tp_doc = "The compiled RunningMedian (section stream8): median_new(horizon, min_count).",
+    .tp_methods = s8_median_methods,
+    .tp_getset = s8_median_getset,
+};
+
+static PyObject *py_median_new(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_ssize_t horizon, min_count;
+    if (!PyArg_ParseTuple(args, "nn", &horizon, &min_count)) return NULL;
+    if (PyType_Ready(&S8MedianType) < 0) return NULL;
+    S8Median *m = PyObject_New(S8Median, &S8MedianType);
+    if (m == NULL) return NULL;
+    /* RunningMedian.__init__: max(1, horizon); max(1, min(min_count, horizon)) */
+    m->horizon = horizon > 1 ? horizon : 1;
+    const Py_ssize_t least = min_count < horizon ? min_count : horizon;
+    m->min_count = least > 1 ? least : 1;
+    m->count = m->head = m->nans = m->nsorted = 0;
+    m->ring = PyMem_Malloc(sizeof(double) * (size_t)m->horizon);
+    m->sorted = PyMem_Malloc(sizeof(double) * (size_t)m->horizon);
+    if (m->ring == NULL || m->sorted == NULL) {
+        Py_DECREF(m);
+        return PyErr_NoMemory();
+    }
+    return (PyObject *)m;
+}
+
+static S8Median *s8_as_median(PyObject *obj, const char *name)
+{
+    if (Py_TYPE(obj) != &S8MedianType) {
+        PyErr_Format(PyExc_TypeError, "stream_window: %s must be a compiled running median", name);
+        return NULL;
+    }
+    return (S8Median *)obj;
+}
+
+/* round(x, 12) as Python gives it: glue7's, else float.__round__ (the reference) */
+static int s8_round12(double x, double *out)
+{
+    if (g7_round12(x, out)) return 0;
+    PyObject *f = PyFloat_FromDouble(x);
+    if (f == NULL) return -1;
+    PyObject *r = PyObject_CallMethod(f, "__round__", "i", 12);
+    Py_DECREF(f);
+    if (r == NULL) return -1;
+    *out = PyFloat_AsDouble(r);
+    Py_DECREF(r);
+    return PyErr_Occurred() ? -1 : 0;
+}
+
+enum {
+    S8C_CLASS, S8C_NAMES, S8C_LAGS, S8C_FS, S8C_METHOD, S8C_LOST, S8C_HELD, S8C_FLAGS,
+    S8C_LOW_VAF, S8C_K, S8C_NEWEST, S8C_SIZE
+};
+enum { S8_FIELDS = 17 };
+
+/* assess.window_flags: the flags in a fixed order */
+static PyObject *s8_flags(const double *p, const double *se, const double *vafs, double low,
+                          PyObject *table)
+{
+    PyObject *raised[7];
+    int n = 0;
+    if (vafs[0] < low) raised[n++] = PyTuple_GET_ITEM(table, 0);
+    if (vafs[2] < 50.0) raised[n++] = PyTuple_GET_ITEM(table, 1);
+    if (p[2] <= 0) raised[n++] = PyTuple_GET_ITEM(table, 2);
+    if (p[1] <= 0) raised[n++] = PyTuple_GET_ITEM(table, 3);
+    if (p[0] <= 0) raised[n++] = PyTuple_GET_ITEM(table, 4);
+    if (isfinite(se[0]) && se[0] > 0.25 * fabs(p[0])) raised[n++] = PyTuple_GET_ITEM(table, 5);
+    if (isfinite(se[2]) && se[2] > 0.1 * fabs(p[2])) raised[n++] = PyTuple_GET_ITEM(table, 6);
+    PyObject *flags = PyTuple_New(n);
+    if (flags == NULL) return NULL;
+    for (int i = 0; i < n; i++) {
+        Py_INCREF(raised[i]);
+        PyTuple_SET_ITEM(flags, i, raised[i]);
+    }
+    return flags;
+}
+
+/* window_flags(params, se, vafs, low_vaf_percent, table) -> tuple: s8_flags from Python, so
+ * that tests hold it to assess.window_flags (the reference) on any numbers */
+static PyObject *py_window_flags(PyObject *self, PyObject *args)
+{
+    (void)self;
+    double p[3], se[3], vafs[3], low;
+    PyObject *table;
+    if (!PyArg_ParseTuple(args, "(ddd)(ddd)(ddd)dO!", &p[0], &p[1], &p[2], &se[0], &se[1],
+                          &se[2], &vafs[0], &vafs[1], &vafs[2], &low, &PyTuple_Type, &table)) {
+        return NULL;
+    }
+    if (PyTuple_GET_SIZE(table) != 7) {
+        PyErr_SetString(PyExc_ValueError, "window_flags: table must hold the seven flags");
+        return NULL;
+    }
+    return s8_flags(p, se, vafs, low, table);
+}
+
+/* records.built(WindowEstimate, ...): the instance's __dict__ filled in field order */
+static PyObject *s8_estimate(PyObject *ctx, const double *p, const double *se,
+                             const double *vafs, PyObject *h, PyObject *flags)
+{
+    PyObject *cls = PyTuple_GET_ITEM(ctx, S8C_CLASS), *names = PyTuple_GET_ITEM(ctx, S8C_NAMES);
+    const long k = PyLong_AsLong(PyTuple_GET_ITEM(ctx, S8C_K));
+    PyObject *held = PyTuple_GET_ITEM(PyTuple_GET_ITEM(ctx, S8C_HELD), k);
+    PyObject *values[S8_FIELDS];
+    const double numbers[9] = {p[0], p[1], p[2], se[0], se[1], se[2], vafs[0], vafs[1], vafs[2]};
+    int made = 0;
+    for (; made < 9; made++) {
+        if ((values[made] = PyFloat_FromDouble(numbers[made])) == NULL) break;
+    }
+    PyObject *record = NULL, *dict = NULL;
+    if (made < 9) goto done;
+    values[9] = h;
+    values[10] = PyTuple_GET_ITEM(ctx, S8C_LAGS);
+    values[11] = PyTuple_GET_ITEM(ctx, S8C_FS);
+    values[12] = flags;
+    values[13] = PyTuple_GET_ITEM(ctx, S8C_METHOD);
+    values[14] = PyTuple_GET_ITEM(ctx, S8C_LOST);
+    values[15] = PyTuple_GET_ITEM(held, 0);
+    values[16] = PyTuple_GET_ITEM(held, 1);
+    record = PyBaseObject_Type.tp_new((PyTypeObject *)cls, empty_tuple(), NULL);
+    if (record == NULL) goto done;
+    dict = PyObject_GenericGetDict(record, NULL);
+    if (dict == NULL) goto fail;
+    for (int i = 0; i < S8_FIELDS; i++) {
+        if (PyDict_SetItem(dict, PyTuple_GET_ITEM(names, i), values[i]) < 0) goto fail;
+    }
+    goto done;
+fail:
+    Py_CLEAR(record);
+done:
+    Py_XDECREF(dict);
+    for (int i = 0; i < made; i++) Py_DECREF(values[i]);
+    return record;
+}
+
+/* records.built(NewestPart, k=, var=, centre_s=row_offsets_s(row, plan, window_samples)) */
+static PyObject *s8_newest(PyObject *spec, const double *kvr)
+{
+    double c[4];
+    for (int i = 0; i < 4; i++) c[i] = PyFloat_AsDouble(PyTuple_GET_ITEM(spec, 1 + i));
+    if (PyErr_Occurred()) return NULL;
+    const double centre = (c[0] - ((kvr[2] + 4.0) * c[1] + c[2])) / c[3];
+    static PyObject *names[3] = {NULL, NULL, NULL};
+    static const char *const fields[3] = {"k", "var", "centre_s"};
+    if (tc_intern(names, fields, 3) < 0) return NULL;
+    PyObject *values[3] = {PyFloat_FromDouble(kvr[0]), PyFloat_FromDouble(kvr[1]),
+                           PyFloat_FromDouble(centre)};
+    PyObject *record = NULL, *dict = NULL;
+    if (values[0] == NULL || values[1] == NULL || values[2] == NULL) goto done;
+    record = PyBaseObject_Type.tp_new((PyTypeObject *)PyTuple_GET_ITEM(spec, 0), empty_tuple(),
+                                      NULL);
+    if (record == NULL) goto done;
+    dict = PyObject_GenericGetDict(record, NULL);
+    if (dict == NULL) goto fail;
+    for (int i = 0; i < 3; i++) {
+        if (PyDict_SetItem(dict, names[i], values[i]) < 0) goto fail;
+    }
+    goto done;
+fail:
+    Py_CLEAR(record);
+done:
+    Py_XDECREF(dict);
+    for (int i = 0; i < 3; i++) Py_XDECREF(values[i]);
+    return record;
+}
+
+static PyObject *py_stream_window(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 12) {
+        PyErr_SetString(PyExc_TypeError, "stream_window(position, torque, explained, h, work, "
+                                         "consts, state, out, excitation, inertia, damping, "
+                                         "context)");
+        return NULL;
+    }
+    S8Median *excitation = s8_as_median(args[8], "excitation");
+    S8Median *inertia = excitation ? s8_as_median(args[9], "inertia") : NULL;
+    S8Median *damping = inertia ? s8_as_median(args[10], "damping") : NULL;
+    PyObject *ctx = args[11];
+    if (damping == NULL) return NULL;
+    if (!PyTuple_Check(ctx) || PyTuple_GET_SIZE(ctx) != S8C_SIZE ||
+        !PyTuple_Check(PyTuple_GET_ITEM(ctx, S8C_NAMES)) ||
+        PyTuple_GET_SIZE(PyTuple_GET_ITEM(ctx, S8C_NAMES)) != S8_FIELDS ||
+        !PyTuple_Check(PyTuple_GET_ITEM(ctx, S8C_FLAGS)) ||
+        PyTuple_GET_SIZE(PyTuple_GET_ITEM(ctx, S8C_FLAGS)) != 7 ||
+        !PyTuple_Check(PyTuple_GET_ITEM(ctx, S8C_HELD)) ||
+        !PyTuple_Check(PyTuple_GET_ITEM(ctx, S8C_NEWEST)) ||
+        PyTuple_GET_SIZE(PyTuple_GET_ITEM(ctx, S8C_NEWEST)) != 5 ||
+        !PyType_Check(PyTuple_GET_ITEM(PyTuple_GET_ITEM(ctx, S8C_NEWEST), 0)) ||
+        PyTuple_GET_SIZE(PyTuple_GET_ITEM(ctx, S8C_HELD)) != 3 ||
+        !PyType_Check(PyTuple_GET_ITEM(ctx, S8C_CLASS))) {
+        PyErr_SetString(PyExc_ValueError, "stream_window: a malformed context");
+        return NULL;
+    }
+    const long k = PyLong_AsLong(PyTuple_GET_ITEM(ctx, S8C_K));
+    const double low = PyFloat_AsDouble(PyTuple_GET_ITEM(ctx, S8C_LOW_VAF));
+    if (PyErr_Occurred()) return NULL;
+    if (k < 0 || k > 2) {
+        PyErr_SetString(PyExc_ValueError, "stream_window: k must be 0, 1 or 2");
+        return NULL;
+    }
+    PyObject *held = PyTuple_GET_ITEM(PyTuple_GET_ITEM(ctx, S8C_HELD), k);
+    if (!PyTuple_Check(held) || PyTuple_GET_SIZE(held) != 2) {
+        PyErr_SetString(PyExc_ValueError, "stream_window: held flags must be pairs");
+        return NULL;
+    }
+    Py_buffer sb, ob;
+    if (get_doubles(args[6], &sb, 1, "state") < 0) return NULL;
+    if (get_doubles(args[7], &ob, 0, "out") < 0) {
+        PyBuffer_Release(&sb);
+        return NULL;
+    }
+    PyObject *result = NULL, *status = NULL, *flags = NULL, *estimate = NULL, *newest = NULL;
+    if (sb.len / 8 < 4 || ob.len / 8 != OC_OUT_SIZE) {
+        PyErr_SetString(PyExc_ValueError, "stream_window: state or out of the wrong size");
+        goto done;
+    }
+    double *state = sb.buf;
+    const double *out = ob.buf;
+    double typical;
+    state[3] = s8_median_value(excitation, &typical) ? typical : NAN;
+    PyObject *call = PyTuple_Pack(7, args[0], args[1], args[2], args[3], args[4], args[5],
+                                  args[6]);
+    if (call == NULL) goto done;
+    status = py_onecall_window(self, call);
+    Py_DECREF(call);
+    if (status == NULL) goto done;
+    if (PyLong_AsLong(status) != OC_DONE) {
+        if (!PyErr_Occurred()) {
+            Py_INCREF(Py_None);
+            result = Py_None;
+        }
+        goto done;
+    }
+    s8_median_push(excitation, out[OC_LEVEL]);
+    double vafs[3];
+    for (int i = 0; i < 3; i++) {
+        if (s8_round12(out[OW_VAFS + i], &vafs[i]) < 0) goto done;
+    }
+    flags = s8_flags(out + OW_PARAMS, out + OW_SE, vafs, low, PyTuple_GET_ITEM(ctx, S8C_FLAGS));
+    if (flags == NULL) goto done;
+    estimate = s8_estimate(ctx, out + OW_PARAMS, out + OW_SE, vafs, args[3], flags);
+    if (estimate == NULL) goto done;
+    /* HeldParameters.learn(whole I, whole B, full_fit_explains(whole VAF)) */
+    const double whole_vaf = out[OW_WHOLE + 3];
+    int explains;
+    if (fabs(whole_vaf - low) > 1e-9) {
+        explains = whole_vaf >= low;
+    } else {
+        double rounded;
+        if (s8_round12(whole_vaf, &rounded) < 0) goto done;
+        explains = rounded >= low;
+    }
+    const int learned = explains && out[OW_WHOLE] > 0;
+    if (learned) {
+        s8_median_push(inertia, out[OW_WHOLE]);
+        if (out[OW_WHOLE + 1] > 0) s8_median_push(damping, out[OW_WHOLE + 1]);
+    }
+    if (isnan(out[OW_NEWEST])) {
+        Py_INCREF(Py_None);
+        newest = Py_None;
+    } else {
+        newest = s8_newest(PyTuple_GET_ITEM(ctx, S8C_NEWEST), out + OW_NEWEST);
+        if (newest == NULL) goto done;
+    }
+    result = PyTuple_Pack(3, estimate, learned ? Py_True : Py_False, newest);
+done:
+    Py_XDECREF(status);
+    Py_XDECREF(flags);
+    Py_XDECREF(estimate);
+    Py_XDECREF(newest);
+    PyBuffer_Release(&sb);
+    PyBuffer_Release(&ob);
+    return result;
+}
+
+/* tracker_step(tracker, t_s, z, se, newest, split, record) -> TrackEstimate or None:
+ * the calm step (section onecall's former tracker_calm) with what it re-did each window taken
+ * out. The tracker's and its filters' instance dictionaries are fetched once a call (not once
+ * an attribute: ≈ 90 a window), values are read and written in them directly (a name missing from a dictionary
+ * declines: the Python step, the reference, runs), a value that did not change is not
+ * written again, and the answer is the TrackEstimate record itself, built as records.built
+ * builds it (record = (TrackEstimate, its field names, "quiet", "trend", "fast")), instead of
+ * a tuple the caller re-packed. The same operations in the same order as the Python step
+ * (ParameterTracker.step of a calm window), so the same doubles; tests/ident/test_onecall.py
+ * and test_stream8.py hold it to the Python step, state included.
+ */
+enum { T8_TRACKER, T8_QUIET, T8_TREND, T8_FAST, T8_DICTS };
+
+/* The value of name in dict (borrowed), NULL with *missing set when absent (no error). */
+static PyObject *t8_item(PyObject *dict, PyObject *name, int *missing)
+{
+    PyObject *v = PyDict_GetItemWithError(dict, name);
+    if (v == NULL && !PyErr_Occurred()) *missing = 1;
+    return v;
+}
+
+static int t8_double(PyObject *dict, PyObject *name, double *out, int *missing)
+{
+    PyObject *v = t8_item(dict, name, missing);
+    if (v == NULL) return -1;
+    *out = PyFloat_CheckExact(v) ? PyFloat_AS_DOUBLE(v) : PyFloat_AsDouble(v);
+    return *out == -1.0 && PyErr_Occurred() ? -1 : 0;
+}
+
+/* dict[name] = value, unless value is bit for bit (NaN and -0.0 too) what the call read there
+ * at its start (was: no second lookup) */
+static int t8_set_double(PyObject *dict, PyObject *name, double value, double was)
+{
+    if (memcmp(&was, &value, sizeof value) == 0) return 0;
+    PyObject *v = PyFloat_FromDouble(value);
+    if (v == NULL) return -1;
+    int status = PyDict_SetItem(dict, name, v);
+    Py_DECREF(v);
+    return status;
+}
+
+static int t8_set_long(PyObject *dict, PyObject *name, long value)
+{
+    PyObject *v = PyLong_FromLong(value);
+    if (v == NULL) return -1;
+    int status = PyDict_SetItem(dict, name, v);
+    Py_DECREF(v);
+    return status;
+}
+
+/* dict[name] = value (a singleton or a new object), unless it holds that object already */
+static int t8_set(PyObject *dict, PyObject *name, PyObject *value)
+{
+    PyObject *old = PyDict_GetItemWithError(dict, name);
+    if (old == value) return 0;
+    if (old == NULL && PyErr_Occurred()) return -1;
+    return PyDict_SetItem(dict, name, value);
+}
+
+/* records.built(TrackEstimate, value=..., se=..., rate=..., updated=..., change=False, mode=) */
+static PyObject *t8_record(PyObject *record, double value, double se, double rate, int updated,
+                           int mode)
+{
+    PyObject *cls = PyTuple_GET_ITEM(record, 0), *names = PyTuple_GET_ITEM(record, 1);
+    PyObject *values[6] = {PyFloat_FromDouble(value), PyFloat_FromDouble(se),
+                           PyFloat_FromDouble(rate), NULL, NULL, NULL};
+    PyObject *out = NULL, *dict = NULL;
+    if (values[0] == NULL || values[1] == NULL || values[2] == NULL) goto done;
+    values[3] = updated ? Py_True : Py_False;
+    values[4] = Py_False;
+    values[5] = PyTuple_GET_ITEM(record, 2 + mode);
+    out = PyBaseObject_Type.tp_new((PyTypeObject *)cls, empty_tuple(), NULL);
+    if (out == NULL) goto done;
+    dict = PyObject_GenericGetDict(out, NULL);
+    if (dict == NULL) goto fail;
+    for (int i = 0; i < 6; i++) {
+        if (PyDict_SetItem(dict, PyTuple_GET_ITEM(names, i), values[i]) < 0) goto fail;
+    }
+    goto done;
+fail:
+    Py_CLEAR(out);
+done:
+    Py_XDECREF(dict);
+    for (int i = 0; i < 3; i++) Py_XDECREF(values[i]);
+    return out;
+}
+
+/* _published(updated, False) of the filters' new values */
+static PyObject *t8_published(PyObject *record, int fast_on, const double *quiet,
+                              const double *trend, const double *fast, int trending, int updated)
+{
+    const int use_fast = fast_on && fast != NULL;
+    const double *pub = use_fast ? fast : (trending ? trend : quiet);
+    const int mode = use_fast ? 2 : (trending ? 1 : 0);
+    return t8_record(record, pub[TC_X0], sqrt(tc_max(0.0, pub[TC_P00])), pub[TC_X1], updated,
+                     mode);
+}
+
+/* A filter's fields from its dictionary, and its cached transition for dt as tc_filter: 1 the
+ * last interval's, 2 another seen before (*seen, a new reference), 0 none (or a name missing:
+ * *missing). */
+static int t8_filter(PyObject *fd, double dt, double *x, double *steps, PyObject **seen,
+                     int *missing)
+{
+    for (int i = 0; i < TC_FIELDS; i++) {
+        if (t8_double(fd, tn_filter[i], &x[i], missing) < 0) return *missing ? 0 : -1;
+    }
+    if (!(dt > 0)) return 1; /* predict() does nothing */
+    PyObject *last = t8_item(fd, tn[TN_LAST], missing);
+    if (last == NULL) return *missing ? 0 : -1;
+    PyObject *cached = NULL;
+    int ok = 0;
+    if (PyTuple_Check(last) && PyTuple_GET_SIZE(last) == 2 &&
+        PyFloat_AsDouble(PyTuple_GET_ITEM(last, 0)) == dt) {
+        ok = 1;
+        cached = PyTuple_GET_ITEM(last, 1);
+    } else if (!PyErr_Occurred()) { /* the intervals seen: _by_dt */
+        PyObject *by_dt = t8_item(fd, tn[TN_BY_DT], missing);
+        PyObject *key = by_dt != NULL ? PyFloat_FromDouble(dt) : NULL;
+        if (key != NULL && PyDict_Check(by_dt)) {
+            cached = PyDict_GetItemWithError(by_dt, key);
+            if (cached != NULL) {
+                ok = 2;
+                Py_INCREF(cached);
+                *seen = cached;
+            }
+        }
+        Py_XDECREF(key);
+    }
+    if (ok && PyTuple_Check(cached) && PyTuple_GET_SIZE(cached) == 5) {
+        for (int i = 0; i < 5; i++) steps[i] = PyFloat_AsDouble(PyTuple_GET_ITEM(cached, i));
+    } else {
+        ok = 0;
+    }
+    return PyErr_Occurred() ? -1 : ok;
+}
+
+static PyObject *t8_dict(PyObject *obj)
+{
+    PyObject *dict = instance_dict(obj);
+    if (dict == NULL && !PyErr_Occurred()) {
+        PyErr_SetString(PyExc_TypeError, "tracker_step: the tracker and its filters must keep "
+                                         "their state in an instance dictionary");
+    }
+    return dict;
+}
+
+static PyObject *py_tracker_step(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 7) {
+        PyErr_SetString(PyExc_TypeError,
+                        "tracker_step(tracker, t_s, z, se, newest, split, record)");
+        return NULL;
+    }
+    PyObject *tr = args[0], *zo = args[2], *seo = args[3], *newest = args[4], *split = args[5];
+    PyObject *record = args[6];
+    const double t_s = PyFloat_AsDouble(args[1]);
+    if (t_s == -1.0 && PyErr_Occurred()) return NULL;
+    if (!PyTuple_Check(record) || PyTuple_GET_SIZE(record) != 5 ||
+        !PyType_Check(PyTuple_GET_ITEM(record, 0)) ||
+        !PyTuple_Check(PyTuple_GET_ITEM(record, 1)) ||
+        PyTuple_GET_SIZE(PyTuple_GET_ITEM(record, 1)) != 6) {
+        PyErr_SetString(PyExc_ValueError, "tracker_step: record must be (TrackEstimate, its six "
+                                          "field names, the three modes)");
+        return NULL;
+    }
+    if (tc_names() < 0) return NULL;
+    const int given = zo != Py_None && seo != Py_None;
+    const double z = given ? PyFloat_AsDouble(zo) : NAN, se = given ? PyFloat_AsDouble(seo) : NAN;
+    if (PyErr_Occurred()) return NULL;
+    const int usable = given && isfinite(z) && se > 0 && isfinite(se);
+    PyObject *dicts[T8_DICTS] = {NULL, NULL, NULL, NULL};
+    PyObject *result = NULL, *new_hop_recent = NULL, *new_recent = NULL, *entry = NULL;
+    PyObject *seen[3] = {NULL, NULL, NULL}; /* transitions found in _by_dt, for _last */
+    int missing = 0, fast_on = -1; /* fast_on -1: the fast filter not stepped */
+    double d[TS_DOUBLES];
+    long n[TI_INTS];
+    PyObject *td = dicts[T8_TRACKER] = t8_dict(tr);
+    if (td == NULL) goto done;
+    for (int i = 0; i < TS_DOUBLES; i++) {
+        if (t8_double(td, tn_double[i], &d[i], &missing) < 0) goto declined;
+    }
+    for (int i = 0; i < TI_INTS; i++) {
+        PyObject *v = t8_item(td, tn_int[i], &missing);
+        if (v == NULL) goto declined;
+        n[i] = PyLong_AsLong(v);
+        if (n[i] == -1 && PyErr_Occurred()) goto done;
+    }
+    PyObject *flag_items[3] = {t8_item(td, tn[TN_SPLITTING], &missing),
+                               t8_item(td, tn[TN_TRENDING], &missing),
+                               t8_item(td, tn[TN_FAST_ON], &missing)};
+    if (flag_items[0] == NULL || flag_items[1] == NULL || flag_items[2] == NULL) goto declined;
+    const int splitting = PyObject_IsTrue(flag_items[0]);
+    int trending = PyObject_IsTrue(flag_items[1]);
+    const int was_fast_on = PyObject_IsTrue(flag_items[2]);
+    if (splitting < 0 || trending < 0 || was_fast_on < 0) goto done;
+    if (splitting || n[TI_CHANGE] != 0) goto declined;
+    double outlier;
+    if (t8_double(td, tn[TN_OUTLIER], &outlier, &missing) < 0) goto declined;
+    PyObject *all = t8_item(td, tn[TN_ALL], &missing);
+    if (all == NULL) goto declined;
+    const Py_ssize_t count = PyTuple_Check(all) ? PyTuple_GET_SIZE(all) : 0;
+    if (count < 2 || count > 3) {
+        PyErr_SetString(PyExc_ValueError, "tracker_step: the tracker's filters");
+        goto done;
+    }
+    double x[3][TC_FIELDS], read[3][TC_FIELDS], steps[5];
+    const double dt = t_s - d[TS_T];
+    const double t = t_s > d[TS_T] ? t_s : d[TS_T];
+    for (Py_ssize_t i = 0; i < count; i++) {
+        PyObject *fd = dicts[T8_QUIET + i] = t8_dict(PyTuple_GET_ITEM(all, i));
+        if (fd == NULL) goto done;
+        int got = t8_filter(fd, dt, x[i], steps, &seen[i], &missing);
+        if (got < 0) goto done;
+        if (i == 0 && isnan(x[0][TC_X0])) goto declined; /* not started */
+        if (!got) goto declined; /* an interval without its cached transition */
+        memcpy(read[i], x[i], sizeof read[i]);
+        if (dt > 0) tc_predict(x[i], steps);
+    }
+    double *quiet = x[0], *trend = x[1], *fast = count == 3 ? x[2] : NULL;
+    if (!usable) { /* prediction only: _withheld outside a change mode */
+        for (Py_ssize_t i = 0; i < count; i++) {
+            for (int j = 0; j < TC_LAG; j++) {
+                if (t8_set_double(dicts[T8_QUIET + i], tn_filter[j], x[i][j], read[i][j]) < 0) {
+                    goto done;
+                }
+            }
+        }
+        if (t8_set_double(td, tn_double[TS_T], t, d[TS_T]) < 0 ||
+            t8_set(td, tn[TN_RECENT], empty_tuple()) < 0 ||
+            t8_set(td, tn[TN_CANDIDATE], Py_None) < 0) {
+            goto done;
+        }
+        goto remember;
+    }
+    const long calm_after = n[TI_CALM_AFTER];
+    const int calm = calm_after <= 0; /* no change mode, not splitting: checked above */
+    const double hop = d[TS_HOP], alpha = d[TS_ALPHA];
+    const double near = 1e-9 * tc_max(1.0, t);
+    long fast_scored = n[TI_FAST_SCORED], fast_hops = n[TI_FAST_HOPS];
+    double fast_cusum = d[TS_FAST_CUSUM], fast_scale2 = d[TS_FAST_SCALE2];
+    if (newest != Py_None && fast != NULL) {
+        /* _take_newest and _learn_hop_scale */
+        double k, var, centre;
+        PyObject *nd = instance_dict(newest);
+        if (nd == NULL) {
+            if (!PyErr_Occurred()) goto declined;
+            goto done;
+        }
+        int bad = t8_double(nd, tn[TN_K], &k, &missing) < 0 ||
+                  t8_double(nd, tn[TN_VAR], &var, &missing) < 0 ||
+                  t8_double(nd, tn[TN_CENTRE], &centre, &missing) < 0;
+        Py_DECREF(nd);
+        if (bad) goto declined;
+        fast[TC_LAG] = centre;
+        const double hop_var = var * se * se;
+        double hr[2][3];
+        PyObject *hop_recent = t8_item(td, tn[TN_HOP_RECENT], &missing);
+        if (hop_recent == NULL) goto declined;
+        int nr = tc_recent(hop_recent, hr);
+        if (nr < 0) goto declined;
+        if (nr && fabs((t - hr[nr - 1][0]) - hop) >= near) nr = 0;
+        if (nr == 2 && calm) {
+            const double d2 = k - 2.0 * hr[1][1] + hr[0][1];
+            const double u = d2 * d2 / (2.0 * (hr[0][2] + hr[1][2] + hop_var));
+            fast_scored += 1;
+            const double weight = tc_max(alpha, 1.0 / (double)fast_scored);
+            const double scale2 = fast_scale2;
+            fast_scale2 += weight * (tc_min(u, TC_SCALE_CAP * scale2) - scale2);
+        }
+        new_hop_recent = tc_pushed(hop_recent, nr, t, k, hop_var);
+        if (new_hop_recent == NULL) goto done;
+        const double r = fast_scale2 * var * se * se;
+        const double c = fast[TC_LAG];
+        const double s_f = fast[TC_P00] - 2.0 * c * fast[TC_P01] + c * c * fast[TC_P11] + r;
+        const double nu_f = k - (fast[TC_X0] - fast[TC_LAG] * fast[TC_X1]);
+        const double nis = nu_f * nu_f / s_f;
+        const double *slow = trending ? trend : quiet;
+        const double nu_s = k - (slow[TC_X0] - centre * slow[TC_X1]);
+        const double spread = -0.5 * log(s_f), half_df = 0.5 * (TC_FAST_DF + 1.0);
+        double llr = (spread - half_df * log1p(nis / TC_FAST_DF)) -
+                     (spread - half_df * log1p(nu_s * nu_s / s_f / TC_FAST_DF));
+        llr = tc_min(TC_FAST_LLR_CAP, tc_max(-TC_FAST_LLR_CAP, llr));
+        fast_cusum = tc_max(0.0, d[TS_FORGET] * fast_cusum + llr);
+        fast_hops = fast_cusum > d[TS_THRESHOLD] ? fast_hops + 1 : 0;
+        const int warm = fast_scored >= TC_FAST_WARM_UP * n[TI_END_HOPS];
+        fast_on = warm && fast_hops >= TC_FAST_CONFIRM_HOPS;
+        double nu, hph;
+        tc_update(fast, k, r + s_f * tc_max(0.0, nis - 1.0) / (TC_FAST_DF + 1.0), &nu, &hph);
+    }
+    /* _update: _learn_scale, the pre-gate, the gate, _select */
+    double scale2 = d[TS_SCALE2];
+    double rc[2][3];
+    PyObject *recent = t8_item(td, tn[TN_RECENT], &missing);
+    if (recent == NULL) goto declined;
+    int nrc = tc_recent(recent, rc);
+    if (nrc < 0) goto declined;
+    if (nrc == 2 && fabs((t - rc[1][0]) - hop) < near) {
+        if (calm) {
+            const double d2 = z - 2.0 * rc[1][1] + rc[0][1];
+            const double var = (rc[0][2] * rc[0][2] + rc[1][2] * rc[1][2] + se * se) / 3.0;
+            const double u = d[TS_OVERLAP] * d2 * d2 / (4.0 * var);
+            scale2 += alpha * (tc_min(u, TC_SCALE_CAP * scale2) - scale2);
+        }
+    } else if (nrc && fabs((t - rc[nrc - 1][0]) - hop) >= near) {
+        nrc = 0;
+    }
+    const double sigma2 = scale2 * se * se;
+    double se_ref = d[TS_SE_REF];
+    const double ref = sqrt(scale2) * se_ref;
+    const double departure = z - (trend[TC_X0] - trend[TC_LAG] * trend[TC_X1]);
+    const int worth = fabs(departure) > TC_PREGATE * ref || se > TC_SE_SWELL * se_ref;
+    if (split != Py_None && worth) { /* the window's splits are read */
+        int quiet_scan = tc_no_split(split, sqrt(scale2) * se_ref, d[TS_SPLIT_GATE]);
+        if (quiet_scan < 0) goto done;
+        if (!quiet_scan) goto declined; /* a significant split: the Python step reads it */
+    }
+    const double level_before = trending ? trend[TC_X0] : quiet[TC_X0];
+    const double u = departure / sqrt(scale2 * pow(se_ref, 2.0));
+    if (fabs(u) > d[TS_GATE]) goto declined; /* an outlier or a change: the Python step */
+    se_ref += 5.0 * alpha * (se - se_ref);
+    const double common = d[TS_OVERLAP] * sigma2;
+    double nu_q, hph_q, nu_t, hph_t;
+    tc_update(quiet, z, sigma2, &nu_q, &hph_q);
+    tc_update(trend, z, sigma2, &nu_t, &hph_t);
+    const double s_q = hph_q + common, s_t = hph_t + common;
+    const double llr = 0.5 * (nu_q * nu_q / s_q - nu_t * nu_t / s_t) + 0.5 * log(s_q / s_t);
+    const double cusum = tc_max(0.0, d[TS_FORGET] * d[TS_CUSUM] + llr);
+    trending = cusum > d[TS_THRESHOLD];
+    if (trending) { /* quiet.reset(trend.x0, trend.p00) */
+        quiet[TC_X0] = trend[TC_X0];
+        quiet[TC_X1] = 0.0;
+        quiet[TC_P00] = trend[TC_P00];
+        quiet[TC_P01] = 0.0;
+        quiet[TC_P11] = quiet[TC_RATE_Q] * quiet[TC_RATE_Q] * quiet[TC_TAU] / 2.0;
+    }
+    new_recent = tc_pushed(recent, nrc, t, z, se);
+    entry = Py_BuildValue("(dd)", u, level_before);
+    if (new_recent == NULL || entry == NULL) goto done;
+    /* calm: write everything back */
+    PyObject *history = t8_item(td, tn[TN_HISTORY], &missing);
+    if (history == NULL) goto declined;
+    PyObject *appended = PyObject_CallMethodOneArg(history, tn[TN_APPEND], entry);
+    if (appended == NULL) goto done;
+    Py_DECREF(appended);
+    for (Py_ssize_t i = 0; i < count; i++) {
+        const int fields = i == 2 && fast_on >= 0 ? TC_LAG + 1 : TC_LAG;
+        for (int j = 0; j < fields; j++) {
+            if (t8_set_double(dicts[T8_QUIET + i], tn_filter[j], x[i][j], read[i][j]) < 0) {
+                goto done;
+            }
+        }
+    }
+    if (t8_set_double(td, tn_double[TS_T], t, d[TS_T]) < 0 ||
+        t8_set_double(td, tn_double[TS_SCALE2], scale2, d[TS_SCALE2]) < 0 ||
+        t8_set_double(td, tn_double[TS_SE_REF], se_ref, d[TS_SE_REF]) < 0 ||
+        t8_set_double(td, tn_double[TS_CUSUM], cusum, d[TS_CUSUM]) < 0 ||
+        t8_set_double(td, tn[TN_OUTLIER], 0.0, outlier) < 0 ||
+        t8_set_long(td, tn_int[TI_UPDATES], n[TI_UPDATES] + 1) < 0 ||
+        t8_set_long(td, tn_int[TI_CALM_AFTER], calm_after - 1) < 0 ||
+        t8_set(td, tn[TN_TRENDING], trending ? Py_True : Py_False) < 0 ||
+        t8_set(td, tn[TN_RECENT], new_recent) < 0 ||
+        t8_set(td, tn[TN_CANDIDATE], Py_None) < 0) {
+        goto done;
+    }
+    if (fast_on >= 0) {
+        if (t8_set_double(td, tn_double[TS_FAST_CUSUM], fast_cusum, d[TS_FAST_CUSUM]) < 0 ||
+            t8_set_double(td, tn_double[TS_FAST_SCALE2], fast_scale2, d[TS_FAST_SCALE2]) < 0 ||
+            t8_set_long(td, tn_int[TI_FAST_SCORED], fast_scored) < 0 ||
+            t8_set_long(td, tn_int[TI_FAST_HOPS], fast_hops) < 0 ||
+            t8_set(td, tn[TN_FAST_ON], fast_on ? Py_True : Py_False) < 0 ||
+            t8_set(td, tn[TN_HOP_RECENT], new_hop_recent) < 0) {
+            goto done;
+        }
+    }
+remember: /* predict() remembers an interval found in _by_dt: _last = (dt, cached) */
+    for (Py_ssize_t i = 0; i < count; i++) {
+        if (seen[i] == NULL) continue;
+        PyObject *last = Py_BuildValue("(dO)", dt, seen[i]);
+        if (last == NULL || PyDict_SetItem(dicts[T8_QUIET + i], tn[TN_LAST], last) < 0) {
+            Py_XDECREF(last);
+            goto done;
+        }
+        Py_DECREF(last);
+    }
+    result = t8_published(record, fast_on >= 0 ? fast_on : was_fast_on, quiet, trend, fast,
+                          trending, usable);
+    goto done;
+declined:
+    if (!PyErr_Occurred()) {
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+done:
+    for (int i = 0; i < 3; i++) Py_XDECREF(seen[i]);
+    for (int i = 0; i < T8_DICTS; i++) Py_XDECREF(dicts[i]);
+    Py_XDECREF(new_hop_recent);
+    Py_XDECREF(new_recent);
+    Py_XDECREF(entry);
+    return result;
+}

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from functools import lru_cache
 from typing import Any
 
@@ -37,6 +37,8 @@ from rtsid.ident.vaf import vaf
 from rtsid.verdicts import Flag, Reason
 
 __all__ = [
+    "ESTIMATE_FIELDS",
+    "FLAG_ORDER",
     "TorquePredictions",
     "WindowEstimate",
     "assemble",
@@ -424,6 +426,11 @@ def window_flags(
         flags.append(_UNCERTAIN[1])
     return tuple(flags) if flags else ()
 
+
+#: window_flags' flags in its order (the compiled stream_window raises them from this table).
+FLAG_ORDER = (_LOW_VAF, _MISMATCH, *_NEGATIVE, *_UNCERTAIN)
+#: WindowEstimate's fields in order (the compiled stream_window fills an estimate's __dict__).
+ESTIMATE_FIELDS = tuple(f.name for f in fields(WindowEstimate))
 
 #: An estimate carrying all of these is no joint's impedance: withheld, not published.
 UNIDENTIFIABLE = frozenset({Flag.NEGATIVE_STIFFNESS, Flag.MODEL_MISMATCH})

@@ -50,7 +50,8 @@ def held_values(options: EstimatorOptions, learned: Held = NOT_HELD) -> Held:
 
     With ``hold = "none"``, ``learned`` as given (a caller's explicit values). Otherwise the
     fixed ``hold_inertia`` when set, else the learned inertia; and with ``"inertia_damping"``
-    the learned damping. Nothing is held before an inertia is known.
+    the learned damping. Nothing is held before an inertia is known. ``learned`` itself when
+    that is what it holds.
     """
     if options.hold == "none":
         return learned
@@ -58,6 +59,8 @@ def held_values(options: EstimatorOptions, learned: Held = NOT_HELD) -> Held:
     if inertia is None:
         return NOT_HELD
     damping = learned.damping if options.hold == "inertia_damping" else None
+    if inertia is learned.inertia and damping is learned.damping:
+        return learned  # the same values: no new record (a stream reads this every window)
     return Held(inertia, damping)
 
 

@@ -24,12 +24,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rtsid.ident.analysis import AnalysisPlan
-from rtsid.ident.assess import band_bins, twiddles
+from rtsid.ident.assess import ESTIMATE_FIELDS, FLAG_ORDER, WindowEstimate, band_bins, twiddles
 from rtsid.ident.fit import Held, noise_lags
-from rtsid.ident.fused import kept_band_table
+from rtsid.ident.fused import _HELD_FLAGS, kept_band_table
 from rtsid.ident.irf import IRF
 from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.options import EstimatorOptions
+from rtsid.ident.split import NewestPart
 
 __all__ = ["OUT_LEVEL", "WindowCall", "one_call_possible"]
 
@@ -37,6 +38,7 @@ FloatArray = NDArray[np.float64]
 
 _eureka: Any = compiled_kernel()
 _onecall_window: Any = None if _eureka is None else _eureka.onecall_window
+_stream_window: Any = None if _eureka is None else _eureka.stream_window
 
 _DETREND_CODES = {"none": 0, "mean": 1, "linear": 2}
 
@@ -126,6 +128,13 @@ class WindowCall:
         consts[11] = kmax
         consts[12] = newest_rows
         self.consts = np.array(consts + layout, dtype=np.float64)
+        # stream_window's context for each count of held parameters (its "k")
+        low = float(options.low_vaf_percent)
+        fixed = (WindowEstimate, ESTIMATE_FIELDS, self.lags_s, fs_a, "output_error", 0)
+        # the newest hop's record: its centre row placed as split.row_offsets_s places it
+        delay = (plan.taps.size - 1) / 2.0
+        newest = (NewestPart, float(window_samples - 1), float(factor), delay, plan.fs_hz)
+        self._contexts = tuple((*fixed, _HELD_FLAGS, FLAG_ORDER, low, k, newest) for k in range(3))
 
     def __call__(
         self,
@@ -150,14 +159,7 @@ class WindowCall:
             The stream's typical band-limited level before this window (None: not known).
         """
         state = self.held
-        if held is not self._held:  # written once for each held value (a stream keeps it)
-            self._held = held
-            inertia, damping = held.inertia, held.damping
-            self._k = k = 0 if inertia is None else (1 if damping is None else 2)
-            state[0] = k
-            if k:
-                state[1] = inertia
-                state[2] = 0.0 if damping is None else damping
+        self._write_held(held)
         state[3] = np.nan if typical_rad is None else typical_rad
         h = np.empty(self.nh)
         status = _onecall_window(
@@ -172,3 +174,52 @@ class WindowCall:
         if status:
             return None
         return self.out.tolist(), h, self._k
+
+    def stream_window(
+        self,
+        position: Any,
+        torque: Any,
+        explained: Any,
+        held: Held,
+        excitation: Any,
+        learned: tuple[Any, Any],
+    ) -> tuple[WindowEstimate, bool, NewestPart | None] | None:
+        """One window and the stream's bookkeeping in one compiled call (``stream_window``):
+        what :meth:`__call__` and :meth:`rtsid.ident.stream.WindowStream._fit_in_one_call`
+        do with its results (the typical level read from and this window's added to
+        ``excitation``, the estimate assembled with its flags, the full fit learned by the
+        ``learned`` running medians of I and B), the same numbers. Returns ``(estimate,
+        whether the full fit was learned, the newest hop's (K, variance, centre row) or
+        None)``; None when declined (nothing changed).
+
+        ``excitation`` and ``learned`` are compiled running medians
+        (:func:`rtsid.ident.stream.running_median`).
+        """
+        self._write_held(held)
+        return _stream_window(
+            np.ascontiguousarray(position, dtype=np.float64),
+            np.ascontiguousarray(torque, dtype=np.float64),
+            None if explained is None else np.ascontiguousarray(explained, dtype=np.float64),
+            np.empty(self.nh),
+            self.work,
+            self.consts,
+            self.held,
+            self.out,
+            excitation,
+            learned[0],
+            learned[1],
+            self._contexts[self._k],
+        )
+
+    def _write_held(self, held: Held) -> None:
+        """``state``'s held values (written once for each held value: a stream keeps it)."""
+        if held is self._held:
+            return
+        self._held = held
+        state = self.held
+        inertia, damping = held.inertia, held.damping
+        self._k = k = 0 if inertia is None else (1 if damping is None else 2)
+        state[0] = k
+        if k:
+            state[1] = inertia
+            state[2] = 0.0 if damping is None else damping

@@ -23,6 +23,7 @@ from bisect import bisect_left, insort
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -40,6 +41,7 @@ from rtsid.ident.fused import (
     fused_back_end,
 )
 from rtsid.ident.grid import window_ends
+from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.onecall import OUT_LEVEL, WindowCall, one_call_possible
 from rtsid.ident.records import built
 from rtsid.ident.second_order import OutputErrorDesign
@@ -73,6 +75,7 @@ __all__ = [
     "Tracked",
     "WindowResult",
     "WindowStream",
+    "running_median",
     "sliding_estimates",
 ]
 
@@ -123,6 +126,17 @@ class RunningMedian:
         return (values[half - 1] + values[half]) / 2.0
 
 
+_eureka: Any = compiled_kernel()
+
+
+def running_median(horizon: int, min_count: int = 5) -> RunningMedian:
+    """A :class:`RunningMedian`: the compiled one (``median_new``, the same rule on a sorted
+    window kept in C, tested equal) when the kernel was built, else the Python reference."""
+    if _eureka is not None:
+        return _eureka.median_new(horizon, min_count)
+    return RunningMedian(horizon, min_count)
+
+
 class HeldParameters:
     """Running medians of I and B over the last ``horizon`` windows.
 
@@ -138,8 +152,8 @@ class HeldParameters:
 
     def __init__(self, hold: str, horizon_windows: int, min_windows: int = 5) -> None:
         self.hold = hold
-        self._inertia = RunningMedian(horizon_windows, min_windows)
-        self._damping = RunningMedian(horizon_windows, min_windows)
+        self._inertia = running_median(horizon_windows, min_windows)
+        self._damping = running_median(horizon_windows, min_windows)
         self._current: Held | None = NOT_HELD if hold == "none" else None  # None: to read
 
     def current(self) -> Held:
@@ -175,6 +189,16 @@ class HeldParameters:
         self._inertia.add(inertia)
         if damping > 0:
             self._damping.add(damping)
+
+    @property
+    def medians(self) -> tuple[RunningMedian, RunningMedian]:
+        """The running medians of I and B (what the compiled ``stream_window`` learns into,
+        as :meth:`learn`; the caller then calls :meth:`learned`)."""
+        return self._inertia, self._damping
+
+    def learned(self) -> None:
+        """The medians were added to outside :meth:`learn` (``stream_window``)."""
+        self._current = None
 
 
 @dataclass(frozen=True)
@@ -309,13 +333,15 @@ class WindowStream:
         self.held = HeldParameters(options.hold, horizon)
         # the windows' band-limited position SD: the stream's typical perturbation (every
         # analysed window counts, so a pause longer than half the horizon becomes typical)
-        self.excitation = RunningMedian(horizon)
+        self.excitation = running_median(horizon)
         self.tracker = StreamTracker(window_s, hop_s, tracker or TrackerOptions())
         self._split_source: _SplitSource | None = None
         self._buffers = BackEndBuffers()
         self._scan_buffers = ScanBuffers()  # the split scan's, reused every window
         self._newest_rows: tuple[AnalysisPlan | None, int] = (None, 0)  # (plan, its hop's rows)
         self._one_call = one_call_possible(options)  # windows in one compiled call once planned
+        # ... with the stream's bookkeeping in the same call (its medians are compiled)
+        self._bookkept = _eureka is not None and not isinstance(self.excitation, RunningMedian)
         self._call: WindowCall | None = None  # its buffers for the plan and window length
         self._design: OutputErrorDesign | None = None  # the design over the call's buffers
         # the learned values last read and what the window holds with them (held_values)
@@ -383,6 +409,8 @@ class WindowStream:
         mark = self.stage_mark
         if mark is not None:
             mark("held parameters")
+        if self._bookkept:
+            return self._bookkept_call(call, position, torque, explained, held)
         done = call(position, torque, explained, held, self.excitation.median())
         if mark is not None:
             mark("compiled call")
@@ -411,6 +439,36 @@ class WindowStream:
         assert design is not None
         self._split_source = _SplitSource(
             estimate, design, held, plan, window_samples, newest, self._scan_buffers
+        )
+        return estimate
+
+    def _bookkept_call(
+        self,
+        call: WindowCall,
+        position: ArrayLike,
+        torque: ArrayLike,
+        explained: ArrayLike | None,
+        held: Held,
+    ) -> WindowEstimate | None:
+        """The rest of :meth:`_fit_in_one_call` with its bookkeeping in the compiled call
+        (:meth:`~rtsid.ident.onecall.WindowCall.stream_window`): the same estimate and state."""
+        done = call.stream_window(
+            position, torque, explained, held, self.excitation, self.held.medians
+        )
+        mark = self.stage_mark
+        if mark is not None:
+            mark("compiled call")
+        if done is None:
+            return None
+        estimate, learned, newest = done
+        if learned:
+            self.held.learned()
+        if estimate.flags:  # none: nothing to withhold
+            withhold_unidentifiable(estimate)  # raises, as the step-by-step path
+        design = self._design
+        assert design is not None
+        self._split_source = _SplitSource(
+            estimate, design, held, call.plan, call.window_samples, newest, self._scan_buffers
         )
         return estimate
 
@@ -505,13 +563,14 @@ class _SplitSource:
         held: Held,
         plan: AnalysisPlan,
         window_samples: int,
-        newest: Sequence[float] | bool | None = False,
+        newest: NewestPart | Sequence[float] | bool | None = False,
         buffers: ScanBuffers | None = None,
     ) -> None:
         self.estimate = estimate
         self._args = (design, held.inertia, held.damping, plan, window_samples)
         self._problem: SplitProblem | bool | None = False  # False: not built yet
-        # the compiled back end's (K, variance, centre row) of the newest hop (False: not read)
+        # the compiled back end's (K, variance, centre row) of the newest hop, or its record
+        # (stream_window's) (False: not read)
         self._newest = newest
         self._buffers = buffers
 
@@ -525,9 +584,10 @@ class _SplitSource:
 
     def newest(self, span_s: float) -> NewestPart | None:
         """The newest hop's K (the compiled back end read it for the stream's hop)."""
-        if self._newest is None:
-            return None
-        if self._newest is not False:
+        newest = self._newest
+        if newest is None or type(newest) is NewestPart:  # the compiled call's record
+            return newest
+        if newest is not False:
             k, var, row = self._newest  # type: ignore[misc]
             _, _, _, plan, window_samples = self._args
             return built(
@@ -634,4 +694,13 @@ def sliding_estimates(
             reason = exc.reason
         except NumericalError:
             reason = Reason.NUMERICAL
-        yield WindowResult(start, stop, t_end, est, reason, stream.track(t_end, est))
+        track = stream.track(t_end, est)
+        yield built(
+            WindowResult,
+            start=start,
+            stop=stop,
+            t_end_s=t_end,
+            estimate=est,
+            reason=reason,
+            track=track,
+        )

@@ -128,7 +128,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 from rtsid.errors import invalid, require_range
@@ -311,6 +311,10 @@ def transition(dt: float, tau: float, level_q: float, rate_q: float) -> tuple[fl
     rq2 = rate_q * rate_q
     return b, a, level_q * level_q * dt + rq2 * max(i_bb, 0.0), rq2 * i_ab, rq2 * i_aa
 
+
+#: How the compiled calm step (``tracker_step``) builds its answer: the record, its fields
+#: in order and the modes it publishes (quiet, trend, fast).
+_RECORD = (TrackEstimate, tuple(f.name for f in fields(TrackEstimate)), "quiet", "trend", "fast")
 
 #: What :meth:`ParameterTracker.step` returns before the first measurement.
 _NOT_STARTED = TrackEstimate(math.nan, math.nan, math.nan, False, False)
@@ -498,18 +502,9 @@ class ParameterTracker:
         hop's K, the fast filter's measurement.
         """
         if _eureka is not None:  # a calm window in one compiled call (None: not calm)
-            calm = _eureka.tracker_calm(self, t_s, z, se, newest, split)
+            calm = _eureka.tracker_step(self, t_s, z, se, newest, split, _RECORD)
             if calm is not None:
-                value, se_now, rate, mode, updated = calm
-                return built(
-                    TrackEstimate,
-                    value=value,
-                    se=se_now,
-                    rate=rate,
-                    updated=updated,
-                    change=False,
-                    mode=mode,
-                )
+                return calm
         usable = (
             z is not None and se is not None and math.isfinite(z) and se > 0 and math.isfinite(se)
         )

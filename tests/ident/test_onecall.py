@@ -1,5 +1,5 @@
 """A stream's window in one compiled call (rtsid.ident.onecall) and the tracker's calm step
-(``tracker_calm``) against the step-by-step path they replace: bit for bit, state included."""
+(``tracker_step``) against the step-by-step path they replace: bit for bit, state included."""
 
 import math
 
@@ -53,13 +53,20 @@ def _results(theta, tau, valid, options, *, compiled: bool, monkeypatch, done=No
             patch.setattr(tracker, "_eureka", None)
         elif done is not None:
             one_window = onecall.WindowCall.__call__
+            bookkept = onecall.WindowCall.stream_window  # the call with the stream's bookkeeping
 
             def counted(self, *args):
                 result = one_window(self, *args)
                 done.append(result is not None)
                 return result
 
+            def counted_bookkept(self, *args):
+                result = bookkept(self, *args)
+                done.append(result is not None)
+                return result
+
             patch.setattr(onecall.WindowCall, "__call__", counted)
+            patch.setattr(onecall.WindowCall, "stream_window", counted_bookkept)
         s = WindowStream(FS, options, 0.02, window_s=0.3, tracker=TrackerOptions())
         results = list(sliding_estimates(theta, tau, FS, 0.3, 0.02, stream=s, valid=valid))
     return results, s

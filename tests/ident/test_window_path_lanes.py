@@ -1,6 +1,6 @@
 """The window path's loops two lanes at a time (branch winpath) give the scalar loops' numbers
 bit for bit, checked against those loops written out in Python floats (IEEE doubles, one
-operation at a time, in the loop's order); and what ``tracker_calm`` reads and writes through
+operation at a time, in the loop's order); and what ``tracker_step`` reads and writes through
 an instance's dictionary is what getattr and setattr would (no data descriptor shadows it)."""
 
 import inspect
@@ -117,7 +117,7 @@ def _data_descriptors(obj: object) -> list[str]:
 
 
 def test_the_trackers_state_is_plain_instance_attributes():
-    # tracker_calm reads and writes them through the instance dictionary (tc_get / tc_put)
+    # tracker_step reads and writes them through the instance dictionary
     tracker = StreamTracker(0.3, 0.02, TrackerOptions()).stiffness
     tracker.step(0.3, 150.0, 5.0)
     for obj in (tracker, *tracker._all):
