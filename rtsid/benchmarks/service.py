@@ -455,7 +455,7 @@ def acquisition_cpu_percent(status: list[dict[str, Any]]) -> float:
 
 #: Statuses of a phase's first seconds left out of its RSS growth (start-up, the slow lane's
 #: process, zenoh's first connections), s.
-RSS_SLOPE_SKIP_S = 10.0
+RSS_SLOPE_SKIP_S = 30.0
 #: The spans the RSS growth is read over, s.
 RSS_SPAN_S = 10.0
 
@@ -763,7 +763,7 @@ def run(args: argparse.Namespace) -> int:
             "> 1 is time the worker was ready but not running (the GIL, or a CPU given to "
             "others). Longest gc = the daemon's longest garbage collection after its start-up "
             "(wall; it holds the GIL). RSS MiB/min = the median RSS change over 10 s spans "
-            "after the first 10 s, a minute's worth (a one-time step falls in one span). "
+            "after the first 30 s, a minute's worth (a one-time step falls in one span). "
             f"{_floors(hop_s)}"
         ),
     )
