@@ -468,7 +468,7 @@ def rss_growth_mib_per_min(status: list[dict[str, Any]]) -> float:
 
     A median of spans rather than end minus start: a one-time step (zenoh maps its
     shared-memory segments and starts their watchdog threads when a peer first uses them,
-    +27 MiB at 30–55 s into some runs, in none of others) falls in one span and leaves the
+    +27 MiB at 30–60 s into 7 of 11 runs) falls in one or two spans and leaves the
     median alone, so 60–120 s of a run read the growth a minute.
     """
     if not status:
