@@ -453,6 +453,36 @@ def acquisition_cpu_percent(status: list[dict[str, Any]]) -> float:
     return 100.0 * cpu / seconds if seconds > 0 else float("nan")
 
 
+#: Statuses of a phase's first seconds left out of its RSS growth (start-up, the slow lane's
+#: process, zenoh's first connections), s.
+RSS_SLOPE_SKIP_S = 30.0
+#: The spans the RSS growth is read over, s.
+RSS_SPAN_S = 10.0
+
+
+def rss_growth_mib_per_min(status: list[dict[str, Any]]) -> float:
+    """The daemon's steady RSS growth, MiB a minute: the median over consecutive
+    :data:`RSS_SPAN_S` spans of the statuses' ``rss_mb`` change (read at the spans' ends by
+    linear interpolation over ``host_time_ns``), leaving out the first
+    :data:`RSS_SLOPE_SKIP_S`. NaN with fewer than two whole spans.
+
+    A median of spans rather than end minus start: a one-time step (zenoh maps its
+    shared-memory segments and starts their watchdog threads when a peer first uses them,
+    +27 MiB at 30–60 s into 7 of 11 runs) falls in one or two spans and leaves the
+    median alone, so 60–120 s of a run read the growth a minute.
+    """
+    if not status:
+        return float("nan")
+    t0 = status[0]["host_time_ns"]
+    seconds = np.array([(s["host_time_ns"] - t0) / 1e9 for s in status])
+    rss = np.array([s["rss_mb"] for s in status], dtype=float)
+    ends = np.arange(RSS_SLOPE_SKIP_S, seconds[-1] + 1e-9, RSS_SPAN_S)
+    if len(ends) < 3:
+        return float("nan")
+    changes = np.diff(np.interp(ends, seconds, rss))
+    return float(np.median(changes) * 60.0 / RSS_SPAN_S)
+
+
 def _row(phase: Phase, base: Phase | None) -> list[Any]:
     e2e50, e2e99 = median_p99(phase.e2e_ms)
     c50, c99 = median_p99(phase.compute_ms)
@@ -486,6 +516,7 @@ def _row(phase: Phase, base: Phase | None) -> list[Any]:
         acquisition_cpu_percent(steady),
         rss[0] if rss else float("nan"),
         rss[-1] if rss else float("nan"),
+        rss_growth_mib_per_min(phase.status),
         acq.get("lost_samples", "—"),
         mcap.get("dropped", "—"),
         longest_gc_ms(worker),
@@ -572,8 +603,9 @@ def print_miss_causes(phase: Phase) -> None:
             (first.get("zenoh") or {}).get("history_bytes", 0) or 0
         )
         print(
-            f"  {phase.name}: RSS {first['rss_mb']:.1f} → {last['rss_mb']:.1f} MiB, of it "
-            f"the zenoh history ring {history_mib / 2**20:+.1f} MiB"
+            f"  {phase.name}: RSS {first['rss_mb']:.1f} → {last['rss_mb']:.1f} MiB "
+            f"(steady growth {rss_growth_mib_per_min(phase.status):.2f} MiB a minute), of it the "
+            f"zenoh history ring {history_mib / 2**20:+.1f} MiB"
         )
 
 
@@ -707,6 +739,7 @@ def run(args: argparse.Namespace) -> int:
             "acquisition thread CPU %",
             "RSS start MiB",
             "RSS end MiB",
+            "RSS MiB/min",
             "lost samples",
             "MCAP dropped",
             "longest gc ms (gen)",
@@ -729,7 +762,9 @@ def run(args: argparse.Namespace) -> int:
             "worker thread's CPU time per evaluated window (status totals); compute wall / CPU "
             "> 1 is time the worker was ready but not running (the GIL, or a CPU given to "
             "others). Longest gc = the daemon's longest garbage collection after its start-up "
-            f"(wall; it holds the GIL). {_floors(hop_s)}"
+            "(wall; it holds the GIL). RSS MiB/min = the median RSS change over 10 s spans "
+            "after the first 30 s, a minute's worth (a one-time step falls in one span). "
+            f"{_floors(hop_s)}"
         ),
     )
     if not args.no_replay:

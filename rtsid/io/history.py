@@ -221,7 +221,7 @@ class _PackedBlock:
         self.first = block.first
         self.times = array("q", block.times)
         self.ends = array("q", itertools.accumulate(map(len, block.payloads)))
-        self.data = compressor.compress(b"".join(block.payloads))
+        self.data = _exact_copy(compressor.compress(b"".join(block.payloads)))
 
     @property
     def count(self) -> int:
@@ -238,6 +238,18 @@ class _PackedBlock:
 
 
 _Block = _RawBlock | _PackedBlock
+
+
+def _exact_copy(compressed: bytes) -> bytes:
+    """``compressed`` in an allocation of its own length.
+
+    python-zstandard's ``ZstdCompressor.compress`` allocates its result at the input's
+    compression bound (about the input's size) and only shortens the object's length: a
+    packed block of 256 estimates (≈ 145 kB in, ≈ 28 kB out) kept the whole 145 kB, so the
+    history of a daemon at a 4 ms hop grew by ≈ 8.7 MiB a minute instead of ≈ 1.6 (its
+    ``held_bytes`` counted the length, not the allocation). The copy costs microseconds.
+    """
+    return bytes(memoryview(compressed))
 
 
 class MessageRing:

@@ -21,7 +21,9 @@ One thread (``rtsid-session``) takes what arrives and records it::
   what is refused is counted (``refused_by_reason``).
 - **Duplicates.** A marker resent with the same ``marker_id`` (the sender did not hear the
   acknowledgement) is acknowledged again with its first stamp and recorded once (the last
-  :data:`REMEMBERED_IDS` ids; after a daemon restart, readers drop it by ``marker_id``).
+  :data:`REMEMBERED_IDS` ids; after a daemon restart, readers drop it by ``marker_id``). One
+  resent after a write timeout waits for its first write again: acknowledged with that
+  write's stamp, never written twice.
 - **Labels.** Plain text of at most :data:`~rtsid.io.messages.MAX_LABEL_CHARS` characters:
   one from zenoh with control characters or too long is refused (its sender is told why);
   one from the wire is cleaned (control characters → ``?``, cut to length).
@@ -76,6 +78,27 @@ WRITE_TIMEOUT_S = 2.0
 
 _MARKER_ID = re.compile(rf"^[A-Za-z0-9_.:\-]{{1,{MAX_MARKER_ID_CHARS}}}$")
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+
+
+_NOT_WRITTEN = (
+    "the MCAP writer did not write it (recording off, queue full or a disk error: see the "
+    "status's mcap counters)"
+)
+
+
+class _PendingWrite:
+    """A marker handed to the MCAP writer, and the writer's word on it (set on the writer's
+    thread by :meth:`written`)."""
+
+    def __init__(self, message: dict[str, Any]) -> None:
+        self.message = message
+        self.done = threading.Event()
+        self.outcome: list[bool] = []
+
+    def written(self, ok: bool) -> None:
+        """The writer's callback: True once the marker is in the file."""
+        self.outcome.append(ok)
+        self.done.set()
 
 
 class RefusedRequest(ValueError):
@@ -231,6 +254,8 @@ class SessionDesk(ThreadOwner):
         self._lock = threading.Lock()
         self._c = SessionCounters(session.subject, session.session, session.condition)
         self._acks: OrderedDict[str, dict[str, Any]] = OrderedDict()
+        # markers whose write was not confirmed in time, by marker_id (the desk's thread only)
+        self._pending: OrderedDict[str, _PendingWrite] = OrderedDict()
         self._inbox_refused_seen = 0
         self.current = self.session_message(max(0, self._next_sample()), session.condition)
 
@@ -297,6 +322,9 @@ class SessionDesk(ThreadOwner):
                 if first is not None:
                     self._c.duplicates += 1
                     return {**first, "duplicate": True}
+            pending = self._pending.get(marker_id)
+            if pending is not None:  # resent after a write timeout: the first write's word
+                return self._settle(pending)
         index = self._next_sample()
         message = MarkerMessage(
             robot=self.robot,
@@ -308,49 +336,55 @@ class SessionDesk(ThreadOwner):
             marker_id=marker_id or uuid.uuid4().hex,
             host_time_ns=time.time_ns(),
         ).as_dict()
-        written = self._write_and_wait(message)
-        if written is None:
+        pending = _PendingWrite(message)
+        if not self._mcap.log_marker(message, on_written=pending.written):
+            raise RefusedRequest(_NOT_WRITTEN, "not_written")
+        return self._settle(pending)
+
+    def _settle(self, pending: _PendingWrite) -> dict[str, Any]:
+        """Wait up to :data:`WRITE_TIMEOUT_S` for the MCAP writer's word on ``pending``; once
+        written and flushed, publish the marker and return its acknowledgement.
+
+        A write still unconfirmed is remembered by its ``marker_id`` (the last
+        :data:`REMEMBERED_IDS`): a resend with that id waits for the same write again and is
+        acknowledged with its stamp, instead of writing a second copy on a later sample
+        (readers keep a ``marker_id``'s first copy, so the acknowledged sample would not be
+        the recorded one).
+
+        Raises
+        ------
+        RefusedRequest
+            ``write_timeout`` (still unconfirmed) or ``not_written``.
+        """
+        message = pending.message
+        marker_id = message["marker_id"]
+        if not pending.done.wait(WRITE_TIMEOUT_S):
+            self._pending[marker_id] = pending
+            self._pending.move_to_end(marker_id)
+            while len(self._pending) > REMEMBERED_IDS:
+                self._pending.popitem(last=False)
             raise RefusedRequest(
                 f"the MCAP writer did not confirm it within {WRITE_TIMEOUT_S:g} s (it may still "
                 "be written: resend with the same marker_id and readers keep it once)",
                 "write_timeout",
             )
-        if not written:
-            raise RefusedRequest(
-                "the MCAP writer did not write it (recording off, queue full or a disk error: "
-                "see the status's mcap counters)",
-                "not_written",
-            )
+        self._pending.pop(marker_id, None)
+        if pending.outcome != [True]:
+            raise RefusedRequest(_NOT_WRITTEN, "not_written")
         self._zenoh.publish_marker(message)
         ack = {
             "ok": True,
             **{k: message[k] for k in ("robot", "joint", "sample_index", "t_s", "label")},
-            "marker_id": message["marker_id"],
+            "marker_id": marker_id,
             "duplicate": False,
         }
         with self._lock:
             self._c.markers += 1
             self._c.markers_by_source["zenoh"] += 1
-            self._acks[message["marker_id"]] = ack
+            self._acks[marker_id] = ack
             while len(self._acks) > REMEMBERED_IDS:
                 self._acks.popitem(last=False)
         return ack
-
-    def _write_and_wait(self, message: dict[str, Any]) -> bool | None:
-        """True: written and flushed; False: not written; None: no word within
-        :data:`WRITE_TIMEOUT_S`."""
-        done = threading.Event()
-        outcome: list[bool] = []
-
-        def written(ok: bool) -> None:
-            outcome.append(ok)
-            done.set()
-
-        if not self._mcap.log_marker(message, on_written=written):
-            return False
-        if not done.wait(WRITE_TIMEOUT_S):
-            return None
-        return outcome == [True]
 
     def _record_wire(self) -> None:
         for wire in self._wire_markers():

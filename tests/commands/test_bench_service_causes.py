@@ -2,7 +2,18 @@
 
 from __future__ import annotations
 
-from rtsid.benchmarks.service import Phase, gc_pauses, longest_gc_ms, print_miss_causes
+import math
+from collections.abc import Callable
+
+import pytest
+
+from rtsid.benchmarks.service import (
+    Phase,
+    gc_pauses,
+    longest_gc_ms,
+    print_miss_causes,
+    rss_growth_mib_per_min,
+)
 from rtsid.runtime.stages import CPU_CAUSES
 
 
@@ -45,3 +56,20 @@ def test_the_phase_prints_misses_by_cause_and_the_longest_collection_with_its_ge
 def test_a_daemon_that_reports_no_collection_prints_none():
     assert gc_pauses({}).startswith("longest garbage collection while running windows: none;")
     assert longest_gc_ms({"gc_longest": None}) == "—"
+
+
+def statuses(rss_at: Callable[[float], float], seconds: float, period_s: float = 0.5) -> list:
+    """Status messages every ``period_s`` with ``rss_mb = rss_at(t)``."""
+    t0 = 1_700_000_000 * 10**9
+    times = [k * period_s for k in range(int(seconds / period_s) + 1)]
+    return [{"host_time_ns": t0 + int(t * 1e9), "rss_mb": rss_at(t)} for t in times]
+
+
+def test_rss_growth_is_the_steady_minute_rate_past_a_one_time_step():
+    def rss(t: float) -> float:  # start-up, then 4 MiB a minute, and a 27 MiB step at 42 s
+        return (100.0 if t < 5 else 140.0) + 4.0 * t / 60.0 + (27.0 if t >= 42.0 else 0.0)
+
+    assert rss_growth_mib_per_min(statuses(rss, 120.0)) == pytest.approx(4.0)
+    assert rss_growth_mib_per_min(statuses(lambda t: 140.0, 120.0)) == 0.0
+    assert math.isnan(rss_growth_mib_per_min(statuses(rss, 45.0)))  # one span past start-up
+    assert math.isnan(rss_growth_mib_per_min([]))

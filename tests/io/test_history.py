@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import threading
+import tracemalloc
 
 import pytest
 
@@ -273,6 +274,29 @@ def test_compacted_blocks_hold_a_fraction_and_give_back_the_same_messages() -> N
     # a range across packed blocks and the open one
     messages, _, first = ring.snapshot(NOW + 2850, NOW + 2960)
     assert messages == payloads[2850:2961] and first == NOW + 2850
+
+
+def test_packed_blocks_take_the_memory_they_count() -> None:
+    """What a compacted ring holds in memory is what ``held_bytes`` counts: zstd's result was
+    allocated at the input's size and only shortened, so each packed block kept its raw size
+    (a 4 ms hop's history grew 5× faster than its ``held_bytes``)."""
+    payloads = [estimate_like(i) for i in range(3000)]
+    tracemalloc.start()
+    try:
+        before, _ = tracemalloc.get_traced_memory()
+        ring = MessageRing(2000, block_messages=100)
+        for i, payload in enumerate(payloads):
+            ring.append(NOW + i, payload)
+            if i % 100 == 99:  # the housekeeping tick compacts as blocks are sealed
+                ring.compact()
+        held, _ = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    raw = sum(len(p) for p in payloads[-2000:])
+    assert ring.held_bytes < raw / 3
+    assert held - before < 1.5 * ring.held_bytes
+    messages, _, _ = ring.snapshot(0, 2**63 - 1)
+    assert messages == payloads[1001:]
 
 
 def test_without_compaction_the_ring_stays_bounded() -> None:

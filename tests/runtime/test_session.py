@@ -54,6 +54,19 @@ def mark(session: zenoh.Session, body: bytes | dict, key: str = "rtsid/testbot/a
     return query(session, key, timeout_s=5.0, payload=payload)
 
 
+def acknowledged(session: zenoh.Session, label: str, marker_id: str, attempts: int = 3) -> int:
+    """Mark until acknowledged, resending with the same ``marker_id`` after no reply or an
+    error reply (as the desk's errors say to); the acknowledged sample."""
+    answers = []
+    for _ in range(attempts):
+        answer = mark(session, {"label": label, "marker_id": marker_id})
+        if answer.replies:
+            (reply,) = answer.replies
+            return int(json.loads(reply[1])["sample_index"])
+        answers.append(answer.errors or "no reply within the query's timeout")
+    raise AssertionError(f"{label!r} not acknowledged in {attempts} attempts: {answers}")
+
+
 def cli(*argv: str, port: int) -> list[str]:
     return [*argv, "--connect", f"tcp/127.0.0.1:{port}", "--mode", "client", "--timeout", "5"]
 
@@ -168,9 +181,7 @@ def test_acknowledged_marks_survive_kill_9_once_each(tmp_path, free_port, marks)
                 assert time.monotonic() < deadline, "daemon never answered"
             for k in range(marks):
                 marker_id = uuid.uuid4().hex
-                answer = mark(session, {"label": f"trial {k}", "marker_id": marker_id})
-                (reply,) = answer.replies
-                acked[marker_id] = json.loads(reply[1])["sample_index"]
+                acked[marker_id] = acknowledged(session, f"trial {k}", marker_id)
     finally:
         stop_process(proc, signal.SIGKILL)
     fixed = tmp_path / "fixed.mcap"
@@ -180,6 +191,52 @@ def test_acknowledged_marks_survive_kill_9_once_each(tmp_path, free_port, marks)
     recorded = {m["marker_id"]: m["sample_index"] for m in got.markers}
     assert recorded == acked  # none lost, none twice, each on its acknowledged sample
     assert len(acked) == marks and sorted(acked.values()) == list(acked.values())
+
+
+def test_a_marker_resent_after_a_write_timeout_is_acknowledged_with_its_first_write(
+    daemon, tmp_path, free_port, monkeypatch
+):
+    """The MCAP writer held past the desk's wait (a stalled disk, say): the mark gets an error
+    reply; resent with its id once the writer goes on, it is acknowledged with the sample of
+    the first write, and the recording holds it once, on that sample."""
+    import rtsid.runtime.session as desk_module
+
+    desk = daemon.desk
+    assert desk is not None
+    writer = desk._mcap
+    held, released = threading.Event(), threading.Event()
+    turn = writer.wait_turn
+
+    def held_turn() -> None:
+        held.set()
+        released.wait(20)  # bounded: the test releases it
+        turn()
+
+    monkeypatch.setattr(desk_module, "WRITE_TIMEOUT_S", 0.3)
+    marker_id = uuid.uuid4().hex
+    with client(free_port) as session:
+        writer.wait_turn = held_turn
+        try:
+            before = desk.next_sample()
+            first = mark(session, {"label": "held", "marker_id": marker_id})
+            assert held.is_set()
+        finally:
+            writer.wait_turn = turn
+            released.set()
+        assert not first.replies and "did not confirm" in first.errors[0]
+        again = mark(session, {"label": "held", "marker_id": marker_id})
+    (reply,) = again.replies
+    ack = json.loads(reply[1])
+    assert ack["sample_index"] < desk.next_sample() and ack["sample_index"] >= before
+    counters = desk.counters()
+    assert counters["refused_by_reason"] == {"write_timeout": 1} and counters["markers"] == 1
+    daemon.request_stop()
+    for runner in [t for t in threading.enumerate() if t.name == "test-daemon"]:
+        runner.join(30)
+    got = read_session(only_recording(tmp_path))
+    assert [(m["marker_id"], m["sample_index"]) for m in got.markers] == [
+        (marker_id, ack["sample_index"])
+    ]
 
 
 def test_watch_and_query_show_the_session_and_markers(daemon, free_port, capsys):
