@@ -39,6 +39,9 @@ def _check_timeline(document: dict, names: list[str]) -> list[dict]:
         assert p["idle_at_end_s"] == max(0.0, finished - last)
         # its CPU time by the end of its last recording, start-up included
         assert p["cpu_s"] > 0 if spans else p["cpu_s"] == 0
+        # and when it was ready (the interpreter's start and the imports): no more than
+        # by the end of its last recording
+        assert 0 < p["ready_cpu_s"] <= (p["cpu_s"] if spans else p["ready_cpu_s"])
     return processes
 
 
