@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import atexit
 import collections
 import concurrent.futures as cf
+import contextlib
 import json
 import multiprocessing as mp
 import os
@@ -408,8 +410,26 @@ class _FolderRun:
 def _init_child() -> None:
     """Initializer of a replay child: Ctrl-C (the terminal sends it to the whole process
     group) ignored while it waits for a recording — a child interrupted in its queue read
-    printed a traceback and broke the pool — and raised in the recording it replays."""
+    printed a traceback and broke the pool — and raised in the recording it replays; and
+    the child's exit without the interpreter's teardown (:func:`_exit_at_once`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    atexit.register(_exit_at_once)
+
+
+def _exit_at_once() -> None:
+    """A replay child's last step once the pool has let it go (its non-daemon threads are
+    joined and its multiprocessing finalizers run by then): flush its output and end the
+    process, skipping the interpreter's teardown of its modules and arrays.
+
+    The command waits for its children to exit before it does, and the teardown was on that
+    path: 0.07-0.19 s from the last recording's result to the pool closed (2 cores under
+    other engineers' load; 3-8 ms without it). The exit status reads 0 (a pool tells a
+    child that died by its pipe, never by its status; an error in a recording comes back as
+    that recording's exception)."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(0)
 
 
 def _preload() -> Ready:
