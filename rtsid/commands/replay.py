@@ -425,7 +425,8 @@ def _exit_at_once() -> None:
     path: 0.07-0.19 s from the last recording's result to the pool closed (2 cores under
     other engineers' load; 3-8 ms without it). The exit status reads 0 (a pool tells a
     child that died by its pipe, never by its status; an error in a recording comes back as
-    that recording's exception)."""
+    that recording's exception). Exit handlers registered before the pool's initializer (a
+    coverage tool's, say) do not run in a child."""
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):
             stream.flush()
