@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from rtsid.benchmarks.table import print_table
+from rtsid.errors import InputDataError
 from rtsid.ident.excitation import filtered_noise
 from rtsid.ident.levinson import HAVE_COMPILED_KERNEL
 from rtsid.ident.stream import sliding_estimates
@@ -42,6 +43,12 @@ FS_HZ = 2500.0
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--minutes", type=float, default=10.0, help="recording length (10)")
+    parser.add_argument(
+        "--pairs",
+        type=int,
+        default=PAIRS,
+        help=f"alternated --jobs 1 / --jobs 2 pairs of the folder table ({PAIRS})",
+    )
 
 
 def _recording(folder: Path, seconds: float) -> tuple[Path, np.ndarray, np.ndarray]:
@@ -96,8 +103,9 @@ REPLAY_FLOOR, JOBS_FLOOR = 150.0, 1.7
 
 
 #: Alternated pairs of ``--jobs 1`` and ``--jobs 2`` runs the folder table takes the median of
-#: (one pair read anywhere from 1.2× to 2.1× on this shared 2-core VM).
-PAIRS = 3
+#: (one pair read anywhere from 1.2× to 2.1× on this shared 2-core VM; three pairs read 1.38-1.71×
+#: on the idle machine).
+PAIRS = 5
 
 
 @dataclass(frozen=True)
@@ -115,6 +123,10 @@ class FolderRun:
     startup_s : tuple of float
         From launching the command to each process having imported the replay (the
         command's own first), s: ``--timing``'s ``ready_s``.
+    startup_cpu_s : tuple of float
+        Each process's CPU time by then (same order), s: ``--timing``'s ``ready_cpu_s``;
+        below ``startup_s``, the process waited (a child for its spawning; any process for a
+        CPU).
     idle_at_end_s : tuple of float
         Each process's wait at the end, from its last recording to the last recording's
         end (same order), s.
@@ -127,21 +139,36 @@ class FolderRun:
     wall_s: float
     cpu_s: float
     startup_s: tuple[float, ...]
+    startup_cpu_s: tuple[float, ...]
     idle_at_end_s: tuple[float, ...]
     busiest_cpu_s: float
 
 
 def run_folder(folder: Path, jobs: int) -> FolderRun:
-    """Run ``rtsid replay folder --jobs jobs`` in a fresh process, with ``--timing``."""
+    """Run ``rtsid replay folder --jobs jobs`` in a fresh process, with ``--timing``.
+
+    Its wall time ends when the command's process exits, as a shell sees it: its output goes
+    to files, not pipes — the wait for a pipe's end also waited for multiprocessing's
+    resource tracker, a process a pool starts that holds the command's stdout and stderr
+    open until it has exited after the command.
+    """
     with tempfile.TemporaryDirectory(prefix="rtsid-bench-timing-") as tmp:
         timing = Path(tmp) / "timing.json"
         command = [sys.executable, "-m", "rtsid.cli", "replay", str(folder), "--jobs", str(jobs)]
         started_cpu = _children_cpu_s()
-        launched_s = time.monotonic()
-        subprocess.run(
-            [*command, "--timing", str(timing)], capture_output=True, timeout=3600, check=True
-        )
-        wall_s = time.monotonic() - launched_s
+        with open(Path(tmp) / "stderr.txt", "w+b") as err:
+            launched_s = time.monotonic()
+            done = subprocess.run(
+                [*command, "--timing", str(timing)],
+                stdout=subprocess.DEVNULL,
+                stderr=err,
+                timeout=3600,
+                check=False,
+            )
+            wall_s = time.monotonic() - launched_s
+            err.seek(0)
+            if done.returncode != 0:
+                raise subprocess.CalledProcessError(done.returncode, command, stderr=err.read())
         cpu_s = _children_cpu_s() - started_cpu
         processes = json.loads(timing.read_text())["processes"]
     return FolderRun(
@@ -149,6 +176,7 @@ def run_folder(folder: Path, jobs: int) -> FolderRun:
         wall_s,
         cpu_s,
         tuple(p["ready_s"] - launched_s for p in processes),
+        tuple(p["ready_cpu_s"] for p in processes),
         tuple(p["idle_at_end_s"] for p in processes),
         max(p["cpu_s"] for p in processes),
     )
@@ -166,9 +194,11 @@ def alternated_pairs(folder: Path, pairs: int = PAIRS) -> list[tuple[FolderRun, 
     return done
 
 
-def _folder_table(folder: Path, seconds: float, count: int) -> Callable[[], None]:
+def _folder_table(
+    folder: Path, seconds: float, count: int, pairs_wanted: int = PAIRS
+) -> Callable[[], None]:
     """``rtsid replay DIR --jobs 1`` against ``--jobs 2`` on ``count`` recordings, in
-    :data:`PAIRS` alternated pairs, each the command as a user runs it (a fresh process: its
+    ``pairs_wanted`` alternated pairs, each the command as a user runs it (a fresh process: its
     own imports included; the command's process replays too); returns the printing of its
     table."""
     folder.mkdir()
@@ -178,7 +208,7 @@ def _folder_table(folder: Path, seconds: float, count: int) -> Callable[[], None
         path, _, _ = _recording(build, seconds)
         path.rename(folder / f"rec{k}.mcap")
     ceiling = _machine_scaling()
-    pairs = alternated_pairs(folder)
+    pairs = alternated_pairs(folder, pairs_wanted)
     ratios = [one.wall_s / two.wall_s for one, two in pairs]
     ratio = float(np.median(ratios))
     # the same by CPU: what the ratio would be if each process had a core of its own
@@ -191,8 +221,8 @@ def _folder_table(folder: Path, seconds: float, count: int) -> Callable[[], None
             rows.append([f"pair {k}", *_run_cells(run, total, speed_up)])
     median = {jobs: float(np.median([pair[jobs - 1].wall_s for pair in pairs])) for jobs in (1, 2)}
     rows += [
-        ["median", 1, median[1], total / median[1], 1.0, "", "", "", "", ""],
-        ["median", 2, median[2], total / median[2], ratio, "", "", "", "", ""],
+        ["median", 1, median[1], total / median[1], 1.0, "", "", "", "", "", ""],
+        ["median", 2, median[2], total / median[2], ratio, "", "", "", "", "", ""],
     ]
     startup_s = float(np.median([pair[0].startup_s[0] for pair in pairs]))
     # each process pays one start-up either way; the replays' time is halved at best
@@ -207,6 +237,7 @@ def _folder_table(folder: Path, seconds: float, count: int) -> Callable[[], None
             "× real time",
             "speed-up",
             "start-up s (command / child)",
+            "its CPU s",
             "idle at end s (command / child)",
             "CPU s",
             "cores used",
@@ -223,11 +254,13 @@ def _folder_table(folder: Path, seconds: float, count: int) -> Callable[[], None
             "numpy, rtsid compiled from source where no bytecode is written; no scipy: the "
             "filter designs are numpy's or the design cache's, which this run's replay above "
             "filled); idle at end = a process's wait from its last recording to the last "
-            "recording's end (recordings are not split); cores used = the CPU seconds of its "
-            "processes over the wall time (on a machine other work shares, the second core is "
-            "not all this run's). By CPU, --jobs 1's process over --jobs 2's busiest, the "
-            f"median pair reads {cpu_ratio:.2f}×: the speed-up with a core for each process "
-            "(CPU time itself grows when the cores are shared). With the median start-up of "
+            "recording's end (recordings are not split); its CPU s = each process's CPU time "
+            "by its start-up's end (the interpreter's start included); cores used = the CPU "
+            "seconds of its processes over the wall time (on a machine other work shares, the "
+            "second core is not all this run's). By CPU, --jobs 1's process over --jobs 2's "
+            f"busiest, the median pair reads {cpu_ratio:.2f}×: the speed-up with a core for "
+            "each process (CPU time itself grows when the cores are shared). With the median "
+            "start-up of "
             f"--jobs 1, {startup_s:.2f} s, "
             f"--jobs 2 could reach {ideal:.2f}× here with equal recordings; the machine "
             f"itself: two CPU-bound processes ran {ceiling:.2f}× one process's work in the "
@@ -237,14 +270,15 @@ def _folder_table(folder: Path, seconds: float, count: int) -> Callable[[], None
 
 
 def _run_cells(run: FolderRun, total_s: float, speed_up: float) -> list[Any]:
-    """A run's cells after the first: jobs, seconds, × real time, speed-up, start-ups, idle
-    at end, CPU s, cores used, the busiest process's CPU s."""
+    """A run's cells after the first: jobs, seconds, × real time, speed-up, start-ups and
+    their CPU, idle at end, CPU s, cores used, the busiest process's CPU s."""
     return [
         run.jobs,
         run.wall_s,
         total_s / run.wall_s,
         speed_up,
         " / ".join(f"{s:.2f}" for s in run.startup_s),
+        " / ".join(f"{s:.2f}" for s in run.startup_cpu_s),
         " / ".join(f"{s:.2f}" for s in run.idle_at_end_s),
         run.cpu_s,
         run.cpu_s / run.wall_s,
@@ -280,6 +314,8 @@ def _spin_wall(seconds: float) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.pairs < 1:
+        raise InputDataError(f"--pairs {args.pairs}: use 1 or more alternated pairs")
     seconds = 30.0 if args.quick else args.minutes * 60.0
     with tempfile.TemporaryDirectory(prefix="rtsid-bench-replay-") as tmp:
         started = time.perf_counter()
@@ -300,7 +336,7 @@ def run(args: argparse.Namespace) -> int:
             )
         )
         bare_s = time.perf_counter() - start
-        print_folder = _folder_table(Path(tmp) / "folder", max(6.0, seconds / 4), 4)
+        print_folder = _folder_table(Path(tmp) / "folder", max(6.0, seconds / 4), 4, args.pairs)
     rows = [
         [
             "rtsid replay (MCAP → worker → messages)",

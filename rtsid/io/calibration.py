@@ -22,15 +22,17 @@ import os
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from rtsid import __version__
 from rtsid.errors import ConfigError, InputDataError, RecordingError
-from rtsid.ident.robot import RobotDynamics
 from rtsid.io.files import atomic_write
+
+if TYPE_CHECKING:  # imported where a calibration is read: most recordings carry none
+    from rtsid.ident.robot import RobotDynamics
 
 __all__ = [
     "Calibration",
@@ -148,6 +150,8 @@ def load_calibration(path: str | Path) -> Calibration:
             f'{str(p)!r} is not an rtsid calibration file (no "format": "{FORMAT}"); '
             "make one with 'rtsid calibrate'"
         )
+    from rtsid.ident.robot import RobotDynamics
+
     try:
         irf = np.asarray(document["irf"], dtype=np.float64)
         fs_hz = float(document["fs_hz"])

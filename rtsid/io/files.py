@@ -21,7 +21,6 @@ import io
 import math
 import os
 import tempfile
-import zipfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any, Literal, overload
@@ -188,6 +187,8 @@ def read_npz(
     InputDataError
         Missing, empty, truncated or not an ``.npz`` file, or a required array missing.
     """
+    import zipfile  # here: a replay reads no .npz
+
     p = Path(path)
     if content is None and not p.is_file():
         raise InputDataError(f"{str(p)!r} does not exist or is not a file; check the path")
@@ -229,6 +230,8 @@ def _npz_declared_bytes(fh: IO[bytes]) -> int:
         raise ValueError("it holds a single array, not named arrays")
     if magic[:4] != b"PK\x03\x04":
         raise ValueError("it is not a zip archive of arrays")
+    import zipfile
+
     fh.seek(0)
     total = 0
     with zipfile.ZipFile(fh) as archive:

@@ -26,9 +26,7 @@ from rtsid.config import (
     section_from_mapping,
 )
 from rtsid.errors import ConfigError, InputDataError
-from rtsid.link.mapping import ANKLE_MAPPING, protocol_from_config
-from rtsid.link.protocol import PERTURBATION_KINDS
-from rtsid.link.udp import UDP_FIELDS, compile_layout
+from rtsid.link.protocol import ANKLE_MAPPING, PERTURBATION_KINDS
 
 if TYPE_CHECKING:  # the plant's simulation, imported where a plant is built: a replay reads
     # this configuration without it
@@ -146,6 +144,8 @@ class ProtocolConfig:
         require_choice("marker_on", self.marker_on, ("change", "nonzero"))
         require_choice("checksum", self.checksum, ("nibble_xor", "none"))
         if not self.is_default():
+            from rtsid.link.mapping import protocol_from_config
+
             protocol_from_config(self)  # every mapping error now, not at the first frame
 
     def is_default(self) -> bool:
@@ -210,8 +210,11 @@ class UdpConfig:
     def __post_init__(self) -> None:
         require_range("port", self.port, 0, 65535)
         require_choice("byte_order", self.byte_order, ("little", "big"))
-        for name in self.fields:
-            require_choice("fields", name, UDP_FIELDS)
+        if not self.has_default_layout():
+            from rtsid.link.udp import UDP_FIELDS
+
+            for name in self.fields:
+                require_choice("fields", name, UDP_FIELDS)
         require_range("samples_per_datagram", self.samples_per_datagram, 1, 1000)
         require_range("position_scale", self.position_scale, 0.0, None, low_inclusive=False)
         require_range("torque_scale", self.torque_scale, 0.0, None, low_inclusive=False)
@@ -220,7 +223,25 @@ class UdpConfig:
         require_range("receive_buffer_bytes", self.receive_buffer_bytes, 4096, 1 << 28)
         if not self.bind_host:
             raise invalid("bind_host", self.bind_host, "an address such as '127.0.0.1'")
-        compile_layout(self)  # every layout error now, not at the first datagram
+        if not self.has_default_layout():
+            from rtsid.link.udp import compile_layout
+
+            compile_layout(self)  # every layout error now, not at the first datagram
+
+    def has_default_layout(self) -> bool:
+        """The datagram's layout (``byte_order``, ``sample_format``, ``fields``) at its
+        defaults: a layout that compiles (tested) and is compiled where the link opens.
+        Checking it again imported the UDP link in every process that only reads a
+        configuration (each process of ``replay DIR --jobs N`` among them)."""
+        return all(getattr(self, k) == v for k, v in _UDP_LAYOUT_DEFAULTS.items())
+
+
+#: The keys of ``[link.udp]`` that shape a datagram, at their defaults.
+_UDP_LAYOUT_DEFAULTS = {
+    f.name: f.default
+    for f in dataclasses.fields(UdpConfig)
+    if f.name in ("byte_order", "sample_format", "fields")
+}
 
 
 @dataclass(frozen=True)

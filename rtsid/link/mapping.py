@@ -28,8 +28,7 @@ from __future__ import annotations
 
 import functools
 import math
-import types
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -39,6 +38,8 @@ from numpy.typing import NDArray
 
 from rtsid.errors import ConfigError
 from rtsid.link.protocol import (
+    ANKLE_MAPPING,
+    BUILTIN_DBC,
     CHECKSUM_SEED,
     COUNTER_MODULO,
     PERTURBATION_KINDS,
@@ -66,6 +67,7 @@ if TYPE_CHECKING:  # python-can (asyncio, sqlite3, …) is imported where frames
 
 __all__ = [
     "ANGLE_UNITS",
+    "ANKLE_MAPPING",
     "BUILTIN_DBC",
     "FRAME_COMMAND",
     "FRAME_DIAGNOSTICS",
@@ -77,8 +79,6 @@ __all__ = [
     "frame_key",
 ]
 
-#: ``dbc = ""`` in ``[link.protocol]``: the packaged ankle DBC.
-BUILTIN_DBC = ""
 #: Narrowest counter accepted: a wrap must exceed the reorder window (64) twice over.
 MIN_COUNTER_BITS = 8
 #: Narrowest position/torque signal accepted, bits.
@@ -109,27 +109,6 @@ STATUS_SIGNALS = {
     "discontinuity": STATUS_DISCONTINUITY,
 }
 _COMMAND_SIGNALS = ("Enable", "Kind", "Amplitude", "Bandwidth", "CommandCounter")
-
-#: The built-in mapping (``[link.protocol]`` defaults): the ankle robot's DBC.
-ANKLE_MAPPING: Mapping[str, Any] = types.MappingProxyType(
-    {
-        "dbc": BUILTIN_DBC,
-        "position": "AnkleState.Position",
-        "position_sign": 1.0,
-        "torque": "AnkleState.Torque",
-        "torque_sign": 1.0,
-        "counter": "AnkleState.Counter",
-        "position_saturated": "AnkleState.PositionSaturated",
-        "torque_saturated": "AnkleState.TorqueSaturated",
-        "perturbation_on": "AnkleState.PerturbationOn",
-        "discontinuity": "AnkleState.Discontinuity",
-        "marker": "",
-        "marker_on": "change",
-        "command": "PerturbationCommand",
-        "diagnostics": "Diagnostics",
-        "checksum": "nibble_xor",
-    }
-)
 
 
 def frame_key(arbitration_id: int, extended: bool) -> int:

@@ -24,6 +24,8 @@ checks the two agree bit for bit. Checksum: the XOR of all sixteen nibbles of th
 from __future__ import annotations
 
 import functools
+import types
+from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import resources
 from typing import Any
@@ -34,6 +36,8 @@ from numpy.typing import NDArray
 from rtsid.errors import InputDataError
 
 __all__ = [
+    "ANKLE_MAPPING",
+    "BUILTIN_DBC",
     "COMMAND_ID",
     "COUNTER_MODULO",
     "DIAGNOSTICS_ID",
@@ -79,6 +83,30 @@ STATUS_DISCONTINUITY = 0x8
 AMPLITUDE_SCALE_RAD = 1e-5
 AMPLITUDE_CODES_PER_RAD = 100_000  # dividing by it rounds 4500 to exactly 0.045
 PERTURBATION_KINDS = ("off", "prbs", "filtered_noise", "multisine")
+
+#: ``dbc = ""`` in ``[link.protocol]``: the packaged ankle DBC.
+BUILTIN_DBC = ""
+#: The built-in mapping (``[link.protocol]`` defaults): the ankle robot's DBC (here, not in
+#: :mod:`rtsid.link.mapping`, so that reading a configuration does not compile the mapper).
+ANKLE_MAPPING: Mapping[str, Any] = types.MappingProxyType(
+    {
+        "dbc": BUILTIN_DBC,
+        "position": "AnkleState.Position",
+        "position_sign": 1.0,
+        "torque": "AnkleState.Torque",
+        "torque_sign": 1.0,
+        "counter": "AnkleState.Counter",
+        "position_saturated": "AnkleState.PositionSaturated",
+        "torque_saturated": "AnkleState.TorqueSaturated",
+        "perturbation_on": "AnkleState.PerturbationOn",
+        "discontinuity": "AnkleState.Discontinuity",
+        "marker": "",
+        "marker_on": "change",
+        "command": "PerturbationCommand",
+        "diagnostics": "Diagnostics",
+        "checksum": "nibble_xor",
+    }
+)
 
 _POS_MASK = (1 << POSITION_BITS) - 1
 _POS_SIGN = 1 << (POSITION_BITS - 1)

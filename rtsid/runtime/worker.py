@@ -24,7 +24,7 @@ from collections import Counter
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rtsid.config import from_config_folder, require_range, section_from_mapping
 from rtsid.errors import (
@@ -54,9 +54,11 @@ from rtsid.link.protocol import (
 )
 from rtsid.link.ring import RingBuffer, Snapshot
 from rtsid.runtime.gate import WindowGate
-from rtsid.runtime.stages import StageLog
-from rtsid.runtime.stalls import RunQueueClock, StallJournal
 from rtsid.verdicts import Flag, Reason
+
+if TYPE_CHECKING:  # the live worker's own: a replay's evaluator does not import them
+    from rtsid.runtime.stages import StageLog
+    from rtsid.runtime.stalls import StallJournal
 
 __all__ = ["OVERRUN_CAUSES", "WindowWorker", "WorkerConfig", "WorkerCounters", "assess_window"]
 
@@ -635,6 +637,9 @@ class WindowWorker(ThreadOwner):
     """
 
     def __init__(self, ring: RingBuffer, evaluator: WindowEvaluator) -> None:
+        from rtsid.runtime.stages import StageLog
+        from rtsid.runtime.stalls import RunQueueClock
+
         super().__init__("rtsid-worker")
         self.ring = ring
         self.config = evaluator.config

@@ -69,7 +69,7 @@ def test_real_benchmark_tables_and_figures(reklab_path, tmp_path, capsys):
 
 
 def test_replay_benchmark_compares_replay_with_the_bare_estimator(capsys):
-    assert main(["bench", "replay", "--minutes", "0.1"]) == 0
+    assert main(["bench", "replay", "--minutes", "0.1", "--pairs", "3"]) == 0
     out = capsys.readouterr().out
     rows = [line for line in out.splitlines() if line.startswith("|") and "windows" not in line]
     paths = ("rtsid replay", "same replay", "baseline")
@@ -77,7 +77,7 @@ def test_replay_benchmark_compares_replay_with_the_bare_estimator(capsys):
     # replay, the same on the numpy path, the bare estimator: 6 s, 300 ms every 20 ms
     assert windows == [286, 286, 286]
     assert "numpy path" in out and "Floor (issue 22)" in out
-    # the folder table: three alternated pairs (1-2, 2-1, 1-2) and their medians
+    # the folder table: --pairs alternated pairs (1-2, 2-1, 1-2) and their medians
     runs = [
         [c.strip() for c in r.split("|")[1:3]] for r in rows if r.startswith(("| pair", "| median"))
     ]
@@ -86,18 +86,19 @@ def test_replay_benchmark_compares_replay_with_the_bare_estimator(capsys):
         *(["pair 3", "1"], ["pair 3", "2"], ["median", "1"], ["median", "2"]),
     ]
     assert "--jobs 2 ≥ 1.7× --jobs 1, the median of the pairs' speed-ups" in out
-    # each run's start-up per process (--timing): one for --jobs 1, two for --jobs 2
+    # each run's start-up per process (--timing) and its CPU: one for --jobs 1, two for 2
     by_jobs = {}
     for r in rows:
         if r.startswith("| pair"):
             cells = [c.strip() for c in r.split("|")]
-            by_jobs.setdefault(cells[2], []).append((cells[6], cells[7], cells[10]))
+            by_jobs.setdefault(cells[2], []).append((cells[6], cells[7], cells[8], cells[11]))
     assert "By CPU, --jobs 1's process over --jobs 2's busiest" in out
     for jobs, count in (("1", 1), ("2", 2)):
-        for startup, idle, busiest_cpu in by_jobs[jobs]:
+        for startup, startup_cpu, idle, busiest_cpu in by_jobs[jobs]:
             assert float(busiest_cpu) > 0
-            assert len(startup.split(" / ")) == count and len(idle.split(" / ")) == count
-            assert all(float(s) > 0 for s in startup.split(" / "))
+            for cell in (startup, startup_cpu, idle):
+                assert len(cell.split(" / ")) == count
+            assert all(float(s) > 0 for s in (*startup.split(" / "), *startup_cpu.split(" / ")))
             assert all(float(s) >= 0 for s in idle.split(" / "))
     # where the replay's CPU went: the three parts add up to the whole
     split = {r.split("|")[1].strip(): r.split("|") for r in rows}
@@ -107,6 +108,12 @@ def test_replay_benchmark_compares_replay_with_the_bare_estimator(capsys):
     assert sum(float(p[2]) for p in parts) == pytest.approx(float(total[2]), rel=0.02)
     fits = re.search(r"(\d+) slow-lane fits \(([\d.]+) ms of CPU each\)", out)
     assert fits and int(fits[1]) >= 1 and float(fits[2]) > 0  # one fit's cost, named
+
+
+def test_the_replay_benchmark_takes_one_pair_or_more(capsys):
+    assert main(["bench", "replay", "--minutes", "0.1", "--pairs", "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--pairs 0" in err[0]
 
 
 def test_service_benchmark_config_runs_the_daemon_at_the_hop_asked(tmp_path):

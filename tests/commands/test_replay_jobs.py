@@ -39,6 +39,9 @@ def _check_timeline(document: dict, names: list[str]) -> list[dict]:
         assert p["idle_at_end_s"] == max(0.0, finished - last)
         # its CPU time by the end of its last recording, start-up included
         assert p["cpu_s"] > 0 if spans else p["cpu_s"] == 0
+        # and when it was ready (the interpreter's start and the imports): no more than
+        # by the end of its last recording
+        assert 0 < p["ready_cpu_s"] <= (p["cpu_s"] if spans else p["ready_cpu_s"])
     return processes
 
 
@@ -102,3 +105,38 @@ def test_a_child_that_replayed_nothing_is_in_the_timing_too(tmp_path, capsys):
     capsys.readouterr()
     processes = _check_timeline(json.loads(timing.read_text()), ["a.mcap", "b.mcap"])
     assert [p["role"] for p in processes] == ["command", "child"]
+
+
+def _probe_then_init_child(path: str) -> None:
+    """A teardown probe registered before the replay child's initializer: the interpreter's
+    exit runs it after the initializer's own exit step (exit handlers run last first)."""
+    import atexit
+
+    from rtsid.commands.replay import _init_child
+
+    atexit.register(Path(path).write_text, "torn down")
+    _init_child()
+
+
+def _leave_unflushed_output() -> int:
+    import sys
+
+    sys.stdout.write("unflushed line from the child")  # no newline: still in the buffer
+    return os.getpid()
+
+
+def test_a_replay_child_exits_without_teardown_and_its_output_flushed(tmp_path, capfd):
+    # the command waits for its children's exit: the interpreter's teardown of a child (its
+    # modules and arrays) was on that path; its buffered output must still come out
+    import concurrent.futures as cf
+    import multiprocessing as mp
+
+    probe = tmp_path / "teardown.txt"
+    ctx = mp.get_context("spawn")
+    init = _probe_then_init_child
+    with cf.ProcessPoolExecutor(1, ctx, initializer=init, initargs=(str(probe),)) as pool:
+        pid = pool.submit(_leave_unflushed_output).result(60)
+        (process,) = pool._processes.values()
+    assert pid != os.getpid() and process.exitcode == 0
+    assert "unflushed line from the child" in capfd.readouterr().out
+    assert not probe.exists()
