@@ -30,9 +30,10 @@ def _same(got, want) -> bool:
     return type(got) is type(want) and got == want
 
 
-def _hostile_recording(seconds: float, seed: int):
+def hostile_recording(seconds: float, seed: int, *, sign_flip: bool = False):
     """A stiffness step and a sinusoid, a paused perturbation, NaN samples, lost samples and
-    a torque burst: every way a window is declined, withheld or flagged."""
+    a torque burst: every way a window is declined, withheld or flagged (``sign_flip``: also
+    the torque's sign flipped over 600 samples from 85 % of the record on, a rejected fit)."""
     n = round(seconds * FS)
     theta = filtered_noise(n, FS, 30.0, peak=0.03, seed=seed)
     profile = StiffnessProfile.ramp(120.0, 320.0, 0.4 * seconds, 0.4 * seconds + 0.004)
@@ -40,6 +41,8 @@ def _hostile_recording(seconds: float, seed: int):
     tau[round(0.15 * n) : round(0.15 * n) + 8] = np.nan
     theta[round(0.25 * n) : round(0.3 * n)] *= 1e-4  # the perturbation pauses
     tau[round(0.7 * n) : round(0.7 * n) + 150] += 400.0  # a burst
+    if sign_flip:
+        tau[round(0.85 * n) : round(0.85 * n) + 600] *= -1.0
     valid = np.ones(n, dtype=bool)
     valid[round(0.55 * n) : round(0.55 * n) + 3] = False
     return theta, tau, valid
@@ -77,7 +80,7 @@ def _results(theta, tau, valid, options, *, compiled: bool, monkeypatch, done=No
 def test_the_streams_windows_in_one_call_are_the_step_by_step_ones_bit_for_bit(
     hold, lost, monkeypatch
 ):
-    theta, tau, valid = _hostile_recording(12.0, 5)
+    theta, tau, valid = hostile_recording(12.0, 5)
     if not lost:
         valid = None  # a stream told of no lost samples: every planned window tries the one call
     options = EstimatorOptions(hold=hold)

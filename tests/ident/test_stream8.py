@@ -10,13 +10,12 @@ import numpy as np
 import pytest
 
 from rtsid.ident import onecall, stream, tracker
-from rtsid.ident.excitation import filtered_noise
 from rtsid.ident.split import NewestPart
 from rtsid.ident.stream import RunningMedian, WindowStream, running_median, sliding_estimates
 from rtsid.ident.tracker import TrackerOptions
 from rtsid.ident.window import EstimatorOptions
-from rtsid.sim.joint import JointParameters, StiffnessProfile, simulate_impedance
 from rtsid.verdicts import Reason
+from tests.ident.test_onecall import hostile_recording
 
 FS = 2500.0
 FIELDS = ("I", "B", "K", "I_se", "B_se", "K_se", "vaf", "vaf_irf", "vaf_fit", "flags")
@@ -82,19 +81,6 @@ def test_the_compiled_running_median_refuses_what_float_refuses():
     assert median.median() is None  # nothing was added
 
 
-def _hostile_recording(seconds: float, seed: int):
-    """A stiffness step, a paused perturbation, NaN samples and a torque burst."""
-    n = round(seconds * FS)
-    theta = filtered_noise(n, FS, 30.0, peak=0.03, seed=seed)
-    profile = StiffnessProfile.ramp(120.0, 320.0, 0.4 * seconds, 0.4 * seconds + 0.004)
-    tau = simulate_impedance(theta, FS, JointParameters(), profile, noise_percent=5.0, seed=seed)
-    tau[round(0.15 * n) : round(0.15 * n) + 8] = np.nan
-    theta[round(0.25 * n) : round(0.3 * n)] *= 1e-4  # the perturbation pauses
-    tau[round(0.7 * n) : round(0.7 * n) + 150] += 400.0  # a burst
-    tau[round(0.85 * n) : round(0.85 * n) + 600] *= -1.0  # the torque's sign flips: rejected
-    return theta, tau
-
-
 def _stream(theta, tau, options, *, compiled: bool, monkeypatch, calls: list | None = None):
     """The stream's results: compiled (the one call with its bookkeeping) or every Python
     reference (the step-by-step path, the Python medians and tracker)."""
@@ -128,7 +114,7 @@ def _stream(theta, tau, options, *, compiled: bool, monkeypatch, calls: list | N
     ids=["inertia_damping", "inertia", "given_inertia", "strict_vaf"],
 )
 def test_the_bookkept_stream_is_the_python_reference_bit_for_bit(options, monkeypatch):
-    theta, tau = _hostile_recording(14.0, 11)
+    theta, tau, _ = hostile_recording(14.0, 11, sign_flip=True)
     calls: list[bool] = []
     got, got_stream = _stream(
         theta, tau, options, compiled=True, monkeypatch=monkeypatch, calls=calls
@@ -176,7 +162,7 @@ def _same_as_constructed(record) -> None:
 
 
 def test_the_records_built_in_c_are_their_constructors(monkeypatch):
-    theta, tau = _hostile_recording(4.0, 12)
+    theta, tau, _ = hostile_recording(4.0, 12, sign_flip=True)
     got, s = _stream(theta, tau, EstimatorOptions(), compiled=True, monkeypatch=monkeypatch)
     estimates = [w.estimate for w in got if w.estimate is not None]
     assert len(estimates) > 100
