@@ -110,13 +110,12 @@ def test_the_compiled_rounding_is_pythons_round_to_12_decimals():
             [np.nan, np.inf, -np.inf, 99.9999999999995, 0.1 + 0.2],
         ]
     ).tolist()
-    rounded = compiled_kernel().round12(*values)
-    want = [round(v, 12) for v in values]
-    same = [
-        (np.isnan(a) and np.isnan(b)) or (a == b and np.copysign(1.0, a) == np.copysign(1.0, b))
-        for a, b in zip(rounded, want, strict=True)
-    ]
-    assert all(same)
+    rounded = np.array(compiled_kernel().round12(*values))
+    want = np.array([round(v, 12) for v in values])
+    same = (np.isnan(rounded) & np.isnan(want)) | (
+        (rounded == want) & (np.signbit(rounded) == np.signbit(want))
+    )
+    assert rounded.shape == want.shape and same.all()
     assert compiled_kernel().round12(3, 2.5) == (3, 2.5)  # not a float: Python's round
 
 
