@@ -15,26 +15,10 @@ from rtsid.ident.stream import RunningMedian, WindowStream, running_median, slid
 from rtsid.ident.tracker import TrackerOptions
 from rtsid.ident.window import EstimatorOptions
 from rtsid.verdicts import Reason
-from tests.ident.test_onecall import hostile_recording
+from tests.ident.test_onecall import assert_same_windows, hostile_recording, same
 
 FS = 2500.0
-FIELDS = ("I", "B", "K", "I_se", "B_se", "K_se", "vaf", "vaf_irf", "vaf_fit", "flags")
-FIELDS += ("lost_samples", "I_held", "B_held", "method", "fs_hz")
-
 pytestmark = pytest.mark.skipif(stream._eureka is None, reason="compiled kernel not built")
-
-
-def _same(got, want) -> bool:
-    """Equal, NaN included (bit for bit for floats: -0.0 is not 0.0)."""
-    if isinstance(want, float):
-        if math.isnan(want):
-            return isinstance(got, float) and math.isnan(got)
-        return (
-            isinstance(got, float)
-            and math.copysign(1.0, got) == math.copysign(1.0, want)
-            and got == want
-        )
-    return type(got) is type(want) and got == want
 
 
 def _values(rng, count: int) -> list[float]:
@@ -71,7 +55,7 @@ def test_the_compiled_running_median_is_the_reference(horizon, min_count):
         g, w = got.median(), want.median()
         assert (g is None) == (w is None)
         if w is not None:
-            assert _same(g, float(w))
+            assert same(g, float(w))
 
 
 def test_the_compiled_running_median_refuses_what_float_refuses():
@@ -129,23 +113,12 @@ def test_the_bookkept_stream_is_the_python_reference_bit_for_bit(options, monkey
     assert {None, Reason.NAN, Reason.NO_EXCITATION} <= reasons
     flagged = sum(bool(w.estimate.flags) for w in want if w.estimate is not None)
     assert flagged > 0  # flags were raised
-    for g, w in zip(got, want, strict=True):
-        assert g.reason == w.reason
-        assert (g.estimate is None) == (w.estimate is None)
-        if w.estimate is not None:
-            assert type(g.estimate) is type(w.estimate)
-            assert vars(g.estimate).keys() == vars(w.estimate).keys()
-            for name in FIELDS:
-                assert _same(getattr(g.estimate, name), getattr(w.estimate, name)), name
-            assert np.array_equal(g.estimate.irf, w.estimate.irf)
-            assert np.array_equal(g.estimate.lags_s, w.estimate.lags_s)
-        for name in ("K", "K_se", "B", "B_se"):
-            assert _same(getattr(g.track, name), getattr(w.track, name)), name
+    assert_same_windows(got, want)
     assert got_stream.held.current() == want_stream.held.current()
     assert got_stream.held.current() is got_stream.held.current()  # one object until learned
-    assert _same(got_stream.excitation.median(), want_stream.excitation.median())
+    assert same(got_stream.excitation.median(), want_stream.excitation.median())
     for mine, theirs in zip(got_stream.held.medians, want_stream.held.medians, strict=True):
-        assert _same(mine.median(), theirs.median())
+        assert same(mine.median(), theirs.median())
 
 
 def _same_as_constructed(record) -> None:
@@ -156,7 +129,7 @@ def _same_as_constructed(record) -> None:
     assert list(vars(record)) == list(values), cls.__name__  # every field, in order
     again = cls(**values)
     for name, value in values.items():
-        assert getattr(again, name) is value or _same(getattr(again, name), value), name
+        assert getattr(again, name) is value or same(getattr(again, name), value), name
     with pytest.raises(dataclasses.FrozenInstanceError):
         setattr(record, next(iter(values)), 0)
 
