@@ -18,7 +18,17 @@ _spec.loader.exec_module(pinned)
 WINDOW_CASES = [name for name, _ in pinned.window_cases()]
 STREAM_CASES = [name for name, _ in pinned.stream_cases(None)]
 REKLAB_WINDOWS = ("reklab_window_5", "reklab_window_12.099", "reklab_window_40")
-RTOL = 1e-12
+#: How far a pinned number may move, relative to the largest of its field: rounding only. The
+#: same code on another processor rounds differently (numpy's and OpenBLAS's kernels are chosen
+#: by the CPU: AVX-512 on one machine, AVX2 on another, summing in other orders), and the
+#: deconvolution amplifies a last-bit difference: 1.8e-12 of the field on an AMD EPYC with
+#: AVX-512 against the numbers pinned on an AVX2 machine. A change of method or of summation
+#: order in rtsid's own code moves them by far more than this, or else the change is rounding.
+RTOL = 1e-10
+#: The log-magnitude fit is Nelder–Mead stopped at a relative step of 1e-7 (``fit_logmag``):
+#: its numbers are known to that tolerance, not to rounding (the numpy path's moved by 1.4e-8
+#: between the two machines above).
+NELDER_MEAD_RTOL = 1e-6
 
 
 @pytest.fixture(scope="module")
@@ -35,6 +45,7 @@ def expected():
 
 
 def assert_same(case, got, want):
+    rtol = NELDER_MEAD_RTOL if "logmag" in case else RTOL
     assert want, f"{case} is not in {pinned.PINNED.name}: regenerate it with its script"
     assert sorted(got) == sorted(want), case
     for field, value in got.items():
@@ -44,7 +55,7 @@ def assert_same(case, got, want):
             finite = np.abs(stored[np.isfinite(stored)])
             scale = float(finite.max()) if finite.size else 0.0
             np.testing.assert_allclose(
-                value, stored, rtol=RTOL, atol=RTOL * scale, err_msg=f"{case}.{field}"
+                value, stored, rtol=rtol, atol=rtol * scale, err_msg=f"{case}.{field}"
             )
         else:
             np.testing.assert_array_equal(value, stored, err_msg=f"{case}.{field}")
