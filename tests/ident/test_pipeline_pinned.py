@@ -19,11 +19,12 @@ WINDOW_CASES = [name for name, _ in pinned.window_cases()]
 STREAM_CASES = [name for name, _ in pinned.stream_cases(None)]
 REKLAB_WINDOWS = ("reklab_window_5", "reklab_window_12.099", "reklab_window_40")
 #: How far a pinned number may move, relative to the largest of its field: rounding only. The
-#: same code on another processor rounds differently (numpy's and OpenBLAS's kernels are chosen
-#: by the CPU: AVX-512 on one machine, AVX2 on another, summing in other orders), and the
-#: deconvolution amplifies a last-bit difference: 1.8e-12 of the field on an AMD EPYC with
-#: AVX-512 against the numbers pinned on an AVX2 machine. A change of method or of summation
-#: order in rtsid's own code moves them by far more than this, or else the change is rounding.
+#: same code and packages round differently on another machine: on an AMD EPYC (AVX-512) the
+#: stream cases' IRFs are 1.8e-12 of their field from the numbers pinned on the machine before
+#: (the same with numpy's AVX-512 kernels and OpenBLAS's switched off, and with numpy 2.3
+#: instead of 2.4; the compiled kernel is built without FMA or contraction, so what differs is
+#: below rtsid, e.g. libm), and the deconvolution amplifies a last-bit difference. A change of
+#: method or of summation order in rtsid's own code moves them by far more, or it is rounding.
 RTOL = 1e-10
 #: The log-magnitude fit is Nelder–Mead stopped at a relative step of 1e-7 (``fit_logmag``):
 #: its numbers are known to that tolerance, not to rounding (the numpy path's moved by 1.4e-8
