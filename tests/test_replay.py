@@ -24,6 +24,7 @@ from rtsid.replay import (
     write_estimates_mcap,
 )
 from rtsid.runtime.daemon import Daemon, DaemonConfig
+from tests.runtime.test_slow_lane import run_until_fits
 
 REFERENCE = Path(__file__).resolve().parents[1] / "replay" / "reference"
 NUMBERS = (
@@ -99,8 +100,9 @@ def test_a_4_ms_hop_with_the_slow_lane_replays_exactly_as_live(tmp_path, free_po
             "plant": {"reflex": {"enabled": True}},
         }
     )
-    # 7 s: the lane's first fit needs its 3 s horizon and its thread's time on a busy machine
-    Daemon(config).run(duration_s=7.0)
+    # until the lane has made two fits (the first needs 3 s of data, then its thread's time on
+    # a busy machine) and 1 s more for the windows that use them, instead of a fixed 7 s
+    run_until_fits(Daemon(config), fits=2, least_s=0.0, then_samples=2500)
     recording = next(tmp_path.glob("*.mcap"))
     live = live_windows(iter_estimates(recording))
     replayed = replay_file(recording)

@@ -54,7 +54,14 @@ def test_virtual_plant_recording_to_stiffness_track(tmp_path, free_port, capsys)
             "plant": plant_table(realtime=False, max_samples=n + 400),
         }
     )
-    summary = Daemon(config).run(duration_s=4.0)
+    daemon = Daemon(config)
+
+    def stop_once_every_sample_is_in(status: dict, _estimate: dict | None) -> None:
+        if status["acquisition"]["samples"] + status["acquisition"]["lost_samples"] >= n + 400:
+            daemon.request_stop()  # the plant is done: no fixed 4 s of waiting on its silence
+
+    daemon.on_status = stop_once_every_sample_is_in
+    summary = daemon.run(duration_s=60.0)  # ends through request_stop, not the duration
     assert summary.lost_samples == 0 and summary.samples >= n
     recording, *later_parts = recording_parts(next((tmp_path / "rec").glob("*.mcap")))
     assert later_parts  # rotated

@@ -443,7 +443,7 @@ def test_a_flood_of_queries_never_reaches_the_worker(
 
 @pytest.mark.slow  # real processes for tens of seconds
 def test_bench_lab_prints_its_tables(capsys: pytest.CaptureFixture[str]) -> None:
-    argv = ["bench", "lab", "--joints", "2", "--duration", "3", "--late-trials", "2"]
+    argv = ["bench", "lab", "--joints", "2", "--duration", "1", "--late-trials", "2"]
     assert main([*argv, "--query-rate", "2", "--cpu-latency-us", "-1"]) == 0
     out = capsys.readouterr().out
     for title in ("### Lab: 2 daemons", "### Per joint", "### Late joiner", "### History queries"):
