@@ -89,7 +89,10 @@ _CALL_OPENS, _CALL_CLOSES = "held parameters", "compiled call"
 #: window's elsewhere), kernel time without faults, waits for the GIL (voluntary switches: each
 #: hand-over costs the waiter CPU too), involuntary context switches, a slow CPU (user time
 #: inflated with none of those: the compiled call's fixed work slow too), or the stage's own
-#: work.
+#: CPU: its work, or a stall of the vCPU that the host did not report as steal (this kernel
+#: charges it to the thread that was running: a tracker stage took 4.5 ms live at a 4 ms
+#: hop on 27 Nov, where no window of a like run's 49 515 took over 0.16 ms replayed, and a
+#: fixed Python loop here shows such 1–6 ms stalls about once a minute). ``rtsid bench service`` replays every missed window to tell the two apart.
 CPU_CAUSES = (
     "CPU as usual (its time went to waits)",
     "page faults in the compiled call",
@@ -98,7 +101,7 @@ CPU_CAUSES = (
     "GIL waits (voluntary switches)",
     "involuntary switches",
     "slow CPU, no faults or switches (the host)",
-    "the stage's own work",
+    "the stage's own CPU (its work, or a host stall charged to it)",
 )
 #: System CPU above its usual by at least this share of a window's excess CPU is the kernel's.
 KERNEL_SHARE = 0.5

@@ -73,3 +73,35 @@ def test_rss_growth_is_the_steady_minute_rate_past_a_one_time_step():
     assert rss_growth_mib_per_min(statuses(lambda t: 140.0, 120.0)) == 0.0
     assert math.isnan(rss_growth_mib_per_min(statuses(rss, 45.0)))  # one span past start-up
     assert math.isnan(rss_growth_mib_per_min([]))
+
+
+def test_each_missed_window_is_set_beside_its_replay(capsys):
+    """A miss whose window replays within the hop was not the code's own work: the bench
+    says how many did, and prints each miss line with its replayed compute."""
+    from rtsid.replay import ReplayResult
+
+    lines = [
+        "deadline miss: window ending 262509, compute 5.17 ms (of it on CPU 4.82 ms); tracker",
+        "deadline miss: window ending 120839, compute 6.11 ms (of it on CPU 0.35 ms); waits",
+        "deadline miss: window ending 999, compute 4.40 ms (of it on CPU 4.30 ms); not replayed",
+    ]
+    replay = ReplayResult(
+        "rec.mcap",
+        messages=[
+            {"window_end_index": 262509, "compute_ms": 0.21},
+            {"window_end_index": 120839, "compute_ms": 4.6},
+            {"window_end_index": 7, "compute_ms": 0.2},
+        ],
+    )
+    phase = Phase("idle", miss_lines=lines, replay=replay, hop_ms=4.0)
+    print_miss_causes(phase)
+    out = capsys.readouterr().out
+    assert (
+        "idle: missed windows replayed within the 4 ms hop on one thread: 1 of 2 found in the "
+        "replay (3 logged); the longest 4.6 ms" in out
+    )
+    assert (
+        "window ending 262509, compute 5.17 ms (of it on CPU 4.82 ms); tracker; replayed: 0.21 ms"
+        in out
+    )
+    assert "window ending 999, compute 4.40 ms (of it on CPU 4.30 ms); not replayed\n" in out
