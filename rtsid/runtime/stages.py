@@ -92,7 +92,8 @@ _CALL_OPENS, _CALL_CLOSES = "held parameters", "compiled call"
 #: CPU: its work, or a stall of the vCPU that the host did not report as steal (this kernel
 #: charges it to the thread that was running: a tracker stage took 4.5 ms live at a 4 ms
 #: hop on 27 Nov, where no window of a like run's 49 515 took over 0.16 ms replayed, and a
-#: fixed Python loop here shows such 1–6 ms stalls about once a minute). ``rtsid bench service`` replays every missed window to tell the two apart.
+#: fixed Python loop here shows such 1–6 ms stalls about once a minute). ``rtsid bench
+#: service`` replays every missed window to tell the two apart.
 CPU_CAUSES = (
     "CPU as usual (its time went to waits)",
     "page faults in the compiled call",
