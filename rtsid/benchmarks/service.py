@@ -563,7 +563,7 @@ def replayed_misses(miss_lines: list[str], replayed: dict[int, float], hop_ms: f
     own work (the same numbers, the same code) was not what made it miss, whatever the
     worker's CPU clock charged to a stage live (a host stall is charged to the thread that
     was running)."""
-    again = [replayed.get(_window_end(line)) for line in miss_lines]
+    again = [_replayed_ms(line, replayed) for line in miss_lines]
     found = [ms for ms in again if ms is not None]
     within = sum(ms <= hop_ms for ms in found)
     longest = f"; the longest {max(found):.3g} ms" if found else ""
@@ -573,10 +573,10 @@ def replayed_misses(miss_lines: list[str], replayed: dict[int, float], hop_ms: f
     )
 
 
-def _window_end(miss_line: str) -> int | None:
-    """The missed window's last sample index, from its log line."""
+def _replayed_ms(miss_line: str, replayed: dict[int, float]) -> float | None:
+    """The replayed compute of the window a miss line names (None: not in the replay)."""
     found = re.search(r"window ending (\d+)", miss_line)
-    return int(found.group(1)) if found else None
+    return replayed.get(int(found.group(1))) if found else None
 
 
 def _own_cpu_ms(miss_line: str) -> float:
@@ -628,7 +628,7 @@ def print_miss_causes(phase: Phase) -> None:
     if replayed and phase.miss_lines:
         print(f"  {phase.name}: {replayed_misses(phase.miss_lines, replayed, phase.hop_ms)}")
     for line in sorted(phase.miss_lines, key=_own_cpu_ms, reverse=True)[:MISS_LINES_SHOWN]:
-        again = replayed.get(_window_end(line))
+        again = _replayed_ms(line, replayed)
         tail = "" if again is None else f"; replayed: {again:.3g} ms"
         print(f"    {line.split('deadline miss:', 1)[1].strip()}{tail}")
     steady = phase.status[2:] or phase.status
