@@ -536,6 +536,10 @@ def _rewarn(row: list[Any], incomplete: list[str]) -> list[Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    # by the end every output is written and closed and the pool has let its children go:
+    # the process may end without the interpreter's teardown (rtsid.cli.console); not after
+    # publishing (zenoh's native threads are not Python's to count)
+    args.skip_teardown = not args.publish
     path = Path(args.recording)
     if not path.exists():
         raise InputDataError(f"{path}: no such file or directory")
