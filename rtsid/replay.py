@@ -50,7 +50,6 @@ from rtsid.io.recording import (
     session_record,
 )
 from rtsid.io.schemas import SCHEMAS, SampleBatch, encode_json, estimate_payload
-from rtsid.io.summary_table import TableBuilder, attach_table
 from rtsid.link.ring import Snapshot
 from rtsid.runtime.daemon_config import DaemonConfig
 from rtsid.runtime.worker import WindowEvaluator
@@ -633,6 +632,8 @@ def write_estimates_mcap(
     (``/marker``), session changes (``/session``) and ``rtsid.session`` metadata are carried
     through, each at its sample time."""
     from mcap.writer import CompressionType, Writer
+
+    from rtsid.io.summary_table import TableBuilder, attach_table  # here: only -o X.mcap
 
     writer = Writer(fh, compression=CompressionType.ZSTD)
     writer.start(profile="", library=f"rtsid {__version__}")

@@ -52,6 +52,12 @@ def test_a_replay_childs_preload_imports_no_live_machinery():
         # what only some recordings need: the robot's dynamics (a calibration), zip (.npz)
         "rtsid.ident.robot",
         "zipfile",
+        # what a replay that writes no file needs none of: the summary table (rtsid summary
+        # reads it, -o X.mcap writes it) and tempfile (an atomic write's; importlib.resources
+        # imported it for the packaged DBC): with shutil and random, 6 ms a process here
+        "rtsid.io.summary_table",
+        "tempfile",
+        "importlib.resources",
         "can",
         "asyncio",
         "sqlite3",
