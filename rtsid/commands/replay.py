@@ -102,15 +102,11 @@ def _write(result: ReplayResult, out: Path, config: DaemonConfig) -> None:
 
 
 def _summary_row(result: ReplayResult) -> list[Any]:
-    import numpy as np
-
+    from rtsid.ident.stream import median
     from rtsid.verdicts import format_counts
 
     ok = [m for m in result.messages if m["ok"]]
-    med = {
-        k: float(np.median([m[k] for m in ok])) if ok else float("nan")
-        for k in ("K", "B", "I", "vaf")
-    }
+    med = {k: median([m[k] for m in ok]) for k in ("K", "B", "I", "vaf")}
     withheld = format_counts(result.withheld)
     return [
         Path(result.source).name,

@@ -498,21 +498,6 @@ def test_the_grids_norms_are_its_response_matrixs_bit_for_bit(n_lags, fs_model):
     np.testing.assert_array_equal(grid.shapes, np.ascontiguousarray(gathered) / norms[:, None])
 
 
-def test_a_dynamics_grid_imports_no_masked_arrays():
-    # np.unique imported numpy.ma (9 ms) in every replay process at its first reflex fit
-    import subprocess
-    import sys
-
-    probe = (
-        "import sys; from rtsid.ident.reflex import _grid; _grid(101, 100.0); "
-        "print('numpy.ma' in sys.modules)"
-    )
-    done = subprocess.run(
-        [sys.executable, "-c", probe], capture_output=True, text=True, timeout=120, check=True
-    )
-    assert done.stdout.split() == ["False"]
-
-
 @pytest.mark.parametrize(
     ("n_lags", "fs_model"), [(101, 100.0), (51, 250.0), (101, 125.0), (3, 100.0)]
 )
