@@ -58,6 +58,9 @@ def test_a_replay_childs_preload_imports_no_live_machinery():
         "rtsid.io.summary_table",
         "tempfile",
         "importlib.resources",
+        # the ring buffer: the live worker's, and iter_windows' snapshots (replay_file hands
+        # the evaluator the grid's rows)
+        "rtsid.link.ring",
         "can",
         "asyncio",
         "sqlite3",
