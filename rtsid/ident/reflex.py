@@ -732,12 +732,12 @@ def _grid(n_lags: int, fs_hz: float) -> _Grid:
 
 def _response_norms(table: FloatArray, time_of: NDArray[np.intp]) -> FloatArray:
     """The norm of each grid point's response, shape (delays, pairs): a delay's responses
-    at a time, each in a row of its own (summed as the whole response matrix's rows were:
-    the same numbers; a column gather's rows are strided, and numpy sums those in another
-    order)."""
+    at a time, each in a contiguous row (summed as the whole response matrix's rows were:
+    the same numbers; ``table[:, columns]``'s rows are strided, and numpy sums those in
+    another order)."""
     norms = np.empty((time_of.shape[0], table.shape[0]))
     for j, columns in enumerate(time_of):
-        norms[j] = np.linalg.norm(np.ascontiguousarray(table[:, columns]), axis=1)
+        norms[j] = np.linalg.norm(np.take(table, columns, axis=1), axis=1)
     return norms
 
 
