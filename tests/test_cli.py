@@ -126,6 +126,11 @@ def run(args):
     sys.stdout.write("unflushed table")  # no newline: still in the buffer
     if args.outcome == "error":
         raise InputDataError("no such recording")
+    if args.outcome == "thread":  # still running at the end: the interpreter waits for it
+        import threading, time
+        late = lambda: (time.sleep(0.2), sys.stdout.write(", then the thread's line"))
+        threading.Thread(target=late).start()
+        return 0
     return int(args.outcome)
 """
 
@@ -154,3 +159,16 @@ def test_a_command_may_end_without_the_interpreters_teardown(tmp_path, outcome, 
     kept = ends(outcome, "--keep-teardown")  # the interpreter's usual exit
     assert (kept.returncode, kept.stdout) == (status, "unflushed table")
     assert "exit handler ran" in kept.stderr and "torn down" in kept.stderr
+
+
+def test_a_command_that_leaves_a_thread_running_ends_as_python_does(tmp_path):
+    # skipping the teardown would kill the thread: the interpreter's exit waits for it
+    import subprocess
+    import sys
+
+    (tmp_path / "ending_command.py").write_text(_COMMAND)
+    (tmp_path / "entry.py").write_text(_ENTRY)
+    command = [sys.executable, "-m", "entry", "thread"]
+    done = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert (done.returncode, done.stdout) == (0, "unflushed table, then the thread's line")
+    assert "exit handler ran" in done.stderr and "torn down" in done.stderr
