@@ -20,7 +20,7 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -50,11 +50,12 @@ from rtsid.io.recording import (
     session_record,
 )
 from rtsid.io.schemas import SCHEMAS, SampleBatch, encode_json, estimate_payload
-from rtsid.io.summary_table import TableBuilder, attach_table
-from rtsid.link.ring import Snapshot
 from rtsid.runtime.daemon_config import DaemonConfig
 from rtsid.runtime.worker import WindowEvaluator
 from rtsid.verdicts import Reason
+
+if TYPE_CHECKING:
+    from rtsid.link.ring import Snapshot
 
 __all__ = [
     "LiveDecisions",
@@ -261,6 +262,8 @@ class WindowCutter:
         """Rows ``start .. stop − 1`` of the grid's ``columns`` as the ring's snapshot (views):
         recorded samples have no host or bus times (zeros and NaN, read-only columns shared
         by every window of the same length)."""
+        from rtsid.link.ring import Snapshot  # here: replay_file evaluates rows, no snapshot
+
         n = stop - start
         times = self._times.get(n)
         if times is None:
@@ -633,6 +636,8 @@ def write_estimates_mcap(
     (``/marker``), session changes (``/session``) and ``rtsid.session`` metadata are carried
     through, each at its sample time."""
     from mcap.writer import CompressionType, Writer
+
+    from rtsid.io.summary_table import TableBuilder, attach_table  # here: only -o X.mcap
 
     writer = Writer(fh, compression=CompressionType.ZSTD)
     writer.start(profile="", library=f"rtsid {__version__}")

@@ -96,3 +96,79 @@ def test_an_interrupt_caught_inside_a_string_run_still_exits_130(tmp_path):
         [sys.executable, "-m", "entry"], cwd=tmp_path, capture_output=True, text=True, timeout=60
     )
     assert (done.returncode, done.stderr) == (130, "rtsid interrupted: interrupted\n")
+
+
+_ENTRY = """\
+import atexit, sys
+from rtsid import cli
+
+class Teardown:
+    def __del__(self):
+        sys.stderr.write("torn down\\n")
+
+kept = Teardown()  # freed only by the interpreter's teardown
+atexit.register(lambda: sys.stderr.write("exit handler ran\\n"))
+cli.COMMANDS["ends"] = ("ending_command", "ends with the status it is given")
+sys.argv[1:] = ["ends", *sys.argv[1:]]
+cli.console()
+"""
+
+_COMMAND = """\
+import sys
+from rtsid.errors import InputDataError
+
+def add_arguments(parser):
+    parser.add_argument("outcome")
+    parser.add_argument("--keep-teardown", action="store_true")
+
+def run(args):
+    args.skip_teardown = not args.keep_teardown
+    sys.stdout.write("unflushed table")  # no newline: still in the buffer
+    if args.outcome == "error":
+        raise InputDataError("no such recording")
+    if args.outcome == "thread":  # still running at the end: the interpreter waits for it
+        import threading, time
+        late = lambda: (time.sleep(0.2), sys.stdout.write(", then the thread's line"))
+        threading.Thread(target=late).start()
+        return 0
+    return int(args.outcome)
+"""
+
+
+@pytest.mark.parametrize(
+    ("outcome", "status"), [("0", 0), ("3", 3), ("error", 2)], ids=["done", "incomplete", "error"]
+)
+def test_a_command_may_end_without_the_interpreters_teardown(tmp_path, outcome, status):
+    # `rtsid replay DIR` ends so (its teardown was 0.04 s of the command's wall time): the
+    # status is the command's, its output flushed and the exit handlers run; the teardown's
+    # work (here an object's finalizer) is not done
+    import subprocess
+    import sys
+
+    (tmp_path / "ending_command.py").write_text(_COMMAND)
+    (tmp_path / "entry.py").write_text(_ENTRY)
+
+    def ends(*argv: str) -> subprocess.CompletedProcess[str]:
+        command = [sys.executable, "-m", "entry", *argv]
+        return subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=60)
+
+    done = ends(outcome)
+    assert (done.returncode, done.stdout) == (status, "unflushed table")
+    assert "exit handler ran" in done.stderr and "torn down" not in done.stderr
+    assert ("no such recording" in done.stderr) == (outcome == "error")
+    kept = ends(outcome, "--keep-teardown")  # the interpreter's usual exit
+    assert (kept.returncode, kept.stdout) == (status, "unflushed table")
+    assert "exit handler ran" in kept.stderr and "torn down" in kept.stderr
+
+
+def test_a_command_that_leaves_a_thread_running_ends_as_python_does(tmp_path):
+    # skipping the teardown would kill the thread: the interpreter's exit waits for it
+    import subprocess
+    import sys
+
+    (tmp_path / "ending_command.py").write_text(_COMMAND)
+    (tmp_path / "entry.py").write_text(_ENTRY)
+    command = [sys.executable, "-m", "entry", "thread"]
+    done = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert (done.returncode, done.stdout) == (0, "unflushed table, then the thread's line")
+    assert "exit handler ran" in done.stderr and "torn down" in done.stderr

@@ -102,15 +102,11 @@ def _write(result: ReplayResult, out: Path, config: DaemonConfig) -> None:
 
 
 def _summary_row(result: ReplayResult) -> list[Any]:
-    import numpy as np
-
+    from rtsid.ident.stream import median
     from rtsid.verdicts import format_counts
 
     ok = [m for m in result.messages if m["ok"]]
-    med = {
-        k: float(np.median([m[k] for m in ok])) if ok else float("nan")
-        for k in ("K", "B", "I", "vaf")
-    }
+    med = {k: median([m[k] for m in ok]) for k in ("K", "B", "I", "vaf")}
     withheld = format_counts(result.withheld)
     return [
         Path(result.source).name,
@@ -536,6 +532,10 @@ def _rewarn(row: list[Any], incomplete: list[str]) -> list[Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    # by the end every output is written and closed and the pool has let its children go:
+    # the process may end without the interpreter's teardown (rtsid.cli.console); not after
+    # publishing (zenoh's native threads are not Python's to count)
+    args.skip_teardown = not args.publish
     path = Path(args.recording)
     if not path.exists():
         raise InputDataError(f"{path}: no such file or directory")

@@ -644,18 +644,33 @@ class _Grid:
     ----------
     params : numpy.ndarray, shape (m, 3)
         The grid points, δ outermost (``m = delays × pairs``; ``pairs`` the (f_c, ζ) pairs).
-    shapes : numpy.ndarray, shape (m, n)
-        Unit-energy responses at the grid points.
     norms : numpy.ndarray, shape (delays, pairs)
         The responses' norms before the scaling (at least 1e-300).
     residues : tuple of _Residue
         The product form's tables (empty when the lag step is not a whole number of ``Δ``).
+    table : numpy.ndarray, shape (pairs, times)
+        Each (f_c, ζ) pair's response at each time the grid takes.
+    time_of : numpy.ndarray of int, shape (delays, n)
+        The column of ``table`` holding each delay's response at each lag.
     """
 
     params: FloatArray
-    shapes: FloatArray
     norms: FloatArray
     residues: tuple[_Residue, ...]
+    table: FloatArray
+    time_of: NDArray[np.intp]
+
+    @cached_property
+    def shapes(self) -> FloatArray:
+        """Unit-energy responses at the grid points, shape (m, n): formed when first asked
+        for (the product form scores without them; at 101 lags they are 13 MB, and forming
+        them was most of a process's first reflex fit)."""
+        n_lags = self.time_of.shape[1]
+        gathered = self.table[:, self.time_of].transpose(1, 0, 2).reshape(-1, n_lags)
+        shapes = np.ascontiguousarray(gathered)
+        shapes /= self.norms.reshape(-1, 1)
+        shapes.setflags(write=False)
+        return shapes
 
     def scores(self, g: FloatArray) -> FloatArray:
         """``|shapes @ g|``, shape (m,): each grid point's best-scaled fit to ``g`` (to
@@ -699,22 +714,31 @@ def _grid(n_lags: int, fs_hz: float) -> _Grid:
     # f_c and ζ only, so these are the numbers of evaluating every grid point (tested)
     at = np.asarray(times, dtype=np.float64)[None, :]
     table = _low_pass_response(at, 2 * np.pi * pairs[:, :1], pairs[:, 1:])
-    gathered = table[:, time_of].transpose(1, 0, 2).reshape(params.shape[0], n_lags)
-    shapes = np.ascontiguousarray(gathered)
-    norms = np.maximum(np.linalg.norm(shapes, axis=1, keepdims=True), 1e-300)
-    shapes /= norms
+    norms = np.maximum(_response_norms(table, time_of), 1e-300)
     residues: list[_Residue] = []
     if whole:
         start = time_of[:, 0]
-        for rho in np.unique(start % s):
+        # the residues as Python ints: np.unique imported numpy.ma (9 ms) in every process
+        for rho in sorted(set((start % s).tolist())):
             chosen = np.flatnonzero(start % s == rho)
             rows = (start[chosen][None, :] - rho) // s + np.arange(n_lags)[:, None]
             residues.append(
                 _Residue(np.ascontiguousarray(table[:, rho::s]), chosen, np.asarray(rows))
             )
-    for a in (params, shapes, norms, *(x for r in residues for x in (r.table, r.rows))):
+    for a in (params, norms, table, time_of, *(x for r in residues for x in (r.table, r.rows))):
         a.setflags(write=False)
-    return _Grid(params, shapes, norms.reshape(delays.size, -1), tuple(residues))
+    return _Grid(params, norms, tuple(residues), table, time_of)
+
+
+def _response_norms(table: FloatArray, time_of: NDArray[np.intp]) -> FloatArray:
+    """The norm of each grid point's response, shape (delays, pairs): a delay's responses
+    at a time, each in a contiguous row (summed as the whole response matrix's rows were:
+    the same numbers; ``table[:, columns]``'s rows are strided, and numpy sums those in
+    another order)."""
+    norms = np.empty((time_of.shape[0], table.shape[0]))
+    for j, columns in enumerate(time_of):
+        norms[j] = np.linalg.norm(np.take(table, columns, axis=1), axis=1)
+    return norms
 
 
 def _best_on_grid(g: FloatArray, fs_hz: float) -> tuple[float, float, float]:

@@ -37,6 +37,7 @@ from rtsid.ident.reflex import (
     ReflexStream,
     prediction_history_s,
 )
+from rtsid.ident.stream import median
 from rtsid.ident.yardstick import BasisStore, WindowVafBasis
 
 __all__ = [
@@ -314,7 +315,7 @@ def _median_gain(gains: FloatArray) -> tuple[float, float]:
     """:func:`window_vaf_gain`'s median gain and share of windows improved."""
     if gains.size == 0:
         raise InputDataError("the horizon is shorter than one evidence window")
-    return float(np.median(gains)), float(np.mean(gains > 0))
+    return median(gains), float(np.mean(gains > 0))
 
 
 def window_vaf_gains(

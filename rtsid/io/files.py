@@ -20,7 +20,6 @@ import contextlib
 import io
 import math
 import os
-import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any, Literal, overload
@@ -132,6 +131,8 @@ def atomic_write(
 
 @contextlib.contextmanager
 def _atomic_write(dest: Path, mode: str, what: str, make_folder: bool) -> Iterator[IO[Any]]:
+    import tempfile  # here: a replay's children write nothing (shutil, random, hashlib: 3 ms)
+
     try:
         if make_folder:
             dest.parent.mkdir(parents=True, exist_ok=True)

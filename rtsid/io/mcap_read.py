@@ -21,7 +21,7 @@ import struct
 from collections.abc import Generator, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -36,14 +36,12 @@ from rtsid.io.schemas import (
     decode_samples,
     decode_samples_into,
 )
-from rtsid.io.summary_table import (
-    ATTACHMENT_NAME,
-    KINDS,
-    SummaryTable,
-    TableBuilder,
-    TableError,
-    attach_table,
-)
+
+if TYPE_CHECKING:
+    from rtsid.io.summary_table import SummaryTable, TableBuilder
+
+# The summary table (rtsid.io.summary_table) is imported where it is written or read: a
+# replay reads the messages and needs neither.
 
 __all__ = [
     "ReadReport",
@@ -75,8 +73,6 @@ _STOPPED = (
     "the writer stopped before finishing the file: kill -9, a crash, a full disk or a torn copy"
 )
 TOPICS = {name: topic for name, (_schema, topic) in SCHEMAS.items()}
-#: The summary table's channels: kind by topic.
-_TABLE_KINDS = {TOPICS[kind]: kind for kind in KINDS}
 
 
 @dataclass
@@ -632,6 +628,8 @@ def recover(
     """
     from mcap.writer import CompressionType, Writer
 
+    from rtsid.io.summary_table import TableBuilder, attach_table
+
     src_p, dst_p = Path(src), Path(dst)
     if src_p.resolve() == dst_p.resolve():
         raise RecordingError(f"recover would overwrite its input {str(src_p)!r}; pick another -o")
@@ -669,6 +667,9 @@ def _copy_records(
     messages of the summary table's channels into ``table``."""
     from mcap.records import Channel, Message, Metadata, Schema
 
+    from rtsid.io.summary_table import KINDS
+
+    table_kinds = {TOPICS[kind]: kind for kind in KINDS}  # the table's channels: kind by topic
     schema_ids: dict[int, int] = {}
     channel_ids: dict[int, int] = {}
     topic_of: dict[int, str] = {}
@@ -694,8 +695,8 @@ def _copy_records(
             report.messages += 1
             topic = topic_of[new_id]
             report.by_topic[topic] = report.by_topic.get(topic, 0) + 1
-            if topic in _TABLE_KINDS:
-                table.add_payload(_TABLE_KINDS[topic], record.data)
+            if topic in table_kinds:
+                table.add_payload(table_kinds[topic], record.data)
         elif isinstance(record, Metadata):
             writer.add_metadata(record.name, dict(record.metadata))
 
@@ -780,6 +781,8 @@ def read_summary_table(
         The file is missing or unreadable.
     """
     from mcap.records import Attachment
+
+    from rtsid.io.summary_table import ATTACHMENT_NAME, KINDS, SummaryTable, TableError
 
     damage: tuple[type[BaseException], ...] = (
         *_damage_errors(),

@@ -21,7 +21,7 @@ import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -41,7 +41,9 @@ from rtsid.io.mcap_read import (
     recording_parts,
 )
 from rtsid.io.schemas import SampleBatch
-from rtsid.io.summary_table import KINDS, SummaryTable, TableBuilder
+
+if TYPE_CHECKING:
+    from rtsid.io.summary_table import SummaryTable
 
 __all__ = [
     "BLOCK_ROWS",
@@ -596,6 +598,8 @@ def read_table(paths: Paths, *, from_messages: bool = False) -> RecordedTable:
     RecordingError
         As :func:`read_messages`.
     """
+    from rtsid.io.summary_table import KINDS, SummaryTable, TableBuilder  # rtsid summary's
+
     parts = _as_list(paths)
     found = [] if from_messages else [read_summary_table(p) for p in parts]
     topics = [TOPICS["session"], TOPICS["marker"]]

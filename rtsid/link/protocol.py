@@ -27,7 +27,6 @@ import functools
 import types
 from collections.abc import Mapping
 from dataclasses import dataclass
-from importlib import resources
 from typing import Any
 
 import numpy as np
@@ -124,6 +123,8 @@ TORQUE_RAW_LIMITS = (-_TRQ_SIGN, _TRQ_SIGN - 1)
 
 def dbc_path() -> Any:
     """The packaged DBC (a ``Traversable``; ``str()`` gives a path for editable installs)."""
+    from importlib import resources  # here: it imports tempfile, and a replay reads no DBC
+
     return resources.files("rtsid.link").joinpath("ankle.dbc")
 
 

@@ -52,11 +52,11 @@ from rtsid.link.protocol import (
     STATUS_POSITION_SATURATED,
     STATUS_TORQUE_SATURATED,
 )
-from rtsid.link.ring import RingBuffer, Snapshot
 from rtsid.runtime.gate import WindowGate
 from rtsid.verdicts import Flag, Reason
 
 if TYPE_CHECKING:  # the live worker's own: a replay's evaluator does not import them
+    from rtsid.link.ring import RingBuffer, Snapshot
     from rtsid.runtime.stages import StageLog
     from rtsid.runtime.stalls import StallJournal
 

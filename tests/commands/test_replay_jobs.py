@@ -140,3 +140,36 @@ def test_a_replay_child_exits_without_teardown_and_its_output_flushed(tmp_path, 
     assert pid != os.getpid() and process.exitcode == 0
     assert "unflushed line from the child" in capfd.readouterr().out
     assert not probe.exists()
+
+
+def test_the_command_ends_without_teardown_its_outputs_whole_and_its_status_kept(tmp_path, capsys):
+    # `python -m rtsid.cli replay DIR` skips the interpreter's teardown (rtsid.cli.console):
+    # the table printed, every estimates file written whole, 0 when all replayed, 2 when one
+    # recording failed (the others written)
+    import subprocess
+    import sys
+
+    from tests.test_replay import _without_compute_time
+
+    folder = _folder(tmp_path, ("a.mcap", "c.mcap"))
+    assert main(["replay", str(folder), "-o", str(tmp_path / "here"), "--jobs", "1"]) == 0
+    capsys.readouterr()
+
+    def replay(out: str) -> subprocess.CompletedProcess[str]:
+        command = [sys.executable, "-m", "rtsid.cli", "replay", str(folder), "--jobs", "2"]
+        return subprocess.run(
+            [*command, "-o", str(tmp_path / out)], capture_output=True, text=True, timeout=120
+        )
+
+    done = replay("whole")
+    assert done.returncode == 0, done.stderr
+    rows = [line for line in done.stdout.splitlines() if line.startswith("| ")]
+    assert [r.split("|")[1].strip() for r in rows[1:]] == ["a.mcap", "c.mcap"]
+    (folder / "b.mcap").write_bytes(b"not a recording")
+    failed = replay("failed")
+    assert failed.returncode == 2 and "rtsid replay: error:" in failed.stderr
+    for out in ("whole", "failed"):
+        assert sorted(p.name for p in (tmp_path / out).iterdir()) == ["a.csv", "c.csv"]
+        for name in ("a.csv", "c.csv"):
+            here = _without_compute_time(tmp_path / "here" / name)
+            assert len(here) > 100 and _without_compute_time(tmp_path / out / name) == here

@@ -52,6 +52,15 @@ def test_a_replay_childs_preload_imports_no_live_machinery():
         # what only some recordings need: the robot's dynamics (a calibration), zip (.npz)
         "rtsid.ident.robot",
         "zipfile",
+        # what a replay that writes no file needs none of: the summary table (rtsid summary
+        # reads it, -o X.mcap writes it) and tempfile (an atomic write's; importlib.resources
+        # imported it for the packaged DBC): with shutil and random, 6 ms a process here
+        "rtsid.io.summary_table",
+        "tempfile",
+        "importlib.resources",
+        # the ring buffer: the live worker's, and iter_windows' snapshots (replay_file hands
+        # the evaluator the grid's rows)
+        "rtsid.link.ring",
         "can",
         "asyncio",
         "sqlite3",
@@ -94,6 +103,20 @@ def test_a_replay_reads_a_default_protocol_without_cantools_and_python_can():
         f"assert replay_file(Path({str(recording)!r})).messages"
     )
     assert "rtsid.replay" in loaded and not {"cantools", "can"} & loaded
+
+
+def test_a_replays_first_recording_imports_no_masked_arrays():
+    # np.median and np.unique import numpy.ma (9 ms) at their first call: every process of
+    # replay DIR paid it in its first recording, for its summary row (np.median), its reflex
+    # evidence (np.median) and its first reflex fit's grid (np.unique)
+    recording = Path(__file__).resolve().parents[2] / "replay" / "reference" / "sim_3s.mcap"
+    loaded = _modules_after(
+        "import numpy as np; from rtsid.cli import main; "
+        f"assert main(['replay', {str(recording)!r}]) == 0; "
+        "from rtsid.ident import reflex, reflex_lane; reflex._grid(101, 100.0); "
+        "reflex_lane._median_gain(np.array([1.0, -2.0, 3.0]))"
+    )
+    assert "rtsid.replay" in loaded and "numpy.ma" not in loaded
 
 
 def test_a_protocol_section_is_checked_unless_it_is_the_default():

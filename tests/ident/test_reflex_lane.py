@@ -482,6 +482,22 @@ def test_the_grids_product_scores_equal_the_response_matrixs(n_lags, fs_model):
         assert np.argmax(got) == np.argmax(want)
 
 
+@pytest.mark.parametrize(("n_lags", "fs_model"), [(101, 100.0), (51, 250.0), (41, 200.0)])
+def test_the_grids_norms_are_its_response_matrixs_bit_for_bit(n_lags, fs_model):
+    # the norms are summed a delay at a time; the matrix is formed only when asked for
+    from rtsid.ident import reflex
+
+    grid = reflex._grid.__wrapped__(n_lags, fs_model)  # a grid of its own, matrix unformed
+    assert "shapes" not in vars(grid)
+    gathered = grid.table[:, grid.time_of].transpose(1, 0, 2).reshape(-1, n_lags)
+    norms = np.linalg.norm(np.ascontiguousarray(gathered), axis=1)
+    np.testing.assert_array_equal(grid.norms.ravel(), np.maximum(norms, 1e-300))
+    grid.scores(np.ones(n_lags))
+    # the product form (a lag step a whole number of 2 ms) scores without the 13 MB matrix
+    assert ("shapes" in vars(grid)) == (not grid.residues)
+    np.testing.assert_array_equal(grid.shapes, np.ascontiguousarray(gathered) / norms[:, None])
+
+
 @pytest.mark.parametrize(
     ("n_lags", "fs_model"), [(101, 100.0), (51, 250.0), (101, 125.0), (3, 100.0)]
 )

@@ -147,6 +147,28 @@ def test_on_the_human_recording_the_paused_perturbation_is_withheld(reklab_path)
     assert sum(r.estimate is None for r in results) <= 12
 
 
+@pytest.mark.parametrize("size", [1, 2, 3, 4, 7, 8, 100, 1001])
+def test_median_is_numpys_bit_for_bit(size):
+    # the replay's summary row and the reflex lane's evidence take it for np.median
+    import warnings
+
+    from rtsid.ident.stream import median
+
+    rng = np.random.default_rng(size)
+    for draw in range(300):
+        x = rng.standard_normal(size) * 10.0 ** rng.integers(-5, 5)
+        x = np.round(x, 1) if draw % 3 == 0 else x  # ties
+        specials = [-0.0, 0.0, np.inf, -np.inf, np.nan][: 1 + draw % 5]
+        x[rng.integers(0, size, 2)] = specials[draw % len(specials)]
+        if draw % 10 == 0:
+            x[:] = -0.0  # a mean of -0.0s is 0.0
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # inf − inf, as numpy's
+            want, got = float(np.median(x)), median(list(x))
+        assert np.isnan(got) if np.isnan(want) else got == want
+        assert np.signbit(got) == np.signbit(want), (x, got, want)
+
+
 @pytest.mark.parametrize("horizon", [1, 2, 5, 50, 501])
 def test_running_median_equals_numpy_median_of_the_horizon(horizon):
     from collections import deque
