@@ -5,7 +5,7 @@ converter's writer (the daemon's MCAP layout, slow lane on as the daemon's defau
 replayed with ``rtsid replay``'s code path. Measured in the same run: the estimator alone over
 the same windows from arrays in memory (no MCAP decoding, no messages, no slow lane) — the
 ratio shows what replay itself costs —, the same replay on the numpy path (a child process
-with ``RTSID_NUMPY_ONLY=1``), and ``rtsid replay DIR`` over a folder of such recordings with
+with ``RTSID_NUMPY_ONLY=1``), and ``rtsid replay DIR`` over a folder of four copies of it with
 ``--jobs 1`` and ``--jobs 2`` in alternated pairs (the median speed-up), each the command in a
 fresh process as a user runs it, with each process's start-up and idle time at the end.
 """
@@ -17,6 +17,7 @@ import io
 import json
 import os
 import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -195,18 +196,20 @@ def alternated_pairs(folder: Path, pairs: int = PAIRS) -> list[tuple[FolderRun, 
 
 
 def _folder_table(
-    folder: Path, seconds: float, count: int, pairs_wanted: int = PAIRS
+    folder: Path, recording: Path, seconds: float, count: int, pairs_wanted: int = PAIRS
 ) -> Callable[[], None]:
-    """``rtsid replay DIR --jobs 1`` against ``--jobs 2`` on ``count`` recordings, in
-    ``pairs_wanted`` alternated pairs, each the command as a user runs it (a fresh process: its
-    own imports included; the command's process replays too); returns the printing of its
-    table."""
+    """``rtsid replay DIR --jobs 1`` against ``--jobs 2`` on ``count`` copies of ``recording``
+    (``seconds`` long), in ``pairs_wanted`` alternated pairs, each the command as a user runs
+    it (a fresh process: its own imports included; the command's process replays too);
+    returns the printing of its table.
+
+    The copies are as long as the bench's recording (10 minutes by default), a study's trial
+    (10–60 minutes): a folder of short recordings replays in about the time each process takes
+    to start (0.2 s here), which no pool can share out (4 × 2.5 min read 1.64×, 4 × 10 min
+    1.87×, 27 Nov)."""
     folder.mkdir()
     for k in range(count):
-        build = folder.parent / f"build{k}"
-        build.mkdir()
-        path, _, _ = _recording(build, seconds)
-        path.rename(folder / f"rec{k}.mcap")
+        shutil.copyfile(recording, folder / f"rec{k}.mcap")
     ceiling = _machine_scaling()
     pairs = alternated_pairs(folder, pairs_wanted)
     ratios = [one.wall_s / two.wall_s for one, two in pairs]
@@ -336,7 +339,7 @@ def run(args: argparse.Namespace) -> int:
             )
         )
         bare_s = time.perf_counter() - start
-        print_folder = _folder_table(Path(tmp) / "folder", max(6.0, seconds / 4), 4, args.pairs)
+        print_folder = _folder_table(Path(tmp) / "folder", path, seconds, 4, args.pairs)
     rows = [
         [
             "rtsid replay (MCAP → worker → messages)",
