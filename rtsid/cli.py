@@ -136,16 +136,17 @@ def _exit_without_teardown(code: int) -> None:
     have run, skipping the interpreter's teardown of its modules, arrays and caches (0.04 s
     after a replay of a directory: on the command's path to its exit, and the wall time of
     ``--jobs N``). Returns, for the interpreter's usual exit, while another thread runs (the
-    interpreter would wait for it) or when the output cannot be flushed (a reader gone: the
-    interpreter says so)."""
-    if threading.active_count() > 1:
+    interpreter would wait for it), when the output cannot be flushed (a reader gone: the
+    interpreter says so) or on an interpreter without CPython's ``atexit._run_exitfuncs``."""
+    run_exit_handlers = getattr(atexit, "_run_exitfuncs", None)  # CPython's, not a promise
+    if threading.active_count() > 1 or run_exit_handlers is None:
         return
     try:
         sys.stdout.flush()
         sys.stderr.flush()
     except Exception:
         return
-    atexit._run_exitfuncs()  # those of multiprocessing, logging, a coverage tool…
+    run_exit_handlers()  # those of multiprocessing, logging, a coverage tool…
     try:  # what the handlers wrote; the interpreter's status when it cannot
         sys.stdout.flush()
         sys.stderr.flush()

@@ -131,6 +131,10 @@ def run(args):
         late = lambda: (time.sleep(0.2), sys.stdout.write(", then the thread's line"))
         threading.Thread(target=late).start()
         return 0
+    if args.outcome == "no_hook":  # an interpreter without CPython's atexit._run_exitfuncs
+        import atexit
+        del atexit._run_exitfuncs
+        return 0
     return int(args.outcome)
 """
 
@@ -171,4 +175,16 @@ def test_a_command_that_leaves_a_thread_running_ends_as_python_does(tmp_path):
     command = [sys.executable, "-m", "entry", "thread"]
     done = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=60)
     assert (done.returncode, done.stdout) == (0, "unflushed table, then the thread's line")
+    assert "exit handler ran" in done.stderr and "torn down" in done.stderr
+
+
+def test_without_cpythons_exit_hook_a_command_ends_as_python_does(tmp_path):
+    import subprocess
+    import sys
+
+    (tmp_path / "ending_command.py").write_text(_COMMAND)
+    (tmp_path / "entry.py").write_text(_ENTRY)
+    command = [sys.executable, "-m", "entry", "no_hook"]
+    done = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert (done.returncode, done.stdout) == (0, "unflushed table")
     assert "exit handler ran" in done.stderr and "torn down" in done.stderr
