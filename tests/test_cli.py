@@ -139,6 +139,17 @@ def run(args):
 """
 
 
+def _ends(tmp_path, *argv: str):
+    """The test command ``ends`` (``_COMMAND``) run through ``cli.console`` in a fresh process."""
+    import subprocess
+    import sys
+
+    (tmp_path / "ending_command.py").write_text(_COMMAND)
+    (tmp_path / "entry.py").write_text(_ENTRY)
+    command = [sys.executable, "-m", "entry", *argv]
+    return subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=60)
+
+
 @pytest.mark.parametrize(
     ("outcome", "status"), [("0", 0), ("3", 3), ("error", 2)], ids=["done", "incomplete", "error"]
 )
@@ -146,45 +157,23 @@ def test_a_command_may_end_without_the_interpreters_teardown(tmp_path, outcome, 
     # `rtsid replay DIR` ends so (its teardown was 0.04 s of the command's wall time): the
     # status is the command's, its output flushed and the exit handlers run; the teardown's
     # work (here an object's finalizer) is not done
-    import subprocess
-    import sys
-
-    (tmp_path / "ending_command.py").write_text(_COMMAND)
-    (tmp_path / "entry.py").write_text(_ENTRY)
-
-    def ends(*argv: str) -> subprocess.CompletedProcess[str]:
-        command = [sys.executable, "-m", "entry", *argv]
-        return subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=60)
-
-    done = ends(outcome)
+    done = _ends(tmp_path, outcome)
     assert (done.returncode, done.stdout) == (status, "unflushed table")
     assert "exit handler ran" in done.stderr and "torn down" not in done.stderr
     assert ("no such recording" in done.stderr) == (outcome == "error")
-    kept = ends(outcome, "--keep-teardown")  # the interpreter's usual exit
+    kept = _ends(tmp_path, outcome, "--keep-teardown")  # the interpreter's usual exit
     assert (kept.returncode, kept.stdout) == (status, "unflushed table")
     assert "exit handler ran" in kept.stderr and "torn down" in kept.stderr
 
 
 def test_a_command_that_leaves_a_thread_running_ends_as_python_does(tmp_path):
     # skipping the teardown would kill the thread: the interpreter's exit waits for it
-    import subprocess
-    import sys
-
-    (tmp_path / "ending_command.py").write_text(_COMMAND)
-    (tmp_path / "entry.py").write_text(_ENTRY)
-    command = [sys.executable, "-m", "entry", "thread"]
-    done = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    done = _ends(tmp_path, "thread")
     assert (done.returncode, done.stdout) == (0, "unflushed table, then the thread's line")
     assert "exit handler ran" in done.stderr and "torn down" in done.stderr
 
 
 def test_without_cpythons_exit_hook_a_command_ends_as_python_does(tmp_path):
-    import subprocess
-    import sys
-
-    (tmp_path / "ending_command.py").write_text(_COMMAND)
-    (tmp_path / "entry.py").write_text(_ENTRY)
-    command = [sys.executable, "-m", "entry", "no_hook"]
-    done = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    done = _ends(tmp_path, "no_hook")
     assert (done.returncode, done.stdout) == (0, "unflushed table")
     assert "exit handler ran" in done.stderr and "torn down" in done.stderr
