@@ -29,7 +29,15 @@ from rtsid.ident.options import EstimatorOptions
 from rtsid.ident.records import built
 from rtsid.ident.second_order import OutputErrorDesign, inseparable_fit, zero_response
 
-__all__ = ["BackEndBuffers", "FusedWindow", "full_fit_explains", "fusable", "fused_back_end"]
+__all__ = [
+    "HELD_FLAGS",
+    "RESULT_SLOTS",
+    "BackEndBuffers",
+    "FusedWindow",
+    "full_fit_explains",
+    "fusable",
+    "fused_back_end",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -187,7 +195,7 @@ def fused_back_end(
     if status != _OK:
         raise zero_response() if status == _eureka.OE_ZERO_TORQUE else inseparable_fit()
     out = buf.out.tolist()
-    p, s, v, w, z = _OUT
+    p, s, v, w, z = RESULT_SLOTS
     vafs = published_vafs(out[v], out[v + 1], out[v + 2])
     estimate = assemble(
         irf,
@@ -197,7 +205,7 @@ def fused_back_end(
         "output_error",
         options,
         0,
-        _HELD_FLAGS[k],
+        HELD_FLAGS[k],
         buf.lags_s,
     )
     newest = None if out[z] != out[z] else (out[z], out[z + 1], out[z + 2])
@@ -216,7 +224,7 @@ def fused_back_end(
 
 #: The kernel's status for a fitted window, and where ``oe_window`` writes each result.
 _OK = None if _eureka is None else _eureka.OE_OK
-_OUT: tuple[int, int, int, int, int] = (
+RESULT_SLOTS: tuple[int, int, int, int, int] = (
     (0, 0, 0, 0, 0)
     if _eureka is None
     else (_eureka.OW_PARAMS, _eureka.OW_SE, _eureka.OW_VAFS, _eureka.OW_WHOLE, _eureka.OW_NEWEST)
@@ -256,4 +264,4 @@ def full_fit_explains(vaf_percent: float, options: EstimatorOptions) -> bool:
 
 
 #: Whether I and B were held, by the number of held parameters.
-_HELD_FLAGS = ((False, False), (True, False), (True, True))
+HELD_FLAGS = ((False, False), (True, False), (True, True))

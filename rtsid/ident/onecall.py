@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 from rtsid.ident.analysis import AnalysisPlan
 from rtsid.ident.assess import ESTIMATE_FIELDS, FLAG_ORDER, WindowEstimate, band_bins, twiddles
 from rtsid.ident.fit import Held, noise_lags
-from rtsid.ident.fused import _HELD_FLAGS, kept_band_table
+from rtsid.ident.fused import HELD_FLAGS, kept_band_table
 from rtsid.ident.irf import IRF
 from rtsid.ident.levinson import compiled_kernel
 from rtsid.ident.options import EstimatorOptions
@@ -134,7 +134,7 @@ class WindowCall:
         # the newest hop's record: its centre row placed as split.row_offsets_s places it
         delay = (plan.taps.size - 1) / 2.0
         newest = (NewestPart, float(window_samples - 1), float(factor), delay, plan.fs_hz)
-        self._contexts = tuple((*fixed, _HELD_FLAGS, FLAG_ORDER, low, k, newest) for k in range(3))
+        self._contexts = tuple((*fixed, HELD_FLAGS, FLAG_ORDER, low, k, newest) for k in range(3))
 
     def __call__(
         self,

@@ -33,8 +33,8 @@ from rtsid.ident.analysis import AnalysisPlan
 from rtsid.ident.assess import assemble_parts, published_vafs, withhold_unidentifiable
 from rtsid.ident.fit import NOT_HELD
 from rtsid.ident.fused import (
-    _HELD_FLAGS,
-    _OUT,
+    HELD_FLAGS,
+    RESULT_SLOTS,
     BackEndBuffers,
     full_fit_explains,
     fusable,
@@ -444,7 +444,7 @@ class WindowStream:
             "output_error",
             options,
             0,
-            _HELD_FLAGS[k],
+            HELD_FLAGS[k],
         )
         self.held.learn(out[_WHOLE], out[_WHOLE + 1], full_fit_explains(out[_WHOLE + 3], options))
         newest = None if out[_NEWEST] != out[_NEWEST] else out[_NEWEST : _NEWEST + 3]
@@ -562,7 +562,7 @@ class WindowStream:
 
 
 #: Where the kernel writes the back end's values (rtsid.ident.fused) and the call's own.
-_PARAMS, _SE, _VAFS, _WHOLE, _NEWEST = _OUT
+_PARAMS, _SE, _VAFS, _WHOLE, _NEWEST = RESULT_SLOTS
 _LEVEL = OUT_LEVEL
 
 
