@@ -93,7 +93,12 @@ _ANY_CHANNEL: Mapping[str, Any] = {
 
 class MalformedMessage(InputDataError):
     """A peer's payload that does not follow its schema or the bounds (the message says
-    where and why)."""
+    where and why). The message names the peer's own keys and values, so it is made
+    printable here, once for every reason: a key holding a terminal escape came through
+    the path of a rejected number to `rtsid watch`'s screen (hypothesis, 27 Nov)."""
+
+    def __init__(self, why: str) -> None:
+        super().__init__(printable(why))
 
 
 def printable(text: str, limit: int = 300) -> str:
