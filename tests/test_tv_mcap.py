@@ -45,19 +45,20 @@ def plant_table(realtime: bool = True, **extra) -> dict:
 @pytest.mark.slow  # a real-time daemon run of seconds
 def test_virtual_plant_recording_to_stiffness_track(tmp_path, free_port, capsys):
     n = round(N_PERIODS * PERIOD_S * FS)
+    sent = n + 400  # a little more than 6 periods
     config = DaemonConfig.from_mapping(
         {
             "zenoh": {"listen": [f"tcp/127.0.0.1:{free_port}"], "robot": "tv"},
             # parts of ~0.1 MB: the session rotates, tv reads every part
             "mcap": {"directory": str(tmp_path / "rec"), "rotate_size_mb": 0.1},
-            # as fast as the acquisition takes frames, and a little more than 6 periods
-            "plant": plant_table(realtime=False, max_samples=n + 400),
+            # as fast as the acquisition takes frames
+            "plant": plant_table(realtime=False, max_samples=sent),
         }
     )
     daemon = Daemon(config)
 
     def stop_once_every_sample_is_in(status: dict, _estimate: dict | None) -> None:
-        if status["acquisition"]["samples"] + status["acquisition"]["lost_samples"] >= n + 400:
+        if status["acquisition"]["samples"] + status["acquisition"]["lost_samples"] >= sent:
             daemon.request_stop()  # the plant is done: no fixed 4 s of waiting on its silence
 
     daemon.on_status = stop_once_every_sample_is_in
